@@ -1,0 +1,172 @@
+//! The adaptation loss L_ad of Eq. 3 and its gradients (the inner loop's objective).
+//!
+//! Paper (Eq. 3): `L_ad = −E_t[ D(x_t) · ‖a_t‖₂ ]` over the buffer Ψ, where `a_t` is the
+//! policy's action-probability vector at step `t`.
+//!
+//! Reference implementation (see `shared/notes/gman-reference-facts.md`):
+//! `L_ad = ‖ Σ_t a_t · (−D(x_t)) ‖₂`, the norm of a 6-vector. Selected with
+//! [`AdaptLossKind::Reference`].
+//!
+//! Both give, per buffer entry, `∂L/∂D(x_t)` (which back-propagates through D's input gradient
+//! into G's parameters θ) and `∂L/∂a_t` (which back-propagates through the softmax into the
+//! adapted policy parameters φ).
+
+use crate::dense::DenseGrads;
+use crate::discriminator::{DiscScratch, Discriminator};
+use crate::error::{check_len, Result};
+use crate::generator::{Generator, GeneratorCache, GeneratorScratch};
+use crate::matrix::dot;
+use crate::NUM_ACTIONS;
+
+/// Which form of Eq. 3 to use.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum AdaptLossKind {
+    /// `−mean_t D(x_t) ‖a_t‖₂` (the paper's Eq. 3). Default.
+    #[default]
+    Paper,
+    /// `‖ Σ_t a_t (−D(x_t)) ‖₂` (the reference implementation).
+    Reference,
+}
+
+/// L_ad from the discriminator scores `d` (`n`) and action probabilities `probs` (`n x 6`).
+/// Writes `∂L/∂d_t` into `dd` (`n`) and `∂L/∂a_t` into `dprobs` (`n x 6`).
+pub fn adapt_loss(
+    kind: AdaptLossKind,
+    d: &[f32],
+    probs: &[f32],
+    dd: &mut [f32],
+    dprobs: &mut [f32],
+) -> Result<f32> {
+    let n = d.len();
+    check_len("adapt.probs", n * NUM_ACTIONS, probs.len())?;
+    check_len("adapt.dd", n, dd.len())?;
+    check_len("adapt.dprobs", n * NUM_ACTIONS, dprobs.len())?;
+    if n == 0 {
+        return Ok(0.0);
+    }
+    match kind {
+        AdaptLossKind::Paper => {
+            let inv = 1.0 / n as f32;
+            let mut loss = 0.0;
+            for t in 0..n {
+                let a = &probs[t * NUM_ACTIONS..(t + 1) * NUM_ACTIONS];
+                let norm = libm::sqrtf(dot(a, a));
+                loss -= d[t] * norm * inv;
+                dd[t] = -norm * inv;
+                let da = &mut dprobs[t * NUM_ACTIONS..(t + 1) * NUM_ACTIONS];
+                let coef = if norm > 0.0 { -d[t] * inv / norm } else { 0.0 };
+                for (o, &ai) in da.iter_mut().zip(a) {
+                    *o = coef * ai;
+                }
+            }
+            Ok(loss)
+        }
+        AdaptLossKind::Reference => {
+            let mut v = [0.0f32; NUM_ACTIONS];
+            for t in 0..n {
+                for (vi, &ai) in v
+                    .iter_mut()
+                    .zip(&probs[t * NUM_ACTIONS..(t + 1) * NUM_ACTIONS])
+                {
+                    *vi -= ai * d[t];
+                }
+            }
+            let norm = libm::sqrtf(dot(&v, &v));
+            let mut u = [0.0f32; NUM_ACTIONS];
+            if norm > 0.0 {
+                for (ui, &vi) in u.iter_mut().zip(&v) {
+                    *ui = vi / norm;
+                }
+            }
+            for t in 0..n {
+                let a = &probs[t * NUM_ACTIONS..(t + 1) * NUM_ACTIONS];
+                dd[t] = -dot(a, &u);
+                for (o, &ui) in dprobs[t * NUM_ACTIONS..(t + 1) * NUM_ACTIONS]
+                    .iter_mut()
+                    .zip(&u)
+                {
+                    *o = -d[t] * ui;
+                }
+            }
+            Ok(norm)
+        }
+    }
+}
+
+/// Everything [`adapt_generator_grad`] writes besides the gradients.
+#[derive(Debug)]
+pub struct AdaptWork<'a> {
+    /// G's activations (reused per buffer entry).
+    pub gen: GeneratorCache<'a>,
+    /// G's backward scratch.
+    pub gen_scratch: GeneratorScratch<'a>,
+    /// D's scratch.
+    pub disc: DiscScratch<'a>,
+    /// `n` floats: receives `D(x_t)`.
+    pub d: &'a mut [f32],
+    /// `n` floats: receives `∂L_ad/∂D(x_t)`.
+    pub dd: &'a mut [f32],
+    /// `F` floats.
+    pub dx: &'a mut [f32],
+}
+
+/// L_ad over a buffer of `n` steps and its gradient with respect to G's parameters θ and to
+/// the action probabilities.
+///
+/// `zs` holds the `n` noise vectors (`n x Z`) the buffer's features were generated with;
+/// the features are regenerated from them (G is unchanged inside one adaptation window, so
+/// this is exact, and it spares the device the `n x H` activations). Entries with
+/// bit-identical noise (always the case with the reference's fixed zero noise) share one
+/// forward/backward pass of G with their `∂L/∂x` summed. `probs` is `n x 6`.
+/// The θ gradient is accumulated into `grads1`/`grads2`; `dprobs` (`n x 6`) is overwritten.
+#[allow(clippy::too_many_arguments)]
+pub fn adapt_generator_grad(
+    kind: AdaptLossKind,
+    gen: &Generator<'_>,
+    disc: &Discriminator<'_>,
+    attr: &[f32],
+    zs: &[f32],
+    probs: &[f32],
+    w: &mut AdaptWork<'_>,
+    grads1: &mut DenseGrads<'_>,
+    grads2: &mut DenseGrads<'_>,
+    dprobs: &mut [f32],
+) -> Result<f32> {
+    let n = w.d.len();
+    let zdim = gen.in_dim().saturating_sub(attr.len());
+    check_len("adapt.zs", n * zdim, zs.len())?;
+    check_len("adapt.dd", n, w.dd.len())?;
+    check_len("adapt.dx", gen.feat(), w.dx.len())?;
+    check_len("adapt.disc_in", gen.feat(), disc.in_dim())?;
+    // Pass 1: D(x_t) for every entry.
+    for t in 0..n {
+        let z = &zs[t * zdim..(t + 1) * zdim];
+        gen.forward(z, attr, &mut w.gen)?;
+        w.d[t] = disc.score(w.gen.x, &mut w.disc)?;
+    }
+    let loss = adapt_loss(kind, w.d, probs, w.dd, dprobs)?;
+    // Pass 2: back-propagate ∂L/∂d_t · ∇D(x_t) through G, grouping identical noise.
+    let mut t = 0;
+    while t < n {
+        let z = &zs[t * zdim..(t + 1) * zdim];
+        let mut coef = w.dd[t];
+        let mut end = t + 1;
+        while end < n && same_bits(&zs[end * zdim..(end + 1) * zdim], z) {
+            coef += w.dd[end];
+            end += 1;
+        }
+        gen.forward(z, attr, &mut w.gen)?;
+        disc.score(w.gen.x, &mut w.disc)?;
+        disc.input_grad(&mut w.disc)?;
+        for (o, &g) in w.dx.iter_mut().zip(w.disc.g.iter()) {
+            *o = coef * g;
+        }
+        gen.backward(z, attr, &w.gen, w.dx, grads1, grads2, &mut w.gen_scratch)?;
+        t = end;
+    }
+    Ok(loss)
+}
+
+fn same_bits(a: &[f32], b: &[f32]) -> bool {
+    a.len() == b.len() && a.iter().zip(b).all(|(x, y)| x.to_bits() == y.to_bits())
+}

@@ -1,0 +1,657 @@
+//! Weight blobs: the versioned, checksummed `postcard` container the core loads weights from.
+//!
+//! # Layout
+//! ```text
+//! blob    = header payload
+//! header  = postcard(Header)          magic "GMAN", version, dims, tensor count,
+//!                                     payload length, CRC-32 of the payload
+//! payload = postcard(Tensor) * count  id, rows, cols, quantisation, data bytes, scale bytes
+//! ```
+//! Tensor data are little-endian f32 (`quant = 0`, `4 * rows * cols` bytes, no scales) or int8
+//! (`quant = 1`, `rows * cols` bytes read as `i8`, plus `rows` little-endian f32 scales).
+//! Vectors (biases) are f32 with `cols = 1`.
+//!
+//! # Zero copy
+//! [`Blob::parse`] borrows from the input (`&'a [u8]`, e.g. a `&'static` blob in flash): each
+//! tensor's bytes are a sub-slice of the blob and [`Blob::matrix`] hands them to the kernels
+//! in place (int8 and f32 alike, through [`crate::matrix::Weights::I8`] and
+//! [`crate::matrix::Weights::F32Le`]). Only what must be mutable (adapted parameters, biases)
+//! is ever copied to RAM, by the caller, with [`Blob::copy_f32`].
+//!
+//! # Validation
+//! Parsing checks, in order: header decoding, magic, version, payload length, CRC-32, then
+//! every record (known id, no duplicates, shape implied by the dims, byte lengths, allowed
+//! quantisation, finite f32 weights, finite non-negative scales). Any failure is a typed
+//! [`BlobError`]; nothing panics, whatever the bytes (a property test and a fuzz target check
+//! this).
+
+use serde::ser::SerializeSeq;
+use serde::{Deserialize, Serialize, Serializer};
+
+use crate::crc32::crc32;
+use crate::error::BlobError;
+use crate::matrix::{MatRef, Scales};
+use crate::preset::Dims;
+use crate::NUM_ACTIONS;
+
+/// The four magic bytes at the start of every blob.
+pub const MAGIC: [u8; 4] = *b"GMAN";
+/// The format version this build writes and reads.
+pub const FORMAT_VERSION: u16 = 1;
+/// Bytes reserved for the header while encoding (the real header is shorter).
+const HEADER_RESERVE: usize = 96;
+
+/// Quantisation of a stored tensor.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Quant {
+    /// Little-endian f32.
+    F32,
+    /// int8 with one f32 scale per row.
+    I8,
+}
+
+impl Quant {
+    fn code(self) -> u8 {
+        match self {
+            Quant::F32 => 0,
+            Quant::I8 => 1,
+        }
+    }
+}
+
+macro_rules! tensor_ids {
+    ($($(#[$m:meta])* $name:ident = $v:expr),* $(,)?) => {
+        /// Identifies a tensor in a blob.
+        #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+        #[repr(u16)]
+        pub enum TensorId { $($(#[$m])* $name = $v),* }
+        impl TensorId {
+            /// Every id, in storage order.
+            pub const ALL: &'static [TensorId] = &[$(TensorId::$name),*];
+            /// The id with raw value `v`.
+            pub fn from_raw(v: u16) -> Option<TensorId> {
+                match v { $($v => Some(TensorId::$name),)* _ => None }
+            }
+            /// The name used by `gman inspect`.
+            pub fn name(self) -> &'static str {
+                match self { $(TensorId::$name => stringify!($name)),* }
+            }
+        }
+    };
+}
+
+tensor_ids! {
+    /// G hidden layer weights, `gen_hidden x (noise + attr)` (noise columns first).
+    GenW1 = 0,
+    /// G hidden bias, `gen_hidden`.
+    GenB1 = 1,
+    /// G output weights, `feat x gen_hidden`.
+    GenW2 = 2,
+    /// G output bias, `feat`.
+    GenB2 = 3,
+    /// D hidden weights, `disc_hidden x feat`.
+    DiscW1 = 4,
+    /// D hidden bias, `disc_hidden`.
+    DiscB1 = 5,
+    /// D output weights, `1 x disc_hidden`.
+    DiscW2 = 6,
+    /// D output bias, `1`.
+    DiscB2 = 7,
+    /// Policy fusion weights, `embed x fuse_in`.
+    FuseW = 8,
+    /// Policy fusion bias, `embed`.
+    FuseB = 9,
+    /// LSTM input weights, `4 lstm_hidden x embed`.
+    LstmWx = 10,
+    /// LSTM recurrent weights, `4 lstm_hidden x lstm_hidden`.
+    LstmWh = 11,
+    /// LSTM bias, `4 lstm_hidden`.
+    LstmB = 12,
+    /// Actor head weights, `6 x lstm_hidden`.
+    ActorW = 13,
+    /// Actor head bias, `6`.
+    ActorB = 14,
+    /// Critic head weights, `1 x lstm_hidden`.
+    CriticW = 15,
+    /// Critic head bias, `1`.
+    CriticB = 16,
+}
+
+/// Number of tensor ids.
+pub const NUM_TENSORS: usize = 17;
+
+impl TensorId {
+    /// `(rows, cols)` of this tensor for the given dims; vectors have `cols == 1`.
+    pub const fn shape(self, d: &Dims) -> (usize, usize) {
+        match self {
+            TensorId::GenW1 => (d.gen_hidden, d.gen_in()),
+            TensorId::GenB1 => (d.gen_hidden, 1),
+            TensorId::GenW2 => (d.feat, d.gen_hidden),
+            TensorId::GenB2 => (d.feat, 1),
+            TensorId::DiscW1 => (d.disc_hidden, d.feat),
+            TensorId::DiscB1 => (d.disc_hidden, 1),
+            TensorId::DiscW2 => (1, d.disc_hidden),
+            TensorId::DiscB2 => (1, 1),
+            TensorId::FuseW => (d.embed, d.fuse_in()),
+            TensorId::FuseB => (d.embed, 1),
+            TensorId::LstmWx => (4 * d.lstm_hidden, d.embed),
+            TensorId::LstmWh => (4 * d.lstm_hidden, d.lstm_hidden),
+            TensorId::LstmB => (4 * d.lstm_hidden, 1),
+            TensorId::ActorW => (NUM_ACTIONS, d.lstm_hidden),
+            TensorId::ActorB => (NUM_ACTIONS, 1),
+            TensorId::CriticW => (1, d.lstm_hidden),
+            TensorId::CriticB => (1, 1),
+        }
+    }
+
+    /// True for bias vectors, which are always stored as f32.
+    pub const fn is_vector(self) -> bool {
+        matches!(
+            self,
+            TensorId::GenB1
+                | TensorId::GenB2
+                | TensorId::DiscB1
+                | TensorId::DiscB2
+                | TensorId::FuseB
+                | TensorId::LstmB
+                | TensorId::ActorB
+                | TensorId::CriticB
+        )
+    }
+
+    /// The tensors of G.
+    pub const GENERATOR: [TensorId; 4] = [
+        TensorId::GenW1,
+        TensorId::GenB1,
+        TensorId::GenW2,
+        TensorId::GenB2,
+    ];
+    /// The tensors of D.
+    pub const DISCRIMINATOR: [TensorId; 4] = [
+        TensorId::DiscW1,
+        TensorId::DiscB1,
+        TensorId::DiscW2,
+        TensorId::DiscB2,
+    ];
+}
+
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq)]
+struct DimsRecord {
+    attr: u32,
+    noise: u32,
+    gen_hidden: u32,
+    feat: u32,
+    disc_hidden: u32,
+    lstm_hidden: u32,
+    embed: u32,
+    ps: u32,
+}
+
+impl DimsRecord {
+    fn from_dims(d: &Dims) -> Self {
+        let c = |v: usize| u32::try_from(v).unwrap_or(u32::MAX);
+        DimsRecord {
+            attr: c(d.attr),
+            noise: c(d.noise),
+            gen_hidden: c(d.gen_hidden),
+            feat: c(d.feat),
+            disc_hidden: c(d.disc_hidden),
+            lstm_hidden: c(d.lstm_hidden),
+            embed: c(d.embed),
+            ps: c(d.ps),
+        }
+    }
+
+    fn to_dims(self) -> Dims {
+        Dims {
+            attr: self.attr as usize,
+            noise: self.noise as usize,
+            gen_hidden: self.gen_hidden as usize,
+            feat: self.feat as usize,
+            disc_hidden: self.disc_hidden as usize,
+            lstm_hidden: self.lstm_hidden as usize,
+            embed: self.embed as usize,
+            ps: self.ps as usize,
+        }
+    }
+}
+
+/// The blob header.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Header {
+    magic: [u8; 4],
+    version: u16,
+    dims: DimsRecord,
+    n_tensors: u16,
+    payload_len: u32,
+    payload_crc: u32,
+}
+
+impl Header {
+    /// The dims the blob was made for.
+    pub fn dims(&self) -> Dims {
+        self.dims.to_dims()
+    }
+    /// Format version.
+    pub fn version(&self) -> u16 {
+        self.version
+    }
+    /// Number of tensors.
+    pub fn n_tensors(&self) -> u16 {
+        self.n_tensors
+    }
+    /// Payload length in bytes.
+    pub fn payload_len(&self) -> u32 {
+        self.payload_len
+    }
+    /// CRC-32 of the payload.
+    pub fn payload_crc(&self) -> u32 {
+        self.payload_crc
+    }
+}
+
+#[derive(Deserialize)]
+struct RecordIn<'a> {
+    id: u16,
+    rows: u32,
+    cols: u32,
+    quant: u8,
+    #[serde(borrow)]
+    data: &'a [u8],
+    #[serde(borrow)]
+    scales: &'a [u8],
+}
+
+/// One tensor of a parsed blob (borrowed from the blob bytes).
+#[derive(Clone, Copy, Debug)]
+pub struct TensorView<'a> {
+    /// Which tensor.
+    pub id: TensorId,
+    /// Rows.
+    pub rows: usize,
+    /// Columns (1 for vectors).
+    pub cols: usize,
+    /// Quantisation.
+    pub quant: Quant,
+    /// Raw data bytes.
+    pub data: &'a [u8],
+    /// Raw scale bytes (int8 only).
+    pub scales: &'a [u8],
+}
+
+impl<'a> TensorView<'a> {
+    /// The tensor as a kernel matrix view, without copying.
+    pub fn matrix(&self) -> Result<MatRef<'a>, BlobError> {
+        let r = match self.quant {
+            Quant::F32 => MatRef::f32_le(self.rows, self.cols, self.data),
+            Quant::I8 => MatRef::i8(self.rows, self.cols, self.data, Scales::Le(self.scales)),
+        };
+        r.map_err(|_| BlobError::BadTensorShape { id: self.id as u16 })
+    }
+
+    /// Bytes of storage (data plus scales).
+    pub fn storage_bytes(&self) -> usize {
+        self.data.len() + self.scales.len()
+    }
+
+    /// Largest absolute quantisation step `scale / 2` of an int8 tensor (0 for f32): the
+    /// bound on the rounding error of each weight.
+    pub fn max_rounding_error(&self) -> f32 {
+        let mut m = 0.0f32;
+        for c in self.scales.chunks_exact(4) {
+            let s = f32::from_le_bytes([c[0], c[1], c[2], c[3]]);
+            if s > m {
+                m = s;
+            }
+        }
+        m * 0.5
+    }
+}
+
+/// A parsed, validated blob.
+#[derive(Clone, Debug)]
+pub struct Blob<'a> {
+    header: Header,
+    tensors: [Option<TensorView<'a>>; NUM_TENSORS],
+    len: usize,
+}
+
+impl<'a> Blob<'a> {
+    /// Parses and validates `bytes` (see the module docs). Borrows, never copies.
+    pub fn parse(bytes: &'a [u8]) -> Result<Blob<'a>, BlobError> {
+        let (header, payload) = match postcard::take_from_bytes::<Header>(bytes) {
+            Ok(v) => v,
+            Err(postcard::Error::DeserializeUnexpectedEnd) => return Err(BlobError::Truncated),
+            Err(_) => {
+                if bytes.len() >= 4 && bytes[..4] != MAGIC {
+                    return Err(BlobError::BadMagic);
+                }
+                return Err(BlobError::Malformed);
+            }
+        };
+        if header.magic != MAGIC {
+            return Err(BlobError::BadMagic);
+        }
+        if header.version != FORMAT_VERSION {
+            return Err(BlobError::UnsupportedVersion {
+                found: header.version,
+            });
+        }
+        if payload.len() < header.payload_len as usize {
+            return Err(BlobError::Truncated);
+        }
+        if payload.len() != header.payload_len as usize {
+            return Err(BlobError::PayloadLength {
+                expected: header.payload_len,
+                actual: payload.len(),
+            });
+        }
+        let crc = crc32(payload);
+        if crc != header.payload_crc {
+            return Err(BlobError::ChecksumMismatch {
+                expected: header.payload_crc,
+                actual: crc,
+            });
+        }
+        let dims = header.dims.to_dims();
+        let mut tensors: [Option<TensorView<'a>>; NUM_TENSORS] = [None; NUM_TENSORS];
+        let mut rest = payload;
+        for _ in 0..header.n_tensors {
+            let (rec, r) = match postcard::take_from_bytes::<RecordIn<'a>>(rest) {
+                Ok(v) => v,
+                Err(postcard::Error::DeserializeUnexpectedEnd) => return Err(BlobError::Truncated),
+                Err(_) => return Err(BlobError::Malformed),
+            };
+            rest = r;
+            let view = validate_record(&rec, &dims)?;
+            let slot = &mut tensors[view.id as usize];
+            if slot.is_some() {
+                return Err(BlobError::DuplicateTensor { id: rec.id });
+            }
+            *slot = Some(view);
+        }
+        if !rest.is_empty() {
+            return Err(BlobError::Malformed);
+        }
+        Ok(Blob {
+            header,
+            tensors,
+            len: bytes.len(),
+        })
+    }
+
+    /// The header.
+    pub fn header(&self) -> &Header {
+        &self.header
+    }
+
+    /// The dims the blob was made for.
+    pub fn dims(&self) -> Dims {
+        self.header.dims.to_dims()
+    }
+
+    /// Total size of the blob in bytes.
+    pub fn len(&self) -> usize {
+        self.len
+    }
+
+    /// True for an empty blob (never the case for a parsed one).
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+
+    /// Checks that the blob was made for `expected`, naming the first differing field.
+    pub fn check_dims(&self, expected: &Dims) -> Result<(), BlobError> {
+        let e = DimsRecord::from_dims(expected);
+        let f = self.header.dims;
+        for (field, a, b) in [
+            ("attr", e.attr, f.attr),
+            ("noise", e.noise, f.noise),
+            ("gen_hidden", e.gen_hidden, f.gen_hidden),
+            ("feat", e.feat, f.feat),
+            ("disc_hidden", e.disc_hidden, f.disc_hidden),
+            ("lstm_hidden", e.lstm_hidden, f.lstm_hidden),
+            ("embed", e.embed, f.embed),
+            ("ps", e.ps, f.ps),
+        ] {
+            if a != b {
+                return Err(BlobError::DimensionMismatch {
+                    field,
+                    expected: a,
+                    found: b,
+                });
+            }
+        }
+        Ok(())
+    }
+
+    /// The tensor `id`, or [`BlobError::MissingTensor`].
+    pub fn tensor(&self, id: TensorId) -> Result<TensorView<'a>, BlobError> {
+        self.tensors[id as usize].ok_or(BlobError::MissingTensor { id: id as u16 })
+    }
+
+    /// True when the blob holds tensor `id`.
+    pub fn has(&self, id: TensorId) -> bool {
+        self.tensors[id as usize].is_some()
+    }
+
+    /// Tensor `id` as a zero-copy matrix view.
+    pub fn matrix(&self, id: TensorId) -> Result<MatRef<'a>, BlobError> {
+        self.tensor(id)?.matrix()
+    }
+
+    /// All tensors present, in id order.
+    pub fn tensors(&self) -> impl Iterator<Item = TensorView<'a>> + '_ {
+        self.tensors.iter().filter_map(|t| *t)
+    }
+
+    /// Copies tensor `id` into `out` as f32 (dequantising int8). `out.len()` must be
+    /// `rows * cols`.
+    pub fn copy_f32(&self, id: TensorId, out: &mut [f32]) -> Result<(), BlobError> {
+        let t = self.tensor(id)?;
+        if out.len() != t.rows * t.cols {
+            return Err(BlobError::BadTensorShape { id: id as u16 });
+        }
+        let m = t.matrix()?;
+        for (i, o) in out.iter_mut().enumerate() {
+            *o = m.get(i / t.cols.max(1), i % t.cols.max(1));
+        }
+        Ok(())
+    }
+}
+
+fn validate_record<'a>(rec: &RecordIn<'a>, dims: &Dims) -> Result<TensorView<'a>, BlobError> {
+    let id = TensorId::from_raw(rec.id).ok_or(BlobError::UnknownTensor { id: rec.id })?;
+    let (rows, cols) = id.shape(dims);
+    if rec.rows as usize != rows || rec.cols as usize != cols {
+        return Err(BlobError::BadTensorShape { id: rec.id });
+    }
+    let n = rows
+        .checked_mul(cols)
+        .ok_or(BlobError::BadTensorShape { id: rec.id })?;
+    let quant = match rec.quant {
+        0 => Quant::F32,
+        1 if !id.is_vector() => Quant::I8,
+        _ => return Err(BlobError::BadQuantization { id: rec.id }),
+    };
+    match quant {
+        Quant::F32 => {
+            if rec.data.len() != n.saturating_mul(4) || !rec.scales.is_empty() {
+                return Err(BlobError::BadTensorShape { id: rec.id });
+            }
+            for c in rec.data.chunks_exact(4) {
+                if !f32::from_le_bytes([c[0], c[1], c[2], c[3]]).is_finite() {
+                    return Err(BlobError::NonFiniteWeight { id: rec.id });
+                }
+            }
+        }
+        Quant::I8 => {
+            if rec.data.len() != n || rec.scales.len() != rows.saturating_mul(4) {
+                return Err(BlobError::BadTensorShape { id: rec.id });
+            }
+            for c in rec.scales.chunks_exact(4) {
+                let s = f32::from_le_bytes([c[0], c[1], c[2], c[3]]);
+                if !s.is_finite() || s < 0.0 {
+                    return Err(BlobError::NonFiniteScale { id: rec.id });
+                }
+            }
+        }
+    }
+    Ok(TensorView {
+        id,
+        rows,
+        cols,
+        quant,
+        data: rec.data,
+        scales: rec.scales,
+    })
+}
+
+/// The values of a tensor to encode.
+#[derive(Clone, Copy, Debug)]
+pub enum TensorData<'a> {
+    /// f32 values, row-major.
+    F32(&'a [f32]),
+    /// int8 values (bytes holding `i8`) and one scale per row.
+    I8 {
+        /// Quantised values.
+        q: &'a [u8],
+        /// Row scales.
+        scales: &'a [f32],
+    },
+}
+
+/// A tensor to encode into a blob.
+#[derive(Clone, Copy, Debug)]
+pub struct TensorSpec<'a> {
+    /// Which tensor.
+    pub id: TensorId,
+    /// Its values.
+    pub data: TensorData<'a>,
+}
+
+struct F32Bytes<'a>(&'a [f32]);
+impl Serialize for F32Bytes<'_> {
+    fn serialize<S: Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        // Same wire format as postcard's `serialize_bytes`: varint length + raw bytes.
+        let mut seq = s.serialize_seq(Some(self.0.len() * 4))?;
+        for v in self.0 {
+            for b in v.to_le_bytes() {
+                seq.serialize_element(&b)?;
+            }
+        }
+        seq.end()
+    }
+}
+
+struct RawBytes<'a>(&'a [u8]);
+impl Serialize for RawBytes<'_> {
+    fn serialize<S: Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        s.serialize_bytes(self.0)
+    }
+}
+
+#[derive(Serialize)]
+struct RecordOut<'a> {
+    id: u16,
+    rows: u32,
+    cols: u32,
+    quant: u8,
+    data: DataOut<'a>,
+    scales: F32Bytes<'a>,
+}
+
+enum DataOut<'a> {
+    F32(F32Bytes<'a>),
+    Raw(RawBytes<'a>),
+}
+impl Serialize for DataOut<'_> {
+    fn serialize<S: Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        match self {
+            DataOut::F32(v) => v.serialize(s),
+            DataOut::Raw(v) => v.serialize(s),
+        }
+    }
+}
+
+/// Exact number of bytes [`encode`] writes for these tensors (an upper bound on the header).
+pub fn encoded_len_bound(tensors: &[TensorSpec<'_>]) -> usize {
+    let mut n = HEADER_RESERVE;
+    for t in tensors {
+        n += 32
+            + match t.data {
+                TensorData::F32(v) => 4 * v.len(),
+                TensorData::I8 { q, scales } => q.len() + 4 * scales.len(),
+            };
+    }
+    n
+}
+
+/// Encodes a blob for `dims` holding `tensors` into `out`; returns the number of bytes
+/// written. Checks shapes, finiteness and quantisation like the parser does, so what it
+/// writes always parses.
+pub fn encode(dims: &Dims, tensors: &[TensorSpec<'_>], out: &mut [u8]) -> Result<usize, BlobError> {
+    if out.len() < HEADER_RESERVE {
+        return Err(BlobError::BufferTooSmall);
+    }
+    let mut seen = [false; NUM_TENSORS];
+    let mut pos = HEADER_RESERVE;
+    for t in tensors {
+        let raw = t.id as u16;
+        if core::mem::replace(&mut seen[t.id as usize], true) {
+            return Err(BlobError::DuplicateTensor { id: raw });
+        }
+        let (rows, cols) = t.id.shape(dims);
+        let (quant, data, scales) = match t.data {
+            TensorData::F32(v) => {
+                if v.len() != rows * cols {
+                    return Err(BlobError::BadTensorShape { id: raw });
+                }
+                if v.iter().any(|x| !x.is_finite()) {
+                    return Err(BlobError::NonFiniteWeight { id: raw });
+                }
+                (Quant::F32, DataOut::F32(F32Bytes(v)), F32Bytes(&[]))
+            }
+            TensorData::I8 { q, scales } => {
+                if t.id.is_vector() {
+                    return Err(BlobError::BadQuantization { id: raw });
+                }
+                if q.len() != rows * cols || scales.len() != rows {
+                    return Err(BlobError::BadTensorShape { id: raw });
+                }
+                if scales.iter().any(|s| !s.is_finite() || *s < 0.0) {
+                    return Err(BlobError::NonFiniteScale { id: raw });
+                }
+                (Quant::I8, DataOut::Raw(RawBytes(q)), F32Bytes(scales))
+            }
+        };
+        let rec = RecordOut {
+            id: raw,
+            rows: rows as u32,
+            cols: cols as u32,
+            quant: quant.code(),
+            data,
+            scales,
+        };
+        let n = postcard::to_slice(&rec, &mut out[pos..])
+            .map_err(|_| BlobError::BufferTooSmall)?
+            .len();
+        pos += n;
+    }
+    let payload_len = pos - HEADER_RESERVE;
+    let header = Header {
+        magic: MAGIC,
+        version: FORMAT_VERSION,
+        dims: DimsRecord::from_dims(dims),
+        n_tensors: tensors.len() as u16,
+        payload_len: payload_len as u32,
+        payload_crc: crc32(&out[HEADER_RESERVE..pos]),
+    };
+    let mut hbuf = [0u8; HEADER_RESERVE];
+    let hlen = postcard::to_slice(&header, &mut hbuf)
+        .map_err(|_| BlobError::BufferTooSmall)?
+        .len();
+    out.copy_within(HEADER_RESERVE..pos, hlen);
+    out[..hlen].copy_from_slice(&hbuf[..hlen]);
+    Ok(hlen + payload_len)
+}

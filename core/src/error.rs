@@ -1,0 +1,211 @@
+//! Typed errors of the core.
+//!
+//! Every fallible operation returns one of these; nothing in the crate panics on bad input.
+//! The variants are small `Copy` values so they can travel through a robot controller's
+//! error handling without allocation.
+
+use core::fmt;
+
+/// Which buffer or tensor had the wrong length.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ShapeError {
+    /// A short, static name of the argument (e.g. `"linear.x"`).
+    pub what: &'static str,
+    /// The length the operation needed.
+    pub expected: usize,
+    /// The length it was given.
+    pub actual: usize,
+}
+
+/// Every error the core can return.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Error {
+    /// A caller-provided buffer or a tensor has the wrong length.
+    Shape(ShapeError),
+    /// An input (observation, attribute vector, PS vector) holds NaN or infinity.
+    NonFiniteInput {
+        /// Which input.
+        what: &'static str,
+    },
+    /// A weight blob could not be used; see [`BlobError`].
+    Blob(BlobError),
+    /// A configuration value is out of range (e.g. a zero buffer capacity).
+    Config {
+        /// What is wrong, in a few words.
+        what: &'static str,
+    },
+}
+
+/// Why a weight blob was rejected.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum BlobError {
+    /// The blob ended before the header or a tensor record was complete.
+    Truncated,
+    /// The first bytes are not the GMAN magic.
+    BadMagic,
+    /// The format version is not one this build reads.
+    UnsupportedVersion {
+        /// The version found in the blob.
+        found: u16,
+    },
+    /// The header's payload length does not match the bytes present.
+    PayloadLength {
+        /// Length announced by the header.
+        expected: u32,
+        /// Bytes actually following the header.
+        actual: usize,
+    },
+    /// The CRC-32 of the payload does not match the header.
+    ChecksumMismatch {
+        /// Checksum announced by the header.
+        expected: u32,
+        /// Checksum of the payload as found.
+        actual: u32,
+    },
+    /// The blob was made for other network sizes than the model loading it.
+    DimensionMismatch {
+        /// Name of the first differing dimension.
+        field: &'static str,
+        /// The model's value.
+        expected: u32,
+        /// The blob's value.
+        found: u32,
+    },
+    /// A tensor id this build does not know.
+    UnknownTensor {
+        /// The raw id.
+        id: u16,
+    },
+    /// The same tensor appears twice.
+    DuplicateTensor {
+        /// The raw id.
+        id: u16,
+    },
+    /// A tensor the model needs is absent.
+    MissingTensor {
+        /// The raw id.
+        id: u16,
+    },
+    /// A tensor's rows/cols differ from what the dimensions imply, or its byte length
+    /// does not match rows x cols for its quantisation.
+    BadTensorShape {
+        /// The raw id.
+        id: u16,
+    },
+    /// A quantisation code that is unknown, or not allowed for this tensor (biases are f32).
+    BadQuantization {
+        /// The raw id.
+        id: u16,
+    },
+    /// An int8 row scale is NaN, infinite or negative.
+    NonFiniteScale {
+        /// The raw id.
+        id: u16,
+    },
+    /// An f32 weight is NaN or infinite.
+    NonFiniteWeight {
+        /// The raw id.
+        id: u16,
+    },
+    /// The postcard encoding itself is malformed (bad varint, trailing bytes, ...).
+    Malformed,
+    /// The output buffer given to the encoder is too small.
+    BufferTooSmall,
+}
+
+impl From<ShapeError> for Error {
+    fn from(e: ShapeError) -> Self {
+        Error::Shape(e)
+    }
+}
+
+impl From<BlobError> for Error {
+    fn from(e: BlobError) -> Self {
+        Error::Blob(e)
+    }
+}
+
+impl fmt::Display for ShapeError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(
+            f,
+            "{}: expected length {}, got {}",
+            self.what, self.expected, self.actual
+        )
+    }
+}
+
+impl fmt::Display for BlobError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            BlobError::Truncated => write!(f, "blob is truncated"),
+            BlobError::BadMagic => write!(f, "not a GMAN weight blob (bad magic)"),
+            BlobError::UnsupportedVersion { found } => {
+                write!(f, "unsupported blob format version {found}")
+            }
+            BlobError::PayloadLength { expected, actual } => write!(
+                f,
+                "payload length mismatch: header says {expected} bytes, found {actual}"
+            ),
+            BlobError::ChecksumMismatch { expected, actual } => write!(
+                f,
+                "payload checksum mismatch: header {expected:#010x}, computed {actual:#010x}"
+            ),
+            BlobError::DimensionMismatch {
+                field,
+                expected,
+                found,
+            } => write!(
+                f,
+                "dimension `{field}` mismatch: model expects {expected}, blob has {found}"
+            ),
+            BlobError::UnknownTensor { id } => write!(f, "unknown tensor id {id}"),
+            BlobError::DuplicateTensor { id } => write!(f, "tensor id {id} appears twice"),
+            BlobError::MissingTensor { id } => write!(f, "tensor id {id} is missing"),
+            BlobError::BadTensorShape { id } => write!(f, "tensor id {id} has a wrong shape"),
+            BlobError::BadQuantization { id } => {
+                write!(f, "tensor id {id} has a bad or disallowed quantisation")
+            }
+            BlobError::NonFiniteScale { id } => {
+                write!(f, "tensor id {id} has a NaN, infinite or negative scale")
+            }
+            BlobError::NonFiniteWeight { id } => {
+                write!(f, "tensor id {id} has a NaN or infinite weight")
+            }
+            BlobError::Malformed => write!(f, "malformed postcard encoding"),
+            BlobError::BufferTooSmall => write!(f, "output buffer too small"),
+        }
+    }
+}
+
+impl fmt::Display for Error {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Error::Shape(e) => write!(f, "shape error: {e}"),
+            Error::NonFiniteInput { what } => write!(f, "non-finite value in input `{what}`"),
+            Error::Blob(e) => write!(f, "weight blob error: {e}"),
+            Error::Config { what } => write!(f, "configuration error: {what}"),
+        }
+    }
+}
+
+impl core::error::Error for ShapeError {}
+impl core::error::Error for BlobError {}
+impl core::error::Error for Error {}
+
+/// Result alias of the crate.
+pub type Result<T> = core::result::Result<T, Error>;
+
+/// Returns a [`ShapeError`] unless `actual == expected`.
+#[inline]
+pub(crate) fn check_len(what: &'static str, expected: usize, actual: usize) -> Result<()> {
+    if expected == actual {
+        Ok(())
+    } else {
+        Err(Error::Shape(ShapeError {
+            what,
+            expected,
+            actual,
+        }))
+    }
+}

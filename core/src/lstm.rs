@@ -1,0 +1,175 @@
+//! The LSTM cell of the navigation policy, forward and backward.
+//!
+//! Gate layout follows PyTorch's `LSTMCell`: the `4H` gate rows are `[i, f, g, o]`,
+//!
+//! ```text
+//! [i f g o]_pre = Wx x + Wh h_prev + b
+//! i = σ(i_pre)  f = σ(f_pre)  g = tanh(g_pre)  o = σ(o_pre)
+//! c = f ⊙ c_prev + i ⊙ g        h = o ⊙ tanh(c)
+//! ```
+//!
+//! The forward pass keeps the post-activation gates and `c` in caller buffers; they are all
+//! the backward pass (backpropagation through time on the host trainer) needs.
+
+use crate::activation::{sigmoid, tanh};
+
+use crate::error::{check_len, Result};
+use crate::matrix::{outer_acc, seg_len, MatRef};
+
+/// A read-only view of an LSTM cell's parameters.
+#[derive(Clone, Copy, Debug)]
+pub struct Lstm<'a> {
+    /// Input weights, `4H x in`.
+    pub wx: MatRef<'a>,
+    /// Recurrent weights, `4H x H`.
+    pub wh: MatRef<'a>,
+    /// Bias, `4H` (PyTorch's `b_ih + b_hh` folded into one).
+    pub b: &'a [f32],
+}
+
+/// Gradients of an LSTM cell's parameters, accumulated with `+=`.
+#[derive(Debug)]
+pub struct LstmGrads<'g> {
+    /// dL/dWx, `4H x in`.
+    pub wx: &'g mut [f32],
+    /// dL/dWh, `4H x H`.
+    pub wh: &'g mut [f32],
+    /// dL/db, `4H`.
+    pub b: &'g mut [f32],
+}
+
+impl<'a> Lstm<'a> {
+    /// Hidden size `H`.
+    #[inline]
+    pub fn hidden(&self) -> usize {
+        self.wh.cols()
+    }
+
+    /// Input size.
+    #[inline]
+    pub fn in_dim(&self) -> usize {
+        self.wx.cols()
+    }
+
+    /// Checks the shapes of the three tensors against each other.
+    pub fn validate(&self) -> Result<()> {
+        let h = self.hidden();
+        check_len("lstm.wh.rows", 4 * h, self.wh.rows())?;
+        check_len("lstm.wx.rows", 4 * h, self.wx.rows())?;
+        check_len("lstm.b", 4 * h, self.b.len())
+    }
+
+    /// One step. `gates` (`4H`) receives the post-activation `[i f g o]`; `c` and `h` (`H`)
+    /// receive the new cell and hidden state. `x` is the (segmented) input.
+    pub fn forward(
+        &self,
+        x: &[&[f32]],
+        h_prev: &[f32],
+        c_prev: &[f32],
+        gates: &mut [f32],
+        c: &mut [f32],
+        h: &mut [f32],
+    ) -> Result<()> {
+        self.validate()?;
+        let hd = self.hidden();
+        check_len("lstm.h_prev", hd, h_prev.len())?;
+        check_len("lstm.c_prev", hd, c_prev.len())?;
+        check_len("lstm.gates", 4 * hd, gates.len())?;
+        check_len("lstm.c", hd, c.len())?;
+        check_len("lstm.h", hd, h.len())?;
+        gates.copy_from_slice(self.b);
+        self.wx.matvec_acc(x, gates)?;
+        self.wh.matvec_acc(&[h_prev], gates)?;
+        let (gi, rest) = gates.split_at_mut(hd);
+        let (gf, rest) = rest.split_at_mut(hd);
+        let (gg, go) = rest.split_at_mut(hd);
+        for j in 0..hd {
+            let i = sigmoid(gi[j]);
+            let f = sigmoid(gf[j]);
+            let g = tanh(gg[j]);
+            let o = sigmoid(go[j]);
+            gi[j] = i;
+            gf[j] = f;
+            gg[j] = g;
+            go[j] = o;
+            let cj = f * c_prev[j] + i * g;
+            c[j] = cj;
+            h[j] = o * tanh(cj);
+        }
+        Ok(())
+    }
+
+    /// Backward through one step.
+    ///
+    /// Inputs: the step's input `x`, `h_prev`, `c_prev`, and the `gates` and `c` its forward
+    /// pass produced; `dh` = dL/dh and `dc` = dL/dc arriving from later (`dc` from the next
+    /// step's cell, zero at the last step). Outputs: `dh_prev` and `dc_prev` are *overwritten*;
+    /// `dx` (if given) is accumulated; parameter gradients are accumulated into `grads` (if
+    /// given). `dgates` (`4H`) is scratch that holds the pre-activation gate gradients.
+    #[allow(clippy::too_many_arguments)]
+    pub fn backward(
+        &self,
+        x: &[&[f32]],
+        h_prev: &[f32],
+        c_prev: &[f32],
+        gates: &[f32],
+        c: &[f32],
+        dh: &[f32],
+        dc: &[f32],
+        dh_prev: &mut [f32],
+        dc_prev: &mut [f32],
+        dx: Option<&mut [&mut [f32]]>,
+        grads: Option<LstmGrads<'_>>,
+        dgates: &mut [f32],
+    ) -> Result<()> {
+        self.validate()?;
+        let hd = self.hidden();
+        check_len("lstm.x", self.in_dim(), seg_len(x))?;
+        for (what, s) in [
+            ("lstm.h_prev", h_prev),
+            ("lstm.c_prev", c_prev),
+            ("lstm.c", c),
+            ("lstm.dh", dh),
+            ("lstm.dc", dc),
+        ] {
+            check_len(what, hd, s.len())?;
+        }
+        check_len("lstm.dh_prev", hd, dh_prev.len())?;
+        check_len("lstm.dc_prev", hd, dc_prev.len())?;
+        check_len("lstm.gates", 4 * hd, gates.len())?;
+        check_len("lstm.dgates", 4 * hd, dgates.len())?;
+        for j in 0..hd {
+            let (i, f, g, o) = (
+                gates[j],
+                gates[hd + j],
+                gates[2 * hd + j],
+                gates[3 * hd + j],
+            );
+            let tc = tanh(c[j]);
+            let d_o = dh[j] * tc;
+            let dct = dc[j] + dh[j] * o * (1.0 - tc * tc);
+            let d_i = dct * g;
+            let d_g = dct * i;
+            let d_f = dct * c_prev[j];
+            dc_prev[j] = dct * f;
+            dgates[j] = d_i * i * (1.0 - i);
+            dgates[hd + j] = d_f * f * (1.0 - f);
+            dgates[2 * hd + j] = d_g * (1.0 - g * g);
+            dgates[3 * hd + j] = d_o * o * (1.0 - o);
+        }
+        if let Some(gr) = grads {
+            outer_acc(gr.wx, dgates, x, 1.0)?;
+            outer_acc(gr.wh, dgates, &[h_prev], 1.0)?;
+            check_len("lstm.db", 4 * hd, gr.b.len())?;
+            for (b, &d) in gr.b.iter_mut().zip(dgates.iter()) {
+                *b += d;
+            }
+        }
+        dh_prev.fill(0.0);
+        self.wh.matvec_t_acc(dgates, &mut [dh_prev])?;
+        if let Some(dx) = dx {
+            self.wx.matvec_t_acc(dgates, dx)?;
+        }
+        Ok(())
+    }
+}

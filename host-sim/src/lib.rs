@@ -1,0 +1,3 @@
+//! Host side of gman-rs.
+#![warn(missing_docs)]
+pub mod sim;

@@ -1,0 +1,245 @@
+//! Raw data files of the GMAN benchmark directory (`attributes.json`, `scenes/<split>/*.json`,
+//! `episodes/<split>/*.jsonl`), parsed with serde. Every error names the offending file.
+//!
+//! These are the files' contents as written; [`crate::sim::world::World`] turns them into
+//! simulator scenes and episodes.
+
+use std::collections::BTreeMap;
+use std::fs;
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Context, Result};
+use gman_core::ATTR_DIM;
+use serde::Deserialize;
+
+use super::types::Split;
+
+/// Contents of `attributes.json`.
+#[derive(Clone, Debug, Deserialize)]
+pub struct RawAttributes {
+    /// Width of every attribute vector (must equal [`ATTR_DIM`]).
+    pub dim: usize,
+    /// Attribute vector of every object category, by AI2THOR category name.
+    pub categories: BTreeMap<String, Vec<f32>>,
+    /// The official category split.
+    pub split: RawSplit,
+}
+
+/// The `split` object of `attributes.json`.
+#[derive(Clone, Debug, Deserialize)]
+pub struct RawSplit {
+    /// Training targets per room type (room name -> categories).
+    pub train_targets_by_room: BTreeMap<String, Vec<String>>,
+    /// Seen target categories of the val/test episodes.
+    pub seen: Vec<String>,
+    /// Unseen target categories; never present in training scenes.
+    pub unseen: Vec<String>,
+    /// Evaluation targets per room type and kind.
+    #[serde(default)]
+    pub by_room: BTreeMap<String, RawRoomTargets>,
+}
+
+/// Evaluation targets of one room type.
+#[derive(Clone, Debug, Default, Deserialize)]
+pub struct RawRoomTargets {
+    /// Seen targets.
+    #[serde(default)]
+    pub seen: Vec<String>,
+    /// Unseen targets.
+    #[serde(default)]
+    pub unseen: Vec<String>,
+}
+
+/// One object instance with a real position.
+#[derive(Clone, Debug, Deserialize)]
+pub struct RawObject {
+    /// AI2THOR object id `Type|x|y|z`.
+    pub id: String,
+    /// Category name.
+    #[serde(rename = "type")]
+    pub category: String,
+    /// Position x (metres).
+    pub x: f32,
+    /// Height (metres).
+    pub y: f32,
+    /// Position z (metres).
+    pub z: f32,
+}
+
+/// Contents of one `scenes/<split>/FloorPlanN.json`.
+#[derive(Clone, Debug, Deserialize)]
+pub struct RawScene {
+    /// Floor plan name, e.g. `FloorPlan22`.
+    pub scene: String,
+    /// Room type name.
+    pub room: String,
+    /// Grid step in metres (0.25).
+    pub grid_size: f32,
+    /// Reachable positions `[x, z]`.
+    pub reachable: Vec<[f32; 2]>,
+    /// Extra reachable positions (val: every episode start).
+    #[serde(default)]
+    pub reachable_sample: Vec<[f32; 2]>,
+    /// Categories present in the scene.
+    pub object_types: Vec<String>,
+    /// Instances with real positions (openable objects).
+    #[serde(default)]
+    pub known_objects: Vec<RawObject>,
+    /// Goal instances of the official episodes (val/test only).
+    #[serde(default)]
+    pub objects: Vec<RawObject>,
+}
+
+/// Start pose of an official episode.
+#[derive(Clone, Debug, Deserialize)]
+pub struct RawStart {
+    /// x (metres).
+    pub x: f32,
+    /// Agent height (unused).
+    #[serde(default)]
+    pub y: f32,
+    /// z (metres).
+    pub z: f32,
+    /// Heading in degrees (multiple of 45).
+    pub rotation: f32,
+    /// Camera horizon in degrees (0 or 30).
+    pub horizon: f32,
+}
+
+/// One line of `episodes/<split>/<room>_<kind>.jsonl`.
+#[derive(Clone, Debug, Deserialize)]
+pub struct RawEpisode {
+    /// Floor plan name.
+    pub scene: String,
+    /// Room type name.
+    pub room: String,
+    /// `seen` or `unseen`.
+    pub target_kind: String,
+    /// Target category name.
+    pub target: String,
+    /// AI2THOR ids of the goal instances named by the episode.
+    pub target_ids: Vec<String>,
+    /// Start pose.
+    pub start: RawStart,
+}
+
+fn read_text(path: &Path) -> Result<String> {
+    fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))
+}
+
+/// Reads and checks `DIR/attributes.json`.
+pub fn load_attributes(dir: &Path) -> Result<RawAttributes> {
+    let path = dir.join("attributes.json");
+    if !dir.is_dir() {
+        bail!("data directory {} does not exist", dir.display());
+    }
+    let text = read_text(&path)?;
+    let raw: RawAttributes = serde_json::from_str(&text)
+        .with_context(|| format!("malformed JSON in {}", path.display()))?;
+    if raw.dim != ATTR_DIM {
+        bail!("{}: dim is {}, expected {ATTR_DIM}", path.display(), raw.dim);
+    }
+    for (name, v) in &raw.categories {
+        if v.len() != ATTR_DIM {
+            bail!("{}: category {name} has {} attributes, expected {ATTR_DIM}", path.display(), v.len());
+        }
+        if v.iter().any(|x| !x.is_finite()) {
+            bail!("{}: category {name} has a non-finite attribute", path.display());
+        }
+    }
+    Ok(raw)
+}
+
+/// Directory `DIR/scenes/<split>`.
+pub fn scenes_dir(dir: &Path, split: Split) -> PathBuf {
+    dir.join("scenes").join(split.name())
+}
+
+/// Directory `DIR/episodes/<split>`.
+pub fn episodes_dir(dir: &Path, split: Split) -> PathBuf {
+    dir.join("episodes").join(split.name())
+}
+
+/// Reads every `*.json` of `DIR/scenes/<split>`, sorted by file name. Errors if the directory
+/// is missing or holds no scene.
+pub fn load_scenes(dir: &Path, split: Split) -> Result<Vec<RawScene>> {
+    let sdir = scenes_dir(dir, split);
+    if !sdir.is_dir() {
+        bail!(
+            "split {}: scene directory {} does not exist (expected layout: attributes.json, scenes/<split>/, episodes/<split>/)",
+            split.name(),
+            sdir.display()
+        );
+    }
+    let mut files: Vec<PathBuf> = fs::read_dir(&sdir)
+        .with_context(|| format!("cannot list {}", sdir.display()))?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.extension().is_some_and(|e| e == "json"))
+        .collect();
+    files.sort();
+    if files.is_empty() {
+        bail!("split {}: no scene files (*.json) in {}", split.name(), sdir.display());
+    }
+    files
+        .iter()
+        .map(|p| {
+            let text = read_text(p)?;
+            let s: RawScene = serde_json::from_str(&text)
+                .with_context(|| format!("malformed scene JSON in {}", p.display()))?;
+            if !(s.grid_size > 0.0) {
+                bail!("{}: grid_size must be positive", p.display());
+            }
+            if s.reachable.is_empty() && s.reachable_sample.is_empty() {
+                bail!("{}: scene has no reachable positions", p.display());
+            }
+            Ok(s)
+        })
+        .collect()
+}
+
+/// One parsed episode line with the file and line it came from.
+#[derive(Clone, Debug)]
+pub struct RawEpisodeLine {
+    /// The episode.
+    pub episode: RawEpisode,
+    /// File it was read from.
+    pub file: PathBuf,
+    /// 1-based line number.
+    pub line: usize,
+}
+
+/// Reads every `*.jsonl` of `DIR/episodes/<split>` in sorted file order, keeping at most
+/// `per_file` episodes of each file (in file order).
+pub fn load_raw_episodes(dir: &Path, split: Split, per_file: Option<usize>) -> Result<Vec<RawEpisodeLine>> {
+    let edir = episodes_dir(dir, split);
+    if !edir.is_dir() {
+        bail!("split {}: episode directory {} does not exist", split.name(), edir.display());
+    }
+    let mut files: Vec<PathBuf> = fs::read_dir(&edir)
+        .with_context(|| format!("cannot list {}", edir.display()))?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.extension().is_some_and(|e| e == "jsonl"))
+        .collect();
+    files.sort();
+    if files.is_empty() {
+        bail!("split {}: no episode files (*.jsonl) in {}", split.name(), edir.display());
+    }
+    let mut out = Vec::new();
+    for p in files {
+        let text = read_text(&p)?;
+        let mut n = 0usize;
+        for (i, line) in text.lines().enumerate() {
+            if line.trim().is_empty() {
+                continue;
+            }
+            if per_file.is_some_and(|m| n >= m) {
+                break;
+            }
+            let episode: RawEpisode = serde_json::from_str(line)
+                .with_context(|| format!("malformed episode JSON in {} line {}", p.display(), i + 1))?;
+            out.push(RawEpisodeLine { episode, file: p.clone(), line: i + 1 });
+            n += 1;
+        }
+    }
+    Ok(out)
+}

@@ -1,0 +1,174 @@
+//! Geometry of the discrete world: headings, moves, field of view, line of sight, and how
+//! much of a view an object fills.
+//!
+//! Conventions (AI2THOR): the floor is the x-z plane, y is up; heading 0 faces +z and heading 2
+//! (90 degrees) faces +x; RotateRight adds 45 degrees. The camera is [`CAMERA_HEIGHT`] above
+//! the floor; horizon 1 tilts it 30 degrees down.
+
+use gman_core::Action;
+
+use super::types::{CategoryProps, NUM_HEADINGS};
+
+/// Grid step (metres).
+pub const GRID: f32 = 0.25;
+/// Camera height above the floor (AI2THOR agent centre 0.901 m + camera offset 0.675 m).
+pub const CAMERA_HEIGHT: f32 = 1.576;
+/// Field of view, horizontal and vertical (degrees); square frames as in the reference.
+pub const FOV_DEG: f32 = 100.0;
+/// Camera pitch of horizon 1 (degrees down).
+pub const HORIZON_STEP_DEG: f32 = 30.0;
+/// Visibility distance that counts for success (metres, measured to the object's footprint).
+pub const VISIBILITY_DISTANCE: f32 = 1.0;
+/// Objects farther than this (footprint distance) do not appear in the view's embedding.
+pub const FEATURE_RANGE: f32 = 5.0;
+/// Minimum apparent weight for an object to count as "in view" (PS target, features).
+pub const IN_VIEW_MIN_WEIGHT: f32 = 0.05;
+/// Sampling step of the line-of-sight test (metres).
+const LOS_STEP: f32 = 0.05;
+/// A stretch of blocked floor shorter than this on the ray is ignored (corner clipping).
+const LOS_TOLERANCE: f32 = 0.3;
+
+/// Grid step (dx, dz) of MoveAhead for a heading (diagonal headings move diagonally).
+pub fn heading_step(heading: u8) -> (i32, i32) {
+    const STEPS: [(i32, i32); NUM_HEADINGS] = [(0, 1), (1, 1), (1, 0), (1, -1), (0, -1), (-1, -1), (-1, 0), (-1, 1)];
+    STEPS[heading as usize % NUM_HEADINGS]
+}
+
+/// Unit vector (x, z) of a heading.
+pub fn heading_dir(heading: u8) -> (f32, f32) {
+    let a = (heading as f32 * 45.0).to_radians();
+    (a.sin(), a.cos())
+}
+
+/// Pose change of a non-move action: (new heading, new horizon), or `None` for MoveAhead/Done.
+pub fn turn(heading: u8, horizon: u8, action: Action) -> Option<(u8, u8)> {
+    match action {
+        Action::RotateLeft => Some(((heading + NUM_HEADINGS as u8 - 1) % NUM_HEADINGS as u8, horizon)),
+        Action::RotateRight => Some(((heading + 1) % NUM_HEADINGS as u8, horizon)),
+        Action::LookUp => Some((heading, horizon.saturating_sub(1))),
+        Action::LookDown => Some((heading, (horizon + 1).min(1))),
+        Action::MoveAhead | Action::Done => None,
+    }
+}
+
+/// Horizontal distance from a point to an object's footprint (centre distance minus radius).
+pub fn footprint_distance(px: f32, pz: f32, obj: [f32; 3], props: &CategoryProps) -> f32 {
+    let d = ((obj[0] - px).powi(2) + (obj[2] - pz).powi(2)).sqrt();
+    (d - props.radius).max(0.0)
+}
+
+/// How an object appears from a camera pose (ignoring occlusion).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Appearance {
+    /// Horizontal distance to the footprint (metres).
+    pub footprint_distance: f32,
+    /// True if (part of) the object is inside the horizontal and vertical field of view.
+    pub in_fov: bool,
+    /// Share of the view the object fills, in [0, 1] (0 when outside the field of view).
+    pub weight: f32,
+}
+
+/// Where `obj` (centre, category props) appears from position (px, pz) with `heading`/`horizon`.
+pub fn appearance(px: f32, pz: f32, heading: u8, horizon: u8, obj: [f32; 3], props: &CategoryProps) -> Appearance {
+    let dx = obj[0] - px;
+    let dz = obj[2] - pz;
+    let dc = (dx * dx + dz * dz).sqrt();
+    let fd = (dc - props.radius).max(0.0);
+    let half = FOV_DEG * 0.5;
+    // Angular half-extent of the footprint: an object is in view if any part of it is.
+    let ext = if dc > 1e-3 { (props.radius / dc).min(1.0).asin().to_degrees() } else { 90.0 };
+    let (hx, hz) = heading_dir(heading);
+    let h_off = if dc > 1e-3 {
+        let cos = ((dx * hx + dz * hz) / dc).clamp(-1.0, 1.0);
+        cos.acos().to_degrees()
+    } else {
+        0.0
+    };
+    let elev = (obj[1] - CAMERA_HEIGHT).atan2(dc.max(1e-3)).to_degrees();
+    let pitch = -(horizon as f32) * HORIZON_STEP_DEG;
+    let v_off = (elev - pitch).abs();
+    let in_fov = h_off <= half + ext && v_off <= half + ext;
+    if !in_fov {
+        return Appearance { footprint_distance: fd, in_fov, weight: 0.0 };
+    }
+    let d3 = (dc * dc + (obj[1] - CAMERA_HEIGHT).powi(2)).sqrt().max(0.2);
+    let hc = (h_off - ext).max(0.0) / half;
+    let vc = (v_off - ext).max(0.0) / half;
+    let centrality = (1.0 - 0.6 * hc * hc).max(0.0) * (1.0 - 0.6 * vc * vc).max(0.0);
+    let weight = (0.8 * props.size / d3).min(1.0) * centrality;
+    Appearance { footprint_distance: fd, in_fov, weight }
+}
+
+/// Line of sight over the grid from (px, pz) to the object centre (ox, oz).
+///
+/// Rule: the ray is sampled every 5 cm; it is blocked when it crosses a stretch of
+/// non-reachable floor at least 0.3 m long and then comes back onto reachable floor before
+/// the object (something stands between the agent and the object). The final stretch into the
+/// object's own furniture (counter, wall, table) never blocks.
+pub fn line_of_sight(px: f32, pz: f32, ox: f32, oz: f32, reachable: impl Fn(f32, f32) -> bool) -> bool {
+    let dx = ox - px;
+    let dz = oz - pz;
+    let len = (dx * dx + dz * dz).sqrt();
+    let n = (len / LOS_STEP) as usize;
+    let mut blocked_run = 0.0f32;
+    let mut max_run = 0.0f32;
+    for i in 1..n {
+        let t = i as f32 * LOS_STEP / len;
+        if reachable(px + t * dx, pz + t * dz) {
+            max_run = max_run.max(blocked_run);
+            blocked_run = 0.0;
+            if max_run >= LOS_TOLERANCE {
+                return false;
+            }
+        } else {
+            blocked_run += LOS_STEP;
+        }
+    }
+    true
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const P: CategoryProps = CategoryProps { height: 1.0, radius: 0.1, size: 0.5, instances: 1 };
+
+    #[test]
+    fn moves_and_turns() {
+        assert_eq!(heading_step(0), (0, 1));
+        assert_eq!(heading_step(2), (1, 0));
+        assert_eq!(heading_step(5), (-1, -1));
+        assert_eq!(turn(0, 0, Action::RotateLeft), Some((7, 0)));
+        assert_eq!(turn(7, 0, Action::RotateRight), Some((0, 0)));
+        assert_eq!(turn(3, 0, Action::LookUp), Some((3, 0)));
+        assert_eq!(turn(3, 0, Action::LookDown), Some((3, 1)));
+        assert_eq!(turn(3, 1, Action::LookDown), Some((3, 1)));
+        assert_eq!(turn(3, 1, Action::LookUp), Some((3, 0)));
+    }
+
+    #[test]
+    fn fov_front_and_back() {
+        let front = appearance(0.0, 0.0, 0, 0, [0.0, 1.0, 1.0], &P);
+        assert!(front.in_fov && front.weight > 0.0);
+        let back = appearance(0.0, 0.0, 4, 0, [0.0, 1.0, 1.0], &P);
+        assert!(!back.in_fov && back.weight == 0.0);
+        // 60 degrees off-axis: outside a 100 degree field of view.
+        let a = 60f32.to_radians();
+        let side = appearance(0.0, 0.0, 0, 0, [2.0 * a.sin(), 1.0, 2.0 * a.cos()], &P);
+        assert!(!side.in_fov);
+        // An object on the floor right in front is only seen when looking down.
+        let floor = [0.0, 0.05, 0.8];
+        assert!(!appearance(0.0, 0.0, 0, 0, floor, &P).in_fov);
+        assert!(appearance(0.0, 0.0, 0, 1, floor, &P).in_fov);
+    }
+
+    #[test]
+    fn los_blocked_by_obstacle_between() {
+        // Free floor except a wall strip at 1.0 <= z < 1.5.
+        let free = |_x: f32, z: f32| !(1.0..1.5).contains(&z);
+        assert!(!line_of_sight(0.0, 0.0, 0.0, 3.0, free));
+        assert!(line_of_sight(0.0, 0.0, 0.0, 0.9, free));
+        // Object inside the wall strip itself: visible.
+        assert!(line_of_sight(0.0, 0.0, 0.0, 1.3, free));
+    }
+}

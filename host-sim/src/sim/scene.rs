@@ -1,0 +1,309 @@
+//! One floor plan: reachable grid, object instances and the discrete state graph.
+//!
+//! # Building rules (documented choices)
+//! * **Reachable set**: the union of the file's `reachable` and `reachable_sample` positions,
+//!   plus *gap filling*: a non-reachable cell whose two opposite 4-neighbours (left and right,
+//!   or front and back) are both reachable is made reachable. One pass over the union, not
+//!   iterated, so only one-cell-wide slits are closed (ALFRED's grid is slightly conservative).
+//! * **Known instances**: positions in `objects` and `known_objects` are used as given.
+//!   Instances of one category whose centres are within 0.3 m (horizontally and vertically)
+//!   are one object seen by two AI2THOR versions: they are merged and keep every id.
+//! * **Placed instances**: every category of `object_types` without a known instance gets
+//!   [`CategoryProps::instances`] instances placed by a seeded rule: choose a *boundary slot*
+//!   (a reachable cell and a side whose 4-neighbour is not reachable; unused slots first) and
+//!   put the object's centre `0.2 m + radius` from the cell centre towards that side, jittered
+//!   by up to +-0.1 m along the wall, at the category's typical height. The seed is a hash of
+//!   the world seed, the scene name, the category name and the instance number.
+//! * **Unseen categories** are removed from training scenes (types and instances).
+
+use std::collections::{BTreeSet, HashMap};
+
+use gman_core::{Action, NUM_ACTIONS};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+use super::geometry::{heading_step, turn, GRID};
+use super::types::{AgentState, Category, CategoryId, RoomType, Split, NUM_HEADINGS, STATES_PER_POSITION};
+use super::util::hash_str;
+
+/// One object instance of a scene.
+#[derive(Clone, Debug)]
+pub struct ObjectInstance {
+    /// AI2THOR ids of the instance (several after merging duplicates; a generated id
+    /// `Type|placed|k` for placed instances).
+    pub ids: Vec<String>,
+    /// Category.
+    pub category: CategoryId,
+    /// Centre (x, y, z) in metres.
+    pub pos: [f32; 3],
+    /// True when the position comes from the data, false when placed by the seeded rule.
+    pub known: bool,
+}
+
+/// Inputs of [`Scene::build`]: a floor plan as read from a file or generated.
+#[derive(Clone, Debug)]
+pub struct SceneSource {
+    /// Scene name.
+    pub name: String,
+    /// Room type.
+    pub room: RoomType,
+    /// Split the scene belongs to.
+    pub split: Split,
+    /// Reachable cells (grid indices).
+    pub reachable: Vec<(i32, i32)>,
+    /// Categories present.
+    pub present: Vec<CategoryId>,
+    /// Instances with known positions: (id, category, centre).
+    pub known: Vec<(String, CategoryId, [f32; 3])>,
+}
+
+/// A built scene.
+#[derive(Clone, Debug)]
+pub struct Scene {
+    /// Scene name (`FloorPlan22`).
+    pub name: String,
+    /// Room type.
+    pub room: RoomType,
+    /// Split.
+    pub split: Split,
+    /// Reachable cells, sorted; a position index is an index into this list.
+    pub positions: Vec<(i32, i32)>,
+    /// Per position: true when the cell was added by gap filling.
+    pub filled: Vec<bool>,
+    /// Object instances.
+    pub objects: Vec<ObjectInstance>,
+    /// Categories present (sorted, unique).
+    pub present: Vec<CategoryId>,
+    /// Seed of the scene's appearance style.
+    pub seed: u64,
+    min_x: i32,
+    min_z: i32,
+    width: i32,
+    depth: i32,
+    cell_index: Vec<u32>,
+}
+
+const NONE: u32 = u32::MAX;
+
+impl Scene {
+    /// Builds a scene: fills gaps in the reachable set and places objects without positions.
+    pub fn build(src: SceneSource, categories: &[Category], world_seed: u64) -> Scene {
+        let orig: BTreeSet<(i32, i32)> = src.reachable.iter().copied().collect();
+        let (mut min_x, mut max_x, mut min_z, mut max_z) = (i32::MAX, i32::MIN, i32::MAX, i32::MIN);
+        for &(x, z) in &orig {
+            min_x = min_x.min(x);
+            max_x = max_x.max(x);
+            min_z = min_z.min(z);
+            max_z = max_z.max(z);
+        }
+        let mut filled_set = BTreeSet::new();
+        for x in min_x..=max_x {
+            for z in min_z..=max_z {
+                if orig.contains(&(x, z)) {
+                    continue;
+                }
+                let lr = orig.contains(&(x - 1, z)) && orig.contains(&(x + 1, z));
+                let fb = orig.contains(&(x, z - 1)) && orig.contains(&(x, z + 1));
+                if lr || fb {
+                    filled_set.insert((x, z));
+                }
+            }
+        }
+        let all: BTreeSet<(i32, i32)> = orig.union(&filled_set).copied().collect();
+        let positions: Vec<(i32, i32)> = all.iter().copied().collect();
+        let filled = positions.iter().map(|p| filled_set.contains(p)).collect();
+        // Grid with a one-cell margin.
+        let (gx, gz) = (min_x - 1, min_z - 1);
+        let width = max_x - min_x + 3;
+        let depth = max_z - min_z + 3;
+        let mut cell_index = vec![NONE; (width * depth) as usize];
+        for (i, &(x, z)) in positions.iter().enumerate() {
+            cell_index[((x - gx) * depth + (z - gz)) as usize] = i as u32;
+        }
+        let seed = hash_str(world_seed, &src.name);
+        let mut scene = Scene {
+            name: src.name,
+            room: src.room,
+            split: src.split,
+            positions,
+            filled,
+            objects: Vec::new(),
+            present: Vec::new(),
+            seed,
+            min_x: gx,
+            min_z: gz,
+            width,
+            depth,
+            cell_index,
+        };
+        let banned = |c: CategoryId| src.split == Split::Train && categories[c as usize].unseen;
+        let mut present: BTreeSet<CategoryId> = src.present.iter().copied().filter(|&c| !banned(c)).collect();
+        // Known instances, merged when they are the same object.
+        let mut objects: Vec<ObjectInstance> = Vec::new();
+        for (id, cat, pos) in src.known {
+            if banned(cat) {
+                continue;
+            }
+            present.insert(cat);
+            if let Some(o) = objects.iter_mut().find(|o| {
+                o.category == cat
+                    && ((o.pos[0] - pos[0]).powi(2) + (o.pos[2] - pos[2]).powi(2)).sqrt() < 0.3
+                    && (o.pos[1] - pos[1]).abs() < 0.3
+            }) {
+                if !o.ids.contains(&id) {
+                    o.ids.push(id);
+                }
+                continue;
+            }
+            objects.push(ObjectInstance { ids: vec![id], category: cat, pos, known: true });
+        }
+        // Placed instances for categories without a known position.
+        let slots = scene.boundary_slots();
+        let mut used = vec![false; slots.len()];
+        for &cat in &present {
+            if objects.iter().any(|o| o.category == cat) || slots.is_empty() {
+                continue;
+            }
+            let c = &categories[cat as usize];
+            for k in 0..c.props.instances.max(1) {
+                let mut rng = ChaCha8Rng::seed_from_u64(hash_str(hash_str(seed, &c.name), &k.to_string()));
+                let mut s = rng.random_range(0..slots.len());
+                for _ in 0..16 {
+                    if !used[s] {
+                        break;
+                    }
+                    s = rng.random_range(0..slots.len());
+                }
+                used[s] = true;
+                let ((x, z), (dx, dz)) = slots[s];
+                let off = 0.2 + c.props.radius;
+                let jitter = rng.random_range(-0.1f32..0.1);
+                let px = x as f32 * GRID + dx as f32 * off + dz as f32 * jitter;
+                let pz = z as f32 * GRID + dz as f32 * off + dx as f32 * jitter;
+                objects.push(ObjectInstance {
+                    ids: vec![format!("{}|placed|{k}", c.name)],
+                    category: cat,
+                    pos: [px, c.props.height, pz],
+                    known: false,
+                });
+            }
+        }
+        scene.objects = objects;
+        scene.present = present.into_iter().collect();
+        scene
+    }
+
+    /// Boundary slots: (reachable cell, direction to a non-reachable 4-neighbour).
+    pub fn boundary_slots(&self) -> Vec<((i32, i32), (i32, i32))> {
+        let mut out = Vec::new();
+        for &(x, z) in &self.positions {
+            for d in [(0, 1), (1, 0), (0, -1), (-1, 0)] {
+                if self.position_index(x + d.0, z + d.1).is_none() {
+                    out.push(((x, z), d));
+                }
+            }
+        }
+        out
+    }
+
+    /// Position index of grid cell (x, z), if reachable.
+    #[inline]
+    pub fn position_index(&self, x: i32, z: i32) -> Option<usize> {
+        let (ix, iz) = (x - self.min_x, z - self.min_z);
+        if ix < 0 || iz < 0 || ix >= self.width || iz >= self.depth {
+            return None;
+        }
+        let v = self.cell_index[(ix * self.depth + iz) as usize];
+        (v != NONE).then_some(v as usize)
+    }
+
+    /// True if the point (metres) lies on a reachable cell.
+    #[inline]
+    pub fn is_reachable_point(&self, x: f32, z: f32) -> bool {
+        self.position_index((x / GRID).round() as i32, (z / GRID).round() as i32).is_some()
+    }
+
+    /// Grid bounds (min x, min z, max x, max z) of the reachable cells, inclusive.
+    pub fn bounds(&self) -> (i32, i32, i32, i32) {
+        (self.min_x + 1, self.min_z + 1, self.min_x + self.width - 2, self.min_z + self.depth - 2)
+    }
+
+    /// Number of discrete states (positions x 8 headings x 2 horizons).
+    pub fn num_states(&self) -> usize {
+        self.positions.len() * STATES_PER_POSITION
+    }
+
+    /// State index of an agent state, if its cell is reachable.
+    pub fn state_index(&self, s: AgentState) -> Option<usize> {
+        if s.heading as usize >= NUM_HEADINGS || s.horizon > 1 {
+            return None;
+        }
+        self.position_index(s.x, s.z)
+            .map(|p| p * STATES_PER_POSITION + s.heading as usize * 2 + s.horizon as usize)
+    }
+
+    /// Agent state of a state index.
+    pub fn state(&self, idx: usize) -> AgentState {
+        let (x, z) = self.positions[idx / STATES_PER_POSITION];
+        let r = idx % STATES_PER_POSITION;
+        AgentState { x, z, heading: (r / 2) as u8, horizon: (r % 2) as u8 }
+    }
+
+    /// Successor of state `idx` under `action` (a blocked move or Done leaves it unchanged).
+    ///
+    /// MoveAhead goes to the next cell along the heading (diagonal for odd headings). It fails
+    /// if that cell is not reachable; a diagonal move also fails when both side cells are
+    /// blocked (no squeezing between two obstacles).
+    pub fn successor(&self, idx: usize, action: Action) -> usize {
+        let s = self.state(idx);
+        match action {
+            Action::Done => idx,
+            Action::MoveAhead => {
+                let (dx, dz) = heading_step(s.heading);
+                let (nx, nz) = (s.x + dx, s.z + dz);
+                let Some(p) = self.position_index(nx, nz) else { return idx };
+                if dx != 0
+                    && dz != 0
+                    && self.position_index(s.x + dx, s.z).is_none()
+                    && self.position_index(s.x, s.z + dz).is_none()
+                {
+                    return idx;
+                }
+                p * STATES_PER_POSITION + (idx % STATES_PER_POSITION)
+            }
+            a => {
+                let (h, v) = turn(s.heading, s.horizon, a).expect("turn action");
+                (idx / STATES_PER_POSITION) * STATES_PER_POSITION + h as usize * 2 + v as usize
+            }
+        }
+    }
+
+    /// Successor table of all states (index `[state][action]`).
+    pub fn transition_table(&self) -> Vec<[u32; NUM_ACTIONS]> {
+        (0..self.num_states())
+            .map(|i| {
+                let mut row = [0u32; NUM_ACTIONS];
+                for a in Action::ALL {
+                    row[a.index()] = self.successor(i, a) as u32;
+                }
+                row
+            })
+            .collect()
+    }
+
+    /// Indices of the instances of `category`.
+    pub fn instances_of(&self, category: CategoryId) -> impl Iterator<Item = usize> + '_ {
+        self.objects.iter().enumerate().filter(move |(_, o)| o.category == category).map(|(i, _)| i)
+    }
+
+    /// Map from every instance id to its instance index.
+    pub fn id_map(&self) -> HashMap<&str, usize> {
+        let mut m = HashMap::new();
+        for (i, o) in self.objects.iter().enumerate() {
+            for id in &o.ids {
+                m.insert(id.as_str(), i);
+            }
+        }
+        m
+    }
+}
