@@ -89,6 +89,7 @@ impl<'a> Generator<'a> {
 
     /// Backward from `dx = dL/dx`, accumulating into the parameter gradients of each layer.
     /// `cache` must hold the forward pass of the same `(z, attr)`.
+    #[allow(clippy::too_many_arguments)]
     pub fn backward(
         &self,
         z: &[f32],

@@ -39,6 +39,7 @@ pub mod error;
 pub mod generator;
 pub mod lstm;
 pub mod matrix;
+pub mod memory;
 pub mod preset;
 pub mod quant;
 pub mod rng;

@@ -1,0 +1,94 @@
+//! Helpers shared by the core's integration tests (included with `mod common;`).
+#![allow(dead_code)]
+
+use gman_core::blob::{encode, encoded_len_bound, TensorData, TensorId, TensorSpec};
+use gman_core::quant::quantize_rows;
+use gman_core::rng::{fill_gaussian, Xoshiro128};
+use gman_core::Dims;
+
+/// Small dims so that tests are fast.
+pub const SMALL: Dims = Dims {
+    attr: 5,
+    noise: 3,
+    gen_hidden: 8,
+    feat: 6,
+    disc_hidden: 7,
+    lstm_hidden: 4,
+    embed: 5,
+    ps: 5,
+};
+
+/// Random f32 values for every tensor of `dims`.
+pub fn random_tensors(dims: &Dims, seed: u64) -> Vec<(TensorId, Vec<f32>)> {
+    let mut rng = Xoshiro128::seed_from_u64(seed);
+    TensorId::ALL
+        .iter()
+        .map(|&id| {
+            let (r, c) = id.shape(dims);
+            let mut v = vec![0.0f32; r * c];
+            fill_gaussian(&mut rng, &mut v);
+            v.iter_mut().for_each(|x| *x *= 0.1);
+            (id, v)
+        })
+        .collect()
+}
+
+/// Encodes `tensors`, int8-quantising the matrices when `int8` is set.
+pub fn make_blob(dims: &Dims, tensors: &[(TensorId, Vec<f32>)], int8: bool) -> Vec<u8> {
+    let quantised: Vec<(TensorId, Vec<u8>, Vec<f32>)> = tensors
+        .iter()
+        .filter(|(id, _)| int8 && !id.is_vector())
+        .map(|(id, v)| {
+            let (r, c) = id.shape(dims);
+            let mut q = vec![0u8; v.len()];
+            let mut s = vec![0.0f32; r];
+            quantize_rows(v, r, c, &mut q, &mut s).unwrap();
+            (*id, q, s)
+        })
+        .collect();
+    let specs: Vec<TensorSpec<'_>> = tensors
+        .iter()
+        .map(
+            |(id, v)| match quantised.iter().find(|(qid, _, _)| qid == id) {
+                Some((_, q, s)) => TensorSpec {
+                    id: *id,
+                    data: TensorData::I8 { q, scales: s },
+                },
+                None => TensorSpec {
+                    id: *id,
+                    data: TensorData::F32(v),
+                },
+            },
+        )
+        .collect();
+    let mut out = vec![0u8; encoded_len_bound(&specs)];
+    let n = encode(dims, &specs, &mut out).unwrap();
+    out.truncate(n);
+    out
+}
+
+fn varint(mut v: u32) -> Vec<u8> {
+    let mut o = Vec::new();
+    loop {
+        let b = (v & 0x7F) as u8;
+        v >>= 7;
+        if v == 0 {
+            o.push(b);
+            return o;
+        }
+        o.push(b | 0x80);
+    }
+}
+
+/// Rewrites the header's CRC after the payload was modified (the CRC is the header's last
+/// field), so that record validation, not the checksum, is what a test exercises.
+pub fn reseal(blob: &[u8], payload_len: usize, old_crc: u32) -> Vec<u8> {
+    let hlen = blob.len() - payload_len;
+    let old = varint(old_crc);
+    let prefix = &blob[..hlen - old.len()];
+    let payload = &blob[hlen..];
+    let mut out = prefix.to_vec();
+    out.extend(varint(gman_core::crc32::crc32(payload)));
+    out.extend_from_slice(payload);
+    out
+}
