@@ -1,0 +1,159 @@
+//! The computation the firmware runs, shared verbatim with the host-side parity test
+//! (`tests/tests/firmware_qemu.rs` includes this file), so x86 and Cortex-M4F execute the same
+//! source on the same blob and must print the same bits.
+//!
+//! It parses and validates the `Mcu` int8 blob in place, generates target features
+//! x = G(SE(y), z) for a few seeded noise draws in the parameter-efficient mode (int8 base
+//! weights, per-unit gains and biases in RAM), scores them with D, and takes one closed-form
+//! gradient of the WGAN-GP loss L_D (Eq. 1) against synthetic observations.
+
+use gman_core::blob::{Blob, TensorId};
+use gman_core::dense::{Dense, DenseGrads};
+use gman_core::discriminator::{DiscGrads, DiscScratch, Discriminator, LdConfig};
+use gman_core::generator::{Generator, GeneratorCache};
+use gman_core::rng::{fill_gaussian, uniform, Xoshiro128};
+use gman_core::Dims;
+
+const D: Dims = Dims::MCU;
+const K: usize = 4;
+const H: usize = D.gen_hidden;
+const F: usize = D.feat;
+const DH: usize = D.disc_hidden;
+
+/// Runs the self-test on `blob`, reporting each result line through `out`.
+pub fn run(
+    blob_bytes: &[u8],
+    out: &mut dyn FnMut(core::fmt::Arguments<'_>),
+) -> gman_core::Result<()> {
+    let blob = Blob::parse(blob_bytes)?;
+    blob.check_dims(&D)?;
+    out(format_args!(
+        "blob: {} bytes, {} tensors",
+        blob.len(),
+        blob.tensors().count()
+    ));
+
+    // Adapted parameters in RAM (Efficient mode): gains start at 1, biases from the blob.
+    let mut gain1 = [1.0f32; H];
+    let mut b1 = [0.0f32; H];
+    let mut gain2 = [1.0f32; F];
+    let mut b2 = [0.0f32; F];
+    blob.copy_f32(TensorId::GenB1, &mut b1)?;
+    blob.copy_f32(TensorId::GenB2, &mut b2)?;
+    gain1[0] = 1.0;
+    gain2[0] = 1.0;
+    let gen = Generator {
+        l1: Dense {
+            w: blob.matrix(TensorId::GenW1)?,
+            b: &b1,
+            gain: Some(&gain1),
+        },
+        l2: Dense {
+            w: blob.matrix(TensorId::GenW2)?,
+            b: &b2,
+            gain: Some(&gain2),
+        },
+    };
+    let mut dgain = [1.0f32; DH];
+    let mut db1 = [0.0f32; DH];
+    let mut dw2 = [0.0f32; DH];
+    let mut db2 = [0.0f32; 1];
+    blob.copy_f32(TensorId::DiscB1, &mut db1)?;
+    blob.copy_f32(TensorId::DiscW2, &mut dw2)?;
+    blob.copy_f32(TensorId::DiscB2, &mut db2)?;
+    dgain[0] = 1.0;
+    let disc = Discriminator {
+        l1: Dense {
+            w: blob.matrix(TensorId::DiscW1)?,
+            b: &db1,
+            gain: Some(&dgain),
+        },
+        w2: &dw2,
+        b2: db2[0],
+    };
+
+    let mut rng = Xoshiro128::seed_from_u64(7);
+    let attr = [0.25f32; D.attr];
+    let mut fake = [0.0f32; K * F];
+    let mut real = [0.0f32; K * F];
+    let (mut u1, mut h1, mut u2, mut x) = ([0.0f32; H], [0.0f32; H], [0.0f32; F], [0.0f32; F]);
+    let mut ds = (
+        [0.0f32; DH],
+        [0.0f32; DH],
+        [0.0f32; DH],
+        [0.0f32; DH],
+        [0.0f32; F],
+        [0.0f32; F],
+    );
+    for t in 0..K {
+        let mut z = [0.0f32; D.noise];
+        fill_gaussian(&mut rng, &mut z);
+        let mut cache = GeneratorCache {
+            u1: &mut u1,
+            h1: &mut h1,
+            u2: &mut u2,
+            x: &mut x,
+        };
+        gen.forward(&z, &attr, &mut cache)?;
+        fake[t * F..(t + 1) * F].copy_from_slice(&x);
+        let mut s = DiscScratch {
+            u: &mut ds.0,
+            h: &mut ds.1,
+            v: &mut ds.2,
+            w1g: &mut ds.3,
+            g: &mut ds.4,
+            mix: &mut ds.5,
+        };
+        let score = disc.score(&x, &mut s)?;
+        out(format_args!(
+            "x[{}]: x0={:#010x} D(x)={:#010x}",
+            t,
+            x[0].to_bits(),
+            score.to_bits()
+        ));
+    }
+    for (i, v) in real.iter_mut().enumerate() {
+        // Synthetic observation features in [0, 1): a fixed, deterministic pattern.
+        *v = ((i * 37) % 101) as f32 / 101.0;
+    }
+    let eps = [
+        uniform(&mut rng),
+        uniform(&mut rng),
+        uniform(&mut rng),
+        uniform(&mut rng),
+    ];
+    let (mut g_gain, mut g_b1, mut g_w2, mut g_b2) =
+        ([0.0f32; DH], [0.0f32; DH], [0.0f32; DH], 0.0f32);
+    let mut grads = DiscGrads {
+        l1: DenseGrads::Gain {
+            gain: &mut g_gain,
+            b: &mut g_b1,
+        },
+        w2: &mut g_w2,
+        b2: &mut g_b2,
+    };
+    let mut s = DiscScratch {
+        u: &mut ds.0,
+        h: &mut ds.1,
+        v: &mut ds.2,
+        w1g: &mut ds.3,
+        g: &mut ds.4,
+        mix: &mut ds.5,
+    };
+    let ld = disc.ld_loss(
+        &real,
+        &fake,
+        &eps,
+        LdConfig::default(),
+        &mut s,
+        Some(&mut grads),
+    )?;
+    out(format_args!(
+        "L_D={:#010x} penalty={:#010x} dgain0={:#010x} dw2_0={:#010x}",
+        ld.loss.to_bits(),
+        ld.penalty.to_bits(),
+        g_gain[0].to_bits(),
+        g_w2[0].to_bits()
+    ));
+    Ok(())
+}
