@@ -31,7 +31,9 @@ fn main() -> ! {
             debug::exit(debug::EXIT_FAILURE);
         }
     }
-    loop {}
+    loop {
+        cortex_m::asm::wfi();
+    }
 }
 
 fn run() -> gman_core::Result<()> {
@@ -42,5 +44,7 @@ fn run() -> gman_core::Result<()> {
 unsafe fn HardFault(_ef: &ExceptionFrame) -> ! {
     hprintln!("HardFault");
     debug::exit(debug::EXIT_FAILURE);
-    loop {}
+    loop {
+        cortex_m::asm::wfi();
+    }
 }
