@@ -137,14 +137,25 @@ pub fn load_attributes(dir: &Path) -> Result<RawAttributes> {
     let raw: RawAttributes = serde_json::from_str(&text)
         .with_context(|| format!("malformed JSON in {}", path.display()))?;
     if raw.dim != ATTR_DIM {
-        bail!("{}: dim is {}, expected {ATTR_DIM}", path.display(), raw.dim);
+        bail!(
+            "{}: dim is {}, expected {ATTR_DIM}",
+            path.display(),
+            raw.dim
+        );
     }
     for (name, v) in &raw.categories {
         if v.len() != ATTR_DIM {
-            bail!("{}: category {name} has {} attributes, expected {ATTR_DIM}", path.display(), v.len());
+            bail!(
+                "{}: category {name} has {} attributes, expected {ATTR_DIM}",
+                path.display(),
+                v.len()
+            );
         }
         if v.iter().any(|x| !x.is_finite()) {
-            bail!("{}: category {name} has a non-finite attribute", path.display());
+            bail!(
+                "{}: category {name} has a non-finite attribute",
+                path.display()
+            );
         }
     }
     Ok(raw)
@@ -178,7 +189,11 @@ pub fn load_scenes(dir: &Path, split: Split) -> Result<Vec<RawScene>> {
         .collect();
     files.sort();
     if files.is_empty() {
-        bail!("split {}: no scene files (*.json) in {}", split.name(), sdir.display());
+        bail!(
+            "split {}: no scene files (*.json) in {}",
+            split.name(),
+            sdir.display()
+        );
     }
     files
         .iter()
@@ -186,7 +201,7 @@ pub fn load_scenes(dir: &Path, split: Split) -> Result<Vec<RawScene>> {
             let text = read_text(p)?;
             let s: RawScene = serde_json::from_str(&text)
                 .with_context(|| format!("malformed scene JSON in {}", p.display()))?;
-            if !(s.grid_size > 0.0) {
+            if s.grid_size.is_nan() || s.grid_size <= 0.0 {
                 bail!("{}: grid_size must be positive", p.display());
             }
             if s.reachable.is_empty() && s.reachable_sample.is_empty() {
@@ -210,10 +225,18 @@ pub struct RawEpisodeLine {
 
 /// Reads every `*.jsonl` of `DIR/episodes/<split>` in sorted file order, keeping at most
 /// `per_file` episodes of each file (in file order).
-pub fn load_raw_episodes(dir: &Path, split: Split, per_file: Option<usize>) -> Result<Vec<RawEpisodeLine>> {
+pub fn load_raw_episodes(
+    dir: &Path,
+    split: Split,
+    per_file: Option<usize>,
+) -> Result<Vec<RawEpisodeLine>> {
     let edir = episodes_dir(dir, split);
     if !edir.is_dir() {
-        bail!("split {}: episode directory {} does not exist", split.name(), edir.display());
+        bail!(
+            "split {}: episode directory {} does not exist",
+            split.name(),
+            edir.display()
+        );
     }
     let mut files: Vec<PathBuf> = fs::read_dir(&edir)
         .with_context(|| format!("cannot list {}", edir.display()))?
@@ -222,7 +245,11 @@ pub fn load_raw_episodes(dir: &Path, split: Split, per_file: Option<usize>) -> R
         .collect();
     files.sort();
     if files.is_empty() {
-        bail!("split {}: no episode files (*.jsonl) in {}", split.name(), edir.display());
+        bail!(
+            "split {}: no episode files (*.jsonl) in {}",
+            split.name(),
+            edir.display()
+        );
     }
     let mut out = Vec::new();
     for p in files {
@@ -235,9 +262,14 @@ pub fn load_raw_episodes(dir: &Path, split: Split, per_file: Option<usize>) -> R
             if per_file.is_some_and(|m| n >= m) {
                 break;
             }
-            let episode: RawEpisode = serde_json::from_str(line)
-                .with_context(|| format!("malformed episode JSON in {} line {}", p.display(), i + 1))?;
-            out.push(RawEpisodeLine { episode, file: p.clone(), line: i + 1 });
+            let episode: RawEpisode = serde_json::from_str(line).with_context(|| {
+                format!("malformed episode JSON in {} line {}", p.display(), i + 1)
+            })?;
+            out.push(RawEpisodeLine {
+                episode,
+                file: p.clone(),
+                line: i + 1,
+            });
             n += 1;
         }
     }

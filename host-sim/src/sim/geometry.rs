@@ -30,7 +30,16 @@ const LOS_TOLERANCE: f32 = 0.3;
 
 /// Grid step (dx, dz) of MoveAhead for a heading (diagonal headings move diagonally).
 pub fn heading_step(heading: u8) -> (i32, i32) {
-    const STEPS: [(i32, i32); NUM_HEADINGS] = [(0, 1), (1, 1), (1, 0), (1, -1), (0, -1), (-1, -1), (-1, 0), (-1, 1)];
+    const STEPS: [(i32, i32); NUM_HEADINGS] = [
+        (0, 1),
+        (1, 1),
+        (1, 0),
+        (1, -1),
+        (0, -1),
+        (-1, -1),
+        (-1, 0),
+        (-1, 1),
+    ];
     STEPS[heading as usize % NUM_HEADINGS]
 }
 
@@ -43,7 +52,10 @@ pub fn heading_dir(heading: u8) -> (f32, f32) {
 /// Pose change of a non-move action: (new heading, new horizon), or `None` for MoveAhead/Done.
 pub fn turn(heading: u8, horizon: u8, action: Action) -> Option<(u8, u8)> {
     match action {
-        Action::RotateLeft => Some(((heading + NUM_HEADINGS as u8 - 1) % NUM_HEADINGS as u8, horizon)),
+        Action::RotateLeft => Some((
+            (heading + NUM_HEADINGS as u8 - 1) % NUM_HEADINGS as u8,
+            horizon,
+        )),
         Action::RotateRight => Some(((heading + 1) % NUM_HEADINGS as u8, horizon)),
         Action::LookUp => Some((heading, horizon.saturating_sub(1))),
         Action::LookDown => Some((heading, (horizon + 1).min(1))),
@@ -69,14 +81,25 @@ pub struct Appearance {
 }
 
 /// Where `obj` (centre, category props) appears from position (px, pz) with `heading`/`horizon`.
-pub fn appearance(px: f32, pz: f32, heading: u8, horizon: u8, obj: [f32; 3], props: &CategoryProps) -> Appearance {
+pub fn appearance(
+    px: f32,
+    pz: f32,
+    heading: u8,
+    horizon: u8,
+    obj: [f32; 3],
+    props: &CategoryProps,
+) -> Appearance {
     let dx = obj[0] - px;
     let dz = obj[2] - pz;
     let dc = (dx * dx + dz * dz).sqrt();
     let fd = (dc - props.radius).max(0.0);
     let half = FOV_DEG * 0.5;
     // Angular half-extent of the footprint: an object is in view if any part of it is.
-    let ext = if dc > 1e-3 { (props.radius / dc).min(1.0).asin().to_degrees() } else { 90.0 };
+    let ext = if dc > 1e-3 {
+        (props.radius / dc).min(1.0).asin().to_degrees()
+    } else {
+        90.0
+    };
     let (hx, hz) = heading_dir(heading);
     let h_off = if dc > 1e-3 {
         let cos = ((dx * hx + dz * hz) / dc).clamp(-1.0, 1.0);
@@ -89,14 +112,22 @@ pub fn appearance(px: f32, pz: f32, heading: u8, horizon: u8, obj: [f32; 3], pro
     let v_off = (elev - pitch).abs();
     let in_fov = h_off <= half + ext && v_off <= half + ext;
     if !in_fov {
-        return Appearance { footprint_distance: fd, in_fov, weight: 0.0 };
+        return Appearance {
+            footprint_distance: fd,
+            in_fov,
+            weight: 0.0,
+        };
     }
     let d3 = (dc * dc + (obj[1] - CAMERA_HEIGHT).powi(2)).sqrt().max(0.2);
     let hc = (h_off - ext).max(0.0) / half;
     let vc = (v_off - ext).max(0.0) / half;
     let centrality = (1.0 - 0.6 * hc * hc).max(0.0) * (1.0 - 0.6 * vc * vc).max(0.0);
     let weight = (0.8 * props.size / d3).min(1.0) * centrality;
-    Appearance { footprint_distance: fd, in_fov, weight }
+    Appearance {
+        footprint_distance: fd,
+        in_fov,
+        weight,
+    }
 }
 
 /// Line of sight over the grid from (px, pz) to the object centre (ox, oz).
@@ -105,7 +136,13 @@ pub fn appearance(px: f32, pz: f32, heading: u8, horizon: u8, obj: [f32; 3], pro
 /// non-reachable floor at least 0.3 m long and then comes back onto reachable floor before
 /// the object (something stands between the agent and the object). The final stretch into the
 /// object's own furniture (counter, wall, table) never blocks.
-pub fn line_of_sight(px: f32, pz: f32, ox: f32, oz: f32, reachable: impl Fn(f32, f32) -> bool) -> bool {
+pub fn line_of_sight(
+    px: f32,
+    pz: f32,
+    ox: f32,
+    oz: f32,
+    reachable: impl Fn(f32, f32) -> bool,
+) -> bool {
     let dx = ox - px;
     let dz = oz - pz;
     let len = (dx * dx + dz * dz).sqrt();
@@ -131,7 +168,12 @@ pub fn line_of_sight(px: f32, pz: f32, ox: f32, oz: f32, reachable: impl Fn(f32,
 mod tests {
     use super::*;
 
-    const P: CategoryProps = CategoryProps { height: 1.0, radius: 0.1, size: 0.5, instances: 1 };
+    const P: CategoryProps = CategoryProps {
+        height: 1.0,
+        radius: 0.1,
+        size: 0.5,
+        instances: 1,
+    };
 
     #[test]
     fn moves_and_turns() {

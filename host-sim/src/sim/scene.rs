@@ -23,7 +23,9 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 use super::geometry::{heading_step, turn, GRID};
-use super::types::{AgentState, Category, CategoryId, RoomType, Split, NUM_HEADINGS, STATES_PER_POSITION};
+use super::types::{
+    AgentState, Category, CategoryId, RoomType, Split, NUM_HEADINGS, STATES_PER_POSITION,
+};
 use super::util::hash_str;
 
 /// One object instance of a scene.
@@ -137,7 +139,12 @@ impl Scene {
             cell_index,
         };
         let banned = |c: CategoryId| src.split == Split::Train && categories[c as usize].unseen;
-        let mut present: BTreeSet<CategoryId> = src.present.iter().copied().filter(|&c| !banned(c)).collect();
+        let mut present: BTreeSet<CategoryId> = src
+            .present
+            .iter()
+            .copied()
+            .filter(|&c| !banned(c))
+            .collect();
         // Known instances, merged when they are the same object.
         let mut objects: Vec<ObjectInstance> = Vec::new();
         for (id, cat, pos) in src.known {
@@ -155,7 +162,12 @@ impl Scene {
                 }
                 continue;
             }
-            objects.push(ObjectInstance { ids: vec![id], category: cat, pos, known: true });
+            objects.push(ObjectInstance {
+                ids: vec![id],
+                category: cat,
+                pos,
+                known: true,
+            });
         }
         // Placed instances for categories without a known position.
         let slots = scene.boundary_slots();
@@ -166,7 +178,8 @@ impl Scene {
             }
             let c = &categories[cat as usize];
             for k in 0..c.props.instances.max(1) {
-                let mut rng = ChaCha8Rng::seed_from_u64(hash_str(hash_str(seed, &c.name), &k.to_string()));
+                let mut rng =
+                    ChaCha8Rng::seed_from_u64(hash_str(hash_str(seed, &c.name), &k.to_string()));
                 let mut s = rng.random_range(0..slots.len());
                 for _ in 0..16 {
                     if !used[s] {
@@ -220,12 +233,18 @@ impl Scene {
     /// True if the point (metres) lies on a reachable cell.
     #[inline]
     pub fn is_reachable_point(&self, x: f32, z: f32) -> bool {
-        self.position_index((x / GRID).round() as i32, (z / GRID).round() as i32).is_some()
+        self.position_index((x / GRID).round() as i32, (z / GRID).round() as i32)
+            .is_some()
     }
 
     /// Grid bounds (min x, min z, max x, max z) of the reachable cells, inclusive.
     pub fn bounds(&self) -> (i32, i32, i32, i32) {
-        (self.min_x + 1, self.min_z + 1, self.min_x + self.width - 2, self.min_z + self.depth - 2)
+        (
+            self.min_x + 1,
+            self.min_z + 1,
+            self.min_x + self.width - 2,
+            self.min_z + self.depth - 2,
+        )
     }
 
     /// Number of discrete states (positions x 8 headings x 2 horizons).
@@ -246,14 +265,20 @@ impl Scene {
     pub fn state(&self, idx: usize) -> AgentState {
         let (x, z) = self.positions[idx / STATES_PER_POSITION];
         let r = idx % STATES_PER_POSITION;
-        AgentState { x, z, heading: (r / 2) as u8, horizon: (r % 2) as u8 }
+        AgentState {
+            x,
+            z,
+            heading: (r / 2) as u8,
+            horizon: (r % 2) as u8,
+        }
     }
 
     /// Successor of state `idx` under `action` (a blocked move or Done leaves it unchanged).
     ///
-    /// MoveAhead goes to the next cell along the heading (diagonal for odd headings). It fails
-    /// if that cell is not reachable; a diagonal move also fails when both side cells are
-    /// blocked (no squeezing between two obstacles).
+    /// MoveAhead goes to the next cell along the heading (diagonal for odd headings) and fails
+    /// if that cell is not reachable, as in AI2THOR's offline grid data (the move succeeds
+    /// whenever the next grid point exists; ALFRED's grid is conservative, and some episode
+    /// starts connect to the rest of the room only diagonally).
     pub fn successor(&self, idx: usize, action: Action) -> usize {
         let s = self.state(idx);
         match action {
@@ -261,14 +286,9 @@ impl Scene {
             Action::MoveAhead => {
                 let (dx, dz) = heading_step(s.heading);
                 let (nx, nz) = (s.x + dx, s.z + dz);
-                let Some(p) = self.position_index(nx, nz) else { return idx };
-                if dx != 0
-                    && dz != 0
-                    && self.position_index(s.x + dx, s.z).is_none()
-                    && self.position_index(s.x, s.z + dz).is_none()
-                {
+                let Some(p) = self.position_index(nx, nz) else {
                     return idx;
-                }
+                };
                 p * STATES_PER_POSITION + (idx % STATES_PER_POSITION)
             }
             a => {
@@ -293,7 +313,11 @@ impl Scene {
 
     /// Indices of the instances of `category`.
     pub fn instances_of(&self, category: CategoryId) -> impl Iterator<Item = usize> + '_ {
-        self.objects.iter().enumerate().filter(move |(_, o)| o.category == category).map(|(i, _)| i)
+        self.objects
+            .iter()
+            .enumerate()
+            .filter(move |(_, o)| o.category == category)
+            .map(|(i, _)| i)
     }
 
     /// Map from every instance id to its instance index.
@@ -305,5 +329,82 @@ impl Scene {
             }
         }
         m
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::sim::catalog::props_of;
+
+    fn cats() -> Vec<Category> {
+        ["Mug", "Toilet"]
+            .iter()
+            .map(|n| Category {
+                name: n.to_string(),
+                attributes: [0.0; gman_core::ATTR_DIM],
+                unseen: *n == "Toilet",
+                props: props_of(n),
+            })
+            .collect()
+    }
+
+    fn source(cells: Vec<(i32, i32)>, split: Split) -> SceneSource {
+        SceneSource {
+            name: "T".into(),
+            room: RoomType::Bathroom,
+            split,
+            reachable: cells,
+            present: vec![0, 1],
+            known: vec![],
+        }
+    }
+
+    #[test]
+    fn gap_filling_closes_one_cell_slits_only() {
+        // Row z=0: x=0..5 with a hole at x=2 (one-cell slit) and x=4..5 missing (not a slit).
+        let cells = vec![(0, 0), (1, 0), (3, 0), (6, 0), (0, 1), (0, 2)];
+        let s = Scene::build(source(cells, Split::Val), &cats(), 1);
+        assert!(s.position_index(2, 0).is_some());
+        assert!(s.filled[s.position_index(2, 0).unwrap()]);
+        assert!(s.position_index(4, 0).is_none() && s.position_index(5, 0).is_none());
+        // (0, 1) was already reachable; (1, 1) has only two reachable diagonal neighbours.
+        assert!(s.position_index(1, 1).is_none());
+        assert_eq!(s.positions.len(), 7);
+    }
+
+    #[test]
+    fn unseen_removed_from_training_scenes_and_placed_elsewhere() {
+        let cells: Vec<(i32, i32)> = (0..6).flat_map(|x| (0..4).map(move |z| (x, z))).collect();
+        let train = Scene::build(source(cells.clone(), Split::Train), &cats(), 1);
+        assert_eq!(train.present, vec![0]);
+        assert!(train.objects.iter().all(|o| o.category == 0));
+        let val = Scene::build(source(cells, Split::Val), &cats(), 1);
+        assert_eq!(val.present, vec![0, 1]);
+        assert_eq!(val.instances_of(1).count(), 1);
+        // Placement is seeded: same seed, same positions; another seed moves objects.
+        let again = Scene::build(source(val.positions.clone(), Split::Val), &cats(), 1);
+        assert_eq!(val.objects[0].pos, again.objects[0].pos);
+    }
+
+    #[test]
+    fn moves_follow_headings_and_fail_when_blocked() {
+        let cells: Vec<(i32, i32)> = (0..3).flat_map(|x| (0..3).map(move |z| (x, z))).collect();
+        let s = Scene::build(source(cells, Split::Val), &cats(), 1);
+        let st = |x, z, heading| {
+            s.state_index(AgentState {
+                x,
+                z,
+                heading,
+                horizon: 0,
+            })
+            .unwrap()
+        };
+        assert_eq!(s.successor(st(1, 1, 0), Action::MoveAhead), st(1, 2, 0));
+        assert_eq!(s.successor(st(1, 1, 1), Action::MoveAhead), st(2, 2, 1));
+        assert_eq!(s.successor(st(1, 2, 0), Action::MoveAhead), st(1, 2, 0));
+        assert_eq!(s.successor(st(0, 0, 5), Action::MoveAhead), st(0, 0, 5));
+        assert_eq!(s.successor(st(1, 1, 0), Action::RotateLeft), st(1, 1, 7));
+        assert_eq!(s.successor(st(1, 1, 0), Action::Done), st(1, 1, 0));
     }
 }

@@ -27,7 +27,12 @@ pub enum RoomType {
 
 impl RoomType {
     /// All room types in the paper's order.
-    pub const ALL: [RoomType; 4] = [RoomType::Kitchen, RoomType::LivingRoom, RoomType::Bedroom, RoomType::Bathroom];
+    pub const ALL: [RoomType; 4] = [
+        RoomType::Kitchen,
+        RoomType::LivingRoom,
+        RoomType::Bedroom,
+        RoomType::Bathroom,
+    ];
 
     /// Name used in the data files (`kitchen`, `living_room`, `bedroom`, `bathroom`).
     pub fn name(self) -> &'static str {
@@ -44,7 +49,11 @@ impl RoomType {
         RoomType::ALL
             .into_iter()
             .find(|r| r.name() == s)
-            .ok_or_else(|| anyhow::anyhow!("unknown room type {s:?} (expected kitchen, living_room, bedroom or bathroom)"))
+            .ok_or_else(|| {
+                anyhow::anyhow!(
+                    "unknown room type {s:?} (expected kitchen, living_room, bedroom or bathroom)"
+                )
+            })
     }
 
     /// Position in [`RoomType::ALL`].

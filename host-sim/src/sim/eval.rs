@@ -1,0 +1,304 @@
+//! Agents and the parallel evaluator.
+//!
+//! The evaluator runs a list of episodes on a rayon pool; each worker owns one [`Agent`] made
+//! by a factory closure (so a neural navigator with private state plugs in), and pulls episodes
+//! from a shared counter. Results come back in episode order, independent of scheduling.
+
+use std::collections::BTreeMap;
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::Mutex;
+
+use gman_core::{Action, ATTR_DIM, NUM_ACTIONS};
+use indicatif::{ProgressBar, ProgressStyle};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use rayon::prelude::*;
+use serde::Serialize;
+
+use super::env::{Env, EpisodeLimits, OracleView};
+use super::metrics::{EpisodeResult, Summary};
+use super::reward::RewardKind;
+use super::tables::Observation;
+use super::types::{CategoryId, RoomType, SceneId, TargetKind};
+use super::util::hash2;
+use super::world::{EpisodeSpec, World};
+
+/// What an agent is told at the start of an episode.
+#[derive(Clone, Debug)]
+pub struct TargetInfo {
+    /// Target category.
+    pub category: CategoryId,
+    /// Target name.
+    pub name: String,
+    /// Semantic embedding SE(target).
+    pub attributes: [f32; ATTR_DIM],
+    /// Seen or unseen target.
+    pub kind: TargetKind,
+    /// Room type.
+    pub room: RoomType,
+    /// Scene.
+    pub scene: SceneId,
+    /// Per-episode seed (deterministic regardless of the worker that runs it).
+    pub episode_seed: u64,
+}
+
+impl TargetInfo {
+    /// Target info of an episode.
+    pub fn of(world: &World, spec: &EpisodeSpec) -> TargetInfo {
+        TargetInfo {
+            category: spec.target,
+            name: world.category_name(spec.target).to_string(),
+            attributes: *world.attributes(spec.target),
+            kind: spec.kind,
+            room: spec.room,
+            scene: spec.scene,
+            episode_seed: spec.seed,
+        }
+    }
+}
+
+/// A navigation policy.
+pub trait Agent {
+    /// Called before the first step of every episode.
+    fn begin_episode(&mut self, target: &TargetInfo);
+    /// Chooses the next action. `oracle` is ground truth for scripted agents; learned agents
+    /// must ignore it.
+    fn act(&mut self, obs: &Observation, oracle: &OracleView<'_>) -> Action;
+}
+
+/// A factory of agents, called once per evaluation worker with the worker index.
+pub type AgentFactory = Box<dyn Fn(usize) -> Box<dyn Agent + Send> + Sync>;
+
+/// Uniformly random over the six actions; seeded per episode.
+#[derive(Clone, Debug)]
+pub struct RandomAgent {
+    seed: u64,
+    rng: ChaCha8Rng,
+}
+
+impl RandomAgent {
+    /// A random agent whose choices depend on `seed` and the episode seed.
+    pub fn new(seed: u64) -> RandomAgent {
+        RandomAgent {
+            seed,
+            rng: ChaCha8Rng::seed_from_u64(seed),
+        }
+    }
+}
+
+impl Agent for RandomAgent {
+    fn begin_episode(&mut self, target: &TargetInfo) {
+        self.rng = ChaCha8Rng::seed_from_u64(hash2(self.seed, target.episode_seed));
+    }
+    fn act(&mut self, _obs: &Observation, _oracle: &OracleView<'_>) -> Action {
+        Action::ALL[self.rng.random_range(0..NUM_ACTIONS)]
+    }
+}
+
+/// Follows a shortest path to the nearest goal-visible state, then issues Done.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct OracleAgent;
+
+impl Agent for OracleAgent {
+    fn begin_episode(&mut self, _target: &TargetInfo) {}
+    fn act(&mut self, _obs: &Observation, oracle: &OracleView<'_>) -> Action {
+        oracle.optimal_action()
+    }
+}
+
+/// Evaluation settings.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct EvalConfig {
+    /// Reward paid during evaluation (only affects `total_reward`).
+    pub reward: RewardKind,
+    /// Step limits.
+    pub limits: EpisodeLimits,
+    /// Show a progress bar on stderr.
+    pub progress: bool,
+}
+
+/// Runs one episode with `agent`; returns the finished environment.
+pub fn run_episode<'w>(
+    world: &'w World,
+    spec: &EpisodeSpec,
+    agent: &mut dyn Agent,
+    cfg: &EvalConfig,
+) -> Env<'w> {
+    let mut env = Env::new(world, spec, cfg.reward, cfg.limits.for_room(spec.room));
+    drive(&mut env, spec, agent);
+    env
+}
+
+/// Runs `agent` on a freshly created `env` of `spec` until the episode ends.
+pub fn drive(env: &mut Env<'_>, spec: &EpisodeSpec, agent: &mut dyn Agent) {
+    agent.begin_episode(&TargetInfo::of(env.world(), spec));
+    while !env.is_done() {
+        let a = agent.act(env.observe(), &env.oracle());
+        env.step(a);
+    }
+}
+
+/// Evaluates `episodes`, one agent per rayon worker made by `factory(worker_index)`.
+pub fn evaluate<F>(
+    world: &World,
+    episodes: &[EpisodeSpec],
+    factory: F,
+    cfg: &EvalConfig,
+) -> Vec<EpisodeResult>
+where
+    F: Fn(usize) -> Box<dyn Agent + Send> + Sync,
+{
+    let next = AtomicUsize::new(0);
+    let bar = if cfg.progress {
+        let b = ProgressBar::new(episodes.len() as u64);
+        b.set_style(
+            ProgressStyle::with_template(
+                "{spinner} eval [{elapsed_precise}] {bar:40} {pos}/{len} episodes ({eta})",
+            )
+            .unwrap_or_else(|_| ProgressStyle::default_bar()),
+        );
+        b
+    } else {
+        ProgressBar::hidden()
+    };
+    let out: Mutex<Vec<Option<EpisodeResult>>> = Mutex::new(vec![None; episodes.len()]);
+    let workers = rayon::current_num_threads().max(1);
+    (0..workers).into_par_iter().for_each(|w| {
+        let mut agent = factory(w);
+        let mut local = Vec::new();
+        loop {
+            let i = next.fetch_add(1, Ordering::Relaxed);
+            if i >= episodes.len() {
+                break;
+            }
+            let spec = &episodes[i];
+            let env = run_episode(world, spec, agent.as_mut(), cfg);
+            local.push(EpisodeResult {
+                index: i,
+                scene: world.scenes[spec.scene].name.clone(),
+                room: spec.room,
+                kind: spec.kind,
+                target: world.category_name(spec.target).to_string(),
+                metrics: env.metrics(),
+            });
+            bar.inc(1);
+        }
+        let mut o = out.lock().expect("result lock");
+        for r in local {
+            let i = r.index;
+            o[i] = Some(r);
+        }
+    });
+    bar.finish_and_clear();
+    out.into_inner()
+        .expect("result lock")
+        .into_iter()
+        .map(|r| r.expect("every episode evaluated"))
+        .collect()
+}
+
+/// Seen/unseen summaries.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct KindSummaries {
+    /// Seen targets.
+    pub seen: Summary,
+    /// Unseen targets.
+    pub unseen: Summary,
+}
+
+impl KindSummaries {
+    /// Summaries of `results` split by target kind.
+    pub fn of<'a>(results: impl IntoIterator<Item = &'a EpisodeResult> + Clone) -> KindSummaries {
+        KindSummaries {
+            seen: Summary::of(
+                results
+                    .clone()
+                    .into_iter()
+                    .filter(|r| r.kind == TargetKind::Seen)
+                    .map(|r| &r.metrics),
+            ),
+            unseen: Summary::of(
+                results
+                    .into_iter()
+                    .filter(|r| r.kind == TargetKind::Unseen)
+                    .map(|r| &r.metrics),
+            ),
+        }
+    }
+}
+
+/// The JSON report of `gman eval`.
+#[derive(Clone, Debug, Serialize)]
+pub struct EvalReport {
+    /// Split name.
+    pub split: String,
+    /// Agent name.
+    pub agent: String,
+    /// Number of episodes.
+    pub episodes: usize,
+    /// Seen/unseen summaries (SR, SPL, EPA in percent, DTS in metres).
+    pub results: KindSummaries,
+    /// The same per room type.
+    pub by_room: BTreeMap<String, KindSummaries>,
+}
+
+impl EvalReport {
+    /// Aggregates per-episode results.
+    pub fn new(split: &str, agent: &str, results: &[EpisodeResult]) -> EvalReport {
+        let mut by_room = BTreeMap::new();
+        for room in RoomType::ALL {
+            let rs: Vec<&EpisodeResult> = results.iter().filter(|r| r.room == room).collect();
+            if !rs.is_empty() {
+                by_room.insert(
+                    room.name().to_string(),
+                    KindSummaries::of(rs.iter().copied()),
+                );
+            }
+        }
+        EvalReport {
+            split: split.to_string(),
+            agent: agent.to_string(),
+            episodes: results.len(),
+            results: KindSummaries::of(results.iter()),
+            by_room,
+        }
+    }
+
+    /// The table in the paper's layout (Tab. 4): unseen then seen, SR/SPL/EPA/DTS.
+    pub fn table(&self) -> String {
+        let mut s = String::new();
+        s.push_str(&format!(
+            "{:<22} | {:^31} | {:^31}\n",
+            format!("{} ({})", "Method", self.split),
+            "Unseen Objects",
+            "Seen Objects"
+        ));
+        s.push_str(&format!(
+            "{:<22} | {:>6} {:>7} {:>7} {:>7} | {:>6} {:>7} {:>7} {:>7}\n",
+            "", "SR(%)", "SPL(%)", "EPA(%)", "DTS(m)", "SR(%)", "SPL(%)", "EPA(%)", "DTS(m)"
+        ));
+        let row = |name: &str, k: &KindSummaries| {
+            format!(
+                "{:<22} | {:>6.2} {:>7.2} {:>7.2} {:>7.2} | {:>6.2} {:>7.2} {:>7.2} {:>7.2}\n",
+                name,
+                k.unseen.sr,
+                k.unseen.spl,
+                k.unseen.epa,
+                k.unseen.dts,
+                k.seen.sr,
+                k.seen.spl,
+                k.seen.epa,
+                k.seen.dts
+            )
+        };
+        s.push_str(&row(&self.agent, &self.results));
+        for (room, k) in &self.by_room {
+            s.push_str(&row(&format!("  {room}"), k));
+        }
+        s.push_str(&format!(
+            "({} episodes: {} unseen, {} seen)\n",
+            self.episodes, self.results.unseen.episodes, self.results.seen.episodes
+        ));
+        s
+    }
+}

@@ -1,0 +1,122 @@
+//! Top-down PNG map of a scene (plotters bitmap backend, no text so no fonts are needed).
+//!
+//! Legend: light grey squares are reachable cells from the data, light blue squares cells added
+//! by gap filling; filled discs are objects with known positions, rings objects placed by the
+//! seeded rule (colour per category, size from the footprint radius); goal instances have a
+//! thick black outline. A path is drawn in red from a green start marker (with a heading tick)
+//! to a blue end marker. +x points right, +z up.
+
+use std::path::Path;
+
+use anyhow::{anyhow, Result};
+use plotters::prelude::*;
+
+use super::geometry::{heading_dir, GRID};
+use super::types::{AgentState, CategoryId};
+use super::util::hash_str;
+use super::world::World;
+use super::SceneId;
+
+const CELL_PX: f32 = 28.0;
+const MARGIN_M: f32 = 0.6;
+
+fn category_color(name: &str) -> RGBColor {
+    let h = hash_str(7, name);
+    let hue = (h % 360) as f64 / 360.0;
+    let c = HSLColor(hue, 0.75, 0.45);
+    let (r, g, b) = c.rgb();
+    RGBColor(r, g, b)
+}
+
+/// Draws `scene` (and optionally a path of states and the goal category) to `png`.
+pub fn draw_scene(
+    world: &World,
+    scene: SceneId,
+    goal: Option<CategoryId>,
+    path: &[AgentState],
+    png: &Path,
+) -> Result<()> {
+    let sc = &world.scenes[scene];
+    let mut min = (f32::INFINITY, f32::INFINITY);
+    let mut max = (f32::NEG_INFINITY, f32::NEG_INFINITY);
+    let mut extend = |x: f32, z: f32| {
+        min = (min.0.min(x), min.1.min(z));
+        max = (max.0.max(x), max.1.max(z));
+    };
+    for &(x, z) in &sc.positions {
+        extend(x as f32 * GRID, z as f32 * GRID);
+    }
+    for o in &sc.objects {
+        extend(o.pos[0], o.pos[2]);
+    }
+    let (x0, z0) = (min.0 - MARGIN_M, min.1 - MARGIN_M);
+    let (x1, z1) = (max.0 + MARGIN_M, max.1 + MARGIN_M);
+    let scale = CELL_PX / GRID;
+    let w = ((x1 - x0) * scale).ceil().max(1.0) as u32;
+    let h = ((z1 - z0) * scale).ceil().max(1.0) as u32;
+    let px = |x: f32, z: f32| (((x - x0) * scale) as i32, ((z1 - z) * scale) as i32);
+    let err = |e: &dyn std::fmt::Display| anyhow!("drawing {}: {e}", png.display());
+    {
+        let root = BitMapBackend::new(png, (w, h)).into_drawing_area();
+        root.fill(&WHITE).map_err(|e| err(&e))?;
+        let half = GRID * 0.48;
+        for (i, &(x, z)) in sc.positions.iter().enumerate() {
+            let (cx, cz) = (x as f32 * GRID, z as f32 * GRID);
+            let color = if sc.filled[i] {
+                RGBColor(170, 205, 240)
+            } else {
+                RGBColor(215, 215, 215)
+            };
+            root.draw(&Rectangle::new(
+                [px(cx - half, cz + half), px(cx + half, cz - half)],
+                color.filled(),
+            ))
+            .map_err(|e| err(&e))?;
+        }
+        for o in &sc.objects {
+            let name = world.category_name(o.category);
+            let color = category_color(name);
+            let r = ((world.categories[o.category as usize].props.radius * scale) as i32).max(4);
+            let c = px(o.pos[0], o.pos[2]);
+            if goal == Some(o.category) {
+                root.draw(&Circle::new(c, r + 4, BLACK.filled()))
+                    .map_err(|e| err(&e))?;
+            }
+            let style = if o.known {
+                color.filled()
+            } else {
+                color.stroke_width(3)
+            };
+            if !o.known {
+                root.draw(&Circle::new(c, r, WHITE.filled()))
+                    .map_err(|e| err(&e))?;
+            }
+            root.draw(&Circle::new(c, r, style)).map_err(|e| err(&e))?;
+        }
+        if let (Some(first), Some(last)) = (path.first(), path.last()) {
+            let pts: Vec<(i32, i32)> = path
+                .iter()
+                .map(|s| px(s.x as f32 * GRID, s.z as f32 * GRID))
+                .collect();
+            root.draw(&PathElement::new(pts, RED.stroke_width(3)))
+                .map_err(|e| err(&e))?;
+            let (sx, sz) = (first.x as f32 * GRID, first.z as f32 * GRID);
+            let (dx, dz) = heading_dir(first.heading);
+            root.draw(&PathElement::new(
+                vec![px(sx, sz), px(sx + dx * GRID * 1.2, sz + dz * GRID * 1.2)],
+                GREEN.stroke_width(4),
+            ))
+            .map_err(|e| err(&e))?;
+            root.draw(&Circle::new(px(sx, sz), 7, GREEN.filled()))
+                .map_err(|e| err(&e))?;
+            root.draw(&Circle::new(
+                px(last.x as f32 * GRID, last.z as f32 * GRID),
+                6,
+                BLUE.filled(),
+            ))
+            .map_err(|e| err(&e))?;
+        }
+        root.present().map_err(|e| err(&e))?;
+    }
+    Ok(())
+}

@@ -1,0 +1,585 @@
+//! The navigation world: categories with attribute vectors, the seen/unseen split, scenes per
+//! split, lazily built state tables, official episodes and the training task sampler.
+
+use std::collections::{BTreeMap, HashMap};
+use std::path::{Path, PathBuf};
+use std::sync::OnceLock;
+
+use anyhow::{anyhow, bail, Context, Result};
+use gman_core::{ATTR_DIM, FEATURE_DIM};
+use rand::Rng;
+
+use super::catalog::props_of;
+use super::data;
+use super::features::{FeatureModel, SceneStyle};
+use super::scene::{Scene, SceneSource};
+use super::tables::{GoalTable, Observation, SceneTables, UNREACHABLE};
+use super::types::{
+    AgentState, Category, CategoryId, RoomType, SceneId, Split, TargetKind, NUM_HEADINGS,
+    STATES_PER_POSITION,
+};
+use super::util::{hash2, hash_str};
+
+/// Seed of the world (placement of unknown objects, feature model, scene styles) unless given.
+pub const DEFAULT_WORLD_SEED: u64 = 2022;
+
+/// One navigation task: a scene, a start state and a target category.
+#[derive(Clone, Debug, PartialEq)]
+pub struct EpisodeSpec {
+    /// Position in the episode list it came from (official episodes: file order).
+    pub index: usize,
+    /// Scene.
+    pub scene: SceneId,
+    /// Room type of the scene.
+    pub room: RoomType,
+    /// Seen or unseen target (training episodes: seen).
+    pub kind: TargetKind,
+    /// Target category. Goal instances are all its instances in the scene.
+    pub target: CategoryId,
+    /// AI2THOR ids named by the official episode (empty for sampled episodes).
+    pub target_ids: Vec<String>,
+    /// Start state.
+    pub start: AgentState,
+    /// Per-episode seed (for agents that need randomness).
+    pub seed: u64,
+}
+
+/// Where a world came from.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum WorldSource {
+    /// A data directory with the GMAN/iTHOR layout.
+    Data(PathBuf),
+    /// The built-in procedurally generated demo world.
+    Synthetic,
+}
+
+/// A view of a scene where one object dominates (for feature collection).
+#[derive(Clone, Debug)]
+pub struct DominantView {
+    /// State index of the view.
+    pub state: usize,
+    /// Agent state of the view.
+    pub agent: AgentState,
+    /// Instance index in the scene.
+    pub instance: usize,
+    /// Share of the view's embedding that comes from the instance (after the objects' total
+    /// share is capped at 0.95), in [0, 0.95].
+    pub weight: f32,
+    /// The view's features.
+    pub features: [f32; FEATURE_DIM],
+}
+
+/// Share of an observation's embedding contributed by an object of weight `w`.
+pub fn view_share(obs: &Observation, w: f32) -> f32 {
+    let total: f32 = obs.in_view.iter().map(|v| v.weight).sum();
+    let cap = super::features::MAX_OBJECT_SHARE;
+    if total > cap {
+        w * cap / total
+    } else {
+        w
+    }
+}
+
+/// Categories, splits, scenes, cached state tables and episodes.
+pub struct World {
+    /// Where the world came from.
+    pub source: WorldSource,
+    /// World seed.
+    pub seed: u64,
+    /// All categories (AI2THOR order of `attributes.json`).
+    pub categories: Vec<Category>,
+    /// Seen evaluation targets.
+    pub seen: Vec<CategoryId>,
+    /// Unseen categories (never in training scenes).
+    pub unseen: Vec<CategoryId>,
+    /// Training targets per room type (index [`RoomType::index`]).
+    pub train_targets: [Vec<CategoryId>; 4],
+    /// Evaluation targets per room type: (seen, unseen).
+    pub eval_targets: [(Vec<CategoryId>, Vec<CategoryId>); 4],
+    /// All scenes of all loaded splits.
+    pub scenes: Vec<Scene>,
+    split_scenes: BTreeMap<Split, Vec<SceneId>>,
+    scene_by_name: HashMap<String, SceneId>,
+    model: FeatureModel,
+    styles: Vec<SceneStyle>,
+    tables: Vec<OnceLock<SceneTables>>,
+    goals: Vec<Vec<OnceLock<GoalTable>>>,
+    generated_episodes: BTreeMap<Split, Vec<EpisodeSpec>>,
+}
+
+impl std::fmt::Debug for World {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("World")
+            .field("source", &self.source)
+            .field("seed", &self.seed)
+            .field("categories", &self.categories.len())
+            .field("scenes", &self.scenes.len())
+            .finish()
+    }
+}
+
+/// Everything needed to assemble a world (used by the loader and the synthetic generator).
+pub(crate) struct WorldParts {
+    pub source: WorldSource,
+    pub seed: u64,
+    pub categories: Vec<Category>,
+    pub seen: Vec<CategoryId>,
+    pub unseen: Vec<CategoryId>,
+    pub train_targets: [Vec<CategoryId>; 4],
+    pub eval_targets: [(Vec<CategoryId>, Vec<CategoryId>); 4],
+    pub scenes: Vec<SceneSource>,
+}
+
+impl World {
+    /// Loads the real floor plans from a data directory (`attributes.json`, `scenes/<split>/`,
+    /// `episodes/<split>/`) with [`DEFAULT_WORLD_SEED`]. Every split directory present under
+    /// `scenes/` is loaded; at least one must exist.
+    pub fn load(dir: &Path) -> Result<World> {
+        World::load_with_seed(dir, DEFAULT_WORLD_SEED)
+    }
+
+    /// [`World::load`] with an explicit world seed.
+    pub fn load_with_seed(dir: &Path, seed: u64) -> Result<World> {
+        let raw = data::load_attributes(dir)?;
+        let attr_path = dir.join("attributes.json");
+        let unseen_names: Vec<&String> = raw.split.unseen.iter().collect();
+        let categories: Vec<Category> = raw
+            .categories
+            .iter()
+            .map(|(name, v)| {
+                let mut attributes = [0f32; ATTR_DIM];
+                attributes.copy_from_slice(v);
+                Category {
+                    name: name.clone(),
+                    attributes,
+                    unseen: unseen_names.contains(&name),
+                    props: props_of(name),
+                }
+            })
+            .collect();
+        let by_name: HashMap<&str, CategoryId> = categories
+            .iter()
+            .enumerate()
+            .map(|(i, c)| (c.name.as_str(), i as CategoryId))
+            .collect();
+        let resolve = |names: &[String], what: &str| -> Result<Vec<CategoryId>> {
+            names
+                .iter()
+                .map(|n| {
+                    by_name.get(n.as_str()).copied().ok_or_else(|| {
+                        anyhow!(
+                            "{}: {what} names unknown category {n:?}",
+                            attr_path.display()
+                        )
+                    })
+                })
+                .collect()
+        };
+        let seen = resolve(&raw.split.seen, "split.seen")?;
+        let unseen = resolve(&raw.split.unseen, "split.unseen")?;
+        let mut train_targets: [Vec<CategoryId>; 4] = Default::default();
+        let mut eval_targets: [(Vec<CategoryId>, Vec<CategoryId>); 4] = Default::default();
+        for room in RoomType::ALL {
+            let tt = raw
+                .split
+                .train_targets_by_room
+                .get(room.name())
+                .ok_or_else(|| {
+                    anyhow!(
+                        "{}: split.train_targets_by_room has no {}",
+                        attr_path.display(),
+                        room.name()
+                    )
+                })?;
+            train_targets[room.index()] = resolve(tt, "split.train_targets_by_room")?;
+            if let Some(r) = raw.split.by_room.get(room.name()) {
+                eval_targets[room.index()] = (
+                    resolve(&r.seen, "split.by_room")?,
+                    resolve(&r.unseen, "split.by_room")?,
+                );
+            }
+        }
+        let mut scenes = Vec::new();
+        for split in Split::ALL {
+            if !data::scenes_dir(dir, split).is_dir() {
+                continue;
+            }
+            for s in data::load_scenes(dir, split)? {
+                let file = data::scenes_dir(dir, split).join(format!("{}.json", s.scene));
+                let room =
+                    RoomType::parse(&s.room).with_context(|| format!("in {}", file.display()))?;
+                let g = s.grid_size;
+                let cell = |p: &[f32; 2]| ((p[0] / g).round() as i32, (p[1] / g).round() as i32);
+                let reachable = s
+                    .reachable
+                    .iter()
+                    .chain(&s.reachable_sample)
+                    .map(cell)
+                    .collect();
+                let mut present = Vec::new();
+                for t in &s.object_types {
+                    match by_name.get(t.as_str()) {
+                        Some(&c) => present.push(c),
+                        None => bail!(
+                            "{}: object_types names unknown category {t:?}",
+                            file.display()
+                        ),
+                    }
+                }
+                let mut known = Vec::new();
+                for o in s.objects.iter().chain(&s.known_objects) {
+                    let Some(&c) = by_name.get(o.category.as_str()) else {
+                        bail!(
+                            "{}: object {} has unknown category {:?}",
+                            file.display(),
+                            o.id,
+                            o.category
+                        )
+                    };
+                    known.push((o.id.clone(), c, [o.x, o.y, o.z]));
+                }
+                scenes.push(SceneSource {
+                    name: s.scene.clone(),
+                    room,
+                    split,
+                    reachable,
+                    present,
+                    known,
+                });
+            }
+        }
+        if scenes.is_empty() {
+            bail!(
+                "{}: no scenes found (expected scenes/train, scenes/val or scenes/test)",
+                dir.display()
+            );
+        }
+        let parts = WorldParts {
+            source: WorldSource::Data(dir.to_path_buf()),
+            seed,
+            categories,
+            seen,
+            unseen,
+            train_targets,
+            eval_targets,
+            scenes,
+        };
+        Ok(World::assemble(parts, BTreeMap::new()))
+    }
+
+    /// The built-in synthetic demo world (see [`crate::sim::synthetic`]).
+    pub fn synthetic(seed: u64) -> World {
+        super::synthetic::generate(seed, &super::synthetic::SyntheticConfig::default())
+    }
+
+    pub(crate) fn assemble(
+        parts: WorldParts,
+        generated_episodes: BTreeMap<Split, Vec<EpisodeSpec>>,
+    ) -> World {
+        let model = FeatureModel::new(&parts.categories, parts.seed);
+        let scenes: Vec<Scene> = parts
+            .scenes
+            .into_iter()
+            .map(|s| Scene::build(s, &parts.categories, parts.seed))
+            .collect();
+        let styles = scenes
+            .iter()
+            .map(|s| SceneStyle::new(&model, s.seed))
+            .collect();
+        let mut split_scenes: BTreeMap<Split, Vec<SceneId>> = BTreeMap::new();
+        let mut scene_by_name = HashMap::new();
+        for (i, s) in scenes.iter().enumerate() {
+            split_scenes.entry(s.split).or_default().push(i);
+            scene_by_name.insert(s.name.clone(), i);
+        }
+        let n = scenes.len();
+        let nc = parts.categories.len();
+        World {
+            source: parts.source,
+            seed: parts.seed,
+            categories: parts.categories,
+            seen: parts.seen,
+            unseen: parts.unseen,
+            train_targets: parts.train_targets,
+            eval_targets: parts.eval_targets,
+            scenes,
+            split_scenes,
+            scene_by_name,
+            model,
+            styles,
+            tables: (0..n).map(|_| OnceLock::new()).collect(),
+            goals: (0..n)
+                .map(|_| (0..nc).map(|_| OnceLock::new()).collect())
+                .collect(),
+            generated_episodes,
+        }
+    }
+
+    pub(crate) fn set_generated_episodes(&mut self, split: Split, episodes: Vec<EpisodeSpec>) {
+        self.generated_episodes.insert(split, episodes);
+    }
+
+    /// Scenes of a split; a clear error if the split was not loaded.
+    pub fn split_scenes(&self, split: Split) -> Result<&[SceneId]> {
+        match self.split_scenes.get(&split) {
+            Some(v) => Ok(v),
+            None => match &self.source {
+                WorldSource::Data(dir) => bail!(
+                    "split {split}: no scenes loaded; directory {} does not exist",
+                    data::scenes_dir(dir, split).display()
+                ),
+                WorldSource::Synthetic => bail!(
+                    "split {split} does not exist in the synthetic world (train and val only)"
+                ),
+            },
+        }
+    }
+
+    /// Scene id by name.
+    pub fn scene_id(&self, name: &str) -> Option<SceneId> {
+        self.scene_by_name.get(name).copied()
+    }
+
+    /// Category id by name.
+    pub fn category_id(&self, name: &str) -> Option<CategoryId> {
+        self.categories
+            .iter()
+            .position(|c| c.name == name)
+            .map(|i| i as CategoryId)
+    }
+
+    /// Name of a category.
+    pub fn category_name(&self, c: CategoryId) -> &str {
+        &self.categories[c as usize].name
+    }
+
+    /// Attribute vector SE(c).
+    pub fn attributes(&self, c: CategoryId) -> &[f32; ATTR_DIM] {
+        &self.categories[c as usize].attributes
+    }
+
+    /// The cached state tables of a scene (built on first use; thread-safe).
+    pub fn tables(&self, scene: SceneId) -> &SceneTables {
+        self.tables[scene].get_or_init(|| {
+            SceneTables::build(
+                &self.scenes[scene],
+                &self.categories,
+                &self.model,
+                &self.styles[scene],
+            )
+        })
+    }
+
+    /// The cached goal table of (scene, target category) (built on first use).
+    pub fn goal_table(&self, scene: SceneId, category: CategoryId) -> &GoalTable {
+        self.goals[scene][category as usize].get_or_init(|| {
+            self.tables(scene)
+                .goal_table(&self.scenes[scene], &self.categories, category)
+        })
+    }
+
+    /// The feature model (attribute -> appearance network).
+    pub fn feature_model(&self) -> &FeatureModel {
+        &self.model
+    }
+
+    /// The appearance style of a scene.
+    pub fn scene_style(&self, scene: SceneId) -> &SceneStyle {
+        &self.styles[scene]
+    }
+
+    /// Observation of a state of a scene.
+    pub fn observation(&self, scene: SceneId, state: usize) -> &Observation {
+        &self.tables(scene).obs[state]
+    }
+
+    /// The ideal target feature of `category` in `scene`: its appearance rendered with the
+    /// scene's style, what a view filled by the object looks like (minus noise). See
+    /// [`crate::sim::features`].
+    pub fn object_feature(&self, scene: SceneId, category: CategoryId) -> [f32; FEATURE_DIM] {
+        self.styles[scene].render(&self.model, self.model.category_code(category as usize))
+    }
+
+    /// Mean of [`World::object_feature`] over the training scenes: the "general representation
+    /// of all seen environments" a generator learns without adaptation.
+    pub fn generic_object_feature(&self, category: CategoryId) -> [f32; FEATURE_DIM] {
+        let ids: Vec<SceneId> = self
+            .split_scenes
+            .get(&Split::Train)
+            .cloned()
+            .unwrap_or_else(|| (0..self.scenes.len()).collect());
+        let mut out = [0f32; FEATURE_DIM];
+        for &s in &ids {
+            let f = self.object_feature(s, category);
+            out.iter_mut().zip(f.iter()).for_each(|(o, v)| *o += v);
+        }
+        out.iter_mut().for_each(|o| *o /= ids.len().max(1) as f32);
+        out
+    }
+
+    /// Views of `scene` where an instance of `category` is the largest object in view, at most
+    /// `per_instance` per instance, largest share first (the paper's feature collection: several
+    /// egocentric views per object).
+    pub fn dominant_views(
+        &self,
+        scene: SceneId,
+        category: CategoryId,
+        per_instance: usize,
+    ) -> Vec<DominantView> {
+        let t = self.tables(scene);
+        let sc = &self.scenes[scene];
+        let mut out = Vec::new();
+        for inst in sc.instances_of(category) {
+            let mut views: Vec<(usize, f32)> = t
+                .obs
+                .iter()
+                .enumerate()
+                .filter_map(|(s, o)| match o.in_view.first() {
+                    Some(v) if v.instance as usize == inst => Some((s, view_share(o, v.weight))),
+                    _ => None,
+                })
+                .collect();
+            views.sort_by(|a, b| b.1.total_cmp(&a.1).then(a.0.cmp(&b.0)));
+            for (s, w) in views.into_iter().take(per_instance) {
+                out.push(DominantView {
+                    state: s,
+                    agent: sc.state(s),
+                    instance: inst,
+                    weight: w,
+                    features: t.obs[s].features,
+                });
+            }
+        }
+        out
+    }
+
+    /// Official (or, in the synthetic world, generated) episodes of a split, in file order,
+    /// at most `per_file` per file (per room and kind in the synthetic world).
+    pub fn episodes(&self, split: Split, per_file: Option<usize>) -> Result<Vec<EpisodeSpec>> {
+        match &self.source {
+            WorldSource::Synthetic => {
+                let all = self.generated_episodes.get(&split).ok_or_else(|| {
+                    anyhow!("split {split} has no episodes in the synthetic world (val only)")
+                })?;
+                let mut count: HashMap<(RoomType, TargetKind), usize> = HashMap::new();
+                let mut out = Vec::new();
+                for e in all {
+                    let c = count.entry((e.room, e.kind)).or_default();
+                    if *c < per_file.unwrap_or(usize::MAX) {
+                        *c += 1;
+                        let mut e = e.clone();
+                        e.index = out.len();
+                        out.push(e);
+                    }
+                }
+                Ok(out)
+            }
+            WorldSource::Data(dir) => {
+                self.split_scenes(split)?;
+                let raw = data::load_raw_episodes(dir, split, per_file)?;
+                raw.iter()
+                    .enumerate()
+                    .map(|(i, r)| self.resolve_episode(i, split, r))
+                    .collect()
+            }
+        }
+    }
+
+    fn resolve_episode(
+        &self,
+        index: usize,
+        split: Split,
+        r: &data::RawEpisodeLine,
+    ) -> Result<EpisodeSpec> {
+        let at = || format!("{} line {}", r.file.display(), r.line);
+        let e = &r.episode;
+        let scene = self
+            .scene_id(&e.scene)
+            .filter(|&s| self.scenes[s].split == split)
+            .ok_or_else(|| anyhow!("{}: scene {} is not a {split} scene", at(), e.scene))?;
+        let room = RoomType::parse(&e.room).with_context(at)?;
+        let kind = TargetKind::parse(&e.target_kind).with_context(at)?;
+        let target = self
+            .category_id(&e.target)
+            .ok_or_else(|| anyhow!("{}: unknown target {:?}", at(), e.target))?;
+        let rot = e.start.rotation.rem_euclid(360.0);
+        if (rot / 45.0 - (rot / 45.0).round()).abs() > 1e-3 {
+            bail!(
+                "{}: start rotation {} is not a multiple of 45",
+                at(),
+                e.start.rotation
+            );
+        }
+        let horizon = match e.start.horizon.round() as i32 {
+            0 => 0,
+            30 => 1,
+            h => bail!("{}: start horizon {h} is not 0 or 30", at()),
+        };
+        let start = AgentState {
+            x: (e.start.x / super::geometry::GRID).round() as i32,
+            z: (e.start.z / super::geometry::GRID).round() as i32,
+            heading: ((rot / 45.0).round() as usize % NUM_HEADINGS) as u8,
+            horizon,
+        };
+        if self.scenes[scene].state_index(start).is_none() {
+            bail!(
+                "{}: start ({}, {}) is not reachable in {}",
+                at(),
+                e.start.x,
+                e.start.z,
+                e.scene
+            );
+        }
+        Ok(EpisodeSpec {
+            index,
+            scene,
+            room,
+            kind,
+            target,
+            target_ids: e.target_ids.clone(),
+            start,
+            seed: hash2(hash_str(self.seed, split.name()), index as u64),
+        })
+    }
+
+    /// Samples a training task: a random training scene, a random training target of its room
+    /// type present in it, and a random reachable start (position and heading, horizon 0) from
+    /// which a goal-visible state can be reached.
+    pub fn sample_train_episode<R: Rng + ?Sized>(&self, rng: &mut R) -> EpisodeSpec {
+        let train = self
+            .split_scenes
+            .get(&Split::Train)
+            .expect("world has no training scenes");
+        loop {
+            let scene = train[rng.random_range(0..train.len())];
+            let sc = &self.scenes[scene];
+            let targets: Vec<CategoryId> = self.train_targets[sc.room.index()]
+                .iter()
+                .copied()
+                .filter(|&c| sc.instances_of(c).next().is_some())
+                .collect();
+            if targets.is_empty() {
+                continue;
+            }
+            let target = targets[rng.random_range(0..targets.len())];
+            let goal = self.goal_table(scene, target);
+            for _ in 0..32 {
+                let p = rng.random_range(0..sc.positions.len());
+                let heading = rng.random_range(0..NUM_HEADINGS) as u8;
+                let state = p * STATES_PER_POSITION + heading as usize * 2;
+                if goal.dist[state] != UNREACHABLE {
+                    return EpisodeSpec {
+                        index: 0,
+                        scene,
+                        room: sc.room,
+                        kind: TargetKind::Seen,
+                        target,
+                        target_ids: Vec::new(),
+                        start: sc.state(state),
+                        seed: rng.random(),
+                    };
+                }
+            }
+        }
+    }
+}

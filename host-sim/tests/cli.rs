@@ -1,0 +1,207 @@
+//! The `gman` command line: eval JSON, scene PNG and clear errors on bad input.
+
+mod common;
+
+use std::path::PathBuf;
+use std::process::Command;
+
+fn gman(args: &[&str]) -> (bool, String, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_gman"))
+        .args(args)
+        .output()
+        .expect("run gman");
+    (
+        out.status.success(),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+fn tmp(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("gman-cli-test-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+#[test]
+fn eval_synthetic_writes_json() {
+    let d = tmp("eval");
+    let json = d.join("out.json");
+    let (ok, stdout, stderr) = gman(&[
+        "eval",
+        "--agent",
+        "oracle",
+        "--episodes",
+        "5",
+        "--quiet",
+        "--json",
+        json.to_str().unwrap(),
+    ]);
+    assert!(ok, "{stderr}");
+    assert!(stdout.contains("Unseen Objects") && stdout.contains("SPL(%)"));
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    assert_eq!(v["split"], "val");
+    assert_eq!(v["agent"], "oracle");
+    assert_eq!(v["episodes"], 40);
+    for k in ["seen", "unseen"] {
+        assert_eq!(v["results"][k]["episodes"], 20);
+        assert_eq!(v["results"][k]["sr"], 100.0);
+        assert_eq!(v["results"][k]["spl"], 100.0);
+        assert!(v["results"][k]["epa"].as_f64().unwrap() > 0.0);
+        assert_eq!(v["results"][k]["dts"], 0.0);
+    }
+    assert_eq!(v["by_room"].as_object().unwrap().len(), 4);
+    assert!(v["by_room"]["living_room"]["unseen"]["sr"].is_number());
+}
+
+#[test]
+fn eval_real_data_random() {
+    let Some(data) = common::data_dir() else {
+        return;
+    };
+    let d = tmp("evalreal");
+    let json = d.join("r.json");
+    let (ok, _, stderr) = gman(&[
+        "eval",
+        "--data",
+        data.to_str().unwrap(),
+        "--split",
+        "val",
+        "--agent",
+        "random",
+        "--episodes",
+        "20",
+        "--seed",
+        "1",
+        "--quiet",
+        "--json",
+        json.to_str().unwrap(),
+    ]);
+    assert!(ok, "{stderr}");
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    assert_eq!(v["episodes"], 160);
+    assert!(v["results"]["unseen"]["sr"].as_f64().unwrap() < 50.0);
+}
+
+#[test]
+fn clear_errors_on_bad_input() {
+    let (ok, _, e) = gman(&["eval", "--data", "/nonexistent/gman-data", "--quiet"]);
+    assert!(!ok && e.contains("/nonexistent/gman-data"), "{e}");
+    assert!(!e.contains("panicked"));
+    let (ok, _, e) = gman(&["eval", "--split", "bogus", "--quiet"]);
+    assert!(!ok && e.contains("unknown split"), "{e}");
+    let (ok, _, e) = gman(&["eval", "--agent", "does-not-exist.bin", "--quiet"]);
+    assert!(!ok && e.contains("does-not-exist.bin"), "{e}");
+    // A model file that exists: not supported yet.
+    let d = tmp("model");
+    let model = d.join("model.bin");
+    std::fs::write(&model, b"x").unwrap();
+    let (ok, _, e) = gman(&["eval", "--agent", model.to_str().unwrap(), "--quiet"]);
+    assert!(!ok && e.contains("not supported yet"), "{e}");
+
+    if let Some(data) = common::data_dir() {
+        let data = data.to_str().unwrap();
+        // The test split is held back: a clear error naming the missing directory.
+        let (ok, _, e) = gman(&["eval", "--data", data, "--split", "test", "--quiet"]);
+        assert!(!ok && e.contains("scenes/test"), "{e}");
+        let (ok, _, e) = gman(&[
+            "scene",
+            "--data",
+            data,
+            "--scene",
+            "FloorPlan999",
+            "--png",
+            "/tmp/x.png",
+        ]);
+        assert!(
+            !ok && e.contains("FloorPlan999") && e.contains("FloorPlan22"),
+            "{e}"
+        );
+        // Malformed JSON: the error names the file.
+        let bad = tmp("bad");
+        std::fs::copy(
+            format!("{data}/attributes.json"),
+            bad.join("attributes.json"),
+        )
+        .unwrap();
+        std::fs::create_dir_all(bad.join("scenes/val")).unwrap();
+        std::fs::write(bad.join("scenes/val/FloorPlan1.json"), "{ not json").unwrap();
+        let (ok, _, e) = gman(&["eval", "--data", bad.to_str().unwrap(), "--quiet"]);
+        assert!(!ok && e.contains("FloorPlan1.json"), "{e}");
+        assert!(!e.contains("panicked"));
+    }
+}
+
+#[test]
+fn test_split_loads_when_present() {
+    // A copy of the layout with the val data renamed to test: `--split test` simply works.
+    let Some(data) = common::data_dir() else {
+        return;
+    };
+    let d = tmp("testsplit");
+    std::fs::copy(data.join("attributes.json"), d.join("attributes.json")).unwrap();
+    for (sub, ext) in [("scenes", "json"), ("episodes", "jsonl")] {
+        std::fs::create_dir_all(d.join(sub).join("test")).unwrap();
+        for f in std::fs::read_dir(data.join(sub).join("val")).unwrap() {
+            let f = f.unwrap().path();
+            if f.extension().is_some_and(|e| e == ext) {
+                let text = std::fs::read_to_string(&f)
+                    .unwrap()
+                    .replace("\"split\": \"val\"", "\"split\": \"test\"");
+                std::fs::write(d.join(sub).join("test").join(f.file_name().unwrap()), text)
+                    .unwrap();
+            }
+        }
+    }
+    let (ok, stdout, e) = gman(&[
+        "eval",
+        "--data",
+        d.to_str().unwrap(),
+        "--split",
+        "test",
+        "--agent",
+        "oracle",
+        "--episodes",
+        "10",
+        "--quiet",
+    ]);
+    assert!(ok, "{e}");
+    assert!(stdout.contains("(test)"));
+}
+
+#[test]
+fn scene_png_is_written() {
+    let d = tmp("png");
+    let png = d.join("s.png");
+    let (ok, _, e) = gman(&[
+        "scene",
+        "--scene",
+        "Synthetic-kitchen-val-0",
+        "--png",
+        png.to_str().unwrap(),
+        "--episode",
+        "0",
+    ]);
+    assert!(ok, "{e}");
+    let bytes = std::fs::read(&png).unwrap();
+    assert_eq!(&bytes[..8], b"\x89PNG\r\n\x1a\n");
+    if let Some(data) = common::data_dir() {
+        let png = d.join("fp22.png");
+        let (ok, _, e) = gman(&[
+            "scene",
+            "--data",
+            data.to_str().unwrap(),
+            "--scene",
+            "FloorPlan22",
+            "--png",
+            png.to_str().unwrap(),
+            "--episode",
+            "3",
+        ]);
+        assert!(ok, "{e}");
+        assert!(std::fs::metadata(&png).unwrap().len() > 1000);
+    }
+}
