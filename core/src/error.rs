@@ -29,7 +29,14 @@ pub enum Error {
     },
     /// A weight blob could not be used; see [`BlobError`].
     Blob(BlobError),
-    /// A configuration value is out of range (e.g. a zero buffer capacity).
+    /// A computation produced NaN or infinity although its inputs were finite (e.g. from
+    /// diverged adapted parameters); no action is returned from it.
+    NumericalFault {
+        /// Which quantity.
+        what: &'static str,
+    },
+    /// A configuration value is out of range (e.g. a zero buffer capacity), or a call was
+    /// made out of order (e.g. `step` before `reset`).
     Config {
         /// What is wrong, in a few words.
         what: &'static str,
@@ -184,6 +191,7 @@ impl fmt::Display for Error {
             Error::Shape(e) => write!(f, "shape error: {e}"),
             Error::NonFiniteInput { what } => write!(f, "non-finite value in input `{what}`"),
             Error::Blob(e) => write!(f, "weight blob error: {e}"),
+            Error::NumericalFault { what } => write!(f, "numerical fault: `{what}` is not finite"),
             Error::Config { what } => write!(f, "configuration error: {what}"),
         }
     }

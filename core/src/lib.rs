@@ -40,6 +40,8 @@ pub mod generator;
 pub mod lstm;
 pub mod matrix;
 pub mod memory;
+pub mod navigator;
+pub mod policy;
 pub mod preset;
 pub mod quant;
 pub mod rng;

@@ -80,7 +80,7 @@ impl NavLayout {
         };
         let disc_params = match mode {
             AdaptMode::Full => d.disc_params(),
-            AdaptMode::Efficient => 3 * dh + 1 + dh,
+            AdaptMode::Efficient => 3 * dh + 1,
         };
         let actor_params = match mode {
             AdaptMode::Full => NUM_ACTIONS * lh + NUM_ACTIONS,
@@ -88,13 +88,13 @@ impl NavLayout {
         };
         let fixed_biases = e + 4 * lh + 1;
         let grads = gen_params + disc_params + actor_params;
-        let psi = k * (f + z + NUM_ACTIONS + lh) + 1;
+        let psi = k * (f + z + NUM_ACTIONS + lh);
         let g = if gain { 1 } else { 0 };
         let gen_work = g * h + h + g * f + f + f + h + h + max(f, h);
         let disc_work = g * dh + 3 * dh + 2 * f;
         let adapt_work = 3 * k + k * NUM_ACTIONS + f;
         let policy_work =
-            f + e + 4 * lh + 4 * lh + 4 * NUM_ACTIONS + 2 + g * NUM_ACTIONS + z + a + d.ps;
+            f + e + 4 * lh + 4 * lh + 4 * NUM_ACTIONS + g * NUM_ACTIONS + z + a + d.ps;
         NavLayout {
             gen_params,
             disc_params,

@@ -1,5 +1,7 @@
 //! An f64 reference of GMAN's networks and losses, written independently of gman-core's
 //! kernels (plain loops, no segments, no int8), for gradient and agreement tests.
+//! Index loops are deliberate here: the reference reads like the equations.
+#![allow(clippy::needless_range_loop)]
 
 /// LeakyReLU slope.
 pub const SLOPE: f64 = 0.2;
@@ -231,4 +233,343 @@ pub fn rel_err(a: &[f64], b: &[f64], floor: f64) -> f64 {
         .sqrt();
     let n = b.iter().map(|y| y * y).sum::<f64>().sqrt();
     d / n.max(floor)
+}
+
+/// Plain-loop f64 reference of the whole on-device navigator (policy step, buffer Ψ and the
+/// inner update of Algorithm 1), written independently of gman-core's kernels. It replays
+/// the core's random stream (noise and interpolation weights come from
+/// `gman_core::rng::Xoshiro128`, the one shared piece) so the two can be compared step by step.
+pub mod nav {
+    use super::{lrelu, lrelu_d, matvec, sigmoid, Dense64, Disc64, Gen64, Lstm64};
+
+    /// One entry of Ψ: observation s_t, noise z_t, probabilities p_t, LSTM state h_t.
+    pub type PsiEntry = (Vec<f64>, Vec<f64>, Vec<f64>, Vec<f64>);
+
+    /// The navigator's networks and settings in f64.
+    #[derive(Clone, Debug)]
+    pub struct NavRef {
+        /// G.
+        pub gen: Gen64,
+        /// D.
+        pub disc: Disc64,
+        /// Fusion layer.
+        pub fuse: Dense64,
+        /// LSTM.
+        pub lstm: Lstm64,
+        /// Actor head.
+        pub actor: Dense64,
+        /// Critic head.
+        pub critic: Dense64,
+        /// Parameter-efficient mode (gains adapt, base weights frozen).
+        pub efficient: bool,
+        /// α1.
+        pub alpha_disc: f64,
+        /// α2.
+        pub alpha_adapt: f64,
+        /// λ.
+        pub lambda: f64,
+        /// Paper form of L_ad (else the reference form).
+        pub paper_loss: bool,
+        /// LSTM state h.
+        pub h: Vec<f64>,
+        /// LSTM state c.
+        pub c: Vec<f64>,
+        /// Previous probabilities.
+        pub prev: Vec<f64>,
+        /// Target attributes.
+        pub attr: Vec<f64>,
+        /// Ψ: (s_t, z_t, p_t, h_t).
+        pub psi: Vec<PsiEntry>,
+    }
+
+    fn softmax(l: &[f64]) -> Vec<f64> {
+        let m = l.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
+        let e: Vec<f64> = l.iter().map(|v| (v - m).exp()).collect();
+        let s: f64 = e.iter().sum();
+        e.iter().map(|v| v / s).collect()
+    }
+
+    impl NavRef {
+        /// One step with noise `z`: returns (x_t, probs, value) and records Ψ.
+        pub fn step(&mut self, obs: &[f64], z: &[f64], ps: &[f64]) -> (Vec<f64>, Vec<f64>, f64) {
+            let x = self.gen.forward(z, &self.attr);
+            let prod: Vec<f64> = obs.iter().zip(&x).map(|(a, b)| a * b).collect();
+            let mut inp = obs.to_vec();
+            inp.extend(&x);
+            inp.extend(&prod);
+            inp.extend(&self.attr);
+            inp.extend(&self.prev);
+            inp.extend(ps);
+            let e: Vec<f64> = self.fuse.forward(&inp).into_iter().map(lrelu).collect();
+            let (h, c) = self.lstm.step(&e, &self.h, &self.c);
+            let probs = softmax(&self.actor.forward(&h));
+            let value = self.critic.forward(&h)[0];
+            self.psi
+                .push((obs.to_vec(), z.to_vec(), probs.clone(), h.clone()));
+            self.h = h;
+            self.c = c;
+            self.prev = probs.clone();
+            (x, probs, value)
+        }
+
+        /// Gradient of `coef · D(v)` w.r.t. D's adapted parameters, added to `g`
+        /// (`g.0` = W1 or gain, `g.1` = b1, `g.2` = w2, `g.3` = b2).
+        fn disc_score_grad(
+            &self,
+            v: &[f64],
+            coef: f64,
+            g: &mut (Vec<f64>, Vec<f64>, Vec<f64>, f64),
+        ) {
+            let l1 = &self.disc.l1;
+            let u = matvec(&l1.w, l1.rows, l1.cols, v);
+            for j in 0..l1.rows {
+                let gain = l1.gain.as_ref().map_or(1.0, |g| g[j]);
+                let pre = gain * u[j] + l1.b[j];
+                g.2[j] += coef * lrelu(pre);
+                let dpre = coef * self.disc.w2[j] * lrelu_d(pre);
+                g.1[j] += dpre;
+                if self.efficient {
+                    g.0[j] += dpre * u[j];
+                } else {
+                    for i in 0..l1.cols {
+                        g.0[j * l1.cols + i] += dpre * gain * v[i];
+                    }
+                }
+            }
+            g.3 += coef;
+        }
+
+        /// Gradient of `coef · (‖∇_v D(v)‖ − 1)²` w.r.t. D's adapted parameters.
+        fn disc_penalty_grad(
+            &self,
+            v: &[f64],
+            coef: f64,
+            g: &mut (Vec<f64>, Vec<f64>, Vec<f64>, f64),
+        ) {
+            let l1 = &self.disc.l1;
+            let u = matvec(&l1.w, l1.rows, l1.cols, v);
+            let m: Vec<f64> = (0..l1.rows)
+                .map(|j| lrelu_d(l1.gain.as_ref().map_or(1.0, |g| g[j]) * u[j] + l1.b[j]))
+                .collect();
+            let gi = self.disc.input_grad(v);
+            let n = gi.iter().map(|a| a * a).sum::<f64>().sqrt();
+            if n == 0.0 {
+                return;
+            }
+            let c = coef * 2.0 * (n - 1.0) / n;
+            let wg = matvec(&l1.w, l1.rows, l1.cols, &gi);
+            for j in 0..l1.rows {
+                let gain = l1.gain.as_ref().map_or(1.0, |g| g[j]);
+                g.2[j] += c * gain * m[j] * wg[j];
+                if self.efficient {
+                    g.0[j] += c * self.disc.w2[j] * m[j] * wg[j];
+                } else {
+                    for i in 0..l1.cols {
+                        g.0[j * l1.cols + i] += c * gain * self.disc.w2[j] * m[j] * gi[i];
+                    }
+                }
+            }
+        }
+
+        /// The inner update on Ψ with interpolation weights `eps` (one per entry); empties Ψ.
+        pub fn adapt(&mut self, eps: &[f64]) {
+            let k = self.psi.len();
+            let l1 = self.disc.l1.clone();
+            let mut g = (
+                vec![
+                    0.0;
+                    if self.efficient {
+                        l1.rows
+                    } else {
+                        l1.rows * l1.cols
+                    }
+                ],
+                vec![0.0; l1.rows],
+                vec![0.0; l1.rows],
+                0.0,
+            );
+            let inv = 1.0 / k as f64;
+            for t in 0..k {
+                let s = self.psi[t].0.clone();
+                let x = self.gen.forward(&self.psi[t].1, &self.attr);
+                self.disc_score_grad(&s, inv, &mut g);
+                self.disc_score_grad(&x, -inv, &mut g);
+                let mix: Vec<f64> = s
+                    .iter()
+                    .zip(&x)
+                    .map(|(a, b)| eps[t] * a + (1.0 - eps[t]) * b)
+                    .collect();
+                self.disc_penalty_grad(&mix, -self.lambda * inv, &mut g);
+            }
+            let a1 = self.alpha_disc;
+            if self.efficient {
+                let gain = self.disc.l1.gain.as_mut().expect("gain");
+                gain.iter_mut().zip(&g.0).for_each(|(p, d)| *p += a1 * d);
+            } else {
+                self.disc
+                    .l1
+                    .w
+                    .iter_mut()
+                    .zip(&g.0)
+                    .for_each(|(p, d)| *p += a1 * d);
+            }
+            self.disc
+                .l1
+                .b
+                .iter_mut()
+                .zip(&g.1)
+                .for_each(|(p, d)| *p += a1 * d);
+            self.disc
+                .w2
+                .iter_mut()
+                .zip(&g.2)
+                .for_each(|(p, d)| *p += a1 * d);
+            self.disc.b2 += a1 * g.3;
+
+            // L_ad with the updated D.
+            let xs: Vec<Vec<f64>> = (0..k)
+                .map(|t| self.gen.forward(&self.psi[t].1, &self.attr))
+                .collect();
+            let d: Vec<f64> = xs.iter().map(|x| self.disc.score(x)).collect();
+            let (dd, dp): (Vec<f64>, Vec<Vec<f64>>) = if self.paper_loss {
+                (0..k)
+                    .map(|t| {
+                        let p = &self.psi[t].2;
+                        let n = p.iter().map(|v| v * v).sum::<f64>().sqrt();
+                        (
+                            -n / k as f64,
+                            p.iter().map(|v| -d[t] / k as f64 * v / n).collect(),
+                        )
+                    })
+                    .unzip()
+            } else {
+                let mut v = [0.0f64; 6];
+                for t in 0..k {
+                    for a in 0..6 {
+                        v[a] -= self.psi[t].2[a] * d[t];
+                    }
+                }
+                let n = v.iter().map(|a| a * a).sum::<f64>().sqrt();
+                (0..k)
+                    .map(|t| {
+                        let p = &self.psi[t].2;
+                        (
+                            -(0..6).map(|a| p[a] * v[a] / n).sum::<f64>(),
+                            (0..6).map(|a| -d[t] * v[a] / n).collect(),
+                        )
+                    })
+                    .unzip()
+            };
+            // θ gradient through G.
+            let (g1, g2) = (&self.gen.l1, &self.gen.l2);
+            let mut gg1 = (
+                vec![
+                    0.0;
+                    if self.efficient {
+                        g1.rows
+                    } else {
+                        g1.rows * g1.cols
+                    }
+                ],
+                vec![0.0; g1.rows],
+            );
+            let mut gg2 = (
+                vec![
+                    0.0;
+                    if self.efficient {
+                        g2.rows
+                    } else {
+                        g2.rows * g2.cols
+                    }
+                ],
+                vec![0.0; g2.rows],
+            );
+            for t in 0..k {
+                let z = &self.psi[t].1;
+                let gx = self.disc.input_grad(&xs[t]);
+                let mut inp = z.clone();
+                inp.extend(&self.attr);
+                let u1 = matvec(&g1.w, g1.rows, g1.cols, &inp);
+                let pre1: Vec<f64> = (0..g1.rows)
+                    .map(|j| g1.gain.as_ref().map_or(1.0, |g| g[j]) * u1[j] + g1.b[j])
+                    .collect();
+                let h1: Vec<f64> = pre1.iter().map(|&p| lrelu(p)).collect();
+                let u2 = matvec(&g2.w, g2.rows, g2.cols, &h1);
+                let mut dh1 = vec![0.0; g1.rows];
+                for j in 0..g2.rows {
+                    let gain = g2.gain.as_ref().map_or(1.0, |g| g[j]);
+                    let xj = sigmoid(gain * u2[j] + g2.b[j]);
+                    let dpre = dd[t] * gx[j] * xj * (1.0 - xj);
+                    gg2.1[j] += dpre;
+                    if self.efficient {
+                        gg2.0[j] += dpre * u2[j];
+                    } else {
+                        for i in 0..g2.cols {
+                            gg2.0[j * g2.cols + i] += dpre * gain * h1[i];
+                        }
+                    }
+                    for i in 0..g2.cols {
+                        dh1[i] += dpre * gain * g2.w[j * g2.cols + i];
+                    }
+                }
+                for j in 0..g1.rows {
+                    let gain = g1.gain.as_ref().map_or(1.0, |g| g[j]);
+                    let dpre = dh1[j] * lrelu_d(pre1[j]);
+                    gg1.1[j] += dpre;
+                    if self.efficient {
+                        gg1.0[j] += dpre * u1[j];
+                    } else {
+                        for i in 0..g1.cols {
+                            gg1.0[j * g1.cols + i] += dpre * gain * inp[i];
+                        }
+                    }
+                }
+            }
+            // φ (actor head) gradient.
+            let a = &self.actor;
+            let mut ga = (
+                vec![
+                    0.0;
+                    if self.efficient {
+                        a.rows
+                    } else {
+                        a.rows * a.cols
+                    }
+                ],
+                vec![0.0; a.rows],
+            );
+            for t in 0..k {
+                let p = &self.psi[t].2;
+                let s: f64 = (0..6).map(|i| p[i] * dp[t][i]).sum();
+                let h = &self.psi[t].3;
+                let u = matvec(&a.w, a.rows, a.cols, h);
+                for j in 0..6 {
+                    let dl = p[j] * (dp[t][j] - s);
+                    ga.1[j] += dl;
+                    if self.efficient {
+                        ga.0[j] += dl * u[j];
+                    } else {
+                        for i in 0..a.cols {
+                            ga.0[j * a.cols + i] += dl * h[i];
+                        }
+                    }
+                }
+            }
+            let a2 = self.alpha_adapt;
+            let eff = self.efficient;
+            let apply = |layer: &mut Dense64, g: &(Vec<f64>, Vec<f64>)| {
+                let target = if eff {
+                    layer.gain.as_mut().expect("gain")
+                } else {
+                    &mut layer.w
+                };
+                target.iter_mut().zip(&g.0).for_each(|(p, d)| *p -= a2 * d);
+                layer.b.iter_mut().zip(&g.1).for_each(|(p, d)| *p -= a2 * d);
+            };
+            apply(&mut self.gen.l1, &gg1);
+            apply(&mut self.gen.l2, &gg2);
+            apply(&mut self.actor, &ga);
+            self.psi.clear();
+        }
+    }
 }

@@ -1,0 +1,1128 @@
+//! The on-device navigator: the policy, the navigation buffer Ψ and the inner loop of
+//! Algorithm 1, one call per camera frame.
+//!
+//! ```text
+//! reset(SE(y), seed)      θ_i ← θ, φ_i ← φ (line 4); clear LSTM state and Ψ
+//! step(s_t) -> a_t        x_t = G_θi(SE(y), z_t)            (line 7)
+//!                         a_t ~ π_{θi,φi}(· | s_t, x_t, ...)  (line 8)
+//!                         Ψ ← Ψ ∪ {(s_t, z_t, a_t, h_t)}      (lines 11-13)
+//!                         every k steps, while fewer than `max_inner_updates` were made:
+//!                           ω  ← ω  + α1 ∇_ω L_D             (lines 15-16, Eq. 1)
+//!                           θi ← θi − α2 ∇_θi L_ad            (lines 17-18, Eq. 3)
+//!                           φi ← φi − α2 ∇_φi L_ad            (line 19)
+//!                           empty Ψ                           (line 20)
+//! ```
+//!
+//! # What adapts, and how its gradient is taken
+//! * θ: all of G in [`AdaptMode::Full`]; the per-unit gains and biases of G's two layers in
+//!   [`AdaptMode::Efficient`].
+//! * φ: the **actor head** (all of it in `Full`, its per-unit gains and biases in
+//!   `Efficient`). The fusion layer, the LSTM and the critic keep their meta-learned values.
+//! * ω (D): all of D in `Full`; its hidden layer's gains and biases and its output layer in
+//!   `Efficient`. D is *not* restored by [`Navigator::reset`]: as in the paper it is
+//!   learned across episodes.
+//!
+//! ∇_θ L_ad flows through D(x_t) into G (exact, see [`crate::adapt`]). ∇_φ L_ad flows through
+//! the softmax into the actor head using the LSTM hidden state h_t stored in Ψ for each step:
+//! exact for the actor head, with no back-propagation through time (a device cannot afford
+//! it). The dependence of a_t on θ through the policy's input x_t is not followed (a
+//! stop-gradient): L_ad adapts G through D only, and the policy through its head only.
+//!
+//! Ψ stores the noise z_t instead of x_t: inside one adaptation window θ does not change, so
+//! x_t is regenerated exactly and Ψ_x costs `Z` instead of `F` floats per step.
+//!
+//! Algorithm 1 as printed records a step only when `t` is not a multiple of `k` (lines
+//! 10-13), so its buffer would hold `k − 1` samples at each update. Here every step is
+//! recorded and the update runs when Ψ holds `k` samples, i.e. every `k` steps.
+//!
+//! # Safety
+//! Non-finite observations or attribute vectors are rejected with
+//! [`Error::NonFiniteInput`]. An adaptation step whose loss is non-finite or above
+//! [`NavConfig::loss_bound`], or whose update would make a parameter non-finite, is not
+//! applied (it is *rolled back* before it is written, so no copy of the parameters is needed)
+//! and counted in [`Counters::rollbacks`]. An action is only returned from finite
+//! probabilities; otherwise [`Error::NumericalFault`] is returned.
+//!
+//! # Example: a firmware loop
+//! ```
+//! use gman_core::navigator::{NavConfig, NavWeights, Navigator, Efficient};
+//! use gman_core::memory::{arena_len, AdaptMode};
+//! use gman_core::blob::Blob;
+//! use gman_core::Dims;
+//! # use gman_core::blob::{encode, encoded_len_bound, TensorData, TensorId, TensorSpec};
+//! # // Hidden: make an Mcu int8 blob from seeded weights (a firmware embeds a trained one).
+//! # let d = Dims::MCU;
+//! # let mut rng = gman_core::rng::Xoshiro128::seed_from_u64(1);
+//! # let mut store = Vec::new();
+//! # for &id in TensorId::ALL {
+//! #     let (r, c) = id.shape(&d);
+//! #     let mut v = vec![0.0f32; r * c];
+//! #     gman_core::rng::fill_gaussian(&mut rng, &mut v);
+//! #     v.iter_mut().for_each(|x| *x *= 0.05);
+//! #     let (mut q, mut s) = (vec![0u8; r * c], vec![0.0f32; r]);
+//! #     gman_core::quant::quantize_rows(&v, r, c, &mut q, &mut s).unwrap();
+//! #     store.push((id, v, q, s));
+//! # }
+//! # let specs: Vec<_> = store.iter().map(|(id, v, q, s)| TensorSpec { id: *id,
+//! #     data: if id.is_vector() { TensorData::F32(v) } else { TensorData::I8 { q, scales: s } } }).collect();
+//! # let mut bytes = vec![0u8; encoded_len_bound(&specs)];
+//! # let n = encode(&d, &specs, &mut bytes).unwrap();
+//! # bytes.truncate(n);
+//! // In firmware: `static BLOB: &[u8] = include_bytes!("model.gman");` and a static arena.
+//! const LEN: usize = arena_len(&Dims::MCU, AdaptMode::Efficient, 20);
+//! let mut arena = vec![0.0f32; LEN]; // firmware: a `static` array of LEN floats
+//! let blob = Blob::parse(&bytes).expect("valid blob");
+//! let weights = NavWeights::from_blob(&blob, &Dims::MCU).expect("MCU blob");
+//! let mut nav: Navigator<'_, Efficient, 20> =
+//!     Navigator::new(weights, &mut arena, NavConfig::default()).expect("arena large enough");
+//! let target_attributes = [0.5f32; 45]; // SE(y) of the category to find
+//! nav.reset(&target_attributes, 42).expect("finite attributes");
+//! let camera_features = [0.1f32; 512]; // s_t from the camera pipeline
+//! for _ in 0..30 {
+//!     let out = nav.step(&camera_features, &[]).expect("finite observation");
+//!     if out.action == gman_core::Action::Done { break; }
+//! }
+//! assert_eq!(nav.counters().adaptations, 1); // one inner update after k = 20 steps
+//! ```
+
+use core::marker::PhantomData;
+
+use crate::activation::{all_finite, softmax_backward};
+use crate::adapt::{adapt_generator_grad, AdaptLossKind, AdaptWork};
+use crate::blob::{Blob, TensorId, NUM_TENSORS};
+use crate::dense::{Dense, DenseGrads};
+use crate::discriminator::{DiscGrads, DiscScratch, Discriminator, LdConfig, LdValue};
+use crate::error::{check_len, Error, Result};
+use crate::generator::{Generator, GeneratorCache, GeneratorScratch};
+use crate::lstm::Lstm;
+use crate::matrix::MatRef;
+use crate::memory::{arena_len, AdaptMode};
+use crate::policy::{Policy, PolicyCache, PolicyInput};
+use crate::preset::Dims;
+use crate::rng::{fill_gaussian, uniform, Xoshiro128};
+use crate::{Action, NUM_ACTIONS};
+
+/// Compile-time choice of the adaptation mode (see [`AdaptMode`]).
+pub trait Mode {
+    /// The mode.
+    const MODE: AdaptMode;
+}
+
+/// Marker for [`AdaptMode::Full`].
+#[derive(Clone, Copy, Debug)]
+pub struct Full;
+impl Mode for Full {
+    const MODE: AdaptMode = AdaptMode::Full;
+}
+
+/// Marker for [`AdaptMode::Efficient`].
+#[derive(Clone, Copy, Debug)]
+pub struct Efficient;
+impl Mode for Efficient {
+    const MODE: AdaptMode = AdaptMode::Efficient;
+}
+
+/// Noise z fed to G at navigation time.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum NoiseMode {
+    /// A fresh N(0, I) sample every step (the paper's G(SE(y), z) with random z). Default.
+    #[default]
+    Gaussian,
+    /// z = 0 always (the reference implementation); then x_t only changes when θ adapts.
+    Zero,
+}
+
+/// How the action is chosen from the probabilities.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum Selection {
+    /// The most probable action (lowest index on ties). Default.
+    #[default]
+    Greedy,
+    /// A sample from the probabilities, with the navigator's seeded generator.
+    Sample,
+}
+
+/// Run-time settings of the navigator.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct NavConfig {
+    /// Whether the inner loop runs at all (false: the A3C+FG baseline with no adaptation).
+    pub adapt: bool,
+    /// At most this many inner updates per episode (reference: 4).
+    pub max_inner_updates: u32,
+    /// α1, the ascent rate of D on L_D (paper: 1e-4).
+    pub alpha_disc: f32,
+    /// α2, the SGD rate of θ and φ on L_ad (paper: 1e-4).
+    pub alpha_adapt: f32,
+    /// λ and the critic scale of L_D.
+    pub ld: LdConfig,
+    /// Form of Eq. 3.
+    pub adapt_loss: AdaptLossKind,
+    /// Noise of G.
+    pub noise: NoiseMode,
+    /// Action selection.
+    pub selection: Selection,
+    /// An adaptation step whose |loss| exceeds this is rolled back.
+    pub loss_bound: f32,
+}
+
+impl Default for NavConfig {
+    fn default() -> Self {
+        NavConfig {
+            adapt: true,
+            max_inner_updates: 4,
+            alpha_disc: 1e-4,
+            alpha_adapt: 1e-4,
+            ld: LdConfig::default(),
+            adapt_loss: AdaptLossKind::Paper,
+            noise: NoiseMode::Gaussian,
+            selection: Selection::Greedy,
+            loss_bound: 1e6,
+        }
+    }
+}
+
+/// Counters, per episode (reset by [`Navigator::reset`]) and over the navigator's life.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Counters {
+    /// Steps in this episode.
+    pub steps: u32,
+    /// Inner updates applied in this episode.
+    pub adaptations: u32,
+    /// Adaptation steps (D ascent or θ/φ descent) rolled back in this episode.
+    pub rollbacks: u32,
+    /// Steps over the navigator's life.
+    pub total_steps: u64,
+    /// Inner updates over the navigator's life.
+    pub total_adaptations: u64,
+    /// Rollbacks over the navigator's life.
+    pub total_rollbacks: u64,
+}
+
+/// What one step returns.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct StepOutput {
+    /// The chosen action.
+    pub action: Action,
+    /// The policy's action probabilities.
+    pub probs: [f32; NUM_ACTIONS],
+    /// The critic's value estimate.
+    pub value: f32,
+    /// True when this step ended with an inner update (applied or rolled back).
+    pub adapted: bool,
+}
+
+/// Diagnostics of the last inner update.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct AdaptReport {
+    /// L_D and its parts, before D's ascent step.
+    pub ld: LdValue,
+    /// L_ad before the descent step.
+    pub adapt_loss: f32,
+    /// Whether D's step was applied.
+    pub disc_applied: bool,
+    /// Whether θ/φ's step was applied.
+    pub adapt_applied: bool,
+}
+
+/// Read-only views of every tensor the navigator needs (from a blob, or from a trainer's
+/// f32 buffers), indexed by [`TensorId`].
+#[derive(Clone, Copy, Debug)]
+pub struct NavWeights<'w> {
+    dims: Dims,
+    t: [MatRef<'w>; NUM_TENSORS],
+}
+
+impl<'w> NavWeights<'w> {
+    /// Views into a parsed blob (no copy); checks the blob's dims against `dims`.
+    pub fn from_blob(blob: &Blob<'w>, dims: &Dims) -> Result<Self> {
+        blob.check_dims(dims)?;
+        let mut t = [empty(); NUM_TENSORS];
+        for &id in TensorId::ALL {
+            t[id as usize] = blob.matrix(id)?;
+        }
+        Ok(NavWeights { dims: *dims, t })
+    }
+
+    /// Views built by `f` for each tensor (a trainer passes `MatRef::f32` over its buffers);
+    /// shapes are checked against `dims`.
+    pub fn from_fn(dims: &Dims, mut f: impl FnMut(TensorId) -> MatRef<'w>) -> Result<Self> {
+        let mut t = [empty(); NUM_TENSORS];
+        for &id in TensorId::ALL {
+            let m = f(id);
+            let (r, c) = id.shape(dims);
+            if m.rows() != r || m.cols() != c {
+                return Err(Error::Blob(crate::BlobError::BadTensorShape {
+                    id: id as u16,
+                }));
+            }
+            t[id as usize] = m;
+        }
+        Ok(NavWeights { dims: *dims, t })
+    }
+
+    /// The dims.
+    pub fn dims(&self) -> &Dims {
+        &self.dims
+    }
+
+    /// The view of tensor `id`.
+    pub fn get(&self, id: TensorId) -> MatRef<'w> {
+        self.t[id as usize]
+    }
+}
+
+fn empty() -> MatRef<'static> {
+    match MatRef::f32(0, 0, &[]) {
+        Ok(m) => m,
+        Err(_) => empty(),
+    }
+}
+
+/// Copies a (possibly int8 or LE-bytes) matrix into f32 RAM.
+fn copy_mat(m: &MatRef<'_>, out: &mut [f32]) -> Result<()> {
+    check_len("copy_mat", m.rows() * m.cols(), out.len())?;
+    let c = m.cols().max(1);
+    for (i, o) in out.iter_mut().enumerate() {
+        *o = m.get(i / c, i % c);
+    }
+    Ok(())
+}
+
+/// Takes the next `n` floats of the arena.
+fn take<'a>(rest: &mut &'a mut [f32], n: usize) -> Result<&'a mut [f32]> {
+    let r = core::mem::take(rest);
+    if r.len() < n {
+        return Err(Error::Config {
+            what: "arena too small for these dims, mode and k (see memory::arena_len)",
+        });
+    }
+    let (a, b) = r.split_at_mut(n);
+    *rest = b;
+    Ok(a)
+}
+
+/// An adapted (or RAM-resident) dense layer: `w` is empty when the base weights are read
+/// from the blob; `gain` is empty in `Full` mode.
+struct LayerRam<'w> {
+    w: &'w mut [f32],
+    gain: &'w mut [f32],
+    b: &'w mut [f32],
+}
+
+impl<'w> LayerRam<'w> {
+    fn carve(rest: &mut &'w mut [f32], full: bool, rows: usize, cols: usize) -> Result<Self> {
+        Ok(LayerRam {
+            w: take(rest, if full { rows * cols } else { 0 })?,
+            gain: take(rest, if full { 0 } else { rows })?,
+            b: take(rest, rows)?,
+        })
+    }
+
+    fn view<'s>(&'s self, base: MatRef<'s>) -> Result<Dense<'s>> {
+        let w = if self.w.is_empty() {
+            base
+        } else {
+            MatRef::f32(base.rows(), base.cols(), self.w)?
+        };
+        Ok(Dense {
+            w,
+            b: self.b,
+            gain: if self.gain.is_empty() {
+                None
+            } else {
+                Some(self.gain)
+            },
+        })
+    }
+
+    /// Restores the meta-learned values: `w` from the blob (Full) or gain 1 (Efficient).
+    fn restore(&mut self, w: &MatRef<'_>, b: &MatRef<'_>) -> Result<()> {
+        if !self.w.is_empty() {
+            copy_mat(w, self.w)?;
+        }
+        self.gain.fill(1.0);
+        copy_mat(b, self.b)
+    }
+}
+
+/// Gradient buffers matching a [`LayerRam`] (`a` is dW in Full, dgain in Efficient).
+struct LayerGrad<'w> {
+    a: &'w mut [f32],
+    b: &'w mut [f32],
+    full: bool,
+}
+
+impl<'w> LayerGrad<'w> {
+    fn carve(rest: &mut &'w mut [f32], full: bool, rows: usize, cols: usize) -> Result<Self> {
+        Ok(LayerGrad {
+            a: take(rest, if full { rows * cols } else { rows })?,
+            b: take(rest, rows)?,
+            full,
+        })
+    }
+    fn grads(&mut self) -> DenseGrads<'_> {
+        if self.full {
+            DenseGrads::Full {
+                w: self.a,
+                b: self.b,
+            }
+        } else {
+            DenseGrads::Gain {
+                gain: self.a,
+                b: self.b,
+            }
+        }
+    }
+    fn zero(&mut self) {
+        self.a.fill(0.0);
+        self.b.fill(0.0);
+    }
+    fn scale(&mut self, s: f32) {
+        self.a
+            .iter_mut()
+            .chain(self.b.iter_mut())
+            .for_each(|v| *v *= s);
+    }
+    fn finite(&self) -> bool {
+        all_finite(self.a) && all_finite(self.b)
+    }
+    /// True if `p + step * g` stays finite everywhere.
+    fn update_ok(&self, p: &LayerRam<'_>, step: f32) -> bool {
+        let target = if self.full { &*p.w } else { &*p.gain };
+        ok_update(target, self.a, step) && ok_update(p.b, self.b, step)
+    }
+    fn apply(&self, p: &mut LayerRam<'_>, step: f32) {
+        let target = if self.full { &mut *p.w } else { &mut *p.gain };
+        axpy_inplace(target, self.a, step);
+        axpy_inplace(p.b, self.b, step);
+    }
+}
+
+fn ok_update(p: &[f32], g: &[f32], step: f32) -> bool {
+    p.iter().zip(g).all(|(a, b)| (a + step * b).is_finite())
+}
+
+fn axpy_inplace(p: &mut [f32], g: &[f32], step: f32) {
+    for (a, b) in p.iter_mut().zip(g) {
+        *a += step * b;
+    }
+}
+
+/// All RAM regions of the navigator, carved from the caller's arena.
+struct Ram<'w> {
+    gen1: LayerRam<'w>,
+    gen2: LayerRam<'w>,
+    disc1: LayerRam<'w>,
+    disc_w2: &'w mut [f32],
+    disc_b2: &'w mut [f32],
+    actor: LayerRam<'w>,
+    fuse_b: &'w mut [f32],
+    lstm_b: &'w mut [f32],
+    critic_b: &'w mut [f32],
+    g_gen1: LayerGrad<'w>,
+    g_gen2: LayerGrad<'w>,
+    g_disc1: LayerGrad<'w>,
+    g_disc_w2: &'w mut [f32],
+    g_disc_b2: &'w mut [f32],
+    g_actor: LayerGrad<'w>,
+    psi_s: &'w mut [f32],
+    psi_z: &'w mut [f32],
+    psi_p: &'w mut [f32],
+    psi_h: &'w mut [f32],
+    // G activations and scratch
+    u1: &'w mut [f32],
+    h1: &'w mut [f32],
+    u2: &'w mut [f32],
+    x: &'w mut [f32],
+    dpre2: &'w mut [f32],
+    dh1: &'w mut [f32],
+    dpre1: &'w mut [f32],
+    gtmp: &'w mut [f32],
+    // D scratch
+    du: &'w mut [f32],
+    dh: &'w mut [f32],
+    dv: &'w mut [f32],
+    dw1g: &'w mut [f32],
+    dg: &'w mut [f32],
+    dmix: &'w mut [f32],
+    // adaptation work
+    eps: &'w mut [f32],
+    d: &'w mut [f32],
+    dd: &'w mut [f32],
+    dprobs: &'w mut [f32],
+    dx: &'w mut [f32],
+    // policy work and state
+    prod: &'w mut [f32],
+    fuse: &'w mut [f32],
+    gates: &'w mut [f32],
+    h: &'w mut [f32],
+    c: &'w mut [f32],
+    h_state: &'w mut [f32],
+    c_state: &'w mut [f32],
+    logits: &'w mut [f32],
+    probs: &'w mut [f32],
+    prev_probs: &'w mut [f32],
+    dlogits: &'w mut [f32],
+    actor_u: &'w mut [f32],
+    z: &'w mut [f32],
+    attr: &'w mut [f32],
+    ps: &'w mut [f32],
+}
+
+impl<'w> Ram<'w> {
+    fn carve(arena: &'w mut [f32], d: &Dims, mode: AdaptMode, k: usize) -> Result<(Self, usize)> {
+        let total = arena.len();
+        let r = &mut &mut *arena;
+        let full = mode == AdaptMode::Full;
+        let g = if full { 0 } else { 1 };
+        let (h, f, z, a, dh, lh, e) = (
+            d.gen_hidden,
+            d.feat,
+            d.noise,
+            d.attr,
+            d.disc_hidden,
+            d.lstm_hidden,
+            d.embed,
+        );
+        let ram = Ram {
+            gen1: LayerRam::carve(r, full, h, d.gen_in())?,
+            gen2: LayerRam::carve(r, full, f, h)?,
+            disc1: LayerRam::carve(r, full, dh, f)?,
+            disc_w2: take(r, dh)?,
+            disc_b2: take(r, 1)?,
+            actor: LayerRam::carve(r, full, NUM_ACTIONS, lh)?,
+            fuse_b: take(r, e)?,
+            lstm_b: take(r, 4 * lh)?,
+            critic_b: take(r, 1)?,
+            g_gen1: LayerGrad::carve(r, full, h, d.gen_in())?,
+            g_gen2: LayerGrad::carve(r, full, f, h)?,
+            g_disc1: LayerGrad::carve(r, full, dh, f)?,
+            g_disc_w2: take(r, dh)?,
+            g_disc_b2: take(r, 1)?,
+            g_actor: LayerGrad::carve(r, full, NUM_ACTIONS, lh)?,
+            psi_s: take(r, k * f)?,
+            psi_z: take(r, k * z)?,
+            psi_p: take(r, k * NUM_ACTIONS)?,
+            psi_h: take(r, k * lh)?,
+            u1: take(r, g * h)?,
+            h1: take(r, h)?,
+            u2: take(r, g * f)?,
+            x: take(r, f)?,
+            dpre2: take(r, f)?,
+            dh1: take(r, h)?,
+            dpre1: take(r, h)?,
+            gtmp: take(r, f.max(h))?,
+            du: take(r, g * dh)?,
+            dh: take(r, dh)?,
+            dv: take(r, dh)?,
+            dw1g: take(r, dh)?,
+            dg: take(r, f)?,
+            dmix: take(r, f)?,
+            eps: take(r, k)?,
+            d: take(r, k)?,
+            dd: take(r, k)?,
+            dprobs: take(r, k * NUM_ACTIONS)?,
+            dx: take(r, f)?,
+            prod: take(r, f)?,
+            fuse: take(r, e)?,
+            gates: take(r, 4 * lh)?,
+            h: take(r, lh)?,
+            c: take(r, lh)?,
+            h_state: take(r, lh)?,
+            c_state: take(r, lh)?,
+            logits: take(r, NUM_ACTIONS)?,
+            probs: take(r, NUM_ACTIONS)?,
+            prev_probs: take(r, NUM_ACTIONS)?,
+            dlogits: take(r, NUM_ACTIONS)?,
+            actor_u: take(r, g * NUM_ACTIONS)?,
+            z: take(r, z)?,
+            attr: take(r, a)?,
+            ps: take(r, d.ps)?,
+        };
+        let used = total - r.len();
+        Ok((ram, used))
+    }
+}
+
+/// The on-device GMAN navigator. `M` is the adaptation mode ([`Full`] or [`Efficient`]),
+/// `K` the capacity of the buffer Ψ (the paper's k = 20).
+pub struct Navigator<'w, M: Mode, const K: usize> {
+    w: NavWeights<'w>,
+    cfg: NavConfig,
+    rng: Xoshiro128,
+    r: Ram<'w>,
+    counters: Counters,
+    n_buf: usize,
+    ready: bool,
+    x_valid: bool,
+    last: AdaptReport,
+    _mode: PhantomData<M>,
+}
+
+impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
+    /// Number of f32 the arena must hold: [`arena_len`] for these dims, `M` and `K`.
+    pub fn arena_len(dims: &Dims) -> usize {
+        arena_len(dims, M::MODE, K)
+    }
+
+    /// A navigator over `weights`, with all mutable state in `arena` (at least
+    /// [`Navigator::arena_len`] floats). D and the fixed biases are loaded from `weights`;
+    /// call [`Navigator::reset`] before the first step.
+    pub fn new(weights: NavWeights<'w>, arena: &'w mut [f32], cfg: NavConfig) -> Result<Self> {
+        if K == 0 {
+            return Err(Error::Config {
+                what: "buffer capacity K must be at least 1",
+            });
+        }
+        if !(cfg.alpha_disc.is_finite() && cfg.alpha_adapt.is_finite() && cfg.loss_bound > 0.0) {
+            return Err(Error::Config {
+                what: "learning rates must be finite and loss_bound > 0",
+            });
+        }
+        let dims = weights.dims;
+        let (r, _used) = Ram::carve(arena, &dims, M::MODE, K)?;
+        let mut nav = Navigator {
+            w: weights,
+            cfg,
+            rng: Xoshiro128::seed_from_u64(0),
+            r,
+            counters: Counters::default(),
+            n_buf: 0,
+            ready: false,
+            x_valid: false,
+            last: AdaptReport::default(),
+            _mode: PhantomData,
+        };
+        // Validate every shape once by building the views.
+        nav.reset_discriminator()?;
+        copy_mat(&nav.w.get(TensorId::FuseB), nav.r.fuse_b)?;
+        copy_mat(&nav.w.get(TensorId::LstmB), nav.r.lstm_b)?;
+        copy_mat(&nav.w.get(TensorId::CriticB), nav.r.critic_b)?;
+        nav.restore_adapted()?;
+        nav.policy()?.validate()?;
+        nav.generator()?.validate()?;
+        nav.discriminator()?.validate()?;
+        Ok(nav)
+    }
+
+    /// Restores D's parameters ω to the values in the weights (D otherwise persists across
+    /// episodes, learning from every buffer).
+    pub fn reset_discriminator(&mut self) -> Result<()> {
+        let w = self.w;
+        self.r
+            .disc1
+            .restore(&w.get(TensorId::DiscW1), &w.get(TensorId::DiscB1))?;
+        copy_mat(&w.get(TensorId::DiscW2), self.r.disc_w2)?;
+        copy_mat(&w.get(TensorId::DiscB2), self.r.disc_b2)
+    }
+
+    fn restore_adapted(&mut self) -> Result<()> {
+        let w = self.w;
+        self.r
+            .gen1
+            .restore(&w.get(TensorId::GenW1), &w.get(TensorId::GenB1))?;
+        self.r
+            .gen2
+            .restore(&w.get(TensorId::GenW2), &w.get(TensorId::GenB2))?;
+        self.r
+            .actor
+            .restore(&w.get(TensorId::ActorW), &w.get(TensorId::ActorB))
+    }
+
+    /// Starts an episode towards the category with attribute vector `attr` (SE(y)):
+    /// restores θ and φ to their meta-learned values (line 4 of Algorithm 1), clears the LSTM
+    /// state, the previous action probabilities and Ψ, and seeds the navigator's generator
+    /// (noise, interpolation weights, sampling) with `seed`.
+    pub fn reset(&mut self, attr: &[f32], seed: u64) -> Result<()> {
+        check_len("reset.attr", self.w.dims.attr, attr.len())?;
+        if !all_finite(attr) {
+            return Err(Error::NonFiniteInput { what: "attr" });
+        }
+        self.restore_adapted()?;
+        self.r.attr.copy_from_slice(attr);
+        self.r.h_state.fill(0.0);
+        self.r.c_state.fill(0.0);
+        self.r.prev_probs.fill(0.0);
+        self.rng = Xoshiro128::seed_from_u64(seed);
+        self.n_buf = 0;
+        self.x_valid = false;
+        self.ready = true;
+        let c = &mut self.counters;
+        c.steps = 0;
+        c.adaptations = 0;
+        c.rollbacks = 0;
+        Ok(())
+    }
+
+    /// The counters.
+    pub fn counters(&self) -> Counters {
+        self.counters
+    }
+
+    /// Diagnostics of the last inner update.
+    pub fn last_adaptation(&self) -> AdaptReport {
+        self.last
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &NavConfig {
+        &self.cfg
+    }
+
+    /// The generated target feature x_t of the last step (`feat` floats).
+    pub fn generated_feature(&self) -> &[f32] {
+        self.r.x
+    }
+
+    /// The current LSTM hidden state.
+    pub fn hidden_state(&self) -> &[f32] {
+        self.r.h_state
+    }
+
+    /// Number of steps recorded in Ψ since it was last emptied.
+    pub fn buffered(&self) -> usize {
+        self.n_buf
+    }
+
+    /// The adapted generator θ_i as a view (for diagnostics and host-side meta-gradients).
+    pub fn generator(&self) -> Result<Generator<'_>> {
+        Ok(Generator {
+            l1: self.r.gen1.view(self.w.get(TensorId::GenW1))?,
+            l2: self.r.gen2.view(self.w.get(TensorId::GenW2))?,
+        })
+    }
+
+    /// The current discriminator ω as a view.
+    pub fn discriminator(&self) -> Result<Discriminator<'_>> {
+        Ok(Discriminator {
+            l1: self.r.disc1.view(self.w.get(TensorId::DiscW1))?,
+            w2: self.r.disc_w2,
+            b2: self.r.disc_b2.first().copied().unwrap_or(0.0),
+        })
+    }
+
+    /// The adapted policy φ_i as a view.
+    pub fn policy(&self) -> Result<Policy<'_>> {
+        let w = &self.w;
+        Ok(Policy {
+            fuse: Dense {
+                w: w.get(TensorId::FuseW),
+                b: self.r.fuse_b,
+                gain: None,
+            },
+            lstm: Lstm {
+                wx: w.get(TensorId::LstmWx),
+                wh: w.get(TensorId::LstmWh),
+                b: self.r.lstm_b,
+            },
+            actor: self.r.actor.view(w.get(TensorId::ActorW))?,
+            critic: Dense {
+                w: w.get(TensorId::CriticW),
+                b: self.r.critic_b,
+                gain: None,
+            },
+        })
+    }
+
+    /// One control step on the observation embedding `obs` (`feat` floats) and, for policies
+    /// with a PS input, the PS prediction `ps` (`ps` floats; pass `&[]` otherwise).
+    pub fn step(&mut self, obs: &[f32], ps: &[f32]) -> Result<StepOutput> {
+        if !self.ready {
+            return Err(Error::Config {
+                what: "call reset() before step()",
+            });
+        }
+        let d = self.w.dims;
+        check_len("step.obs", d.feat, obs.len())?;
+        check_len("step.ps", d.ps, ps.len())?;
+        if !all_finite(obs) {
+            return Err(Error::NonFiniteInput { what: "obs" });
+        }
+        if !all_finite(ps) {
+            return Err(Error::NonFiniteInput { what: "ps" });
+        }
+        self.r.ps.copy_from_slice(ps);
+        // Line 7: x_t = G_θi(SE(y), z_t).
+        match self.cfg.noise {
+            NoiseMode::Gaussian => {
+                fill_gaussian(&mut self.rng, self.r.z);
+                self.generate()?;
+            }
+            NoiseMode::Zero => {
+                if !self.x_valid {
+                    self.r.z.fill(0.0);
+                    self.generate()?;
+                    self.x_valid = true;
+                }
+            }
+        }
+        // Line 8: the policy.
+        let value = self.run_policy(obs)?;
+        if !all_finite(self.r.probs) || !value.is_finite() {
+            return Err(Error::NumericalFault {
+                what: "action probabilities",
+            });
+        }
+        let action = self.select();
+        // Lines 11-13: record in Ψ.
+        let (f, z, lh, n) = (d.feat, d.noise, d.lstm_hidden, self.n_buf);
+        self.r.psi_s[n * f..(n + 1) * f].copy_from_slice(obs);
+        self.r.psi_z[n * z..(n + 1) * z].copy_from_slice(self.r.z);
+        self.r.psi_p[n * NUM_ACTIONS..(n + 1) * NUM_ACTIONS].copy_from_slice(self.r.probs);
+        self.r.psi_h[n * lh..(n + 1) * lh].copy_from_slice(self.r.h);
+        self.n_buf += 1;
+        self.r.h_state.copy_from_slice(self.r.h);
+        self.r.c_state.copy_from_slice(self.r.c);
+        self.r.prev_probs.copy_from_slice(self.r.probs);
+        let mut probs = [0.0f32; NUM_ACTIONS];
+        probs.copy_from_slice(self.r.probs);
+        self.counters.steps = self.counters.steps.saturating_add(1);
+        self.counters.total_steps += 1;
+        // Lines 14-20: every k steps, the inner update; then empty Ψ.
+        let mut adapted = false;
+        if self.n_buf == K {
+            if self.cfg.adapt && self.counters.adaptations < self.cfg.max_inner_updates {
+                self.inner_update()?;
+                adapted = true;
+            }
+            self.n_buf = 0;
+        }
+        Ok(StepOutput {
+            action,
+            probs,
+            value,
+            adapted,
+        })
+    }
+
+    fn generate(&mut self) -> Result<()> {
+        let r = &mut self.r;
+        let gen = Generator {
+            l1: r.gen1.view(self.w.get(TensorId::GenW1))?,
+            l2: r.gen2.view(self.w.get(TensorId::GenW2))?,
+        };
+        let mut cache = GeneratorCache {
+            u1: r.u1,
+            h1: r.h1,
+            u2: r.u2,
+            x: r.x,
+        };
+        gen.forward(r.z, r.attr, &mut cache)
+    }
+
+    fn run_policy(&mut self, obs: &[f32]) -> Result<f32> {
+        let w = &self.w;
+        let r = &mut self.r;
+        let policy = Policy {
+            fuse: Dense {
+                w: w.get(TensorId::FuseW),
+                b: r.fuse_b,
+                gain: None,
+            },
+            lstm: Lstm {
+                wx: w.get(TensorId::LstmWx),
+                wh: w.get(TensorId::LstmWh),
+                b: r.lstm_b,
+            },
+            actor: r.actor.view(w.get(TensorId::ActorW))?,
+            critic: Dense {
+                w: w.get(TensorId::CriticW),
+                b: r.critic_b,
+                gain: None,
+            },
+        };
+        let inp = PolicyInput {
+            obs,
+            feat: r.x,
+            attr: r.attr,
+            prev_probs: r.prev_probs,
+            ps: r.ps,
+        };
+        let mut cache = PolicyCache {
+            prod: r.prod,
+            fuse: r.fuse,
+            gates: r.gates,
+            c: r.c,
+            h: r.h,
+            actor_u: r.actor_u,
+            logits: r.logits,
+            probs: r.probs,
+            value: 0.0,
+        };
+        policy.forward(&inp, r.h_state, r.c_state, &mut cache)?;
+        Ok(cache.value)
+    }
+
+    fn select(&mut self) -> Action {
+        let p = &*self.r.probs;
+        let mut best = 0;
+        match self.cfg.selection {
+            Selection::Greedy => {
+                for i in 1..NUM_ACTIONS {
+                    if p[i] > p[best] {
+                        best = i;
+                    }
+                }
+            }
+            Selection::Sample => {
+                let u = uniform(&mut self.rng);
+                let mut acc = 0.0;
+                best = NUM_ACTIONS - 1;
+                for (i, &pi) in p.iter().enumerate() {
+                    acc += pi;
+                    if u < acc {
+                        best = i;
+                        break;
+                    }
+                }
+            }
+        }
+        Action::from_index(best).unwrap_or(Action::Done)
+    }
+
+    /// Lines 15-20 of Algorithm 1 on the `K` samples in Ψ.
+    fn inner_update(&mut self) -> Result<()> {
+        let d = self.w.dims;
+        let cfg = self.cfg;
+        let (f, zd, lh) = (d.feat, d.noise, d.lstm_hidden);
+        let w = self.w;
+        let mut report = AdaptReport::default();
+        let Ram {
+            gen1,
+            gen2,
+            disc1,
+            disc_w2,
+            disc_b2,
+            actor,
+            g_gen1,
+            g_gen2,
+            g_disc1,
+            g_disc_w2,
+            g_disc_b2,
+            g_actor,
+            psi_s,
+            psi_z,
+            psi_p,
+            psi_h,
+            u1,
+            h1,
+            u2,
+            x,
+            dpre2,
+            dh1,
+            dpre1,
+            gtmp,
+            du,
+            dh,
+            dv,
+            dw1g,
+            dg,
+            dmix,
+            eps,
+            d: dvals,
+            dd,
+            dprobs,
+            dx,
+            dlogits,
+            actor_u,
+            attr,
+            ..
+        } = &mut self.r;
+
+        // Lines 15-16: one ascent step of D on L_D (Eq. 1) over Ψ_s and Ψ_x.
+        g_disc1.zero();
+        g_disc_w2.fill(0.0);
+        g_disc_b2.fill(0.0);
+        let mut ld = LdValue::default();
+        {
+            let gen = Generator {
+                l1: gen1.view(w.get(TensorId::GenW1))?,
+                l2: gen2.view(w.get(TensorId::GenW2))?,
+            };
+            let disc = Discriminator {
+                l1: disc1.view(w.get(TensorId::DiscW1))?,
+                w2: disc_w2,
+                b2: disc_b2.first().copied().unwrap_or(0.0),
+            };
+            let mut db2 = 0.0f32;
+            let mut grads = DiscGrads {
+                l1: g_disc1.grads(),
+                w2: g_disc_w2,
+                b2: &mut db2,
+            };
+            let inv = 1.0 / K as f32;
+            for t in 0..K {
+                eps[t] = uniform(&mut self.rng);
+            }
+            let mut last_z: Option<usize> = None;
+            for t in 0..K {
+                let z = &psi_z[t * zd..(t + 1) * zd];
+                let same = last_z.is_some_and(|p| {
+                    psi_z[p * zd..(p + 1) * zd]
+                        .iter()
+                        .zip(z)
+                        .all(|(a, b)| a.to_bits() == b.to_bits())
+                });
+                if !same {
+                    let mut cache = GeneratorCache { u1, h1, u2, x };
+                    gen.forward(z, attr, &mut cache)?;
+                    last_z = Some(t);
+                }
+                let mut s = DiscScratch {
+                    u: du,
+                    h: dh,
+                    v: dv,
+                    w1g: dw1g,
+                    g: dg,
+                    mix: dmix,
+                };
+                let v = disc.ld_loss(
+                    &psi_s[t * f..(t + 1) * f],
+                    x,
+                    &eps[t..t + 1],
+                    cfg.ld,
+                    &mut s,
+                    Some(&mut grads),
+                )?;
+                ld.loss += v.loss * inv;
+                ld.mean_real += v.mean_real * inv;
+                ld.mean_fake += v.mean_fake * inv;
+                ld.penalty += v.penalty * inv;
+            }
+            g_disc_b2[0] = db2;
+            g_disc1.scale(inv);
+            g_disc_w2
+                .iter_mut()
+                .chain(g_disc_b2.iter_mut())
+                .for_each(|v| *v *= inv);
+        }
+        report.ld = ld;
+        // Ascent: ω ← ω + α1 ∇_ω L_D, only if everything stays finite and bounded.
+        let a1 = cfg.alpha_disc;
+        let disc_ok = ld.loss.is_finite()
+            && libm::fabsf(ld.loss) <= cfg.loss_bound
+            && g_disc1.finite()
+            && all_finite(g_disc_w2)
+            && all_finite(g_disc_b2)
+            && g_disc1.update_ok(disc1, a1)
+            && ok_update(disc_w2, g_disc_w2, a1)
+            && ok_update(disc_b2, g_disc_b2, a1);
+        if disc_ok {
+            g_disc1.apply(disc1, a1);
+            axpy_inplace(disc_w2, g_disc_w2, a1);
+            axpy_inplace(disc_b2, g_disc_b2, a1);
+        }
+        report.disc_applied = disc_ok;
+
+        // Lines 17-19: L_ad (Eq. 3) and its gradients for θ_i and φ_i.
+        g_gen1.zero();
+        g_gen2.zero();
+        g_actor.zero();
+        let loss = {
+            let gen = Generator {
+                l1: gen1.view(w.get(TensorId::GenW1))?,
+                l2: gen2.view(w.get(TensorId::GenW2))?,
+            };
+            let disc = Discriminator {
+                l1: disc1.view(w.get(TensorId::DiscW1))?,
+                w2: disc_w2,
+                b2: disc_b2.first().copied().unwrap_or(0.0),
+            };
+            let mut work = AdaptWork {
+                gen: GeneratorCache { u1, h1, u2, x },
+                gen_scratch: GeneratorScratch {
+                    dpre2,
+                    dh1,
+                    dpre1,
+                    tmp: gtmp,
+                },
+                disc: DiscScratch {
+                    u: du,
+                    h: dh,
+                    v: dv,
+                    w1g: dw1g,
+                    g: dg,
+                    mix: dmix,
+                },
+                d: dvals,
+                dd,
+                dx,
+            };
+            adapt_generator_grad(
+                cfg.adapt_loss,
+                &gen,
+                &disc,
+                attr,
+                psi_z,
+                psi_p,
+                &mut work,
+                &mut g_gen1.grads(),
+                &mut g_gen2.grads(),
+                dprobs,
+            )?
+        };
+        {
+            let head = actor.view(w.get(TensorId::ActorW))?;
+            let mut ga = g_actor.grads();
+            let mut logits = [0.0f32; NUM_ACTIONS];
+            let mut tmp = [0.0f32; NUM_ACTIONS];
+            for t in 0..K {
+                let p = &psi_p[t * NUM_ACTIONS..(t + 1) * NUM_ACTIONS];
+                let dp = &dprobs[t * NUM_ACTIONS..(t + 1) * NUM_ACTIONS];
+                softmax_backward(p, dp, dlogits)?;
+                let ht = &psi_h[t * lh..(t + 1) * lh];
+                if head.gain.is_some() {
+                    head.forward(&[ht], actor_u, &mut logits)?;
+                }
+                head.backward(&[ht], actor_u, dlogits, None, &mut ga, &mut tmp)?;
+            }
+        }
+        report.adapt_loss = loss;
+        let a2 = -cfg.alpha_adapt;
+        let adapt_ok = loss.is_finite()
+            && libm::fabsf(loss) <= cfg.loss_bound
+            && g_gen1.finite()
+            && g_gen2.finite()
+            && g_actor.finite()
+            && g_gen1.update_ok(gen1, a2)
+            && g_gen2.update_ok(gen2, a2)
+            && g_actor.update_ok(actor, a2);
+        if adapt_ok {
+            g_gen1.apply(gen1, a2);
+            g_gen2.apply(gen2, a2);
+            g_actor.apply(actor, a2);
+        }
+        report.adapt_applied = adapt_ok;
+        let rolled = (!disc_ok) as u32 + (!adapt_ok) as u32;
+        self.counters.rollbacks += rolled;
+        self.counters.total_rollbacks += rolled as u64;
+        self.counters.adaptations += 1;
+        self.counters.total_adaptations += 1;
+        self.x_valid = false;
+        self.last = report;
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    extern crate std;
+    use super::*;
+    use std::vec;
+
+    #[test]
+    fn carve_uses_exactly_the_documented_layout() {
+        for d in [Dims::MCU, Dims::MCU.with_ps(), Dims::PAPER] {
+            for mode in [AdaptMode::Full, AdaptMode::Efficient] {
+                for k in [1usize, 20] {
+                    let n = arena_len(&d, mode, k);
+                    let mut arena = vec![0.0f32; n + 7];
+                    let (_, used) = Ram::carve(&mut arena, &d, mode, k).unwrap();
+                    assert_eq!(used, n, "{d:?} {mode:?} k={k}");
+                    let mut small = vec![0.0f32; n - 1];
+                    assert!(Ram::carve(&mut small, &d, mode, k).is_err());
+                }
+            }
+        }
+    }
+}

@@ -1,0 +1,452 @@
+//! The on-device navigator of gman-core against the independent f64 reference
+//! (`gman_tests::reference::nav`), plus determinism, rollback and a synthetic check that the
+//! inner loop does what Eq. 1-3 say.
+
+use gman_core::adapt::AdaptLossKind;
+use gman_core::blob::TensorId;
+use gman_core::dense::Dense;
+use gman_core::matrix::MatRef;
+use gman_core::navigator::{
+    Efficient, Full, Mode, NavConfig, NavWeights, Navigator, NoiseMode, Selection,
+};
+use gman_core::rng::{fill_gaussian, uniform, Xoshiro128};
+use gman_core::{Dims, Error};
+use gman_tests::reference::nav::NavRef;
+use gman_tests::reference::{Dense64, Disc64, Gen64, Lstm64};
+
+/// Seeded f32 weights for every tensor of `dims` (N(0, scale²)).
+fn weights(dims: &Dims, seed: u64, scale: f32) -> Vec<Vec<f32>> {
+    let mut rng = Xoshiro128::seed_from_u64(seed);
+    TensorId::ALL
+        .iter()
+        .map(|&id| {
+            let (r, c) = id.shape(dims);
+            let mut v = vec![0.0f32; r * c];
+            fill_gaussian(&mut rng, &mut v);
+            v.iter_mut().for_each(|x| *x *= scale);
+            v
+        })
+        .collect()
+}
+
+fn nav_weights<'a>(dims: &Dims, w: &'a [Vec<f32>]) -> NavWeights<'a> {
+    NavWeights::from_fn(dims, |id| {
+        let (r, c) = id.shape(dims);
+        MatRef::f32(r, c, &w[id as usize]).unwrap()
+    })
+    .unwrap()
+}
+
+fn f64s(v: &[f32]) -> Vec<f64> {
+    v.iter().map(|&x| x as f64).collect()
+}
+
+fn d64(dims: &Dims, w: &[Vec<f32>], id: TensorId, bias: TensorId, gain: bool) -> Dense64 {
+    let (rows, cols) = id.shape(dims);
+    Dense64 {
+        rows,
+        cols,
+        w: f64s(&w[id as usize]),
+        b: f64s(&w[bias as usize]),
+        gain: gain.then(|| vec![1.0; rows]),
+    }
+}
+
+fn reference(
+    dims: &Dims,
+    w: &[Vec<f32>],
+    efficient: bool,
+    cfg: &NavConfig,
+    attr: &[f32],
+) -> NavRef {
+    let lh = dims.lstm_hidden;
+    NavRef {
+        gen: Gen64 {
+            l1: d64(dims, w, TensorId::GenW1, TensorId::GenB1, efficient),
+            l2: d64(dims, w, TensorId::GenW2, TensorId::GenB2, efficient),
+        },
+        disc: Disc64 {
+            l1: d64(dims, w, TensorId::DiscW1, TensorId::DiscB1, efficient),
+            w2: f64s(&w[TensorId::DiscW2 as usize]),
+            b2: w[TensorId::DiscB2 as usize][0] as f64,
+        },
+        fuse: d64(dims, w, TensorId::FuseW, TensorId::FuseB, false),
+        lstm: Lstm64 {
+            input: dims.embed,
+            hidden: lh,
+            wx: f64s(&w[TensorId::LstmWx as usize]),
+            wh: f64s(&w[TensorId::LstmWh as usize]),
+            b: f64s(&w[TensorId::LstmB as usize]),
+        },
+        actor: d64(dims, w, TensorId::ActorW, TensorId::ActorB, efficient),
+        critic: d64(dims, w, TensorId::CriticW, TensorId::CriticB, false),
+        efficient,
+        alpha_disc: cfg.alpha_disc as f64,
+        alpha_adapt: cfg.alpha_adapt as f64,
+        lambda: cfg.ld.lambda as f64,
+        paper_loss: cfg.adapt_loss == AdaptLossKind::Paper,
+        h: vec![0.0; lh],
+        c: vec![0.0; lh],
+        prev: vec![0.0; 6],
+        attr: f64s(attr),
+        psi: Vec::new(),
+    }
+}
+
+/// The adapted values of a core layer: (W or gain, b).
+fn core_layer(d: &Dense<'_>, efficient: bool) -> (Vec<f64>, Vec<f64>) {
+    let a = if efficient {
+        f64s(d.gain.expect("gain"))
+    } else {
+        let (r, c) = (d.w.rows(), d.w.cols());
+        (0..r * c).map(|i| d.w.get(i / c, i % c) as f64).collect()
+    };
+    (a, f64s(d.b))
+}
+
+fn ref_layer(d: &Dense64, efficient: bool) -> (Vec<f64>, Vec<f64>) {
+    (
+        if efficient {
+            d.gain.clone().unwrap()
+        } else {
+            d.w.clone()
+        },
+        d.b.clone(),
+    )
+}
+
+fn rel(a: &[f64], b: &[f64]) -> f64 {
+    let d = a
+        .iter()
+        .zip(b)
+        .map(|(x, y)| (x - y).powi(2))
+        .sum::<f64>()
+        .sqrt();
+    d / b.iter().map(|y| y * y).sum::<f64>().sqrt().max(1e-12)
+}
+
+fn sub(a: &[f64], b: &[f64]) -> Vec<f64> {
+    a.iter().zip(b).map(|(x, y)| x - y).collect()
+}
+
+/// Snapshot of all adapted parameters of the core navigator, in a fixed order.
+fn core_snapshot<M: Mode, const K: usize>(
+    nav: &Navigator<'_, M, K>,
+    eff: bool,
+) -> Vec<(Vec<f64>, Vec<f64>)> {
+    let g = nav.generator().unwrap();
+    let d = nav.discriminator().unwrap();
+    let p = nav.policy().unwrap();
+    vec![
+        core_layer(&g.l1, eff),
+        core_layer(&g.l2, eff),
+        core_layer(&d.l1, eff),
+        (f64s(d.w2), vec![d.b2 as f64]),
+        core_layer(&p.actor, eff),
+    ]
+}
+
+fn ref_snapshot(r: &NavRef) -> Vec<(Vec<f64>, Vec<f64>)> {
+    let e = r.efficient;
+    vec![
+        ref_layer(&r.gen.l1, e),
+        ref_layer(&r.gen.l2, e),
+        ref_layer(&r.disc.l1, e),
+        (r.disc.w2.clone(), vec![r.disc.b2]),
+        ref_layer(&r.actor, e),
+    ]
+}
+
+const NAMES: [&str; 5] = [
+    "G layer 1",
+    "G layer 2",
+    "D layer 1",
+    "D output",
+    "actor head",
+];
+
+fn agree<M: Mode, const K: usize>(dims: Dims, kind: AdaptLossKind, seed: u64) {
+    let eff = matches!(M::MODE, gman_core::memory::AdaptMode::Efficient);
+    let w = weights(&dims, seed, 0.1);
+    let cfg = NavConfig {
+        alpha_disc: 0.05,
+        alpha_adapt: 0.05,
+        adapt_loss: kind,
+        noise: NoiseMode::Gaussian,
+        selection: Selection::Greedy,
+        ..NavConfig::default()
+    };
+    let mut arena = vec![0.0f32; Navigator::<M, K>::arena_len(&dims)];
+    let mut nav: Navigator<'_, M, K> =
+        Navigator::new(nav_weights(&dims, &w), &mut arena, cfg).unwrap();
+    let mut rng = Xoshiro128::seed_from_u64(seed + 100);
+    let mut attr = vec![0.0f32; dims.attr];
+    attr.iter_mut().for_each(|a| *a = uniform(&mut rng));
+    let mut r = reference(&dims, &w, eff, &cfg, &attr);
+    let ep_seed = 7;
+    nav.reset(&attr, ep_seed).unwrap();
+    let mut rrng = Xoshiro128::seed_from_u64(ep_seed);
+    let ps: Vec<f32> = (0..dims.ps).map(|_| uniform(&mut rng)).collect();
+    let mut adaptations = 0;
+    for step in 0..(2 * K + 3) {
+        let obs: Vec<f32> = (0..dims.feat).map(|_| uniform(&mut rng)).collect();
+        let before_core = core_snapshot(&nav, eff);
+        let before_ref = ref_snapshot(&r);
+        let out = nav.step(&obs, &ps).unwrap();
+        let mut z = vec![0.0f32; dims.noise];
+        fill_gaussian(&mut rrng, &mut z);
+        let (x, probs, value) = r.step(&f64s(&obs), &f64s(&z), &f64s(&ps));
+        assert!(
+            rel(&f64s(nav.generated_feature()), &x) < 1e-4,
+            "step {step}: x_t"
+        );
+        assert!(
+            rel(&f64s(&out.probs), &probs) < 1e-4,
+            "step {step}: probs {:?} vs {probs:?}",
+            out.probs
+        );
+        assert!(
+            (out.value as f64 - value).abs() < 1e-4 * (1.0 + value.abs()),
+            "step {step}: value"
+        );
+        if r.psi.len() == K {
+            let eps: Vec<f64> = (0..K).map(|_| uniform(&mut rrng) as f64).collect();
+            r.adapt(&eps);
+            assert!(out.adapted);
+            adaptations += 1;
+            let after_core = core_snapshot(&nav, eff);
+            let after_ref = ref_snapshot(&r);
+            for i in 0..5 {
+                for part in 0..2 {
+                    let (bc, br) = if part == 0 {
+                        (&before_core[i].0, &before_ref[i].0)
+                    } else {
+                        (&before_core[i].1, &before_ref[i].1)
+                    };
+                    let (ac, ar) = if part == 0 {
+                        (&after_core[i].0, &after_ref[i].0)
+                    } else {
+                        (&after_core[i].1, &after_ref[i].1)
+                    };
+                    assert!(rel(ac, ar) < 1e-4, "{}: parameters differ", NAMES[i]);
+                    let (dc, dr) = (sub(ac, bc), sub(ar, br));
+                    if dr.iter().any(|v| *v != 0.0) {
+                        let e = rel(&dc, &dr);
+                        assert!(
+                            e < 2e-3,
+                            "{} ({}): update differs by {e:.2e} ({M:?})",
+                            NAMES[i],
+                            if part == 0 { "w/gain" } else { "b" },
+                            M = M::MODE
+                        );
+                    }
+                }
+            }
+            assert_eq!(nav.counters().rollbacks, 0);
+        }
+    }
+    assert_eq!(adaptations, 2);
+    assert_eq!(nav.counters().adaptations, 2);
+}
+
+#[test]
+fn mcu_full_size_agrees_with_f64_reference() {
+    agree::<Full, 20>(Dims::MCU, AdaptLossKind::Paper, 1);
+    agree::<Efficient, 20>(Dims::MCU, AdaptLossKind::Reference, 2);
+}
+
+#[test]
+fn paper_preset_with_reduced_hidden_sizes_agrees_with_f64_reference() {
+    let d = Dims {
+        gen_hidden: 512,
+        disc_hidden: 128,
+        lstm_hidden: 64,
+        embed: 64,
+        ..Dims::PAPER.with_ps()
+    };
+    agree::<Full, 6>(d, AdaptLossKind::Reference, 3);
+    agree::<Efficient, 6>(d, AdaptLossKind::Paper, 4);
+}
+
+fn run_episode(w: &[Vec<f32>], dims: &Dims, seed: u64) -> (Vec<u8>, Vec<u32>) {
+    let cfg = NavConfig {
+        selection: Selection::Sample,
+        alpha_disc: 1e-2,
+        alpha_adapt: 1e-2,
+        ..NavConfig::default()
+    };
+    let mut arena = vec![0.0f32; Navigator::<Full, 10>::arena_len(dims)];
+    let mut nav: Navigator<'_, Full, 10> =
+        Navigator::new(nav_weights(dims, w), &mut arena, cfg).unwrap();
+    nav.reset(&[0.3; 45], seed).unwrap();
+    let mut rng = Xoshiro128::seed_from_u64(99);
+    let mut actions = Vec::new();
+    for _ in 0..35 {
+        let obs: Vec<f32> = (0..dims.feat).map(|_| uniform(&mut rng)).collect();
+        actions.push(nav.step(&obs, &[]).unwrap().action as u8);
+    }
+    let g = nav.generator().unwrap();
+    let bits = (0..g.l2.w.rows() * g.l2.w.cols())
+        .map(|i| g.l2.w.get(i / g.l2.w.cols(), i % g.l2.w.cols()).to_bits())
+        .collect();
+    (actions, bits)
+}
+
+#[test]
+fn same_seed_and_observations_give_identical_actions_and_parameters() {
+    let dims = Dims::MCU;
+    let w = weights(&dims, 5, 0.1);
+    let a = run_episode(&w, &dims, 1);
+    let b = run_episode(&w, &dims, 1);
+    let c = run_episode(&w, &dims, 2);
+    assert_eq!(a, b);
+    assert_ne!(
+        a.1, c.1,
+        "another episode seed must give other noise and thus other updates"
+    );
+}
+
+#[test]
+fn bad_inputs_and_injected_nan_are_handled() {
+    let dims = Dims::MCU;
+    let mut w = weights(&dims, 6, 0.1);
+    // Out-of-order call and bad inputs: typed errors.
+    {
+        let mut arena = vec![0.0f32; Navigator::<Efficient, 5>::arena_len(&dims)];
+        let mut nav: Navigator<'_, Efficient, 5> =
+            Navigator::new(nav_weights(&dims, &w), &mut arena, NavConfig::default()).unwrap();
+        assert!(matches!(
+            nav.step(&[0.0; 512], &[]),
+            Err(Error::Config { .. })
+        ));
+        assert!(matches!(
+            nav.reset(&[f32::NAN; 45], 1),
+            Err(Error::NonFiniteInput { .. })
+        ));
+        nav.reset(&[0.1; 45], 1).unwrap();
+        let mut obs = vec![0.5f32; 512];
+        obs[100] = f32::NAN;
+        assert_eq!(
+            nav.step(&obs, &[]).unwrap_err(),
+            Error::NonFiniteInput { what: "obs" }
+        );
+        assert!(matches!(nav.step(&[0.5; 100], &[]), Err(Error::Shape(_))));
+        let mut small = vec![0.0f32; 10];
+        assert!(Navigator::<Efficient, 5>::new(
+            nav_weights(&dims, &w),
+            &mut small,
+            NavConfig::default()
+        )
+        .is_err());
+    }
+    // A loss bound that every step exceeds: both steps rolled back, parameters untouched.
+    {
+        let cfg = NavConfig {
+            loss_bound: 1e-30,
+            ..NavConfig::default()
+        };
+        let mut arena = vec![0.0f32; Navigator::<Full, 5>::arena_len(&dims)];
+        let mut nav: Navigator<'_, Full, 5> =
+            Navigator::new(nav_weights(&dims, &w), &mut arena, cfg).unwrap();
+        nav.reset(&[0.1; 45], 1).unwrap();
+        let before = core_snapshot(&nav, false);
+        for _ in 0..5 {
+            nav.step(&[0.5; 512], &[]).unwrap();
+        }
+        assert_eq!(nav.counters().adaptations, 1);
+        assert_eq!(nav.counters().rollbacks, 2);
+        assert_eq!(before, core_snapshot(&nav, false));
+    }
+    // NaN injected into D's weights: D's scores are NaN, both inner steps are rolled back,
+    // the policy (which does not read D) keeps returning finite actions.
+    w[TensorId::DiscW1 as usize][3] = f32::NAN;
+    let mut arena = vec![0.0f32; Navigator::<Full, 5>::arena_len(&dims)];
+    let mut nav: Navigator<'_, Full, 5> =
+        Navigator::new(nav_weights(&dims, &w), &mut arena, NavConfig::default()).unwrap();
+    nav.reset(&[0.1; 45], 1).unwrap();
+    let before = core_snapshot(&nav, false);
+    for _ in 0..10 {
+        let out = nav.step(&[0.5; 512], &[]).unwrap();
+        assert!(out.probs.iter().all(|p| p.is_finite()));
+    }
+    let c = nav.counters();
+    assert_eq!((c.adaptations, c.rollbacks), (2, 4));
+    assert!(!nav.last_adaptation().disc_applied && !nav.last_adaptation().adapt_applied);
+    let after = core_snapshot(&nav, false);
+    assert_eq!(before[0], after[0], "θ must be untouched");
+    assert_eq!(before[4], after[4], "φ must be untouched");
+}
+
+/// Observations share an offset from what G generates: D learns to separate them and G's
+/// output follows the observations (Fig. 3 of the paper, in miniature).
+#[test]
+fn adaptation_moves_generated_feature_towards_observations() {
+    let dims = Dims::MCU;
+    let w = weights(&dims, 8, 0.05);
+    let cfg = NavConfig {
+        alpha_disc: 0.05,
+        alpha_adapt: 0.2,
+        max_inner_updates: 30,
+        noise: NoiseMode::Zero,
+        ..NavConfig::default()
+    };
+    let mut arena = vec![0.0f32; Navigator::<Full, 10>::arena_len(&dims)];
+    let mut nav: Navigator<'_, Full, 10> =
+        Navigator::new(nav_weights(&dims, &w), &mut arena, cfg).unwrap();
+    nav.reset(&[0.4; 45], 3).unwrap();
+    nav.step(&[0.5; 512], &[]).unwrap();
+    let x0: Vec<f32> = nav.generated_feature().to_vec();
+    // Observations: G's initial output shifted by a per-dimension offset, plus small noise.
+    let mut rng = Xoshiro128::seed_from_u64(4);
+    let offset: Vec<f32> = (0..512)
+        .map(|i| if i % 2 == 0 { 0.25 } else { -0.25 })
+        .collect();
+    let target: Vec<f32> = x0
+        .iter()
+        .zip(&offset)
+        .map(|(x, o)| (x + o).clamp(0.0, 1.0))
+        .collect();
+    let dist = |x: &[f32]| {
+        x.iter()
+            .zip(&target)
+            .map(|(a, b)| (a - b).powi(2))
+            .sum::<f32>()
+            .sqrt()
+    };
+    let d0 = dist(&x0);
+    let mut gaps = Vec::new();
+    let mut dists = Vec::new();
+    for _ in 0..299 {
+        let obs: Vec<f32> = target
+            .iter()
+            .map(|t| (t + 0.02 * (uniform(&mut rng) - 0.5)).clamp(0.0, 1.0))
+            .collect();
+        if nav.step(&obs, &[]).unwrap().adapted {
+            let r = nav.last_adaptation();
+            gaps.push(r.ld.mean_real - r.ld.mean_fake);
+            dists.push(dist(nav.generated_feature()));
+        }
+    }
+    let d1 = dist(nav.generated_feature());
+    assert_eq!(nav.counters().adaptations, 30);
+    assert_eq!(nav.counters().rollbacks, 0);
+    eprintln!("distances {dists:?}");
+    eprintln!("distance {d0} -> {d1}; D gaps E[D(s)] - E[D(x)]: {gaps:?}");
+    // Eq. 1: D learns to score the observations above G's features.
+    assert!(
+        gaps.iter().skip(1).all(|g| *g > 0.0),
+        "D must separate real from generated: {gaps:?}"
+    );
+    // Eq. 3: G follows D towards the observations, at every update.
+    assert!(
+        dists.windows(2).all(|w| w[1] < w[0]),
+        "distance must shrink at every update: {dists:?}"
+    );
+    assert!(
+        d1 < 0.7 * d0,
+        "G's output must move towards the observations: {d0} -> {d1}"
+    );
+    // (With these deliberately large rates, running on past ~40 updates overshoots and
+    // oscillates: plain simultaneous gradient steps on a WGAN do not converge. The device
+    // runs at most `max_inner_updates` = 4 steps of rate 1e-4 per episode.)
+}
