@@ -880,8 +880,27 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
         Action::from_index(best).unwrap_or(Action::Done)
     }
 
-    /// Lines 15-20 of Algorithm 1 on the `K` samples in Ψ.
+    /// Runs the inner update (lines 15-20 of Algorithm 1) now on the steps buffered in Ψ,
+    /// then empties Ψ, whatever the step count and the per-episode cap (which it still
+    /// counts towards). Useful at the end of an episode, and for benchmarks. Returns whether
+    /// anything was buffered.
+    pub fn adapt_now(&mut self) -> Result<bool> {
+        if !self.ready {
+            return Err(Error::Config {
+                what: "call reset() before adapt_now()",
+            });
+        }
+        if self.n_buf == 0 {
+            return Ok(false);
+        }
+        self.inner_update()?;
+        self.n_buf = 0;
+        Ok(true)
+    }
+
+    /// Lines 15-20 of Algorithm 1 on the `n_buf` (normally `K`) samples in Ψ.
     fn inner_update(&mut self) -> Result<()> {
+        let n = self.n_buf;
         let d = self.w.dims;
         let cfg = self.cfg;
         let (f, zd, lh) = (d.feat, d.noise, d.lstm_hidden);
@@ -950,12 +969,12 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
                 w2: g_disc_w2,
                 b2: &mut db2,
             };
-            let inv = 1.0 / K as f32;
-            for t in 0..K {
+            let inv = 1.0 / n as f32;
+            for t in 0..n {
                 eps[t] = uniform(&mut self.rng);
             }
             let mut last_z: Option<usize> = None;
-            for t in 0..K {
+            for t in 0..n {
                 let z = &psi_z[t * zd..(t + 1) * zd];
                 let same = last_z.is_some_and(|p| {
                     psi_z[p * zd..(p + 1) * zd]
@@ -1044,8 +1063,8 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
                     g: dg,
                     mix: dmix,
                 },
-                d: dvals,
-                dd,
+                d: &mut dvals[..n],
+                dd: &mut dd[..n],
                 dx,
             };
             adapt_generator_grad(
@@ -1053,12 +1072,12 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
                 &gen,
                 &disc,
                 attr,
-                psi_z,
-                psi_p,
+                &psi_z[..n * zd],
+                &psi_p[..n * NUM_ACTIONS],
                 &mut work,
                 &mut g_gen1.grads(),
                 &mut g_gen2.grads(),
-                dprobs,
+                &mut dprobs[..n * NUM_ACTIONS],
             )?
         };
         {
@@ -1066,7 +1085,7 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
             let mut ga = g_actor.grads();
             let mut logits = [0.0f32; NUM_ACTIONS];
             let mut tmp = [0.0f32; NUM_ACTIONS];
-            for t in 0..K {
+            for t in 0..n {
                 let p = &psi_p[t * NUM_ACTIONS..(t + 1) * NUM_ACTIONS];
                 let dp = &dprobs[t * NUM_ACTIONS..(t + 1) * NUM_ACTIONS];
                 softmax_backward(p, dp, dlogits)?;

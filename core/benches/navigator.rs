@@ -1,0 +1,147 @@
+//! Criterion benches of the on-device navigator: one `step()` (no adaptation) and one inner
+//! update on a full buffer (k = 20), for the `mcu` and `paper` presets, f32 and int8 weights,
+//! and the `Full` and `Efficient` adaptation modes.
+//!
+//! `cargo bench -p gman-core --bench navigator` (single thread; the numbers of a run are in
+//! BENCHMARKS.md once the benchmark issue lands).
+
+use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
+use gman_core::blob::{encode, encoded_len_bound, Blob, TensorData, TensorId, TensorSpec};
+use gman_core::matrix::MatRef;
+use gman_core::navigator::{Efficient, Full, Mode, NavConfig, NavWeights, Navigator};
+use gman_core::quant::quantize_rows;
+use gman_core::rng::{fill_gaussian, uniform, Xoshiro128};
+use gman_core::Dims;
+use std::hint::black_box;
+use std::time::{Duration, Instant};
+
+const K: usize = 20;
+
+fn tensors(d: &Dims) -> Vec<Vec<f32>> {
+    let mut rng = Xoshiro128::seed_from_u64(1);
+    TensorId::ALL
+        .iter()
+        .map(|&id| {
+            let (r, c) = id.shape(d);
+            let mut v = vec![0.0f32; r * c];
+            fill_gaussian(&mut rng, &mut v);
+            v.iter_mut().for_each(|x| *x *= 0.05);
+            v
+        })
+        .collect()
+}
+
+fn int8_blob(d: &Dims, t: &[Vec<f32>]) -> Vec<u8> {
+    let q: Vec<(Vec<u8>, Vec<f32>)> = TensorId::ALL
+        .iter()
+        .map(|&id| {
+            let (r, c) = id.shape(d);
+            let (mut q, mut s) = (vec![0u8; r * c], vec![0.0f32; r]);
+            if !id.is_vector() {
+                quantize_rows(&t[id as usize], r, c, &mut q, &mut s).unwrap();
+            }
+            (q, s)
+        })
+        .collect();
+    let specs: Vec<TensorSpec<'_>> = TensorId::ALL
+        .iter()
+        .map(|&id| TensorSpec {
+            id,
+            data: if id.is_vector() {
+                TensorData::F32(&t[id as usize])
+            } else {
+                TensorData::I8 {
+                    q: &q[id as usize].0,
+                    scales: &q[id as usize].1,
+                }
+            },
+        })
+        .collect();
+    let mut buf = vec![0u8; encoded_len_bound(&specs)];
+    let n = encode(d, &specs, &mut buf).unwrap();
+    buf.truncate(n);
+    buf
+}
+
+fn obs(rng: &mut Xoshiro128, d: &Dims) -> Vec<f32> {
+    (0..d.feat).map(|_| uniform(rng)).collect()
+}
+
+fn bench_one<M: Mode>(c: &mut Criterion, preset: &str, d: Dims, quant: &str, w: NavWeights<'_>) {
+    let mode = format!("{:?}", M::MODE);
+    let mut arena = vec![0.0f32; Navigator::<M, K>::arena_len(&d)];
+    let cfg = NavConfig {
+        adapt: false,
+        ..NavConfig::default()
+    };
+    let mut nav: Navigator<'_, M, K> = Navigator::new(w, &mut arena, cfg).unwrap();
+    let mut rng = Xoshiro128::seed_from_u64(2);
+    let o = obs(&mut rng, &d);
+    nav.reset(&[0.3; 45], 1).unwrap();
+    let mut g = c.benchmark_group(format!("{preset}/{quant}/{mode}"));
+    g.sample_size(10)
+        .measurement_time(Duration::from_secs(2))
+        .warm_up_time(Duration::from_millis(300));
+    g.bench_function(BenchmarkId::new("step", ""), |b| {
+        b.iter(|| black_box(nav.step(black_box(&o), &[]).unwrap()))
+    });
+    g.finish();
+}
+
+/// One inner update on a buffer of exactly K = 20 steps. A navigator of capacity K + 1 holds
+/// the 20 recorded steps without triggering its own update; `adapt_now` then runs it.
+fn bench_adapt<M: Mode>(c: &mut Criterion, preset: &str, d: Dims, quant: &str, w: NavWeights<'_>) {
+    let mode = format!("{:?}", M::MODE);
+    let mut arena = vec![0.0f32; Navigator::<M, { K + 1 }>::arena_len(&d)];
+    let mut nav: Navigator<'_, M, { K + 1 }> =
+        Navigator::new(w, &mut arena, NavConfig::default()).unwrap();
+    let mut rng = Xoshiro128::seed_from_u64(3);
+    let o = obs(&mut rng, &d);
+    let mut g = c.benchmark_group(format!("{preset}/{quant}/{mode}"));
+    g.sample_size(10)
+        .measurement_time(Duration::from_secs(2))
+        .warm_up_time(Duration::from_millis(300));
+    g.bench_function(BenchmarkId::new("adaptation_k20", ""), |b| {
+        b.iter_custom(|iters| {
+            let mut total = Duration::ZERO;
+            for _ in 0..iters {
+                nav.reset(&[0.3; 45], 1).unwrap();
+                for _ in 0..K {
+                    nav.step(&o, &[]).unwrap();
+                }
+                let t0 = Instant::now();
+                black_box(nav.adapt_now().unwrap());
+                total += t0.elapsed();
+            }
+            total
+        })
+    });
+    g.finish();
+}
+
+fn benches(c: &mut Criterion) {
+    for (preset, d) in [("mcu", Dims::MCU), ("paper", Dims::PAPER)] {
+        let t = tensors(&d);
+        let f32w = || {
+            NavWeights::from_fn(&d, |id| {
+                let (r, cc) = id.shape(&d);
+                MatRef::f32(r, cc, &t[id as usize]).unwrap()
+            })
+            .unwrap()
+        };
+        let bytes = int8_blob(&d, &t);
+        let blob = Blob::parse(&bytes).unwrap();
+        let i8w = || NavWeights::from_blob(&blob, &d).unwrap();
+        bench_one::<Full>(c, preset, d, "f32", f32w());
+        bench_adapt::<Full>(c, preset, d, "f32", f32w());
+        bench_one::<Efficient>(c, preset, d, "f32", f32w());
+        bench_adapt::<Efficient>(c, preset, d, "f32", f32w());
+        bench_one::<Full>(c, preset, d, "int8", i8w());
+        bench_adapt::<Full>(c, preset, d, "int8", i8w());
+        bench_one::<Efficient>(c, preset, d, "int8", i8w());
+        bench_adapt::<Efficient>(c, preset, d, "int8", i8w());
+    }
+}
+
+criterion_group!(navigator, benches);
+criterion_main!(navigator);
