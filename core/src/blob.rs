@@ -216,12 +216,20 @@ impl DimsRecord {
     }
 }
 
+/// Bit of [`Header::flags`]: the model was meta-trained to adapt at inference (GMAN); a
+/// loader should enable the inner loop.
+pub const FLAG_ADAPT: u32 = 1;
+/// Bit of [`Header::flags`]: G is driven with zero noise (the reference implementation's
+/// choice) instead of fresh Gaussian noise.
+pub const FLAG_ZERO_NOISE: u32 = 2;
+
 /// The blob header.
 #[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Header {
     magic: [u8; 4],
     version: u16,
     dims: DimsRecord,
+    flags: u32,
     n_tensors: u16,
     payload_len: u32,
     payload_crc: u32,
@@ -231,6 +239,10 @@ impl Header {
     /// The dims the blob was made for.
     pub fn dims(&self) -> Dims {
         self.dims.to_dims()
+    }
+    /// Model flags ([`FLAG_ADAPT`], [`FLAG_ZERO_NOISE`]); unknown bits are kept and ignored.
+    pub fn flags(&self) -> u32 {
+        self.flags
     }
     /// Format version.
     pub fn version(&self) -> u16 {
@@ -452,11 +464,9 @@ impl<'a> Blob<'a> {
         if out.len() != t.rows * t.cols {
             return Err(BlobError::BadTensorShape { id: id as u16 });
         }
-        let m = t.matrix()?;
-        for (i, o) in out.iter_mut().enumerate() {
-            *o = m.get(i / t.cols.max(1), i % t.cols.max(1));
-        }
-        Ok(())
+        t.matrix()?
+            .copy_to(out)
+            .map_err(|_| BlobError::BadTensorShape { id: id as u16 })
     }
 }
 
@@ -587,10 +597,21 @@ pub fn encoded_len_bound(tensors: &[TensorSpec<'_>]) -> usize {
     n
 }
 
-/// Encodes a blob for `dims` holding `tensors` into `out`; returns the number of bytes
-/// written. Checks shapes, finiteness and quantisation like the parser does, so what it
-/// writes always parses.
+/// Encodes a blob for `dims` holding `tensors` into `out` with no flags; see
+/// [`encode_with_flags`].
 pub fn encode(dims: &Dims, tensors: &[TensorSpec<'_>], out: &mut [u8]) -> Result<usize, BlobError> {
+    encode_with_flags(dims, 0, tensors, out)
+}
+
+/// Encodes a blob for `dims` and model `flags` holding `tensors` into `out`; returns the
+/// number of bytes written. Checks shapes, finiteness and quantisation like the parser does,
+/// so what it writes always parses.
+pub fn encode_with_flags(
+    dims: &Dims,
+    flags: u32,
+    tensors: &[TensorSpec<'_>],
+    out: &mut [u8],
+) -> Result<usize, BlobError> {
     if out.len() < HEADER_RESERVE {
         return Err(BlobError::BufferTooSmall);
     }
@@ -643,6 +664,7 @@ pub fn encode(dims: &Dims, tensors: &[TensorSpec<'_>], out: &mut [u8]) -> Result
         magic: MAGIC,
         version: FORMAT_VERSION,
         dims: DimsRecord::from_dims(dims),
+        flags,
         n_tensors: tensors.len() as u16,
         payload_len: payload_len as u32,
         payload_crc: crc32(&out[HEADER_RESERVE..pos]),

@@ -172,6 +172,35 @@ impl<'a> MatRef<'a> {
         }
     }
 
+    /// Copies the (dequantised) values into `out` (`rows * cols`, row-major).
+    pub fn copy_to(&self, out: &mut [f32]) -> Result<()> {
+        check_len("matrix.copy_to", self.rows * self.cols, out.len())?;
+        if self.cols == 0 {
+            return Ok(());
+        }
+        match self.w {
+            Weights::F32(d) => out.copy_from_slice(d),
+            Weights::F32Le(d) => {
+                for (o, b) in out.iter_mut().zip(d.chunks_exact(4)) {
+                    *o = f32::from_le_bytes([b[0], b[1], b[2], b[3]]);
+                }
+            }
+            Weights::I8 { q, scales } => {
+                for (i, (orow, qrow)) in out
+                    .chunks_exact_mut(self.cols)
+                    .zip(q.chunks_exact(self.cols))
+                    .enumerate()
+                {
+                    let s = scales.get(i);
+                    for (o, &b) in orow.iter_mut().zip(qrow) {
+                        *o = (b as i8) as f32 * s;
+                    }
+                }
+            }
+        }
+        Ok(())
+    }
+
     /// `y += W x`, where the input `x` is given as consecutive segments.
     pub fn matvec_acc(&self, x: &[&[f32]], y: &mut [f32]) -> Result<()> {
         check_len("matvec.x", self.cols, seg_len(x))?;

@@ -142,9 +142,24 @@ pub enum Selection {
     Sample,
 }
 
+/// When the inner update runs.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum Schedule {
+    /// Inside `step()`, every `K` steps (what a robot runs). Default.
+    #[default]
+    Auto,
+    /// Only when the caller asks ([`Navigator::adapt_now`] or [`Navigator::clear_buffer`]);
+    /// `step()` refuses to run while Ψ is full. A trainer uses this to take the navigation
+    /// loss's gradient at the parameters a segment was run with, before they adapt. The
+    /// update itself is the same code.
+    Manual,
+}
+
 /// Run-time settings of the navigator.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct NavConfig {
+    /// When the inner update runs.
+    pub schedule: Schedule,
     /// Whether the inner loop runs at all (false: the A3C+FG baseline with no adaptation).
     pub adapt: bool,
     /// At most this many inner updates per episode (reference: 4).
@@ -168,6 +183,7 @@ pub struct NavConfig {
 impl Default for NavConfig {
     fn default() -> Self {
         NavConfig {
+            schedule: Schedule::Auto,
             adapt: true,
             max_inner_updates: 4,
             alpha_disc: 1e-4,
@@ -280,12 +296,7 @@ fn empty() -> MatRef<'static> {
 
 /// Copies a (possibly int8 or LE-bytes) matrix into f32 RAM.
 fn copy_mat(m: &MatRef<'_>, out: &mut [f32]) -> Result<()> {
-    check_len("copy_mat", m.rows() * m.cols(), out.len())?;
-    let c = m.cols().max(1);
-    for (i, o) in out.iter_mut().enumerate() {
-        *o = m.get(i / c, i % c);
-    }
-    Ok(())
+    m.copy_to(out)
 }
 
 /// Takes the next `n` floats of the arena.
@@ -679,6 +690,37 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
         self.r.h_state
     }
 
+    /// The current LSTM cell state.
+    pub fn cell_state(&self) -> &[f32] {
+        self.r.c_state
+    }
+
+    /// The previous step's action probabilities (zeros before the first step).
+    pub fn prev_probs(&self) -> &[f32] {
+        self.r.prev_probs
+    }
+
+    /// The noise z of the last generated feature.
+    pub fn noise(&self) -> &[f32] {
+        self.r.z
+    }
+
+    /// The target attribute vector of the episode.
+    pub fn attr(&self) -> &[f32] {
+        self.r.attr
+    }
+
+    /// True while more inner updates are allowed in this episode (`adapt` is on and fewer
+    /// than `max_inner_updates` were made).
+    pub fn can_adapt(&self) -> bool {
+        self.cfg.adapt && self.counters.adaptations < self.cfg.max_inner_updates
+    }
+
+    /// Empties Ψ without adapting (line 20 alone).
+    pub fn clear_buffer(&mut self) {
+        self.n_buf = 0;
+    }
+
     /// Number of steps recorded in Ψ since it was last emptied.
     pub fn buffered(&self) -> usize {
         self.n_buf
@@ -780,7 +822,7 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
         self.counters.total_steps += 1;
         // Lines 14-20: every k steps, the inner update; then empty Ψ.
         let mut adapted = false;
-        if self.n_buf == K {
+        if self.n_buf == K && self.cfg.schedule == Schedule::Auto {
             if self.cfg.adapt && self.counters.adaptations < self.cfg.max_inner_updates {
                 self.inner_update()?;
                 adapted = true;
