@@ -15,11 +15,8 @@
 //! the same size as what they update. Rollback of a rejected adaptation step needs no copy:
 //! the update is validated (finite, bounded) before it is written.
 //!
-//! The figures for the two presets (from [`NavLayout::total_bytes`]; `k = 20`):
-//!
-//! | preset | mode | RAM (bytes) |
-//! |---|---|---|
-//! | see `gman inspect --ram` / the test `memory::tests::print_table` | | |
+//! `cargo run -p gman-core --example memory_table` prints the figures of both presets and
+//! modes (from [`NavLayout::total_bytes`] and [`int8_weight_bytes`]); the README quotes them.
 
 use crate::preset::Dims;
 use crate::NUM_ACTIONS;

@@ -110,12 +110,11 @@ impl Dims {
             + 1
     }
 
-    /// Multiply-accumulates of one navigation step: G, D on the generated feature, fusion,
-    /// LSTM and heads.
+    /// Multiply-accumulates of one navigation step: G, fusion, LSTM and heads (D only runs
+    /// in the inner update).
     pub const fn macs_per_step(&self) -> usize {
         self.gen_hidden * self.gen_in()
             + self.feat * self.gen_hidden
-            + self.disc_hidden * self.feat
             + self.embed * self.fuse_in()
             + 4 * self.lstm_hidden * (self.embed + self.lstm_hidden)
             + (NUM_ACTIONS + 1) * self.lstm_hidden

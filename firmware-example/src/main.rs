@@ -1,13 +1,22 @@
-//! gman-rs firmware example for a Cortex-M4F (QEMU `mps2-an386`).
+//! gman-rs firmware example for a Cortex-M4F (QEMU `mps2-an386`): the GMAN navigator on a
+//! scripted episode, measured.
 //!
-//! Today it exercises the foundation kernels of gman-core straight from a weight blob in
-//! flash: it parses and validates the embedded `Mcu` int8 blob (no copy of the weights),
-//! generates target features x = G(SE(y), z) for a few noise draws in the parameter-efficient
-//! mode (int8 base weights, per-unit gains and biases in RAM), scores them with D, and takes
-//! one closed-form gradient of the WGAN-GP loss L_D (Eq. 1) against synthetic observations.
-//! It prints every result's bits through semihosting and exits QEMU with success, or with
-//! failure on any error, panic or fault. The navigator loop (reset/step) replaces this once
-//! the navigator exists.
+//! 1. Paints the stack (for the peak-stack measurement) and starts SysTick as an instruction
+//!    counter (see [`measure`]).
+//! 2. Runs the kernel self-test ([`selftest`]): G, D and one gradient of L_D straight from the
+//!    embedded `Mcu` int8 blob.
+//! 3. Runs the navigator ([`episode`]): a `Navigator<Efficient, 20>` over the same blob (read in
+//!    place from flash) and a statically sized arena, `reset` with the recorded target's
+//!    attributes, then `step` on each of the 40 observations of an episode recorded by the host
+//!    simulator (`data/episode.gmep`); two inner updates of Algorithm 1 happen, at steps 20
+//!    and 40. Every action, the probabilities' bits and the counters are printed.
+//! 4. Prints the measurements as lines starting with `# ` (instructions per step and per
+//!    inner update, flash, static RAM, peak stack), which differ by target and are therefore
+//!    not compared with the host.
+//!
+//! Output goes through semihosting; QEMU exits with success, or with failure on any error,
+//! panic or fault, so a test can trust the exit code. Run it with `-icount shift=0` for
+//! meaningful instruction counts (`cargo run --release` does, see `.cargo/config.toml`).
 #![no_std]
 #![no_main]
 
@@ -15,29 +24,170 @@ use cortex_m_rt::{entry, exception, ExceptionFrame};
 use cortex_m_semihosting::{debug, hprintln};
 use panic_semihosting as _;
 
+mod episode;
+mod measure;
 mod selftest;
 
+use episode::{Failure, Probe, ARENA_LEN};
+use measure::{Clock, Stats, INSNS_PER_TICK};
+
+/// The `Mcu` int8 weight blob (`build.rs`: seeded, or `GMAN_FIRMWARE_BLOB`).
 static BLOB: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/model.gman"));
+/// The recorded episode (`host-sim/examples/record_episode.rs`).
+static EPISODE: &[u8] = include_bytes!("../data/episode.gmep");
+
+/// Clock rate for the "implied time" lines: an STM32F4-class Cortex-M4F.
+const CPU_HZ: u64 = 168_000_000;
 
 #[entry]
 fn main() -> ! {
-    match run() {
+    measure::paint_stack();
+    let code = match run() {
         Ok(()) => {
             hprintln!("OK");
-            debug::exit(debug::EXIT_SUCCESS);
+            debug::EXIT_SUCCESS
         }
         Err(e) => {
             hprintln!("ERROR: {}", e);
-            debug::exit(debug::EXIT_FAILURE);
+            debug::EXIT_FAILURE
         }
-    }
+    };
+    debug::exit(code);
     loop {
         cortex_m::asm::wfi();
     }
 }
 
-fn run() -> gman_core::Result<()> {
-    selftest::run(BLOB, &mut |line| hprintln!("{}", line))
+/// The firmware's [`Probe`]: prints result lines, times each `step()` with SysTick.
+struct Device<'c> {
+    clock: &'c Clock,
+    t0: u32,
+    plain: Stats,
+    update: Stats,
+}
+
+impl Probe for Device<'_> {
+    fn line(&mut self, args: core::fmt::Arguments<'_>) {
+        hprintln!("{}", args);
+    }
+    fn step_begin(&mut self) {
+        self.t0 = self.clock.now();
+    }
+    fn step_end(&mut self, adapted: bool) {
+        let dt = self.clock.ticks_since(self.t0);
+        if adapted {
+            self.update.add(dt)
+        } else {
+            self.plain.add(dt)
+        }
+    }
+}
+
+/// The navigator's arena: a `static` (in `.bss`) by default, or on `main`'s stack with the
+/// `stack-arena` feature; both measured in README.md.
+#[cfg(not(feature = "stack-arena"))]
+fn with_arena<R>(f: impl FnOnce(&mut [f32]) -> R) -> Option<R> {
+    let arena: &'static mut [f32; ARENA_LEN] =
+        cortex_m::singleton!(: [f32; ARENA_LEN] = [0.0; ARENA_LEN])?;
+    Some(f(arena))
+}
+
+#[cfg(feature = "stack-arena")]
+fn with_arena<R>(f: impl FnOnce(&mut [f32]) -> R) -> Option<R> {
+    let mut arena = [0.0f32; ARENA_LEN];
+    Some(f(&mut arena))
+}
+
+/// The kernel self-test. Not inlined, so its stack frame is gone before the navigator runs
+/// and the two peaks are measured separately.
+#[inline(never)]
+fn selftest_phase() -> Result<(), Failure> {
+    Ok(selftest::run(BLOB, &mut |line| hprintln!("{}", line))?)
+}
+
+/// The scripted navigator episode (not inlined, for the same reason).
+#[inline(never)]
+fn navigator_phase(dev: &mut Device<'_>) -> Result<(), Failure> {
+    with_arena(|arena| episode::run(BLOB, EPISODE, arena, dev))
+        .ok_or(Failure::Episode("arena already taken"))??;
+    Ok(())
+}
+
+const STACK_SATURATED: Failure =
+    Failure::Episode("stack reached the bottom of the painted window (measure::STACK_WINDOW)");
+
+fn run() -> Result<(), Failure> {
+    let cp = cortex_m::Peripherals::take().ok_or(Failure::Episode("peripherals taken"))?;
+    let clock = Clock::start(cp.SYST);
+    let calib = measure::calibrate(&clock);
+    hprintln!(
+        "# calibration: calib_insns={} calib_ticks={} (expected {} instructions per tick)",
+        measure::CALIBRATION_INSNS,
+        calib,
+        INSNS_PER_TICK
+    );
+
+    selftest_phase()?;
+    // Peak stack of the start-up and the self-test, then paint again so the navigator's own
+    // peak is measured separately.
+    let stack_selftest = measure::stack_peak().ok_or(STACK_SATURATED)?;
+    measure::paint_stack();
+
+    let mut dev = Device {
+        clock: &clock,
+        t0: 0,
+        plain: Stats::EMPTY,
+        update: Stats::EMPTY,
+    };
+    navigator_phase(&mut dev)?;
+
+    let (p, u) = (dev.plain, dev.update);
+    let tick = INSNS_PER_TICK as u64;
+    hprintln!(
+        "# step without inner update: steps={} min_insns={} mean_insns={} max_insns={}",
+        p.n,
+        p.min as u64 * tick,
+        p.mean_insns(),
+        p.max as u64 * tick
+    );
+    hprintln!(
+        "# step with inner update: steps={} min_insns={} mean_insns={} max_insns={}",
+        u.n,
+        u.min as u64 * tick,
+        u.mean_insns(),
+        u.max as u64 * tick
+    );
+    let update_alone = u.mean_insns().saturating_sub(p.mean_insns());
+    hprintln!(
+        "# inner update alone (update step - plain step): update_insns={}",
+        update_alone
+    );
+    hprintln!(
+        "# at {} MHz and 1 instruction per cycle: step {} us, step with update {} us, update {} us",
+        CPU_HZ / 1_000_000,
+        p.mean_insns() * 1_000_000 / CPU_HZ,
+        u.mean_insns() * 1_000_000 / CPU_HZ,
+        update_alone * 1_000_000 / CPU_HZ
+    );
+    let stack_navigator = measure::stack_peak().ok_or(STACK_SATURATED)?;
+    let stack = stack_selftest.max(stack_navigator);
+    let (flash, stat) = (measure::flash_bytes(), measure::static_ram_bytes());
+    hprintln!(
+        "# stack: selftest_stack_bytes={} navigator_stack_bytes={}",
+        stack_selftest,
+        stack_navigator
+    );
+    hprintln!(
+        "# memory: flash_bytes={} static_ram_bytes={} peak_stack_bytes={} ram_bytes={} arena_bytes={} blob_bytes={} episode_bytes={}",
+        flash,
+        stat,
+        stack,
+        stat + stack,
+        ARENA_LEN * 4,
+        BLOB.len(),
+        EPISODE.len()
+    );
+    Ok(())
 }
 
 #[exception]

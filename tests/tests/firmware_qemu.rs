@@ -1,10 +1,19 @@
-//! Builds the Cortex-M4F firmware, runs it under QEMU (`mps2-an386`) and checks that it prints
-//! bit for bit what the same source (`firmware-example/src/selftest.rs`) prints on the host
-//! with the same blob: x86 and thumbv7em-none-eabihf builds of gman-core must agree exactly.
+//! Builds the Cortex-M4F firmware, runs it under QEMU (`mps2-an386`, `-icount shift=0`) and
+//! checks that it prints bit for bit what the same sources print on the host with the same
+//! blob and the same observations: the kernel self-test (`firmware-example/src/selftest.rs`)
+//! and the scripted navigator episode (`firmware-example/src/episode.rs`: every action, the
+//! action probabilities' and the value's bits, the counters and the inner updates' losses).
+//! x86 and thumbv7em-none-eabihf builds of gman-core must agree exactly.
 //!
-//! Needs `qemu-system-arm` and the `thumbv7em-none-eabihf` target. Without them the test
-//! says so and returns, unless `GMAN_REQUIRE_QEMU=1` (set by CI), where it fails.
+//! It also checks the device's own measurements (lines starting with `# `): the SysTick
+//! calibration that makes the instruction counts valid, and the flash and RAM budget of the
+//! `Mcu` preset (flash < 512 KiB, static RAM + peak stack < 192 KiB).
+//!
+//! Needs `qemu-system-arm` and the `thumbv7em-none-eabihf` target. Without them the QEMU test
+//! says so and returns, unless `GMAN_REQUIRE_QEMU=1` (set by CI), where it fails. The other
+//! tests here run on the host alone.
 
+use std::collections::HashMap;
 use std::path::PathBuf;
 use std::process::Command;
 
@@ -12,8 +21,48 @@ use std::process::Command;
 #[allow(dead_code)]
 mod selftest;
 
+#[path = "../../firmware-example/src/episode.rs"]
+#[allow(dead_code)]
+mod episode;
+
 #[path = "../../firmware-example/blobgen.rs"]
 mod blobgen;
+
+#[path = "../../host-sim/examples/record_episode.rs"]
+#[allow(dead_code)]
+mod record_episode;
+
+const KIB: u64 = 1024;
+/// The `Mcu` preset's budget (a Cortex-M4F with 512 KiB flash and 192 KiB RAM).
+const FLASH_BUDGET: u64 = 512 * KIB;
+const RAM_BUDGET: u64 = 192 * KIB;
+
+fn fw_dir() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../firmware-example")
+}
+
+fn checked_in_episode() -> Vec<u8> {
+    let p = fw_dir().join("data/episode.gmep");
+    std::fs::read(&p).unwrap_or_else(|e| panic!("{}: {e}", p.display()))
+}
+
+/// The host's collector: result lines only (the step hooks time nothing here).
+struct Lines(Vec<String>);
+impl episode::Probe for Lines {
+    fn line(&mut self, args: std::fmt::Arguments<'_>) {
+        self.0.push(args.to_string());
+    }
+}
+
+/// What the firmware prints (minus the `# ` measurement lines), computed on the host.
+fn host_lines(blob: &[u8], ep: &[u8]) -> (Vec<String>, gman_core::navigator::Counters) {
+    let mut out = Lines(Vec::new());
+    selftest::run(blob, &mut |a| out.0.push(a.to_string())).expect("host self-test");
+    let mut arena = vec![0.0f32; episode::ARENA_LEN];
+    let counters = episode::run(blob, ep, &mut arena, &mut out).expect("host episode");
+    out.0.push("OK".into());
+    (out.0, counters)
+}
 
 fn have(cmd: &str, arg: &str) -> bool {
     Command::new(cmd)
@@ -28,6 +77,19 @@ fn skip_or_fail(why: &str) {
         panic!("{why} (GMAN_REQUIRE_QEMU=1)");
     }
     eprintln!("SKIPPED firmware_qemu: {why}");
+}
+
+/// `key=value` tokens of the `# ` lines.
+fn measurements(lines: &[&str]) -> HashMap<String, u64> {
+    lines
+        .iter()
+        .filter_map(|l| l.strip_prefix("# "))
+        .flat_map(|l| l.split_whitespace())
+        .filter_map(|tok| {
+            let (k, v) = tok.split_once('=')?;
+            Some((k.to_string(), v.parse().ok()?))
+        })
+        .collect()
 }
 
 #[test]
@@ -46,17 +108,22 @@ fn firmware_under_qemu_matches_host_bit_for_bit() {
             "target thumbv7em-none-eabihf not installed (rustup target add thumbv7em-none-eabihf)",
         );
     }
-    let fw = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../firmware-example");
+    let fw = fw_dir();
+    // An explicit target dir: a CARGO_TARGET_DIR inherited from the outer cargo would put the
+    // ELF elsewhere.
+    let target_dir = fw.join("target");
     let status = Command::new(env!("CARGO"))
         .current_dir(&fw)
-        .args(["build", "--release", "--quiet"])
+        .args(["build", "--release", "--quiet", "--target-dir"])
+        .arg(&target_dir)
         .env_remove("GMAN_FIRMWARE_BLOB")
         .status()
         .expect("run cargo build for the firmware");
     assert!(status.success(), "firmware build failed");
-    let elf = fw.join("target/thumbv7em-none-eabihf/release/gman-firmware-example");
+    let elf = target_dir.join("thumbv7em-none-eabihf/release/gman-firmware-example");
     let out = Command::new("timeout")
         .args(["120", "qemu-system-arm", "-M", "mps2-an386", "-nographic"])
+        .args(["-icount", "shift=0"])
         .args(["-semihosting-config", "enable=on,target=native", "-kernel"])
         .arg(&elf)
         .output()
@@ -68,19 +135,115 @@ fn firmware_under_qemu_matches_host_bit_for_bit() {
         out.status,
         String::from_utf8_lossy(&out.stderr)
     );
-    let device: Vec<&str> = stdout.lines().map(str::trim_end).collect();
-    assert_eq!(
-        device.last(),
-        Some(&"OK"),
-        "firmware did not finish: {stdout}"
-    );
+    let all: Vec<&str> = stdout.lines().map(str::trim_end).collect();
+    assert_eq!(all.last(), Some(&"OK"), "firmware did not finish: {stdout}");
+    let device: Vec<&str> = all
+        .iter()
+        .copied()
+        .filter(|l| !l.starts_with("# "))
+        .collect();
 
     let blob = blobgen::seeded_blob(&gman_core::Dims::MCU, 1);
-    let mut host = Vec::new();
-    selftest::run(&blob, &mut |a| host.push(a.to_string())).expect("host self-test");
-    assert!(host.len() >= 6, "host printed too little: {host:?}");
+    let (host, counters) = host_lines(&blob, &checked_in_episode());
+    assert!(
+        counters.adaptations >= 2,
+        "the episode must run at least two inner updates: {counters:?}"
+    );
     assert_eq!(
-        &device[..device.len() - 1],
-        &host.iter().map(String::as_str).collect::<Vec<_>>()[..]
+        device.len(),
+        host.len(),
+        "line counts differ\ndevice:\n{}\nhost:\n{}",
+        device.join("\n"),
+        host.join("\n")
+    );
+    for (i, (d, h)) in device.iter().zip(&host).enumerate() {
+        assert_eq!(d, h, "line {i} differs (device vs host)");
+    }
+
+    let m = measurements(&all);
+    let get = |k: &str| *m.get(k).unwrap_or_else(|| panic!("no {k}= in:\n{stdout}"));
+    // The instruction counts are only valid if SysTick ticks once per 40 instructions.
+    let (insns, ticks) = (get("calib_insns"), get("calib_ticks"));
+    assert!(
+        ticks * 40 >= insns && ticks * 40 <= insns + insns / 1000,
+        "SysTick calibration off: {insns} instructions in {ticks} ticks (expected 40 per tick)"
+    );
+    assert!(get("mean_insns") > 0);
+    let (flash, ram) = (get("flash_bytes"), get("ram_bytes"));
+    assert!(
+        flash < FLASH_BUDGET,
+        "flash {flash} B over the {FLASH_BUDGET} B budget"
+    );
+    assert!(
+        ram < RAM_BUDGET,
+        "RAM (static + peak stack) {ram} B over the {RAM_BUDGET} B budget"
+    );
+    for l in all.iter().filter(|l| l.starts_with("# ")) {
+        eprintln!("{l}");
+    }
+}
+
+#[test]
+fn episode_run_reacts_to_every_input() {
+    // The parity test would be vacuous if the printed lines did not depend on the inputs.
+    let blob = blobgen::seeded_blob(&gman_core::Dims::MCU, 1);
+    let ep = checked_in_episode();
+    let (base, c) = host_lines(&blob, &ep);
+    assert_eq!((c.steps, c.adaptations), (40, 2), "{c:?}");
+
+    // One observation byte of the last step changed (and the CRC fixed): the last step's
+    // probabilities must change.
+    let mut changed = ep.clone();
+    let last = changed.len() - 1;
+    changed[last] ^= 0x10;
+    let crc = gman_core::crc32::crc32(&changed[episode::HEADER_LEN..]);
+    changed[22..26].copy_from_slice(&crc.to_le_bytes());
+    let (other, _) = host_lines(&blob, &changed);
+    let diff: Vec<usize> = (0..base.len()).filter(|&i| base[i] != other[i]).collect();
+    assert!(!diff.is_empty(), "a changed observation changed nothing");
+    assert!(
+        base[diff[0]].starts_with("t=39"),
+        "the first difference should be at the last step: {}",
+        base[diff[0]]
+    );
+
+    // Another blob changes everything from the self-test on.
+    let (third, _) = host_lines(&blobgen::seeded_blob(&gman_core::Dims::MCU, 2), &ep);
+    assert_ne!(base[1], third[1]);
+}
+
+#[test]
+fn episode_file_is_checked() {
+    let ep = checked_in_episode();
+    assert!(
+        ep.len() < 32 * 1024,
+        "episode file too large: {} B",
+        ep.len()
+    );
+    let parsed = episode::Episode::parse(&ep).expect("checked-in episode parses");
+    assert_eq!(parsed.steps(), 40);
+    let mut bad = ep.clone();
+    bad[100] ^= 1;
+    assert!(matches!(
+        episode::Episode::parse(&bad),
+        Err(episode::Failure::Episode("CRC mismatch"))
+    ));
+    assert!(episode::Episode::parse(&ep[..ep.len() - 1]).is_err());
+    let mut wrong_version = ep.clone();
+    wrong_version[4] = 9;
+    assert!(episode::Episode::parse(&wrong_version).is_err());
+}
+
+#[test]
+fn checked_in_episode_is_what_record_episode_writes() {
+    // The firmware replays a file made by host-sim/examples/record_episode.rs with its
+    // defaults; if the simulator changes, this says so instead of the data silently drifting.
+    let world = gman_host_sim::sim::World::synthetic(gman_host_sim::sim::DEFAULT_WORLD_SEED);
+    let fresh = record_episode::record(&world, None, record_episode::DEFAULT_STEPS)
+        .expect("record the default episode");
+    assert!(
+        fresh == checked_in_episode(),
+        "firmware-example/data/episode.gmep is stale: re-run `cargo run --release -p \
+         gman-host-sim --example record_episode` and commit the file"
     );
 }

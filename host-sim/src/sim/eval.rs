@@ -64,6 +64,16 @@ pub trait Agent {
     /// Chooses the next action. `oracle` is ground truth for scripted agents; learned agents
     /// must ignore it.
     fn act(&mut self, obs: &Observation, oracle: &OracleView<'_>) -> Action;
+    /// Runs a whole episode in `env`. The default calls [`Agent::begin_episode`] and then
+    /// [`Agent::act`] until the episode ends; agents whose per-episode state borrows from
+    /// themselves (a gman-core navigator over the agent's own arena) override it.
+    fn run_episode(&mut self, env: &mut Env<'_>, spec: &EpisodeSpec) {
+        self.begin_episode(&TargetInfo::of(env.world(), spec));
+        while !env.is_done() {
+            let a = self.act(env.observe(), &env.oracle());
+            env.step(a);
+        }
+    }
 }
 
 /// A factory of agents, called once per evaluation worker with the worker index.
@@ -131,11 +141,7 @@ pub fn run_episode<'w>(
 
 /// Runs `agent` on a freshly created `env` of `spec` until the episode ends.
 pub fn drive(env: &mut Env<'_>, spec: &EpisodeSpec, agent: &mut dyn Agent) {
-    agent.begin_episode(&TargetInfo::of(env.world(), spec));
-    while !env.is_done() {
-        let a = agent.act(env.observe(), &env.oracle());
-        env.step(a);
-    }
+    agent.run_episode(env, spec);
 }
 
 /// Evaluates `episodes`, one agent per rayon worker made by `factory(worker_index)`.
