@@ -8,13 +8,16 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{bail, Context, Result};
-use clap::{Args, Parser, Subcommand};
+use clap::{Args, Parser, Subcommand, ValueEnum};
+use gman_core::Dims;
 use gman_host_sim::sim::eval::{drive, AgentFactory};
 use gman_host_sim::sim::render::draw_scene;
 use gman_host_sim::sim::{
     evaluate, EpisodeLimits, EvalConfig, EvalReport, OracleAgent, RandomAgent, RewardKind, Split,
     World, DEFAULT_WORLD_SEED,
 };
+use gman_host_sim::train::fg::{self, FgCollectConfig, FgTrainConfig};
+use gman_host_sim::train::ps::{self, PsDataConfig, PsTrainConfig};
 
 /// gman: GMAN (ECCV 2022) unseen-object navigation in Rust.
 #[derive(Debug, Parser)]
@@ -32,6 +35,141 @@ pub enum Commands {
     Eval(EvalArgs),
     /// Draw a top-down PNG map of a scene (and optionally an episode's path).
     Scene(SceneArgs),
+    /// Pre-train the feature generator G(SE(y), z) on seen-object features of the training
+    /// scenes (conditional WGAN-GP, paper Sec. 4.1); writes OUT/fg.ckpt and OUT/fg_report.json.
+    PretrainFg(PretrainFgArgs),
+    /// Pre-train the PS module (observation -> semantic embedding of the objects in view) on
+    /// training-scene views; writes OUT/ps.ckpt and OUT/ps_report.json.
+    PretrainPs(PretrainPsArgs),
+    /// Train a navigation method (A3C baselines, GMAN): writes RUN_DIR/metrics.csv and
+    /// RUN_DIR/checkpoint.ckpt; `--resume RUN_DIR` continues a run exactly.
+    Train(crate::cli_nav::TrainArgs),
+    /// Export a trained checkpoint as a gman-core weight blob (int8 or f32).
+    Export(crate::cli_nav::ExportArgs),
+    /// Print a weight blob's header, tensors, quantisation and size (validates the checksum).
+    Inspect(crate::cli_nav::InspectArgs),
+    /// Draw learning curves of training runs into a PNG.
+    Plot(crate::cli_nav::PlotArgs),
+    /// Print the paper's table layout (mean ± std) from evaluation JSON files.
+    Table(crate::cli_nav::TableArgs),
+    /// Quick start: pre-train G, train A3C+FG and GMAN briefly, evaluate them against random.
+    Demo(crate::cli_nav::DemoArgs),
+}
+
+/// Network size preset.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum PresetArg {
+    /// Microcontroller sizes (G hidden 256, D hidden 64).
+    Mcu,
+    /// The paper's sizes (G hidden 4096, D hidden 1024).
+    Paper,
+}
+
+impl PresetArg {
+    /// The sizes.
+    pub fn dims(self) -> Dims {
+        match self {
+            PresetArg::Mcu => Dims::MCU,
+            PresetArg::Paper => Dims::PAPER,
+        }
+    }
+
+    /// The name.
+    pub fn name(self) -> &'static str {
+        match self {
+            PresetArg::Mcu => "mcu",
+            PresetArg::Paper => "paper",
+        }
+    }
+}
+
+/// `gman pretrain-fg`.
+#[derive(Debug, Args)]
+pub struct PretrainFgArgs {
+    /// World selection.
+    #[command(flatten)]
+    pub world: WorldArgs,
+    /// Network sizes.
+    #[arg(long, value_enum, default_value = "mcu")]
+    pub preset: PresetArg,
+    /// Generator steps (default: 1500 for mcu, 300 for paper).
+    #[arg(long, value_name = "N")]
+    pub iters: Option<usize>,
+    /// Seed of initialisation, batches and noise.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Output directory (created if missing).
+    #[arg(long, value_name = "DIR")]
+    pub out: PathBuf,
+    /// Samples per step.
+    #[arg(long, default_value_t = 64)]
+    pub batch: usize,
+    /// Critic steps per generator step.
+    #[arg(long, default_value_t = 5)]
+    pub n_critic: usize,
+    /// Gradient-penalty coefficient.
+    #[arg(long, default_value_t = 10.0)]
+    pub lambda: f32,
+    /// Adam learning rate (both networks).
+    #[arg(long, default_value_t = 5e-4)]
+    pub lr: f32,
+    /// Adam beta1 (both networks).
+    #[arg(long, default_value_t = 0.5)]
+    pub beta1: f32,
+    /// Weight of the feature-regression term (mean squared distance of G(a, z) to the mean
+    /// training feature of the category); 0 = pure WGAN-GP.
+    #[arg(long, default_value_t = fg::DEFAULT_REG)]
+    pub reg: f32,
+    /// Dominant views per object instance.
+    #[arg(long, default_value_t = 6)]
+    pub views_per_instance: usize,
+    /// Minimum share of the view the object must fill.
+    #[arg(long, default_value_t = 0.2)]
+    pub min_weight: f32,
+    /// Share of each seen category's training-scene instances held out for the report.
+    #[arg(long, default_value_t = 0.2)]
+    pub holdout: f32,
+    /// No progress bar.
+    #[arg(long)]
+    pub quiet: bool,
+}
+
+/// `gman pretrain-ps`.
+#[derive(Debug, Args)]
+pub struct PretrainPsArgs {
+    /// World selection.
+    #[command(flatten)]
+    pub world: WorldArgs,
+    /// Adam steps.
+    #[arg(long, default_value_t = 500, value_name = "N")]
+    pub iters: usize,
+    /// Seed of initialisation, view sampling and batches.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Output directory (created if missing).
+    #[arg(long, value_name = "DIR")]
+    pub out: PathBuf,
+    /// Hidden width of the PS network.
+    #[arg(long, default_value_t = 128)]
+    pub hidden: usize,
+    /// Views per step.
+    #[arg(long, default_value_t = 64)]
+    pub batch: usize,
+    /// Adam learning rate.
+    #[arg(long, default_value_t = 1e-3)]
+    pub lr: f32,
+    /// Distinct training-scene views sampled (training plus held out).
+    #[arg(long, default_value_t = 40_000)]
+    pub views: usize,
+    /// Share of the sampled training-scene views held out for the report.
+    #[arg(long, default_value_t = 0.1)]
+    pub holdout: f32,
+    /// Distinct val-scene views for the report.
+    #[arg(long, default_value_t = 8_000)]
+    pub val_views: usize,
+    /// No progress bar.
+    #[arg(long)]
+    pub quiet: bool,
 }
 
 /// Options that choose the world.
@@ -129,6 +267,14 @@ pub fn run(cli: Cli) -> Result<()> {
     match cli.command {
         Commands::Eval(a) => eval(a),
         Commands::Scene(a) => scene(a),
+        Commands::PretrainFg(a) => pretrain_fg(a),
+        Commands::PretrainPs(a) => pretrain_ps(a),
+        Commands::Train(a) => crate::cli_nav::cmd_train(a),
+        Commands::Export(a) => crate::cli_nav::cmd_export(a),
+        Commands::Inspect(a) => crate::cli_nav::cmd_inspect(a),
+        Commands::Plot(a) => crate::cli_nav::cmd_plot(a),
+        Commands::Table(a) => crate::cli_nav::cmd_table(a),
+        Commands::Demo(a) => crate::cli_nav::cmd_demo(a),
     }
 }
 
@@ -140,7 +286,7 @@ pub fn agent_factory(name: &str, seed: u64) -> Result<AgentFactory> {
         other => {
             let p = Path::new(other);
             if p.exists() {
-                bail!("agent {other}: model-file agents are not supported yet (use --agent random or --agent oracle)")
+                return Ok(crate::cli_nav::model_factory(p, None)?.0);
             }
             bail!("agent {other}: not `random` or `oracle`, and no such model file")
         }
@@ -229,5 +375,100 @@ fn scene(a: SceneArgs) -> Result<()> {
     };
     draw_scene(&world, scene, goal, &path, &a.png)?;
     eprintln!("wrote {}", a.png.display());
+    Ok(())
+}
+
+fn check_unit(name: &str, v: f32) -> Result<()> {
+    if !(0.0..1.0).contains(&v) {
+        bail!("--{name} must be in [0, 1), got {v}");
+    }
+    Ok(())
+}
+
+fn check_positive(name: &str, v: f32) -> Result<()> {
+    if !(v.is_finite() && v > 0.0) {
+        bail!("--{name} must be a positive number, got {v}");
+    }
+    Ok(())
+}
+
+fn pretrain_fg(a: PretrainFgArgs) -> Result<()> {
+    let dims = a.preset.dims();
+    let iters = a.iters.unwrap_or(match a.preset {
+        PresetArg::Mcu => 1500,
+        PresetArg::Paper => 300,
+    });
+    if a.batch == 0 || a.n_critic == 0 || a.views_per_instance == 0 {
+        bail!("--batch, --n-critic and --views-per-instance must be at least 1");
+    }
+    check_positive("lr", a.lr)?;
+    check_unit("beta1", a.beta1)?;
+    check_unit("holdout", a.holdout)?;
+    if !(a.lambda.is_finite() && a.lambda >= 0.0 && a.reg.is_finite() && a.reg >= 0.0) {
+        bail!("--lambda and --reg must be finite and non-negative");
+    }
+    if !(0.0..=1.0).contains(&a.min_weight) {
+        bail!("--min-weight must be in [0, 1], got {}", a.min_weight);
+    }
+    let t0 = Instant::now();
+    let world = a.world.load()?;
+    let collect = FgCollectConfig {
+        views_per_instance: a.views_per_instance,
+        min_weight: a.min_weight,
+        holdout: a.holdout,
+        seed: a.seed,
+    };
+    let mut cfg = FgTrainConfig::new(iters, a.seed);
+    cfg.batch = a.batch;
+    cfg.n_critic = a.n_critic;
+    cfg.lambda = a.lambda;
+    cfg.reg = a.reg;
+    for adam in [&mut cfg.adam_gen, &mut cfg.adam_critic] {
+        adam.lr = a.lr;
+        adam.beta1 = a.beta1;
+    }
+    cfg.progress = !a.quiet;
+    let report = fg::run_pretrain_fg(&world, a.preset.name(), &dims, &collect, &cfg, &a.out)?;
+    print!("{}", fg::report_table(&report));
+    eprintln!(
+        "wrote {} and {} ({:.1} s in all)",
+        a.out.join("fg.ckpt").display(),
+        a.out.join("fg_report.json").display(),
+        t0.elapsed().as_secs_f64()
+    );
+    Ok(())
+}
+
+fn pretrain_ps(a: PretrainPsArgs) -> Result<()> {
+    if a.batch == 0 || a.hidden == 0 || a.views == 0 {
+        bail!("--batch, --hidden and --views must be at least 1");
+    }
+    check_positive("lr", a.lr)?;
+    check_unit("holdout", a.holdout)?;
+    let t0 = Instant::now();
+    let world = a.world.load()?;
+    let collect = PsDataConfig {
+        train_views: a.views,
+        heldout: a.holdout,
+        val_views: a.val_views,
+        seed: a.seed,
+    };
+    let mut cfg = PsTrainConfig {
+        hidden: a.hidden,
+        iters: a.iters,
+        batch: a.batch,
+        seed: a.seed,
+        progress: !a.quiet,
+        ..PsTrainConfig::default()
+    };
+    cfg.adam.lr = a.lr;
+    let report = ps::run_pretrain_ps(&world, &collect, &cfg, &a.out)?;
+    print!("{}", ps::report_table(&report));
+    eprintln!(
+        "wrote {} and {} ({:.1} s in all)",
+        a.out.join("ps.ckpt").display(),
+        a.out.join("ps_report.json").display(),
+        t0.elapsed().as_secs_f64()
+    );
     Ok(())
 }

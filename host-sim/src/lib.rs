@@ -1,3 +1,5 @@
 //! Host side of gman-rs.
 #![warn(missing_docs)]
+pub mod nav;
 pub mod sim;
+pub mod train;

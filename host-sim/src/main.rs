@@ -4,6 +4,7 @@ use std::process::ExitCode;
 use clap::Parser;
 
 mod cli;
+mod cli_nav;
 
 fn main() -> ExitCode {
     match cli::run(cli::Cli::parse()) {

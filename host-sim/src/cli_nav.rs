@@ -1,0 +1,746 @@
+//! Commands of the `gman` binary around trained navigators: `train`, `export`, `inspect`,
+//! `plot`, `table` and the quick-start `demo`, plus model-file agents for `gman eval`.
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::Instant;
+
+use anyhow::{anyhow, bail, Context, Result};
+use clap::{Args, ValueEnum};
+use gman_core::blob::{Blob, Quant, FLAG_ADAPT, FLAG_ZERO_NOISE};
+use gman_host_sim::nav::agent::NavAgent;
+use gman_host_sim::nav::model::{load_model, Method, NavModel};
+use gman_host_sim::nav::trainer::{checkpoint_path, train, TrainOptions, TrainState};
+use gman_host_sim::sim::eval::AgentFactory;
+use gman_host_sim::sim::{RewardKind, World};
+use gman_host_sim::train::adam::AdamConfig;
+use gman_host_sim::train::fg::{self, FgCollectConfig, FgTrainConfig};
+use gman_host_sim::train::ps::{self, PsDataConfig, PsModule, PsTrainConfig};
+
+use crate::cli::{PresetArg, WorldArgs};
+
+/// Training configuration presets.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum ConfigArg {
+    /// A few minutes on 2 cores: short pre-training and a few hundred updates.
+    Tiny,
+    /// The budget of the reported runs.
+    Default,
+}
+
+/// `gman train`.
+#[derive(Debug, Args)]
+pub struct TrainArgs {
+    /// World selection (training episodes come from the training scenes).
+    #[command(flatten)]
+    pub world: WorldArgs,
+    /// Method (the rows of the paper's Tables 2 and 3).
+    #[arg(long, value_enum, default_value = "gman")]
+    pub method: Method,
+    /// Network sizes.
+    #[arg(long, value_enum, default_value = "mcu")]
+    pub preset: PresetArg,
+    /// Budget preset: `tiny` (minutes) or `default`.
+    #[arg(long, value_enum, default_value = "default")]
+    pub config: ConfigArg,
+    /// Updates to reach (overrides the config).
+    #[arg(long, value_name = "N")]
+    pub updates: Option<u64>,
+    /// Seed of the run.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Run directory: metrics.csv, checkpoint.ckpt (and fg/, ps/ when pre-trained here).
+    #[arg(long, value_name = "RUN_DIR", required_unless_present = "resume")]
+    pub out: Option<PathBuf>,
+    /// Continue the run in RUN_DIR from its checkpoint (bit for bit).
+    #[arg(long, value_name = "RUN_DIR", conflicts_with = "out")]
+    pub resume: Option<PathBuf>,
+    /// Pre-trained generator (`gman pretrain-fg` output, fg.ckpt); pre-trained here if absent.
+    #[arg(long, value_name = "FG_CKPT")]
+    pub fg: Option<PathBuf>,
+    /// Pre-trained PS module (ps.ckpt) for the PS variants; pre-trained here if absent.
+    #[arg(long, value_name = "PS_CKPT")]
+    pub ps: Option<PathBuf>,
+    /// Parallel workers (one thread each).
+    #[arg(long, default_value_t = 2)]
+    pub workers: usize,
+    /// Outer Adam learning rate β (overrides the config).
+    #[arg(long)]
+    pub lr: Option<f32>,
+    /// Inner learning rates α1 (D) and α2 (θ, φ) (paper: 1e-4).
+    #[arg(long, default_value_t = 1e-4)]
+    pub inner_lr: f32,
+    /// Minimum steps per worker and update.
+    #[arg(long, default_value_t = 40)]
+    pub min_steps: u32,
+    /// Step limit of training episodes (default: 200 in living rooms, 100 elsewhere).
+    #[arg(long)]
+    pub max_steps: Option<u32>,
+    /// Entropy bonus β of the A3C loss.
+    #[arg(long, default_value_t = 0.01)]
+    pub entropy: f32,
+    /// Reward.
+    #[arg(long, default_value = "mixed")]
+    pub reward: RewardKind,
+    /// Checkpoint every N updates.
+    #[arg(long, default_value_t = 100)]
+    pub checkpoint_every: u64,
+    /// No progress bar.
+    #[arg(long)]
+    pub quiet: bool,
+}
+
+/// `gman export`.
+#[derive(Debug, Args)]
+pub struct ExportArgs {
+    /// Trained checkpoint.
+    #[arg(long, value_name = "CKPT")]
+    pub ckpt: PathBuf,
+    /// Preset the checkpoint must have (checked).
+    #[arg(long, value_enum, default_value = "mcu")]
+    pub preset: PresetArg,
+    /// Weight format.
+    #[arg(long, value_enum, default_value = "int8")]
+    pub quant: QuantArg,
+    /// Output blob.
+    #[arg(long, value_name = "MODEL.gman")]
+    pub out: PathBuf,
+}
+
+/// Weight format of an exported blob.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum QuantArg {
+    /// f32 weights.
+    F32,
+    /// int8 weights with per-row scales.
+    Int8,
+}
+
+/// `gman inspect`.
+#[derive(Debug, Args)]
+pub struct InspectArgs {
+    /// A weight blob.
+    pub blob: PathBuf,
+}
+
+/// `gman plot`.
+#[derive(Debug, Args)]
+pub struct PlotArgs {
+    /// Run directories (each with metrics.csv); one colour per run.
+    #[arg(long = "run", value_name = "RUN_DIR", required = true, num_args = 1..)]
+    pub runs: Vec<PathBuf>,
+    /// Output PNG.
+    #[arg(long, value_name = "OUT.png")]
+    pub png: PathBuf,
+    /// Moving-average window (updates).
+    #[arg(long, default_value_t = 50)]
+    pub smooth: usize,
+}
+
+/// `gman table`.
+#[derive(Debug, Args)]
+pub struct TableArgs {
+    /// Evaluation JSON files, or directories of them (one row per argument: mean ± std over
+    /// its files, like the paper's three seeds).
+    #[arg(long, value_name = "DIR_OR_JSON", required = true, num_args = 1..)]
+    pub runs: Vec<PathBuf>,
+}
+
+/// `gman demo`.
+#[derive(Debug, Args)]
+pub struct DemoArgs {
+    /// World selection.
+    #[command(flatten)]
+    pub world: WorldArgs,
+    /// Output directory.
+    #[arg(long, default_value = "runs/demo")]
+    pub out: PathBuf,
+    /// Training updates per method.
+    #[arg(long, default_value_t = 300)]
+    pub updates: u64,
+    /// Official episodes per file evaluated (8 files).
+    #[arg(long, default_value_t = 50)]
+    pub episodes: usize,
+}
+
+fn preset_matches(model: &NavModel, preset: PresetArg) -> Result<()> {
+    let d = preset.dims();
+    let m = model.dims;
+    if (m.gen_hidden, m.disc_hidden, m.lstm_hidden, m.embed, m.feat)
+        != (d.gen_hidden, d.disc_hidden, d.lstm_hidden, d.embed, d.feat)
+    {
+        bail!(
+            "the model has {:?} sizes, not the {} preset",
+            m,
+            preset.name()
+        );
+    }
+    Ok(())
+}
+
+/// Pre-trains G into `dir` unless `given` names a checkpoint; returns its path.
+fn ensure_fg(
+    world: &World,
+    preset: PresetArg,
+    given: Option<&Path>,
+    dir: &Path,
+    tiny: bool,
+    seed: u64,
+) -> Result<PathBuf> {
+    if let Some(p) = given {
+        return Ok(p.to_path_buf());
+    }
+    let path = dir.join("fg.ckpt");
+    if path.exists() {
+        eprintln!(
+            "using the generator pre-trained earlier in {}",
+            path.display()
+        );
+        return Ok(path);
+    }
+    eprintln!(
+        "no --fg given: pre-training the feature generator into {}",
+        dir.display()
+    );
+    let iters = match (tiny, preset) {
+        (true, _) => 400,
+        (false, PresetArg::Mcu) => 1500,
+        (false, PresetArg::Paper) => 300,
+    };
+    let mut cfg = FgTrainConfig::new(iters, seed);
+    cfg.progress = true;
+    let collect = FgCollectConfig {
+        seed,
+        ..FgCollectConfig::default()
+    };
+    let r = fg::run_pretrain_fg(world, preset.name(), &preset.dims(), &collect, &cfg, dir)?;
+    eprint!("{}", fg::report_table(&r));
+    Ok(path)
+}
+
+/// Pre-trains the PS module into `dir` unless `given` names one; returns its path.
+fn ensure_ps(world: &World, given: Option<&Path>, dir: &Path, seed: u64) -> Result<PathBuf> {
+    if let Some(p) = given {
+        return Ok(p.to_path_buf());
+    }
+    let path = dir.join("ps.ckpt");
+    if path.exists() {
+        return Ok(path);
+    }
+    eprintln!(
+        "no --ps given: pre-training the PS module into {}",
+        dir.display()
+    );
+    let cfg = PsTrainConfig {
+        seed,
+        progress: true,
+        ..PsTrainConfig::default()
+    };
+    let collect = PsDataConfig {
+        seed,
+        ..PsDataConfig::default()
+    };
+    let r = ps::run_pretrain_ps(world, &collect, &cfg, dir)?;
+    eprint!("{}", ps::report_table(&r));
+    Ok(path)
+}
+
+/// `gman train`.
+pub fn cmd_train(a: TrainArgs) -> Result<()> {
+    if a.workers == 0 || a.checkpoint_every == 0 {
+        bail!("--workers and --checkpoint-every must be at least 1");
+    }
+    if !(a.inner_lr.is_finite() && a.inner_lr >= 0.0 && a.entropy.is_finite() && a.entropy >= 0.0) {
+        bail!("--inner-lr and --entropy must be finite and non-negative");
+    }
+    let tiny = a.config == ConfigArg::Tiny;
+    let updates = a.updates.unwrap_or(if tiny { 300 } else { 4000 });
+    let lr = a.lr.unwrap_or(1e-3);
+    if !(lr.is_finite() && lr > 0.0) {
+        bail!("--lr must be positive");
+    }
+    let world = a.world.load()?;
+    let (out, mut state) = match &a.resume {
+        Some(dir) => {
+            let st = TrainState::load(&checkpoint_path(dir))
+                .with_context(|| format!("resuming {}", dir.display()))?;
+            eprintln!(
+                "resuming {} ({}) at update {}",
+                dir.display(),
+                st.model.method.name(),
+                st.update
+            );
+            (dir.clone(), st)
+        }
+        None => {
+            let out = a
+                .out
+                .clone()
+                .ok_or_else(|| anyhow!("--out RUN_DIR is required"))?;
+            std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
+            if checkpoint_path(&out).exists() {
+                bail!(
+                    "{} already holds a run; use --resume {} to continue it, or another --out",
+                    out.display(),
+                    out.display()
+                );
+            }
+            let gen = if a.method.uses_fg() {
+                let p = ensure_fg(
+                    &world,
+                    a.preset,
+                    a.fg.as_deref(),
+                    &out.join("fg"),
+                    tiny,
+                    a.seed,
+                )?;
+                Some(
+                    fg::load_generator(&p, &a.preset.dims())
+                        .with_context(|| format!("loading generator {}", p.display()))?,
+                )
+            } else {
+                None
+            };
+            let psm = if a.method.uses_ps() {
+                let p = ensure_ps(&world, a.ps.as_deref(), &out.join("ps"), a.seed)?;
+                Some(
+                    PsModule::load(&p)
+                        .with_context(|| format!("loading PS module {}", p.display()))?,
+                )
+            } else {
+                None
+            };
+            let model = NavModel::init(a.method, a.preset.dims(), a.seed, gen.as_ref(), psm)?;
+            let adam = AdamConfig {
+                lr,
+                ..AdamConfig::default()
+            };
+            (out, TrainState::new(model, adam))
+        }
+    };
+    if a.resume.is_none() {
+        state.model.inner_lr = a.inner_lr;
+    }
+    let opts = TrainOptions {
+        updates,
+        seed: a.seed,
+        workers: a.workers,
+        min_steps: a.min_steps,
+        reward: a.reward,
+        max_steps: a.max_steps,
+        adam: AdamConfig {
+            lr,
+            ..AdamConfig::default()
+        },
+        a3c: gman_host_sim::nav::a3c::A3cConfig {
+            entropy: a.entropy,
+            ..Default::default()
+        },
+        checkpoint_every: a.checkpoint_every,
+        out: out.clone(),
+        progress: !a.quiet,
+    };
+    let t0 = Instant::now();
+    let steps0 = state.env_steps;
+    train(&world, &opts, &mut state)?;
+    let secs = t0.elapsed().as_secs_f64();
+    eprintln!(
+        "trained {} ({}) to update {}: {} episodes, {} env steps ({:.0} steps/s over this run, {:.1} s); wrote {} and {}",
+        state.model.method.name(),
+        a.preset.name(),
+        state.update,
+        state.episodes,
+        state.env_steps,
+        (state.env_steps - steps0) as f64 / secs.max(1e-9),
+        secs,
+        out.join("metrics.csv").display(),
+        checkpoint_path(&out).display()
+    );
+    Ok(())
+}
+
+/// Model-file agents for `gman eval`: a checkpoint or a blob.
+pub fn model_factory(path: &Path, method: Option<Method>) -> Result<(AgentFactory, String)> {
+    let model = Arc::new(load_model(path, method)?);
+    let label = format!("{} ({})", model.method.name(), path.display());
+    let factory: AgentFactory = Box::new(move |_| Box::new(NavAgent::new(model.clone())));
+    Ok((factory, label))
+}
+
+/// `gman export`.
+pub fn cmd_export(a: ExportArgs) -> Result<()> {
+    let model = load_model(&a.ckpt, None)?;
+    preset_matches(&model, a.preset)?;
+    if model.method.uses_ps() {
+        eprintln!(
+            "note: the PS module is not part of the blob; the device must supply the PS input"
+        );
+    }
+    let bytes = model.to_blob(a.quant == QuantArg::Int8)?;
+    gman_host_sim::train::checkpoint::write_atomic(&a.out, |f| {
+        std::io::Write::write_all(f, &bytes)
+    })?;
+    eprintln!(
+        "wrote {} ({} bytes, {:?}, method {})",
+        a.out.display(),
+        bytes.len(),
+        a.quant,
+        model.method.name()
+    );
+    Ok(())
+}
+
+/// `gman inspect`.
+pub fn cmd_inspect(a: InspectArgs) -> Result<()> {
+    let bytes = std::fs::read(&a.blob).with_context(|| format!("reading {}", a.blob.display()))?;
+    let blob = Blob::parse(&bytes).map_err(|e| anyhow!("{}: {e}", a.blob.display()))?;
+    let h = blob.header();
+    let d = blob.dims();
+    println!(
+        "{}: GMAN weight blob, format v{}, {} bytes, checksum OK (CRC-32 {:#010x})",
+        a.blob.display(),
+        h.version(),
+        blob.len(),
+        h.payload_crc()
+    );
+    println!(
+        "dims: attr {} noise {} gen_hidden {} feat {} disc_hidden {} lstm_hidden {} embed {} ps {}",
+        d.attr, d.noise, d.gen_hidden, d.feat, d.disc_hidden, d.lstm_hidden, d.embed, d.ps
+    );
+    let mut flags = Vec::new();
+    if h.flags() & FLAG_ADAPT != 0 {
+        flags.push("adapt (GMAN inner loop on)");
+    }
+    if h.flags() & FLAG_ZERO_NOISE != 0 {
+        flags.push("zero noise");
+    }
+    println!(
+        "flags: {:#x} {}",
+        h.flags(),
+        if flags.is_empty() {
+            "(no adaptation)".to_string()
+        } else {
+            flags.join(", ")
+        }
+    );
+    println!(
+        "{:<8} {:>6} {:>6} {:>5} {:>10} {:>14}",
+        "tensor", "rows", "cols", "quant", "bytes", "max |err|/2"
+    );
+    for t in blob.tensors() {
+        println!(
+            "{:<8} {:>6} {:>6} {:>5} {:>10} {:>14}",
+            t.id.name(),
+            t.rows,
+            t.cols,
+            match t.quant {
+                Quant::F32 => "f32",
+                Quant::I8 => "int8",
+            },
+            t.storage_bytes(),
+            match t.quant {
+                Quant::F32 => "-".to_string(),
+                Quant::I8 => format!("{:.3e}", t.max_rounding_error()),
+            }
+        );
+    }
+    let missing: Vec<&str> = gman_core::blob::TensorId::ALL
+        .iter()
+        .filter(|id| !blob.has(**id))
+        .map(|id| id.name())
+        .collect();
+    if !missing.is_empty() {
+        println!(
+            "missing tensors (not a complete navigator): {}",
+            missing.join(", ")
+        );
+    }
+    Ok(())
+}
+
+/// One row of a run's metrics: (env_steps, success_rate, mean_reward).
+type MetricRow = (f64, f64, f64);
+
+/// Reads `metrics.csv` of a run.
+fn read_metrics(run: &Path) -> Result<Vec<MetricRow>> {
+    let path = run.join("metrics.csv");
+    let text =
+        std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines
+        .next()
+        .ok_or_else(|| anyhow!("{} is empty", path.display()))?
+        .split(',')
+        .collect();
+    let col = |n: &str| {
+        header
+            .iter()
+            .position(|h| *h == n)
+            .ok_or_else(|| anyhow!("{} has no column {n}", path.display()))
+    };
+    let (cs, csr, cr) = (col("env_steps")?, col("success_rate")?, col("mean_reward")?);
+    let mut out = Vec::new();
+    for (i, l) in lines.enumerate() {
+        let f: Vec<&str> = l.split(',').collect();
+        let g = |c: usize| -> Result<f64> {
+            f.get(c)
+                .and_then(|v| v.parse().ok())
+                .ok_or_else(|| anyhow!("{} line {}: bad value", path.display(), i + 2))
+        };
+        out.push((g(cs)?, g(csr)?, g(cr)?));
+    }
+    Ok(out)
+}
+
+fn smooth(v: &[f64], w: usize) -> Vec<f64> {
+    let w = w.max(1);
+    (0..v.len())
+        .map(|i| {
+            let a = i.saturating_sub(w - 1);
+            v[a..=i].iter().sum::<f64>() / (i - a + 1) as f64
+        })
+        .collect()
+}
+
+/// `gman plot`: learning curves (success rate and reward against environment steps).
+pub fn cmd_plot(a: PlotArgs) -> Result<()> {
+    use plotters::prelude::*;
+    let runs: Vec<(String, Vec<MetricRow>)> = a
+        .runs
+        .iter()
+        .map(|r| Ok((r.display().to_string(), read_metrics(r)?)))
+        .collect::<Result<_>>()?;
+    let xmax = runs
+        .iter()
+        .flat_map(|(_, m)| m.iter().map(|p| p.0))
+        .fold(1.0, f64::max);
+    let rmin = runs
+        .iter()
+        .flat_map(|(_, m)| smooth(&m.iter().map(|p| p.2).collect::<Vec<_>>(), a.smooth))
+        .fold(0.0, f64::min);
+    let rmax = runs
+        .iter()
+        .flat_map(|(_, m)| smooth(&m.iter().map(|p| p.2).collect::<Vec<_>>(), a.smooth))
+        .fold(1.0, f64::max);
+    let colors = [
+        RED,
+        BLUE,
+        GREEN,
+        MAGENTA,
+        CYAN,
+        BLACK,
+        RGBColor(255, 128, 0),
+        RGBColor(128, 0, 255),
+    ];
+    {
+        let root = BitMapBackend::new(&a.png, (1000, 800)).into_drawing_area();
+        root.fill(&WHITE)?;
+        let (top, bottom) = root.split_vertically(400);
+        for (panel, (lo, hi), pick) in [(&top, (0.0, 1.0), 1usize), (&bottom, (rmin, rmax), 2usize)]
+        {
+            let mut chart = ChartBuilder::on(panel)
+                .margin(20)
+                .build_cartesian_2d(0.0..xmax, lo..hi)?;
+            chart
+                .configure_mesh()
+                .x_labels(10)
+                .y_labels(5)
+                .disable_x_axis()
+                .disable_y_axis()
+                .x_label_formatter(&|_| String::new())
+                .y_label_formatter(&|_| String::new())
+                .draw()?;
+            for (i, (_, m)) in runs.iter().enumerate() {
+                let ys: Vec<f64> = m
+                    .iter()
+                    .map(|p| if pick == 1 { p.1 } else { p.2 })
+                    .collect();
+                let ys = smooth(&ys, a.smooth);
+                let c = colors[i % colors.len()];
+                chart.draw_series(LineSeries::new(
+                    m.iter().map(|p| p.0).zip(ys),
+                    c.stroke_width(2),
+                ))?;
+            }
+        }
+        root.present()?;
+    }
+    println!("wrote {}: top = success rate (0..1), bottom = mean episode reward ({rmin:.2}..{rmax:.2}), x = environment steps (0..{xmax:.0}), moving average over {} updates", a.png.display(), a.smooth);
+    for (i, (name, m)) in runs.iter().enumerate() {
+        let last = smooth(&m.iter().map(|p| p.1).collect::<Vec<_>>(), a.smooth)
+            .last()
+            .copied()
+            .unwrap_or(f64::NAN);
+        println!(
+            "  colour {}: {name} ({} updates, final smoothed success {:.1}%)",
+            ["red", "blue", "green", "magenta", "cyan", "black", "orange", "purple"][i % 8],
+            m.len(),
+            100.0 * last
+        );
+    }
+    Ok(())
+}
+
+fn json_files(p: &Path) -> Result<Vec<PathBuf>> {
+    if p.is_dir() {
+        let mut v: Vec<PathBuf> = std::fs::read_dir(p)
+            .with_context(|| format!("reading {}", p.display()))?
+            .filter_map(|e| e.ok().map(|e| e.path()))
+            .filter(|f| f.extension().is_some_and(|x| x == "json"))
+            .collect();
+        v.sort();
+        if v.is_empty() {
+            bail!("{} holds no .json evaluation files", p.display());
+        }
+        Ok(v)
+    } else {
+        Ok(vec![p.to_path_buf()])
+    }
+}
+
+/// Mean and sample standard deviation.
+fn mean_std(v: &[f64]) -> (f64, f64) {
+    let n = v.len() as f64;
+    let m = v.iter().sum::<f64>() / n;
+    let s = if v.len() > 1 {
+        (v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (n - 1.0)).sqrt()
+    } else {
+        0.0
+    };
+    (m, s)
+}
+
+/// `gman table`: Table 2/3 layout from evaluation JSON files.
+pub fn cmd_table(a: TableArgs) -> Result<()> {
+    println!(
+        "{:<28} | {:^47} | {:^47}",
+        "Method", "Unseen Objects", "Seen Objects"
+    );
+    println!(
+        "{:<28} | {:>11} {:>11} {:>11} {:>11} | {:>11} {:>11} {:>11} {:>11}",
+        "", "SR(%)", "SPL(%)", "EPA(%)", "DTS(m)", "SR(%)", "SPL(%)", "EPA(%)", "DTS(m)"
+    );
+    for run in &a.runs {
+        let files = json_files(run)?;
+        let mut vals: Vec<[f64; 8]> = Vec::new();
+        let mut split = String::new();
+        for f in &files {
+            let text =
+                std::fs::read_to_string(f).with_context(|| format!("reading {}", f.display()))?;
+            let j: serde_json::Value =
+                serde_json::from_str(&text).with_context(|| format!("parsing {}", f.display()))?;
+            split = j["split"].as_str().unwrap_or("?").to_string();
+            let g = |k: &str, m: &str| -> Result<f64> {
+                j["results"][k][m]
+                    .as_f64()
+                    .ok_or_else(|| anyhow!("{}: results.{k}.{m} missing", f.display()))
+            };
+            vals.push([
+                g("unseen", "sr")?,
+                g("unseen", "spl")?,
+                g("unseen", "epa")?,
+                g("unseen", "dts")?,
+                g("seen", "sr")?,
+                g("seen", "spl")?,
+                g("seen", "epa")?,
+                g("seen", "dts")?,
+            ]);
+        }
+        let cells: Vec<String> = (0..8)
+            .map(|i| {
+                let (m, s) = mean_std(&vals.iter().map(|v| v[i]).collect::<Vec<_>>());
+                format!("{m:>6.2}±{s:<4.2}")
+            })
+            .collect();
+        let name = format!(
+            "{} [{} x{}]",
+            run.file_name()
+                .map(|s| s.to_string_lossy().to_string())
+                .unwrap_or_default(),
+            split,
+            files.len()
+        );
+        println!(
+            "{:<28} | {} | {}",
+            name,
+            cells[..4].join(" "),
+            cells[4..].join(" ")
+        );
+    }
+    println!("(mean ± sample std over the JSON files of each row)");
+    Ok(())
+}
+
+/// `gman demo`: pre-train G, train A3C+FG and GMAN briefly, evaluate them and a random agent.
+pub fn cmd_demo(a: DemoArgs) -> Result<()> {
+    let t0 = Instant::now();
+    let world = a.world.load()?;
+    std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
+    let fg_path = ensure_fg(&world, PresetArg::Mcu, None, &a.out.join("fg"), true, 1)?;
+    let gen = fg::load_generator(&fg_path, &gman_core::Dims::MCU)?;
+    let split = gman_host_sim::sim::Split::Val;
+    let episodes = world.episodes(split, Some(a.episodes))?;
+    let cfg = gman_host_sim::sim::EvalConfig {
+        reward: RewardKind::Mixed,
+        limits: gman_host_sim::sim::EpisodeLimits::default(),
+        progress: true,
+    };
+    let mut table = String::new();
+    let rnd = gman_host_sim::sim::evaluate(
+        &world,
+        &episodes,
+        |_| Box::new(gman_host_sim::sim::RandomAgent::new(0)),
+        &cfg,
+    );
+    table.push_str(&gman_host_sim::sim::EvalReport::new(split.name(), "random", &rnd).table());
+    for method in [Method::A3cFg, Method::Gman] {
+        let dir = a.out.join(method.name());
+        let state_path = checkpoint_path(&dir);
+        let mut state = if state_path.exists() {
+            TrainState::load(&state_path)?
+        } else {
+            TrainState::new(
+                NavModel::init(method, gman_core::Dims::MCU, 1, Some(&gen), None)?,
+                AdamConfig {
+                    lr: 1e-3,
+                    ..AdamConfig::default()
+                },
+            )
+        };
+        let opts = TrainOptions {
+            updates: a.updates,
+            seed: 1,
+            workers: 2,
+            min_steps: 40,
+            reward: RewardKind::Mixed,
+            max_steps: None,
+            adam: AdamConfig {
+                lr: 1e-3,
+                ..AdamConfig::default()
+            },
+            a3c: Default::default(),
+            checkpoint_every: 100,
+            out: dir.clone(),
+            progress: true,
+        };
+        train(&world, &opts, &mut state)?;
+        let model = Arc::new(state.model);
+        let res = gman_host_sim::sim::evaluate(
+            &world,
+            &episodes,
+            |_| Box::new(NavAgent::new(model.clone())),
+            &cfg,
+        );
+        table.push_str(
+            &gman_host_sim::sim::EvalReport::new(split.name(), method.name(), &res).table(),
+        );
+    }
+    println!("{table}");
+    println!(
+        "demo finished in {:.0} s; runs in {} (try `gman plot --run {}/gman --png curve.png`)",
+        t0.elapsed().as_secs_f64(),
+        a.out.display(),
+        a.out.display()
+    );
+    Ok(())
+}

@@ -1,0 +1,256 @@
+//! Running one episode with gman-core's navigator, for training (with the A3C gradient of
+//! every segment and the Manual inner-loop schedule) and for evaluation.
+
+use anyhow::{anyhow, Result};
+use gman_core::navigator::{Full, Navigator};
+use gman_core::policy::{PolicyCache, PolicyInput};
+use gman_core::{Action, NUM_ACTIONS};
+
+use super::a3c::{segment_backward, A3cConfig, SegmentLoss};
+use super::model::NavModel;
+use super::K;
+use crate::sim::{Env, EpisodeSpec, RewardKind, World};
+use crate::train::params::ParamSet;
+use crate::train::ps::PsBuffers;
+
+/// What back-propagation needs of one step.
+#[derive(Clone, Debug)]
+pub struct StepRec {
+    /// Observation s_t.
+    pub obs: Vec<f32>,
+    /// PS input (empty without PS).
+    pub ps: Vec<f32>,
+    /// Generated feature x_t.
+    pub x: Vec<f32>,
+    /// Noise z_t.
+    pub z: Vec<f32>,
+    /// LSTM state before the step.
+    pub h_prev: Vec<f32>,
+    /// LSTM cell before the step.
+    pub c_prev: Vec<f32>,
+    /// Previous action probabilities.
+    pub prev_probs: Vec<f32>,
+    /// Action index.
+    pub action: usize,
+    /// Reward received.
+    pub reward: f32,
+    /// Action probabilities.
+    pub probs: [f32; NUM_ACTIONS],
+}
+
+/// Summary of a training episode.
+#[derive(Clone, Debug, Default)]
+pub struct EpisodeStats {
+    /// Successful Done.
+    pub success: bool,
+    /// Steps taken.
+    pub steps: u32,
+    /// Sum of rewards.
+    pub total_reward: f32,
+    /// Inner updates applied.
+    pub adaptations: u32,
+    /// Inner steps rolled back.
+    pub rollbacks: u32,
+    /// Mean over the episode's inner updates of `E[D(s)] − E[D(x)]` (how well D separates
+    /// observations from generated features); NaN without updates.
+    pub disc_gap: f32,
+    /// Mean over the episode's inner updates of L_ad; NaN without updates.
+    pub adapt_loss: f32,
+    /// The A3C loss parts.
+    pub loss: SegmentLoss,
+}
+
+/// Per-worker buffers reused across episodes.
+pub struct Worker {
+    /// The navigator's arena.
+    pub arena: Vec<f32>,
+    /// PS activations.
+    pub ps: Option<PsBuffers>,
+}
+
+impl Worker {
+    /// Buffers for `model`.
+    pub fn new(model: &NavModel) -> Worker {
+        Worker {
+            arena: vec![0.0; Navigator::<Full, K>::arena_len(&model.dims)],
+            ps: model.ps.as_ref().map(|p| PsBuffers::new(p.hidden)),
+        }
+    }
+}
+
+fn ps_input(model: &NavModel, buf: &mut Option<PsBuffers>, obs: &[f32]) -> Result<Vec<f32>> {
+    match (&model.ps, buf) {
+        (Some(ps), Some(b)) => {
+            ps.forward_buf(obs, b)?;
+            Ok(b.y.clone())
+        }
+        _ => Ok(Vec::new()),
+    }
+}
+
+/// The critic's value of the next observation at the navigator's current state, for
+/// bootstrapping a segment that did not end the episode.
+fn bootstrap_value(nav: &Navigator<'_, Full, K>, obs: &[f32], ps: &[f32]) -> Result<f32> {
+    let p = nav.policy()?;
+    let (f, e, hd) = (obs.len(), p.fuse.out_dim(), p.lstm.hidden());
+    let (mut prod, mut fuse, mut gates, mut c, mut h) = (
+        vec![0.0; f],
+        vec![0.0; e],
+        vec![0.0; 4 * hd],
+        vec![0.0; hd],
+        vec![0.0; hd],
+    );
+    let (mut logits, mut probs) = ([0.0f32; NUM_ACTIONS], [0.0f32; NUM_ACTIONS]);
+    let mut cache = PolicyCache {
+        prod: &mut prod,
+        fuse: &mut fuse,
+        gates: &mut gates,
+        c: &mut c,
+        h: &mut h,
+        actor_u: &mut [],
+        logits: &mut logits,
+        probs: &mut probs,
+        value: 0.0,
+    };
+    let inp = PolicyInput {
+        obs,
+        feat: nav.generated_feature(),
+        attr: nav.attr(),
+        prev_probs: nav.prev_probs(),
+        ps,
+    };
+    p.forward(&inp, nav.hidden_state(), nav.cell_state(), &mut cache)?;
+    Ok(cache.value)
+}
+
+/// Runs one training episode: every `K` steps (or at the end) the segment's A3C gradient is
+/// accumulated into `grads` at the parameters the segment ran with, then — for the methods
+/// that adapt — the navigator's inner update (Algorithm 1, lines 15-20) runs. Returns the
+/// episode's statistics and D's parameters after the episode (in the order `DiscW1`,
+/// `DiscB1`, `DiscW2`, `DiscB2`), since ω learns across episodes.
+#[allow(clippy::too_many_arguments)]
+pub fn train_episode(
+    world: &World,
+    spec: &EpisodeSpec,
+    model: &NavModel,
+    reward: RewardKind,
+    max_steps: u32,
+    a3c: &A3cConfig,
+    worker: &mut Worker,
+    grads: &mut ParamSet,
+) -> Result<(EpisodeStats, Vec<Vec<f32>>)> {
+    let weights = model.weights()?;
+    let mut nav: Navigator<'_, Full, K> =
+        Navigator::new(weights, &mut worker.arena, model.nav_config(true))?;
+    nav.reset(world.attributes(spec.target), spec.seed)?;
+    let mut env = Env::new(world, spec, reward, max_steps);
+    let mut stats = EpisodeStats::default();
+    let (mut gap, mut lad, mut n_upd) = (0.0f64, 0.0f64, 0u32);
+    let mut seg: Vec<StepRec> = Vec::with_capacity(K);
+    loop {
+        seg.clear();
+        while seg.len() < K && !env.is_done() {
+            let obs = env.observe();
+            let ps = ps_input(model, &mut worker.ps, &obs.features)?;
+            let h_prev = nav.hidden_state().to_vec();
+            let c_prev = nav.cell_state().to_vec();
+            let prev_probs = nav.prev_probs().to_vec();
+            let out = nav.step(&obs.features, &ps)?;
+            let o = env.step(out.action);
+            seg.push(StepRec {
+                obs: obs.features.to_vec(),
+                ps,
+                x: nav.generated_feature().to_vec(),
+                z: nav.noise().to_vec(),
+                h_prev,
+                c_prev,
+                prev_probs,
+                action: out.action.index(),
+                reward: o.reward,
+                probs: out.probs,
+            });
+        }
+        let bootstrap = if env.is_done() {
+            0.0
+        } else {
+            let obs = env.observe();
+            let ps = ps_input(model, &mut worker.ps, &obs.features)?;
+            bootstrap_value(&nav, &obs.features, &ps)?
+        };
+        let l = segment_backward(
+            &nav,
+            &seg,
+            bootstrap,
+            a3c,
+            model.method.trains_generator(),
+            grads,
+        )?;
+        stats.loss.add(&l);
+        if env.is_done() {
+            break;
+        }
+        if nav.buffered() == K {
+            if nav.can_adapt() {
+                nav.adapt_now()?;
+                let r = nav.last_adaptation();
+                gap += (r.ld.mean_real - r.ld.mean_fake) as f64;
+                lad += r.adapt_loss as f64;
+                n_upd += 1;
+            } else {
+                nav.clear_buffer();
+            }
+        }
+    }
+    let m = env.metrics();
+    let c = nav.counters();
+    stats.success = m.success;
+    stats.steps = env.steps();
+    stats.total_reward = m.total_reward;
+    stats.adaptations = c.adaptations;
+    stats.rollbacks = c.rollbacks;
+    stats.disc_gap = if n_upd > 0 {
+        (gap / n_upd as f64) as f32
+    } else {
+        f32::NAN
+    };
+    stats.adapt_loss = if n_upd > 0 {
+        (lad / n_upd as f64) as f32
+    } else {
+        f32::NAN
+    };
+    let d = nav.discriminator()?;
+    let (r, cc) = (d.l1.w.rows(), d.l1.w.cols());
+    let w1: Vec<f32> = (0..r * cc).map(|i| d.l1.w.get(i / cc, i % cc)).collect();
+    let disc = vec![w1, d.l1.b.to_vec(), d.w2.to_vec(), vec![d.b2]];
+    Ok((stats, disc))
+}
+
+/// Runs one evaluation episode in `env` with the device's schedule (inner update inside
+/// `step`, every `K` steps). D starts from the model's ω in every episode, so results do not
+/// depend on episode order or worker count. On a navigator error the agent issues Done (and
+/// the error is returned for reporting).
+pub fn eval_episode(
+    env: &mut Env<'_>,
+    spec: &EpisodeSpec,
+    model: &NavModel,
+    worker: &mut Worker,
+) -> Result<()> {
+    let weights = model.weights()?;
+    let mut nav: Navigator<'_, Full, K> =
+        Navigator::new(weights, &mut worker.arena, model.nav_config(false))?;
+    nav.reset(env.world().attributes(spec.target), spec.seed)?;
+    while !env.is_done() {
+        let obs = env.observe();
+        let ps = ps_input(model, &mut worker.ps, &obs.features)?;
+        match nav.step(&obs.features, &ps) {
+            Ok(out) => {
+                env.step(out.action);
+            }
+            Err(e) => {
+                env.step(Action::Done);
+                return Err(anyhow!("navigator: {e}"));
+            }
+        }
+    }
+    Ok(())
+}

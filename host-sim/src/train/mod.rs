@@ -1,0 +1,64 @@
+//! Host-side training: parameter store, optimiser, checkpoints, deterministic data-parallel
+//! gradient accumulation, and the pre-training stages of GMAN.
+//!
+//! Every forward and backward pass of a network runs on gman-core's kernels
+//! ([`gman_core::dense::Dense`], [`gman_core::generator::Generator`], ...), so the host trains
+//! exactly what the device runs; this module adds batching, optimisers, data and I/O.
+//!
+//! Module map:
+//! * [`params`]: named f32 tensors ([`params::ParamSet`]) and views for the core kernels.
+//! * [`adam`]: Adam / AMSGrad with clipping and a checkpointable state.
+//! * [`checkpoint`]: versioned, checksummed, atomically written checkpoint files.
+//! * [`parallel`]: fixed-chunk, order-deterministic gradient accumulation on rayon.
+//! * [`generator`]: G's parameters (blob tensor names) and owned buffers.
+//! * [`critic`]: the conditional WGAN-GP critic of feature-generator pre-training.
+//! * [`fg`]: `gman pretrain-fg` (paper Sec. 4.1).
+//! * [`ps`]: `gman pretrain-ps`, the PS module (paper Sec. 5.2).
+
+pub mod adam;
+pub mod checkpoint;
+pub mod critic;
+pub mod fg;
+pub mod generator;
+pub mod parallel;
+pub mod params;
+pub mod ps;
+
+use anyhow::{bail, Result};
+use gman_core::rng::Xoshiro128;
+use gman_core::Dims;
+
+/// The preset sizes as JSON (for checkpoint metadata and reports).
+pub fn dims_json(d: &Dims) -> serde_json::Value {
+    serde_json::json!({
+        "attr": d.attr,
+        "noise": d.noise,
+        "gen_hidden": d.gen_hidden,
+        "feat": d.feat,
+        "disc_hidden": d.disc_hidden,
+        "lstm_hidden": d.lstm_hidden,
+        "embed": d.embed,
+        "ps": d.ps,
+    })
+}
+
+/// The 16-byte state of a [`Xoshiro128`] (little-endian words), for a checkpoint blob.
+pub fn rng_to_bytes(rng: &Xoshiro128) -> [u8; 16] {
+    let mut out = [0u8; 16];
+    for (o, w) in out.chunks_exact_mut(4).zip(rng.state()) {
+        o.copy_from_slice(&w.to_le_bytes());
+    }
+    out
+}
+
+/// Restores a [`Xoshiro128`] from [`rng_to_bytes`].
+pub fn rng_from_bytes(b: &[u8]) -> Result<Xoshiro128> {
+    if b.len() != 16 {
+        bail!("RNG state has {} bytes, expected 16", b.len());
+    }
+    let mut s = [0u32; 4];
+    for (w, c) in s.iter_mut().zip(b.chunks_exact(4)) {
+        *w = u32::from_le_bytes([c[0], c[1], c[2], c[3]]);
+    }
+    Ok(Xoshiro128::from_state(s))
+}
