@@ -76,6 +76,9 @@ pub struct TrainArgs {
     /// Step limit of training episodes (default: 200 in living rooms, 100 elsewhere).
     #[arg(long)]
     pub max_steps: Option<u32>,
+    /// Training starts need at least this many actions to see the target (0: any start).
+    #[arg(long, default_value_t = 1)]
+    pub min_start_actions: u32,
     /// Entropy bonus β of the A3C loss.
     #[arg(long, default_value_t = 0.01)]
     pub entropy: f32,
@@ -328,6 +331,7 @@ pub fn cmd_train(a: TrainArgs) -> Result<()> {
         min_steps: a.min_steps,
         reward: a.reward,
         max_steps: a.max_steps,
+        min_start_actions: a.min_start_actions,
         adam: AdamConfig {
             lr,
             ..AdamConfig::default()
@@ -714,6 +718,7 @@ pub fn cmd_demo(a: DemoArgs) -> Result<()> {
             min_steps: 40,
             reward: RewardKind::Mixed,
             max_steps: None,
+            min_start_actions: 1,
             adam: AdamConfig {
                 lr: 1e-3,
                 ..AdamConfig::default()

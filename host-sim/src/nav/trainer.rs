@@ -55,6 +55,9 @@ pub struct TrainOptions {
     pub reward: RewardKind,
     /// Step limit of training episodes (`None`: the evaluation limits, 200/100).
     pub max_steps: Option<u32>,
+    /// Training starts need at least this many actions to see the target (1: never in view at
+    /// the start).
+    pub min_start_actions: u32,
     /// Outer optimiser.
     pub adam: AdamConfig,
     /// A3C loss.
@@ -113,6 +116,7 @@ impl TrainState {
             "min_steps": opts.min_steps,
             "reward": format!("{:?}", opts.reward),
             "max_steps": opts.max_steps,
+            "min_start_actions": opts.min_start_actions,
             "adam": opts.adam,
             "a3c": opts.a3c,
         });
@@ -231,7 +235,8 @@ pub fn train(world: &World, opts: &TrainOptions, state: &mut TrainState) -> Resu
                         while e == 0 || steps < opts.min_steps {
                             let mut rng =
                                 ChaCha8Rng::seed_from_u64(episode_seed(opts.seed, u, w, e));
-                            let spec = world.sample_train_episode(&mut rng);
+                            let spec =
+                                world.sample_train_episode_min(&mut rng, opts.min_start_actions);
                             let max = opts.max_steps.unwrap_or_else(|| limits.for_room(spec.room));
                             let (st, disc) = train_episode(
                                 world,

@@ -546,6 +546,17 @@ impl World {
     /// type present in it, and a random reachable start (position and heading, horizon 0) from
     /// which a goal-visible state can be reached.
     pub fn sample_train_episode<R: Rng + ?Sized>(&self, rng: &mut R) -> EpisodeSpec {
+        self.sample_train_episode_min(rng, 0)
+    }
+
+    /// Like [`World::sample_train_episode`], but the start needs at least `min_actions`
+    /// actions to reach a state where the target is visible (`1`: the target is not in view
+    /// at the start, so that issuing Done at once never succeeds).
+    pub fn sample_train_episode_min<R: Rng + ?Sized>(
+        &self,
+        rng: &mut R,
+        min_actions: u32,
+    ) -> EpisodeSpec {
         let train = self
             .split_scenes
             .get(&Split::Train)
@@ -567,7 +578,7 @@ impl World {
                 let p = rng.random_range(0..sc.positions.len());
                 let heading = rng.random_range(0..NUM_HEADINGS) as u8;
                 let state = p * STATES_PER_POSITION + heading as usize * 2;
-                if goal.dist[state] != UNREACHABLE {
+                if goal.dist[state] != UNREACHABLE && goal.dist[state] as u32 >= min_actions {
                     return EpisodeSpec {
                         index: 0,
                         scene,
