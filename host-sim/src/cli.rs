@@ -210,9 +210,14 @@ pub struct EvalArgs {
     /// Split to evaluate (val or test).
     #[arg(long, default_value = "val")]
     pub split: String,
-    /// Agent: `random`, `oracle`, or a model file.
+    /// Agent: `random`, `oracle`, or a model file (a training checkpoint, or a weight blob
+    /// evaluated through gman-core as on the device).
     #[arg(long, default_value = "random")]
     pub agent: String,
+    /// Treat a model file as this method (e.g. evaluate an `a3c-fg` checkpoint as
+    /// `gman-nometa`: adversarial adaptation at test time only).
+    #[arg(long, value_enum)]
+    pub method: Option<gman_host_sim::nav::model::Method>,
     /// At most N episodes per episode file (file order).
     #[arg(long, value_name = "N")]
     pub episodes: Option<usize>,
@@ -279,14 +284,18 @@ pub fn run(cli: Cli) -> Result<()> {
 }
 
 /// A built-in agent factory by name; a clear error for model files (not supported yet).
-pub fn agent_factory(name: &str, seed: u64) -> Result<AgentFactory> {
+pub fn agent_factory(
+    name: &str,
+    seed: u64,
+    method: Option<gman_host_sim::nav::model::Method>,
+) -> Result<AgentFactory> {
     match name {
         "random" => Ok(Box::new(move |_| Box::new(RandomAgent::new(seed)))),
         "oracle" => Ok(Box::new(|_| Box::new(OracleAgent))),
         other => {
             let p = Path::new(other);
             if p.exists() {
-                return Ok(crate::cli_nav::model_factory(p, None)?.0);
+                return Ok(crate::cli_nav::model_factory(p, method)?.0);
             }
             bail!("agent {other}: not `random` or `oracle`, and no such model file")
         }
@@ -298,7 +307,7 @@ fn eval(a: EvalArgs) -> Result<()> {
     if split == Split::Train {
         bail!("split train has no official episodes; use --split val or --split test");
     }
-    let factory = agent_factory(&a.agent, a.seed)?;
+    let factory = agent_factory(&a.agent, a.seed, a.method)?;
     let t0 = Instant::now();
     let world = a.world.load()?;
     let episodes = world.episodes(split, a.episodes)?;
@@ -350,7 +359,7 @@ fn scene(a: SceneArgs) -> Result<()> {
                     mine.len()
                 );
             };
-            let factory = agent_factory(&a.agent, a.seed)?;
+            let factory = agent_factory(&a.agent, a.seed, None)?;
             let mut agent = factory(0);
             let cfg = EvalConfig::default();
             let mut env = gman_host_sim::sim::Env::new(

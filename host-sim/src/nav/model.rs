@@ -115,6 +115,10 @@ pub struct NavModel {
     pub noise: NoiseMode,
     /// Inner-loop rates α1 (D ascent) and α2 (θ, φ descent) (paper: 1e-4).
     pub inner_lr: f32,
+    /// For a model loaded from a weight blob: the blob, whose weights the navigator then reads
+    /// in place (int8 stays int8), exactly as on the device. `params` holds a dequantised
+    /// copy for inspection.
+    pub blob: Option<std::sync::Arc<Vec<u8>>>,
 }
 
 impl NavModel {
@@ -178,11 +182,16 @@ impl NavModel {
             ps,
             noise: NoiseMode::Gaussian,
             inner_lr: 1e-4,
+            blob: None,
         })
     }
 
     /// Zero-copy views of the parameters for gman-core's navigator.
     pub fn weights(&self) -> Result<NavWeights<'_>> {
+        if let Some(bytes) = &self.blob {
+            let blob = Blob::parse(bytes).map_err(|e| anyhow!("{e}"))?;
+            return Ok(NavWeights::from_blob(&blob, &self.dims)?);
+        }
         let mut err = None;
         let w = NavWeights::from_fn(&self.dims, |id| {
             let (r, c) = id.shape(&self.dims);
@@ -317,6 +326,7 @@ impl NavModel {
             ps,
             noise,
             inner_lr,
+            blob: None,
         })
     }
 
@@ -395,6 +405,7 @@ pub fn model_from_blob(bytes: &[u8], method: Option<Method>) -> Result<NavModel>
         ps: None,
         noise,
         inner_lr: 1e-4,
+        blob: Some(std::sync::Arc::new(bytes.to_vec())),
     })
 }
 

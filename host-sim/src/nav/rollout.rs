@@ -2,7 +2,7 @@
 //! every segment and the Manual inner-loop schedule) and for evaluation.
 
 use anyhow::{anyhow, Result};
-use gman_core::navigator::{Full, Navigator};
+use gman_core::navigator::{Efficient, Full, Mode, Navigator};
 use gman_core::policy::{PolicyCache, PolicyInput};
 use gman_core::{Action, NUM_ACTIONS};
 
@@ -71,6 +71,7 @@ pub struct Worker {
 impl Worker {
     /// Buffers for `model`.
     pub fn new(model: &NavModel) -> Worker {
+        // The Full layout is the larger one; an Efficient navigator fits in it too.
         Worker {
             arena: vec![0.0; Navigator::<Full, K>::arena_len(&model.dims)],
             ps: model.ps.as_ref().map(|p| PsBuffers::new(p.hidden)),
