@@ -250,4 +250,22 @@ fn exported_int8_blob_host_path_and_core_api_agree() {
         }
     }
     assert!(checked > 20, "too few steps compared: {checked}");
+
+    // The host path reads the blob in place in the device's mode: probabilities agree bit for
+    // bit with the bare navigator (a dequantised f32 copy in Full mode would not).
+    assert!(gman_host_sim::nav::rollout::eval_mode_is_efficient(&host));
+    let blob = Blob::parse(&blob_bytes).unwrap();
+    let (mut a1, mut a2) = (vec![0.0f32; Navigator::<Efficient, 20>::arena_len(&Dims::MCU)], vec![0.0f32; Navigator::<Efficient, 20>::arena_len(&Dims::MCU)]);
+    let mut n1: Navigator<'_, Efficient, 20> = Navigator::new(host.weights().unwrap(), &mut a1, host.nav_config(false)).unwrap();
+    let mut n2: Navigator<'_, Efficient, 20> = Navigator::new(NavWeights::from_blob(&blob, &Dims::MCU).unwrap(), &mut a2, host.nav_config(false)).unwrap();
+    let spec = &episodes[0];
+    n1.reset(world.attributes(spec.target), 9).unwrap();
+    n2.reset(world.attributes(spec.target), 9).unwrap();
+    let env = Env::new(&world, spec, RewardKind::Mixed, 60);
+    let obs = env.observe().features;
+    for _ in 0..45 {
+        let (o1, o2) = (n1.step(&obs, &[]).unwrap(), n2.step(&obs, &[]).unwrap());
+        assert_eq!(o1.probs.map(f32::to_bits), o2.probs.map(f32::to_bits));
+    }
+    assert_eq!(n1.counters().adaptations, 2);
 }

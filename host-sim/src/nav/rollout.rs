@@ -230,14 +230,36 @@ pub fn train_episode(
 /// `step`, every `K` steps). D starts from the model's ω in every episode, so results do not
 /// depend on episode order or worker count. On a navigator error the agent issues Done (and
 /// the error is returned for reporting).
+///
+/// A model read from a blob runs in the device's parameter-efficient mode over the blob's
+/// weights in place (see [`eval_mode_is_efficient`]); a checkpoint runs in the Full mode.
 pub fn eval_episode(
     env: &mut Env<'_>,
     spec: &EpisodeSpec,
     model: &NavModel,
     worker: &mut Worker,
 ) -> Result<()> {
+    if eval_mode_is_efficient(model) {
+        eval_episode_in::<Efficient>(env, spec, model, worker)
+    } else {
+        eval_episode_in::<Full>(env, spec, model, worker)
+    }
+}
+
+/// True when evaluation of `model` uses the `Efficient` adaptation mode (blobs: what the
+/// microcontroller runs).
+pub fn eval_mode_is_efficient(model: &NavModel) -> bool {
+    model.blob.is_some()
+}
+
+fn eval_episode_in<M: Mode>(
+    env: &mut Env<'_>,
+    spec: &EpisodeSpec,
+    model: &NavModel,
+    worker: &mut Worker,
+) -> Result<()> {
     let weights = model.weights()?;
-    let mut nav: Navigator<'_, Full, K> =
+    let mut nav: Navigator<'_, M, K> =
         Navigator::new(weights, &mut worker.arena, model.nav_config(false))?;
     nav.reset(env.world().attributes(spec.target), spec.seed)?;
     while !env.is_done() {
