@@ -224,6 +224,11 @@ pub struct EvalArgs {
     /// Seed of the agent's randomness.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
+    /// Average several training runs: the model path must contain `{seed}`, replaced by each
+    /// of these (e.g. `--agent runs/gman-seed{seed}/checkpoint.ckpt --seeds 1,2,3`); prints
+    /// and writes mean ± sample standard deviation like the paper.
+    #[arg(long, value_delimiter = ',', value_name = "S1,S2,..")]
+    pub seeds: Vec<u64>,
     /// Write the JSON report here.
     #[arg(long, value_name = "OUT.json")]
     pub json: Option<PathBuf>,
@@ -307,6 +312,9 @@ fn eval(a: EvalArgs) -> Result<()> {
     if split == Split::Train {
         bail!("split train has no official episodes; use --split val or --split test");
     }
+    if !a.seeds.is_empty() {
+        return eval_seeds(a, split);
+    }
     let factory = agent_factory(&a.agent, a.seed, a.method)?;
     let t0 = Instant::now();
     let world = a.world.load()?;
@@ -330,6 +338,88 @@ fn eval(a: EvalArgs) -> Result<()> {
     if let Some(path) = &a.json {
         let text = serde_json::to_string_pretty(&report)?;
         std::fs::write(path, text + "\n")
+            .with_context(|| format!("cannot write {}", path.display()))?;
+    }
+    Ok(())
+}
+
+/// `gman eval --seeds`: one evaluation per training seed, then mean ± std.
+fn eval_seeds(a: EvalArgs, split: Split) -> Result<()> {
+    if !a.agent.contains("{seed}") {
+        bail!("--seeds needs an --agent path containing {{seed}}, e.g. runs/gman-seed{{seed}}/checkpoint.ckpt");
+    }
+    let t0 = Instant::now();
+    let world = a.world.load()?;
+    let episodes = world.episodes(split, a.episodes)?;
+    let cfg = EvalConfig {
+        reward: a.reward,
+        limits: EpisodeLimits {
+            living_room: a.max_steps_living_room,
+            other: a.max_steps_other,
+        },
+        progress: !a.quiet,
+    };
+    let mut reports = Vec::new();
+    for s in &a.seeds {
+        let path = a.agent.replace("{seed}", &s.to_string());
+        let factory = agent_factory(&path, a.seed, a.method)?;
+        let results = evaluate(&world, &episodes, |w| factory(w), &cfg);
+        let report = EvalReport::new(split.name(), &path, &results);
+        print!("{}", report.table());
+        reports.push(report);
+    }
+    let mut agg = serde_json::Map::new();
+    let mut std = serde_json::Map::new();
+    println!("mean ± std over seeds {:?}:", a.seeds);
+    for kind in ["unseen", "seen"] {
+        let mut m = serde_json::Map::new();
+        let mut sd = serde_json::Map::new();
+        let mut line = format!("  {kind:<7}");
+        for metric in ["sr", "spl", "epa", "dts"] {
+            let v: Vec<f64> = reports
+                .iter()
+                .map(|r| {
+                    let k = if kind == "seen" { &r.results.seen } else { &r.results.unseen };
+                    match metric {
+                        "sr" => k.sr,
+                        "spl" => k.spl,
+                        "epa" => k.epa,
+                        _ => k.dts,
+                    }
+                })
+                .collect();
+            let n = v.len() as f64;
+            let mean = v.iter().sum::<f64>() / n;
+            let s = if v.len() > 1 {
+                (v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1.0)).sqrt()
+            } else {
+                0.0
+            };
+            line.push_str(&format!(" {metric} {mean:.2}±{s:.2}"));
+            m.insert(metric.into(), mean.into());
+            sd.insert(metric.into(), s.into());
+        }
+        let eps = reports
+            .first()
+            .map(|r| if kind == "seen" { r.results.seen.episodes } else { r.results.unseen.episodes })
+            .unwrap_or(0);
+        m.insert("episodes".into(), eps.into());
+        println!("{line}");
+        agg.insert(kind.into(), m.into());
+        std.insert(kind.into(), sd.into());
+    }
+    eprintln!("evaluated {} runs in {:.1} s", reports.len(), t0.elapsed().as_secs_f64());
+    if let Some(path) = &a.json {
+        let j = serde_json::json!({
+            "split": split.name(),
+            "agent": a.agent,
+            "seeds": a.seeds,
+            "episodes": episodes.len(),
+            "results": agg,
+            "std": std,
+            "runs": reports,
+        });
+        std::fs::write(path, serde_json::to_string_pretty(&j)? + "\n")
             .with_context(|| format!("cannot write {}", path.display()))?;
     }
     Ok(())
