@@ -146,25 +146,104 @@ pub fn adapt_generator_grad(
     }
     let loss = adapt_loss(kind, w.d, probs, w.dd, dprobs)?;
     // Pass 2: back-propagate ∂L/∂d_t · ∇D(x_t) through G, grouping identical noise.
+    let AdaptWork {
+        gen: cache,
+        gen_scratch,
+        disc: ds,
+        dd,
+        dx,
+        ..
+    } = w;
+    backprop_scores(
+        gen,
+        disc,
+        attr,
+        zs,
+        zdim,
+        dd,
+        cache,
+        gen_scratch,
+        ds,
+        dx,
+        grads1,
+        grads2,
+    )?;
+    Ok(loss)
+}
+
+/// Accumulates `∇_θ Σ_t c_t D(G_θ(z_t, attr))` into `grads1`/`grads2`: the back-propagation
+/// pass of [`adapt_generator_grad`] with caller-chosen per-entry coefficients `coef` (`n`
+/// floats; `zs` is `n x Z`). With `coef = ∂L_ad/∂d_t` it is L_ad's θ gradient; a host-side
+/// meta-gradient uses it for vector-Jacobian products of other functions of the scores
+/// `d_t = D(x_t)`. Only `w.gen`, `w.gen_scratch`, `w.disc` and `w.dx` are written.
+#[allow(clippy::too_many_arguments)]
+pub fn generator_score_backward(
+    gen: &Generator<'_>,
+    disc: &Discriminator<'_>,
+    attr: &[f32],
+    zs: &[f32],
+    coef: &[f32],
+    w: &mut AdaptWork<'_>,
+    grads1: &mut DenseGrads<'_>,
+    grads2: &mut DenseGrads<'_>,
+) -> Result<()> {
+    let n = coef.len();
+    let zdim = gen.in_dim().saturating_sub(attr.len());
+    check_len("adapt.zs", n * zdim, zs.len())?;
+    check_len("adapt.dx", gen.feat(), w.dx.len())?;
+    check_len("adapt.disc_in", gen.feat(), disc.in_dim())?;
+    backprop_scores(
+        gen,
+        disc,
+        attr,
+        zs,
+        zdim,
+        coef,
+        &mut w.gen,
+        &mut w.gen_scratch,
+        &mut w.disc,
+        w.dx,
+        grads1,
+        grads2,
+    )
+}
+
+/// `∇_θ Σ_t coef_t D(G_θ(z_t))`, grouping consecutive bit-identical noise vectors.
+#[allow(clippy::too_many_arguments)]
+fn backprop_scores(
+    gen: &Generator<'_>,
+    disc: &Discriminator<'_>,
+    attr: &[f32],
+    zs: &[f32],
+    zdim: usize,
+    coef: &[f32],
+    cache: &mut GeneratorCache<'_>,
+    gen_scratch: &mut GeneratorScratch<'_>,
+    ds: &mut DiscScratch<'_>,
+    dx: &mut [f32],
+    grads1: &mut DenseGrads<'_>,
+    grads2: &mut DenseGrads<'_>,
+) -> Result<()> {
+    let n = coef.len();
     let mut t = 0;
     while t < n {
         let z = &zs[t * zdim..(t + 1) * zdim];
-        let mut coef = w.dd[t];
+        let mut c = coef[t];
         let mut end = t + 1;
         while end < n && same_bits(&zs[end * zdim..(end + 1) * zdim], z) {
-            coef += w.dd[end];
+            c += coef[end];
             end += 1;
         }
-        gen.forward(z, attr, &mut w.gen)?;
-        disc.score(w.gen.x, &mut w.disc)?;
-        disc.input_grad(&mut w.disc)?;
-        for (o, &g) in w.dx.iter_mut().zip(w.disc.g.iter()) {
-            *o = coef * g;
+        gen.forward(z, attr, cache)?;
+        disc.score(cache.x, ds)?;
+        disc.input_grad(ds)?;
+        for (o, &g) in dx.iter_mut().zip(ds.g.iter()) {
+            *o = c * g;
         }
-        gen.backward(z, attr, &w.gen, w.dx, grads1, grads2, &mut w.gen_scratch)?;
+        gen.backward(z, attr, cache, dx, grads1, grads2, gen_scratch)?;
         t = end;
     }
-    Ok(loss)
+    Ok(())
 }
 
 fn same_bits(a: &[f32], b: &[f32]) -> bool {

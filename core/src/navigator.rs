@@ -240,6 +240,20 @@ pub struct AdaptReport {
     pub adapt_applied: bool,
 }
 
+/// The contents of the navigation buffer Ψ (`n` entries, row-major), see
+/// [`Navigator::buffer`].
+#[derive(Clone, Copy, Debug)]
+pub struct BufferView<'a> {
+    /// Observations s_t (`n x feat`).
+    pub obs: &'a [f32],
+    /// Noise z_t (`n x noise`).
+    pub noise: &'a [f32],
+    /// Action probabilities a_t (`n x 6`).
+    pub probs: &'a [f32],
+    /// LSTM hidden states h_t after each step (`n x lstm_hidden`).
+    pub hidden: &'a [f32],
+}
+
 /// Read-only views of every tensor the navigator needs (from a blob, or from a trainer's
 /// f32 buffers), indexed by [`TensorId`].
 #[derive(Clone, Copy, Debug)]
@@ -675,6 +689,11 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
         self.last
     }
 
+    /// The sizes of the networks.
+    pub fn dims(&self) -> &Dims {
+        &self.w.dims
+    }
+
     /// The configuration.
     pub fn config(&self) -> &NavConfig {
         &self.cfg
@@ -724,6 +743,18 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
     /// Number of steps recorded in Ψ since it was last emptied.
     pub fn buffered(&self) -> usize {
         self.n_buf
+    }
+
+    /// Read-only views of the [`Navigator::buffered`] entries of Ψ, for host-side
+    /// meta-gradients (they are what the next inner update's L_ad is computed on).
+    pub fn buffer(&self) -> BufferView<'_> {
+        let (d, n) = (&self.w.dims, self.n_buf);
+        BufferView {
+            obs: &self.r.psi_s[..n * d.feat],
+            noise: &self.r.psi_z[..n * d.noise],
+            probs: &self.r.psi_p[..n * NUM_ACTIONS],
+            hidden: &self.r.psi_h[..n * d.lstm_hidden],
+        }
     }
 
     /// The adapted generator θ_i as a view (for diagnostics and host-side meta-gradients).

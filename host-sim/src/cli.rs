@@ -379,7 +379,11 @@ fn eval_seeds(a: EvalArgs, split: Split) -> Result<()> {
             let v: Vec<f64> = reports
                 .iter()
                 .map(|r| {
-                    let k = if kind == "seen" { &r.results.seen } else { &r.results.unseen };
+                    let k = if kind == "seen" {
+                        &r.results.seen
+                    } else {
+                        &r.results.unseen
+                    };
                     match metric {
                         "sr" => k.sr,
                         "spl" => k.spl,
@@ -401,14 +405,24 @@ fn eval_seeds(a: EvalArgs, split: Split) -> Result<()> {
         }
         let eps = reports
             .first()
-            .map(|r| if kind == "seen" { r.results.seen.episodes } else { r.results.unseen.episodes })
+            .map(|r| {
+                if kind == "seen" {
+                    r.results.seen.episodes
+                } else {
+                    r.results.unseen.episodes
+                }
+            })
             .unwrap_or(0);
         m.insert("episodes".into(), eps.into());
         println!("{line}");
         agg.insert(kind.into(), m.into());
         std.insert(kind.into(), sd.into());
     }
-    eprintln!("evaluated {} runs in {:.1} s", reports.len(), t0.elapsed().as_secs_f64());
+    eprintln!(
+        "evaluated {} runs in {:.1} s",
+        reports.len(),
+        t0.elapsed().as_secs_f64()
+    );
     if let Some(path) = &a.json {
         let j = serde_json::json!({
             "split": split.name(),

@@ -88,6 +88,11 @@ pub struct TrainArgs {
     /// Checkpoint every N updates.
     #[arg(long, default_value_t = 100)]
     pub checkpoint_every: u64,
+    /// Meta-gradient order: 1 = first-order MAML (the gradient at the adapted parameters),
+    /// 2 = exact through the inner SGD steps (Hessian-vector products by central finite
+    /// differences of gradients).
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u8).range(1..=2))]
+    pub meta_order: u8,
     /// No progress bar.
     #[arg(long)]
     pub quiet: bool,
@@ -341,6 +346,7 @@ pub fn cmd_train(a: TrainArgs) -> Result<()> {
             ..Default::default()
         },
         checkpoint_every: a.checkpoint_every,
+        meta_order: a.meta_order,
         out: out.clone(),
         progress: !a.quiet,
     };
@@ -506,6 +512,31 @@ fn smooth(v: &[f64], w: usize) -> Vec<f64> {
         .collect()
 }
 
+/// Registers a system TrueType font for plot labels, if one is installed; returns whether
+/// labels can be drawn (the PNG is still written without one).
+fn register_plot_font() -> bool {
+    const CANDIDATES: [&str; 3] = [
+        "/usr/share/fonts/truetype/dejavu/DejaVuSans.ttf",
+        "/usr/share/fonts/TTF/DejaVuSans.ttf",
+        "/usr/share/fonts/truetype/liberation/LiberationSans-Regular.ttf",
+    ];
+    for c in CANDIDATES {
+        if let Ok(bytes) = std::fs::read(c) {
+            let bytes: &'static [u8] = Box::leak(bytes.into_boxed_slice());
+            if plotters::style::register_font(
+                "sans-serif",
+                plotters::style::FontStyle::Normal,
+                bytes,
+            )
+            .is_ok()
+            {
+                return true;
+            }
+        }
+    }
+    false
+}
+
 /// `gman plot`: learning curves (success rate and reward against environment steps).
 pub fn cmd_plot(a: PlotArgs) -> Result<()> {
     use plotters::prelude::*;
@@ -514,18 +545,21 @@ pub fn cmd_plot(a: PlotArgs) -> Result<()> {
         .iter()
         .map(|r| Ok((r.display().to_string(), read_metrics(r)?)))
         .collect::<Result<_>>()?;
+    let labels = register_plot_font();
     let xmax = runs
         .iter()
         .flat_map(|(_, m)| m.iter().map(|p| p.0))
         .fold(1.0, f64::max);
-    let rmin = runs
-        .iter()
-        .flat_map(|(_, m)| smooth(&m.iter().map(|p| p.2).collect::<Vec<_>>(), a.smooth))
-        .fold(0.0, f64::min);
-    let rmax = runs
-        .iter()
-        .flat_map(|(_, m)| smooth(&m.iter().map(|p| p.2).collect::<Vec<_>>(), a.smooth))
-        .fold(1.0, f64::max);
+    let sm = |m: &[MetricRow], pick: usize| -> Vec<f64> {
+        smooth(
+            &m.iter()
+                .map(|p| if pick == 1 { p.1 } else { p.2 })
+                .collect::<Vec<_>>(),
+            a.smooth,
+        )
+    };
+    let rmin = runs.iter().flat_map(|(_, m)| sm(m, 2)).fold(0.0, f64::min);
+    let rmax = runs.iter().flat_map(|(_, m)| sm(m, 2)).fold(1.0, f64::max);
     let colors = [
         RED,
         BLUE,
@@ -540,41 +574,58 @@ pub fn cmd_plot(a: PlotArgs) -> Result<()> {
         let root = BitMapBackend::new(&a.png, (1000, 800)).into_drawing_area();
         root.fill(&WHITE)?;
         let (top, bottom) = root.split_vertically(400);
-        for (panel, (lo, hi), pick) in [(&top, (0.0, 1.0), 1usize), (&bottom, (rmin, rmax), 2usize)]
-        {
-            let mut chart = ChartBuilder::on(panel)
-                .margin(20)
-                .build_cartesian_2d(0.0..xmax, lo..hi)?;
-            chart
-                .configure_mesh()
-                .x_labels(10)
-                .y_labels(5)
-                .disable_x_axis()
-                .disable_y_axis()
-                .x_label_formatter(&|_| String::new())
-                .y_label_formatter(&|_| String::new())
-                .draw()?;
-            for (i, (_, m)) in runs.iter().enumerate() {
-                let ys: Vec<f64> = m
-                    .iter()
-                    .map(|p| if pick == 1 { p.1 } else { p.2 })
-                    .collect();
-                let ys = smooth(&ys, a.smooth);
+        for (panel, (lo, hi), pick, title) in [
+            (&top, (0.0, 1.0), 1usize, "training success rate"),
+            (&bottom, (rmin, rmax), 2usize, "mean episode reward"),
+        ] {
+            let mut b = ChartBuilder::on(panel);
+            b.margin(15);
+            if labels {
+                b.caption(title, ("sans-serif", 20))
+                    .x_label_area_size(35)
+                    .y_label_area_size(55);
+            }
+            let mut chart = b.build_cartesian_2d(0.0..xmax, lo..hi)?;
+            let mut mesh = chart.configure_mesh();
+            mesh.x_labels(8).y_labels(6);
+            if labels {
+                mesh.x_desc("environment steps")
+                    .label_style(("sans-serif", 14));
+            } else {
+                mesh.disable_x_axis().disable_y_axis();
+            }
+            mesh.draw()?;
+            for (i, (name, m)) in runs.iter().enumerate() {
                 let c = colors[i % colors.len()];
-                chart.draw_series(LineSeries::new(
-                    m.iter().map(|p| p.0).zip(ys),
+                let s = chart.draw_series(LineSeries::new(
+                    m.iter().map(|p| p.0).zip(sm(m, pick)),
                     c.stroke_width(2),
                 ))?;
+                if labels {
+                    s.label(name.clone()).legend(move |(x, y)| {
+                        PathElement::new(vec![(x, y), (x + 20, y)], c.stroke_width(2))
+                    });
+                }
+            }
+            if labels {
+                chart
+                    .configure_series_labels()
+                    .background_style(WHITE.mix(0.8))
+                    .border_style(BLACK)
+                    .label_font(("sans-serif", 13))
+                    .draw()?;
             }
         }
         root.present()?;
     }
-    println!("wrote {}: top = success rate (0..1), bottom = mean episode reward ({rmin:.2}..{rmax:.2}), x = environment steps (0..{xmax:.0}), moving average over {} updates", a.png.display(), a.smooth);
+    println!(
+        "wrote {}: top = training success rate (0..1), bottom = mean episode reward ({rmin:.2}..{rmax:.2}), x = environment steps (0..{xmax:.0}), moving average over {} updates{}",
+        a.png.display(),
+        a.smooth,
+        if labels { "" } else { " (no system font found: the PNG has no text)" }
+    );
     for (i, (name, m)) in runs.iter().enumerate() {
-        let last = smooth(&m.iter().map(|p| p.1).collect::<Vec<_>>(), a.smooth)
-            .last()
-            .copied()
-            .unwrap_or(f64::NAN);
+        let last = sm(m, 1).last().copied().unwrap_or(f64::NAN);
         println!(
             "  colour {}: {name} ({} updates, final smoothed success {:.1}%)",
             ["red", "blue", "green", "magenta", "cyan", "black", "orange", "purple"][i % 8],
@@ -725,6 +776,7 @@ pub fn cmd_demo(a: DemoArgs) -> Result<()> {
             },
             a3c: Default::default(),
             checkpoint_every: 100,
+            meta_order: 1,
             out: dir.clone(),
             progress: true,
         };

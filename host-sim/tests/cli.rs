@@ -95,12 +95,24 @@ fn clear_errors_on_bad_input() {
     assert!(!ok && e.contains("unknown split"), "{e}");
     let (ok, _, e) = gman(&["eval", "--agent", "does-not-exist.bin", "--quiet"]);
     assert!(!ok && e.contains("does-not-exist.bin"), "{e}");
-    // A model file that exists: not supported yet.
+    // A file that is neither a checkpoint nor a weight blob: a clear error naming it.
     let d = tmp("model");
     let model = d.join("model.bin");
     std::fs::write(&model, b"x").unwrap();
     let (ok, _, e) = gman(&["eval", "--agent", model.to_str().unwrap(), "--quiet"]);
-    assert!(!ok && e.contains("not supported yet"), "{e}");
+    assert!(
+        !ok && e.contains("model.bin") && e.contains("not a gman checkpoint"),
+        "{e}"
+    );
+    assert!(!e.contains("panicked"));
+    // A corrupted weight blob: the blob decoder's typed error.
+    let blob = d.join("bad.gman");
+    std::fs::write(&blob, b"GMAN\x01garbage").unwrap();
+    let (ok, _, e) = gman(&["eval", "--agent", blob.to_str().unwrap(), "--quiet"]);
+    assert!(
+        !ok && e.contains("bad.gman") && !e.contains("panicked"),
+        "{e}"
+    );
 
     if let Some(data) = common::data_dir() {
         let data = data.to_str().unwrap();

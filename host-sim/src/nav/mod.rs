@@ -8,6 +8,7 @@
 
 pub mod a3c;
 pub mod agent;
+pub mod meta;
 pub mod model;
 pub mod rollout;
 pub mod trainer;

@@ -7,6 +7,7 @@ use gman_core::policy::{PolicyCache, PolicyInput};
 use gman_core::{Action, NUM_ACTIONS};
 
 use super::a3c::{segment_backward, A3cConfig, SegmentLoss};
+use super::meta::{add_adapted, meta_backward, take_adapted, InnerSetup, InnerStep};
 use super::model::NavModel;
 use super::K;
 use crate::sim::{Env, EpisodeSpec, RewardKind, World};
@@ -129,6 +130,11 @@ fn bootstrap_value(nav: &Navigator<'_, Full, K>, obs: &[f32], ps: &[f32]) -> Res
 /// that adapt — the navigator's inner update (Algorithm 1, lines 15-20) runs. Returns the
 /// episode's statistics and D's parameters after the episode (in the order `DiscW1`,
 /// `DiscB1`, `DiscW2`, `DiscB2`), since ω learns across episodes.
+///
+/// `meta_order` 1 sums the segments' gradients at the adapted parameters (first-order MAML);
+/// 2 (for the methods that adapt) back-propagates the θ and φ parts through the inner SGD
+/// steps instead (see [`super::meta`]); the fusion, LSTM and critic gradients are the same
+/// sum in both.
 #[allow(clippy::too_many_arguments)]
 pub fn train_episode(
     world: &World,
@@ -137,9 +143,23 @@ pub fn train_episode(
     reward: RewardKind,
     max_steps: u32,
     a3c: &A3cConfig,
+    meta_order: u8,
     worker: &mut Worker,
     grads: &mut ParamSet,
 ) -> Result<(EpisodeStats, Vec<Vec<f32>>)> {
+    if !(1..=2).contains(&meta_order) {
+        return Err(anyhow!("meta order must be 1 or 2, not {meta_order}"));
+    }
+    let second = meta_order == 2 && model.method.adapts_in_training();
+    // Order 2: each segment's gradient goes to `seg_g` first; its θ, φ parts are kept per
+    // segment (with the inner steps) for the reverse recursion at the end of the episode.
+    let mut seg_g = if second {
+        Some(grads.zeros_like())
+    } else {
+        None
+    };
+    let mut seg_grads: Vec<(Vec<f32>, Vec<f32>)> = Vec::new();
+    let mut steps: Vec<Option<InnerStep>> = Vec::new();
     let weights = model.weights()?;
     let mut nav: Navigator<'_, Full, K> =
         Navigator::new(weights, &mut worker.arena, model.nav_config(true))?;
@@ -178,21 +198,47 @@ pub fn train_episode(
             let ps = ps_input(model, &mut worker.ps, &obs.features)?;
             bootstrap_value(&nav, &obs.features, &ps)?
         };
-        let l = segment_backward(
-            &nav,
-            &seg,
-            bootstrap,
-            a3c,
-            model.method.trains_generator(),
-            grads,
-        )?;
+        let l = match seg_g.as_mut() {
+            Some(g) => {
+                g.zero();
+                let l = segment_backward(
+                    &nav,
+                    &seg,
+                    bootstrap,
+                    a3c,
+                    model.method.trains_generator(),
+                    g,
+                )?;
+                seg_grads.push(take_adapted(g)?);
+                grads.add_assign(g)?;
+                l
+            }
+            None => segment_backward(
+                &nav,
+                &seg,
+                bootstrap,
+                a3c,
+                model.method.trains_generator(),
+                grads,
+            )?,
+        };
         stats.loss.add(&l);
         if env.is_done() {
             break;
         }
+        let mut step = None;
         if nav.buffered() == K {
             if nav.can_adapt() {
+                let mut st = if second {
+                    Some(InnerStep::before_update(&nav)?)
+                } else {
+                    None
+                };
                 nav.adapt_now()?;
+                if let Some(st) = st.as_mut() {
+                    st.after_update(&nav)?;
+                }
+                step = st;
                 let r = nav.last_adaptation();
                 gap += (r.ld.mean_real - r.ld.mean_fake) as f64;
                 lad += r.adapt_loss as f64;
@@ -201,6 +247,13 @@ pub fn train_episode(
                 nav.clear_buffer();
             }
         }
+        if second {
+            steps.push(step);
+        }
+    }
+    if second {
+        let (mt, mp) = meta_backward(&InnerSetup::of(&nav), &steps, &seg_grads)?;
+        add_adapted(grads, &mt, &mp)?;
     }
     let m = env.metrics();
     let c = nav.counters();

@@ -12,8 +12,12 @@
 //!   ω ← ω + Σ_w (ω_w − ω)                                      (D learns across episodes)
 //! ```
 //!
-//! * **Meta-gradient order 1** (first-order MAML): the gradient of L_nav with respect to the
-//!   adapted parameters is applied to the pre-adaptation ones. This is what this loop does.
+//! * **Meta-gradient order 1** (first-order MAML, `--meta-order 1`, the default): the
+//!   gradient of L_nav with respect to the adapted parameters is applied to the
+//!   pre-adaptation ones.
+//! * **Meta-gradient order 2** (`--meta-order 2`): the exact gradient through the inner SGD
+//!   steps of θ and φ (Hessian-vector products by finite differences of gradients), see
+//!   [`super::meta`]; the buffers, rollouts and D are treated as data.
 //! * **Workers** are synchronous: both cores run one episode each, their gradients are summed
 //!   in worker order, then one Adam step. Every random choice of an update derives from
 //!   `(seed, update, worker)`, so a run is reproducible bit for bit for a given worker count
@@ -62,6 +66,10 @@ pub struct TrainOptions {
     pub adam: AdamConfig,
     /// A3C loss.
     pub a3c: A3cConfig,
+    /// Meta-gradient order: 1 (first-order MAML, the gradient at the adapted parameters
+    /// applied to the pre-adaptation ones) or 2 (exact through the inner SGD steps, see
+    /// [`super::meta`]).
+    pub meta_order: u8,
     /// Write a checkpoint every this many updates (and at the end).
     pub checkpoint_every: u64,
     /// Run directory (`metrics.csv`, `checkpoint.ckpt`).
@@ -119,6 +127,7 @@ impl TrainState {
             "min_start_actions": opts.min_start_actions,
             "adam": opts.adam,
             "a3c": opts.a3c,
+            "meta_order": opts.meta_order,
         });
         let mut ck = Checkpoint::new(meta);
         self.model.add_to_checkpoint(&mut ck)?;
@@ -187,6 +196,9 @@ pub fn train(world: &World, opts: &TrainOptions, state: &mut TrainState) -> Resu
     if opts.workers == 0 {
         bail!("--workers must be at least 1");
     }
+    if !(1..=2).contains(&opts.meta_order) {
+        bail!("--meta-order must be 1 or 2");
+    }
     std::fs::create_dir_all(&opts.out)
         .with_context(|| format!("creating {}", opts.out.display()))?;
     let mut csv = open_csv(&opts.out, state.update)?;
@@ -245,6 +257,7 @@ pub fn train(world: &World, opts: &TrainOptions, state: &mut TrainState) -> Resu
                                 opts.reward,
                                 max,
                                 &opts.a3c,
+                                opts.meta_order,
                                 worker,
                                 grads,
                             )?;
