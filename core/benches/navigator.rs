@@ -2,8 +2,9 @@
 //! update on a full buffer (k = 20), for the `mcu` and `paper` presets, f32 and int8 weights,
 //! and the `Full` and `Efficient` adaptation modes.
 //!
-//! `cargo bench -p gman-core --bench navigator` (single thread; the numbers of a run are in
-//! BENCHMARKS.md once the benchmark issue lands).
+//! `cargo bench -p gman-core --bench navigator` (single thread). `gman bench` times the same
+//! configurations next to the machine's measured limits; a recorded run, the PyTorch
+//! comparison and what limits each number are in `host-sim/BENCHMARKS.md`.
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
 use gman_core::blob::{encode, encoded_len_bound, Blob, TensorData, TensorId, TensorSpec};

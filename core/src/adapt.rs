@@ -249,3 +249,68 @@ fn backprop_scores(
 fn same_bits(a: &[f32], b: &[f32]) -> bool {
     a.len() == b.len() && a.iter().zip(b).all(|(x, y)| x.to_bits() == y.to_bits())
 }
+
+/// `cos(x, s)`; when `dx` is given, writes `∂cos/∂x = s / (‖x‖‖s‖) − cos · x / ‖x‖²` into it.
+/// A zero vector has similarity 0 and gradient 0.
+pub fn cosine(x: &[f32], s: &[f32], dx: Option<&mut [f32]>) -> Result<f32> {
+    check_len("cosine.s", x.len(), s.len())?;
+    let nx = libm::sqrtf(dot(x, x));
+    let ns = libm::sqrtf(dot(s, s));
+    if nx == 0.0 || ns == 0.0 {
+        if let Some(d) = dx {
+            d.fill(0.0);
+        }
+        return Ok(0.0);
+    }
+    let c = dot(x, s) / (nx * ns);
+    if let Some(d) = dx {
+        check_len("cosine.dx", x.len(), d.len())?;
+        let a = 1.0 / (nx * ns);
+        let b = c / (nx * nx);
+        for ((o, &xi), &si) in d.iter_mut().zip(x).zip(s) {
+            *o = a * si - b * xi;
+        }
+    }
+    Ok(c)
+}
+
+/// L_ad with the cosine similarity `cos(x_t, s_t)` between each generated feature and the
+/// observation it was generated with, in place of `D(x_t)`: the "CosSim" variant of the
+/// environmental meta discriminator (paper Table 3). `obs` holds the buffer's observations
+/// (`n x F`); the other arguments are those of [`adapt_generator_grad`] (D's scratch in `w`
+/// is unused). Accumulates the θ gradient into `grads1`/`grads2`, overwrites `dprobs`.
+#[allow(clippy::too_many_arguments)]
+pub fn adapt_generator_grad_cos(
+    kind: AdaptLossKind,
+    gen: &Generator<'_>,
+    attr: &[f32],
+    zs: &[f32],
+    obs: &[f32],
+    probs: &[f32],
+    w: &mut AdaptWork<'_>,
+    grads1: &mut DenseGrads<'_>,
+    grads2: &mut DenseGrads<'_>,
+    dprobs: &mut [f32],
+) -> Result<f32> {
+    let n = w.d.len();
+    let f = gen.feat();
+    let zdim = gen.in_dim().saturating_sub(attr.len());
+    check_len("adapt.zs", n * zdim, zs.len())?;
+    check_len("adapt.obs", n * f, obs.len())?;
+    check_len("adapt.dd", n, w.dd.len())?;
+    check_len("adapt.dx", f, w.dx.len())?;
+    for t in 0..n {
+        gen.forward(&zs[t * zdim..(t + 1) * zdim], attr, &mut w.gen)?;
+        w.d[t] = cosine(w.gen.x, &obs[t * f..(t + 1) * f], None)?;
+    }
+    let loss = adapt_loss(kind, w.d, probs, w.dd, dprobs)?;
+    for t in 0..n {
+        let z = &zs[t * zdim..(t + 1) * zdim];
+        gen.forward(z, attr, &mut w.gen)?;
+        cosine(w.gen.x, &obs[t * f..(t + 1) * f], Some(w.dx))?;
+        let c = w.dd[t];
+        w.dx.iter_mut().for_each(|v| *v *= c);
+        gen.backward(z, attr, &w.gen, w.dx, grads1, grads2, &mut w.gen_scratch)?;
+    }
+    Ok(loss)
+}

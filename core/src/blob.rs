@@ -223,6 +223,10 @@ pub const FLAG_ADAPT: u32 = 1;
 /// choice) instead of fresh Gaussian noise.
 pub const FLAG_ZERO_NOISE: u32 = 2;
 
+/// Bit of [`Header::flags`]: the inner loop scores generated features with the cosine
+/// similarity to the observation instead of D (the CosSim EMD variant).
+pub const FLAG_COSSIM: u32 = 4;
+
 /// The blob header.
 #[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Header {

@@ -88,7 +88,7 @@
 use core::marker::PhantomData;
 
 use crate::activation::{all_finite, softmax_backward};
-use crate::adapt::{adapt_generator_grad, AdaptLossKind, AdaptWork};
+use crate::adapt::{adapt_generator_grad, adapt_generator_grad_cos, AdaptLossKind, AdaptWork};
 use crate::blob::{Blob, TensorId, NUM_TENSORS};
 use crate::dense::{Dense, DenseGrads};
 use crate::discriminator::{DiscGrads, DiscScratch, Discriminator, LdConfig, LdValue};
@@ -142,6 +142,16 @@ pub enum Selection {
     Sample,
 }
 
+/// What scores the generated features in L_ad (the EMD variants of the paper's Table 3).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum Emd {
+    /// The learned discriminator D (GMAN). Default.
+    #[default]
+    Discriminator,
+    /// The cosine similarity between x_t and s_t ("CosSim"); D is not used or updated.
+    CosSim,
+}
+
 /// When the inner update runs.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
 pub enum Schedule {
@@ -160,6 +170,8 @@ pub enum Schedule {
 pub struct NavConfig {
     /// When the inner update runs.
     pub schedule: Schedule,
+    /// What scores the generated features in L_ad.
+    pub emd: Emd,
     /// Whether the inner loop runs at all (false: the A3C+FG baseline with no adaptation).
     pub adapt: bool,
     /// At most this many inner updates per episode (reference: 4).
@@ -184,6 +196,7 @@ impl Default for NavConfig {
     fn default() -> Self {
         NavConfig {
             schedule: Schedule::Auto,
+            emd: Emd::Discriminator,
             adapt: true,
             max_inner_updates: 4,
             alpha_disc: 1e-4,
@@ -1021,90 +1034,97 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
             ..
         } = &mut self.r;
 
-        // Lines 15-16: one ascent step of D on L_D (Eq. 1) over Ψ_s and Ψ_x.
-        g_disc1.zero();
-        g_disc_w2.fill(0.0);
-        g_disc_b2.fill(0.0);
-        let mut ld = LdValue::default();
-        {
-            let gen = Generator {
-                l1: gen1.view(w.get(TensorId::GenW1))?,
-                l2: gen2.view(w.get(TensorId::GenW2))?,
-            };
-            let disc = Discriminator {
-                l1: disc1.view(w.get(TensorId::DiscW1))?,
-                w2: disc_w2,
-                b2: disc_b2.first().copied().unwrap_or(0.0),
-            };
-            let mut db2 = 0.0f32;
-            let mut grads = DiscGrads {
-                l1: g_disc1.grads(),
-                w2: g_disc_w2,
-                b2: &mut db2,
-            };
-            let inv = 1.0 / n as f32;
-            for t in 0..n {
-                eps[t] = uniform(&mut self.rng);
-            }
-            let mut last_z: Option<usize> = None;
-            for t in 0..n {
-                let z = &psi_z[t * zd..(t + 1) * zd];
-                let same = last_z.is_some_and(|p| {
-                    psi_z[p * zd..(p + 1) * zd]
-                        .iter()
-                        .zip(z)
-                        .all(|(a, b)| a.to_bits() == b.to_bits())
-                });
-                if !same {
-                    let mut cache = GeneratorCache { u1, h1, u2, x };
-                    gen.forward(z, attr, &mut cache)?;
-                    last_z = Some(t);
-                }
-                let mut s = DiscScratch {
-                    u: du,
-                    h: dh,
-                    v: dv,
-                    w1g: dw1g,
-                    g: dg,
-                    mix: dmix,
+        // Lines 15-16: one ascent step of D on L_D (Eq. 1) over Ψ_s and Ψ_x (not with the
+        // CosSim variant, which has no D).
+        let use_d = cfg.emd == Emd::Discriminator;
+        let disc_ok = if use_d {
+            g_disc1.zero();
+            g_disc_w2.fill(0.0);
+            g_disc_b2.fill(0.0);
+            let mut ld = LdValue::default();
+            {
+                let gen = Generator {
+                    l1: gen1.view(w.get(TensorId::GenW1))?,
+                    l2: gen2.view(w.get(TensorId::GenW2))?,
                 };
-                let v = disc.ld_loss(
-                    &psi_s[t * f..(t + 1) * f],
-                    x,
-                    &eps[t..t + 1],
-                    cfg.ld,
-                    &mut s,
-                    Some(&mut grads),
-                )?;
-                ld.loss += v.loss * inv;
-                ld.mean_real += v.mean_real * inv;
-                ld.mean_fake += v.mean_fake * inv;
-                ld.penalty += v.penalty * inv;
+                let disc = Discriminator {
+                    l1: disc1.view(w.get(TensorId::DiscW1))?,
+                    w2: disc_w2,
+                    b2: disc_b2.first().copied().unwrap_or(0.0),
+                };
+                let mut db2 = 0.0f32;
+                let mut grads = DiscGrads {
+                    l1: g_disc1.grads(),
+                    w2: g_disc_w2,
+                    b2: &mut db2,
+                };
+                let inv = 1.0 / n as f32;
+                for t in 0..n {
+                    eps[t] = uniform(&mut self.rng);
+                }
+                let mut last_z: Option<usize> = None;
+                for t in 0..n {
+                    let z = &psi_z[t * zd..(t + 1) * zd];
+                    let same = last_z.is_some_and(|p| {
+                        psi_z[p * zd..(p + 1) * zd]
+                            .iter()
+                            .zip(z)
+                            .all(|(a, b)| a.to_bits() == b.to_bits())
+                    });
+                    if !same {
+                        let mut cache = GeneratorCache { u1, h1, u2, x };
+                        gen.forward(z, attr, &mut cache)?;
+                        last_z = Some(t);
+                    }
+                    let mut s = DiscScratch {
+                        u: du,
+                        h: dh,
+                        v: dv,
+                        w1g: dw1g,
+                        g: dg,
+                        mix: dmix,
+                    };
+                    let v = disc.ld_loss(
+                        &psi_s[t * f..(t + 1) * f],
+                        x,
+                        &eps[t..t + 1],
+                        cfg.ld,
+                        &mut s,
+                        Some(&mut grads),
+                    )?;
+                    ld.loss += v.loss * inv;
+                    ld.mean_real += v.mean_real * inv;
+                    ld.mean_fake += v.mean_fake * inv;
+                    ld.penalty += v.penalty * inv;
+                }
+                g_disc_b2[0] = db2;
+                g_disc1.scale(inv);
+                g_disc_w2
+                    .iter_mut()
+                    .chain(g_disc_b2.iter_mut())
+                    .for_each(|v| *v *= inv);
             }
-            g_disc_b2[0] = db2;
-            g_disc1.scale(inv);
-            g_disc_w2
-                .iter_mut()
-                .chain(g_disc_b2.iter_mut())
-                .for_each(|v| *v *= inv);
-        }
-        report.ld = ld;
-        // Ascent: ω ← ω + α1 ∇_ω L_D, only if everything stays finite and bounded.
-        let a1 = cfg.alpha_disc;
-        let disc_ok = ld.loss.is_finite()
-            && libm::fabsf(ld.loss) <= cfg.loss_bound
-            && g_disc1.finite()
-            && all_finite(g_disc_w2)
-            && all_finite(g_disc_b2)
-            && g_disc1.update_ok(disc1, a1)
-            && ok_update(disc_w2, g_disc_w2, a1)
-            && ok_update(disc_b2, g_disc_b2, a1);
-        if disc_ok {
-            g_disc1.apply(disc1, a1);
-            axpy_inplace(disc_w2, g_disc_w2, a1);
-            axpy_inplace(disc_b2, g_disc_b2, a1);
-        }
-        report.disc_applied = disc_ok;
+            report.ld = ld;
+            // Ascent: ω ← ω + α1 ∇_ω L_D, only if everything stays finite and bounded.
+            let a1 = cfg.alpha_disc;
+            let disc_ok = ld.loss.is_finite()
+                && libm::fabsf(ld.loss) <= cfg.loss_bound
+                && g_disc1.finite()
+                && all_finite(g_disc_w2)
+                && all_finite(g_disc_b2)
+                && g_disc1.update_ok(disc1, a1)
+                && ok_update(disc_w2, g_disc_w2, a1)
+                && ok_update(disc_b2, g_disc_b2, a1);
+            if disc_ok {
+                g_disc1.apply(disc1, a1);
+                axpy_inplace(disc_w2, g_disc_w2, a1);
+                axpy_inplace(disc_b2, g_disc_b2, a1);
+            }
+            disc_ok
+        } else {
+            true
+        };
+        report.disc_applied = use_d && disc_ok;
 
         // Lines 17-19: L_ad (Eq. 3) and its gradients for θ_i and φ_i.
         g_gen1.zero();
@@ -1140,18 +1160,33 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
                 dd: &mut dd[..n],
                 dx,
             };
-            adapt_generator_grad(
-                cfg.adapt_loss,
-                &gen,
-                &disc,
-                attr,
-                &psi_z[..n * zd],
-                &psi_p[..n * NUM_ACTIONS],
-                &mut work,
-                &mut g_gen1.grads(),
-                &mut g_gen2.grads(),
-                &mut dprobs[..n * NUM_ACTIONS],
-            )?
+            if use_d {
+                adapt_generator_grad(
+                    cfg.adapt_loss,
+                    &gen,
+                    &disc,
+                    attr,
+                    &psi_z[..n * zd],
+                    &psi_p[..n * NUM_ACTIONS],
+                    &mut work,
+                    &mut g_gen1.grads(),
+                    &mut g_gen2.grads(),
+                    &mut dprobs[..n * NUM_ACTIONS],
+                )?
+            } else {
+                adapt_generator_grad_cos(
+                    cfg.adapt_loss,
+                    &gen,
+                    attr,
+                    &psi_z[..n * zd],
+                    &psi_s[..n * f],
+                    &psi_p[..n * NUM_ACTIONS],
+                    &mut work,
+                    &mut g_gen1.grads(),
+                    &mut g_gen2.grads(),
+                    &mut dprobs[..n * NUM_ACTIONS],
+                )?
+            }
         };
         {
             let head = actor.view(w.get(TensorId::ActorW))?;

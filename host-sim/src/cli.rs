@@ -54,6 +54,9 @@ pub enum Commands {
     Table(crate::cli_nav::TableArgs),
     /// Quick start: pre-train G, train A3C+FG and GMAN briefly, evaluate them against random.
     Demo(crate::cli_nav::DemoArgs),
+    /// Single-thread benchmarks: navigator step/adaptation latency against this machine's
+    /// measured bandwidth and FMA peak, training throughput, firmware instruction counts.
+    Bench(crate::cli_bench::BenchArgs),
 }
 
 /// Network size preset.
@@ -285,6 +288,7 @@ pub fn run(cli: Cli) -> Result<()> {
         Commands::Plot(a) => crate::cli_nav::cmd_plot(a),
         Commands::Table(a) => crate::cli_nav::cmd_table(a),
         Commands::Demo(a) => crate::cli_nav::cmd_demo(a),
+        Commands::Bench(a) => crate::cli_bench::cmd_bench(a),
     }
 }
 

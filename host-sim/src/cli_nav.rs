@@ -424,6 +424,9 @@ pub fn cmd_inspect(a: InspectArgs) -> Result<()> {
     if h.flags() & FLAG_ZERO_NOISE != 0 {
         flags.push("zero noise");
     }
+    if h.flags() & gman_core::blob::FLAG_COSSIM != 0 {
+        flags.push("cosine-similarity EMD (no D)");
+    }
     println!(
         "flags: {:#x} {}",
         h.flags(),

@@ -4,6 +4,7 @@ use std::process::ExitCode;
 use clap::Parser;
 
 mod cli;
+mod cli_bench;
 mod cli_nav;
 
 fn main() -> ExitCode {

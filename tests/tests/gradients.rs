@@ -706,3 +706,141 @@ fn adaptation_loss_gradients_match_finite_differences() {
         }
     }
 }
+
+/// The CosSim EMD variant: L_ad with cos(x_t, s_t) in place of D(x_t).
+#[test]
+fn cossim_adaptation_gradients_match_finite_differences() {
+    use gman_core::adapt::adapt_generator_grad_cos;
+    for (gain, kind) in [
+        (false, AdaptLossKind::Paper),
+        (true, AdaptLossKind::Reference),
+    ] {
+        let n = Nets::new(7, gain);
+        let k = 4;
+        let mut rng = Xoshiro128::seed_from_u64(77);
+        let attr = rnd(&mut rng, n.a, 1.0);
+        let zs = rnd(&mut rng, k * n.z, 1.0);
+        let obs: Vec<f32> = (0..k * n.f).map(|_| uniform(&mut rng)).collect();
+        let mut probs = vec![0.0f32; k * 6];
+        for t in 0..k {
+            let l = rnd(&mut rng, 6, 1.0);
+            gman_core::activation::softmax(&l, &mut probs[t * 6..(t + 1) * 6]).unwrap();
+        }
+        let mut b = Bufs::new(&[
+            n.h,
+            n.h,
+            n.f,
+            n.f,
+            n.f,
+            n.h,
+            n.h,
+            n.h.max(n.f),
+            n.dh,
+            n.dh,
+            n.dh,
+            n.dh,
+            n.f,
+            n.f,
+            k,
+            k,
+            n.f,
+        ]);
+        let [u1, h1, u2, x, dpre2, dh1, dpre1, tmp, du, dhh, dv, dw1g, dg, dmix, d, dd, dx] =
+            &mut b.v[..]
+        else {
+            unreachable!()
+        };
+        let mut w = AdaptWork {
+            gen: GeneratorCache { u1, h1, u2, x },
+            gen_scratch: GeneratorScratch {
+                dpre2,
+                dh1,
+                dpre1,
+                tmp,
+            },
+            disc: DiscScratch {
+                u: du,
+                h: dhh,
+                v: dv,
+                w1g: dw1g,
+                g: dg,
+                mix: dmix,
+            },
+            d,
+            dd,
+            dx,
+        };
+        let mut gr1 = DG::new(&n.g1, gain);
+        let mut gr2 = DG::new(&n.g2, gain);
+        let mut dprobs = vec![0.0f32; k * 6];
+        let loss = adapt_generator_grad_cos(
+            kind,
+            &n.gen(),
+            &attr,
+            &zs,
+            &obs,
+            &probs,
+            &mut w,
+            &mut gr1.grads(),
+            &mut gr2.grads(),
+            &mut dprobs,
+        )
+        .unwrap();
+        let g64 = n.gen64();
+        let (a64, z64, o64, p64) = (f64s(&attr), f64s(&zs), f64s(&obs), f64s(&probs));
+        let paper = kind == AdaptLossKind::Paper;
+        let total = |g: &Gen64, p: &[f64]| {
+            let d: Vec<f64> = (0..k)
+                .map(|t| {
+                    let x = g.forward(&z64[t * n.z..(t + 1) * n.z], &a64);
+                    let s = &o64[t * n.f..(t + 1) * n.f];
+                    let dot: f64 = x.iter().zip(s).map(|(a, b)| a * b).sum();
+                    dot / (x.iter().map(|v| v * v).sum::<f64>().sqrt()
+                        * s.iter().map(|v| v * v).sum::<f64>().sqrt())
+                })
+                .collect();
+            adapt_loss(paper, &d, p)
+        };
+        assert!((loss as f64 - total(&g64, &p64)).abs() < 1e-5 * (1.0 + loss.abs() as f64));
+        check(
+            "cossim.probs",
+            &dprobs,
+            &finite_diff(&p64, H, |v| total(&g64, v)),
+        );
+        for (layer, gr) in [(1, &gr1), (2, &gr2)] {
+            let base = if layer == 1 { &g64.l1 } else { &g64.l2 };
+            let set = |dl: Dense64| {
+                let mut g = g64.clone();
+                if layer == 1 {
+                    g.l1 = dl
+                } else {
+                    g.l2 = dl
+                }
+                total(&g, &p64)
+            };
+            let fd_a = if gain {
+                finite_diff(base.gain.as_ref().unwrap(), H, |v| {
+                    set(Dense64 {
+                        gain: Some(v.to_vec()),
+                        ..base.clone()
+                    })
+                })
+            } else {
+                finite_diff(&base.w, H, |v| {
+                    set(Dense64 {
+                        w: v.to_vec(),
+                        ..base.clone()
+                    })
+                })
+            };
+            check(&format!("cossim.gen.l{layer}.a"), &gr.a, &fd_a);
+            let fd_b = finite_diff(&base.b, H, |v| {
+                set(Dense64 {
+                    b: v.to_vec(),
+                    ..base.clone()
+                })
+            });
+            check(&format!("cossim.gen.l{layer}.b"), &gr.b, &fd_b);
+        }
+    }
+}

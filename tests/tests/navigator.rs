@@ -450,3 +450,33 @@ fn adaptation_moves_generated_feature_towards_observations() {
     // oscillates: plain simultaneous gradient steps on a WGAN do not converge. The device
     // runs at most `max_inner_updates` = 4 steps of rate 1e-4 per episode.)
 }
+
+/// The CosSim EMD variant adapts G and the actor head without touching D.
+#[test]
+fn cossim_variant_adapts_without_discriminator() {
+    let dims = Dims::MCU;
+    let w = weights(&dims, 9, 0.1);
+    let cfg = NavConfig {
+        emd: gman_core::navigator::Emd::CosSim,
+        alpha_adapt: 0.05,
+        ..NavConfig::default()
+    };
+    let mut arena = vec![0.0f32; Navigator::<Full, 5>::arena_len(&dims)];
+    let mut nav: Navigator<'_, Full, 5> =
+        Navigator::new(nav_weights(&dims, &w), &mut arena, cfg).unwrap();
+    nav.reset(&[0.2; 45], 1).unwrap();
+    let before = core_snapshot(&nav, false);
+    let mut rng = Xoshiro128::seed_from_u64(3);
+    for _ in 0..10 {
+        let obs: Vec<f32> = (0..512).map(|_| uniform(&mut rng)).collect();
+        nav.step(&obs, &[]).unwrap();
+    }
+    let after = core_snapshot(&nav, false);
+    let c = nav.counters();
+    assert_eq!((c.adaptations, c.rollbacks), (2, 0));
+    assert!(!nav.last_adaptation().disc_applied && nav.last_adaptation().adapt_applied);
+    assert_eq!(before[2], after[2], "D layer 1 untouched");
+    assert_eq!(before[3], after[3], "D output untouched");
+    assert_ne!(before[0], after[0], "G adapted");
+    assert_ne!(before[4], after[4], "actor head adapted");
+}

@@ -5,7 +5,7 @@ use std::path::Path;
 use anyhow::{anyhow, bail, Context, Result};
 use gman_core::blob::{
     encode_with_flags, encoded_len_bound, Blob, TensorData, TensorId, TensorSpec, FLAG_ADAPT,
-    FLAG_ZERO_NOISE,
+    FLAG_COSSIM, FLAG_ZERO_NOISE,
 };
 use gman_core::matrix::MatRef;
 use gman_core::navigator::{NavConfig, NavWeights, NoiseMode, Selection};
@@ -36,6 +36,9 @@ pub enum Method {
     GmanPs,
     /// EMD without meta-learning: trained as A3C + FG, adapted at test time only.
     GmanNometa,
+    /// EMD variant: cosine similarity between x_t and s_t in place of D (paper Table 3),
+    /// meta-trained like GMAN.
+    GmanCossim,
 }
 
 impl Method {
@@ -49,6 +52,7 @@ impl Method {
             Method::Gman => "gman",
             Method::GmanPs => "gman-ps",
             Method::GmanNometa => "gman-nometa",
+            Method::GmanCossim => "gman-cossim",
         }
     }
 
@@ -62,6 +66,7 @@ impl Method {
             Method::Gman,
             Method::GmanPs,
             Method::GmanNometa,
+            Method::GmanCossim,
         ]
         .into_iter()
         .find(|m| m.name() == s)
@@ -79,12 +84,20 @@ impl Method {
 
     /// Runs the inner loop during training (and therefore meta-learns θ and φ through it).
     pub fn adapts_in_training(self) -> bool {
-        matches!(self, Method::Gman | Method::GmanPs)
+        matches!(self, Method::Gman | Method::GmanPs | Method::GmanCossim)
+    }
+
+    /// Scores generated features with the cosine similarity instead of D.
+    pub fn uses_cossim(self) -> bool {
+        matches!(self, Method::GmanCossim)
     }
 
     /// Runs the inner loop at evaluation.
     pub fn adapts_at_eval(self) -> bool {
-        matches!(self, Method::Gman | Method::GmanPs | Method::GmanNometa)
+        matches!(
+            self,
+            Method::Gman | Method::GmanPs | Method::GmanNometa | Method::GmanCossim
+        )
     }
 
     /// The outer loop updates G's θ (only the meta-trained methods; the FG baselines keep
@@ -225,6 +238,11 @@ impl NavModel {
             adapt,
             noise: self.noise,
             selection: Selection::Sample,
+            emd: if self.method.uses_cossim() {
+                gman_core::navigator::Emd::CosSim
+            } else {
+                gman_core::navigator::Emd::Discriminator
+            },
             alpha_disc: self.inner_lr,
             alpha_adapt: self.inner_lr,
             schedule: if training {
@@ -339,6 +357,9 @@ impl NavModel {
         if self.noise == NoiseMode::Zero {
             f |= FLAG_ZERO_NOISE;
         }
+        if self.method.uses_cossim() {
+            f |= FLAG_COSSIM;
+        }
         f
     }
 
@@ -385,6 +406,7 @@ pub fn model_from_blob(bytes: &[u8], method: Option<Method>) -> Result<NavModel>
         params.push(p)?;
     }
     let method = method.unwrap_or(match (flags & FLAG_ADAPT != 0, dims.ps > 0) {
+        (true, false) if flags & FLAG_COSSIM != 0 => Method::GmanCossim,
         (true, false) => Method::Gman,
         (true, true) => Method::GmanPs,
         (false, false) => Method::A3cFg,

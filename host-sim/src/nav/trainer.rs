@@ -199,6 +199,9 @@ pub fn train(world: &World, opts: &TrainOptions, state: &mut TrainState) -> Resu
     if !(1..=2).contains(&opts.meta_order) {
         bail!("--meta-order must be 1 or 2");
     }
+    if opts.meta_order == 2 && state.model.method.uses_cossim() {
+        bail!("--meta-order 2 is implemented for the discriminator EMD only; use --meta-order 1 with gman-cossim");
+    }
     std::fs::create_dir_all(&opts.out)
         .with_context(|| format!("creating {}", opts.out.display()))?;
     let mut csv = open_csv(&opts.out, state.update)?;

@@ -1,0 +1,719 @@
+//! `gman bench`: single-thread latency of the on-device navigator (`step()` and one inner
+//! update on k = 20 buffered steps) for the `mcu` and `paper` presets, f32 and int8 weights,
+//! `Full` and `Efficient` adaptation, next to this machine's limits measured in the same run
+//! (a STREAM-like copy bandwidth, a read bandwidth and a peak multiply-add loop), plus the
+//! training throughput of `gman train` (a3c, gman; 1 and 2 workers) and the firmware's QEMU
+//! instruction counts (quoted from `firmware-example/README.md`).
+//!
+//! Timing uses `std::time::Instant` and medians over repetitions; nothing here is a test.
+//! The methods and a recorded run are in `host-sim/BENCHMARKS.md`.
+
+use std::hint::black_box;
+use std::path::PathBuf;
+use std::time::Instant;
+
+use anyhow::{anyhow, Context, Result};
+use clap::{Args, ValueEnum};
+use gman_core::blob::{encode, encoded_len_bound, Blob, TensorData, TensorId, TensorSpec};
+use gman_core::matrix::MatRef;
+use gman_core::navigator::{Efficient, Full, Mode, NavConfig, NavWeights, Navigator};
+use gman_core::quant::quantize_rows;
+use gman_core::rng::{fill_gaussian, uniform, Xoshiro128};
+use gman_core::Dims;
+use gman_host_sim::nav::model::{Method, NavModel};
+use gman_host_sim::nav::trainer::{train, TrainOptions, TrainState};
+use gman_host_sim::sim::{RewardKind, World, DEFAULT_WORLD_SEED};
+use gman_host_sim::train::adam::AdamConfig;
+use gman_host_sim::train::generator::init_generator;
+use serde_json::{json, Value};
+
+use crate::cli::PresetArg;
+
+/// Buffer size of the inner update (the paper's k).
+const K: usize = 20;
+
+/// Firmware figures from `firmware-example/README.md` (QEMU `mps2-an386`, `-icount shift=0`,
+/// `Mcu` preset, int8 weights in flash, `Efficient` mode); not re-measured by this command.
+const FW_STEP_INSTR: f64 = 1_787_926.0;
+const FW_ADAPT_INSTR: f64 = 108_888_800.0;
+const FW_MHZ: f64 = 168.0;
+
+/// `gman bench`.
+#[derive(Debug, Args)]
+pub struct BenchArgs {
+    /// Presets to measure (repeat the flag; default: mcu and paper).
+    #[arg(long, value_enum)]
+    pub preset: Vec<PresetArg>,
+    /// Weight storage to measure (repeat; default: f32 and int8).
+    #[arg(long, value_enum)]
+    pub quant: Vec<QuantArg>,
+    /// Repetitions per timing (the median is reported).
+    #[arg(long, default_value_t = 15)]
+    pub reps: usize,
+    /// Size of each array of the STREAM-like copy (MiB; source and destination each).
+    #[arg(long, default_value_t = 256)]
+    pub stream_mib: usize,
+    /// Updates per training-throughput run (0: skip the training rows).
+    #[arg(long, default_value_t = 150)]
+    pub train_updates: u64,
+    /// Also write every number as JSON to this file (`-` for stdout, then no table).
+    #[arg(long, value_name = "OUT")]
+    pub json: Option<PathBuf>,
+}
+
+/// Weight storage of the blob.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum QuantArg {
+    /// f32 weights.
+    F32,
+    /// int8 weights with per-row scales.
+    Int8,
+}
+
+impl QuantArg {
+    fn name(self) -> &'static str {
+        match self {
+            QuantArg::F32 => "f32",
+            QuantArg::Int8 => "int8",
+        }
+    }
+}
+
+/// Smallest value of a sample: the estimate of a machine limit (other jobs on the machine
+/// can only slow a limit loop down).
+fn best(v: &[f64]) -> f64 {
+    v.iter().copied().fold(f64::INFINITY, f64::min)
+}
+
+/// Median of a non-empty sample (the upper middle for even lengths).
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(|a, b| a.total_cmp(b));
+    v.get(v.len() / 2).copied().unwrap_or(f64::NAN)
+}
+
+// ---------------------------------------------------------------- machine limits
+
+/// Machine limits, measured in this run on one thread (best of the repetitions).
+struct Limits {
+    /// STREAM-like copy of two `stream_mib` arrays: (bytes read + written) / s.
+    copy_gbs: f64,
+    /// Read-only bandwidth over a `stream_mib` array (DRAM).
+    read_gbs: f64,
+    /// Read-only bandwidth over an 8 MiB array (L3-resident on this machine).
+    read_l3_gbs: f64,
+    /// Peak of separate f32 multiply and add (the instructions this build's kernels can use:
+    /// baseline x86-64 = SSE2, 4 lanes, no FMA), GFLOP/s.
+    peak_muladd_gflops: f64,
+    /// Peak of fused multiply-add with AVX2+FMA when the CPU has it (the machine's limit for
+    /// f32; AVX-512 on Zen 4 has the same FLOP/cycle), GFLOP/s.
+    peak_fma_gflops: Option<f64>,
+}
+
+fn copy_bandwidth(mib: usize, reps: usize) -> f64 {
+    let n = mib * (1 << 20) / 4;
+    let src: Vec<f32> = (0..n).map(|i| i as f32).collect();
+    let mut dst = vec![0.0f32; n];
+    dst.copy_from_slice(&src); // fault in the pages first
+    let times: Vec<f64> = (0..reps.max(3))
+        .map(|_| {
+            let t0 = Instant::now();
+            dst.copy_from_slice(black_box(&src));
+            black_box(&mut dst);
+            t0.elapsed().as_secs_f64()
+        })
+        .collect();
+    2.0 * (n * 4) as f64 / best(&times) / 1e9
+}
+
+fn read_bandwidth(bytes: usize, reps: usize) -> f64 {
+    let n = bytes / 8;
+    let v: Vec<u64> = (0..n as u64).collect();
+    let sum = |v: &[u64]| {
+        let mut acc = [0u64; 8];
+        for c in v.chunks_exact(8) {
+            for k in 0..8 {
+                acc[k] = acc[k].wrapping_add(c[k]);
+            }
+        }
+        acc.iter().fold(0u64, |a, &b| a.wrapping_add(b))
+    };
+    black_box(sum(&v));
+    // Small arrays: repeat inside one timing so each sample is at least ~5 ms.
+    let inner = (64 << 20) / bytes.max(1) + 1;
+    let times: Vec<f64> = (0..reps.max(3))
+        .map(|_| {
+            let t0 = Instant::now();
+            for _ in 0..inner {
+                black_box(sum(black_box(&v)));
+            }
+            t0.elapsed().as_secs_f64() / inner as f64
+        })
+        .collect();
+    (n * 8) as f64 / best(&times) / 1e9
+}
+
+/// Chains of `acc = acc * a + b` in SSE registers with a separate multiply and add (what a
+/// baseline x86-64 build, and so gman-core's kernels, can use: SSE2, 4 lanes, no FMA):
+/// 12 independent 4-lane chains, enough to cover the add and multiply latencies.
+#[cfg(target_arch = "x86_64")]
+#[inline(never)]
+fn muladd_loop(iters: usize, a: f32, b: f32) -> f32 {
+    use std::arch::x86_64::{_mm_add_ps, _mm_cvtss_f32, _mm_mul_ps, _mm_set1_ps};
+    // SAFETY: SSE2 is part of the x86-64 baseline, so these intrinsics are always available.
+    unsafe {
+        let (va, vb) = (_mm_set1_ps(a), _mm_set1_ps(b));
+        let mut acc = [_mm_set1_ps(0.5); 12];
+        for _ in 0..iters {
+            for v in acc.iter_mut() {
+                *v = _mm_add_ps(_mm_mul_ps(*v, va), vb);
+            }
+        }
+        acc.iter().map(|&v| _mm_cvtss_f32(v)).sum()
+    }
+}
+
+/// Portable fallback: 48 scalar chains.
+#[cfg(not(target_arch = "x86_64"))]
+#[inline(never)]
+fn muladd_loop(iters: usize, a: f32, b: f32) -> f32 {
+    let mut acc = [0.5f32; 48];
+    for _ in 0..iters {
+        for v in acc.iter_mut() {
+            *v = *v * a + b;
+        }
+    }
+    acc.iter().sum()
+}
+
+/// 10 independent chains of 8-lane fused `acc = acc * a + b` in AVX2 registers (FMA latency 4
+/// cycles, 2 per cycle: 8 chains suffice).
+///
+/// # Safety
+/// The CPU must support AVX2 and FMA.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn fma_loop_avx2(iters: usize, a: f32, b: f32) -> f32 {
+    use std::arch::x86_64::{
+        _mm256_castps256_ps128, _mm256_fmadd_ps, _mm256_set1_ps, _mm_cvtss_f32,
+    };
+    let (va, vb) = (_mm256_set1_ps(a), _mm256_set1_ps(b));
+    let mut acc = [_mm256_set1_ps(0.5); 10];
+    for _ in 0..iters {
+        for v in acc.iter_mut() {
+            *v = _mm256_fmadd_ps(*v, va, vb);
+        }
+    }
+    acc.iter()
+        .map(|&v| _mm_cvtss_f32(_mm256_castps256_ps128(v)))
+        .sum()
+}
+
+fn peak_gflops(flops_per_iter: f64, reps: usize, f: impl Fn(usize) -> f32) -> f64 {
+    let iters = 10_000_000;
+    black_box(f(iters / 10));
+    let times: Vec<f64> = (0..reps.max(3))
+        .map(|_| {
+            let t0 = Instant::now();
+            black_box(f(black_box(iters)));
+            t0.elapsed().as_secs_f64()
+        })
+        .collect();
+    flops_per_iter * iters as f64 / best(&times) / 1e9
+}
+
+fn measure_limits(a: &BenchArgs) -> Limits {
+    let (ca, cb) = (black_box(0.999_9f32), black_box(1e-4f32));
+    let peak_muladd_gflops = peak_gflops(2.0 * 48.0, a.reps, |n| muladd_loop(n, ca, cb));
+    #[cfg(target_arch = "x86_64")]
+    let peak_fma_gflops = if is_x86_feature_detected!("avx2") && is_x86_feature_detected!("fma") {
+        // SAFETY: AVX2 and FMA were detected at run time just above.
+        Some(peak_gflops(2.0 * 80.0, a.reps, |n| unsafe {
+            fma_loop_avx2(n, ca, cb)
+        }))
+    } else {
+        None
+    };
+    #[cfg(not(target_arch = "x86_64"))]
+    let peak_fma_gflops = None;
+    Limits {
+        copy_gbs: copy_bandwidth(a.stream_mib, 7),
+        read_gbs: read_bandwidth(a.stream_mib << 20, 7),
+        read_l3_gbs: read_bandwidth(8 << 20, a.reps),
+        peak_muladd_gflops,
+        peak_fma_gflops,
+    }
+}
+
+// ---------------------------------------------------------------- navigator
+
+/// Seeded weights, as in `core/benches/navigator.rs`.
+fn tensors(d: &Dims) -> Vec<Vec<f32>> {
+    let mut rng = Xoshiro128::seed_from_u64(1);
+    TensorId::ALL
+        .iter()
+        .map(|&id| {
+            let (r, c) = id.shape(d);
+            let mut v = vec![0.0f32; r * c];
+            fill_gaussian(&mut rng, &mut v);
+            v.iter_mut().for_each(|x| *x *= 0.05);
+            v
+        })
+        .collect()
+}
+
+fn int8_blob(d: &Dims, t: &[Vec<f32>]) -> Result<Vec<u8>> {
+    let mut q: Vec<(Vec<u8>, Vec<f32>)> = Vec::new();
+    for &id in TensorId::ALL {
+        let (r, c) = id.shape(d);
+        let (mut qq, mut s) = (vec![0u8; r * c], vec![0.0f32; r]);
+        if !id.is_vector() {
+            quantize_rows(&t[id as usize], r, c, &mut qq, &mut s)
+                .map_err(|e| anyhow!("quantising {}: {e:?}", id.name()))?;
+        }
+        q.push((qq, s));
+    }
+    let specs: Vec<TensorSpec<'_>> = TensorId::ALL
+        .iter()
+        .map(|&id| TensorSpec {
+            id,
+            data: if id.is_vector() {
+                TensorData::F32(&t[id as usize])
+            } else {
+                TensorData::I8 {
+                    q: &q[id as usize].0,
+                    scales: &q[id as usize].1,
+                }
+            },
+        })
+        .collect();
+    let mut buf = vec![0u8; encoded_len_bound(&specs)];
+    let n = encode(d, &specs, &mut buf).map_err(|e| anyhow!("encoding blob: {e:?}"))?;
+    buf.truncate(n);
+    Ok(buf)
+}
+
+/// Bytes of weight matrices one `step()` reads: G's two layers and the actor head from f32
+/// RAM in `Full` mode (they adapt), from the blob otherwise; fusion, LSTM and critic always
+/// from the blob (values plus int8 row scales). Biases and gains (< 0.1%) are left out.
+fn weight_bytes_per_step<M: Mode>(w: &NavWeights<'_>) -> usize {
+    let full = M::MODE == gman_core::memory::AdaptMode::Full;
+    let adapted = [TensorId::GenW1, TensorId::GenW2, TensorId::ActorW];
+    let fixed = [
+        TensorId::FuseW,
+        TensorId::LstmWx,
+        TensorId::LstmWh,
+        TensorId::CriticW,
+    ];
+    let a: usize = adapted
+        .iter()
+        .map(|&id| {
+            let m = w.get(id);
+            if full {
+                m.rows() * m.cols() * 4
+            } else {
+                m.storage_bytes()
+            }
+        })
+        .sum();
+    a + fixed
+        .iter()
+        .map(|&id| w.get(id).storage_bytes())
+        .sum::<usize>()
+}
+
+/// One navigator configuration's timings.
+struct NavRow {
+    preset: &'static str,
+    quant: &'static str,
+    mode: String,
+    macs: usize,
+    weight_bytes: usize,
+    step_s: f64,
+    step_min_s: f64,
+    adapt_s: f64,
+    adapt_min_s: f64,
+}
+
+fn obs(d: &Dims) -> Vec<f32> {
+    let mut rng = Xoshiro128::seed_from_u64(2);
+    (0..d.feat).map(|_| uniform(&mut rng)).collect()
+}
+
+/// Median per-step latency: repetitions of `n` steps, `n` chosen so one lasts ≈ 10 ms.
+fn time_steps<M: Mode>(w: NavWeights<'_>, reps: usize) -> Result<(f64, f64)> {
+    let d = *w.dims();
+    let mut arena = vec![0.0f32; Navigator::<M, K>::arena_len(&d)];
+    let cfg = NavConfig {
+        adapt: false,
+        ..NavConfig::default()
+    };
+    let mut nav: Navigator<'_, M, K> =
+        Navigator::new(w, &mut arena, cfg).map_err(|e| anyhow!("{e:?}"))?;
+    let o = obs(&d);
+    nav.reset(&[0.3; 45], 1).map_err(|e| anyhow!("{e:?}"))?;
+    let mut run = |n: usize| -> Result<f64> {
+        let t0 = Instant::now();
+        for _ in 0..n {
+            black_box(nav.step(black_box(&o), &[]).map_err(|e| anyhow!("{e:?}"))?);
+        }
+        Ok(t0.elapsed().as_secs_f64())
+    };
+    let warm = run(3)? / 3.0;
+    let n = ((0.01 / warm.max(1e-9)) as usize).clamp(1, 100_000);
+    let mut per = Vec::with_capacity(reps);
+    for _ in 0..reps {
+        per.push(run(n)? / n as f64);
+    }
+    let min = per.iter().copied().fold(f64::INFINITY, f64::min);
+    Ok((median(per), min))
+}
+
+/// Median latency of one inner update on exactly K buffered steps (`adapt_now()` on a
+/// navigator of capacity K + 1, as in the criterion bench).
+fn time_adapt<M: Mode>(w: NavWeights<'_>, reps: usize) -> Result<(f64, f64)> {
+    let d = *w.dims();
+    let mut arena = vec![0.0f32; Navigator::<M, { K + 1 }>::arena_len(&d)];
+    let mut nav: Navigator<'_, M, { K + 1 }> =
+        Navigator::new(w, &mut arena, NavConfig::default()).map_err(|e| anyhow!("{e:?}"))?;
+    let o = obs(&d);
+    let mut per = Vec::with_capacity(reps);
+    for i in 0..reps + 1 {
+        nav.reset(&[0.3; 45], 1).map_err(|e| anyhow!("{e:?}"))?;
+        for _ in 0..K {
+            nav.step(&o, &[]).map_err(|e| anyhow!("{e:?}"))?;
+        }
+        let t0 = Instant::now();
+        black_box(nav.adapt_now().map_err(|e| anyhow!("{e:?}"))?);
+        let t = t0.elapsed().as_secs_f64();
+        if i > 0 {
+            per.push(t); // the first one is a warm-up
+        }
+    }
+    let min = per.iter().copied().fold(f64::INFINITY, f64::min);
+    Ok((median(per), min))
+}
+
+fn nav_row<M: Mode>(
+    preset: &'static str,
+    quant: &'static str,
+    w: impl Fn() -> Result<NavWeights<'static>>,
+    reps: usize,
+    adapt_reps: usize,
+) -> Result<NavRow> {
+    let weights = w()?;
+    let d = *weights.dims();
+    let weight_bytes = weight_bytes_per_step::<M>(&weights);
+    let (step_s, step_min_s) = time_steps::<M>(weights, reps)?;
+    let (adapt_s, adapt_min_s) = time_adapt::<M>(w()?, adapt_reps)?;
+    Ok(NavRow {
+        preset,
+        quant,
+        mode: format!("{:?}", M::MODE),
+        macs: d.macs_per_step(),
+        weight_bytes,
+        step_s,
+        step_min_s,
+        adapt_s,
+        adapt_min_s,
+    })
+}
+
+fn nav_rows(a: &BenchArgs) -> Result<Vec<NavRow>> {
+    let presets = if a.preset.is_empty() {
+        vec![PresetArg::Mcu, PresetArg::Paper]
+    } else {
+        a.preset.clone()
+    };
+    let quants = if a.quant.is_empty() {
+        vec![QuantArg::F32, QuantArg::Int8]
+    } else {
+        a.quant.clone()
+    };
+    let mut rows = Vec::new();
+    for p in presets {
+        let d = p.dims();
+        // Leaked once per preset so the navigators can borrow them for 'static; the process
+        // ends after the benchmark.
+        let t: &'static [Vec<f32>] = Vec::leak(tensors(&d));
+        let bytes: &'static [u8] = Vec::leak(int8_blob(&d, t)?);
+        let blob: &'static Blob<'static> = Box::leak(Box::new(
+            Blob::parse(bytes).map_err(|e| anyhow!("parsing blob: {e:?}"))?,
+        ));
+        let adapt_reps = match p {
+            PresetArg::Mcu => a.reps,
+            PresetArg::Paper => a.reps.div_ceil(2).max(3),
+        };
+        for &q in &quants {
+            let w = move || -> Result<NavWeights<'static>> {
+                match q {
+                    QuantArg::F32 => NavWeights::from_fn(&d, |id| {
+                        let (r, c) = id.shape(&d);
+                        MatRef::f32(r, c, &t[id as usize]).unwrap_or_else(|_| unreachable!())
+                    }),
+                    QuantArg::Int8 => NavWeights::from_blob(blob, &d),
+                }
+                .map_err(|e| anyhow!("weights: {e:?}"))
+            };
+            eprintln!("bench: {} {} ...", p.name(), q.name());
+            rows.push(nav_row::<Full>(p.name(), q.name(), w, a.reps, adapt_reps)?);
+            rows.push(nav_row::<Efficient>(
+                p.name(),
+                q.name(),
+                w,
+                a.reps,
+                adapt_reps,
+            )?);
+        }
+    }
+    Ok(rows)
+}
+
+// ---------------------------------------------------------------- training
+
+struct TrainRow {
+    method: &'static str,
+    workers: usize,
+    updates: u64,
+    env_steps: u64,
+    secs: f64,
+}
+
+fn train_rows(updates: u64) -> Result<Vec<TrainRow>> {
+    let world = World::synthetic(DEFAULT_WORLD_SEED);
+    let dims = Dims::MCU;
+    let gen = init_generator(&dims, &mut Xoshiro128::seed_from_u64(7))?;
+    let mut rows = Vec::new();
+    for method in [Method::A3c, Method::Gman] {
+        for workers in [1usize, 2] {
+            eprintln!("bench: train {} --workers {workers} ...", method.name());
+            let out = std::env::temp_dir().join(format!(
+                "gman-bench-{}-{}-{workers}",
+                std::process::id(),
+                method.name()
+            ));
+            let model = NavModel::init(method, dims, 1, Some(&gen), None)?;
+            let adam = AdamConfig {
+                lr: 1e-3,
+                ..AdamConfig::default()
+            };
+            let mut state = TrainState::new(model, adam);
+            let opts = TrainOptions {
+                updates,
+                seed: 1,
+                workers,
+                min_steps: 40,
+                reward: RewardKind::Mixed,
+                max_steps: None,
+                min_start_actions: 1,
+                adam,
+                a3c: Default::default(),
+                checkpoint_every: updates.max(1) * 10,
+                meta_order: 1,
+                out: out.clone(),
+                progress: false,
+            };
+            // Warm-up updates (allocation, page faults, thread start-up) are not timed:
+            // `updates` counts from the start of the run, so the timed call continues it.
+            let warm = (updates / 5).max(1);
+            let r = train(
+                &world,
+                &TrainOptions {
+                    updates: warm,
+                    out: out.clone(),
+                    ..opts.clone()
+                },
+                &mut state,
+            );
+            let (u0, s0) = (state.update, state.env_steps);
+            let t0 = Instant::now();
+            let r = r.and_then(|_| {
+                train(
+                    &world,
+                    &TrainOptions {
+                        updates: warm + updates,
+                        ..opts
+                    },
+                    &mut state,
+                )
+            });
+            let secs = t0.elapsed().as_secs_f64();
+            let _ = std::fs::remove_dir_all(&out);
+            r.with_context(|| format!("training {}", method.name()))?;
+            rows.push(TrainRow {
+                method: method.name(),
+                workers,
+                updates: state.update - u0,
+                env_steps: state.env_steps - s0,
+                secs,
+            });
+        }
+    }
+    Ok(rows)
+}
+
+// ---------------------------------------------------------------- report
+
+fn us(s: f64) -> String {
+    if s < 1e-3 {
+        format!("{:.1} µs", s * 1e6)
+    } else {
+        format!("{:.3} ms", s * 1e3)
+    }
+}
+
+fn pct(x: f64) -> String {
+    format!("{:.0}%", 100.0 * x)
+}
+
+/// Runs the benchmark.
+pub fn cmd_bench(a: BenchArgs) -> Result<()> {
+    let started = Instant::now();
+    eprintln!("bench: machine limits ...");
+    let lim = measure_limits(&a);
+    let rows = nav_rows(&a)?;
+    let trains = if a.train_updates > 0 {
+        train_rows(a.train_updates)?
+    } else {
+        Vec::new()
+    };
+    let fma = lim.peak_fma_gflops.unwrap_or(f64::NAN);
+
+    let nav_json: Vec<Value> = rows
+        .iter()
+        .map(|r| {
+            let gflops = 2.0 * r.macs as f64 / r.step_s / 1e9;
+            let gbs = r.weight_bytes as f64 / r.step_s / 1e9;
+            json!({
+                "preset": r.preset, "quant": r.quant, "mode": r.mode,
+                "step_us": r.step_s * 1e6, "step_min_us": r.step_min_s * 1e6,
+                "adapt_ms": r.adapt_s * 1e3, "adapt_min_ms": r.adapt_min_s * 1e3,
+                "macs_per_step": r.macs, "weight_bytes_per_step": r.weight_bytes,
+                "gflops": gflops, "weight_gbs": gbs,
+                "frac_peak_muladd": gflops / lim.peak_muladd_gflops,
+                "frac_peak_fma": gflops / fma,
+                "frac_copy_bw": gbs / lim.copy_gbs,
+                "frac_read_bw": gbs / lim.read_gbs,
+                "adapt_over_step": r.adapt_s / r.step_s,
+            })
+        })
+        .collect();
+    let base_sps = |m: &str| {
+        trains
+            .iter()
+            .find(|t| t.method == m && t.workers == 1)
+            .map(|t| t.env_steps as f64 / t.secs)
+    };
+    let train_json: Vec<Value> = trains
+        .iter()
+        .map(|t| {
+            let sps = t.env_steps as f64 / t.secs;
+            json!({
+                "method": t.method, "preset": "mcu", "workers": t.workers, "updates": t.updates,
+                "env_steps": t.env_steps, "secs": t.secs, "env_steps_per_s": sps,
+                "scaling_vs_1_worker": base_sps(t.method).map(|b| sps / b),
+            })
+        })
+        .collect();
+    let report = json!({
+        "threads": 1,
+        "k": K,
+        "limits": {
+            "copy_gbs": lim.copy_gbs, "copy_mib": a.stream_mib,
+            "read_gbs": lim.read_gbs, "read_l3_8mib_gbs": lim.read_l3_gbs,
+            "peak_muladd_gflops": lim.peak_muladd_gflops,
+            "peak_fma_avx2_gflops": lim.peak_fma_gflops,
+        },
+        "navigator": nav_json,
+        "train": train_json,
+        "firmware_qemu": {
+            "source": "firmware-example/README.md (mcu, int8, Efficient; not re-measured)",
+            "step_instructions": FW_STEP_INSTR,
+            "adapt_instructions": FW_ADAPT_INSTR,
+            "step_ms_at_168mhz_1ipc": FW_STEP_INSTR / FW_MHZ / 1e3,
+            "adapt_ms_at_168mhz_1ipc": FW_ADAPT_INSTR / FW_MHZ / 1e3,
+            "instructions_per_mac": FW_STEP_INSTR / Dims::MCU.macs_per_step() as f64,
+        },
+        "elapsed_s": started.elapsed().as_secs_f64(),
+    });
+    match &a.json {
+        Some(p) if p.as_os_str() == "-" => {
+            println!("{}", serde_json::to_string_pretty(&report)?);
+            return Ok(());
+        }
+        Some(p) => {
+            std::fs::write(p, serde_json::to_string_pretty(&report)? + "\n")
+                .with_context(|| format!("writing {}", p.display()))?;
+        }
+        None => {}
+    }
+
+    println!(
+        "Machine limits (1 thread, this run): copy {:.1} GB/s ({} MiB arrays, read+write), \
+         read {:.1} GB/s (DRAM), {:.1} GB/s (8 MiB, L3); peak f32 mul+add {:.1} GFLOP/s \
+         (SSE2, this build's ISA), peak FMA {} (AVX2+FMA)",
+        lim.copy_gbs,
+        a.stream_mib,
+        lim.read_gbs,
+        lim.read_l3_gbs,
+        lim.peak_muladd_gflops,
+        lim.peak_fma_gflops
+            .map_or("n/a".to_string(), |g| format!("{g:.1} GFLOP/s")),
+    );
+    println!();
+    println!(
+        "| preset | weights | mode | step (median) | adaptation k=20 (median) | adapt/step | \
+         MAC/step | GFLOP/s | % mul+add peak | % FMA peak | weight MB/step | GB/s | % copy BW |"
+    );
+    println!("|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
+    for r in &rows {
+        let gflops = 2.0 * r.macs as f64 / r.step_s / 1e9;
+        let gbs = r.weight_bytes as f64 / r.step_s / 1e9;
+        println!(
+            "| {} | {} | {} | {} | {} | {:.0} | {} | {:.2} | {} | {} | {:.2} | {:.2} | {} |",
+            r.preset,
+            r.quant,
+            r.mode,
+            us(r.step_s),
+            us(r.adapt_s),
+            r.adapt_s / r.step_s,
+            r.macs,
+            gflops,
+            pct(gflops / lim.peak_muladd_gflops),
+            pct(gflops / fma),
+            r.weight_bytes as f64 / 1e6,
+            gbs,
+            pct(gbs / lim.copy_gbs),
+        );
+    }
+    for t in &trains {
+        let sps = t.env_steps as f64 / t.secs;
+        println!(
+            "| train {} (mcu) | f32 | --workers {} | {:.0} env steps/s | {} updates, {} steps in {:.1} s | scaling {} | | | | | | | |",
+            t.method,
+            t.workers,
+            sps,
+            t.updates,
+            t.env_steps,
+            t.secs,
+            base_sps(t.method).map_or("-".into(), |b| format!("{:.2}x", sps / b)),
+        );
+    }
+    println!(
+        "| firmware M4F (QEMU) | int8 | Efficient | {:.0} instr ≈ {:.1} ms @168 MHz | {:.1} M instr ≈ {:.0} ms | {:.0} | {} | {:.1} instr/MAC | | | | | |",
+        FW_STEP_INSTR,
+        FW_STEP_INSTR / FW_MHZ / 1e3,
+        FW_ADAPT_INSTR / 1e6,
+        FW_ADAPT_INSTR / FW_MHZ / 1e3,
+        FW_ADAPT_INSTR / FW_STEP_INSTR,
+        Dims::MCU.macs_per_step(),
+        FW_STEP_INSTR / Dims::MCU.macs_per_step() as f64,
+    );
+    println!();
+    println!(
+        "(1 thread for the navigator rows; medians of {} repetitions; firmware row quoted from \
+         firmware-example/README.md; total {:.0} s)",
+        a.reps,
+        started.elapsed().as_secs_f64()
+    );
+    Ok(())
+}
