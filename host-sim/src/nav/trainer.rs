@@ -3,7 +3,7 @@
 //!
 //! ```text
 //! for update u = 1, 2, ...                                   (Algorithm 1, line 1)
-//!   W workers in parallel, each one task τ_w ~ p(T):          (lines 2-3)
+//!   W workers in parallel, each a few tasks τ ~ p(T):         (lines 2-3)
 //!     a training episode sampled from the training scenes, seeded by (seed, u, w)
 //!     run with gman-core's navigator from θ, φ, ω               (line 4)
 //!     every k = 20 steps: ∇L_nav of the segment at (θ_i, φ_i)  (A3C, Sec. 3.2)
@@ -18,8 +18,9 @@
 //! * **Meta-gradient order 2** (`--meta-order 2`): the exact gradient through the inner SGD
 //!   steps of θ and φ (Hessian-vector products by finite differences of gradients), see
 //!   [`super::meta`]; the buffers, rollouts and D are treated as data.
-//! * **Workers** are synchronous: both cores run one episode each, their gradients are summed
-//!   in worker order, then one Adam step. Every random choice of an update derives from
+//! * **Workers** are synchronous: each worker (one per core) runs whole episodes until it has
+//!   taken at least `min_steps` steps, their gradients are summed in worker order, then one
+//!   Adam step. Every random choice of an update derives from
 //!   `(seed, update, worker)`, so a run is reproducible bit for bit for a given worker count
 //!   and a resumed run continues exactly where the checkpoint left off.
 //! * **Baselines** run the same loop with the inner loop off (`a3c`, `a3c-fg`, `gman-nometa`):
