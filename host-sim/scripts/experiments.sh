@@ -11,7 +11,7 @@ G=./target/release/gman
 D=${DATA:-../shared/data/gman}
 R=${OUT:-runs/real}
 U=${UPDATES:-2000}
-METHODS=${METHODS:-"a3c a3c-fg gman a3c-ps gman-ps"}
+METHODS=${METHODS:-"a3c a3c-fg gman a3c-ps gman-ps gman-cossim"}
 mkdir -p "$R/eval"
 [ -f "$R/fg/fg.ckpt" ] || $G pretrain-fg --data "$D" --preset mcu --seed 1 --out "$R/fg" --quiet
 [ -f "$R/ps/ps.ckpt" ] || $G pretrain-ps --data "$D" --seed 1 --out "$R/ps" --quiet
