@@ -16,15 +16,23 @@ use gman_core::navigator::{Full, Navigator};
 use gman_host_sim::nav::agent::NavAgent;
 use gman_host_sim::nav::model::load_model;
 use gman_host_sim::nav::K;
-use gman_host_sim::sim::{evaluate, Env, EpisodeLimits, EvalConfig, EvalReport, RewardKind, Split, World};
+use gman_host_sim::sim::{
+    evaluate, Env, EpisodeLimits, EvalConfig, EvalReport, RewardKind, Split, World,
+};
 
 fn dist(a: &[f32], b: &[f32]) -> f64 {
-    a.iter().zip(b).map(|(x, y)| ((x - y) as f64).powi(2)).sum::<f64>().sqrt()
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| ((x - y) as f64).powi(2))
+        .sum::<f64>()
+        .sqrt()
 }
 
 fn main() -> Result<()> {
     let args: Vec<String> = std::env::args().collect();
-    let Some(ckpt) = args.get(1) else { bail!("usage: emd_analysis CKPT [DATA_DIR] [EPISODES_PER_FILE]") };
+    let Some(ckpt) = args.get(1) else {
+        bail!("usage: emd_analysis CKPT [DATA_DIR] [EPISODES_PER_FILE]")
+    };
     let world = match args.get(2) {
         Some(d) => World::load(Path::new(d))?,
         None => World::synthetic(gman_host_sim::sim::DEFAULT_WORLD_SEED),
@@ -41,11 +49,21 @@ fn main() -> Result<()> {
         let g = nav.generator()?;
         let (mut h1, mut x) = (vec![0.0f32; g.hidden()], vec![0.0f32; f]);
         let z = vec![0.0f32; model.dims.noise];
-        g.forward(&z, attr, &mut GeneratorCache { u1: &mut [], h1: &mut h1, u2: &mut [], x: &mut x })?;
+        g.forward(
+            &z,
+            attr,
+            &mut GeneratorCache {
+                u1: &mut [],
+                h1: &mut h1,
+                u2: &mut [],
+                x: &mut x,
+            },
+        )?;
         Ok(x)
     };
     for spec in &episodes {
-        let mut nav: Navigator<'_, Full, K> = Navigator::new(model.weights()?, &mut arena, model.nav_config(false))?;
+        let mut nav: Navigator<'_, Full, K> =
+            Navigator::new(model.weights()?, &mut arena, model.nav_config(false))?;
         let attr = world.attributes(spec.target).to_vec();
         nav.reset(&attr, spec.seed)?;
         let real = world.object_feature(spec.scene, spec.target);
@@ -55,7 +73,10 @@ fn main() -> Result<()> {
         let mut n = 0.0;
         while !env.is_done() {
             let o = env.observe().features;
-            obs_mean.iter_mut().zip(o.iter()).for_each(|(m, v)| *m += *v as f64);
+            obs_mean
+                .iter_mut()
+                .zip(o.iter())
+                .for_each(|(m, v)| *m += *v as f64);
             n += 1.0;
             let out = nav.step(&o, &[])?;
             env.step(out.action);
@@ -74,19 +95,49 @@ fn main() -> Result<()> {
         to_scene_mean += dist(&x0, &om) - dist(&x1, &om);
     }
     let a = adapted.max(1) as f64;
-    println!("episodes with at least one inner update: {adapted} of {}", episodes.len());
+    println!(
+        "episodes with at least one inner update: {adapted} of {}",
+        episodes.len()
+    );
     println!("mean |G(y,0) - real target feature|: before {:.4}, after {:.4} (mean change of G's output {:.5})", d0s / a, d1s / a, moved / a);
     println!("mean decrease of the distance to the real target feature: {:.5}; to the mean observation of the episode: {:.5}", to_target_gain / a, to_scene_mean / a);
 
-    let cfg = EvalConfig { reward: RewardKind::Mixed, limits, progress: false };
+    let cfg = EvalConfig {
+        reward: RewardKind::Mixed,
+        limits,
+        progress: false,
+    };
     let trained = Arc::new(model.clone());
-    let r1 = EvalReport::new("val", "trained", &evaluate(&world, &episodes, |_| Box::new(NavAgent::new(trained.clone())), &cfg));
+    let r1 = EvalReport::new(
+        "val",
+        "trained",
+        &evaluate(
+            &world,
+            &episodes,
+            |_| Box::new(NavAgent::new(trained.clone())),
+            &cfg,
+        ),
+    );
     let mut ablated = model.clone();
     for name in ["GenW1", "GenW2"] {
-        ablated.params.get_mut(name).expect("G tensor").data.fill(0.0);
+        ablated
+            .params
+            .get_mut(name)
+            .expect("G tensor")
+            .data
+            .fill(0.0);
     }
     let ablated = Arc::new(ablated);
-    let r2 = EvalReport::new("val", "x_t ablated", &evaluate(&world, &episodes, |_| Box::new(NavAgent::new(ablated.clone())), &cfg));
+    let r2 = EvalReport::new(
+        "val",
+        "x_t ablated",
+        &evaluate(
+            &world,
+            &episodes,
+            |_| Box::new(NavAgent::new(ablated.clone())),
+            &cfg,
+        ),
+    );
     println!(
         "SR trained: unseen {:.2} seen {:.2}; with G's weights zeroed (x_t constant): unseen {:.2} seen {:.2} ({} episodes)",
         r1.results.unseen.sr, r1.results.seen.sr, r2.results.unseen.sr, r2.results.seen.sr, episodes.len()
