@@ -39,3 +39,19 @@ pub fn seeded_blob(dims: &Dims, seed: u64) -> Vec<u8> {
     buf.truncate(n);
     buf
 }
+
+/// The trained GMAN model shipped in the repository (relative to `firmware-example/`).
+pub const TRAINED: &str = "../host-sim/models/gman-mcu-int8-seed1.gman";
+
+/// The blob the firmware embeds by default: the shipped trained GMAN model when it is
+/// present, else the seeded one. `base` is the `firmware-example/` directory.
+#[allow(dead_code)]
+pub fn default_blob_in(base: &std::path::Path) -> Vec<u8> {
+    std::fs::read(base.join(TRAINED)).unwrap_or_else(|_| seeded_blob(&Dims::MCU, 1))
+}
+
+/// [`default_blob_in`] from the current directory (a build script runs in `firmware-example/`).
+#[allow(dead_code)]
+pub fn default_blob() -> Vec<u8> {
+    default_blob_in(std::path::Path::new("."))
+}

@@ -1,10 +1,11 @@
 //! Writes the weight blob the firmware embeds.
 //!
-//! If `GMAN_FIRMWARE_BLOB` names a file (e.g. one written by `gman export`), that blob is
-//! embedded; otherwise a deterministic `Mcu`-preset int8 blob is made here from seeded random
-//! weights with gman-core's own encoder, so a fresh clone builds with no artefacts checked in.
+//! In order of preference: the file named by `GMAN_FIRMWARE_BLOB` (e.g. one written by
+//! `gman export`); the trained GMAN model shipped in the repository
+//! (`host-sim/models/gman-mcu-int8-seed1.gman`, see `blobgen::TRAINED`); otherwise a
+//! deterministic `Mcu`-preset int8 blob made here from seeded random weights with gman-core's
+//! own encoder.
 
-use gman_core::Dims;
 use std::{env, fs, path::PathBuf};
 
 #[path = "blobgen.rs"]
@@ -23,7 +24,10 @@ fn main() {
             println!("cargo:rerun-if-changed={}", PathBuf::from(&p).display());
             fs::read(&p).unwrap_or_else(|e| panic!("GMAN_FIRMWARE_BLOB={p:?}: {e}"))
         }
-        None => blobgen::seeded_blob(&Dims::MCU, 1),
+        None => {
+            println!("cargo:rerun-if-changed={}", blobgen::TRAINED);
+            blobgen::default_blob()
+        }
     };
     fs::write(out.join("model.gman"), blob).expect("write blob");
 }

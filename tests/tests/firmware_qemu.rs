@@ -143,7 +143,10 @@ fn firmware_under_qemu_matches_host_bit_for_bit() {
         .filter(|l| !l.starts_with("# "))
         .collect();
 
-    let blob = blobgen::seeded_blob(&gman_core::Dims::MCU, 1);
+    // The firmware embeds the shipped trained GMAN model (or the seeded blob without it).
+    let blob = blobgen::default_blob_in(
+        &PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../firmware-example"),
+    );
     let (host, counters) = host_lines(&blob, &checked_in_episode());
     assert!(
         counters.adaptations >= 2,
