@@ -249,6 +249,20 @@ pub struct EvalArgs {
     pub quiet: bool,
 }
 
+impl EvalArgs {
+    /// The evaluation settings these arguments ask for.
+    fn eval_config(&self) -> EvalConfig {
+        EvalConfig {
+            reward: self.reward,
+            limits: EpisodeLimits {
+                living_room: self.max_steps_living_room,
+                other: self.max_steps_other,
+            },
+            progress: !self.quiet,
+        }
+    }
+}
+
 /// `gman scene`.
 #[derive(Debug, Args)]
 pub struct SceneArgs {
@@ -323,14 +337,7 @@ fn eval(a: EvalArgs) -> Result<()> {
     let t0 = Instant::now();
     let world = a.world.load()?;
     let episodes = world.episodes(split, a.episodes)?;
-    let cfg = EvalConfig {
-        reward: a.reward,
-        limits: EpisodeLimits {
-            living_room: a.max_steps_living_room,
-            other: a.max_steps_other,
-        },
-        progress: !a.quiet,
-    };
+    let cfg = a.eval_config();
     let results = evaluate(&world, &episodes, |w| factory(w), &cfg);
     let report = EvalReport::new(split.name(), &a.agent, &results);
     print!("{}", report.table());
@@ -355,14 +362,7 @@ fn eval_seeds(a: EvalArgs, split: Split) -> Result<()> {
     let t0 = Instant::now();
     let world = a.world.load()?;
     let episodes = world.episodes(split, a.episodes)?;
-    let cfg = EvalConfig {
-        reward: a.reward,
-        limits: EpisodeLimits {
-            living_room: a.max_steps_living_room,
-            other: a.max_steps_other,
-        },
-        progress: !a.quiet,
-    };
+    let cfg = a.eval_config();
     let mut reports = Vec::new();
     for s in &a.seeds {
         let path = a.agent.replace("{seed}", &s.to_string());
