@@ -5,7 +5,9 @@
 //! 2. Does the policy use x_t? Success rate with G's weights zeroed (x_t constant) against
 //!    the trained model.
 //!
-//! `cargo run --release -p gman-host-sim --example emd_analysis -- CKPT [DATA_DIR] [EPISODES_PER_FILE]`
+//! `cargo run --release -p gman-host-sim --example emd_analysis -- CKPT [DATA_DIR] [EPISODES_PER_FILE] [INNER_LR] [MAX_INNER]`
+//!
+//! `INNER_LR` and `MAX_INNER` override the model's inner-loop rate α and cap (for sweeps).
 
 use std::path::Path;
 use std::sync::Arc;
@@ -31,14 +33,21 @@ fn dist(a: &[f32], b: &[f32]) -> f64 {
 fn main() -> Result<()> {
     let args: Vec<String> = std::env::args().collect();
     let Some(ckpt) = args.get(1) else {
-        bail!("usage: emd_analysis CKPT [DATA_DIR] [EPISODES_PER_FILE]")
+        bail!("usage: emd_analysis CKPT [DATA_DIR] [EPISODES_PER_FILE] [INNER_LR] [MAX_INNER]")
     };
     let world = match args.get(2) {
         Some(d) => World::load(Path::new(d))?,
         None => World::synthetic(gman_host_sim::sim::DEFAULT_WORLD_SEED),
     };
     let per_file: usize = args.get(3).map(|s| s.parse()).transpose()?.unwrap_or(100);
-    let model = load_model(Path::new(ckpt), None)?;
+    let mut model = load_model(Path::new(ckpt), None)?;
+    if let Some(lr) = args.get(4) {
+        model.inner_lr = lr.parse()?;
+    }
+    if let Some(n) = args.get(5) {
+        model.max_inner = n.parse()?;
+    }
+    println!("inner rate {} cap {}", model.inner_lr, model.max_inner);
     let episodes = world.episodes(Split::Val, Some(per_file))?;
     let limits = EpisodeLimits::default();
     let mut arena = vec![0.0f32; Navigator::<Full, K>::arena_len(&model.dims)];

@@ -221,6 +221,13 @@ pub struct EvalArgs {
     /// `gman-nometa`: adversarial adaptation at test time only).
     #[arg(long, value_enum)]
     pub method: Option<gman_host_sim::nav::model::Method>,
+    /// Override the model's inner-loop rate α (α1 = α2) at evaluation (checkpoints store the
+    /// rate they were trained with; blobs do not and default to the paper's 1e-4).
+    #[arg(long, value_name = "ALPHA")]
+    pub inner_lr: Option<f32>,
+    /// Override the cap on inner updates per episode at evaluation (default: the model's, 4).
+    #[arg(long, value_name = "N")]
+    pub max_inner: Option<u32>,
     /// At most N episodes per episode file (file order).
     #[arg(long, value_name = "N")]
     pub episodes: Option<usize>,
@@ -250,6 +257,15 @@ pub struct EvalArgs {
 }
 
 impl EvalArgs {
+    /// The model changes these arguments ask for.
+    fn overrides(&self) -> crate::cli_nav::ModelOverrides {
+        crate::cli_nav::ModelOverrides {
+            method: self.method,
+            inner_lr: self.inner_lr,
+            max_inner: self.max_inner,
+        }
+    }
+
     /// The evaluation settings these arguments ask for.
     fn eval_config(&self) -> EvalConfig {
         EvalConfig {
@@ -310,7 +326,7 @@ pub fn run(cli: Cli) -> Result<()> {
 pub fn agent_factory(
     name: &str,
     seed: u64,
-    method: Option<gman_host_sim::nav::model::Method>,
+    ov: &crate::cli_nav::ModelOverrides,
 ) -> Result<AgentFactory> {
     match name {
         "random" => Ok(Box::new(move |_| Box::new(RandomAgent::new(seed)))),
@@ -318,7 +334,7 @@ pub fn agent_factory(
         other => {
             let p = Path::new(other);
             if p.exists() {
-                return Ok(crate::cli_nav::model_factory(p, method)?.0);
+                return Ok(crate::cli_nav::model_factory(p, ov)?.0);
             }
             bail!("agent {other}: not `random` or `oracle`, and no such model file")
         }
@@ -333,7 +349,7 @@ fn eval(a: EvalArgs) -> Result<()> {
     if !a.seeds.is_empty() {
         return eval_seeds(a, split);
     }
-    let factory = agent_factory(&a.agent, a.seed, a.method)?;
+    let factory = agent_factory(&a.agent, a.seed, &a.overrides())?;
     let t0 = Instant::now();
     let world = a.world.load()?;
     let episodes = world.episodes(split, a.episodes)?;
@@ -366,7 +382,7 @@ fn eval_seeds(a: EvalArgs, split: Split) -> Result<()> {
     let mut reports = Vec::new();
     for s in &a.seeds {
         let path = a.agent.replace("{seed}", &s.to_string());
-        let factory = agent_factory(&path, a.seed, a.method)?;
+        let factory = agent_factory(&path, a.seed, &a.overrides())?;
         let results = evaluate(&world, &episodes, |w| factory(w), &cfg);
         let report = EvalReport::new(split.name(), &path, &results);
         print!("{}", report.table());
@@ -467,7 +483,7 @@ fn scene(a: SceneArgs) -> Result<()> {
                     mine.len()
                 );
             };
-            let factory = agent_factory(&a.agent, a.seed, None)?;
+            let factory = agent_factory(&a.agent, a.seed, &Default::default())?;
             let mut agent = factory(0);
             let cfg = EvalConfig::default();
             let mut env = gman_host_sim::sim::Env::new(

@@ -70,6 +70,9 @@ pub struct TrainArgs {
     /// Inner learning rates α1 (D) and α2 (θ, φ) (paper: 1e-4).
     #[arg(long, default_value_t = 1e-4)]
     pub inner_lr: f32,
+    /// At most this many inner updates per episode (GMAN variants).
+    #[arg(long, default_value_t = gman_host_sim::nav::model::DEFAULT_MAX_INNER)]
+    pub max_inner: u32,
     /// Minimum steps per worker and update.
     #[arg(long, default_value_t = 40)]
     pub min_steps: u32,
@@ -96,6 +99,17 @@ pub struct TrainArgs {
     /// No progress bar.
     #[arg(long)]
     pub quiet: bool,
+}
+
+/// Evaluation-time changes to a loaded model (`gman eval --method/--inner-lr/--max-inner`).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct ModelOverrides {
+    /// Treat the model as this method.
+    pub method: Option<Method>,
+    /// Inner-loop rate α (both α1 and α2).
+    pub inner_lr: Option<f32>,
+    /// Cap on inner updates per episode.
+    pub max_inner: Option<u32>,
 }
 
 /// `gman export`.
@@ -328,6 +342,7 @@ pub fn cmd_train(a: TrainArgs) -> Result<()> {
     };
     if a.resume.is_none() {
         state.model.inner_lr = a.inner_lr;
+        state.model.max_inner = a.max_inner;
     }
     let opts = TrainOptions {
         updates,
@@ -370,8 +385,18 @@ pub fn cmd_train(a: TrainArgs) -> Result<()> {
 }
 
 /// Model-file agents for `gman eval`: a checkpoint or a blob.
-pub fn model_factory(path: &Path, method: Option<Method>) -> Result<(AgentFactory, String)> {
-    let model = Arc::new(load_model(path, method)?);
+pub fn model_factory(path: &Path, ov: &ModelOverrides) -> Result<(AgentFactory, String)> {
+    let mut model = load_model(path, ov.method)?;
+    if let Some(lr) = ov.inner_lr {
+        if !(lr.is_finite() && lr >= 0.0) {
+            bail!("--inner-lr must be finite and non-negative, got {lr}");
+        }
+        model.inner_lr = lr;
+    }
+    if let Some(n) = ov.max_inner {
+        model.max_inner = n;
+    }
+    let model = Arc::new(model);
     let label = format!("{} ({})", model.method.name(), path.display());
     let factory: AgentFactory = Box::new(move |_| Box::new(NavAgent::new(model.clone())));
     Ok((factory, label))

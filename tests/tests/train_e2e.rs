@@ -358,3 +358,78 @@ fn meta_order_two_changes_only_the_generator_gradient() {
         gman_host_sim::train::checkpoint::Checkpoint::load(&dir.join("checkpoint.ckpt")).unwrap();
     assert_eq!(ck.metadata["trainer"]["meta_order"], 2);
 }
+
+/// The `gman-noemd` control trains G's θ through the policy loss like GMAN's outer loop but
+/// never runs the inner loop; `a3c-fg` keeps θ frozen. Both facts are what make the control
+/// separate "θ is trained" from "the EMD adapts".
+#[test]
+fn gman_noemd_trains_the_generator_without_adapting() {
+    use gman_host_sim::nav::rollout::{train_episode, Worker};
+    use rand::SeedableRng;
+    let world = World::synthetic(7);
+    let mut rng = gman_core::rng::Xoshiro128::seed_from_u64(5);
+    let g = init_generator(&Dims::MCU, &mut rng).unwrap();
+    let mut srng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+    // Enough episodes that GMAN itself adapts in some (checked below).
+    let specs: Vec<_> = (0..200)
+        .map(|_| world.sample_train_episode_min(&mut srng, 1))
+        .collect();
+    let run = |method: Method| {
+        let mut model = NavModel::init(method, Dims::MCU, 1, Some(&g), None).unwrap();
+        model.inner_lr = 1e-2;
+        let mut worker = Worker::new(&model);
+        let mut grads = model.params.zeros_like();
+        let mut adaptations = 0;
+        for spec in &specs {
+            let (st, _) = train_episode(
+                &world,
+                spec,
+                &model,
+                RewardKind::Mixed,
+                80,
+                &Default::default(),
+                1,
+                &mut worker,
+                &mut grads,
+            )
+            .unwrap();
+            adaptations += st.adaptations;
+        }
+        let norm = |name: &str| -> f64 {
+            grads
+                .tensor(name)
+                .unwrap()
+                .data
+                .iter()
+                .map(|v| (*v as f64).powi(2))
+                .sum::<f64>()
+                .sqrt()
+        };
+        (adaptations, norm("GenW1") + norm("GenW2"), norm("ActorW"))
+    };
+    let (ad_gman, g_gman, _) = run(Method::Gman);
+    let (ad_noemd, g_noemd, a_noemd) = run(Method::GmanNoemd);
+    let (ad_fg, g_fg, a_fg) = run(Method::A3cFg);
+    eprintln!("adaptations gman {ad_gman} noemd {ad_noemd} a3c-fg {ad_fg}; |dG| {g_gman:.3e} {g_noemd:.3e} {g_fg:.3e}");
+    assert!(ad_gman > 0, "GMAN should adapt in these episodes");
+    assert_eq!(ad_noemd, 0, "gman-noemd ran the inner loop");
+    assert_eq!(ad_fg, 0);
+    assert!(g_noemd > 0.0, "gman-noemd's θ gets no gradient");
+    assert_eq!(g_fg, 0.0, "a3c-fg's θ must stay frozen");
+    // Same policy gradients: without adaptation both methods compute the same A3C loss.
+    assert!(
+        (a_noemd - a_fg).abs() <= 1e-9 * a_fg.max(1.0),
+        "{a_noemd} vs {a_fg}"
+    );
+    // The cap on inner updates survives a checkpoint round trip.
+    let mut m = NavModel::init(Method::GmanNoemd, Dims::MCU, 1, Some(&g), None).unwrap();
+    m.max_inner = 7;
+    m.inner_lr = 0.05;
+    let dir = tmp("noemd");
+    let mut st = TrainState::new(m, AdamConfig::default());
+    train(&world, &opts(dir.clone(), 1), &mut st).unwrap();
+    let back = load_model(&dir.join("checkpoint.ckpt"), None).unwrap();
+    assert_eq!(back.method, Method::GmanNoemd);
+    assert_eq!(back.max_inner, 7);
+    assert_eq!(back.inner_lr, 0.05);
+}

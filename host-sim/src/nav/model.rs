@@ -39,6 +39,11 @@ pub enum Method {
     /// EMD variant: cosine similarity between x_t and s_t in place of D (paper Table 3),
     /// meta-trained like GMAN.
     GmanCossim,
+    /// Control without the EMD: G's θ and the policy are trained by the outer loop exactly as
+    /// in GMAN, but no inner loop runs, in training or at evaluation. It differs from `a3c-fg`
+    /// only in that θ is trained, and from `gman` only in the adaptation, so it separates the
+    /// two sources of GMAN's gain.
+    GmanNoemd,
 }
 
 impl Method {
@@ -53,6 +58,7 @@ impl Method {
             Method::GmanPs => "gman-ps",
             Method::GmanNometa => "gman-nometa",
             Method::GmanCossim => "gman-cossim",
+            Method::GmanNoemd => "gman-noemd",
         }
     }
 
@@ -67,6 +73,7 @@ impl Method {
             Method::GmanPs,
             Method::GmanNometa,
             Method::GmanCossim,
+            Method::GmanNoemd,
         ]
         .into_iter()
         .find(|m| m.name() == s)
@@ -100,12 +107,16 @@ impl Method {
         )
     }
 
-    /// The outer loop updates G's θ (only the meta-trained methods; the FG baselines keep
-    /// the pre-trained generator frozen, as the paper's "FG" row).
+    /// The outer loop updates G's θ (the meta-trained methods and their `gman-noemd`
+    /// control; the FG baselines keep the pre-trained generator frozen, as the paper's "FG"
+    /// row).
     pub fn trains_generator(self) -> bool {
-        self.adapts_in_training()
+        self.adapts_in_training() || self == Method::GmanNoemd
     }
 }
+
+/// Default cap on inner updates per episode (gman-core's default).
+pub const DEFAULT_MAX_INNER: u32 = 4;
 
 /// The names of the tensors of a model, as in blobs and checkpoints.
 pub fn tensor_name(id: TensorId) -> &'static str {
@@ -128,6 +139,9 @@ pub struct NavModel {
     pub noise: NoiseMode,
     /// Inner-loop rates α1 (D ascent) and α2 (θ, φ descent) (paper: 1e-4).
     pub inner_lr: f32,
+    /// At most this many inner updates per episode (default 4, as gman-core's
+    /// [`NavConfig::default`]).
+    pub max_inner: u32,
     /// For a model loaded from a weight blob: the blob, whose weights the navigator then reads
     /// in place (int8 stays int8), exactly as on the device. `params` holds a dequantised
     /// copy for inspection.
@@ -195,6 +209,7 @@ impl NavModel {
             ps,
             noise: NoiseMode::Gaussian,
             inner_lr: 1e-4,
+            max_inner: DEFAULT_MAX_INNER,
             blob: None,
         })
     }
@@ -245,6 +260,7 @@ impl NavModel {
             },
             alpha_disc: self.inner_lr,
             alpha_adapt: self.inner_lr,
+            max_inner_updates: self.max_inner,
             schedule: if training {
                 gman_core::navigator::Schedule::Manual
             } else {
@@ -263,6 +279,7 @@ impl NavModel {
             "noise": match self.noise { NoiseMode::Gaussian => "gaussian", NoiseMode::Zero => "zero" },
             "ps_hidden": self.ps.as_ref().map(|p| p.hidden),
             "inner_lr": self.inner_lr,
+            "max_inner": self.max_inner,
         })
     }
 
@@ -337,6 +354,10 @@ impl NavModel {
             .get("inner_lr")
             .and_then(|v| v.as_f64())
             .unwrap_or(1e-4) as f32;
+        let max_inner = meta
+            .get("max_inner")
+            .and_then(|v| v.as_u64())
+            .map_or(DEFAULT_MAX_INNER, |v| v.min(u32::MAX as u64) as u32);
         Ok(NavModel {
             method,
             dims,
@@ -344,6 +365,7 @@ impl NavModel {
             ps,
             noise,
             inner_lr,
+            max_inner,
             blob: None,
         })
     }
@@ -427,6 +449,7 @@ pub fn model_from_blob(bytes: &[u8], method: Option<Method>) -> Result<NavModel>
         ps: None,
         noise,
         inner_lr: 1e-4,
+        max_inner: DEFAULT_MAX_INNER,
         blob: Some(std::sync::Arc::new(bytes.to_vec())),
     })
 }
