@@ -1,0 +1,47 @@
+#!/usr/bin/env bash
+# Reproduces the README's 15000-update results: each method x seed trained on the real
+# training scenes, evaluated on all 8000 official val episodes, plus the diagnostics.
+#   DATA=../shared/data/gman bash host-sim/scripts/long-runs.sh
+# About 5-8 min per training run on 2 cores. Results land in runs/real/ (not tracked);
+# finished runs are marked RUN.done and skipped, unfinished ones are resumed exactly.
+# Needs the pre-trained generator of host-sim/scripts/experiments.sh (runs/real/fg/fg.ckpt).
+set -euo pipefail
+cd "$(dirname "$0")/../.."
+cargo build --release -p gman-host-sim --bin gman --example emd_analysis --example done_analysis
+G=./target/release/gman
+D=${DATA:-../shared/data/gman}
+R=${OUT:-runs/real}
+U=${UPDATES:-15000}
+METHODS=${METHODS:-"a3c a3c-fg gman gman-noemd"}
+[ -f "$R/fg/fg.ckpt" ] || $G pretrain-fg --data "$D" --preset mcu --seed 1 --out "$R/fg" --quiet
+[ -f "$R/eval/random.json" ] || { mkdir -p "$R/eval"; $G eval --data "$D" --split val --agent random --json "$R/eval/random.json" --quiet; }
+run() { # NAME METHOD SEED [train args...]
+  local name=$1 m=$2 s=$3; shift 3
+  local out=$R/long-$name-seed$s
+  if [ ! -f "$out.done" ]; then
+    if [ -f "$out/checkpoint.ckpt" ]; then
+      $G train --data "$D" --updates "$U" --seed "$s" --resume "$out" --quiet "$@"
+    else
+      $G train --data "$D" --method "$m" --preset mcu --updates "$U" --seed "$s" --fg "$R/fg/fg.ckpt" --out "$out" --quiet "$@"
+    fi
+    touch "$out.done"
+  fi
+  mkdir -p "$R/eval-long/$name"
+  [ -f "$R/eval-long/$name/seed$s.json" ] || $G eval --data "$D" --split val --agent "$out/checkpoint.ckpt" \
+    --json "$R/eval-long/$name/seed$s.json" --quiet
+}
+for s in 1 2 3; do
+  for m in $METHODS; do run "$m" "$m" "$s"; done
+  # EMD without meta-learning: the A3C+FG runs with the inner loop switched on at test time.
+  mkdir -p "$R/eval-long/gman-nometa"
+  [ -f "$R/eval-long/gman-nometa/seed$s.json" ] || $G eval --data "$D" --split val \
+    --agent "$R/long-a3c-fg-seed$s/checkpoint.ckpt" --method gman-nometa \
+    --json "$R/eval-long/gman-nometa/seed$s.json" --quiet
+done
+$G table --runs "$R/eval/random.json" $(for m in $METHODS gman-nometa; do echo "$R/eval-long/$m"; done)
+# Diagnostics on seed 1: when agents stop, and whether G's output moves under adaptation
+# at the paper's inner rate and larger ones (test time only).
+./target/release/examples/done_analysis "$D" 1000 random $(for m in $METHODS; do echo "$R/long-$m-seed1/checkpoint.ckpt"; done)
+for a in 1e-4 1e-3 1e-2 1e-1; do
+  ./target/release/examples/emd_analysis "$R/long-gman-seed1/checkpoint.ckpt" "$D" 1000 "$a"
+done
