@@ -1,12 +1,17 @@
 //! Deterministic seeded `Mcu` int8 blob, shared by `build.rs` and the host-side parity test
 //! (`tests/tests/firmware_qemu.rs`) so that both use the very same bytes.
 
-use gman_core::blob::{encode, encoded_len_bound, TensorData, TensorId, TensorSpec};
+use gman_core::blob::{
+    encode_with_settings, encoded_len_bound, AdaptSettings, TensorData, TensorId, TensorSpec,
+    FLAG_ADAPT,
+};
 use gman_core::quant::quantize_rows;
 use gman_core::rng::{fill_gaussian, Xoshiro128};
 use gman_core::Dims;
 
-/// An int8 blob of seeded N(0, 0.05) weights for every tensor of `dims`.
+/// An int8 blob (format v2) of seeded N(0, 0.05) weights for every tensor of `dims`, flagged
+/// [`FLAG_ADAPT`] with the paper's inner-loop settings ([`AdaptSettings::PAPER`]), so that the
+/// firmware's `NavConfig::from_header` runs the GMAN inner loop on it.
 pub fn seeded_blob(dims: &Dims, seed: u64) -> Vec<u8> {
     let mut rng = Xoshiro128::seed_from_u64(seed);
     // (id, f32 values, int8 values, row scales)
@@ -35,7 +40,8 @@ pub fn seeded_blob(dims: &Dims, seed: u64) -> Vec<u8> {
         })
         .collect();
     let mut buf = vec![0u8; encoded_len_bound(&specs)];
-    let n = encode(dims, &specs, &mut buf).expect("encode");
+    let n = encode_with_settings(dims, FLAG_ADAPT, AdaptSettings::PAPER, &specs, &mut buf)
+        .expect("encode");
     buf.truncate(n);
     buf
 }

@@ -1,15 +1,44 @@
 //! Weight blobs: the versioned, checksummed `postcard` container the core loads weights from.
 //!
-//! # Layout
+//! # Layout (format version 2)
 //! ```text
 //! blob    = header payload
-//! header  = postcard(Header)          magic "GMAN", version, dims, tensor count,
-//!                                     payload length, CRC-32 of the payload
+//! header  = postcard(HeaderV2)        in this order:
+//!             magic        [u8; 4]      "GMAN" (4 raw bytes)
+//!             version      u16 varint   2
+//!             dims         8 x u32 varint  attr noise gen_hidden feat disc_hidden
+//!                                          lstm_hidden embed ps
+//!             flags        u32 varint   FLAG_ADAPT | FLAG_ZERO_NOISE | FLAG_COSSIM
+//!             alpha_disc   f32 (4 bytes, little-endian)  α1, D's ascent rate
+//!             alpha_adapt  f32 (4 bytes, little-endian)  α2, θ/φ's descent rate
+//!             max_inner    u32 varint   cap on inner updates per episode
+//!             n_tensors    u16 varint
+//!             payload_len  u32 varint   bytes after the header
+//!             payload_crc  u32 varint   CRC-32 (IEEE) of the payload; always the last field
 //! payload = postcard(Tensor) * count  id, rows, cols, quantisation, data bytes, scale bytes
 //! ```
 //! Tensor data are little-endian f32 (`quant = 0`, `4 * rows * cols` bytes, no scales) or int8
 //! (`quant = 1`, `rows * cols` bytes read as `i8`, plus `rows` little-endian f32 scales).
 //! Vectors (biases) are f32 with `cols = 1`.
+//!
+//! # Versions
+//! * **v2** (what [`encode`], [`encode_with_flags`] and [`encode_with_settings`] write) adds
+//!   the inner-loop settings of Algorithm 1 the model was trained with, `alpha_disc`,
+//!   `alpha_adapt` and `max_inner` (see [`AdaptSettings`]), between `flags` and `n_tensors`.
+//!   A model meta-trained with other rates or another cap than the paper's would silently
+//!   run on the device with different settings if the blob did not carry them.
+//! * **v1** has the same header without those three fields. It is still read; its settings
+//!   are the paper's ([`AdaptSettings::PAPER`]: α1 = α2 = 1e-4, at most 4 inner updates per
+//!   episode, i.e. the values of [`NavConfig::default`](crate::navigator::NavConfig)), which
+//!   is what every v1 blob was trained and run with.
+//!
+//! Any other version is [`BlobError::UnsupportedVersion`]. postcard is sequential and has no
+//! field tags, so the parser first decodes the `{magic, version}` prefix, then the header
+//! struct of that version.
+//!
+//! [`NavConfig::from_header`](crate::navigator::NavConfig::from_header) (or
+//! [`Blob::nav_config`]) turns the flags and the settings into the navigator configuration
+//! the blob asks for, so that the host and the device run the same inner loop.
 //!
 //! # Zero copy
 //! [`Blob::parse`] borrows from the input (`&'a [u8]`, e.g. a `&'static` blob in flash): each
@@ -19,11 +48,12 @@
 //! is ever copied to RAM, by the caller, with [`Blob::copy_f32`].
 //!
 //! # Validation
-//! Parsing checks, in order: header decoding, magic, version, payload length, CRC-32, then
-//! every record (known id, no duplicates, shape implied by the dims, byte lengths, allowed
-//! quantisation, finite f32 weights, finite non-negative scales). Any failure is a typed
-//! [`BlobError`]; nothing panics, whatever the bytes (a property test and a fuzz target check
-//! this).
+//! Parsing checks, in order: decoding of the `{magic, version}` prefix, magic, version,
+//! decoding of that version's header, the inner-loop rates (v2: finite and non-negative, else
+//! [`BlobError::BadInnerRate`]), payload length, CRC-32, then every record (known id, no
+//! duplicates, shape implied by the dims, byte lengths, allowed quantisation, finite f32
+//! weights, finite non-negative scales). Any failure is a typed [`BlobError`]; nothing panics,
+//! whatever the bytes (a property test and a fuzz target check this).
 
 use serde::ser::SerializeSeq;
 use serde::{Deserialize, Serialize, Serializer};
@@ -36,9 +66,13 @@ use crate::NUM_ACTIONS;
 
 /// The four magic bytes at the start of every blob.
 pub const MAGIC: [u8; 4] = *b"GMAN";
-/// The format version this build writes and reads.
-pub const FORMAT_VERSION: u16 = 1;
-/// Bytes reserved for the header while encoding (the real header is shorter).
+/// The format version this build writes.
+pub const FORMAT_VERSION: u16 = 2;
+/// The oldest format version this build still reads (v1: no inner-loop settings in the
+/// header; they default to [`AdaptSettings::PAPER`]).
+pub const MIN_FORMAT_VERSION: u16 = 1;
+/// Bytes reserved for the header while encoding (the real header is shorter: at most 83
+/// bytes for v2).
 const HEADER_RESERVE: usize = 96;
 
 /// Quantisation of a stored tensor.
@@ -227,13 +261,105 @@ pub const FLAG_ZERO_NOISE: u32 = 2;
 /// similarity to the observation instead of D (the CosSim EMD variant).
 pub const FLAG_COSSIM: u32 = 4;
 
-/// The blob header.
-#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq)]
-pub struct Header {
+/// The inner-loop settings of Algorithm 1 a model was trained with, stored in the header of
+/// a v2 blob (see the module docs) so that the device adapts exactly as the trainer did.
+///
+/// Both rates must be finite and non-negative: the encoder refuses other values and the
+/// parser rejects them with [`BlobError::BadInnerRate`]. Any `max_inner` is valid (0 turns
+/// the inner loop off even for a blob with [`FLAG_ADAPT`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct AdaptSettings {
+    /// α1, the ascent rate of D on L_D (Eq. 1; paper: 1e-4); becomes
+    /// [`NavConfig::alpha_disc`](crate::navigator::NavConfig::alpha_disc).
+    pub alpha_disc: f32,
+    /// α2, the SGD rate of θ and φ on L_ad (Eq. 3; paper: 1e-4); becomes
+    /// [`NavConfig::alpha_adapt`](crate::navigator::NavConfig::alpha_adapt).
+    pub alpha_adapt: f32,
+    /// At most this many inner updates per episode (reference: 4); becomes
+    /// [`NavConfig::max_inner_updates`](crate::navigator::NavConfig::max_inner_updates).
+    pub max_inner: u32,
+}
+
+impl AdaptSettings {
+    /// The paper's settings, α1 = α2 = 1e-4 and at most 4 inner updates per episode: the
+    /// values of [`NavConfig::default`](crate::navigator::NavConfig) (which is built from this
+    /// constant) and the settings of every v1 blob.
+    pub const PAPER: AdaptSettings = AdaptSettings {
+        alpha_disc: 1e-4,
+        alpha_adapt: 1e-4,
+        max_inner: 4,
+    };
+
+    /// Checks that both rates are finite and non-negative; otherwise returns
+    /// [`BlobError::BadInnerRate`] naming the first bad one.
+    pub fn validate(&self) -> Result<(), BlobError> {
+        for (field, v) in [
+            ("alpha_disc", self.alpha_disc),
+            ("alpha_adapt", self.alpha_adapt),
+        ] {
+            if !v.is_finite() || v < 0.0 {
+                return Err(BlobError::BadInnerRate {
+                    field,
+                    bits: v.to_bits(),
+                });
+            }
+        }
+        Ok(())
+    }
+}
+
+impl Default for AdaptSettings {
+    /// [`AdaptSettings::PAPER`].
+    fn default() -> Self {
+        AdaptSettings::PAPER
+    }
+}
+
+/// The `{magic, version}` prefix every header version starts with, decoded first to choose
+/// the header struct.
+#[derive(Deserialize)]
+struct Prefix {
+    magic: [u8; 4],
+    version: u16,
+}
+
+/// The header of a format-v1 blob (read only; postcard has no field names, so the
+/// underscored fields are decoded like any other and only checked through [`Prefix`]).
+#[derive(Deserialize)]
+struct HeaderV1 {
+    _magic: [u8; 4],
+    _version: u16,
+    dims: DimsRecord,
+    flags: u32,
+    n_tensors: u16,
+    payload_len: u32,
+    payload_crc: u32,
+}
+
+/// The header of a format-v2 blob (see the module docs for the field order).
+#[derive(Serialize, Deserialize)]
+struct HeaderV2 {
     magic: [u8; 4],
     version: u16,
     dims: DimsRecord,
     flags: u32,
+    alpha_disc: f32,
+    alpha_adapt: f32,
+    max_inner: u32,
+    n_tensors: u16,
+    payload_len: u32,
+    payload_crc: u32,
+}
+
+/// The blob header, as parsed from any supported format version (a v1 header reports the
+/// paper's [`AdaptSettings`]). Only [`Blob::parse`] makes one, so its settings are always
+/// valid.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Header {
+    version: u16,
+    dims: DimsRecord,
+    flags: u32,
+    settings: AdaptSettings,
     n_tensors: u16,
     payload_len: u32,
     payload_crc: u32,
@@ -244,13 +370,35 @@ impl Header {
     pub fn dims(&self) -> Dims {
         self.dims.to_dims()
     }
-    /// Model flags ([`FLAG_ADAPT`], [`FLAG_ZERO_NOISE`]); unknown bits are kept and ignored.
+    /// Model flags ([`FLAG_ADAPT`], [`FLAG_ZERO_NOISE`], [`FLAG_COSSIM`]); unknown bits are
+    /// kept and ignored.
     pub fn flags(&self) -> u32 {
         self.flags
     }
-    /// Format version.
+    /// Format version of the parsed blob (1 or 2).
     pub fn version(&self) -> u16 {
         self.version
+    }
+    /// True when the header stored the inner-loop settings (format v2 and later); false for
+    /// a v1 blob, whose [`Header::adapt_settings`] are [`AdaptSettings::PAPER`].
+    pub fn has_adapt_settings(&self) -> bool {
+        self.version >= 2
+    }
+    /// The inner-loop settings the model was trained with (v1: [`AdaptSettings::PAPER`]).
+    pub fn adapt_settings(&self) -> AdaptSettings {
+        self.settings
+    }
+    /// α1, D's ascent rate (v1: 1e-4).
+    pub fn alpha_disc(&self) -> f32 {
+        self.settings.alpha_disc
+    }
+    /// α2, θ's and φ's descent rate (v1: 1e-4).
+    pub fn alpha_adapt(&self) -> f32 {
+        self.settings.alpha_adapt
+    }
+    /// Cap on inner updates per episode (v1: 4).
+    pub fn max_inner(&self) -> u32 {
+        self.settings.max_inner
     }
     /// Number of tensors.
     pub fn n_tensors(&self) -> u16 {
@@ -263,6 +411,69 @@ impl Header {
     /// CRC-32 of the payload.
     pub fn payload_crc(&self) -> u32 {
         self.payload_crc
+    }
+}
+
+/// Decodes and checks the header of any supported version; returns it and the bytes after it.
+fn parse_header(bytes: &[u8]) -> Result<(Header, &[u8]), BlobError> {
+    fn map_err(e: postcard::Error) -> BlobError {
+        match e {
+            postcard::Error::DeserializeUnexpectedEnd => BlobError::Truncated,
+            _ => BlobError::Malformed,
+        }
+    }
+    let prefix = match postcard::take_from_bytes::<Prefix>(bytes) {
+        Ok((p, _)) => p,
+        Err(postcard::Error::DeserializeUnexpectedEnd) => return Err(BlobError::Truncated),
+        Err(_) => {
+            if bytes.len() >= 4 && bytes[..4] != MAGIC {
+                return Err(BlobError::BadMagic);
+            }
+            return Err(BlobError::Malformed);
+        }
+    };
+    if prefix.magic != MAGIC {
+        return Err(BlobError::BadMagic);
+    }
+    match prefix.version {
+        1 => {
+            // `magic` and `version` are decoded again (same bytes, same values as the prefix).
+            let (h, rest) = postcard::take_from_bytes::<HeaderV1>(bytes).map_err(map_err)?;
+            Ok((
+                Header {
+                    version: 1,
+                    dims: h.dims,
+                    flags: h.flags,
+                    settings: AdaptSettings::PAPER,
+                    n_tensors: h.n_tensors,
+                    payload_len: h.payload_len,
+                    payload_crc: h.payload_crc,
+                },
+                rest,
+            ))
+        }
+        2 => {
+            let (h, rest) = postcard::take_from_bytes::<HeaderV2>(bytes).map_err(map_err)?;
+            let settings = AdaptSettings {
+                alpha_disc: h.alpha_disc,
+                alpha_adapt: h.alpha_adapt,
+                max_inner: h.max_inner,
+            };
+            settings.validate()?;
+            Ok((
+                Header {
+                    version: 2,
+                    dims: h.dims,
+                    flags: h.flags,
+                    settings,
+                    n_tensors: h.n_tensors,
+                    payload_len: h.payload_len,
+                    payload_crc: h.payload_crc,
+                },
+                rest,
+            ))
+        }
+        found => Err(BlobError::UnsupportedVersion { found }),
     }
 }
 
@@ -335,24 +546,7 @@ pub struct Blob<'a> {
 impl<'a> Blob<'a> {
     /// Parses and validates `bytes` (see the module docs). Borrows, never copies.
     pub fn parse(bytes: &'a [u8]) -> Result<Blob<'a>, BlobError> {
-        let (header, payload) = match postcard::take_from_bytes::<Header>(bytes) {
-            Ok(v) => v,
-            Err(postcard::Error::DeserializeUnexpectedEnd) => return Err(BlobError::Truncated),
-            Err(_) => {
-                if bytes.len() >= 4 && bytes[..4] != MAGIC {
-                    return Err(BlobError::BadMagic);
-                }
-                return Err(BlobError::Malformed);
-            }
-        };
-        if header.magic != MAGIC {
-            return Err(BlobError::BadMagic);
-        }
-        if header.version != FORMAT_VERSION {
-            return Err(BlobError::UnsupportedVersion {
-                found: header.version,
-            });
-        }
+        let (header, payload) = parse_header(bytes)?;
         if payload.len() < header.payload_len as usize {
             return Err(BlobError::Truncated);
         }
@@ -399,6 +593,12 @@ impl<'a> Blob<'a> {
     /// The header.
     pub fn header(&self) -> &Header {
         &self.header
+    }
+
+    /// The navigator configuration this blob asks for:
+    /// [`NavConfig::from_header`](crate::navigator::NavConfig::from_header) of its header.
+    pub fn nav_config(&self) -> crate::navigator::NavConfig {
+        crate::navigator::NavConfig::from_header(&self.header)
     }
 
     /// The dims the blob was made for.
@@ -601,21 +801,35 @@ pub fn encoded_len_bound(tensors: &[TensorSpec<'_>]) -> usize {
     n
 }
 
-/// Encodes a blob for `dims` holding `tensors` into `out` with no flags; see
-/// [`encode_with_flags`].
+/// Encodes a (v2) blob for `dims` holding `tensors` into `out` with no flags and the paper's
+/// inner-loop settings; see [`encode_with_settings`].
 pub fn encode(dims: &Dims, tensors: &[TensorSpec<'_>], out: &mut [u8]) -> Result<usize, BlobError> {
-    encode_with_flags(dims, 0, tensors, out)
+    encode_with_settings(dims, 0, AdaptSettings::PAPER, tensors, out)
 }
 
-/// Encodes a blob for `dims` and model `flags` holding `tensors` into `out`; returns the
-/// number of bytes written. Checks shapes, finiteness and quantisation like the parser does,
-/// so what it writes always parses.
+/// Encodes a (v2) blob for `dims` and model `flags` holding `tensors` into `out` with the
+/// paper's inner-loop settings ([`AdaptSettings::PAPER`]); see [`encode_with_settings`].
 pub fn encode_with_flags(
     dims: &Dims,
     flags: u32,
     tensors: &[TensorSpec<'_>],
     out: &mut [u8],
 ) -> Result<usize, BlobError> {
+    encode_with_settings(dims, flags, AdaptSettings::PAPER, tensors, out)
+}
+
+/// Encodes a format-v2 blob for `dims`, model `flags` and the inner-loop `settings` the model
+/// was trained with, holding `tensors`, into `out`; returns the number of bytes written.
+/// Checks the settings ([`AdaptSettings::validate`]), shapes, finiteness and quantisation
+/// like the parser does, so what it writes always parses.
+pub fn encode_with_settings(
+    dims: &Dims,
+    flags: u32,
+    settings: AdaptSettings,
+    tensors: &[TensorSpec<'_>],
+    out: &mut [u8],
+) -> Result<usize, BlobError> {
+    settings.validate()?;
     if out.len() < HEADER_RESERVE {
         return Err(BlobError::BufferTooSmall);
     }
@@ -664,11 +878,14 @@ pub fn encode_with_flags(
         pos += n;
     }
     let payload_len = pos - HEADER_RESERVE;
-    let header = Header {
+    let header = HeaderV2 {
         magic: MAGIC,
         version: FORMAT_VERSION,
         dims: DimsRecord::from_dims(dims),
         flags,
+        alpha_disc: settings.alpha_disc,
+        alpha_adapt: settings.alpha_adapt,
+        max_inner: settings.max_inner,
         n_tensors: tensors.len() as u16,
         payload_len: payload_len as u32,
         payload_crc: crc32(&out[HEADER_RESERVE..pos]),

@@ -114,6 +114,16 @@ pub enum BlobError {
         /// The raw id.
         id: u16,
     },
+    /// An inner-loop rate in the header (format v2) is NaN, infinite or negative; the
+    /// encoder refuses such settings too (see [`crate::blob::AdaptSettings`]).
+    BadInnerRate {
+        /// Which rate: `"alpha_disc"` (α1, D's ascent) or `"alpha_adapt"` (α2, θ/φ's
+        /// descent).
+        field: &'static str,
+        /// Its value as `f32::to_bits` (bits keep the error `Eq`; `f32::from_bits` gives the
+        /// value back).
+        bits: u32,
+    },
     /// The postcard encoding itself is malformed (bad varint, trailing bytes, ...).
     Malformed,
     /// The output buffer given to the encoder is too small.
@@ -179,6 +189,11 @@ impl fmt::Display for BlobError {
             BlobError::NonFiniteWeight { id } => {
                 write!(f, "tensor id {id} has a NaN or infinite weight")
             }
+            BlobError::BadInnerRate { field, bits } => write!(
+                f,
+                "inner-loop rate `{field}` is {}; it must be finite and non-negative",
+                f32::from_bits(*bits)
+            ),
             BlobError::Malformed => write!(f, "malformed postcard encoding"),
             BlobError::BufferTooSmall => write!(f, "output buffer too small"),
         }

@@ -49,7 +49,7 @@
 //! use gman_core::memory::{arena_len, AdaptMode};
 //! use gman_core::blob::Blob;
 //! use gman_core::Dims;
-//! # use gman_core::blob::{encode, encoded_len_bound, TensorData, TensorId, TensorSpec};
+//! # use gman_core::blob::{encode_with_flags, encoded_len_bound, TensorData, TensorId, TensorSpec, FLAG_ADAPT};
 //! # // Hidden: make an Mcu int8 blob from seeded weights (a firmware embeds a trained one).
 //! # let d = Dims::MCU;
 //! # let mut rng = gman_core::rng::Xoshiro128::seed_from_u64(1);
@@ -66,15 +66,18 @@
 //! # let specs: Vec<_> = store.iter().map(|(id, v, q, s)| TensorSpec { id: *id,
 //! #     data: if id.is_vector() { TensorData::F32(v) } else { TensorData::I8 { q, scales: s } } }).collect();
 //! # let mut bytes = vec![0u8; encoded_len_bound(&specs)];
-//! # let n = encode(&d, &specs, &mut bytes).unwrap();
+//! # let n = encode_with_flags(&d, FLAG_ADAPT, &specs, &mut bytes).unwrap();
 //! # bytes.truncate(n);
 //! // In firmware: `static BLOB: &[u8] = include_bytes!("model.gman");` and a static arena.
 //! const LEN: usize = arena_len(&Dims::MCU, AdaptMode::Efficient, 20);
 //! let mut arena = vec![0.0f32; LEN]; // firmware: a `static` array of LEN floats
 //! let blob = Blob::parse(&bytes).expect("valid blob");
 //! let weights = NavWeights::from_blob(&blob, &Dims::MCU).expect("MCU blob");
+//! // The settings the model was trained with (adaptation, EMD, noise, α1, α2, cap), never
+//! // the loader's own defaults.
+//! let cfg = NavConfig::from_header(blob.header());
 //! let mut nav: Navigator<'_, Efficient, 20> =
-//!     Navigator::new(weights, &mut arena, NavConfig::default()).expect("arena large enough");
+//!     Navigator::new(weights, &mut arena, cfg).expect("arena large enough");
 //! let target_attributes = [0.5f32; 45]; // SE(y) of the category to find
 //! nav.reset(&target_attributes, 42).expect("finite attributes");
 //! let camera_features = [0.1f32; 512]; // s_t from the camera pipeline
@@ -89,7 +92,9 @@ use core::marker::PhantomData;
 
 use crate::activation::{all_finite, softmax_backward};
 use crate::adapt::{adapt_generator_grad, adapt_generator_grad_cos, AdaptLossKind, AdaptWork};
-use crate::blob::{Blob, TensorId, NUM_TENSORS};
+use crate::blob::{
+    AdaptSettings, Blob, Header, TensorId, FLAG_ADAPT, FLAG_COSSIM, FLAG_ZERO_NOISE, NUM_TENSORS,
+};
 use crate::dense::{Dense, DenseGrads};
 use crate::discriminator::{DiscGrads, DiscScratch, Discriminator, LdConfig, LdValue};
 use crate::error::{check_len, Error, Result};
@@ -192,15 +197,73 @@ pub struct NavConfig {
     pub loss_bound: f32,
 }
 
+impl NavConfig {
+    /// The navigator configuration a weight blob asks for, from its header.
+    ///
+    /// A blob records how its model was trained: whether the method adapts at inference
+    /// ([`FLAG_ADAPT`]), what scores the generated features ([`FLAG_COSSIM`]), which noise
+    /// drives G ([`FLAG_ZERO_NOISE`]) and, from format v2 on, the inner-loop rates and the cap
+    /// on inner updates ([`AdaptSettings`]; a v1 blob reports the paper's). Any loader — the
+    /// firmware, the host's evaluation, a user's controller — must run the model with exactly
+    /// these settings: the host meta-trained and evaluated the weights with them, so a device
+    /// that ran its own defaults instead would silently execute a different algorithm (an
+    /// A3C+FG baseline that adapts, a CosSim model whose features D scores instead, GMAN with
+    /// other rates or another cap), and the two could no longer be compared bit for bit. Building the
+    /// configuration here, in the core both sides link, is what keeps host and device from
+    /// ever disagreeing.
+    ///
+    /// The result is [`NavConfig::default`] with:
+    /// * `adapt` = the header has [`FLAG_ADAPT`];
+    /// * `emd` = [`Emd::CosSim`] if it has [`FLAG_COSSIM`], else [`Emd::Discriminator`];
+    /// * `noise` = [`NoiseMode::Zero`] if it has [`FLAG_ZERO_NOISE`], else
+    ///   [`NoiseMode::Gaussian`];
+    /// * `alpha_disc`, `alpha_adapt`, `max_inner_updates` = [`Header::alpha_disc`],
+    ///   [`Header::alpha_adapt`], [`Header::max_inner`] (v1: 1e-4, 1e-4, 4).
+    ///
+    /// Everything else keeps its default: [`Schedule::Auto`], [`Selection::Greedy`], the
+    /// default [`LdConfig`], [`AdaptLossKind::Paper`] and the default loss bound. These are
+    /// run-time choices of the caller, not properties of the trained weights (the host's
+    /// evaluation, for one, samples its actions: it uses this configuration with
+    /// `selection: Selection::Sample`). Unknown flag bits are ignored.
+    ///
+    /// Never fails: a parsed [`Header`]'s rates are finite and non-negative (checked by
+    /// [`Blob::parse`]), so the result is accepted by [`Navigator::new`] as far as the rates
+    /// are concerned. See also [`Blob::nav_config`].
+    pub fn from_header(header: &Header) -> NavConfig {
+        let flags = header.flags();
+        let settings = header.adapt_settings();
+        NavConfig {
+            adapt: flags & FLAG_ADAPT != 0,
+            emd: if flags & FLAG_COSSIM != 0 {
+                Emd::CosSim
+            } else {
+                Emd::Discriminator
+            },
+            noise: if flags & FLAG_ZERO_NOISE != 0 {
+                NoiseMode::Zero
+            } else {
+                NoiseMode::Gaussian
+            },
+            alpha_disc: settings.alpha_disc,
+            alpha_adapt: settings.alpha_adapt,
+            max_inner_updates: settings.max_inner,
+            ..NavConfig::default()
+        }
+    }
+}
+
 impl Default for NavConfig {
+    /// The paper's settings: adaptation on with D as the EMD, Gaussian noise, α1 = α2 = 1e-4
+    /// and at most 4 inner updates per episode ([`AdaptSettings::PAPER`]), automatic
+    /// schedule, greedy selection.
     fn default() -> Self {
         NavConfig {
             schedule: Schedule::Auto,
             emd: Emd::Discriminator,
             adapt: true,
-            max_inner_updates: 4,
-            alpha_disc: 1e-4,
-            alpha_adapt: 1e-4,
+            max_inner_updates: AdaptSettings::PAPER.max_inner,
+            alpha_disc: AdaptSettings::PAPER.alpha_disc,
+            alpha_adapt: AdaptSettings::PAPER.alpha_adapt,
             ld: LdConfig::default(),
             adapt_loss: AdaptLossKind::Paper,
             noise: NoiseMode::Gaussian,

@@ -2,7 +2,11 @@
 
 mod common;
 use common::*;
-use gman_core::blob::{Blob, Quant, TensorId};
+use gman_core::blob::{
+    encode_with_settings, encoded_len_bound, AdaptSettings, Blob, Quant, TensorData, TensorId,
+    TensorSpec, FLAG_ADAPT, FLAG_COSSIM, FLAG_ZERO_NOISE, FORMAT_VERSION, MAGIC,
+};
+use gman_core::navigator::{Emd, NavConfig, NoiseMode};
 use gman_core::{BlobError, Dims};
 use proptest::prelude::*;
 
@@ -85,12 +89,15 @@ fn bad_magic_version_checksum_and_dims_are_typed() {
     let mut m = bytes.clone();
     m[0] = b'X';
     assert_eq!(Blob::parse(&m).unwrap_err(), BlobError::BadMagic);
-    let mut v = bytes.clone();
-    v[4] = 2; // version varint follows the 4 magic bytes
-    assert_eq!(
-        Blob::parse(&v).unwrap_err(),
-        BlobError::UnsupportedVersion { found: 2 }
-    );
+    assert_eq!(bytes[4], 2, "the encoder writes format v2");
+    for bad in [0u8, 3, 9, 0x7f] {
+        let mut v = bytes.clone();
+        v[4] = bad; // version varint follows the 4 magic bytes
+        assert_eq!(
+            Blob::parse(&v).unwrap_err(),
+            BlobError::UnsupportedVersion { found: bad as u16 }
+        );
+    }
     let mut c = bytes.clone();
     let last = c.len() - 1;
     c[last] ^= 0x55;
@@ -203,6 +210,325 @@ fn encoder_rejects_what_the_parser_would() {
     );
 }
 
+/// f32 specs of `tensors` (no quantisation).
+fn f32_specs(tensors: &[(TensorId, Vec<f32>)]) -> Vec<TensorSpec<'_>> {
+    tensors
+        .iter()
+        .map(|(id, v)| TensorSpec {
+            id: *id,
+            data: TensorData::F32(v),
+        })
+        .collect()
+}
+
+/// A v2 blob of `SMALL` f32 tensors with the given flags and settings.
+fn blob_with(flags: u32, settings: AdaptSettings, seed: u64) -> Vec<u8> {
+    let t = random_tensors(&SMALL, seed);
+    let specs = f32_specs(&t);
+    let mut out = vec![0u8; encoded_len_bound(&specs)];
+    let n = encode_with_settings(&SMALL, flags, settings, &specs, &mut out).unwrap();
+    out.truncate(n);
+    out
+}
+
+/// Reads a postcard (LEB128) varint at `*at`.
+fn read_varint(b: &[u8], at: &mut usize) -> u64 {
+    let (mut v, mut shift) = (0u64, 0);
+    loop {
+        let byte = b[*at];
+        *at += 1;
+        v |= u64::from(byte & 0x7f) << shift;
+        if byte & 0x80 == 0 {
+            return v;
+        }
+        shift += 7;
+    }
+}
+
+fn varint_bytes(mut v: u64) -> Vec<u8> {
+    let mut o = Vec::new();
+    loop {
+        let b = (v & 0x7f) as u8;
+        v >>= 7;
+        if v == 0 {
+            o.push(b);
+            return o;
+        }
+        o.push(b | 0x80);
+    }
+}
+
+/// Offset of `alpha_disc` in a v2 blob: after magic, version, the 8 dims and the flags.
+fn alpha_offset(bytes: &[u8]) -> usize {
+    let mut at = 4;
+    for _ in 0..(1 + 8 + 1) {
+        read_varint(bytes, &mut at);
+    }
+    at
+}
+
+/// A tiny v1 encoder (test fixture): the v1 header is the v2 header without `alpha_disc`,
+/// `alpha_adapt` and `max_inner`; the payload is the same. Rewrites the v2 blob `v2`.
+fn v1_from_v2(v2: &[u8]) -> Vec<u8> {
+    let blob = Blob::parse(v2).unwrap();
+    let h = *blob.header();
+    let d = h.dims();
+    let mut out = MAGIC.to_vec();
+    out.extend(varint_bytes(1));
+    for v in [
+        d.attr,
+        d.noise,
+        d.gen_hidden,
+        d.feat,
+        d.disc_hidden,
+        d.lstm_hidden,
+        d.embed,
+        d.ps,
+    ] {
+        out.extend(varint_bytes(v as u64));
+    }
+    out.extend(varint_bytes(h.flags().into()));
+    out.extend(varint_bytes(h.n_tensors().into()));
+    out.extend(varint_bytes(h.payload_len().into()));
+    out.extend(varint_bytes(h.payload_crc().into()));
+    out.extend_from_slice(&v2[v2.len() - h.payload_len() as usize..]);
+    out
+}
+
+#[test]
+fn v2_round_trips_the_inner_loop_settings() {
+    let settings = AdaptSettings {
+        alpha_disc: 0.25,
+        alpha_adapt: 3e-3,
+        max_inner: 7,
+    };
+    let bytes = blob_with(FLAG_ADAPT | FLAG_COSSIM, settings, 11);
+    let blob = Blob::parse(&bytes).unwrap();
+    let h = blob.header();
+    assert_eq!(h.version(), FORMAT_VERSION);
+    assert_eq!(h.version(), 2);
+    assert!(h.has_adapt_settings());
+    assert_eq!(h.adapt_settings(), settings);
+    assert_eq!(h.alpha_disc().to_bits(), 0.25f32.to_bits());
+    assert_eq!(h.alpha_adapt().to_bits(), 3e-3f32.to_bits());
+    assert_eq!(h.max_inner(), 7);
+    assert_eq!(h.flags(), FLAG_ADAPT | FLAG_COSSIM);
+    // A large cap and a zero rate are valid too.
+    let other = AdaptSettings {
+        alpha_disc: 0.0,
+        alpha_adapt: 1.5,
+        max_inner: u32::MAX,
+    };
+    let b2 = blob_with(0, other, 11);
+    assert_eq!(Blob::parse(&b2).unwrap().header().adapt_settings(), other);
+    // The plain encoders write v2 with the paper's settings.
+    let plain = make_blob(&SMALL, &random_tensors(&SMALL, 11), true);
+    let pb = Blob::parse(&plain).unwrap();
+    assert_eq!(pb.header().version(), 2);
+    assert_eq!(pb.header().adapt_settings(), AdaptSettings::PAPER);
+    assert_eq!(AdaptSettings::default(), AdaptSettings::PAPER);
+}
+
+#[test]
+fn v2_header_layout_is_the_documented_one() {
+    let settings = AdaptSettings {
+        alpha_disc: 0.125,
+        alpha_adapt: 2e-4,
+        max_inner: 300,
+    };
+    let bytes = blob_with(FLAG_ZERO_NOISE, settings, 12);
+    let blob = Blob::parse(&bytes).unwrap();
+    let h = blob.header();
+    assert_eq!(bytes[..4], MAGIC);
+    let mut at = 4;
+    assert_eq!(read_varint(&bytes, &mut at), 2);
+    let d = SMALL;
+    for v in [
+        d.attr,
+        d.noise,
+        d.gen_hidden,
+        d.feat,
+        d.disc_hidden,
+        d.lstm_hidden,
+        d.embed,
+        d.ps,
+    ] {
+        assert_eq!(read_varint(&bytes, &mut at), v as u64);
+    }
+    assert_eq!(read_varint(&bytes, &mut at), u64::from(FLAG_ZERO_NOISE));
+    assert_eq!(at, alpha_offset(&bytes));
+    let f = |at: usize| f32::from_le_bytes(bytes[at..at + 4].try_into().unwrap());
+    assert_eq!(f(at), 0.125);
+    assert_eq!(f(at + 4), 2e-4);
+    at += 8;
+    assert_eq!(read_varint(&bytes, &mut at), 300);
+    assert_eq!(read_varint(&bytes, &mut at), u64::from(h.n_tensors()));
+    assert_eq!(read_varint(&bytes, &mut at), u64::from(h.payload_len()));
+    assert_eq!(read_varint(&bytes, &mut at), u64::from(h.payload_crc()));
+    assert_eq!(
+        at,
+        bytes.len() - h.payload_len() as usize,
+        "CRC is the last field"
+    );
+}
+
+#[test]
+fn v1_blobs_still_parse_with_the_paper_settings() {
+    let v2 = blob_with(
+        FLAG_ADAPT | FLAG_ZERO_NOISE,
+        AdaptSettings {
+            alpha_disc: 0.5,
+            alpha_adapt: 0.5,
+            max_inner: 9,
+        },
+        13,
+    );
+    let v1 = v1_from_v2(&v2);
+    assert_eq!(v1[4], 1);
+    assert_eq!(
+        v1.len(),
+        v2.len() - 9,
+        "v1 lacks 4 + 4 + 1 bytes of settings"
+    );
+    let b1 = Blob::parse(&v1).unwrap();
+    let b2 = Blob::parse(&v2).unwrap();
+    let h = b1.header();
+    assert_eq!(h.version(), 1);
+    assert!(!h.has_adapt_settings());
+    assert_eq!(h.adapt_settings(), AdaptSettings::PAPER);
+    assert_eq!(
+        (h.alpha_disc(), h.alpha_adapt(), h.max_inner()),
+        (1e-4, 1e-4, 4)
+    );
+    assert_eq!(h.flags(), FLAG_ADAPT | FLAG_ZERO_NOISE);
+    assert_eq!(b1.dims(), SMALL);
+    for (a, b) in b1.tensors().zip(b2.tensors()) {
+        assert_eq!((a.id, a.data, a.scales), (b.id, b.data, b.scales));
+    }
+    // The navigator configuration of a v1 blob is NavConfig::default()'s inner loop.
+    let cfg = NavConfig::from_header(h);
+    let d = NavConfig::default();
+    assert_eq!(
+        (cfg.alpha_disc, cfg.alpha_adapt, cfg.max_inner_updates),
+        (d.alpha_disc, d.alpha_adapt, d.max_inner_updates)
+    );
+    assert_eq!(cfg.noise, NoiseMode::Zero);
+    // A real v1 file shipped in the repository parses too (while it is v1).
+    let shipped = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../host-sim/models/gman-mcu-int8-seed1.gman");
+    if let Ok(bytes) = std::fs::read(shipped) {
+        let b = Blob::parse(&bytes).unwrap();
+        if b.header().version() == 1 {
+            assert_eq!(b.header().adapt_settings(), AdaptSettings::PAPER);
+        }
+    }
+    // Every truncation of a v1 blob is rejected; a bad v1 checksum is typed.
+    for n in 0..v1.len().min(200) {
+        assert!(
+            Blob::parse(&v1[..n]).is_err(),
+            "v1 prefix of {n} bytes parsed"
+        );
+    }
+    let mut c = v1.clone();
+    let last = c.len() - 1;
+    c[last] ^= 0x55;
+    assert!(matches!(
+        Blob::parse(&c),
+        Err(BlobError::ChecksumMismatch { .. })
+    ));
+}
+
+#[test]
+fn bad_inner_rates_are_typed_errors() {
+    let bytes = blob_with(FLAG_ADAPT, AdaptSettings::PAPER, 14);
+    let at = alpha_offset(&bytes);
+    for (off, field) in [(0, "alpha_disc"), (4, "alpha_adapt")] {
+        for bad in [f32::NAN, f32::INFINITY, f32::NEG_INFINITY, -1.0, -1e-30] {
+            let mut m = bytes.clone();
+            m[at + off..at + off + 4].copy_from_slice(&bad.to_le_bytes());
+            let e = Blob::parse(&m).unwrap_err();
+            assert_eq!(
+                e,
+                BlobError::BadInnerRate {
+                    field,
+                    bits: bad.to_bits()
+                },
+                "{field} = {bad}"
+            );
+            let msg = e.to_string();
+            assert!(
+                msg.contains(field) && msg.contains("finite and non-negative"),
+                "{msg}"
+            );
+        }
+    }
+    // The encoder refuses what the parser would.
+    let t = random_tensors(&SMALL, 14);
+    let specs = f32_specs(&t);
+    let mut out = vec![0u8; encoded_len_bound(&specs)];
+    for (s, field) in [
+        (
+            AdaptSettings {
+                alpha_disc: f32::NAN,
+                ..AdaptSettings::PAPER
+            },
+            "alpha_disc",
+        ),
+        (
+            AdaptSettings {
+                alpha_adapt: -0.5,
+                ..AdaptSettings::PAPER
+            },
+            "alpha_adapt",
+        ),
+    ] {
+        assert!(matches!(
+            encode_with_settings(&SMALL, 0, s, &specs, &mut out),
+            Err(BlobError::BadInnerRate { field: f, .. }) if f == field
+        ));
+    }
+}
+
+#[test]
+fn nav_config_follows_the_header() {
+    let settings = AdaptSettings {
+        alpha_disc: 0.03,
+        alpha_adapt: 0.07,
+        max_inner: 2,
+    };
+    for flags in 0..16u32 {
+        let flags = flags | if flags & 8 != 0 { 0x100 } else { 0 }; // unknown bits are ignored
+        let bytes = blob_with(flags, settings, 15);
+        let blob = Blob::parse(&bytes).unwrap();
+        let cfg = NavConfig::from_header(blob.header());
+        assert_eq!(cfg, blob.nav_config());
+        let expected = NavConfig {
+            adapt: flags & FLAG_ADAPT != 0,
+            emd: if flags & FLAG_COSSIM != 0 {
+                Emd::CosSim
+            } else {
+                Emd::Discriminator
+            },
+            noise: if flags & FLAG_ZERO_NOISE != 0 {
+                NoiseMode::Zero
+            } else {
+                NoiseMode::Gaussian
+            },
+            alpha_disc: 0.03,
+            alpha_adapt: 0.07,
+            max_inner_updates: 2,
+            ..NavConfig::default()
+        };
+        assert_eq!(cfg, expected, "flags {flags:#x}");
+    }
+    // A blob with FLAG_ADAPT and the paper's settings asks for exactly NavConfig::default().
+    let bytes = blob_with(FLAG_ADAPT, AdaptSettings::PAPER, 15);
+    assert_eq!(
+        Blob::parse(&bytes).unwrap().nav_config(),
+        NavConfig::default()
+    );
+}
+
 proptest! {
     #![proptest_config(ProptestConfig { cases: 512, .. ProptestConfig::default() })]
 
@@ -240,8 +566,39 @@ proptest! {
     #[test]
     fn arbitrary_bytes_never_panic(data in prop::collection::vec(any::<u8>(), 0..512)) {
         let _ = Blob::parse(&data);
-        let mut with_magic = b"GMAN\x01".to_vec();
-        with_magic.extend_from_slice(&data);
-        let _ = Blob::parse(&with_magic);
+        for version in [1u8, 2, 3] {
+            let mut with_magic = MAGIC.to_vec();
+            with_magic.push(version);
+            with_magic.extend_from_slice(&data);
+            let _ = Blob::parse(&with_magic);
+        }
+    }
+
+    /// Any bits in the v2 rates: the blob parses with exactly those rates when they are finite
+    /// and non-negative, and is rejected with `BadInnerRate` otherwise; never a panic.
+    #[test]
+    fn any_rate_bits_parse_or_are_rejected(a in any::<u32>(), b in any::<u32>(), cap in any::<u32>()) {
+        let bytes = blob_with(FLAG_ADAPT, AdaptSettings { max_inner: cap, ..AdaptSettings::PAPER }, 16);
+        let at = alpha_offset(&bytes);
+        let mut m = bytes.clone();
+        m[at..at + 4].copy_from_slice(&a.to_le_bytes());
+        m[at + 4..at + 8].copy_from_slice(&b.to_le_bytes());
+        let ok = |bits: u32| { let v = f32::from_bits(bits); v.is_finite() && v >= 0.0 };
+        match Blob::parse(&m) {
+            Ok(blob) => {
+                prop_assert!(ok(a) && ok(b));
+                let h = blob.header();
+                prop_assert_eq!((h.alpha_disc().to_bits(), h.alpha_adapt().to_bits(), h.max_inner()), (a, b, cap));
+            }
+            Err(BlobError::BadInnerRate { field, bits }) => {
+                prop_assert!(!(ok(a) && ok(b)));
+                if ok(a) {
+                    prop_assert_eq!((field, bits), ("alpha_adapt", b));
+                } else {
+                    prop_assert_eq!((field, bits), ("alpha_disc", a));
+                }
+            }
+            Err(e) => prop_assert!(false, "unexpected error {e:?}"),
+        }
     }
 }

@@ -186,7 +186,10 @@ pub fn run(
     let ep = Episode::parse(episode_bytes)?;
     let blob = Blob::parse(blob_bytes)?;
     let weights = NavWeights::from_blob(&blob, &DIMS)?;
-    let cfg = NavConfig::default();
+    // The configuration the blob asks for (adaptation on or off, EMD, noise, α1, α2 and the
+    // cap on inner updates; v1 blobs: the paper's rates and cap), never this program's own
+    // defaults: the host evaluated the model with exactly these settings.
+    let cfg = NavConfig::from_header(blob.header());
     probe.line(format_args!(
         "episode: {} ({} steps, seed {})",
         ep.label,
@@ -196,6 +199,16 @@ pub fn run(
     probe.line(format_args!(
         "navigator: Mcu, Efficient, K={}, max_inner_updates={}, arena {} floats",
         K, cfg.max_inner_updates, ARENA_LEN
+    ));
+    // Rates as f32 bits: exact, and no float formatting code in flash.
+    probe.line(format_args!(
+        "config from blob v{}: adapt={} emd={:?} noise={:?} alpha_disc={:08x} alpha_adapt={:08x}",
+        blob.header().version(),
+        cfg.adapt as u8,
+        cfg.emd,
+        cfg.noise,
+        cfg.alpha_disc.to_bits(),
+        cfg.alpha_adapt.to_bits(),
     ));
     let mut nav: Navigator<'_, Efficient, K> = Navigator::new(weights, arena, cfg)?;
     let mut attr = [0.0f32; DIMS.attr];

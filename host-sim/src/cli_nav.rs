@@ -461,6 +461,27 @@ pub fn cmd_inspect(a: InspectArgs) -> Result<()> {
             flags.join(", ")
         }
     );
+    let st = h.adapt_settings();
+    println!(
+        "inner loop: alpha_disc (α1, D ascent) {:e}, alpha_adapt (α2, θ/φ descent) {:e}, \
+         max {} inner updates per episode{}",
+        st.alpha_disc,
+        st.alpha_adapt,
+        st.max_inner,
+        if h.has_adapt_settings() {
+            String::new()
+        } else {
+            format!(
+                " (format v{} stores no settings: the paper's defaults)",
+                h.version()
+            )
+        }
+    );
+    let cfg = blob.nav_config();
+    println!(
+        "navigator (NavConfig::from_header): adapt {}, emd {:?}, noise {:?}",
+        cfg.adapt, cfg.emd, cfg.noise
+    );
     println!(
         "{:<8} {:>6} {:>6} {:>5} {:>10} {:>14}",
         "tensor", "rows", "cols", "quant", "bytes", "max |err|/2"

@@ -6,7 +6,7 @@ use std::path::PathBuf;
 use std::sync::Arc;
 
 use gman_core::blob::Blob;
-use gman_core::navigator::{Efficient, NavWeights, Navigator};
+use gman_core::navigator::{Efficient, NavConfig, NavWeights, Navigator, NoiseMode, Selection};
 use gman_core::Dims;
 use gman_host_sim::nav::agent::NavAgent;
 use gman_host_sim::nav::model::{load_model, Method, NavModel};
@@ -207,6 +207,16 @@ fn exported_int8_blob_host_path_and_core_api_agree() {
         Method::Gman,
         "blob flags carry the adapting method"
     );
+    // The blob carries the inner-loop settings the model was trained with (inner_lr 1e-2).
+    assert_eq!((host.inner_lr, host.max_inner), (1e-2, st.model.max_inner));
+    assert_eq!(
+        host.nav_config(false),
+        NavConfig {
+            selection: Selection::Sample,
+            ..Blob::parse(&blob_bytes).unwrap().nav_config()
+        },
+        "host evaluation and the device's NavConfig::from_header disagree"
+    );
 
     let episodes = world.episodes(Split::Val, Some(3)).unwrap();
     let mut checked = 0;
@@ -278,6 +288,67 @@ fn exported_int8_blob_host_path_and_core_api_agree() {
         assert_eq!(o1.probs.map(f32::to_bits), o2.probs.map(f32::to_bits));
     }
     assert_eq!(n1.counters().adaptations, 2);
+}
+
+/// `to_blob` stores the flags and the inner-loop settings, `model_from_blob` reads them back,
+/// and the host's evaluation configuration of a blob-loaded model is what gman-core's
+/// `NavConfig::from_header` (what the firmware runs) asks for, up to the host's sampled
+/// action selection, for every method a blob can hold.
+#[test]
+fn blob_carries_the_inner_loop_settings_to_the_device_config() {
+    let mut rng = gman_core::rng::Xoshiro128::seed_from_u64(4);
+    let g = init_generator(&Dims::MCU, &mut rng).unwrap();
+    for (method, noise, lr, cap, int8) in [
+        (Method::Gman, NoiseMode::Gaussian, 0.05, 7, true),
+        (Method::Gman, NoiseMode::Zero, 1e-4, 4, false),
+        (Method::GmanCossim, NoiseMode::Gaussian, 3e-3, 0, true),
+        (Method::A3cFg, NoiseMode::Gaussian, 2e-2, 9, true),
+        (Method::GmanNoemd, NoiseMode::Zero, 1e-3, 1, false),
+    ] {
+        let mut m = NavModel::init(method, Dims::MCU, 5, Some(&g), None).unwrap();
+        m.noise = noise;
+        m.inner_lr = lr;
+        m.max_inner = cap;
+        let bytes = m.to_blob(int8).unwrap();
+        let blob = Blob::parse(&bytes).unwrap();
+        let h = blob.header();
+        assert_eq!(h.version(), 2);
+        assert_eq!(
+            (h.alpha_disc(), h.alpha_adapt(), h.max_inner()),
+            (lr, lr, cap),
+            "{method:?}"
+        );
+        let back = gman_host_sim::nav::model::model_from_blob(&bytes, None).unwrap();
+        assert_eq!(
+            (back.inner_lr, back.max_inner, back.noise),
+            (lr, cap, noise)
+        );
+        // A blob does not say whether θ was trained by the outer loop: gman-noemd comes back
+        // as a3c-fg, which runs the same navigator (no inner loop).
+        let expected_method = if method == Method::GmanNoemd {
+            Method::A3cFg
+        } else {
+            method
+        };
+        assert_eq!(back.method, expected_method);
+        let device = NavConfig::from_header(h);
+        assert_eq!(device.adapt, method.adapts_at_eval(), "{method:?}");
+        assert_eq!(
+            back.nav_config(false),
+            NavConfig {
+                selection: Selection::Sample,
+                ..device
+            },
+            "{method:?}: host evaluation and device configurations differ"
+        );
+        // ... and the original model evaluates with that configuration too.
+        assert_eq!(m.nav_config(false), back.nav_config(false), "{method:?}");
+    }
+    // The host refuses settings a blob cannot hold.
+    let mut m = NavModel::init(Method::Gman, Dims::MCU, 5, Some(&g), None).unwrap();
+    m.inner_lr = f32::NAN;
+    let e = m.to_blob(true).unwrap_err().to_string();
+    assert!(e.contains("alpha_disc"), "{e}");
 }
 
 /// `--meta-order 2` on a real training episode: the fusion, LSTM and critic gradients are

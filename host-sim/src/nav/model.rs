@@ -4,8 +4,8 @@ use std::path::Path;
 
 use anyhow::{anyhow, bail, Context, Result};
 use gman_core::blob::{
-    encode_with_flags, encoded_len_bound, Blob, TensorData, TensorId, TensorSpec, FLAG_ADAPT,
-    FLAG_COSSIM, FLAG_ZERO_NOISE,
+    encode_with_settings, encoded_len_bound, AdaptSettings, Blob, TensorData, TensorId, TensorSpec,
+    FLAG_ADAPT, FLAG_COSSIM, FLAG_ZERO_NOISE,
 };
 use gman_core::matrix::MatRef;
 use gman_core::navigator::{NavConfig, NavWeights, NoiseMode, Selection};
@@ -385,7 +385,20 @@ impl NavModel {
         f
     }
 
-    /// Encodes the model as a gman-core weight blob, int8 (per-row scales) or f32.
+    /// The inner-loop settings stored in the model's blobs: `inner_lr` as both α1 and α2,
+    /// and `max_inner`.
+    pub fn adapt_settings(&self) -> AdaptSettings {
+        AdaptSettings {
+            alpha_disc: self.inner_lr,
+            alpha_adapt: self.inner_lr,
+            max_inner: self.max_inner,
+        }
+    }
+
+    /// Encodes the model as a gman-core weight blob (format v2), int8 (per-row scales) or
+    /// f32. The header carries the model's flags ([`NavModel::blob_flags`]) and its
+    /// inner-loop settings ([`NavModel::adapt_settings`]), so a device running
+    /// `NavConfig::from_header` adapts exactly as this model was trained and evaluated.
     pub fn to_blob(&self, int8: bool) -> Result<Vec<u8>> {
         let mut quantised: Vec<(TensorId, Vec<u8>, Vec<f32>)> = Vec::new();
         if int8 {
@@ -405,8 +418,14 @@ impl NavModel {
             specs.push(TensorSpec { id, data });
         }
         let mut out = vec![0u8; encoded_len_bound(&specs)];
-        let n = encode_with_flags(&self.dims, self.blob_flags(), &specs, &mut out)
-            .map_err(|e| anyhow!("encoding the blob: {e}"))?;
+        let n = encode_with_settings(
+            &self.dims,
+            self.blob_flags(),
+            self.adapt_settings(),
+            &specs,
+            &mut out,
+        )
+        .map_err(|e| anyhow!("encoding the blob: {e}"))?;
         out.truncate(n);
         Ok(out)
     }
@@ -414,7 +433,11 @@ impl NavModel {
 
 /// Loads a model parameter set from the tensors of a blob (dequantising int8), so a blob can
 /// be evaluated like a checkpoint. The method comes from the blob's flags (adapting or not)
-/// and its PS width; `method` overrides it.
+/// and its PS width; `method` overrides it. The noise comes from the flags and `inner_lr` /
+/// `max_inner` from the header's inner-loop settings (a v1 blob: 1e-4 and 4), so that
+/// without an override [`NavModel::nav_config`]`(false)` is the blob's
+/// `NavConfig::from_header` with sampled actions. A blob whose α1 and α2 differ is refused
+/// (a `NavModel` has one inner rate).
 pub fn model_from_blob(bytes: &[u8], method: Option<Method>) -> Result<NavModel> {
     let blob = Blob::parse(bytes).map_err(|e| anyhow!("{e}"))?;
     let dims = blob.dims();
@@ -442,14 +465,23 @@ pub fn model_from_blob(bytes: &[u8], method: Option<Method>) -> Result<NavModel>
     } else {
         NoiseMode::Gaussian
     };
+    let settings = blob.header().adapt_settings();
+    if settings.alpha_disc.to_bits() != settings.alpha_adapt.to_bits() {
+        bail!(
+            "the blob's inner-loop rates differ (alpha_disc {}, alpha_adapt {}); the host \
+             models one rate for both (--inner-lr)",
+            settings.alpha_disc,
+            settings.alpha_adapt
+        );
+    }
     Ok(NavModel {
         method,
         dims,
         params,
         ps: None,
         noise,
-        inner_lr: 1e-4,
-        max_inner: DEFAULT_MAX_INNER,
+        inner_lr: settings.alpha_adapt,
+        max_inner: settings.max_inner,
         blob: Some(std::sync::Arc::new(bytes.to_vec())),
     })
 }
