@@ -413,15 +413,13 @@ fn v1_blobs_still_parse_with_the_paper_settings() {
         (d.alpha_disc, d.alpha_adapt, d.max_inner_updates)
     );
     assert_eq!(cfg.noise, NoiseMode::Zero);
-    // A real v1 file shipped in the repository parses too (while it is v1).
+    // The shipped GMAN model (v2, trained with the paper's inner loop) parses with those
+    // settings, whichever version it is stored in.
     let shipped = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("../host-sim/models/gman-mcu-int8-seed1.gman");
-    if let Ok(bytes) = std::fs::read(shipped) {
-        let b = Blob::parse(&bytes).unwrap();
-        if b.header().version() == 1 {
-            assert_eq!(b.header().adapt_settings(), AdaptSettings::PAPER);
-        }
-    }
+    let bytes = std::fs::read(shipped).expect("shipped model");
+    let b = Blob::parse(&bytes).unwrap();
+    assert_eq!(b.header().adapt_settings(), AdaptSettings::PAPER);
     // Every truncation of a v1 blob is rejected; a bad v1 checksum is typed.
     for n in 0..v1.len().min(200) {
         assert!(
