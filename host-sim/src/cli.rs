@@ -305,14 +305,20 @@ pub struct SceneArgs {
     pub seed: u64,
 }
 
-/// Runs a parsed command line.
-pub fn run(cli: Cli) -> Result<()> {
+/// Runs a parsed command line (`matches` tells which flags were given explicitly).
+pub fn run(cli: Cli, matches: &clap::ArgMatches) -> Result<()> {
     match cli.command {
         Commands::Eval(a) => eval(a),
         Commands::Scene(a) => scene(a),
         Commands::PretrainFg(a) => pretrain_fg(a),
         Commands::PretrainPs(a) => pretrain_ps(a),
-        Commands::Train(a) => crate::cli_nav::cmd_train(a),
+        Commands::Train(a) => {
+            let sub = matches.subcommand_matches("train");
+            let explicit = |id: &str| {
+                sub.and_then(|m| m.value_source(id)) == Some(clap::parser::ValueSource::CommandLine)
+            };
+            crate::cli_nav::cmd_train(a, &explicit)
+        }
         Commands::Export(a) => crate::cli_nav::cmd_export(a),
         Commands::Inspect(a) => crate::cli_nav::cmd_inspect(a),
         Commands::Plot(a) => crate::cli_nav::cmd_plot(a),

@@ -267,8 +267,29 @@ fn ensure_ps(world: &World, given: Option<&Path>, dir: &Path, seed: u64) -> Resu
     Ok(path)
 }
 
-/// `gman train`.
-pub fn cmd_train(a: TrainArgs) -> Result<()> {
+/// One trainer setting of a resumed run: the value stored in its checkpoint wins; a flag
+/// given explicitly on the command line must agree with it (otherwise the resumed run would
+/// silently differ from an uninterrupted one). Checkpoints written before the setting was
+/// stored fall back to the command line.
+fn resumed<T: PartialEq + std::fmt::Debug>(
+    flag: &str,
+    cli: T,
+    stored: Option<T>,
+    explicit: bool,
+) -> Result<T> {
+    match stored {
+        Some(v) if explicit && v != cli => bail!(
+            "{flag} {cli:?} conflicts with the resumed run, which was trained with {v:?}; a \
+             resumed run keeps its own settings (omit the flag, or start a new run with --out)"
+        ),
+        Some(v) => Ok(v),
+        None => Ok(cli),
+    }
+}
+
+/// `gman train`. `explicit(id)` says whether the flag of field `id` was given on the command
+/// line (on `--resume`, only those are checked against the checkpoint's settings).
+pub fn cmd_train(a: TrainArgs, explicit: &dyn Fn(&str) -> bool) -> Result<()> {
     if a.workers == 0 || a.checkpoint_every == 0 {
         bail!("--workers and --checkpoint-every must be at least 1");
     }
@@ -282,10 +303,12 @@ pub fn cmd_train(a: TrainArgs) -> Result<()> {
         bail!("--lr must be positive");
     }
     let world = a.world.load()?;
+    let mut stored = serde_json::Value::Null;
     let (out, mut state) = match &a.resume {
         Some(dir) => {
-            let st = TrainState::load(&checkpoint_path(dir))
+            let (st, meta) = TrainState::load_with_options(&checkpoint_path(dir))
                 .with_context(|| format!("resuming {}", dir.display()))?;
+            stored = meta;
             eprintln!(
                 "resuming {} ({}) at update {}",
                 dir.display(),
@@ -340,11 +363,7 @@ pub fn cmd_train(a: TrainArgs) -> Result<()> {
             (out, TrainState::new(model, adam))
         }
     };
-    if a.resume.is_none() {
-        state.model.inner_lr = a.inner_lr;
-        state.model.max_inner = a.max_inner;
-    }
-    let opts = TrainOptions {
+    let mut opts = TrainOptions {
         updates,
         seed: a.seed,
         workers: a.workers,
@@ -365,6 +384,88 @@ pub fn cmd_train(a: TrainArgs) -> Result<()> {
         out: out.clone(),
         progress: !a.quiet,
     };
+    if a.resume.is_none() {
+        state.model.inner_lr = a.inner_lr;
+        state.model.max_inner = a.max_inner;
+    } else {
+        // Continue with the run's own settings (bit-exact resume); explicit flags must agree.
+        let t = &stored;
+        let u = |k: &str| t.get(k).and_then(|v| v.as_u64());
+        let m = &state.model;
+        resumed(
+            "--inner-lr",
+            a.inner_lr,
+            Some(m.inner_lr),
+            explicit("inner_lr"),
+        )?;
+        resumed(
+            "--max-inner",
+            a.max_inner,
+            Some(m.max_inner),
+            explicit("max_inner"),
+        )?;
+        resumed("--method", a.method, Some(m.method), explicit("method"))?;
+        opts.seed = resumed("--seed", a.seed, u("seed"), explicit("seed"))?;
+        opts.workers = resumed(
+            "--workers",
+            a.workers,
+            u("workers").map(|v| v as usize),
+            explicit("workers"),
+        )?;
+        opts.min_steps = resumed(
+            "--min-steps",
+            a.min_steps,
+            u("min_steps").map(|v| v as u32),
+            explicit("min_steps"),
+        )?;
+        opts.min_start_actions = resumed(
+            "--min-start-actions",
+            a.min_start_actions,
+            u("min_start_actions").map(|v| v as u32),
+            explicit("min_start_actions"),
+        )?;
+        opts.max_steps = resumed(
+            "--max-steps",
+            a.max_steps,
+            t.get("max_steps").map(|v| v.as_u64().map(|x| x as u32)),
+            explicit("max_steps"),
+        )?;
+        opts.meta_order = resumed(
+            "--meta-order",
+            a.meta_order,
+            u("meta_order").map(|v| v as u8),
+            explicit("meta_order"),
+        )?;
+        let reward = t.get("reward").and_then(|v| v.as_str()).and_then(|name| {
+            [
+                RewardKind::Navigation,
+                RewardKind::Distance,
+                RewardKind::Similarity,
+                RewardKind::Mixed,
+            ]
+            .into_iter()
+            .find(|k| format!("{k:?}") == name)
+        });
+        opts.reward = resumed("--reward", a.reward, reward, explicit("reward"))?;
+        if let Some(adam) = t
+            .get("adam")
+            .and_then(|v| serde_json::from_value::<AdamConfig>(v.clone()).ok())
+        {
+            resumed("--lr", lr, Some(adam.lr), explicit("lr"))?;
+            opts.adam = adam;
+        }
+        if let Some(a3c) = t.get("a3c").and_then(|v| {
+            serde_json::from_value::<gman_host_sim::nav::a3c::A3cConfig>(v.clone()).ok()
+        }) {
+            resumed(
+                "--entropy",
+                a.entropy,
+                Some(a3c.entropy),
+                explicit("entropy"),
+            )?;
+            opts.a3c = a3c;
+        }
+    }
     let t0 = Instant::now();
     let steps0 = state.env_steps;
     train(&world, &opts, &mut state)?;

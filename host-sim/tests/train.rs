@@ -370,3 +370,72 @@ fn cli_bad_input_gives_clear_errors() {
     assert!(!ok && err.contains("file"), "{err}");
     assert!(!err.contains("panicked"), "{err}");
 }
+
+/// `--resume` continues with the settings stored in the checkpoint, not the command line's
+/// defaults: a run with non-default settings, stopped and resumed without repeating its
+/// flags, ends with the same checkpoint as an uninterrupted run; a conflicting explicit flag
+/// is refused.
+#[test]
+fn cli_resume_keeps_the_runs_settings() {
+    let d = tmpdir("resume-settings");
+    let (a, b) = (d.join("a"), d.join("b"));
+    let common = [
+        "train",
+        "--method",
+        "a3c",
+        "--config",
+        "tiny",
+        "--reward",
+        "distance",
+        "--min-steps",
+        "12",
+        "--workers",
+        "1",
+        "--seed",
+        "5",
+        "--entropy",
+        "0.05",
+        "--checkpoint-every",
+        "2",
+        "--quiet",
+    ];
+    let run = |extra: &[&str]| {
+        let mut args: Vec<&str> = common.to_vec();
+        args.extend_from_slice(extra);
+        gman(&args)
+    };
+    let (ok, err) = run(&["--updates", "4", "--out", a.to_str().unwrap()]);
+    assert!(ok, "{err}");
+    let (ok, err) = run(&["--updates", "2", "--out", b.to_str().unwrap()]);
+    assert!(ok, "{err}");
+    let (ok, err) = gman(&[
+        "train",
+        "--resume",
+        b.to_str().unwrap(),
+        "--updates",
+        "4",
+        "--quiet",
+    ]);
+    assert!(ok, "{err}");
+    let ck = |p: &std::path::Path| std::fs::read(p.join("checkpoint.ckpt")).unwrap();
+    assert!(
+        ck(&a) == ck(&b),
+        "resumed run differs from the uninterrupted one"
+    );
+    let (ok, err) = gman(&[
+        "train",
+        "--resume",
+        b.to_str().unwrap(),
+        "--updates",
+        "6",
+        "--reward",
+        "mixed",
+        "--quiet",
+    ]);
+    assert!(!ok, "a conflicting --reward was accepted");
+    assert!(
+        err.contains("--reward") && err.contains("conflicts"),
+        "{err}"
+    );
+    assert!(!err.contains("panicked"), "{err}");
+}

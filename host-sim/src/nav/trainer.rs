@@ -139,6 +139,14 @@ impl TrainState {
 
     /// Restores a state saved by [`TrainState::save`].
     pub fn load(path: &Path) -> Result<TrainState> {
+        Ok(Self::load_with_options(path)?.0)
+    }
+
+    /// Restores a state like [`TrainState::load`] and also returns the trainer options the
+    /// run was last saved with (the `trainer` object of the checkpoint's metadata: seed,
+    /// workers, reward, Adam and A3C settings, meta-gradient order, ...), so that a resumed
+    /// run can continue with exactly the settings it was trained with.
+    pub fn load_with_options(path: &Path) -> Result<(TrainState, serde_json::Value)> {
         let ck = Checkpoint::load(path)?;
         let model = NavModel::from_checkpoint(&ck)?;
         let adam = Adam::from_bytes(ck.blob("adam")?, &model.params)?;
@@ -148,13 +156,14 @@ impl TrainState {
                 .and_then(|v| v.as_u64())
                 .with_context(|| format!("checkpoint trainer.{k} missing"))
         };
-        Ok(TrainState {
+        let state = TrainState {
             model,
             adam,
             update: get("update")?,
             episodes: get("episodes")?,
             env_steps: get("env_steps")?,
-        })
+        };
+        Ok((state, t.clone()))
     }
 }
 
