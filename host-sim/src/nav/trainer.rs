@@ -24,7 +24,13 @@
 //!   `(seed, update, worker)`, so a run is reproducible bit for bit for a given worker count
 //!   and a resumed run continues exactly where the checkpoint left off.
 //! * **Baselines** run the same loop with the inner loop off (`a3c`, `a3c-fg`, `gman-nometa`):
-//!   plain synchronous advantage actor-critic.
+//!   plain synchronous advantage actor-critic, with G's θ frozen at its pre-trained value.
+//! * **The `gman-noemd` control** runs the loop with the inner loop off but lets Adam train θ
+//!   like GMAN does, so comparing it with `gman` isolates what the inner loop (the EMD) adds
+//!   and comparing it with `a3c-fg` what training θ adds (README "Results").
+//! * **Resuming** (`gman train --resume`) restores the model, Adam's state, the counters and
+//!   the trainer settings stored in the checkpoint, so a resumed run ends bit for bit where
+//!   an uninterrupted one does.
 
 use std::fs::{File, OpenOptions};
 use std::io::{BufRead, BufReader, Write};
