@@ -41,22 +41,28 @@ for s in 1 2 3; do
   [ -f "$R/eval-long/gman-nometa/seed$s.json" ] || $G eval --data "$D" --split val \
     --agent "$R/long-a3c-fg-seed$s/checkpoint.ckpt" --method gman-nometa \
     --json "$R/eval-long/gman-nometa/seed$s.json" --quiet
-  # GMAN with the inner loop switched off at test time.
-  mkdir -p "$R/eval-long/gman-adapt-off"
-  [ -f "$R/eval-long/gman-adapt-off/seed$s.json" ] || $G eval --data "$D" --split val \
-    --agent "$R/long-gman-seed$s/checkpoint.ckpt" --method gman-noemd \
-    --json "$R/eval-long/gman-adapt-off/seed$s.json" --quiet
+  # The meta-trained methods with the inner loop switched off at test time.
+  for pair in gman:gman-noemd gman-cossim:gman-noemd gman-ps:a3c-fg-ps; do
+    m=${pair%%:*}; as=${pair##*:}
+    case " $METHODS " in *" $m "*) ;; *) continue ;; esac
+    mkdir -p "$R/eval-long/$m-adapt-off"
+    [ -f "$R/eval-long/$m-adapt-off/seed$s.json" ] || $G eval --data "$D" --split val \
+      --agent "$R/long-$m-seed$s/checkpoint.ckpt" --method "$as" \
+      --json "$R/eval-long/$m-adapt-off/seed$s.json" --quiet
+  done
 done
 # Single-seed probes: meta-training with larger inner rates, and without the similarity
 # reward for an unsuccessful Done.
 run gman-a0.01 gman 1 --inner-lr 0.01
 run gman-a0.1 gman 1 --inner-lr 0.1
 run gman-rdist gman 1 --reward distance
-$G table --runs "$R/eval/random.json" $(for m in $METHODS gman-nometa gman-adapt-off gman-a0.01 gman-a0.1 gman-rdist; do echo "$R/eval-long/$m"; done)
+$G table --runs "$R/eval/random.json" $(for m in $METHODS gman-nometa gman-adapt-off gman-cossim-adapt-off gman-ps-adapt-off gman-a0.01 gman-a0.1 gman-rdist; do echo "$R/eval-long/$m"; done)
 # Diagnostics on seed 1: when agents stop, and whether G's output moves under adaptation
 # at the paper's inner rate and larger ones (test time only).
 ./target/release/examples/done_analysis "$D" 1000 random $(for m in a3c a3c-fg gman gman-noemd gman-rdist; do echo "$R/long-$m-seed1/checkpoint.ckpt"; done)
 for a in 1e-4 1e-3 1e-2 1e-1; do
   ./target/release/examples/emd_analysis "$R/long-gman-seed1/checkpoint.ckpt" "$D" 1000 "$a"
 done
-./target/release/examples/emd_analysis "$R/long-gman-a0.01-seed1/checkpoint.ckpt" "$D" 1000
+for m in gman-a0.01 gman-cossim gman-noemd; do
+  ./target/release/examples/emd_analysis "$R/long-$m-seed1/checkpoint.ckpt" "$D" 1000
+done
