@@ -178,7 +178,7 @@ pub struct PretrainPsArgs {
 /// Options that choose the world.
 #[derive(Debug, Args, Clone)]
 pub struct WorldArgs {
-    /// Data directory (attributes.json, scenes/<split>/, episodes/<split>/). Without it the
+    /// Data directory (`attributes.json`, `scenes/<split>/`, `episodes/<split>/`). Without it the
     /// built-in synthetic demo world is used.
     #[arg(long, value_name = "DIR")]
     pub data: Option<PathBuf>,

@@ -12,7 +12,7 @@
 //! * [`tables`]: lazily cached per-scene state tables (observations, BFS goal distances).
 //! * [`reward`], [`metrics`]: rewards (Sec. 5.1) and SR/SPL/EPA/DTS.
 //! * [`world`]: the [`World`] (loading, episodes, training sampler).
-//! * [`env`]: one episode ([`Env`]).
+//! * [`env`](mod@env): one episode ([`Env`]).
 //! * [`synthetic`]: the built-in demo world.
 //! * [`eval`]: agents and the parallel evaluator.
 //! * [`render`]: top-down PNG maps of scenes.

@@ -9,7 +9,7 @@
 //!   Instances of one category whose centres are within 0.3 m (horizontally and vertically)
 //!   are one object seen by two AI2THOR versions: they are merged and keep every id.
 //! * **Placed instances**: every category of `object_types` without a known instance gets
-//!   [`CategoryProps::instances`] instances placed by a seeded rule: choose a *boundary slot*
+//!   [`CategoryProps::instances`](super::types::CategoryProps::instances) instances placed by a seeded rule: choose a *boundary slot*
 //!   (a reachable cell and a side whose 4-neighbour is not reachable; unused slots first) and
 //!   put the object's centre `0.2 m + radius` from the cell centre towards that side, jittered
 //!   by up to +-0.1 m along the wall, at the category's typical height. The seed is a hash of

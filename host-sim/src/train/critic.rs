@@ -1,5 +1,5 @@
 //! The conditional WGAN-GP critic `D_c(x, SE(y))` used to pre-train the feature generator
-//! (f-CLSWGAN style, paper Sec. 4.1 / ref. [58]). Host-only: the on-device discriminator of
+//! (f-CLSWGAN style, paper Sec. 4.1 / ref. \[58\]). Host-only: the on-device discriminator of
 //! the environmental meta discriminator is gman-core's unconditional
 //! [`gman_core::discriminator::Discriminator`].
 //!
