@@ -51,6 +51,10 @@ for s in 1 2 3; do
       --json "$R/eval-long/$m-adapt-off/seed$s.json" --quiet
   done
 done
+# Seeds 4 and 5 of the three methods whose comparison decides the attribution (README).
+for s in 4 5; do
+  for m in gman-cossim gman-noemd gman; do run "$m" "$m" "$s"; done
+done
 # Single-seed probes: meta-training with larger inner rates, and without the similarity
 # reward for an unsuccessful Done.
 run gman-a0.01 gman 1 --inner-lr 0.01
