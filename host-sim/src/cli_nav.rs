@@ -287,6 +287,12 @@ fn resumed<T: PartialEq + std::fmt::Debug>(
     }
 }
 
+/// An integer trainer setting stored in a checkpoint's metadata; `None` when it is missing or
+/// does not fit `T` (then [`resumed`] falls back to the command line).
+fn stored_int<T: TryFrom<u64>>(trainer: &serde_json::Value, key: &str) -> Option<T> {
+    trainer.get(key)?.as_u64()?.try_into().ok()
+}
+
 /// `gman train`. `explicit(id)` says whether the flag of field `id` was given on the command
 /// line (on `--resume`, only those are checked against the checkpoint's settings).
 pub fn cmd_train(a: TrainArgs, explicit: &dyn Fn(&str) -> bool) -> Result<()> {
@@ -390,7 +396,6 @@ pub fn cmd_train(a: TrainArgs, explicit: &dyn Fn(&str) -> bool) -> Result<()> {
     } else {
         // Continue with the run's own settings (bit-exact resume); explicit flags must agree.
         let t = &stored;
-        let u = |k: &str| t.get(k).and_then(|v| v.as_u64());
         let m = &state.model;
         resumed(
             "--inner-lr",
@@ -405,47 +410,43 @@ pub fn cmd_train(a: TrainArgs, explicit: &dyn Fn(&str) -> bool) -> Result<()> {
             explicit("max_inner"),
         )?;
         resumed("--method", a.method, Some(m.method), explicit("method"))?;
-        opts.seed = resumed("--seed", a.seed, u("seed"), explicit("seed"))?;
+        opts.seed = resumed("--seed", a.seed, stored_int(t, "seed"), explicit("seed"))?;
         opts.workers = resumed(
             "--workers",
             a.workers,
-            u("workers").map(|v| v as usize),
+            stored_int(t, "workers"),
             explicit("workers"),
         )?;
         opts.min_steps = resumed(
             "--min-steps",
             a.min_steps,
-            u("min_steps").map(|v| v as u32),
+            stored_int(t, "min_steps"),
             explicit("min_steps"),
         )?;
         opts.min_start_actions = resumed(
             "--min-start-actions",
             a.min_start_actions,
-            u("min_start_actions").map(|v| v as u32),
+            stored_int(t, "min_start_actions"),
             explicit("min_start_actions"),
         )?;
+        // `null` is stored for "the per-room default", so present-but-null means `None`.
         opts.max_steps = resumed(
             "--max-steps",
             a.max_steps,
-            t.get("max_steps").map(|v| v.as_u64().map(|x| x as u32)),
+            t.get("max_steps").map(|_| stored_int(t, "max_steps")),
             explicit("max_steps"),
         )?;
         opts.meta_order = resumed(
             "--meta-order",
             a.meta_order,
-            u("meta_order").map(|v| v as u8),
+            stored_int(t, "meta_order"),
             explicit("meta_order"),
         )?;
-        let reward = t.get("reward").and_then(|v| v.as_str()).and_then(|name| {
-            [
-                RewardKind::Navigation,
-                RewardKind::Distance,
-                RewardKind::Similarity,
-                RewardKind::Mixed,
-            ]
-            .into_iter()
-            .find(|k| format!("{k:?}") == name)
-        });
+        // Stored as the variant's Debug name ("Mixed"); the lower-case form is its CLI name.
+        let reward = t
+            .get("reward")
+            .and_then(|v| v.as_str())
+            .and_then(|name| name.to_ascii_lowercase().parse::<RewardKind>().ok());
         opts.reward = resumed("--reward", a.reward, reward, explicit("reward"))?;
         if let Some(adam) = t
             .get("adam")
