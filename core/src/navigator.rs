@@ -656,6 +656,7 @@ pub struct Navigator<'w, M: Mode, const K: usize> {
     n_buf: usize,
     ready: bool,
     x_valid: bool,
+    x_fixed: bool,
     last: AdaptReport,
     _mode: PhantomData<M>,
 }
@@ -691,6 +692,7 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
             n_buf: 0,
             ready: false,
             x_valid: false,
+            x_fixed: false,
             last: AdaptReport::default(),
             _mode: PhantomData,
         };
@@ -747,11 +749,34 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
         self.rng = Xoshiro128::seed_from_u64(seed);
         self.n_buf = 0;
         self.x_valid = false;
+        self.x_fixed = false;
         self.ready = true;
         let c = &mut self.counters;
         c.steps = 0;
         c.adaptations = 0;
         c.rollbacks = 0;
+        Ok(())
+    }
+
+    /// Replaces the generated feature x_t by `x` (`feat` floats) for the rest of the episode
+    /// (until the next [`Navigator::reset`]): G is not run in `step()` and the policy sees
+    /// `x` every step. This is a diagnostic for hosts, not part of Algorithm 1: the trainer's
+    /// privileged-feature bound feeds the target's true feature in the scene here, i.e. what
+    /// a perfectly adapted G would produce. Use it with the inner loop off (`adapt: false`);
+    /// the inner update would still score G's own output, not `x`.
+    pub fn fix_generated_feature(&mut self, x: &[f32]) -> Result<()> {
+        if !self.ready {
+            return Err(Error::Config {
+                what: "call reset() before fix_generated_feature()",
+            });
+        }
+        check_len("fix_generated_feature.x", self.w.dims.feat, x.len())?;
+        if !all_finite(x) {
+            return Err(Error::NonFiniteInput { what: "x" });
+        }
+        self.r.x.copy_from_slice(x);
+        self.r.z.fill(0.0);
+        self.x_fixed = true;
         Ok(())
     }
 
@@ -891,8 +916,9 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
             return Err(Error::NonFiniteInput { what: "ps" });
         }
         self.r.ps.copy_from_slice(ps);
-        // Line 7: x_t = G_θi(SE(y), z_t).
+        // Line 7: x_t = G_θi(SE(y), z_t) (unless the caller fixed x_t for this episode).
         match self.cfg.noise {
+            _ if self.x_fixed => {}
             NoiseMode::Gaussian => {
                 fill_gaussian(&mut self.rng, self.r.z);
                 self.generate()?;

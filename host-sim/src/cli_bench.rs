@@ -508,6 +508,7 @@ fn train_rows(updates: u64) -> Result<Vec<TrainRow>> {
                 adam,
                 a3c: Default::default(),
                 checkpoint_every: updates.max(1) * 10,
+                objective: Default::default(),
                 meta_order: 1,
                 out: out.clone(),
                 progress: false,

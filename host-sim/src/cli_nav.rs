@@ -8,6 +8,7 @@ use std::time::Instant;
 use anyhow::{anyhow, bail, Context, Result};
 use clap::{Args, ValueEnum};
 use gman_core::blob::{Blob, Quant, FLAG_ADAPT, FLAG_ZERO_NOISE};
+use gman_host_sim::nav::a3c::Objective;
 use gman_host_sim::nav::agent::NavAgent;
 use gman_host_sim::nav::model::{load_model, Method, NavModel};
 use gman_host_sim::nav::trainer::{checkpoint_path, train, TrainOptions, TrainState};
@@ -91,6 +92,14 @@ pub struct TrainArgs {
     /// Checkpoint every N updates.
     #[arg(long, default_value_t = 100)]
     pub checkpoint_every: u64,
+    /// Training objective: `a3c` (the paper's actor-critic loss) or `dagger` (imitation of
+    /// the shortest-path oracle on the learner's own states: the imitation ceiling).
+    #[arg(long, value_enum, default_value = "a3c")]
+    pub objective: Objective,
+    /// The privileged-feature ceiling: the policy sees the target's true feature in the
+    /// current scene in place of G's output (not exportable; methods without inner loop).
+    #[arg(long)]
+    pub privileged_feature: bool,
     /// Meta-gradient order: 1 = first-order MAML (the gradient at the adapted parameters),
     /// 2 = exact through the inner SGD steps (Hessian-vector products by central finite
     /// differences of gradients).
@@ -361,7 +370,13 @@ pub fn cmd_train(a: TrainArgs, explicit: &dyn Fn(&str) -> bool) -> Result<()> {
             } else {
                 None
             };
-            let model = NavModel::init(a.method, a.preset.dims(), a.seed, gen.as_ref(), psm)?;
+            let mut model = NavModel::init(a.method, a.preset.dims(), a.seed, gen.as_ref(), psm)?;
+            if a.privileged_feature {
+                if model.method.adapts_in_training() {
+                    bail!("--privileged-feature replaces G's output, so it goes with a method without inner loop (a3c, a3c-fg, a3c-ps, a3c-fg-ps), not {}", model.method.name());
+                }
+                model.privileged = true;
+            }
             let adam = AdamConfig {
                 lr,
                 ..AdamConfig::default()
@@ -386,6 +401,7 @@ pub fn cmd_train(a: TrainArgs, explicit: &dyn Fn(&str) -> bool) -> Result<()> {
             ..Default::default()
         },
         checkpoint_every: a.checkpoint_every,
+        objective: a.objective,
         meta_order: a.meta_order,
         out: out.clone(),
         progress: !a.quiet,
@@ -410,6 +426,21 @@ pub fn cmd_train(a: TrainArgs, explicit: &dyn Fn(&str) -> bool) -> Result<()> {
             explicit("max_inner"),
         )?;
         resumed("--method", a.method, Some(m.method), explicit("method"))?;
+        resumed(
+            "--privileged-feature",
+            a.privileged_feature,
+            Some(m.privileged),
+            explicit("privileged_feature"),
+        )?;
+        // Runs from before the objective existed were A3C runs.
+        let objective = match t.get("objective").and_then(|v| v.as_str()) {
+            Some(name) => Some(
+                Objective::from_str(name, true)
+                    .map_err(|e| anyhow!("checkpoint trainer.objective {name:?}: {e}"))?,
+            ),
+            None => Some(Objective::A3c),
+        };
+        opts.objective = resumed("--objective", a.objective, objective, explicit("objective"))?;
         opts.seed = resumed("--seed", a.seed, stored_int(t, "seed"), explicit("seed"))?;
         opts.workers = resumed(
             "--workers",
@@ -927,6 +958,7 @@ pub fn cmd_demo(a: DemoArgs) -> Result<()> {
             },
             a3c: Default::default(),
             checkpoint_every: 100,
+            objective: Default::default(),
             meta_order: 1,
             out: dir.clone(),
             progress: true,

@@ -106,14 +106,29 @@ fn loss64(
         let logp: Vec<f64> = logits.iter().map(|l| l - lse).collect();
         let ent: f64 = -logp.iter().map(|l| l.exp() * l).sum::<f64>();
         let v = critic.forward(&h)[0];
-        loss += -logp[s.action] * adv[t] - cfg.entropy as f64 * ent
-            + cfg.value_coef as f64 * 0.5 * (rets[t] - v).powi(2);
+        let policy = match &s.expert {
+            // Imitation (DAgger): cross-entropy to the oracle's distribution, no entropy bonus.
+            Some(e) => -e.iter().zip(&logp).map(|(&q, l)| q as f64 * l).sum::<f64>(),
+            None => -logp[s.action] * adv[t] - cfg.entropy as f64 * ent,
+        };
+        loss += policy + cfg.value_coef as f64 * 0.5 * (rets[t] - v).powi(2);
     }
     loss
 }
 
 #[test]
 fn a3c_segment_gradient_matches_finite_differences() {
+    check_segment_gradient(false);
+}
+
+/// The DAgger objective (cross-entropy to the oracle's action distribution) through the same
+/// BPTT code.
+#[test]
+fn imitation_segment_gradient_matches_finite_differences() {
+    check_segment_gradient(true);
+}
+
+fn check_segment_gradient(imitation: bool) {
     let p = params(1);
     let weights = NavWeights::from_fn(&TINY, |id| {
         let (r, c) = id.shape(&TINY);
@@ -151,6 +166,15 @@ fn a3c_segment_gradient_matches_finite_differences() {
             action: out.action.index(),
             reward: uniform(&mut rng) - 0.3,
             probs: out.probs,
+            expert: imitation.then(|| {
+                // A distribution over one or two "optimal" actions, as the oracle gives.
+                let mut e = [0.0f32; 6];
+                let a = (uniform(&mut rng) * 6.0) as usize % 6;
+                let b = (a + 1 + (uniform(&mut rng) * 2.0) as usize) % 6;
+                e[a] += 0.5;
+                e[b] += 0.5;
+                e
+            }),
         });
     }
     let a3c = A3cConfig::default();

@@ -123,6 +123,7 @@ fn record(p: &ParamSet, kind: AdaptLossKind) -> Recorded {
                 action: out.action.index(),
                 reward: uniform(&mut rng) - 0.3,
                 probs: out.probs,
+                expert: None,
             });
         }
         let last = j + 1 == SEGMENTS;

@@ -48,6 +48,42 @@ impl Default for A3cConfig {
     }
 }
 
+/// What the policy is trained to do.
+#[derive(
+    Clone,
+    Copy,
+    Debug,
+    Default,
+    PartialEq,
+    Eq,
+    serde::Serialize,
+    serde::Deserialize,
+    clap::ValueEnum,
+)]
+#[serde(rename_all = "kebab-case")]
+pub enum Objective {
+    /// The A3C loss L_nav of the module docs (the paper's). Default.
+    #[default]
+    A3c,
+    /// Imitation of the shortest-path oracle, DAgger-style: the learner acts (sampled
+    /// actions, so it visits its own states), and every step is labelled with the oracle's
+    /// optimal actions (uniform over the actions on a shortest path to a goal-visible state,
+    /// Done once the target is visible). The policy term becomes the cross-entropy
+    /// `−Σ_a π*(a) log π(a)` (no entropy bonus); the critic keeps its A3C value loss. A
+    /// ceiling diagnostic: what this network can learn from these observations.
+    Dagger,
+}
+
+impl Objective {
+    /// The name used on the command line and in checkpoints.
+    pub fn name(self) -> &'static str {
+        match self {
+            Objective::A3c => "a3c",
+            Objective::Dagger => "dagger",
+        }
+    }
+}
+
 /// The parts of L_nav over a segment.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct SegmentLoss {
@@ -126,6 +162,14 @@ pub fn output_grads(
         let logp: Vec<f32> = p.iter().map(|&q| q.max(1e-12).ln()).collect();
         let h: f32 = -p.iter().zip(&logp).map(|(q, l)| q * l).sum::<f32>();
         loss.entropy += h as f64;
+        if let Some(e) = &s.expert {
+            // Imitation: cross-entropy to the oracle's distribution, ∂/∂logits = π − π*.
+            for i in 0..NUM_ACTIONS {
+                loss.policy -= (e[i] * logp[i]) as f64;
+                dl[t][i] = p[i] - e[i];
+            }
+            continue;
+        }
         loss.policy -= (logp[s.action] * gae) as f64;
         for i in 0..NUM_ACTIONS {
             let onehot = if i == s.action { 1.0 } else { 0.0 };

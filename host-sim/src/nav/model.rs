@@ -146,6 +146,11 @@ pub struct NavModel {
     /// in place (int8 stays int8), exactly as on the device. `params` holds a dequantised
     /// copy for inspection.
     pub blob: Option<std::sync::Arc<Vec<u8>>>,
+    /// The privileged-feature bound (a diagnostic, not a deployable model): the policy sees
+    /// the target's true feature in the current scene (`World::object_feature`) in place of
+    /// G's output x_t, in training and at evaluation, i.e. what a perfectly adapted G would
+    /// give. G is not run or trained; such a model cannot be exported to a blob.
+    pub privileged: bool,
 }
 
 impl NavModel {
@@ -211,6 +216,7 @@ impl NavModel {
             inner_lr: 1e-4,
             max_inner: DEFAULT_MAX_INNER,
             blob: None,
+            privileged: false,
         })
     }
 
@@ -280,6 +286,7 @@ impl NavModel {
             "ps_hidden": self.ps.as_ref().map(|p| p.hidden),
             "inner_lr": self.inner_lr,
             "max_inner": self.max_inner,
+            "privileged": self.privileged,
         })
     }
 
@@ -367,6 +374,10 @@ impl NavModel {
             inner_lr,
             max_inner,
             blob: None,
+            privileged: meta
+                .get("privileged")
+                .and_then(|v| v.as_bool())
+                .unwrap_or(false),
         })
     }
 
@@ -400,6 +411,9 @@ impl NavModel {
     /// inner-loop settings ([`NavModel::adapt_settings`]), so a device running
     /// `NavConfig::from_header` adapts exactly as this model was trained and evaluated.
     pub fn to_blob(&self, int8: bool) -> Result<Vec<u8>> {
+        if self.privileged {
+            bail!("a privileged-feature model reads the simulator's true target feature and cannot run on a device; it is not exported");
+        }
         let mut quantised: Vec<(TensorId, Vec<u8>, Vec<f32>)> = Vec::new();
         if int8 {
             for &id in TensorId::ALL.iter().filter(|id| !id.is_vector()) {
@@ -483,6 +497,7 @@ pub fn model_from_blob(bytes: &[u8], method: Option<Method>) -> Result<NavModel>
         inner_lr: settings.alpha_adapt,
         max_inner: settings.max_inner,
         blob: Some(std::sync::Arc::new(bytes.to_vec())),
+        privileged: false,
     })
 }
 

@@ -6,7 +6,7 @@ use gman_core::navigator::{Efficient, Full, Mode, Navigator};
 use gman_core::policy::{PolicyCache, PolicyInput};
 use gman_core::{Action, NUM_ACTIONS};
 
-use super::a3c::{segment_backward, A3cConfig, SegmentLoss};
+use super::a3c::{segment_backward, A3cConfig, Objective, SegmentLoss};
 use super::meta::{add_adapted, meta_backward, take_adapted, InnerSetup, InnerStep};
 use super::model::NavModel;
 use super::K;
@@ -37,6 +37,8 @@ pub struct StepRec {
     pub reward: f32,
     /// Action probabilities.
     pub probs: [f32; NUM_ACTIONS],
+    /// The oracle's action distribution (imitation objective only; `None` for A3C).
+    pub expert: Option<[f32; NUM_ACTIONS]>,
 }
 
 /// Summary of a training episode.
@@ -59,6 +61,37 @@ pub struct EpisodeStats {
     pub adapt_loss: f32,
     /// The A3C loss parts.
     pub loss: SegmentLoss,
+}
+
+/// The oracle's distribution over the actions on a shortest path to a goal-visible state
+/// (Done when the target is visible or cannot be reached).
+pub fn expert_distribution(env: &Env<'_>) -> [f32; NUM_ACTIONS] {
+    let acts = env.oracle().optimal_actions();
+    let mut e = [0.0f32; NUM_ACTIONS];
+    if acts.is_empty() {
+        e[Action::Done.index()] = 1.0;
+    } else {
+        let w = 1.0 / acts.len() as f32;
+        for a in acts {
+            e[a.index()] = w;
+        }
+    }
+    e
+}
+
+/// Starts `nav` on `spec`'s target: SE(y) and the episode seed, and for the
+/// privileged-feature bound the target's true feature in the scene as x_t.
+fn begin<M: Mode>(
+    nav: &mut Navigator<'_, M, K>,
+    world: &World,
+    spec: &EpisodeSpec,
+    model: &NavModel,
+) -> Result<()> {
+    nav.reset(world.attributes(spec.target), spec.seed)?;
+    if model.privileged {
+        nav.fix_generated_feature(&world.object_feature(spec.scene, spec.target))?;
+    }
+    Ok(())
 }
 
 /// Per-worker buffers reused across episodes.
@@ -143,6 +176,7 @@ pub fn train_episode(
     reward: RewardKind,
     max_steps: u32,
     a3c: &A3cConfig,
+    objective: Objective,
     meta_order: u8,
     worker: &mut Worker,
     grads: &mut ParamSet,
@@ -150,6 +184,12 @@ pub fn train_episode(
     if !(1..=2).contains(&meta_order) {
         return Err(anyhow!("meta order must be 1 or 2, not {meta_order}"));
     }
+    if model.privileged && model.method.adapts_in_training() {
+        return Err(anyhow!(
+            "the privileged-feature bound replaces G's output and cannot adapt G; use it with a method without inner loop (a3c-fg)"
+        ));
+    }
+    let train_generator = model.method.trains_generator() && !model.privileged;
     let second = meta_order == 2 && model.method.adapts_in_training();
     // Order 2: each segment's gradient goes to `seg_g` first; its θ, φ parts are kept per
     // segment (with the inner steps) for the reverse recursion at the end of the episode.
@@ -163,7 +203,7 @@ pub fn train_episode(
     let weights = model.weights()?;
     let mut nav: Navigator<'_, Full, K> =
         Navigator::new(weights, &mut worker.arena, model.nav_config(true))?;
-    nav.reset(world.attributes(spec.target), spec.seed)?;
+    begin(&mut nav, world, spec, model)?;
     let mut env = Env::new(world, spec, reward, max_steps);
     let mut stats = EpisodeStats::default();
     let (mut gap, mut lad, mut n_upd) = (0.0f64, 0.0f64, 0u32);
@@ -176,6 +216,7 @@ pub fn train_episode(
             let h_prev = nav.hidden_state().to_vec();
             let c_prev = nav.cell_state().to_vec();
             let prev_probs = nav.prev_probs().to_vec();
+            let expert = (objective == Objective::Dagger).then(|| expert_distribution(&env));
             let out = nav.step(&obs.features, &ps)?;
             let o = env.step(out.action);
             seg.push(StepRec {
@@ -189,6 +230,7 @@ pub fn train_episode(
                 action: out.action.index(),
                 reward: o.reward,
                 probs: out.probs,
+                expert,
             });
         }
         let bootstrap = if env.is_done() {
@@ -201,26 +243,12 @@ pub fn train_episode(
         let l = match seg_g.as_mut() {
             Some(g) => {
                 g.zero();
-                let l = segment_backward(
-                    &nav,
-                    &seg,
-                    bootstrap,
-                    a3c,
-                    model.method.trains_generator(),
-                    g,
-                )?;
+                let l = segment_backward(&nav, &seg, bootstrap, a3c, train_generator, g)?;
                 seg_grads.push(take_adapted(g)?);
                 grads.add_assign(g)?;
                 l
             }
-            None => segment_backward(
-                &nav,
-                &seg,
-                bootstrap,
-                a3c,
-                model.method.trains_generator(),
-                grads,
-            )?,
+            None => segment_backward(&nav, &seg, bootstrap, a3c, train_generator, grads)?,
         };
         stats.loss.add(&l);
         if env.is_done() {
@@ -314,7 +342,7 @@ fn eval_episode_in<M: Mode>(
     let weights = model.weights()?;
     let mut nav: Navigator<'_, M, K> =
         Navigator::new(weights, &mut worker.arena, model.nav_config(false))?;
-    nav.reset(env.world().attributes(spec.target), spec.seed)?;
+    begin(&mut nav, env.world(), spec, model)?;
     while !env.is_done() {
         let obs = env.observe();
         let ps = ps_input(model, &mut worker.ps, &obs.features)?;

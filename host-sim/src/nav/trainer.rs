@@ -43,7 +43,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
-use super::a3c::{A3cConfig, SegmentLoss};
+use super::a3c::{A3cConfig, Objective, SegmentLoss};
 use super::model::NavModel;
 use super::rollout::{train_episode, EpisodeStats, Worker};
 use crate::sim::{EpisodeLimits, RewardKind, World};
@@ -73,6 +73,8 @@ pub struct TrainOptions {
     pub adam: AdamConfig,
     /// A3C loss.
     pub a3c: A3cConfig,
+    /// What the policy learns from: the A3C loss or imitation of the oracle (DAgger).
+    pub objective: Objective,
     /// Meta-gradient order: 1 (first-order MAML, the gradient at the adapted parameters
     /// applied to the pre-adaptation ones) or 2 (exact through the inner SGD steps, see
     /// [`super::meta`]).
@@ -135,6 +137,7 @@ impl TrainState {
             "adam": opts.adam,
             "a3c": opts.a3c,
             "meta_order": opts.meta_order,
+            "objective": opts.objective.name(),
         });
         let mut ck = Checkpoint::new(meta);
         self.model.add_to_checkpoint(&mut ck)?;
@@ -276,6 +279,7 @@ pub fn train(world: &World, opts: &TrainOptions, state: &mut TrainState) -> Resu
                                 opts.reward,
                                 max,
                                 &opts.a3c,
+                                opts.objective,
                                 opts.meta_order,
                                 worker,
                                 grads,
