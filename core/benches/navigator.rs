@@ -20,9 +20,8 @@ const K: usize = 20;
 
 fn tensors(d: &Dims) -> Vec<Vec<f32>> {
     let mut rng = Xoshiro128::seed_from_u64(1);
-    TensorId::ALL
-        .iter()
-        .map(|&id| {
+    TensorId::all_for(d)
+        .map(|id| {
             let (r, c) = id.shape(d);
             let mut v = vec![0.0f32; r * c];
             fill_gaussian(&mut rng, &mut v);
@@ -33,9 +32,8 @@ fn tensors(d: &Dims) -> Vec<Vec<f32>> {
 }
 
 fn int8_blob(d: &Dims, t: &[Vec<f32>]) -> Vec<u8> {
-    let q: Vec<(Vec<u8>, Vec<f32>)> = TensorId::ALL
-        .iter()
-        .map(|&id| {
+    let q: Vec<(Vec<u8>, Vec<f32>)> = TensorId::all_for(d)
+        .map(|id| {
             let (r, c) = id.shape(d);
             let (mut q, mut s) = (vec![0u8; r * c], vec![0.0f32; r]);
             if !id.is_vector() {
@@ -44,9 +42,8 @@ fn int8_blob(d: &Dims, t: &[Vec<f32>]) -> Vec<u8> {
             (q, s)
         })
         .collect();
-    let specs: Vec<TensorSpec<'_>> = TensorId::ALL
-        .iter()
-        .map(|&id| TensorSpec {
+    let specs: Vec<TensorSpec<'_>> = TensorId::all_for(d)
+        .map(|id| TensorSpec {
             id,
             data: if id.is_vector() {
                 TensorData::F32(&t[id as usize])

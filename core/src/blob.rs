@@ -66,14 +66,15 @@ use crate::NUM_ACTIONS;
 
 /// The four magic bytes at the start of every blob.
 pub const MAGIC: [u8; 4] = *b"GMAN";
-/// The format version this build writes.
-pub const FORMAT_VERSION: u16 = 2;
+/// The newest format version this build writes (v3, for models with a spatial map; a model
+/// without one is still written as v2, byte for byte as before).
+pub const FORMAT_VERSION: u16 = 3;
 /// The oldest format version this build still reads (v1: no inner-loop settings in the
 /// header; they default to [`AdaptSettings::PAPER`]).
 pub const MIN_FORMAT_VERSION: u16 = 1;
 /// Bytes reserved for the header while encoding (the real header is shorter: at most 83
-/// bytes for v2).
-const HEADER_RESERVE: usize = 96;
+/// bytes for v2, 98 for v3).
+const HEADER_RESERVE: usize = 112;
 
 /// Quantisation of a stored tensor.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -149,10 +150,15 @@ tensor_ids! {
     CriticW = 15,
     /// Critic head bias, `1`.
     CriticB = 16,
+    /// Per-cell layer weights (shared by every map cell), `cell_embed x 2 feat`; only in
+    /// models with a spatial observation map (format v3).
+    CellW = 17,
+    /// Per-cell layer bias, `cell_embed`; only with a map.
+    CellB = 18,
 }
 
 /// Number of tensor ids.
-pub const NUM_TENSORS: usize = 17;
+pub const NUM_TENSORS: usize = 19;
 
 impl TensorId {
     /// `(rows, cols)` of this tensor for the given dims; vectors have `cols == 1`.
@@ -175,7 +181,26 @@ impl TensorId {
             TensorId::ActorB => (NUM_ACTIONS, 1),
             TensorId::CriticW => (1, d.lstm_hidden),
             TensorId::CriticB => (1, 1),
+            TensorId::CellW if d.map_cells() > 0 => (d.cell_embed, d.cell_in()),
+            TensorId::CellB if d.map_cells() > 0 => (d.cell_embed, 1),
+            TensorId::CellW | TensorId::CellB => (0, 0),
         }
+    }
+
+    /// The tensors of a model of these dims, in storage order ([`TensorId::ALL`] without
+    /// the per-cell layer when there is no spatial map).
+    pub fn all_for(d: &Dims) -> impl Iterator<Item = TensorId> + '_ {
+        TensorId::ALL
+            .iter()
+            .copied()
+            .filter(move |id| id.present(d))
+    }
+
+    /// True when a model of these dims has this tensor: every id but the per-cell layer's,
+    /// which exists only with a spatial map (its shape is `(0, 0)` otherwise, and blobs and
+    /// checkpoints do not store it).
+    pub const fn present(self, d: &Dims) -> bool {
+        !matches!(self, TensorId::CellW | TensorId::CellB) || d.map_cells() > 0
     }
 
     /// True for bias vectors, which are always stored as f32.
@@ -190,6 +215,7 @@ impl TensorId {
                 | TensorId::LstmB
                 | TensorId::ActorB
                 | TensorId::CriticB
+                | TensorId::CellB
         )
     }
 
@@ -236,7 +262,7 @@ impl DimsRecord {
         }
     }
 
-    fn to_dims(self) -> Dims {
+    fn to_dims(self, map: MapRecord) -> Dims {
         Dims {
             attr: self.attr as usize,
             noise: self.noise as usize,
@@ -246,6 +272,28 @@ impl DimsRecord {
             lstm_hidden: self.lstm_hidden as usize,
             embed: self.embed as usize,
             ps: self.ps as usize,
+            map_rows: map.map_rows as usize,
+            map_cols: map.map_cols as usize,
+            cell_embed: map.cell_embed as usize,
+        }
+    }
+}
+
+/// The spatial-map dims of a v3 header (all 0 in v1/v2 blobs: no map).
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Default)]
+struct MapRecord {
+    map_rows: u32,
+    map_cols: u32,
+    cell_embed: u32,
+}
+
+impl MapRecord {
+    fn from_dims(d: &Dims) -> Self {
+        let c = |v: usize| u32::try_from(v).unwrap_or(u32::MAX);
+        MapRecord {
+            map_rows: c(d.map_rows),
+            map_cols: c(d.map_cols),
+            cell_embed: c(d.cell_embed),
         }
     }
 }
@@ -336,6 +384,22 @@ struct HeaderV1 {
     payload_crc: u32,
 }
 
+/// The header of a format-v3 blob: v2 with the spatial-map dims after `dims`.
+#[derive(Serialize, Deserialize)]
+struct HeaderV3 {
+    magic: [u8; 4],
+    version: u16,
+    dims: DimsRecord,
+    map: MapRecord,
+    flags: u32,
+    alpha_disc: f32,
+    alpha_adapt: f32,
+    max_inner: u32,
+    n_tensors: u16,
+    payload_len: u32,
+    payload_crc: u32,
+}
+
 /// The header of a format-v2 blob (see the module docs for the field order).
 #[derive(Serialize, Deserialize)]
 struct HeaderV2 {
@@ -358,6 +422,7 @@ struct HeaderV2 {
 pub struct Header {
     version: u16,
     dims: DimsRecord,
+    map: MapRecord,
     flags: u32,
     settings: AdaptSettings,
     n_tensors: u16,
@@ -368,14 +433,14 @@ pub struct Header {
 impl Header {
     /// The dims the blob was made for.
     pub fn dims(&self) -> Dims {
-        self.dims.to_dims()
+        self.dims.to_dims(self.map)
     }
     /// Model flags ([`FLAG_ADAPT`], [`FLAG_ZERO_NOISE`], [`FLAG_COSSIM`]); unknown bits are
     /// kept and ignored.
     pub fn flags(&self) -> u32 {
         self.flags
     }
-    /// Format version of the parsed blob (1 or 2).
+    /// Format version of the parsed blob (1, 2 or 3).
     pub fn version(&self) -> u16 {
         self.version
     }
@@ -443,6 +508,7 @@ fn parse_header(bytes: &[u8]) -> Result<(Header, &[u8]), BlobError> {
                 Header {
                     version: 1,
                     dims: h.dims,
+                    map: MapRecord::default(),
                     flags: h.flags,
                     settings: AdaptSettings::PAPER,
                     n_tensors: h.n_tensors,
@@ -464,6 +530,29 @@ fn parse_header(bytes: &[u8]) -> Result<(Header, &[u8]), BlobError> {
                 Header {
                     version: 2,
                     dims: h.dims,
+                    map: MapRecord::default(),
+                    flags: h.flags,
+                    settings,
+                    n_tensors: h.n_tensors,
+                    payload_len: h.payload_len,
+                    payload_crc: h.payload_crc,
+                },
+                rest,
+            ))
+        }
+        3 => {
+            let (h, rest) = postcard::take_from_bytes::<HeaderV3>(bytes).map_err(map_err)?;
+            let settings = AdaptSettings {
+                alpha_disc: h.alpha_disc,
+                alpha_adapt: h.alpha_adapt,
+                max_inner: h.max_inner,
+            };
+            settings.validate()?;
+            Ok((
+                Header {
+                    version: 3,
+                    dims: h.dims,
+                    map: h.map,
                     flags: h.flags,
                     settings,
                     n_tensors: h.n_tensors,
@@ -563,7 +652,7 @@ impl<'a> Blob<'a> {
                 actual: crc,
             });
         }
-        let dims = header.dims.to_dims();
+        let dims = header.dims();
         let mut tensors: [Option<TensorView<'a>>; NUM_TENSORS] = [None; NUM_TENSORS];
         let mut rest = payload;
         for _ in 0..header.n_tensors {
@@ -603,7 +692,7 @@ impl<'a> Blob<'a> {
 
     /// The dims the blob was made for.
     pub fn dims(&self) -> Dims {
-        self.header.dims.to_dims()
+        self.header.dims()
     }
 
     /// Total size of the blob in bytes.
@@ -620,6 +709,7 @@ impl<'a> Blob<'a> {
     pub fn check_dims(&self, expected: &Dims) -> Result<(), BlobError> {
         let e = DimsRecord::from_dims(expected);
         let f = self.header.dims;
+        let (em, fm) = (MapRecord::from_dims(expected), self.header.map);
         for (field, a, b) in [
             ("attr", e.attr, f.attr),
             ("noise", e.noise, f.noise),
@@ -629,6 +719,9 @@ impl<'a> Blob<'a> {
             ("lstm_hidden", e.lstm_hidden, f.lstm_hidden),
             ("embed", e.embed, f.embed),
             ("ps", e.ps, f.ps),
+            ("map_rows", em.map_rows, fm.map_rows),
+            ("map_cols", em.map_cols, fm.map_cols),
+            ("cell_embed", em.cell_embed, fm.cell_embed),
         ] {
             if a != b {
                 return Err(BlobError::DimensionMismatch {
@@ -676,6 +769,9 @@ impl<'a> Blob<'a> {
 
 fn validate_record<'a>(rec: &RecordIn<'a>, dims: &Dims) -> Result<TensorView<'a>, BlobError> {
     let id = TensorId::from_raw(rec.id).ok_or(BlobError::UnknownTensor { id: rec.id })?;
+    if !id.present(dims) {
+        return Err(BlobError::UnknownTensor { id: rec.id });
+    }
     let (rows, cols) = id.shape(dims);
     if rec.rows as usize != rows || rec.cols as usize != cols {
         return Err(BlobError::BadTensorShape { id: rec.id });
@@ -840,6 +936,9 @@ pub fn encode_with_settings(
         if core::mem::replace(&mut seen[t.id as usize], true) {
             return Err(BlobError::DuplicateTensor { id: raw });
         }
+        if !t.id.present(dims) {
+            return Err(BlobError::UnknownTensor { id: raw });
+        }
         let (rows, cols) = t.id.shape(dims);
         let (quant, data, scales) = match t.data {
             TensorData::F32(v) => {
@@ -878,22 +977,44 @@ pub fn encode_with_settings(
         pos += n;
     }
     let payload_len = pos - HEADER_RESERVE;
-    let header = HeaderV2 {
-        magic: MAGIC,
-        version: FORMAT_VERSION,
-        dims: DimsRecord::from_dims(dims),
-        flags,
-        alpha_disc: settings.alpha_disc,
-        alpha_adapt: settings.alpha_adapt,
-        max_inner: settings.max_inner,
-        n_tensors: tensors.len() as u16,
-        payload_len: payload_len as u32,
-        payload_crc: crc32(&out[HEADER_RESERVE..pos]),
-    };
+    let payload_crc = crc32(&out[HEADER_RESERVE..pos]);
     let mut hbuf = [0u8; HEADER_RESERVE];
-    let hlen = postcard::to_slice(&header, &mut hbuf)
-        .map_err(|_| BlobError::BufferTooSmall)?
-        .len();
+    // The oldest version that can describe the model: v2 without a map, v3 with one.
+    let written = if dims.map_cells() == 0 && dims.map_rows == 0 && dims.map_cols == 0 {
+        postcard::to_slice(
+            &HeaderV2 {
+                magic: MAGIC,
+                version: 2,
+                dims: DimsRecord::from_dims(dims),
+                flags,
+                alpha_disc: settings.alpha_disc,
+                alpha_adapt: settings.alpha_adapt,
+                max_inner: settings.max_inner,
+                n_tensors: tensors.len() as u16,
+                payload_len: payload_len as u32,
+                payload_crc,
+            },
+            &mut hbuf,
+        )
+    } else {
+        postcard::to_slice(
+            &HeaderV3 {
+                magic: MAGIC,
+                version: FORMAT_VERSION,
+                dims: DimsRecord::from_dims(dims),
+                map: MapRecord::from_dims(dims),
+                flags,
+                alpha_disc: settings.alpha_disc,
+                alpha_adapt: settings.alpha_adapt,
+                max_inner: settings.max_inner,
+                n_tensors: tensors.len() as u16,
+                payload_len: payload_len as u32,
+                payload_crc,
+            },
+            &mut hbuf,
+        )
+    };
+    let hlen = written.map_err(|_| BlobError::BufferTooSmall)?.len();
     out.copy_within(HEADER_RESERVE..pos, hlen);
     out[..hlen].copy_from_slice(&hbuf[..hlen]);
     Ok(hlen + payload_len)

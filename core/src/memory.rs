@@ -83,15 +83,25 @@ impl NavLayout {
             AdaptMode::Full => NUM_ACTIONS * lh + NUM_ACTIONS,
             AdaptMode::Efficient => 2 * NUM_ACTIONS,
         };
-        let fixed_biases = e + 4 * lh + 1;
+        let map = d.map_cells() > 0;
+        let fixed_biases = e + 4 * lh + 1 + if map { d.cell_embed } else { 0 };
         let grads = gen_params + disc_params + actor_params;
         let psi = k * (f + z + NUM_ACTIONS + lh);
         let g = if gain { 1 } else { 0 };
         let gen_work = g * h + h + g * f + f + f + h + h + max(f, h);
         let disc_work = g * dh + 3 * dh + 2 * f;
         let adapt_work = 3 * k + k * NUM_ACTIONS + f;
-        let policy_work =
-            f + e + 4 * lh + 4 * lh + 4 * NUM_ACTIONS + g * NUM_ACTIONS + z + a + d.ps;
+        let policy_work = f
+            + e
+            + 4 * lh
+            + 4 * lh
+            + 4 * NUM_ACTIONS
+            + g * NUM_ACTIONS
+            + z
+            + a
+            + d.ps
+            + d.cell_out()
+            + if map { f } else { 0 };
         NavLayout {
             gen_params,
             disc_params,
@@ -130,12 +140,27 @@ pub const fn arena_len(d: &Dims, mode: AdaptMode, k: usize) -> usize {
 /// are f32), i.e. the payload of an int8 blob without its small header.
 pub const fn int8_weight_bytes(d: &Dims) -> usize {
     let params = d.gen_params() + d.disc_params() + d.policy_params();
+    let cell = if d.map_cells() > 0 { d.cell_embed } else { 0 };
     // Bias vectors (stored f32).
-    let vectors =
-        d.gen_hidden + d.feat + d.disc_hidden + 1 + d.embed + 4 * d.lstm_hidden + NUM_ACTIONS + 1;
+    let vectors = d.gen_hidden
+        + d.feat
+        + d.disc_hidden
+        + 1
+        + d.embed
+        + 4 * d.lstm_hidden
+        + NUM_ACTIONS
+        + 1
+        + cell;
     // Rows of all matrices, one f32 scale each.
-    let rows =
-        d.gen_hidden + d.feat + d.disc_hidden + 1 + d.embed + 8 * d.lstm_hidden + NUM_ACTIONS + 1;
+    let rows = d.gen_hidden
+        + d.feat
+        + d.disc_hidden
+        + 1
+        + d.embed
+        + 8 * d.lstm_hidden
+        + NUM_ACTIONS
+        + 1
+        + cell;
     (params - vectors) + 4 * rows + 4 * vectors
 }
 
@@ -146,9 +171,14 @@ mod tests {
     #[test]
     fn int8_bytes_match_tensor_shapes() {
         use crate::blob::TensorId;
-        for d in [Dims::PAPER, Dims::MCU, Dims::MCU.with_ps()] {
+        for d in [
+            Dims::PAPER,
+            Dims::MCU,
+            Dims::MCU.with_ps(),
+            Dims::MCU.with_map(3, 3, 8),
+        ] {
             let mut bytes = 0;
-            for &id in TensorId::ALL {
+            for &id in TensorId::ALL.iter().filter(|id| id.present(&d)) {
                 let (r, c) = id.shape(&d);
                 bytes += if id.is_vector() { 4 * r } else { r * c + 4 * r };
             }

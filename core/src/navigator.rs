@@ -54,7 +54,7 @@
 //! # let d = Dims::MCU;
 //! # let mut rng = gman_core::rng::Xoshiro128::seed_from_u64(1);
 //! # let mut store = Vec::new();
-//! # for &id in TensorId::ALL {
+//! # for id in TensorId::all_for(&d) {
 //! #     let (r, c) = id.shape(&d);
 //! #     let mut v = vec![0.0f32; r * c];
 //! #     gman_core::rng::fill_gaussian(&mut rng, &mut v);
@@ -343,7 +343,7 @@ impl<'w> NavWeights<'w> {
     pub fn from_blob(blob: &Blob<'w>, dims: &Dims) -> Result<Self> {
         blob.check_dims(dims)?;
         let mut t = [empty(); NUM_TENSORS];
-        for &id in TensorId::ALL {
+        for &id in TensorId::ALL.iter().filter(|id| id.present(dims)) {
             t[id as usize] = blob.matrix(id)?;
         }
         Ok(NavWeights { dims: *dims, t })
@@ -520,6 +520,7 @@ struct Ram<'w> {
     fuse_b: &'w mut [f32],
     lstm_b: &'w mut [f32],
     critic_b: &'w mut [f32],
+    cell_b: &'w mut [f32],
     g_gen1: LayerGrad<'w>,
     g_gen2: LayerGrad<'w>,
     g_disc1: LayerGrad<'w>,
@@ -568,6 +569,8 @@ struct Ram<'w> {
     z: &'w mut [f32],
     attr: &'w mut [f32],
     ps: &'w mut [f32],
+    cell: &'w mut [f32],
+    cell_prod: &'w mut [f32],
 }
 
 impl<'w> Ram<'w> {
@@ -595,6 +598,7 @@ impl<'w> Ram<'w> {
             fuse_b: take(r, e)?,
             lstm_b: take(r, 4 * lh)?,
             critic_b: take(r, 1)?,
+            cell_b: take(r, if d.map_cells() > 0 { d.cell_embed } else { 0 })?,
             g_gen1: LayerGrad::carve(r, full, h, d.gen_in())?,
             g_gen2: LayerGrad::carve(r, full, f, h)?,
             g_disc1: LayerGrad::carve(r, full, dh, f)?,
@@ -639,6 +643,8 @@ impl<'w> Ram<'w> {
             z: take(r, z)?,
             attr: take(r, a)?,
             ps: take(r, d.ps)?,
+            cell: take(r, d.cell_out())?,
+            cell_prod: take(r, if d.map_cells() > 0 { f } else { 0 })?,
         };
         let used = total - r.len();
         Ok((ram, used))
@@ -701,6 +707,7 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
         copy_mat(&nav.w.get(TensorId::FuseB), nav.r.fuse_b)?;
         copy_mat(&nav.w.get(TensorId::LstmB), nav.r.lstm_b)?;
         copy_mat(&nav.w.get(TensorId::CriticB), nav.r.critic_b)?;
+        copy_mat(&nav.w.get(TensorId::CellB), nav.r.cell_b)?;
         nav.restore_adapted()?;
         nav.policy()?.validate()?;
         nav.generator()?.validate()?;
@@ -895,12 +902,26 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
                 b: self.r.critic_b,
                 gain: None,
             },
+            cell: (w.dims.map_cells() > 0).then(|| Dense {
+                w: w.get(TensorId::CellW),
+                b: self.r.cell_b,
+                gain: None,
+            }),
         })
     }
 
     /// One control step on the observation embedding `obs` (`feat` floats) and, for policies
-    /// with a PS input, the PS prediction `ps` (`ps` floats; pass `&[]` otherwise).
+    /// with a PS input, the PS prediction `ps` (`ps` floats; pass `&[]` otherwise). For a
+    /// model with a spatial map use [`Navigator::step_map`].
     pub fn step(&mut self, obs: &[f32], ps: &[f32]) -> Result<StepOutput> {
+        self.step_map(obs, &[], ps)
+    }
+
+    /// One control step with the spatial observation map `map` (`map_cells x feat` floats,
+    /// cell-major, see [`Dims::map_len`]; empty for a model without a map) besides the
+    /// pooled embedding `obs` (on a real camera: the map's average over cells, as the
+    /// reference average-pools the ResNet map for D) and the PS input `ps`.
+    pub fn step_map(&mut self, obs: &[f32], map: &[f32], ps: &[f32]) -> Result<StepOutput> {
         if !self.ready {
             return Err(Error::Config {
                 what: "call reset() before step()",
@@ -909,8 +930,12 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
         let d = self.w.dims;
         check_len("step.obs", d.feat, obs.len())?;
         check_len("step.ps", d.ps, ps.len())?;
+        check_len("step.map", d.map_len(), map.len())?;
         if !all_finite(obs) {
             return Err(Error::NonFiniteInput { what: "obs" });
+        }
+        if !all_finite(map) {
+            return Err(Error::NonFiniteInput { what: "map" });
         }
         if !all_finite(ps) {
             return Err(Error::NonFiniteInput { what: "ps" });
@@ -932,7 +957,7 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
             }
         }
         // Line 8: the policy.
-        let value = self.run_policy(obs)?;
+        let value = self.run_policy(obs, map)?;
         if !all_finite(self.r.probs) || !value.is_finite() {
             return Err(Error::NumericalFault {
                 what: "action probabilities",
@@ -985,7 +1010,7 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
         gen.forward(r.z, r.attr, &mut cache)
     }
 
-    fn run_policy(&mut self, obs: &[f32]) -> Result<f32> {
+    fn run_policy(&mut self, obs: &[f32], map: &[f32]) -> Result<f32> {
         let w = &self.w;
         let r = &mut self.r;
         let policy = Policy {
@@ -1005,6 +1030,11 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
                 b: r.critic_b,
                 gain: None,
             },
+            cell: (w.dims.map_cells() > 0).then_some(Dense {
+                w: w.get(TensorId::CellW),
+                b: r.cell_b,
+                gain: None,
+            }),
         };
         let inp = PolicyInput {
             obs,
@@ -1012,6 +1042,7 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
             attr: r.attr,
             prev_probs: r.prev_probs,
             ps: r.ps,
+            map,
         };
         let mut cache = PolicyCache {
             prod: r.prod,
@@ -1023,6 +1054,8 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
             logits: r.logits,
             probs: r.probs,
             value: 0.0,
+            cell: r.cell,
+            cell_prod: r.cell_prod,
         };
         policy.forward(&inp, r.h_state, r.c_state, &mut cache)?;
         Ok(cache.value)

@@ -1,7 +1,8 @@
 //! The navigation policy π(a_t | s_t, y) (paper Sec. 3.2 and Fig. 2), parameters φ.
 //!
 //! ```text
-//! e_t   = LeakyReLU( W_fuse [s_t; x_t; s_t ⊙ x_t; SE(y); p_{t-1}; ps_t] + b_fuse )
+//! m_t,c = LeakyReLU( W_cell [M_t,c; M_t,c ⊙ x_t] + b_cell )   for every map cell c (optional)
+//! e_t   = LeakyReLU( W_fuse [s_t; x_t; s_t ⊙ x_t; SE(y); p_{t-1}; ps_t; m_t] + b_fuse )
 //! h_t, c_t = LSTM(e_t, h_{t-1}, c_{t-1})
 //! p_t   = softmax(W_actor h_t + b_actor)        (6 action probabilities)
 //! v_t   = W_critic h_t + b_critic               (state value)
@@ -15,10 +16,19 @@
 //! can only learn that comparison through the LeakyReLU. The actor head may carry a per-unit
 //! gain (parameter-efficient adaptation).
 //!
+//! **Spatial map.** With a map (`Dims::map_cells() > 0`) the policy also sees the view as a
+//! grid of sectors M_t (the reference feeds the 512 x 7 x 7 ResNet map): one layer shared by
+//! every cell (the reference's 1 x 1 convolution) turns each cell's embedding into
+//! `cell_embed` channels, which are flattened into the fusion input, so the policy knows
+//! *where* in the view things are. As with the pooled embedding, the cell layer also sees
+//! the cell's element-wise product with x_t, so one linear layer can express "the imagined
+//! target is in this sector"; that product is also how the navigation loss reaches G through
+//! the map. Pooled s_t stays what D, Ψ and G's target see.
+//!
 //! [`Policy::forward`] is what the device runs every step; [`Policy::backward`] is one step of
 //! back-propagation through time, used by the host trainer (A3C, meta-gradients).
 
-use crate::activation::{leaky_relu_backward, leaky_relu_inplace, softmax};
+use crate::activation::{leaky_relu_backward, leaky_relu_grad, leaky_relu_inplace, softmax};
 use crate::dense::{Dense, DenseGrads};
 use crate::error::{check_len, Result};
 use crate::lstm::{Lstm, LstmGrads};
@@ -35,6 +45,8 @@ pub struct Policy<'a> {
     pub actor: Dense<'a>,
     /// Critic head, `1 x lstm_hidden`.
     pub critic: Dense<'a>,
+    /// The per-cell layer over the spatial map, `cell_embed x 2 feat` (`None`: no map).
+    pub cell: Option<Dense<'a>>,
 }
 
 /// The inputs of one policy step.
@@ -50,6 +62,8 @@ pub struct PolicyInput<'a> {
     pub prev_probs: &'a [f32],
     /// PS prediction (`ps` wide; empty when the policy has no PS input).
     pub ps: &'a [f32],
+    /// Spatial observation map M_t, `map_cells x feat` cell-major (empty without a map).
+    pub map: &'a [f32],
 }
 
 /// Activations of one policy step (forward output and what backward needs).
@@ -73,6 +87,10 @@ pub struct PolicyCache<'a> {
     pub probs: &'a mut [f32],
     /// State value.
     pub value: f32,
+    /// Per-cell layer outputs after LeakyReLU, `map_cells x cell_embed` (empty without a map).
+    pub cell: &'a mut [f32],
+    /// Scratch for one cell's `M_t,c ⊙ x_t`, `feat` (empty without a map).
+    pub cell_prod: &'a mut [f32],
 }
 
 /// Parameter-gradient accumulators of the policy (`+=`).
@@ -86,6 +104,8 @@ pub struct PolicyGrads<'g> {
     pub actor: DenseGrads<'g>,
     /// Critic head.
     pub critic: DenseGrads<'g>,
+    /// Per-cell layer ([`DenseGrads::None`] without a map).
+    pub cell: DenseGrads<'g>,
 }
 
 /// Gradients flowing out of one backward step.
@@ -99,7 +119,8 @@ pub struct PolicyInputGrads<'g> {
     pub c_prev: &'g mut [f32],
 }
 
-/// Scratch of one backward step: `embed + 4 lstm_hidden + feat + max(embed, 6)` floats.
+/// Scratch of one backward step: `embed + 4 lstm_hidden + feat + max(embed, 6)` floats, plus
+/// `map_cells x cell_embed + feat` with a map.
 #[derive(Debug)]
 pub struct PolicyScratch<'a> {
     /// `embed`.
@@ -112,6 +133,10 @@ pub struct PolicyScratch<'a> {
     pub tmp: &'a mut [f32],
     /// `lstm_hidden`.
     pub dh: &'a mut [f32],
+    /// `map_cells x cell_embed` (empty without a map).
+    pub dcell: &'a mut [f32],
+    /// `feat` (empty without a map).
+    pub cell_tmp: &'a mut [f32],
 }
 
 impl<'a> Policy<'a> {
@@ -125,7 +150,36 @@ impl<'a> Policy<'a> {
         check_len("policy.actor.rows", NUM_ACTIONS, self.actor.out_dim())?;
         check_len("policy.actor.in", self.lstm.hidden(), self.actor.in_dim())?;
         check_len("policy.critic.rows", 1, self.critic.out_dim())?;
-        check_len("policy.critic.in", self.lstm.hidden(), self.critic.in_dim())
+        check_len("policy.critic.in", self.lstm.hidden(), self.critic.in_dim())?;
+        if let Some(cell) = &self.cell {
+            cell.validate()?;
+            if cell.in_dim() % 2 != 0 {
+                return Err(crate::error::Error::Config {
+                    what: "the per-cell layer's input must be [cell; cell * x_t] (2 feat wide)",
+                });
+            }
+        }
+        Ok(())
+    }
+
+    /// Checks the map input against the cell layer and returns `(cells, cell_embed)`.
+    fn check_map(&self, inp: &PolicyInput<'_>, cell_out: usize) -> Result<(usize, usize)> {
+        let f = inp.feat.len();
+        match &self.cell {
+            None => {
+                check_len("policy.map", 0, inp.map.len())?;
+                check_len("policy.cell_out", 0, cell_out)?;
+                Ok((0, 0))
+            }
+            Some(cell) => {
+                check_len("policy.cell.in", 2 * f, cell.in_dim())?;
+                let ce = cell.out_dim();
+                let cells = if f == 0 { 0 } else { inp.map.len() / f };
+                check_len("policy.map", cells * f, inp.map.len())?;
+                check_len("policy.cell_out", cells * ce, cell_out)?;
+                Ok((cells, ce))
+            }
+        }
     }
 
     /// One step: writes activations, logits, probabilities and value into `cache`.
@@ -143,13 +197,28 @@ impl<'a> Policy<'a> {
         for ((p, &s), &x) in cache.prod.iter_mut().zip(inp.obs).zip(inp.feat) {
             *p = s * x;
         }
-        let segs: [&[f32]; 6] = [
+        let (cells, ce) = self.check_map(inp, cache.cell.len())?;
+        if let Some(cell) = &self.cell {
+            let f = inp.feat.len();
+            check_len("policy.cell_prod", f, cache.cell_prod.len())?;
+            for c in 0..cells {
+                let m = &inp.map[c * f..(c + 1) * f];
+                for ((p, &mv), &x) in cache.cell_prod.iter_mut().zip(m).zip(inp.feat) {
+                    *p = mv * x;
+                }
+                let out = &mut cache.cell[c * ce..(c + 1) * ce];
+                cell.forward(&[m, cache.cell_prod], &mut [], out)?;
+                leaky_relu_inplace(out);
+            }
+        }
+        let segs: [&[f32]; 7] = [
             inp.obs,
             inp.feat,
             cache.prod,
             inp.attr,
             inp.prev_probs,
             inp.ps,
+            cache.cell,
         ];
         self.fuse.forward(&segs, &mut [], cache.fuse)?;
         leaky_relu_inplace(cache.fuse);
@@ -236,13 +305,14 @@ impl<'a> Policy<'a> {
         // input gradients are needed.
         let tmp = &mut s.tmp[..e];
         leaky_relu_backward(cache.fuse, s.de, tmp)?;
-        let segs: [&[f32]; 6] = [
+        let segs: [&[f32]; 7] = [
             inp.obs,
             inp.feat,
             cache.prod,
             inp.attr,
             inp.prev_probs,
             inp.ps,
+            cache.cell,
         ];
         self.fuse
             .backward(&segs, &[], tmp, None, &mut grads.fuse, &mut [])?;
@@ -252,6 +322,34 @@ impl<'a> Policy<'a> {
         self.fuse.w.matvec_t_acc_cols(tmp, 2 * f, s.dprod)?;
         for ((o, &d), &sv) in out.feat.iter_mut().zip(s.dprod.iter()).zip(inp.obs) {
             *o += d * sv;
+        }
+        // The per-cell layer: its outputs are the last column block of the fusion input.
+        let (cells, ce) = self.check_map(inp, cache.cell.len())?;
+        if let Some(cell) = &self.cell {
+            check_len("policy.dcell", cells * ce, s.dcell.len())?;
+            check_len("policy.cell_tmp", f, s.cell_tmp.len())?;
+            let col0 = self.fuse.in_dim() - cells * ce;
+            s.dcell.fill(0.0);
+            self.fuse.w.matvec_t_acc_cols(tmp, col0, s.dcell)?;
+            for c in 0..cells {
+                let m = &inp.map[c * f..(c + 1) * f];
+                let dpre = &mut s.dcell[c * ce..(c + 1) * ce];
+                let act = &cache.cell[c * ce..(c + 1) * ce];
+                for (d, &a) in dpre.iter_mut().zip(act) {
+                    *d *= leaky_relu_grad(a);
+                }
+                // dW_cell += dpre [m; m ⊙ x]ᵀ (the product is recomputed in cell_tmp).
+                for ((p, &mv), &x) in s.cell_tmp.iter_mut().zip(m).zip(inp.feat) {
+                    *p = mv * x;
+                }
+                cell.backward(&[m, s.cell_tmp], &[], dpre, None, &mut grads.cell, &mut [])?;
+                // dx_t += (W_cell[:, f..2f]ᵀ dpre) ⊙ m.
+                s.cell_tmp.fill(0.0);
+                cell.w.matvec_t_acc_cols(dpre, f, s.cell_tmp)?;
+                for ((o, &d), &mv) in out.feat.iter_mut().zip(s.cell_tmp.iter()).zip(m) {
+                    *o += d * mv;
+                }
+            }
         }
         Ok(())
     }

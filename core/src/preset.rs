@@ -38,6 +38,15 @@ pub struct Dims {
     /// Width of the optional PS input (predicted semantic embedding of the view): 0 when the
     /// policy has no PS input, otherwise `attr`.
     pub ps: usize,
+    /// Rows of the spatial observation map (the view split into `map_rows x map_cols`
+    /// sectors, each a `feat`-wide embedding, like the reference's 7 x 7 ResNet map); 0 with
+    /// `map_cols` 0: no map, the policy sees the pooled embedding only.
+    pub map_rows: usize,
+    /// Columns of the spatial observation map (0: no map).
+    pub map_cols: usize,
+    /// Channels of the shared per-cell layer (the reference's 1 x 1 convolution to 64)
+    /// applied to every map cell; 0 without a map.
+    pub cell_embed: usize,
 }
 
 impl Dims {
@@ -52,6 +61,9 @@ impl Dims {
         lstm_hidden: 512,
         embed: 512,
         ps: 0,
+        map_rows: 0,
+        map_cols: 0,
+        cell_embed: 0,
     };
 
     /// Microcontroller sizes: G hidden 256, D hidden 64, LSTM hidden 64, same interfaces.
@@ -64,6 +76,9 @@ impl Dims {
         lstm_hidden: 64,
         embed: 64,
         ps: 0,
+        map_rows: 0,
+        map_cols: 0,
+        cell_embed: 0,
     };
 
     /// The same sizes with a PS input of width `attr` (the "dagger" variants of the paper).
@@ -74,15 +89,59 @@ impl Dims {
         }
     }
 
+    /// The same sizes with a spatial observation map of `rows x cols` cells and a per-cell
+    /// layer of `cell_embed` channels (`(0, 0, 0)`: no map).
+    pub const fn with_map(self, rows: usize, cols: usize, cell_embed: usize) -> Dims {
+        Dims {
+            map_rows: rows,
+            map_cols: cols,
+            cell_embed,
+            ..self
+        }
+    }
+
+    /// Number of map cells `map_rows * map_cols` (0: no map).
+    pub const fn map_cells(&self) -> usize {
+        self.map_rows * self.map_cols
+    }
+
+    /// Floats of one spatial observation: `map_cells * feat`, cell-major (cell `c`'s
+    /// embedding is `map[c * feat..(c + 1) * feat]`, cells in row-major order, row 0 at the
+    /// top of the view, column 0 at the left).
+    pub const fn map_len(&self) -> usize {
+        self.map_cells() * self.feat
+    }
+
+    /// Outputs of the per-cell layer over the whole map, `map_cells * cell_embed`.
+    pub const fn cell_out(&self) -> usize {
+        self.map_cells() * self.cell_embed
+    }
+
+    /// Input width of the per-cell layer: a cell's embedding and its element-wise product
+    /// with x_t, `2 feat`.
+    pub const fn cell_in(&self) -> usize {
+        2 * self.feat
+    }
+
+    /// Parameters of the per-cell layer (0 without a map).
+    pub const fn cell_params(&self) -> usize {
+        if self.map_cells() == 0 {
+            0
+        } else {
+            self.cell_embed * self.cell_in() + self.cell_embed
+        }
+    }
+
     /// Input width of G: `noise + attr`.
     pub const fn gen_in(&self) -> usize {
         self.noise + self.attr
     }
 
     /// Input width of the fusion layer: observation, generated feature, their element-wise
-    /// product, attribute vector, previous action probabilities, PS input.
+    /// product, attribute vector, previous action probabilities, PS input and the per-cell
+    /// layer's outputs over the map.
     pub const fn fuse_in(&self) -> usize {
-        3 * self.feat + self.attr + NUM_ACTIONS + self.ps
+        3 * self.feat + self.attr + NUM_ACTIONS + self.ps + self.cell_out()
     }
 
     /// Number of parameters of G (θ).
@@ -108,6 +167,7 @@ impl Dims {
             + NUM_ACTIONS
             + h
             + 1
+            + self.cell_params()
     }
 
     /// Multiply-accumulates of one navigation step: G, fusion, LSTM and heads (D only runs
@@ -118,6 +178,7 @@ impl Dims {
             + self.embed * self.fuse_in()
             + 4 * self.lstm_hidden * (self.embed + self.lstm_hidden)
             + (NUM_ACTIONS + 1) * self.lstm_hidden
+            + self.map_cells() * self.cell_embed * self.cell_in()
     }
 }
 

@@ -90,7 +90,7 @@ fn bad_magic_version_checksum_and_dims_are_typed() {
     m[0] = b'X';
     assert_eq!(Blob::parse(&m).unwrap_err(), BlobError::BadMagic);
     assert_eq!(bytes[4], 2, "the encoder writes format v2");
-    for bad in [0u8, 3, 9, 0x7f] {
+    for bad in [0u8, 4, 9, 0x7f] {
         let mut v = bytes.clone();
         v[4] = bad; // version varint follows the 4 magic bytes
         assert_eq!(
@@ -305,8 +305,9 @@ fn v2_round_trips_the_inner_loop_settings() {
     let bytes = blob_with(FLAG_ADAPT | FLAG_COSSIM, settings, 11);
     let blob = Blob::parse(&bytes).unwrap();
     let h = blob.header();
-    assert_eq!(h.version(), FORMAT_VERSION);
+    // A model without a spatial map is still written as v2 (FORMAT_VERSION, v3, is for maps).
     assert_eq!(h.version(), 2);
+    assert!(h.version() < FORMAT_VERSION);
     assert!(h.has_adapt_settings());
     assert_eq!(h.adapt_settings(), settings);
     assert_eq!(h.alpha_disc().to_bits(), 0.25f32.to_bits());
@@ -598,5 +599,42 @@ proptest! {
             }
             Err(e) => prop_assert!(false, "unexpected error {e:?}"),
         }
+    }
+}
+
+/// A model with a spatial map is written as format v3: the map dims round-trip, the per-cell
+/// layer is stored and read in place, and a blob without a map may not carry it.
+#[test]
+fn v3_blobs_carry_the_spatial_map() {
+    let dims = SMALL.with_map(2, 3, 4);
+    let tensors = random_tensors(&dims, 21);
+    assert!(tensors.iter().any(|(id, _)| *id == TensorId::CellW));
+    for int8 in [false, true] {
+        let bytes = make_blob(&dims, &tensors, int8);
+        let blob = Blob::parse(&bytes).unwrap();
+        assert_eq!(blob.header().version(), 3);
+        assert_eq!(blob.dims(), dims);
+        assert_eq!(blob.dims().map_cells(), 6);
+        let m = blob.matrix(TensorId::CellW).unwrap();
+        assert_eq!((m.rows(), m.cols()), (4, 2 * dims.feat));
+        assert!(blob.check_dims(&SMALL).is_err(), "map dims are checked");
+    }
+    // The same tensors without the map dims: the encoder refuses the per-cell layer.
+    let mut out = vec![0u8; 1 << 20];
+    let specs: Vec<TensorSpec<'_>> = tensors
+        .iter()
+        .map(|(id, v)| TensorSpec {
+            id: *id,
+            data: TensorData::F32(v),
+        })
+        .collect();
+    assert!(matches!(
+        gman_core::blob::encode(&SMALL, &specs, &mut out),
+        Err(BlobError::BadTensorShape { .. }) | Err(BlobError::UnknownTensor { .. })
+    ));
+    // Truncations and single-byte corruptions of a v3 blob are typed errors, never panics.
+    let bytes = make_blob(&dims, &tensors, true);
+    for n in 0..bytes.len().min(200) {
+        assert!(Blob::parse(&bytes[..n]).is_err());
     }
 }

@@ -249,9 +249,8 @@ fn measure_limits(a: &BenchArgs) -> Limits {
 /// Seeded weights, as in `core/benches/navigator.rs`.
 fn tensors(d: &Dims) -> Vec<Vec<f32>> {
     let mut rng = Xoshiro128::seed_from_u64(1);
-    TensorId::ALL
-        .iter()
-        .map(|&id| {
+    TensorId::all_for(d)
+        .map(|id| {
             let (r, c) = id.shape(d);
             let mut v = vec![0.0f32; r * c];
             fill_gaussian(&mut rng, &mut v);
@@ -263,7 +262,7 @@ fn tensors(d: &Dims) -> Vec<Vec<f32>> {
 
 fn int8_blob(d: &Dims, t: &[Vec<f32>]) -> Result<Vec<u8>> {
     let mut q: Vec<(Vec<u8>, Vec<f32>)> = Vec::new();
-    for &id in TensorId::ALL {
+    for id in TensorId::all_for(d) {
         let (r, c) = id.shape(d);
         let (mut qq, mut s) = (vec![0u8; r * c], vec![0.0f32; r]);
         if !id.is_vector() {
@@ -272,9 +271,8 @@ fn int8_blob(d: &Dims, t: &[Vec<f32>]) -> Result<Vec<u8>> {
         }
         q.push((qq, s));
     }
-    let specs: Vec<TensorSpec<'_>> = TensorId::ALL
-        .iter()
-        .map(|&id| TensorSpec {
+    let specs: Vec<TensorSpec<'_>> = TensorId::all_for(d)
+        .map(|id| TensorSpec {
             id,
             data: if id.is_vector() {
                 TensorData::F32(&t[id as usize])

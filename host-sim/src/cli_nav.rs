@@ -92,6 +92,13 @@ pub struct TrainArgs {
     /// Checkpoint every N updates.
     #[arg(long, default_value_t = 100)]
     pub checkpoint_every: u64,
+    /// Spatial observation map fed to the policy: `RxC` sectors of the view (e.g. `3x3`,
+    /// `1x3`, `7x7` as the reference's ResNet map), or `none` (the pooled embedding only).
+    #[arg(long, default_value = "none", value_parser = parse_map_grid)]
+    pub map: (usize, usize),
+    /// Channels of the shared per-cell layer over the map (the reference's 1x1 conv: 64).
+    #[arg(long, default_value_t = 8)]
+    pub cell_embed: usize,
     /// Training objective: `a3c` (the paper's actor-critic loss) or `dagger` (imitation of
     /// the shortest-path oracle on the learner's own states: the imitation ceiling).
     #[arg(long, value_enum, default_value = "a3c")]
@@ -108,6 +115,20 @@ pub struct TrainArgs {
     /// No progress bar.
     #[arg(long)]
     pub quiet: bool,
+}
+
+/// Parses `--map`: `none` or `RxC` with 1 <= R, C <= 16.
+fn parse_map_grid(s: &str) -> std::result::Result<(usize, usize), String> {
+    if s == "none" {
+        return Ok((0, 0));
+    }
+    let bad = || format!("expected `none` or ROWSxCOLS such as 3x3 (each 1..=16), got {s:?}");
+    let (r, c) = s.split_once(['x', 'X']).ok_or_else(bad)?;
+    let (r, c): (usize, usize) = (r.parse().map_err(|_| bad())?, c.parse().map_err(|_| bad())?);
+    if !(1..=16).contains(&r) || !(1..=16).contains(&c) {
+        return Err(bad());
+    }
+    Ok((r, c))
 }
 
 /// Evaluation-time changes to a loaded model (`gman eval --method/--inner-lr/--max-inner`).
@@ -370,7 +391,16 @@ pub fn cmd_train(a: TrainArgs, explicit: &dyn Fn(&str) -> bool) -> Result<()> {
             } else {
                 None
             };
-            let mut model = NavModel::init(a.method, a.preset.dims(), a.seed, gen.as_ref(), psm)?;
+            let (rows, cols) = a.map;
+            if rows > 0 && a.cell_embed == 0 {
+                bail!("--cell-embed must be at least 1 with a --map");
+            }
+            let dims = if rows > 0 {
+                a.preset.dims().with_map(rows, cols, a.cell_embed)
+            } else {
+                a.preset.dims()
+            };
+            let mut model = NavModel::init(a.method, dims, a.seed, gen.as_ref(), psm)?;
             if a.privileged_feature {
                 if model.method.adapts_in_training() {
                     bail!("--privileged-feature replaces G's output, so it goes with a method without inner loop (a3c, a3c-fg, a3c-ps, a3c-fg-ps), not {}", model.method.name());
@@ -426,6 +456,18 @@ pub fn cmd_train(a: TrainArgs, explicit: &dyn Fn(&str) -> bool) -> Result<()> {
             explicit("max_inner"),
         )?;
         resumed("--method", a.method, Some(m.method), explicit("method"))?;
+        resumed(
+            "--map",
+            a.map,
+            Some((m.dims.map_rows, m.dims.map_cols)),
+            explicit("map"),
+        )?;
+        resumed(
+            "--cell-embed",
+            a.cell_embed,
+            Some(m.dims.cell_embed).filter(|_| m.dims.map_cells() > 0),
+            explicit("cell_embed"),
+        )?;
         resumed(
             "--privileged-feature",
             a.privileged_feature,
@@ -636,9 +678,8 @@ pub fn cmd_inspect(a: InspectArgs) -> Result<()> {
             }
         );
     }
-    let missing: Vec<&str> = gman_core::blob::TensorId::ALL
-        .iter()
-        .filter(|id| !blob.has(**id))
+    let missing: Vec<&str> = gman_core::blob::TensorId::all_for(&blob.dims())
+        .filter(|id| !blob.has(*id))
         .map(|id| id.name())
         .collect();
     if !missing.is_empty() {

@@ -40,6 +40,9 @@ const TINY: Dims = Dims {
     lstm_hidden: 3,
     embed: 4,
     ps: 3,
+    map_rows: 0,
+    map_cols: 0,
+    cell_embed: 0,
 };
 const K: usize = 3;
 const SEGMENTS: usize = 3;
@@ -49,7 +52,7 @@ const ALPHA: f32 = 0.5;
 fn params(seed: u64) -> ParamSet {
     let mut rng = Xoshiro128::seed_from_u64(seed);
     let mut set = ParamSet::new();
-    for &id in TensorId::ALL {
+    for id in TensorId::all_for(&TINY) {
         let (r, c) = id.shape(&TINY);
         let mut p = Param::zeros(id.name(), r, c);
         fill_gaussian(&mut rng, &mut p.data);
@@ -115,6 +118,7 @@ fn record(p: &ParamSet, kind: AdaptLossKind) -> Recorded {
             seg.push(StepRec {
                 obs,
                 ps,
+                map: Vec::new(),
                 x: nav.generated_feature().to_vec(),
                 z: nav.noise().to_vec(),
                 h_prev,

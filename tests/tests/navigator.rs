@@ -17,9 +17,8 @@ use gman_tests::reference::{Dense64, Disc64, Gen64, Lstm64};
 /// Seeded f32 weights for every tensor of `dims` (N(0, scale²)).
 fn weights(dims: &Dims, seed: u64, scale: f32) -> Vec<Vec<f32>> {
     let mut rng = Xoshiro128::seed_from_u64(seed);
-    TensorId::ALL
-        .iter()
-        .map(|&id| {
+    TensorId::all_for(dims)
+        .map(|id| {
             let (r, c) = id.shape(dims);
             let mut v = vec![0.0f32; r * c];
             fill_gaussian(&mut rng, &mut v);

@@ -129,6 +129,8 @@ struct StepCache {
     logits: Vec<f32>,
     probs: Vec<f32>,
     value: f32,
+    cell: Vec<f32>,
+    cell_prod: Vec<f32>,
 }
 
 /// Loss gradients at the outputs of each step: `(dlogits, dvalue)`, and the loss parts.
@@ -202,6 +204,8 @@ pub fn segment_backward<M: Mode, const K: usize>(
         policy.lstm.hidden(),
     );
     let actor_gain = policy.actor.gain.is_some();
+    let dims = *nav.dims();
+    let (cell_out, cell_f) = (dims.cell_out(), if dims.map_cells() > 0 { f } else { 0 });
     // Recompute every step's activations with the same kernels and inputs as the navigator.
     let mut caches = Vec::with_capacity(seg.len());
     for s in seg {
@@ -215,6 +219,8 @@ pub fn segment_backward<M: Mode, const K: usize>(
             logits: vec![0.0; NUM_ACTIONS],
             probs: vec![0.0; NUM_ACTIONS],
             value: 0.0,
+            cell: vec![0.0; cell_out],
+            cell_prod: vec![0.0; cell_f],
         };
         let inp = PolicyInput {
             obs: &s.obs,
@@ -222,6 +228,7 @@ pub fn segment_backward<M: Mode, const K: usize>(
             attr: &attr,
             prev_probs: &s.prev_probs,
             ps: &s.ps,
+            map: &s.map,
         };
         let mut pc = PolicyCache {
             prod: &mut c.prod,
@@ -233,6 +240,8 @@ pub fn segment_backward<M: Mode, const K: usize>(
             logits: &mut c.logits,
             probs: &mut c.probs,
             value: 0.0,
+            cell: &mut c.cell,
+            cell_prod: &mut c.cell_prod,
         };
         policy.forward(&inp, &s.h_prev, &s.c_prev, &mut pc)?;
         c.value = pc.value;
@@ -248,6 +257,12 @@ pub fn segment_backward<M: Mode, const K: usize>(
     let values: Vec<f32> = caches.iter().map(|c| c.value).collect();
     let (dl, dv, loss) = output_grads(seg, &values, bootstrap, cfg);
 
+    // The per-cell layer's gradient is accumulated here and added to `grads` at the end
+    // (its tensors exist only in models with a spatial map).
+    let (mut cellw_g, mut cellb_g) = (
+        vec![0.0f32; dims.cell_embed * dims.cell_in() * (dims.map_cells() > 0) as usize],
+        vec![0.0f32; dims.cell_embed * (dims.map_cells() > 0) as usize],
+    );
     let [fw, fb, lwx, lwh, lb, aw, ab, cw, cb, g1w, g1b, g2w, g2b] = grads.slices_mut(NAMES)?;
     let mut pg = PolicyGrads {
         fuse: DenseGrads::Full { w: fw, b: fb },
@@ -258,6 +273,14 @@ pub fn segment_backward<M: Mode, const K: usize>(
         }),
         actor: DenseGrads::Full { w: aw, b: ab },
         critic: DenseGrads::Full { w: cw, b: cb },
+        cell: if dims.map_cells() > 0 {
+            DenseGrads::Full {
+                w: &mut cellw_g,
+                b: &mut cellb_g,
+            }
+        } else {
+            DenseGrads::None
+        },
     };
     let mut g1 = DenseGrads::Full { w: g1w, b: g1b };
     let mut g2 = DenseGrads::Full { w: g2w, b: g2b };
@@ -281,6 +304,7 @@ pub fn segment_backward<M: Mode, const K: usize>(
     let mut dh_prev = vec![0.0f32; hd];
     let mut dc_prev = vec![0.0f32; hd];
     let mut dfeat = vec![0.0f32; f];
+    let (mut dcell, mut cell_tmp) = (vec![0.0f32; cell_out], vec![0.0f32; cell_f]);
     for t in (0..seg.len()).rev() {
         let s = &seg[t];
         let c = &mut caches[t];
@@ -290,6 +314,7 @@ pub fn segment_backward<M: Mode, const K: usize>(
             attr: &attr,
             prev_probs: &s.prev_probs,
             ps: &s.ps,
+            map: &s.map,
         };
         let pc = PolicyCache {
             prod: &mut c.prod,
@@ -301,6 +326,8 @@ pub fn segment_backward<M: Mode, const K: usize>(
             logits: &mut c.logits,
             probs: &mut c.probs,
             value: c.value,
+            cell: &mut c.cell,
+            cell_prod: &mut c.cell_prod,
         };
         dfeat.fill(0.0);
         let mut out = PolicyInputGrads {
@@ -314,6 +341,8 @@ pub fn segment_backward<M: Mode, const K: usize>(
             dprod: &mut scratch.2,
             tmp: &mut scratch.3,
             dh: &mut scratch.4,
+            dcell: &mut dcell,
+            cell_tmp: &mut cell_tmp,
         };
         policy.backward(
             &inp, &s.h_prev, &s.c_prev, &pc, &dl[t], dv[t], &dh_next, &dc_next, &mut pg, &mut out,
@@ -339,6 +368,17 @@ pub fn segment_backward<M: Mode, const K: usize>(
                 tmp: &mut gscr.3,
             };
             gen.backward(&s.z, &attr, &gc, &dfeat, &mut g1, &mut g2, &mut gs)?;
+        }
+    }
+    drop(pg);
+    if dims.map_cells() > 0 {
+        for (name, g) in [("CellW", &cellw_g), ("CellB", &cellb_g)] {
+            let p = grads
+                .get_mut(name)
+                .ok_or_else(|| anyhow::anyhow!("gradient set has no {name}"))?;
+            for (a, b) in p.data.iter_mut().zip(g) {
+                *a += b;
+            }
         }
     }
     Ok(loss)

@@ -176,7 +176,9 @@ impl NavModel {
         }
         let mut rng = Xoshiro128::seed_from_u64(seed ^ 0x6d61_6e5f_696e_6974);
         let mut params = ParamSet::new();
-        for &id in TensorId::ALL {
+        // (The per-cell layer comes last in `ALL`, so models without a map draw exactly the
+        // random numbers they always did.)
+        for &id in TensorId::ALL.iter().filter(|id| id.present(&dims)) {
             let (r, c) = id.shape(&dims);
             let init = match id {
                 _ if id.is_vector() => Init::Zeros,
@@ -229,6 +231,9 @@ impl NavModel {
         let mut err = None;
         let w = NavWeights::from_fn(&self.dims, |id| {
             let (r, c) = id.shape(&self.dims);
+            if !id.present(&self.dims) {
+                return MatRef::f32(0, 0, &[]).expect("empty matrix");
+            }
             match self
                 .params
                 .tensor(id.name())
@@ -331,9 +336,13 @@ impl NavModel {
             lstm_hidden: get("lstm_hidden")?,
             embed: get("embed")?,
             ps: get("ps")?,
+            // Absent before spatial maps existed: no map.
+            map_rows: get("map_rows").unwrap_or(0),
+            map_cols: get("map_cols").unwrap_or(0),
+            cell_embed: get("cell_embed").unwrap_or(0),
         };
         let mut params = ParamSet::new();
-        for &id in TensorId::ALL {
+        for &id in TensorId::ALL.iter().filter(|id| id.present(&dims)) {
             let (r, c) = id.shape(&dims);
             params.push(ck.tensor(id.name(), r, c)?.clone())?;
         }
@@ -416,7 +425,10 @@ impl NavModel {
         }
         let mut quantised: Vec<(TensorId, Vec<u8>, Vec<f32>)> = Vec::new();
         if int8 {
-            for &id in TensorId::ALL.iter().filter(|id| !id.is_vector()) {
+            for &id in TensorId::ALL
+                .iter()
+                .filter(|id| !id.is_vector() && id.present(&self.dims))
+            {
                 let p = self.params.tensor(id.name())?;
                 let (mut q, mut s) = (vec![0u8; p.data.len()], vec![0.0f32; p.rows]);
                 quantize_rows(&p.data, p.rows, p.cols, &mut q, &mut s)?;
@@ -424,7 +436,7 @@ impl NavModel {
             }
         }
         let mut specs = Vec::new();
-        for &id in TensorId::ALL {
+        for &id in TensorId::ALL.iter().filter(|id| id.present(&self.dims)) {
             let data = match quantised.iter().find(|(q, _, _)| *q == id) {
                 Some((_, q, s)) => TensorData::I8 { q, scales: s },
                 None => TensorData::F32(&self.params.tensor(id.name())?.data),
@@ -457,7 +469,7 @@ pub fn model_from_blob(bytes: &[u8], method: Option<Method>) -> Result<NavModel>
     let dims = blob.dims();
     let flags = blob.header().flags();
     let mut params = ParamSet::new();
-    for &id in TensorId::ALL {
+    for &id in TensorId::ALL.iter().filter(|id| id.present(&dims)) {
         let (r, c) = id.shape(&dims);
         let mut p = Param::zeros(id.name(), r, c);
         blob.copy_f32(id, &mut p.data)

@@ -10,6 +10,7 @@ use super::a3c::{segment_backward, A3cConfig, Objective, SegmentLoss};
 use super::meta::{add_adapted, meta_backward, take_adapted, InnerSetup, InnerStep};
 use super::model::NavModel;
 use super::K;
+use crate::sim::spatial::MapGrid;
 use crate::sim::{Env, EpisodeSpec, RewardKind, World};
 use crate::train::params::ParamSet;
 use crate::train::ps::PsBuffers;
@@ -21,6 +22,8 @@ pub struct StepRec {
     pub obs: Vec<f32>,
     /// PS input (empty without PS).
     pub ps: Vec<f32>,
+    /// Spatial observation map M_t (empty for a model without a map).
+    pub map: Vec<f32>,
     /// Generated feature x_t.
     pub x: Vec<f32>,
     /// Noise z_t.
@@ -94,12 +97,22 @@ fn begin<M: Mode>(
     Ok(())
 }
 
+/// The map grid of `model` (empty without a map).
+fn map_grid(model: &NavModel) -> MapGrid {
+    MapGrid {
+        rows: model.dims.map_rows,
+        cols: model.dims.map_cols,
+    }
+}
+
 /// Per-worker buffers reused across episodes.
 pub struct Worker {
     /// The navigator's arena.
     pub arena: Vec<f32>,
     /// PS activations.
     pub ps: Option<PsBuffers>,
+    /// The spatial map of the current step (empty for a model without a map).
+    pub map: Vec<f32>,
 }
 
 impl Worker {
@@ -109,6 +122,7 @@ impl Worker {
         Worker {
             arena: vec![0.0; Navigator::<Full, K>::arena_len(&model.dims)],
             ps: model.ps.as_ref().map(|p| PsBuffers::new(p.hidden)),
+            map: vec![0.0; model.dims.map_len()],
         }
     }
 }
@@ -125,9 +139,17 @@ fn ps_input(model: &NavModel, buf: &mut Option<PsBuffers>, obs: &[f32]) -> Resul
 
 /// The critic's value of the next observation at the navigator's current state, for
 /// bootstrapping a segment that did not end the episode.
-fn bootstrap_value(nav: &Navigator<'_, Full, K>, obs: &[f32], ps: &[f32]) -> Result<f32> {
+fn bootstrap_value(
+    nav: &Navigator<'_, Full, K>,
+    obs: &[f32],
+    map: &[f32],
+    ps: &[f32],
+) -> Result<f32> {
     let p = nav.policy()?;
     let (f, e, hd) = (obs.len(), p.fuse.out_dim(), p.lstm.hidden());
+    let d = *nav.dims();
+    let mut cell = vec![0.0; d.cell_out()];
+    let mut cell_prod = vec![0.0; if d.map_cells() > 0 { f } else { 0 }];
     let (mut prod, mut fuse, mut gates, mut c, mut h) = (
         vec![0.0; f],
         vec![0.0; e],
@@ -146,6 +168,8 @@ fn bootstrap_value(nav: &Navigator<'_, Full, K>, obs: &[f32], ps: &[f32]) -> Res
         logits: &mut logits,
         probs: &mut probs,
         value: 0.0,
+        cell: &mut cell,
+        cell_prod: &mut cell_prod,
     };
     let inp = PolicyInput {
         obs,
@@ -153,6 +177,7 @@ fn bootstrap_value(nav: &Navigator<'_, Full, K>, obs: &[f32], ps: &[f32]) -> Res
         attr: nav.attr(),
         prev_probs: nav.prev_probs(),
         ps,
+        map,
     };
     p.forward(&inp, nav.hidden_state(), nav.cell_state(), &mut cache)?;
     Ok(cache.value)
@@ -208,20 +233,25 @@ pub fn train_episode(
     let mut stats = EpisodeStats::default();
     let (mut gap, mut lad, mut n_upd) = (0.0f64, 0.0f64, 0u32);
     let mut seg: Vec<StepRec> = Vec::with_capacity(K);
+    let grid = map_grid(model);
     loop {
         seg.clear();
         while seg.len() < K && !env.is_done() {
             let obs = env.observe();
             let ps = ps_input(model, &mut worker.ps, &obs.features)?;
+            if !grid.is_empty() {
+                env.observe_map(grid, &mut worker.map);
+            }
             let h_prev = nav.hidden_state().to_vec();
             let c_prev = nav.cell_state().to_vec();
             let prev_probs = nav.prev_probs().to_vec();
             let expert = (objective == Objective::Dagger).then(|| expert_distribution(&env));
-            let out = nav.step(&obs.features, &ps)?;
+            let out = nav.step_map(&obs.features, &worker.map, &ps)?;
             let o = env.step(out.action);
             seg.push(StepRec {
                 obs: obs.features.to_vec(),
                 ps,
+                map: worker.map.clone(),
                 x: nav.generated_feature().to_vec(),
                 z: nav.noise().to_vec(),
                 h_prev,
@@ -238,7 +268,10 @@ pub fn train_episode(
         } else {
             let obs = env.observe();
             let ps = ps_input(model, &mut worker.ps, &obs.features)?;
-            bootstrap_value(&nav, &obs.features, &ps)?
+            if !grid.is_empty() {
+                env.observe_map(grid, &mut worker.map);
+            }
+            bootstrap_value(&nav, &obs.features, &worker.map, &ps)?
         };
         let l = match seg_g.as_mut() {
             Some(g) => {
@@ -343,10 +376,14 @@ fn eval_episode_in<M: Mode>(
     let mut nav: Navigator<'_, M, K> =
         Navigator::new(weights, &mut worker.arena, model.nav_config(false))?;
     begin(&mut nav, env.world(), spec, model)?;
+    let grid = map_grid(model);
     while !env.is_done() {
         let obs = env.observe();
         let ps = ps_input(model, &mut worker.ps, &obs.features)?;
-        match nav.step(&obs.features, &ps) {
+        if !grid.is_empty() {
+            env.observe_map(grid, &mut worker.map);
+        }
+        match nav.step_map(&obs.features, &worker.map, &ps) {
             Ok(out) => {
                 env.step(out.action);
             }

@@ -10,7 +10,7 @@ use super::metrics::{spl, EpisodeMetrics};
 use super::reward::{done_reward, jaccard, step_reward, RewardKind};
 use super::scene::Scene;
 use super::tables::{GoalTable, Observation, SceneTables, UNREACHABLE};
-use super::types::{AgentState, CategoryId, RoomType, STATES_PER_POSITION};
+use super::types::{AgentState, CategoryId, RoomType, SceneId, STATES_PER_POSITION};
 use super::world::{EpisodeSpec, World};
 
 /// Default step limits: 200 in living rooms, 100 elsewhere (reference evaluation).
@@ -111,6 +111,7 @@ impl<'a> OracleView<'a> {
 #[derive(Clone, Debug)]
 pub struct Env<'w> {
     world: &'w World,
+    scene_id: SceneId,
     scene: &'w Scene,
     tables: &'w SceneTables,
     goal: &'w GoalTable,
@@ -148,6 +149,7 @@ impl<'w> Env<'w> {
         let words = scene.positions.len().div_ceil(64);
         let mut env = Env {
             world,
+            scene_id: spec.scene,
             scene,
             tables,
             goal,
@@ -197,6 +199,12 @@ impl<'w> Env<'w> {
     #[inline]
     pub fn observe(&self) -> &'w Observation {
         &self.tables.obs[self.state]
+    }
+
+    /// The spatial map of the current state (`grid` sectors) into `out` (`grid.len()`
+    /// floats; computed on demand, see [`crate::sim::spatial`]).
+    pub fn observe_map(&self, grid: crate::sim::spatial::MapGrid, out: &mut [f32]) {
+        self.world.view_map(self.scene_id, self.state, grid, out);
     }
 
     /// Oracle knowledge of the current state.

@@ -9,6 +9,7 @@
 //! * [`geometry`]: headings, moves, field of view, line of sight.
 //! * [`scene`]: floor plans (reachable set, object placement, state graph).
 //! * [`features`]: the synthetic observation feature model.
+//! * [`spatial`]: spatial observation maps (the view as a grid of sectors).
 //! * [`tables`]: lazily cached per-scene state tables (observations, BFS goal distances).
 //! * [`reward`], [`metrics`]: rewards (Sec. 5.1) and SR/SPL/EPA/DTS.
 //! * [`world`]: the [`World`] (loading, episodes, training sampler).
@@ -27,6 +28,7 @@ pub mod metrics;
 pub mod render;
 pub mod reward;
 pub mod scene;
+pub mod spatial;
 pub mod synthetic;
 pub mod tables;
 pub mod types;

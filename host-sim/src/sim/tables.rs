@@ -55,6 +55,9 @@ pub struct SceneTables {
     pub obs: Vec<Observation>,
     /// Instances visible (success sense) in every state.
     pub visible_instances: Vec<Vec<u16>>,
+    /// The scene-styled feature of every category present (what a view filled by it looks
+    /// like), indexed by category; `None` for absent categories.
+    styled: Vec<Option<Box<[f32; FEATURE_DIM]>>>,
     /// Reverse graph (CSR): predecessors of state `s` are `pred[pred_start[s]..pred_start[s+1]]`.
     pred_start: Vec<u32>,
     pred: Vec<u32>,
@@ -182,9 +185,20 @@ impl SceneTables {
             next,
             obs,
             visible_instances,
+            styled,
             pred_start: count,
             pred,
         }
+    }
+
+    /// The scene-styled feature of `category` (zeros for a category absent from the scene,
+    /// which never appears in a view).
+    pub fn styled(&self, category: CategoryId) -> &[f32; FEATURE_DIM] {
+        const ZERO: [f32; FEATURE_DIM] = [0.0; FEATURE_DIM];
+        self.styled
+            .get(category as usize)
+            .and_then(|s| s.as_deref())
+            .unwrap_or(&ZERO)
     }
 
     /// Number of states.

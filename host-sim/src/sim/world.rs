@@ -393,6 +393,18 @@ impl World {
         &self.tables(scene).obs[state]
     }
 
+    /// The spatial map of a state (the view as `grid` sectors, see [`crate::sim::spatial`])
+    /// into `out` (`grid.len()` floats, cell-major).
+    pub fn view_map(
+        &self,
+        scene: SceneId,
+        state: usize,
+        grid: crate::sim::spatial::MapGrid,
+        out: &mut [f32],
+    ) {
+        crate::sim::spatial::view_map(self, scene, state, grid, out)
+    }
+
     /// The ideal target feature of `category` in `scene`: its appearance rendered with the
     /// scene's style, what a view filled by the object looks like (minus noise). See
     /// [`crate::sim::features`].

@@ -30,7 +30,7 @@ use gman_core::Dims;
 
 /// The preset sizes as JSON (for checkpoint metadata and reports).
 pub fn dims_json(d: &Dims) -> serde_json::Value {
-    serde_json::json!({
+    let mut v = serde_json::json!({
         "attr": d.attr,
         "noise": d.noise,
         "gen_hidden": d.gen_hidden,
@@ -39,7 +39,14 @@ pub fn dims_json(d: &Dims) -> serde_json::Value {
         "lstm_hidden": d.lstm_hidden,
         "embed": d.embed,
         "ps": d.ps,
-    })
+    });
+    // Written only for models with a spatial map, so earlier checkpoints stay byte for byte.
+    if d.map_rows + d.map_cols + d.cell_embed > 0 {
+        v["map_rows"] = d.map_rows.into();
+        v["map_cols"] = d.map_cols.into();
+        v["cell_embed"] = d.cell_embed.into();
+    }
+    v
 }
 
 /// The 16-byte state of a [`Xoshiro128`] (little-endian words), for a checkpoint blob.
