@@ -309,6 +309,14 @@ pub const FLAG_ZERO_NOISE: u32 = 2;
 /// similarity to the observation instead of D (the CosSim EMD variant).
 pub const FLAG_COSSIM: u32 = 4;
 
+/// Bit of [`Header::flags`]: the model was meta-trained with the inner loop in the
+/// [`AdaptMode::Full`](crate::memory::AdaptMode::Full) mode (every parameter of θ, ω and the
+/// actor head adapted in f32 RAM), so it must run in that mode. Without it the model runs in
+/// the [`AdaptMode::Efficient`](crate::memory::AdaptMode::Efficient) mode (per-unit gains and
+/// biases over the base weights), which is how every blob without the bit has always been
+/// run on the device. See [`Header::adapt_mode`].
+pub const FLAG_FULL_ADAPT: u32 = 8;
+
 /// The inner-loop settings of Algorithm 1 a model was trained with, stored in the header of
 /// a v2 blob (see the module docs) so that the device adapts exactly as the trainer did.
 ///
@@ -439,6 +447,16 @@ impl Header {
     /// kept and ignored.
     pub fn flags(&self) -> u32 {
         self.flags
+    }
+    /// The adaptation mode the model was meta-trained in and must run in:
+    /// [`AdaptMode::Full`](crate::memory::AdaptMode::Full) with [`FLAG_FULL_ADAPT`], else
+    /// [`AdaptMode::Efficient`](crate::memory::AdaptMode::Efficient).
+    pub fn adapt_mode(&self) -> crate::memory::AdaptMode {
+        if self.flags & FLAG_FULL_ADAPT != 0 {
+            crate::memory::AdaptMode::Full
+        } else {
+            crate::memory::AdaptMode::Efficient
+        }
     }
     /// Format version of the parsed blob (1, 2 or 3).
     pub fn version(&self) -> u16 {

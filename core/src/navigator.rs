@@ -195,6 +195,11 @@ pub struct NavConfig {
     pub selection: Selection,
     /// An adaptation step whose |loss| exceeds this is rolled back.
     pub loss_bound: f32,
+    /// The adaptation mode the weights were meta-trained in, when known (a blob records it,
+    /// see [`Header::adapt_mode`]): [`Navigator::new`] refuses to run such weights in the
+    /// other mode, since the inner loop would then not be the one that was meta-learned.
+    /// `None`: any mode.
+    pub mode: Option<AdaptMode>,
 }
 
 impl NavConfig {
@@ -218,7 +223,10 @@ impl NavConfig {
     /// * `noise` = [`NoiseMode::Zero`] if it has [`FLAG_ZERO_NOISE`], else
     ///   [`NoiseMode::Gaussian`];
     /// * `alpha_disc`, `alpha_adapt`, `max_inner_updates` = [`Header::alpha_disc`],
-    ///   [`Header::alpha_adapt`], [`Header::max_inner`] (v1: 1e-4, 1e-4, 4).
+    ///   [`Header::alpha_adapt`], [`Header::max_inner`] (v1: 1e-4, 1e-4, 4);
+    /// * `mode` = [`Header::adapt_mode`] (Full with [`FLAG_FULL_ADAPT`](crate::blob::FLAG_FULL_ADAPT), else
+    ///   Efficient), so
+    ///   that a navigator of the other mode refuses an adapting model.
     ///
     /// Everything else keeps its default: [`Schedule::Auto`], [`Selection::Greedy`], the
     /// default [`LdConfig`], [`AdaptLossKind::Paper`] and the default loss bound. These are
@@ -247,6 +255,7 @@ impl NavConfig {
             alpha_disc: settings.alpha_disc,
             alpha_adapt: settings.alpha_adapt,
             max_inner_updates: settings.max_inner,
+            mode: Some(header.adapt_mode()),
             ..NavConfig::default()
         }
     }
@@ -269,6 +278,7 @@ impl Default for NavConfig {
             noise: NoiseMode::Gaussian,
             selection: Selection::Greedy,
             loss_bound: 1e6,
+            mode: None,
         }
     }
 }
@@ -685,6 +695,12 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
         if !(cfg.alpha_disc.is_finite() && cfg.alpha_adapt.is_finite() && cfg.loss_bound > 0.0) {
             return Err(Error::Config {
                 what: "learning rates must be finite and loss_bound > 0",
+            });
+        }
+        // (A model that does not adapt runs identically in both modes.)
+        if cfg.adapt && cfg.mode.is_some_and(|m| m != M::MODE) {
+            return Err(Error::Config {
+                what: "these weights were meta-trained in the other adaptation mode (see NavConfig::mode): run them with that Navigator mode",
             });
         }
         let dims = weights.dims;

@@ -20,6 +20,24 @@ use gman_host_sim::train::ps::{self, PsDataConfig, PsModule, PsTrainConfig};
 
 use crate::cli::{PresetArg, WorldArgs};
 
+/// `--adapt-mode`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum AdaptModeArg {
+    /// Every parameter of θ, ω and the actor head (hosts, application processors).
+    Full,
+    /// Per-unit gains and biases over the base weights (microcontrollers).
+    Efficient,
+}
+
+impl AdaptModeArg {
+    fn mode(self) -> gman_core::memory::AdaptMode {
+        match self {
+            AdaptModeArg::Full => gman_core::memory::AdaptMode::Full,
+            AdaptModeArg::Efficient => gman_core::memory::AdaptMode::Efficient,
+        }
+    }
+}
+
 /// Training configuration presets.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
 pub enum ConfigArg {
@@ -99,6 +117,11 @@ pub struct TrainArgs {
     /// Channels of the shared per-cell layer over the map (the reference's 1x1 conv: 64).
     #[arg(long, default_value_t = 8)]
     pub cell_embed: usize,
+    /// Adaptation mode of the inner loop (in training and on the device; blobs record it):
+    /// `efficient` (per-unit gains and biases, what the microcontroller runs) or `full`
+    /// (every parameter). Default: efficient for the mcu preset, full for paper.
+    #[arg(long, value_enum)]
+    pub adapt_mode: Option<AdaptModeArg>,
     /// Training objective: `a3c` (the paper's actor-critic loss) or `dagger` (imitation of
     /// the shortest-path oracle on the learner's own states: the imitation ceiling).
     #[arg(long, value_enum, default_value = "a3c")]
@@ -401,6 +424,17 @@ pub fn cmd_train(a: TrainArgs, explicit: &dyn Fn(&str) -> bool) -> Result<()> {
                 a.preset.dims()
             };
             let mut model = NavModel::init(a.method, dims, a.seed, gen.as_ref(), psm)?;
+            model.adapt_mode = match (a.adapt_mode, a.preset) {
+                (Some(m), _) => m.mode(),
+                (None, PresetArg::Paper) => gman_core::memory::AdaptMode::Full,
+                (None, _) => gman_core::memory::AdaptMode::Efficient,
+            };
+            if a.meta_order == 2
+                && model.method.adapts_in_training()
+                && model.adapt_mode == gman_core::memory::AdaptMode::Efficient
+            {
+                bail!("--meta-order 2 is implemented for the Full adaptation mode; add --adapt-mode full");
+            }
             if a.privileged_feature {
                 if model.method.adapts_in_training() {
                     bail!("--privileged-feature replaces G's output, so it goes with a method without inner loop (a3c, a3c-fg, a3c-ps, a3c-fg-ps), not {}", model.method.name());
@@ -456,6 +490,14 @@ pub fn cmd_train(a: TrainArgs, explicit: &dyn Fn(&str) -> bool) -> Result<()> {
             explicit("max_inner"),
         )?;
         resumed("--method", a.method, Some(m.method), explicit("method"))?;
+        if let Some(mode) = a.adapt_mode {
+            resumed(
+                "--adapt-mode",
+                mode.mode(),
+                Some(m.adapt_mode),
+                explicit("adapt_mode"),
+            )?;
+        }
         resumed(
             "--map",
             a.map,

@@ -293,6 +293,7 @@ pub fn segment_backward<M: Mode, const K: usize>(
         vec![0.0f32; hd],
     );
     let mut gbuf = (vec![0.0f32; gh], vec![0.0f32; f]);
+    let mut gain_u = (vec![0.0f32; gh], vec![0.0f32; f]);
     let mut gscr = (
         vec![0.0f32; f],
         vec![0.0f32; gh],
@@ -351,15 +352,22 @@ pub fn segment_backward<M: Mode, const K: usize>(
         std::mem::swap(&mut dh_next, &mut dh_prev);
         std::mem::swap(&mut dc_next, &mut dc_prev);
         if train_generator {
+            // In the Efficient mode G's layers carry adapted per-unit gains: the gradient of
+            // the base θ (W, b) is taken through them (Dense::backward with a gain).
             let mut gc = GeneratorCache {
-                u1: &mut [],
+                u1: if gen.l1.gain.is_some() {
+                    &mut gain_u.0
+                } else {
+                    &mut []
+                },
                 h1: &mut gbuf.0,
-                u2: &mut [],
+                u2: if gen.l2.gain.is_some() {
+                    &mut gain_u.1
+                } else {
+                    &mut []
+                },
                 x: &mut gbuf.1,
             };
-            if gen.l1.gain.is_some() {
-                bail!("the trainer runs the Full adaptation mode");
-            }
             gen.forward(&s.z, &attr, &mut gc)?;
             let mut gs = GeneratorScratch {
                 dpre2: &mut gscr.0,

@@ -5,9 +5,10 @@ use std::path::Path;
 use anyhow::{anyhow, bail, Context, Result};
 use gman_core::blob::{
     encode_with_settings, encoded_len_bound, AdaptSettings, Blob, TensorData, TensorId, TensorSpec,
-    FLAG_ADAPT, FLAG_COSSIM, FLAG_ZERO_NOISE,
+    FLAG_ADAPT, FLAG_COSSIM, FLAG_FULL_ADAPT, FLAG_ZERO_NOISE,
 };
 use gman_core::matrix::MatRef;
+use gman_core::memory::AdaptMode;
 use gman_core::navigator::{NavConfig, NavWeights, NoiseMode, Selection};
 use gman_core::quant::quantize_rows;
 use gman_core::rng::Xoshiro128;
@@ -115,6 +116,14 @@ impl Method {
     }
 }
 
+/// `full` / `efficient`, as in checkpoints and on the command line.
+pub fn mode_name(m: AdaptMode) -> &'static str {
+    match m {
+        AdaptMode::Full => "full",
+        AdaptMode::Efficient => "efficient",
+    }
+}
+
 /// Default cap on inner updates per episode (gman-core's default).
 pub const DEFAULT_MAX_INNER: u32 = 4;
 
@@ -151,6 +160,13 @@ pub struct NavModel {
     /// G's output x_t, in training and at evaluation, i.e. what a perfectly adapted G would
     /// give. G is not run or trained; such a model cannot be exported to a blob.
     pub privileged: bool,
+    /// The adaptation mode of the inner loop, in training and wherever the model runs
+    /// (gman-core's [`AdaptMode`]): `Efficient` (per-unit gains and biases over the base
+    /// weights, what the microcontroller runs) or `Full` (every parameter of θ, ω and the
+    /// actor head). Blobs record it ([`FLAG_FULL_ADAPT`]), so the device adapts exactly as
+    /// the trainer meta-learned. Checkpoints from before this setting existed were trained in
+    /// `Full`.
+    pub adapt_mode: AdaptMode,
 }
 
 impl NavModel {
@@ -219,6 +235,7 @@ impl NavModel {
             max_inner: DEFAULT_MAX_INNER,
             blob: None,
             privileged: false,
+            adapt_mode: AdaptMode::Full,
         })
     }
 
@@ -277,6 +294,7 @@ impl NavModel {
             } else {
                 gman_core::navigator::Schedule::Auto
             },
+            mode: Some(self.adapt_mode),
             ..NavConfig::default()
         }
     }
@@ -292,6 +310,7 @@ impl NavModel {
             "inner_lr": self.inner_lr,
             "max_inner": self.max_inner,
             "privileged": self.privileged,
+            "adapt_mode": mode_name(self.adapt_mode),
         })
     }
 
@@ -387,6 +406,13 @@ impl NavModel {
                 .get("privileged")
                 .and_then(|v| v.as_bool())
                 .unwrap_or(false),
+            adapt_mode: match meta.get("adapt_mode").and_then(|v| v.as_str()) {
+                None | Some("full") => AdaptMode::Full,
+                Some("efficient") => AdaptMode::Efficient,
+                Some(other) => {
+                    bail!("checkpoint adapt_mode {other:?} (expected full or efficient)")
+                }
+            },
         })
     }
 
@@ -401,6 +427,9 @@ impl NavModel {
         }
         if self.method.uses_cossim() {
             f |= FLAG_COSSIM;
+        }
+        if self.adapt_mode == AdaptMode::Full {
+            f |= FLAG_FULL_ADAPT;
         }
         f
     }
@@ -510,6 +539,7 @@ pub fn model_from_blob(bytes: &[u8], method: Option<Method>) -> Result<NavModel>
         max_inner: settings.max_inner,
         blob: Some(std::sync::Arc::new(bytes.to_vec())),
         privileged: false,
+        adapt_mode: blob.header().adapt_mode(),
     })
 }
 

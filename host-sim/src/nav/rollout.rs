@@ -2,6 +2,7 @@
 //! every segment and the Manual inner-loop schedule) and for evaluation.
 
 use anyhow::{anyhow, Result};
+use gman_core::memory::AdaptMode;
 use gman_core::navigator::{Efficient, Full, Mode, Navigator};
 use gman_core::policy::{PolicyCache, PolicyInput};
 use gman_core::{Action, NUM_ACTIONS};
@@ -64,6 +65,10 @@ pub struct EpisodeStats {
     pub adapt_loss: f32,
     /// The A3C loss parts.
     pub loss: SegmentLoss,
+    /// The actions taken (indices), in order.
+    pub actions: Vec<u8>,
+    /// G's output x_t at the last step (after the episode's inner updates).
+    pub final_feature: Vec<f32>,
 }
 
 /// The oracle's distribution over the actions on a shortest path to a goal-visible state
@@ -139,8 +144,8 @@ fn ps_input(model: &NavModel, buf: &mut Option<PsBuffers>, obs: &[f32]) -> Resul
 
 /// The critic's value of the next observation at the navigator's current state, for
 /// bootstrapping a segment that did not end the episode.
-fn bootstrap_value(
-    nav: &Navigator<'_, Full, K>,
+fn bootstrap_value<M: Mode>(
+    nav: &Navigator<'_, M, K>,
     obs: &[f32],
     map: &[f32],
     ps: &[f32],
@@ -150,6 +155,14 @@ fn bootstrap_value(
     let d = *nav.dims();
     let mut cell = vec![0.0; d.cell_out()];
     let mut cell_prod = vec![0.0; if d.map_cells() > 0 { f } else { 0 }];
+    let mut actor_u = vec![
+        0.0;
+        if p.actor.gain.is_some() {
+            NUM_ACTIONS
+        } else {
+            0
+        }
+    ];
     let (mut prod, mut fuse, mut gates, mut c, mut h) = (
         vec![0.0; f],
         vec![0.0; e],
@@ -164,7 +177,7 @@ fn bootstrap_value(
         gates: &mut gates,
         c: &mut c,
         h: &mut h,
-        actor_u: &mut [],
+        actor_u: &mut actor_u,
         logits: &mut logits,
         probs: &mut probs,
         value: 0.0,
@@ -193,8 +206,36 @@ fn bootstrap_value(
 /// 2 (for the methods that adapt) back-propagates the θ and φ parts through the inner SGD
 /// steps instead (see [`super::meta`]); the fusion, LSTM and critic gradients are the same
 /// sum in both.
+///
+/// The inner loop runs in the model's adaptation mode ([`NavModel::adapt_mode`]), the mode
+/// its blob will record and the device will run: in `Efficient`, the segment gradients of θ
+/// and of the actor head are taken through the adapted per-unit gains and biases, and D's
+/// adapted gains are folded into its first layer when ω is carried to the next episode.
 #[allow(clippy::too_many_arguments)]
 pub fn train_episode(
+    world: &World,
+    spec: &EpisodeSpec,
+    model: &NavModel,
+    reward: RewardKind,
+    max_steps: u32,
+    a3c: &A3cConfig,
+    objective: Objective,
+    meta_order: u8,
+    worker: &mut Worker,
+    grads: &mut ParamSet,
+) -> Result<(EpisodeStats, Vec<Vec<f32>>)> {
+    match model.adapt_mode {
+        AdaptMode::Full => train_episode_in::<Full>(
+            world, spec, model, reward, max_steps, a3c, objective, meta_order, worker, grads,
+        ),
+        AdaptMode::Efficient => train_episode_in::<Efficient>(
+            world, spec, model, reward, max_steps, a3c, objective, meta_order, worker, grads,
+        ),
+    }
+}
+
+#[allow(clippy::too_many_arguments)]
+fn train_episode_in<M: Mode>(
     world: &World,
     spec: &EpisodeSpec,
     model: &NavModel,
@@ -216,6 +257,11 @@ pub fn train_episode(
     }
     let train_generator = model.method.trains_generator() && !model.privileged;
     let second = meta_order == 2 && model.method.adapts_in_training();
+    if second && M::MODE != AdaptMode::Full {
+        return Err(anyhow!(
+            "the second-order meta-gradient is implemented for the Full adaptation mode; use --adapt-mode full or --meta-order 1"
+        ));
+    }
     // Order 2: each segment's gradient goes to `seg_g` first; its θ, φ parts are kept per
     // segment (with the inner steps) for the reverse recursion at the end of the episode.
     let mut seg_g = if second {
@@ -226,13 +272,14 @@ pub fn train_episode(
     let mut seg_grads: Vec<(Vec<f32>, Vec<f32>)> = Vec::new();
     let mut steps: Vec<Option<InnerStep>> = Vec::new();
     let weights = model.weights()?;
-    let mut nav: Navigator<'_, Full, K> =
+    let mut nav: Navigator<'_, M, K> =
         Navigator::new(weights, &mut worker.arena, model.nav_config(true))?;
     begin(&mut nav, world, spec, model)?;
     let mut env = Env::new(world, spec, reward, max_steps);
     let mut stats = EpisodeStats::default();
     let (mut gap, mut lad, mut n_upd) = (0.0f64, 0.0f64, 0u32);
     let mut seg: Vec<StepRec> = Vec::with_capacity(K);
+    let mut actions = Vec::new();
     let grid = map_grid(model);
     loop {
         seg.clear();
@@ -247,6 +294,7 @@ pub fn train_episode(
             let prev_probs = nav.prev_probs().to_vec();
             let expert = (objective == Objective::Dagger).then(|| expert_distribution(&env));
             let out = nav.step_map(&obs.features, &worker.map, &ps)?;
+            actions.push(out.action.index() as u8);
             let o = env.step(out.action);
             seg.push(StepRec {
                 obs: obs.features.to_vec(),
@@ -333,9 +381,15 @@ pub fn train_episode(
     } else {
         f32::NAN
     };
+    stats.actions = actions;
+    stats.final_feature = nav.generated_feature().to_vec();
     let d = nav.discriminator()?;
     let (r, cc) = (d.l1.w.rows(), d.l1.w.cols());
-    let w1: Vec<f32> = (0..r * cc).map(|i| d.l1.w.get(i / cc, i % cc)).collect();
+    // ω after the episode; in the Efficient mode D's first layer is `gain ⊙ (W1 s) + b1`,
+    // carried to the next episode (whose gains restart at 1) as `diag(gain) W1`.
+    let w1: Vec<f32> = (0..r * cc)
+        .map(|i| d.l1.gain.map_or(1.0, |g| g[i / cc]) * d.l1.w.get(i / cc, i % cc))
+        .collect();
     let disc = vec![w1, d.l1.b.to_vec(), d.w2.to_vec(), vec![d.b2]];
     Ok((stats, disc))
 }
@@ -345,8 +399,8 @@ pub fn train_episode(
 /// depend on episode order or worker count. On a navigator error the agent issues Done (and
 /// the error is returned for reporting).
 ///
-/// A model read from a blob runs in the device's parameter-efficient mode over the blob's
-/// weights in place (see [`eval_mode_is_efficient`]); a checkpoint runs in the Full mode.
+/// The model runs in its adaptation mode ([`NavModel::adapt_mode`]; a blob's is recorded in
+/// its header), a blob over its weights in place, exactly as on the device.
 pub fn eval_episode(
     env: &mut Env<'_>,
     spec: &EpisodeSpec,
@@ -360,10 +414,9 @@ pub fn eval_episode(
     }
 }
 
-/// True when evaluation of `model` uses the `Efficient` adaptation mode (blobs: what the
-/// microcontroller runs).
+/// True when `model` runs in the `Efficient` adaptation mode (what the microcontroller runs).
 pub fn eval_mode_is_efficient(model: &NavModel) -> bool {
-    model.blob.is_some()
+    model.adapt_mode == AdaptMode::Efficient
 }
 
 fn eval_episode_in<M: Mode>(
