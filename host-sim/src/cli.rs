@@ -347,8 +347,9 @@ pub fn agent_factory(
     }
 }
 
-/// Refuses `gman eval` flags that cannot apply: `--episodes 0`, repeated `--seeds`, and the
-/// model overrides with a built-in agent (they would be silently ignored).
+/// Checks `gman eval` flags: values that would give a wrong result are refused (`--episodes 0`,
+/// a seed repeated in `--seeds`); flags without effect (the model overrides with a built-in
+/// agent) are named in a warning, never silently dropped.
 fn check_eval_flags(a: &EvalArgs) -> Result<()> {
     if a.episodes == Some(0) {
         bail!("--episodes 0 evaluates nothing; give at least 1 (or omit it for every episode)");
@@ -364,8 +365,8 @@ fn check_eval_flags(a: &EvalArgs) -> Result<()> {
             ("--max-inner", a.max_inner.is_some()),
         ] {
             if given {
-                bail!(
-                    "{flag} applies to model agents (a checkpoint or a weight blob), not to the built-in `{}` agent",
+                eprintln!(
+                    "warning: {flag} is ignored: it applies to model agents (a checkpoint or a weight blob), not to the built-in `{}` agent",
                     a.agent
                 );
             }

@@ -97,6 +97,10 @@ pub struct TrainState {
     pub episodes: u64,
     /// Environment steps taken.
     pub env_steps: u64,
+    /// What world the run trains on (`{"kind": "synthetic" | "data", "world_seed": .., and
+    /// for data "fingerprint": ..}`, see the CLI), stored in the checkpoint so that a resumed
+    /// run can refuse another world; `None` when unknown (library use, older checkpoints).
+    pub world: Option<serde_json::Value>,
 }
 
 const CSV_HEADER: &str = "update,episodes,env_steps,success_rate,mean_reward,mean_steps,policy_loss,value_loss,entropy,grad_norm,adaptations,rollbacks,disc_gap,adapt_loss,elapsed_s";
@@ -116,6 +120,7 @@ impl TrainState {
             update: 0,
             episodes: 0,
             env_steps: 0,
+            world: None,
         }
     }
 
@@ -135,7 +140,11 @@ impl TrainState {
             "adam": opts.adam,
             "a3c": opts.a3c,
             "meta_order": opts.meta_order,
+            "method": self.model.method.name(),
         });
+        if let Some(w) = &self.world {
+            meta["trainer"]["world"] = w.clone();
+        }
         let mut ck = Checkpoint::new(meta);
         self.model.add_to_checkpoint(&mut ck)?;
         ck.add_blob("adam", self.adam.to_bytes());
@@ -162,12 +171,23 @@ impl TrainState {
                 .and_then(|v| v.as_u64())
                 .with_context(|| format!("checkpoint trainer.{k} missing"))
         };
+        // The method is stored twice (model and trainer metadata): a relabelled one is refused.
+        if let Some(m) = t.get("method").and_then(|v| v.as_str()) {
+            if m != model.method.name() {
+                bail!(
+                    "{}: the model's method is {} but the run was trained as {m}; the metadata was changed",
+                    path.display(),
+                    model.method.name()
+                );
+            }
+        }
         let state = TrainState {
             model,
             adam,
             update: get("update")?,
             episodes: get("episodes")?,
             env_steps: get("env_steps")?,
+            world: t.get("world").cloned(),
         };
         Ok((state, t.clone()))
     }

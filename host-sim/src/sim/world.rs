@@ -502,6 +502,69 @@ impl World {
         let target = self
             .category_id(&e.target)
             .ok_or_else(|| anyhow!("{}: unknown target {:?}", at(), e.target))?;
+        let file_stem = format!("{}_{}.jsonl", room.name(), kind.name());
+        if r.file.file_name().is_some_and(|n| n != file_stem.as_str()) {
+            bail!(
+                "{}: a {} {} episode in the wrong file (it belongs in {file_stem})",
+                at(),
+                room.name(),
+                kind.name()
+            );
+        }
+        if self.scenes[scene].room != room {
+            bail!(
+                "{}: room {} disagrees with scene {}, which is a {}",
+                at(),
+                room.name(),
+                e.scene,
+                self.scenes[scene].room.name()
+            );
+        }
+        // The split's target lists (DeskLamp is listed both seen and unseen, see
+        // attributes.json `split.note`, so membership is what is checked).
+        let (kind_list, room_list) = match kind {
+            TargetKind::Seen => (&self.seen, &self.eval_targets[room.index()].0),
+            TargetKind::Unseen => (&self.unseen, &self.eval_targets[room.index()].1),
+        };
+        if !kind_list.contains(&target) || !(room_list.is_empty() || room_list.contains(&target)) {
+            bail!(
+                "{}: target {} is not a {} target{} in the split of attributes.json",
+                at(),
+                e.target,
+                kind.name(),
+                if room_list.is_empty() {
+                    String::new()
+                } else {
+                    format!(" of {} rooms", room.name())
+                }
+            );
+        }
+        if e.target_ids.is_empty() {
+            bail!("{}: target_ids is empty", at());
+        }
+        if let Some(id) = e.target_ids.iter().find(|id| {
+            !self.scenes[scene]
+                .objects
+                .iter()
+                .any(|o| o.category == target && o.ids.iter().any(|i| i == *id))
+        }) {
+            bail!(
+                "{}: target id {id:?} is not a {} of scene {}",
+                at(),
+                e.target,
+                e.scene
+            );
+        }
+        for (axis, v) in [("x", e.start.x), ("z", e.start.z)] {
+            let cells = v / super::geometry::GRID;
+            if !v.is_finite() || (cells - cells.round()).abs() * super::geometry::GRID > 1e-3 {
+                bail!(
+                    "{}: start {axis} = {v} is not on the {} m grid",
+                    at(),
+                    super::geometry::GRID
+                );
+            }
+        }
         let rot = e.start.rotation.rem_euclid(360.0);
         if (rot / 45.0 - (rot / 45.0).round()).abs() > 1e-3 {
             bail!(
