@@ -528,7 +528,7 @@ impl World {
         };
         if !kind_list.contains(&target) || !(room_list.is_empty() || room_list.contains(&target)) {
             bail!(
-                "{}: target {} is not a {} target{} in the split of attributes.json",
+                "{}: target {} is not among the {} targets{} in the split of attributes.json",
                 at(),
                 e.target,
                 kind.name(),
