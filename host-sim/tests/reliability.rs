@@ -260,7 +260,8 @@ fn case06_resume_validates_stored_settings() {
         std::fs::copy(base.join("metrics.csv"), p.join("metrics.csv")).unwrap();
         p
     };
-    let cases: Vec<(&str, Box<dyn FnOnce(&mut Checkpoint)>, &str)> = vec![
+    type Edit = Box<dyn FnOnce(&mut Checkpoint)>;
+    let cases: Vec<(&str, Edit, &str)> = vec![
         (
             "inner",
             Box::new(|ck| ck.metadata["inner_lr"] = serde_json::json!(-1.0)),
