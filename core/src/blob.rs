@@ -50,7 +50,9 @@
 //! # Validation
 //! Parsing checks, in order: decoding of the `{magic, version}` prefix, magic, version,
 //! decoding of that version's header, the inner-loop rates (v2: finite and non-negative, else
-//! [`BlobError::BadInnerRate`]), payload length, CRC-32, then every record (known id, no
+//! [`BlobError::BadInnerRate`]), the dims (every size derived from them, parameter counts,
+//! tensor bytes, RAM layout, must fit in `usize`, else [`BlobError::DimsTooLarge`]; see
+//! [`Dims::checked_sizes`]), payload length, CRC-32, then every record (known id, no
 //! duplicates, shape implied by the dims, byte lengths, allowed quantisation, finite f32
 //! weights, finite non-negative scales). Any failure is a typed [`BlobError`]; nothing panics,
 //! whatever the bytes (a property test and a fuzz target check this).
@@ -160,8 +162,43 @@ tensor_ids! {
 /// Number of tensor ids.
 pub const NUM_TENSORS: usize = 19;
 
+/// True when, for every tensor of `d`, the widths, `rows * cols` and its byte lengths as f32
+/// (`4 rows cols`) and as int8 (`rows cols + 4 rows`) fit in `usize` (part of
+/// [`Dims::checked_sizes`]).
+pub(crate) const fn checked_tensor_bytes(d: &Dims) -> bool {
+    if d.checked_gen_in().is_none() || d.checked_fuse_in().is_none() {
+        return false;
+    }
+    if d.lstm_hidden.checked_mul(4).is_none()
+        || d.feat.checked_mul(2).is_none()
+        || d.checked_cell_out().is_none()
+        || d.checked_cell_params().is_none()
+    {
+        return false;
+    }
+    let mut i = 0;
+    while i < TensorId::ALL.len() {
+        let (r, c) = TensorId::ALL[i].shape(d);
+        let n = match r.checked_mul(c) {
+            Some(n) => n,
+            None => return false,
+        };
+        let i8_bytes = match r.checked_mul(4) {
+            Some(s) => n.checked_add(s),
+            None => None,
+        };
+        if n.checked_mul(4).is_none() || i8_bytes.is_none() {
+            return false;
+        }
+        i += 1;
+    }
+    true
+}
+
 impl TensorId {
-    /// `(rows, cols)` of this tensor for the given dims; vectors have `cols == 1`.
+    /// `(rows, cols)` of this tensor for the given dims; vectors have `cols == 1`. A width
+    /// that does not fit in `usize` saturates at `usize::MAX` (such dims never come out of
+    /// [`Blob::parse`], see [`Dims::checked_sizes`]).
     pub const fn shape(self, d: &Dims) -> (usize, usize) {
         match self {
             TensorId::GenW1 => (d.gen_hidden, d.gen_in()),
@@ -174,9 +211,9 @@ impl TensorId {
             TensorId::DiscB2 => (1, 1),
             TensorId::FuseW => (d.embed, d.fuse_in()),
             TensorId::FuseB => (d.embed, 1),
-            TensorId::LstmWx => (4 * d.lstm_hidden, d.embed),
-            TensorId::LstmWh => (4 * d.lstm_hidden, d.lstm_hidden),
-            TensorId::LstmB => (4 * d.lstm_hidden, 1),
+            TensorId::LstmWx => (d.lstm_hidden.saturating_mul(4), d.embed),
+            TensorId::LstmWh => (d.lstm_hidden.saturating_mul(4), d.lstm_hidden),
+            TensorId::LstmB => (d.lstm_hidden.saturating_mul(4), 1),
             TensorId::ActorW => (NUM_ACTIONS, d.lstm_hidden),
             TensorId::ActorB => (NUM_ACTIONS, 1),
             TensorId::CriticW => (1, d.lstm_hidden),
@@ -497,6 +534,16 @@ impl Header {
     }
 }
 
+/// [`BlobError::DimsTooLarge`] unless every size derived from the header's dims fits in
+/// `usize` ([`Dims::checked_sizes`]).
+fn check_dims_fit(d: &DimsRecord, map: MapRecord) -> Result<(), BlobError> {
+    if d.to_dims(map).checked_sizes() {
+        Ok(())
+    } else {
+        Err(BlobError::DimsTooLarge)
+    }
+}
+
 /// Decodes and checks the header of any supported version; returns it and the bytes after it.
 fn parse_header(bytes: &[u8]) -> Result<(Header, &[u8]), BlobError> {
     fn map_err(e: postcard::Error) -> BlobError {
@@ -522,6 +569,7 @@ fn parse_header(bytes: &[u8]) -> Result<(Header, &[u8]), BlobError> {
         1 => {
             // `magic` and `version` are decoded again (same bytes, same values as the prefix).
             let (h, rest) = postcard::take_from_bytes::<HeaderV1>(bytes).map_err(map_err)?;
+            check_dims_fit(&h.dims, MapRecord::default())?;
             Ok((
                 Header {
                     version: 1,
@@ -544,6 +592,7 @@ fn parse_header(bytes: &[u8]) -> Result<(Header, &[u8]), BlobError> {
                 max_inner: h.max_inner,
             };
             settings.validate()?;
+            check_dims_fit(&h.dims, MapRecord::default())?;
             Ok((
                 Header {
                     version: 2,
@@ -560,6 +609,7 @@ fn parse_header(bytes: &[u8]) -> Result<(Header, &[u8]), BlobError> {
         }
         3 => {
             let (h, rest) = postcard::take_from_bytes::<HeaderV3>(bytes).map_err(map_err)?;
+            check_dims_fit(&h.dims, h.map)?;
             let settings = AdaptSettings {
                 alpha_disc: h.alpha_disc,
                 alpha_adapt: h.alpha_adapt,

@@ -124,6 +124,10 @@ pub enum BlobError {
         /// value back).
         bits: u32,
     },
+    /// The header's dims are so large that a size derived from them (a parameter count, a
+    /// tensor's bytes, the navigator's RAM) does not fit in `usize`; see
+    /// [`Dims::checked_sizes`](crate::Dims::checked_sizes).
+    DimsTooLarge,
     /// The postcard encoding itself is malformed (bad varint, trailing bytes, ...).
     Malformed,
     /// The output buffer given to the encoder is too small.
@@ -193,6 +197,10 @@ impl fmt::Display for BlobError {
                 f,
                 "inner-loop rate `{field}` is {}; it must be finite and non-negative",
                 f32::from_bits(*bits)
+            ),
+            BlobError::DimsTooLarge => write!(
+                f,
+                "dimensions too large: a parameter count, tensor size or RAM size derived from them overflows"
             ),
             BlobError::Malformed => write!(f, "malformed postcard encoding"),
             BlobError::BufferTooSmall => write!(f, "output buffer too small"),

@@ -18,7 +18,7 @@
 //! `cargo run -p gman-core --example memory_table` prints the figures of both presets and
 //! modes (from [`NavLayout::total_bytes`] and [`int8_weight_bytes`]); the README quotes them.
 
-use crate::preset::Dims;
+use crate::preset::{sat, tri, Dims};
 use crate::NUM_ACTIONS;
 
 /// Which parameters adaptation updates, and where they live. See the module docs.
@@ -59,8 +59,27 @@ pub struct NavLayout {
 }
 
 impl NavLayout {
-    /// The layout for `dims`, `mode` and buffer capacity `k`.
+    /// The layout for `dims`, `mode` and buffer capacity `k`. When a size does not fit in
+    /// `usize` (absurd dims from a hostile blob, see [`NavLayout::try_new`]) every field is
+    /// `usize::MAX`, so the arena asked for can never be provided and nothing wraps.
     pub const fn new(d: &Dims, mode: AdaptMode, k: usize) -> NavLayout {
+        match NavLayout::try_new(d, mode, k) {
+            Some(l) => l,
+            None => NavLayout {
+                gen_params: usize::MAX,
+                disc_params: usize::MAX,
+                actor_params: usize::MAX,
+                fixed_biases: usize::MAX,
+                grads: usize::MAX,
+                psi: usize::MAX,
+                work: usize::MAX,
+            },
+        }
+    }
+
+    /// The layout for `dims`, `mode` and buffer capacity `k`, or `None` when any region or
+    /// the total byte count overflows `usize` (checked arithmetic throughout).
+    pub const fn try_new(d: &Dims, mode: AdaptMode, k: usize) -> Option<NavLayout> {
         let (h, f, z, a, dh, lh, e) = (
             d.gen_hidden,
             d.feat,
@@ -72,96 +91,168 @@ impl NavLayout {
         );
         let gain = matches!(mode, AdaptMode::Efficient);
         let gen_params = match mode {
-            AdaptMode::Full => d.gen_params(),
-            AdaptMode::Efficient => 2 * (h + f),
+            AdaptMode::Full => tri!(d.checked_gen_params()),
+            AdaptMode::Efficient => tri!(tri!(h.checked_add(f)).checked_mul(2)),
         };
         let disc_params = match mode {
-            AdaptMode::Full => d.disc_params(),
-            AdaptMode::Efficient => 3 * dh + 1,
+            AdaptMode::Full => tri!(d.checked_disc_params()),
+            AdaptMode::Efficient => tri!(tri!(dh.checked_mul(3)).checked_add(1)),
         };
+        let lh4 = tri!(lh.checked_mul(4));
         let actor_params = match mode {
-            AdaptMode::Full => NUM_ACTIONS * lh + NUM_ACTIONS,
+            AdaptMode::Full => tri!(tri!(lh.checked_mul(NUM_ACTIONS)).checked_add(NUM_ACTIONS)),
             AdaptMode::Efficient => 2 * NUM_ACTIONS,
         };
-        let map = d.map_cells() > 0;
-        let fixed_biases = e + 4 * lh + 1 + if map { d.cell_embed } else { 0 };
-        let grads = gen_params + disc_params + actor_params;
-        let psi = k * (f + z + NUM_ACTIONS + lh);
+        let map = tri!(d.map_rows.checked_mul(d.map_cols)) > 0;
+        let cell_b = if map { d.cell_embed } else { 0 };
+        let fixed_biases = tri!(tri!(tri!(e.checked_add(lh4)).checked_add(1)).checked_add(cell_b));
+        let grads = tri!(tri!(gen_params.checked_add(disc_params)).checked_add(actor_params));
+        let per_step = tri!(tri!(tri!(f.checked_add(z)).checked_add(NUM_ACTIONS)).checked_add(lh));
+        let psi = tri!(k.checked_mul(per_step));
+        // With gains (Efficient) some buffers exist, otherwise they are empty (`g` is 0 or 1).
         let g = if gain { 1 } else { 0 };
-        let gen_work = g * h + h + g * f + f + f + h + h + max(f, h);
-        let disc_work = g * dh + 3 * dh + 2 * f;
-        let adapt_work = 3 * k + k * NUM_ACTIONS + f;
-        let policy_work = f
-            + e
-            + 4 * lh
-            + 4 * lh
-            + 4 * NUM_ACTIONS
-            + g * NUM_ACTIONS
-            + z
-            + a
-            + d.ps
-            + d.cell_out()
-            + if map { f } else { 0 };
-        NavLayout {
+        let gen_work = tri!(sum(&[g * h, h, g * f, f, f, h, h, max(f, h)]));
+        let disc_work = tri!(sum(&[
+            g * dh,
+            tri!(dh.checked_mul(3)),
+            tri!(f.checked_mul(2))
+        ]));
+        let adapt_work = tri!(sum(&[
+            tri!(k.checked_mul(3)),
+            tri!(k.checked_mul(NUM_ACTIONS)),
+            f
+        ]));
+        let policy_work = tri!(sum(&[
+            f,
+            e,
+            lh4,
+            lh4,
+            4 * NUM_ACTIONS,
+            g * NUM_ACTIONS,
+            z,
+            a,
+            d.ps,
+            tri!(d.checked_cell_out()),
+            if map { f } else { 0 }
+        ]));
+        let work = tri!(sum(&[gen_work, disc_work, adapt_work, policy_work]));
+        let l = NavLayout {
             gen_params,
             disc_params,
             actor_params,
             fixed_biases,
             grads,
             psi,
-            work: gen_work + disc_work + adapt_work + policy_work,
-        }
+            work,
+        };
+        // The total in floats and in bytes must fit as well.
+        tri!(tri!(l.checked_total_floats()).checked_mul(4));
+        Some(l)
     }
 
-    /// Total f32 elements.
+    const fn checked_total_floats(&self) -> Option<usize> {
+        sum(&[
+            self.gen_params,
+            self.disc_params,
+            self.actor_params,
+            self.fixed_biases,
+            self.grads,
+            self.psi,
+            self.work,
+        ])
+    }
+
+    /// Total f32 elements (`usize::MAX` if that does not fit).
     pub const fn total_floats(&self) -> usize {
-        self.gen_params
-            + self.disc_params
-            + self.actor_params
-            + self.fixed_biases
-            + self.grads
-            + self.psi
-            + self.work
+        sat(self.checked_total_floats())
     }
 
-    /// Total bytes of RAM for the navigator's arena.
+    /// Total bytes of RAM for the navigator's arena (`usize::MAX` if that does not fit).
     pub const fn total_bytes(&self) -> usize {
-        4 * self.total_floats()
+        self.total_floats().saturating_mul(4)
     }
+}
+
+/// Checked sum of `v`.
+const fn sum(v: &[usize]) -> Option<usize> {
+    let mut acc = 0usize;
+    let mut i = 0;
+    while i < v.len() {
+        acc = tri!(acc.checked_add(v[i]));
+        i += 1;
+    }
+    Some(acc)
 }
 
 /// Length in f32 of the arena a navigator needs: use as a static array length,
-/// `[f32; arena_len(&Dims::MCU, AdaptMode::Efficient, 20)]`.
+/// `[f32; arena_len(&Dims::MCU, AdaptMode::Efficient, 20)]`. `usize::MAX` when the size
+/// does not fit in `usize` (see [`try_arena_len`]): no arena is that long, so
+/// [`Navigator::new`](crate::navigator::Navigator::new) refuses it.
 pub const fn arena_len(d: &Dims, mode: AdaptMode, k: usize) -> usize {
-    NavLayout::new(d, mode, k).total_floats()
+    sat(try_arena_len(d, mode, k))
+}
+
+/// [`arena_len`], or `None` when it overflows `usize`.
+pub const fn try_arena_len(d: &Dims, mode: AdaptMode, k: usize) -> Option<usize> {
+    match NavLayout::try_new(d, mode, k) {
+        Some(l) => l.checked_total_floats(),
+        None => None,
+    }
 }
 
 /// Bytes of flash the int8 weights of `dims` take (values plus one f32 scale per row; biases
-/// are f32), i.e. the payload of an int8 blob without its small header.
+/// are f32), i.e. the payload of an int8 blob without its small header. `usize::MAX` when
+/// that does not fit (see [`checked_int8_weight_bytes`]).
 pub const fn int8_weight_bytes(d: &Dims) -> usize {
-    let params = d.gen_params() + d.disc_params() + d.policy_params();
-    let cell = if d.map_cells() > 0 { d.cell_embed } else { 0 };
+    sat(checked_int8_weight_bytes(d))
+}
+
+/// [`int8_weight_bytes`], or `None` when it overflows `usize`.
+pub const fn checked_int8_weight_bytes(d: &Dims) -> Option<usize> {
+    let params = tri!(sum(&[
+        tri!(d.checked_gen_params()),
+        tri!(d.checked_disc_params()),
+        tri!(d.checked_policy_params())
+    ]));
+    let lh4 = tri!(d.lstm_hidden.checked_mul(4));
+    let lh8 = tri!(d.lstm_hidden.checked_mul(8));
+    // The per-cell layer (with a map): one bias vector and `cell_embed` rows.
+    let cell = if tri!(d.map_rows.checked_mul(d.map_cols)) > 0 {
+        d.cell_embed
+    } else {
+        0
+    };
     // Bias vectors (stored f32).
-    let vectors = d.gen_hidden
-        + d.feat
-        + d.disc_hidden
-        + 1
-        + d.embed
-        + 4 * d.lstm_hidden
-        + NUM_ACTIONS
-        + 1
-        + cell;
+    let vectors = tri!(sum(&[
+        d.gen_hidden,
+        d.feat,
+        d.disc_hidden,
+        1,
+        d.embed,
+        lh4,
+        NUM_ACTIONS,
+        1,
+        cell
+    ]));
     // Rows of all matrices, one f32 scale each.
-    let rows = d.gen_hidden
-        + d.feat
-        + d.disc_hidden
-        + 1
-        + d.embed
-        + 8 * d.lstm_hidden
-        + NUM_ACTIONS
-        + 1
-        + cell;
-    (params - vectors) + 4 * rows + 4 * vectors
+    let rows = tri!(sum(&[
+        d.gen_hidden,
+        d.feat,
+        d.disc_hidden,
+        1,
+        d.embed,
+        lh8,
+        NUM_ACTIONS,
+        1,
+        cell
+    ]));
+    // The biases are part of the parameters, so this cannot underflow; checked anyway.
+    let weights = tri!(params.checked_sub(vectors));
+    sum(&[
+        weights,
+        tri!(rows.checked_mul(4)),
+        tri!(vectors.checked_mul(4)),
+    ])
 }
 
 #[cfg(test)]

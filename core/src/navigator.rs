@@ -359,11 +359,11 @@ impl<'w> NavWeights<'w> {
         Ok(NavWeights { dims: *dims, t })
     }
 
-    /// Views built by `f` for each tensor (a trainer passes `MatRef::f32` over its buffers);
-    /// shapes are checked against `dims`.
+    /// Views built by `f` for each tensor of `dims` ([`TensorId::all_for`]; a trainer passes
+    /// `MatRef::f32` over its buffers); shapes are checked against `dims`.
     pub fn from_fn(dims: &Dims, mut f: impl FnMut(TensorId) -> MatRef<'w>) -> Result<Self> {
         let mut t = [empty(); NUM_TENSORS];
-        for &id in TensorId::ALL {
+        for id in TensorId::all_for(dims) {
             let m = f(id);
             let (r, c) = id.shape(dims);
             if m.rows() != r || m.cols() != c {
@@ -704,6 +704,11 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
             });
         }
         let dims = weights.dims;
+        if crate::memory::try_arena_len(&dims, M::MODE, K).is_none() {
+            return Err(Error::Config {
+                what: "dims too large: the arena size for these dims, mode and K overflows",
+            });
+        }
         let (r, _used) = Ram::carve(arena, &dims, M::MODE, K)?;
         let mut nav = Navigator {
             w: weights,
@@ -943,6 +948,12 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
                 what: "call reset() before step()",
             });
         }
+        if self.n_buf >= K {
+            // Only reachable with `Schedule::Manual` (`Auto` empties Ψ when it fills).
+            return Err(Error::Config {
+                what: "buffer full: call adapt_now() or clear_buffer() before step() (Schedule::Manual)",
+            });
+        }
         let d = self.w.dims;
         check_len("step.obs", d.feat, obs.len())?;
         check_len("step.ps", d.ps, ps.len())?;
@@ -993,7 +1004,7 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
         let mut probs = [0.0f32; NUM_ACTIONS];
         probs.copy_from_slice(self.r.probs);
         self.counters.steps = self.counters.steps.saturating_add(1);
-        self.counters.total_steps += 1;
+        self.counters.total_steps = self.counters.total_steps.saturating_add(1);
         // Lines 14-20: every k steps, the inner update; then empty Ψ.
         let mut adapted = false;
         if self.n_buf == K && self.cfg.schedule == Schedule::Auto {
@@ -1359,10 +1370,11 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
         }
         report.adapt_applied = adapt_ok;
         let rolled = (!disc_ok) as u32 + (!adapt_ok) as u32;
-        self.counters.rollbacks += rolled;
-        self.counters.total_rollbacks += rolled as u64;
-        self.counters.adaptations += 1;
-        self.counters.total_adaptations += 1;
+        let c = &mut self.counters;
+        c.rollbacks = c.rollbacks.saturating_add(rolled);
+        c.total_rollbacks = c.total_rollbacks.saturating_add(rolled as u64);
+        c.adaptations = c.adaptations.saturating_add(1);
+        c.total_adaptations = c.total_adaptations.saturating_add(1);
         self.x_valid = false;
         self.last = report;
         Ok(())

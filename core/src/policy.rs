@@ -174,7 +174,7 @@ impl<'a> Policy<'a> {
             Some(cell) => {
                 check_len("policy.cell.in", 2 * f, cell.in_dim())?;
                 let ce = cell.out_dim();
-                let cells = if f == 0 { 0 } else { inp.map.len() / f };
+                let cells = inp.map.len().checked_div(f).unwrap_or(0);
                 check_len("policy.map", cells * f, inp.map.len())?;
                 check_len("policy.cell_out", cells * ce, cell_out)?;
                 Ok((cells, ce))

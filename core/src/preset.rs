@@ -18,6 +18,17 @@
 
 use crate::NUM_ACTIONS;
 
+/// `?` for `Option` in a `const fn`.
+macro_rules! tri {
+    ($e:expr) => {
+        match $e {
+            Some(v) => v,
+            None => return None,
+        }
+    };
+}
+pub(crate) use tri;
+
 /// Every size of the GMAN networks.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct Dims {
@@ -100,85 +111,181 @@ impl Dims {
         }
     }
 
-    /// Number of map cells `map_rows * map_cols` (0: no map).
+    /// Number of map cells `map_rows * map_cols` (0: no map; saturating).
     pub const fn map_cells(&self) -> usize {
-        self.map_rows * self.map_cols
+        sat(self.map_rows.checked_mul(self.map_cols))
     }
 
     /// Floats of one spatial observation: `map_cells * feat`, cell-major (cell `c`'s
     /// embedding is `map[c * feat..(c + 1) * feat]`, cells in row-major order, row 0 at the
     /// top of the view, column 0 at the left).
     pub const fn map_len(&self) -> usize {
-        self.map_cells() * self.feat
+        sat(self.map_cells().checked_mul(self.feat))
     }
 
     /// Outputs of the per-cell layer over the whole map, `map_cells * cell_embed`.
     pub const fn cell_out(&self) -> usize {
-        self.map_cells() * self.cell_embed
+        sat(self.checked_cell_out())
+    }
+
+    /// [`Dims::cell_out`], or `None` when it overflows `usize`.
+    pub const fn checked_cell_out(&self) -> Option<usize> {
+        tri!(self.map_rows.checked_mul(self.map_cols)).checked_mul(self.cell_embed)
     }
 
     /// Input width of the per-cell layer: a cell's embedding and its element-wise product
     /// with x_t, `2 feat`.
     pub const fn cell_in(&self) -> usize {
-        2 * self.feat
+        sat(self.feat.checked_mul(2))
     }
 
     /// Parameters of the per-cell layer (0 without a map).
     pub const fn cell_params(&self) -> usize {
-        if self.map_cells() == 0 {
-            0
-        } else {
-            self.cell_embed * self.cell_in() + self.cell_embed
-        }
+        sat(self.checked_cell_params())
     }
 
-    /// Input width of G: `noise + attr`.
+    /// [`Dims::cell_params`], or `None` when it overflows `usize`.
+    pub const fn checked_cell_params(&self) -> Option<usize> {
+        if tri!(self.map_rows.checked_mul(self.map_cols)) == 0 {
+            return Some(0);
+        }
+        let w = tri!(self.cell_embed.checked_mul(tri!(self.feat.checked_mul(2))));
+        w.checked_add(self.cell_embed)
+    }
+
+    /// Input width of G: `noise + attr` (saturates at `usize::MAX` when it does not fit, see
+    /// [`Dims::checked_sizes`]).
     pub const fn gen_in(&self) -> usize {
-        self.noise + self.attr
+        sat(self.checked_gen_in())
     }
 
     /// Input width of the fusion layer: observation, generated feature, their element-wise
     /// product, attribute vector, previous action probabilities, PS input and the per-cell
-    /// layer's outputs over the map.
+    /// layer's outputs over the map (saturating).
     pub const fn fuse_in(&self) -> usize {
-        3 * self.feat + self.attr + NUM_ACTIONS + self.ps + self.cell_out()
+        sat(self.checked_fuse_in())
     }
 
-    /// Number of parameters of G (θ).
+    /// Number of parameters of G (θ) (saturating).
     pub const fn gen_params(&self) -> usize {
-        self.gen_hidden * self.gen_in() + self.gen_hidden + self.feat * self.gen_hidden + self.feat
+        sat(self.checked_gen_params())
     }
 
-    /// Number of parameters of D (ω).
+    /// Number of parameters of D (ω) (saturating).
     pub const fn disc_params(&self) -> usize {
-        self.disc_hidden * self.feat + 2 * self.disc_hidden + 1
+        sat(self.checked_disc_params())
     }
 
-    /// Number of parameters of the policy (φ).
+    /// Number of parameters of the policy (φ) (saturating).
     pub const fn policy_params(&self) -> usize {
-        let e = self.embed;
-        let h = self.lstm_hidden;
-        e * self.fuse_in()
-            + e
-            + 4 * h * e
-            + 4 * h * h
-            + 4 * h
-            + NUM_ACTIONS * h
-            + NUM_ACTIONS
-            + h
-            + 1
-            + self.cell_params()
+        sat(self.checked_policy_params())
     }
 
     /// Multiply-accumulates of one navigation step: G, fusion, LSTM and heads (D only runs
-    /// in the inner update).
+    /// in the inner update) (saturating).
     pub const fn macs_per_step(&self) -> usize {
-        self.gen_hidden * self.gen_in()
-            + self.feat * self.gen_hidden
-            + self.embed * self.fuse_in()
-            + 4 * self.lstm_hidden * (self.embed + self.lstm_hidden)
-            + (NUM_ACTIONS + 1) * self.lstm_hidden
-            + self.map_cells() * self.cell_embed * self.cell_in()
+        sat(self.checked_macs_per_step())
+    }
+
+    /// [`Dims::gen_in`], or `None` when it overflows `usize`.
+    pub const fn checked_gen_in(&self) -> Option<usize> {
+        self.noise.checked_add(self.attr)
+    }
+
+    /// [`Dims::fuse_in`], or `None` when it overflows `usize`.
+    pub const fn checked_fuse_in(&self) -> Option<usize> {
+        let v = tri!(self.feat.checked_mul(3));
+        let v = tri!(v.checked_add(self.attr));
+        let v = tri!(v.checked_add(NUM_ACTIONS));
+        let v = tri!(v.checked_add(self.ps));
+        v.checked_add(tri!(self.checked_cell_out()))
+    }
+
+    /// [`Dims::gen_params`], or `None` when it overflows `usize`.
+    pub const fn checked_gen_params(&self) -> Option<usize> {
+        let a = tri!(self.gen_hidden.checked_mul(tri!(self.checked_gen_in())));
+        let b = tri!(self.feat.checked_mul(self.gen_hidden));
+        let v = tri!(a.checked_add(self.gen_hidden));
+        let v = tri!(v.checked_add(b));
+        v.checked_add(self.feat)
+    }
+
+    /// [`Dims::disc_params`], or `None` when it overflows `usize`.
+    pub const fn checked_disc_params(&self) -> Option<usize> {
+        let a = tri!(self.disc_hidden.checked_mul(self.feat));
+        let b = tri!(self.disc_hidden.checked_mul(2));
+        let v = tri!(a.checked_add(b));
+        v.checked_add(1)
+    }
+
+    /// [`Dims::policy_params`], or `None` when it overflows `usize`.
+    pub const fn checked_policy_params(&self) -> Option<usize> {
+        let e = self.embed;
+        let h4 = tri!(self.lstm_hidden.checked_mul(4));
+        let mut v = tri!(e.checked_mul(tri!(self.checked_fuse_in())));
+        v = tri!(v.checked_add(e));
+        v = tri!(v.checked_add(tri!(h4.checked_mul(e))));
+        v = tri!(v.checked_add(tri!(h4.checked_mul(self.lstm_hidden))));
+        v = tri!(v.checked_add(h4));
+        v = tri!(v.checked_add(tri!(self.lstm_hidden.checked_mul(NUM_ACTIONS))));
+        v = tri!(v.checked_add(NUM_ACTIONS));
+        v = tri!(v.checked_add(self.lstm_hidden));
+        v = tri!(v.checked_add(1));
+        v.checked_add(tri!(self.checked_cell_params()))
+    }
+
+    /// [`Dims::macs_per_step`], or `None` when it overflows `usize`.
+    pub const fn checked_macs_per_step(&self) -> Option<usize> {
+        let mut v = tri!(self.gen_hidden.checked_mul(tri!(self.checked_gen_in())));
+        v = tri!(v.checked_add(tri!(self.feat.checked_mul(self.gen_hidden))));
+        v = tri!(v.checked_add(tri!(self.embed.checked_mul(tri!(self.checked_fuse_in())))));
+        let lstm_in = tri!(self.embed.checked_add(self.lstm_hidden));
+        let h4 = tri!(self.lstm_hidden.checked_mul(4));
+        v = tri!(v.checked_add(tri!(h4.checked_mul(lstm_in))));
+        v = tri!(v.checked_add(tri!(self.lstm_hidden.checked_mul(NUM_ACTIONS + 1))));
+        let cells = tri!(self.checked_cell_out());
+        v.checked_add(tri!(cells.checked_mul(tri!(self.feat.checked_mul(2)))))
+    }
+
+    /// True when every size derived from these dims fits in `usize`: the input widths, the
+    /// element and byte counts of every tensor (f32 and int8), the parameter counts of G, D
+    /// and the policy and their f32 bytes, the MACs per step, and the RAM layout of both
+    /// adaptation modes for a buffer of one step ([`crate::memory::NavLayout::try_new`]; a
+    /// navigator checks its own `K` again). [`crate::blob::Blob::parse`] rejects dims for
+    /// which this is false ([`crate::BlobError::DimsTooLarge`]), so sizes computed from a
+    /// parsed blob's dims never overflow.
+    pub const fn checked_sizes(&self) -> bool {
+        let (g, d, p) = match (
+            self.checked_gen_params(),
+            self.checked_disc_params(),
+            self.checked_policy_params(),
+        ) {
+            (Some(g), Some(d), Some(p)) => (g, d, p),
+            _ => return false,
+        };
+        let total = match g.checked_add(d) {
+            Some(v) => v.checked_add(p),
+            None => None,
+        };
+        let f32_bytes = match total {
+            Some(t) => t.checked_mul(4),
+            None => None,
+        };
+        f32_bytes.is_some()
+            && self.checked_macs_per_step().is_some()
+            && crate::memory::checked_int8_weight_bytes(self).is_some()
+            && crate::blob::checked_tensor_bytes(self)
+            && crate::memory::NavLayout::try_new(self, crate::memory::AdaptMode::Full, 1).is_some()
+            && crate::memory::NavLayout::try_new(self, crate::memory::AdaptMode::Efficient, 1)
+                .is_some()
+    }
+}
+
+/// The value, or `usize::MAX` for a size that does not fit (never wraps, never panics).
+pub(crate) const fn sat(v: Option<usize>) -> usize {
+    match v {
+        Some(v) => v,
+        None => usize::MAX,
     }
 }
 

@@ -4,8 +4,9 @@ mod common;
 use common::*;
 use gman_core::blob::{
     encode_with_settings, encoded_len_bound, AdaptSettings, Blob, Quant, TensorData, TensorId,
-    TensorSpec, FLAG_ADAPT, FLAG_COSSIM, FLAG_ZERO_NOISE, FORMAT_VERSION, MAGIC,
+    TensorSpec, FLAG_ADAPT, FLAG_COSSIM, FLAG_FULL_ADAPT, FLAG_ZERO_NOISE, FORMAT_VERSION, MAGIC,
 };
+use gman_core::memory::AdaptMode;
 use gman_core::navigator::{Emd, NavConfig, NoiseMode};
 use gman_core::{BlobError, Dims};
 use proptest::prelude::*;
@@ -495,8 +496,8 @@ fn nav_config_follows_the_header() {
         alpha_adapt: 0.07,
         max_inner: 2,
     };
-    for flags in 0..16u32 {
-        let flags = flags | if flags & 8 != 0 { 0x100 } else { 0 }; // unknown bits are ignored
+    for flags in 0..32u32 {
+        let flags = flags | if flags & 16 != 0 { 0x100 } else { 0 }; // unknown bits are ignored
         let bytes = blob_with(flags, settings, 15);
         let blob = Blob::parse(&bytes).unwrap();
         let cfg = NavConfig::from_header(blob.header());
@@ -516,15 +517,24 @@ fn nav_config_follows_the_header() {
             alpha_disc: 0.03,
             alpha_adapt: 0.07,
             max_inner_updates: 2,
+            mode: Some(if flags & FLAG_FULL_ADAPT != 0 {
+                AdaptMode::Full
+            } else {
+                AdaptMode::Efficient
+            }),
             ..NavConfig::default()
         };
         assert_eq!(cfg, expected, "flags {flags:#x}");
     }
-    // A blob with FLAG_ADAPT and the paper's settings asks for exactly NavConfig::default().
+    // A blob with FLAG_ADAPT and the paper's settings asks for NavConfig::default() in the
+    // mode it records.
     let bytes = blob_with(FLAG_ADAPT, AdaptSettings::PAPER, 15);
     assert_eq!(
         Blob::parse(&bytes).unwrap().nav_config(),
-        NavConfig::default()
+        NavConfig {
+            mode: Some(AdaptMode::Efficient),
+            ..NavConfig::default()
+        }
     );
 }
 

@@ -84,7 +84,7 @@ fn input(
     map: &mut Vec<f32>,
 ) -> Vec<f32> {
     let s = &world.observation(e.scene, e.state).features;
-    let mut v: Vec<f32> = s.iter().copied().collect();
+    let mut v: Vec<f32> = s.to_vec();
     v.extend_from_slice(x);
     v.extend(s.iter().zip(x).map(|(a, b)| a * b));
     if let Some(g) = grid {

@@ -347,11 +347,60 @@ pub fn agent_factory(
     }
 }
 
+/// Checks `gman eval` flags: values that would give a wrong result are refused (`--episodes 0`,
+/// a seed repeated in `--seeds`); flags without effect (the model overrides with a built-in
+/// agent) are named in a warning, never silently dropped.
+fn check_eval_flags(a: &EvalArgs) -> Result<()> {
+    if a.episodes == Some(0) {
+        bail!("--episodes 0 evaluates nothing; give at least 1 (or omit it for every episode)");
+    }
+    let mut seen = std::collections::BTreeSet::new();
+    if let Some(dup) = a.seeds.iter().find(|s| !seen.insert(**s)) {
+        bail!("--seeds lists seed {dup} twice; each training seed must be averaged once");
+    }
+    if matches!(a.agent.as_str(), "random" | "oracle") {
+        for (flag, given) in [
+            ("--method", a.method.is_some()),
+            ("--inner-lr", a.inner_lr.is_some()),
+            ("--max-inner", a.max_inner.is_some()),
+        ] {
+            if given {
+                eprintln!(
+                    "warning: {flag} is ignored: it applies to model agents (a checkpoint or a weight blob), not to the built-in `{}` agent",
+                    a.agent
+                );
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Prints the first failed episodes of `report` to stderr and returns an error when any
+/// episode failed (after the table and the JSON were written, so that they can be read).
+fn check_failures(report: &EvalReport) -> Result<()> {
+    if report.failed_episodes == 0 {
+        return Ok(());
+    }
+    for f in report.failures.iter().take(3) {
+        eprintln!(
+            "warning: episode {} ({}) ended early: {}",
+            f.index, f.scene, f.error
+        );
+    }
+    bail!(
+        "{} of {} episodes of {} ended early with an error; the metrics above count them as they ended and are not a valid result",
+        report.failed_episodes,
+        report.episodes,
+        report.agent
+    )
+}
+
 fn eval(a: EvalArgs) -> Result<()> {
     let split = Split::parse(&a.split)?;
     if split == Split::Train {
         bail!("split train has no official episodes; use --split val or --split test");
     }
+    check_eval_flags(&a)?;
     if !a.seeds.is_empty() {
         return eval_seeds(a, split);
     }
@@ -373,7 +422,7 @@ fn eval(a: EvalArgs) -> Result<()> {
         std::fs::write(path, text + "\n")
             .with_context(|| format!("cannot write {}", path.display()))?;
     }
-    Ok(())
+    check_failures(&report)
 }
 
 /// `gman eval --seeds`: one evaluation per training seed, then mean ± std.
@@ -394,6 +443,7 @@ fn eval_seeds(a: EvalArgs, split: Split) -> Result<()> {
         print!("{}", report.table());
         reports.push(report);
     }
+    let failed: usize = reports.iter().map(|r| r.failed_episodes).sum();
     let mut agg = serde_json::Map::new();
     let mut std = serde_json::Map::new();
     println!("mean ± std over seeds {:?}:", a.seeds);
@@ -457,10 +507,14 @@ fn eval_seeds(a: EvalArgs, split: Split) -> Result<()> {
             "episodes": episodes.len(),
             "results": agg,
             "std": std,
+            "failed_episodes": failed,
             "runs": reports,
         });
         std::fs::write(path, serde_json::to_string_pretty(&j)? + "\n")
             .with_context(|| format!("cannot write {}", path.display()))?;
+    }
+    for r in &reports {
+        check_failures(r)?;
     }
     Ok(())
 }

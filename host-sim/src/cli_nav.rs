@@ -348,9 +348,110 @@ fn stored_int<T: TryFrom<u64>>(trainer: &serde_json::Value, key: &str) -> Option
 
 /// `gman train`. `explicit(id)` says whether the flag of field `id` was given on the command
 /// line (on `--resume`, only those are checked against the checkpoint's settings).
+/// Most `--workers` a run may have (one thread each).
+const MAX_WORKERS: usize = 256;
+
+/// The checks on trainer settings, applied to the flags of a new run and to the settings a
+/// resumed run reads from its checkpoint (whose CRC says nothing about their sense). `what`
+/// names where they came from.
+fn validate_train_settings(
+    what: &str,
+    opts: &TrainOptions,
+    inner_lr: f32,
+    max_inner: u32,
+) -> Result<()> {
+    let _ = max_inner; // every u32 is a valid cap
+    let bad = |msg: String| anyhow!("{what}: {msg}");
+    if opts.workers == 0 || opts.workers > MAX_WORKERS {
+        return Err(bad(format!(
+            "workers must be in 1..={MAX_WORKERS}, got {}",
+            opts.workers
+        )));
+    }
+    if opts.checkpoint_every == 0 {
+        return Err(bad("checkpoint-every must be at least 1".into()));
+    }
+    if !(inner_lr.is_finite() && inner_lr >= 0.0) {
+        return Err(bad(format!(
+            "inner-lr must be finite and non-negative, got {inner_lr}"
+        )));
+    }
+    let c = &opts.a3c;
+    if !(c.entropy.is_finite() && c.entropy >= 0.0) {
+        return Err(bad(format!(
+            "entropy must be finite and non-negative, got {}",
+            c.entropy
+        )));
+    }
+    if !((0.0..=1.0).contains(&c.gamma) && (0.0..=1.0).contains(&c.tau)) {
+        return Err(bad(format!(
+            "A3C gamma {} and tau {} must be in [0, 1]",
+            c.gamma, c.tau
+        )));
+    }
+    if !(c.value_coef.is_finite() && c.value_coef >= 0.0) {
+        return Err(bad(format!(
+            "A3C value coefficient {} must be finite and non-negative",
+            c.value_coef
+        )));
+    }
+    opts.adam.validate().map_err(|e| bad(format!("{e:#}")))?;
+    if !(1..=2).contains(&opts.meta_order) {
+        return Err(bad(format!(
+            "meta-order must be 1 or 2, got {}",
+            opts.meta_order
+        )));
+    }
+    Ok(())
+}
+
+/// What world `w` selects, as stored in a run's checkpoint: kind, world seed and, for a data
+/// directory, a fingerprint of its contents (the path may change, the data must not).
+fn world_identity(w: &WorldArgs) -> Result<serde_json::Value> {
+    Ok(match &w.data {
+        Some(dir) => serde_json::json!({
+            "kind": "data",
+            "world_seed": w.world_seed,
+            "fingerprint": gman_host_sim::sim::data::fingerprint(dir)?,
+            "path": dir.display().to_string(),
+        }),
+        None => serde_json::json!({ "kind": "synthetic", "world_seed": w.world_seed }),
+    })
+}
+
+/// Refuses to resume a run on another world than the one it was trained on.
+fn check_same_world(stored: &serde_json::Value, now: &serde_json::Value) -> Result<()> {
+    let describe = |v: &serde_json::Value| match v["kind"].as_str() {
+        Some("data") => format!(
+            "the data directory {} (content fingerprint {}) with --world-seed {}",
+            v["path"].as_str().unwrap_or("?"),
+            v["fingerprint"].as_str().unwrap_or("?"),
+            v["world_seed"]
+        ),
+        _ => format!(
+            "the synthetic world (no --data) with --world-seed {}",
+            v["world_seed"]
+        ),
+    };
+    let same = stored["kind"] == now["kind"]
+        && stored["world_seed"] == now["world_seed"]
+        && stored["fingerprint"] == now["fingerprint"];
+    if !same {
+        bail!(
+            "the run was trained on {}, but this resume selects {}; resume with the same --data and --world-seed",
+            describe(stored),
+            describe(now)
+        );
+    }
+    Ok(())
+}
+
 pub fn cmd_train(a: TrainArgs, explicit: &dyn Fn(&str) -> bool) -> Result<()> {
     if a.workers == 0 || a.checkpoint_every == 0 {
         bail!("--workers and --checkpoint-every must be at least 1");
+    }
+    if a.workers > MAX_WORKERS {
+        bail!("--workers {} is more than {MAX_WORKERS}", a.workers);
     }
     if !(a.inner_lr.is_finite() && a.inner_lr >= 0.0 && a.entropy.is_finite() && a.entropy >= 0.0) {
         bail!("--inner-lr and --entropy must be finite and non-negative");
@@ -361,13 +462,50 @@ pub fn cmd_train(a: TrainArgs, explicit: &dyn Fn(&str) -> bool) -> Result<()> {
     if !(lr.is_finite() && lr > 0.0) {
         bail!("--lr must be positive");
     }
+    if a.resume.is_some() {
+        // Flags that only shape a new run have no effect here: said so, not silently dropped.
+        for (flag, id) in [("--fg", "fg"), ("--ps", "ps"), ("--config", "config")] {
+            if explicit(id) && !(id == "config" && a.updates.is_none()) {
+                eprintln!("warning: {flag} is ignored on --resume: a resumed run keeps the networks and settings it was started with");
+            }
+        }
+    }
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    if a.workers > cores {
+        eprintln!(
+            "warning: --workers {} runs {} threads on {cores} core(s); the run is reproducible for its worker count but slower than with --workers {cores}",
+            a.workers, a.workers
+        );
+    }
+    let run_dir = a.resume.clone().or_else(|| a.out.clone());
+    let _lock = match &run_dir {
+        Some(d) => Some(gman_host_sim::nav::trainer::lock_run_dir(d)?),
+        None => None,
+    };
     let world = a.world.load()?;
+    let world_id = world_identity(&a.world)?;
+    // Fail now, not after pre-training, if no training start can satisfy the setting (a
+    // separate generator: the run's own draws are untouched).
+    {
+        use rand::SeedableRng;
+        let mut probe = rand_chacha::ChaCha8Rng::seed_from_u64(0);
+        world.try_sample_train_episode_min(&mut probe, a.min_start_actions)?;
+    }
     let mut stored = serde_json::Value::Null;
     let (out, mut state) = match &a.resume {
         Some(dir) => {
             let (st, meta) = TrainState::load_with_options(&checkpoint_path(dir))
                 .with_context(|| format!("resuming {}", dir.display()))?;
             stored = meta;
+            if let Some(w) = &st.world {
+                check_same_world(w, &world_id)
+                    .with_context(|| format!("resuming {}", dir.display()))?;
+            }
+            if explicit("preset") {
+                preset_matches(&st.model, a.preset).with_context(|| {
+                    format!("--preset {} on resuming {}", a.preset.name(), dir.display())
+                })?;
+            }
             eprintln!(
                 "resuming {} ({}) at update {}",
                 dir.display(),
@@ -445,7 +583,9 @@ pub fn cmd_train(a: TrainArgs, explicit: &dyn Fn(&str) -> bool) -> Result<()> {
                 lr,
                 ..AdamConfig::default()
             };
-            (out, TrainState::new(model, adam))
+            let mut st = TrainState::new(model, adam);
+            st.world = Some(world_id.clone());
+            (out, st)
         }
     };
     let mut opts = TrainOptions {
@@ -473,6 +613,7 @@ pub fn cmd_train(a: TrainArgs, explicit: &dyn Fn(&str) -> bool) -> Result<()> {
     if a.resume.is_none() {
         state.model.inner_lr = a.inner_lr;
         state.model.max_inner = a.max_inner;
+        validate_train_settings("command line", &opts, a.inner_lr, a.max_inner)?;
     } else {
         // Continue with the run's own settings (bit-exact resume); explicit flags must agree.
         let t = &stored;
@@ -581,15 +722,41 @@ pub fn cmd_train(a: TrainArgs, explicit: &dyn Fn(&str) -> bool) -> Result<()> {
             )?;
             opts.a3c = a3c;
         }
+        let m = &state.model;
+        validate_train_settings(
+            &format!("{}: stored setting", checkpoint_path(&out).display()),
+            &opts,
+            m.inner_lr,
+            m.max_inner,
+        )?;
+        if !state.model.params.all_finite() {
+            bail!(
+                "{}: the model holds non-finite weights; the run diverged before this checkpoint and cannot be resumed",
+                checkpoint_path(&out).display()
+            );
+        }
+        if state.world.is_none() {
+            // Checkpoints of older builds did not record it: record it from now on.
+            state.world = Some(world_id.clone());
+        }
     }
     let t0 = Instant::now();
     let steps0 = state.env_steps;
     train(&world, &opts, &mut state)?;
     let secs = t0.elapsed().as_secs_f64();
+    let d = state.model.dims;
+    let preset_name = [PresetArg::Mcu, PresetArg::Paper]
+        .into_iter()
+        .find(|p| {
+            let pd = p.dims();
+            (pd.gen_hidden, pd.disc_hidden, pd.lstm_hidden, pd.embed)
+                == (d.gen_hidden, d.disc_hidden, d.lstm_hidden, d.embed)
+        })
+        .map_or("custom", |p| p.name());
     eprintln!(
         "trained {} ({}) to update {}: {} episodes, {} env steps ({:.0} steps/s over this run, {:.1} s); wrote {} and {}",
         state.model.method.name(),
-        a.preset.name(),
+        preset_name,
         state.update,
         state.episodes,
         state.env_steps,
@@ -753,16 +920,41 @@ fn read_metrics(run: &Path) -> Result<Vec<MetricRow>> {
             .position(|h| *h == n)
             .ok_or_else(|| anyhow!("{} has no column {n}", path.display()))
     };
+    if header.first() != Some(&"update") {
+        bail!(
+            "{} line 1 is not the metrics header (it starts with {:?})",
+            path.display(),
+            header.first().copied().unwrap_or("")
+        );
+    }
     let (cs, csr, cr) = (col("env_steps")?, col("success_rate")?, col("mean_reward")?);
     let mut out = Vec::new();
     for (i, l) in lines.enumerate() {
         let f: Vec<&str> = l.split(',').collect();
+        let bad = |what: &str| {
+            anyhow!(
+                "{} line {}: {what}: {l:?} (a resumed `gman train` repairs the file)",
+                path.display(),
+                i + 2
+            )
+        };
+        if f.len() != header.len() {
+            return Err(bad(&format!(
+                "{} columns, the header has {}",
+                f.len(),
+                header.len()
+            )));
+        }
         let g = |c: usize| -> Result<f64> {
             f.get(c)
-                .and_then(|v| v.parse().ok())
-                .ok_or_else(|| anyhow!("{} line {}: bad value", path.display(), i + 2))
+                .and_then(|v| v.parse::<f64>().ok())
+                .filter(|v| v.is_finite())
+                .ok_or_else(|| bad(&format!("column {} is not a finite number", header[c])))
         };
         out.push((g(cs)?, g(csr)?, g(cr)?));
+    }
+    if out.is_empty() {
+        bail!("{} has no data rows", path.display());
     }
     Ok(out)
 }

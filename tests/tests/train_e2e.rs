@@ -191,8 +191,11 @@ fn short_training_beats_random_agent_on_seen_targets() {
 fn exported_int8_blob_host_path_and_core_api_agree() {
     let world = World::synthetic(5);
     let dir = tmp("export");
+    // Meta-trained in the mode the device runs (the mcu default of `gman train`).
+    let mut model = gman_model(2);
+    model.adapt_mode = gman_core::memory::AdaptMode::Efficient;
     let mut st = TrainState::new(
-        gman_model(2),
+        model,
         AdamConfig {
             lr: 1e-3,
             ..AdamConfig::default()

@@ -378,7 +378,6 @@ pub fn segment_backward<M: Mode, const K: usize>(
             gen.backward(&s.z, &attr, &gc, &dfeat, &mut g1, &mut g2, &mut gs)?;
         }
     }
-    drop(pg);
     if dims.map_cells() > 0 {
         for (name, g) in [("CellW", &cellw_g), ("CellB", &cellb_g)] {
             let p = grads

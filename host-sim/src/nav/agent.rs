@@ -15,6 +15,7 @@ pub struct NavAgent {
     worker: Worker,
     /// Errors met (episodes ended early by a navigator error).
     pub errors: usize,
+    last_error: Option<String>,
 }
 
 impl NavAgent {
@@ -25,6 +26,7 @@ impl NavAgent {
             model,
             worker,
             errors: 0,
+            last_error: None,
         }
     }
 }
@@ -40,9 +42,11 @@ impl Agent for NavAgent {
     fn run_episode(&mut self, env: &mut Env<'_>, spec: &EpisodeSpec) {
         if let Err(e) = eval_episode(env, spec, &self.model, &mut self.worker) {
             self.errors += 1;
-            if self.errors <= 3 {
-                eprintln!("warning: episode {} ended early: {e:#}", spec.index);
-            }
+            self.last_error = Some(format!("{e:#}"));
         }
+    }
+
+    fn take_error(&mut self) -> Option<String> {
+        self.last_error.take()
     }
 }

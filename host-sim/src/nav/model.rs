@@ -389,6 +389,18 @@ impl NavModel {
             .get("inner_lr")
             .and_then(|v| v.as_f64())
             .unwrap_or(1e-4) as f32;
+        // The checks `gman train` applies to the flags, applied to what the file says.
+        if !(inner_lr.is_finite() && inner_lr >= 0.0) {
+            bail!("stored inner_lr {inner_lr} is invalid: it must be finite and non-negative (like --inner-lr)");
+        }
+        if method.uses_ps() != (dims.ps > 0) || method.uses_ps() != ps.is_some() {
+            bail!(
+                "stored method {} does not match the model (PS input width {}, PS module {}); the metadata was changed",
+                method.name(),
+                dims.ps,
+                if ps.is_some() { "present" } else { "absent" }
+            );
+        }
         let max_inner = meta
             .get("max_inner")
             .and_then(|v| v.as_u64())
@@ -452,6 +464,17 @@ impl NavModel {
         if self.privileged {
             bail!("a privileged-feature model reads the simulator's true target feature and cannot run on a device; it is not exported");
         }
+        // int8 quantisation would turn NaN into 0 and write a valid-looking blob.
+        for id in TensorId::all_for(&self.dims) {
+            let p = self.params.tensor(id.name())?;
+            if let Some(i) = p.data.iter().position(|v| !v.is_finite()) {
+                bail!(
+                    "tensor {} has a non-finite weight ({} at index {i}); refusing to export a diverged model",
+                    id.name(),
+                    p.data[i]
+                );
+            }
+        }
         let mut quantised: Vec<(TensorId, Vec<u8>, Vec<f32>)> = Vec::new();
         if int8 {
             for &id in TensorId::ALL
@@ -497,6 +520,19 @@ pub fn model_from_blob(bytes: &[u8], method: Option<Method>) -> Result<NavModel>
     let blob = Blob::parse(bytes).map_err(|e| anyhow!("{e}"))?;
     let dims = blob.dims();
     let flags = blob.header().flags();
+    // Every tensor must be present before anything is allocated from the header's dims
+    // (present tensors were checked against the dims by the parser, so their sizes are backed
+    // by bytes of the file).
+    let missing: Vec<&str> = TensorId::all_for(&dims)
+        .filter(|id| !blob.has(*id))
+        .map(|id| id.name())
+        .collect();
+    if !missing.is_empty() {
+        bail!(
+            "the blob is not a complete navigator: tensor(s) {} missing",
+            missing.join(", ")
+        );
+    }
     let mut params = ParamSet::new();
     for &id in TensorId::ALL.iter().filter(|id| id.present(&dims)) {
         let (r, c) = id.shape(&dims);

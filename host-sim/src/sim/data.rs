@@ -12,7 +12,7 @@ use anyhow::{bail, Context, Result};
 use gman_core::ATTR_DIM;
 use serde::Deserialize;
 
-use super::types::Split;
+use super::types::{RoomType, Split, TargetKind};
 
 /// Contents of `attributes.json`.
 #[derive(Clone, Debug, Deserialize)]
@@ -151,15 +151,57 @@ pub fn load_attributes(dir: &Path) -> Result<RawAttributes> {
                 v.len()
             );
         }
-        if v.iter().any(|x| !x.is_finite()) {
+        if let Some((i, x)) = v
+            .iter()
+            .enumerate()
+            .find(|(_, x)| !(x.is_finite() && (0.0..=1.0).contains(*x)))
+        {
             bail!(
-                "{}: category {name} has a non-finite attribute",
+                "{}: category {name}: attribute {i} is {x}; attribute values must lie in [0, 1]",
                 path.display()
             );
         }
     }
     Ok(raw)
 }
+
+/// A content fingerprint of a data directory's world: 64-bit FNV-1a over `attributes.json`
+/// and every `scenes/<split>/*.json` (names and bytes, in sorted order), as 16 hex digits.
+/// Training stores it in its checkpoints so that `--resume` refuses other data.
+pub fn fingerprint(dir: &Path) -> Result<String> {
+    let mut files = vec![dir.join("attributes.json")];
+    let mut scenes = Vec::new();
+    for split in Split::ALL {
+        let sdir = scenes_dir(dir, split);
+        if let Ok(rd) = fs::read_dir(&sdir) {
+            scenes.extend(
+                rd.filter_map(|e| e.ok().map(|e| e.path()))
+                    .filter(|p| p.extension().is_some_and(|e| e == "json")),
+            );
+        }
+    }
+    scenes.sort();
+    files.extend(scenes);
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    let mut eat = |bytes: &[u8]| {
+        for &b in bytes {
+            h ^= b as u64;
+            h = h.wrapping_mul(0x0000_0100_0000_01b3);
+        }
+    };
+    for f in &files {
+        let rel = f.strip_prefix(dir).unwrap_or(f);
+        eat(rel.to_string_lossy().as_bytes());
+        eat(&[0]);
+        eat(&fs::read(f).with_context(|| format!("cannot read {}", f.display()))?);
+        eat(&[0]);
+    }
+    Ok(format!("{h:016x}"))
+}
+
+/// Largest coordinate (metres, absolute) accepted in a scene file; iTHOR rooms span a few
+/// metres (the official files stay within 15 m).
+pub const MAX_COORD: f32 = 1000.0;
 
 /// Directory `DIR/scenes/<split>`.
 pub fn scenes_dir(dir: &Path, split: Split) -> PathBuf {
@@ -207,6 +249,35 @@ pub fn load_scenes(dir: &Path, split: Split) -> Result<Vec<RawScene>> {
             if s.reachable.is_empty() && s.reachable_sample.is_empty() {
                 bail!("{}: scene has no reachable positions", p.display());
             }
+            let sane = |v: f32| v.is_finite() && v.abs() <= MAX_COORD;
+            if let Some(q) = s
+                .reachable
+                .iter()
+                .chain(&s.reachable_sample)
+                .find(|q| !(sane(q[0]) && sane(q[1])))
+            {
+                bail!(
+                    "{}: reachable position [{}, {}] is not a finite coordinate within {MAX_COORD} m",
+                    p.display(),
+                    q[0],
+                    q[1]
+                );
+            }
+            if let Some(o) = s
+                .objects
+                .iter()
+                .chain(&s.known_objects)
+                .find(|o| !(sane(o.x) && sane(o.y) && sane(o.z)))
+            {
+                bail!(
+                    "{}: object {} is at ({}, {}, {}); coordinates must be finite and within {MAX_COORD} m",
+                    p.display(),
+                    o.id,
+                    o.x,
+                    o.y,
+                    o.z
+                );
+            }
             Ok(s)
         })
         .collect()
@@ -251,9 +322,40 @@ pub fn load_raw_episodes(
             edir.display()
         );
     }
+    // The benchmark layout: one `<room>_<kind>.jsonl` per room type and target kind, no other
+    // file (an unknown one would be merged into the totals, a missing one would leave a row of
+    // zeros over 0 episodes).
+    let expected: Vec<String> = RoomType::ALL
+        .iter()
+        .flat_map(|r| {
+            [TargetKind::Seen, TargetKind::Unseen]
+                .map(|k| format!("{}_{}.jsonl", r.name(), k.name()))
+        })
+        .collect();
+    for p in &files {
+        let name = p.file_name().map(|n| n.to_string_lossy().into_owned());
+        if !name.as_ref().is_some_and(|n| expected.contains(n)) {
+            bail!(
+                "{}: not an episode file of the benchmark layout (expected <room>_<seen|unseen>.jsonl with room kitchen, living_room, bedroom or bathroom)",
+                p.display()
+            );
+        }
+    }
+    for e in &expected {
+        if !edir.join(e).is_file() {
+            bail!(
+                "split {}: episode file {} is missing (every room type needs a seen and an unseen file)",
+                split.name(),
+                edir.join(e).display()
+            );
+        }
+    }
     let mut out = Vec::new();
     for p in files {
         let text = read_text(&p)?;
+        if text.lines().all(|l| l.trim().is_empty()) {
+            bail!("{}: episode file holds no episode", p.display());
+        }
         let mut n = 0usize;
         for (i, line) in text.lines().enumerate() {
             if line.trim().is_empty() {

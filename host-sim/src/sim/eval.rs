@@ -74,6 +74,12 @@ pub trait Agent {
             env.step(a);
         }
     }
+    /// The error that ended the last episode early, if any (taken: a second call returns
+    /// `None`). The evaluator records it in [`EpisodeResult::error`]; agents that cannot fail
+    /// keep this default.
+    fn take_error(&mut self) -> Option<String> {
+        None
+    }
 }
 
 /// A factory of agents, called once per evaluation worker with the worker index.
@@ -144,7 +150,10 @@ pub fn drive(env: &mut Env<'_>, spec: &EpisodeSpec, agent: &mut dyn Agent) {
     agent.run_episode(env, spec);
 }
 
-/// Evaluates `episodes`, one agent per rayon worker made by `factory(worker_index)`.
+/// Evaluates `episodes`, one agent per rayon worker made by `factory(worker_index)` (as many
+/// workers as the rayon pool has threads: every core by default). The results are in episode
+/// order and, for agents whose episodes depend only on the episode (seeded per episode, like
+/// every agent here), identical whatever the number of threads.
 pub fn evaluate<F>(
     world: &World,
     episodes: &[EpisodeSpec],
@@ -179,6 +188,7 @@ where
             }
             let spec = &episodes[i];
             let env = run_episode(world, spec, agent.as_mut(), cfg);
+            let error = agent.take_error();
             local.push(EpisodeResult {
                 index: i,
                 scene: world.scenes[spec.scene].name.clone(),
@@ -186,6 +196,7 @@ where
                 kind: spec.kind,
                 target: world.category_name(spec.target).to_string(),
                 metrics: env.metrics(),
+                error,
             });
             bar.inc(1);
         }
@@ -233,6 +244,17 @@ impl KindSummaries {
     }
 }
 
+/// A failed episode of an [`EvalReport`].
+#[derive(Clone, Debug, Serialize)]
+pub struct EpisodeFailure {
+    /// Index in the evaluated episode list.
+    pub index: usize,
+    /// Scene name.
+    pub scene: String,
+    /// The error.
+    pub error: String,
+}
+
 /// The JSON report of `gman eval`.
 #[derive(Clone, Debug, Serialize)]
 pub struct EvalReport {
@@ -242,6 +264,12 @@ pub struct EvalReport {
     pub agent: String,
     /// Number of episodes.
     pub episodes: usize,
+    /// Episodes the agent could not run to their end (navigator errors); they are counted in
+    /// the metrics as they ended. Non-zero makes `gman eval` exit with an error.
+    pub failed_episodes: usize,
+    /// The first (at most 10) failed episodes: index in the evaluated list and the error.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub failures: Vec<EpisodeFailure>,
     /// Seen/unseen summaries (SR, SPL, EPA in percent, DTS in metres).
     pub results: KindSummaries,
     /// The same per room type.
@@ -261,10 +289,21 @@ impl EvalReport {
                 );
             }
         }
+        let failed: Vec<&EpisodeResult> = results.iter().filter(|r| r.error.is_some()).collect();
         EvalReport {
             split: split.to_string(),
             agent: agent.to_string(),
             episodes: results.len(),
+            failed_episodes: failed.len(),
+            failures: failed
+                .iter()
+                .take(10)
+                .map(|r| EpisodeFailure {
+                    index: r.index,
+                    scene: r.scene.clone(),
+                    error: r.error.clone().unwrap_or_default(),
+                })
+                .collect(),
             results: KindSummaries::of(results.iter()),
             by_room,
         }
@@ -305,6 +344,16 @@ impl EvalReport {
             "({} episodes: {} unseen, {} seen)\n",
             self.episodes, self.results.unseen.episodes, self.results.seen.episodes
         ));
+        if self.failed_episodes > 0 {
+            s.push_str(&format!(
+                "FAILED: {} of {} episodes ended early with an error (counted above as they ended); first: episode {} ({}): {}\n",
+                self.failed_episodes,
+                self.episodes,
+                self.failures.first().map_or(0, |f| f.index),
+                self.failures.first().map_or("", |f| f.scene.as_str()),
+                self.failures.first().map_or("", |f| f.error.as_str()),
+            ));
+        }
         s
     }
 }

@@ -93,6 +93,12 @@ pub struct EpisodeResult {
     pub target: String,
     /// Metrics.
     pub metrics: EpisodeMetrics,
+    /// Why the agent could not run the episode to its end (a navigator error: a shape error,
+    /// non-finite probabilities, ...); `None` for a normal episode. A failed episode still
+    /// counts in the metrics (it ended where the error happened, usually as a failure), and
+    /// `gman eval` reports and exits non-zero on it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub error: Option<String>,
 }
 
 #[cfg(test)]

@@ -514,6 +514,69 @@ impl World {
         let target = self
             .category_id(&e.target)
             .ok_or_else(|| anyhow!("{}: unknown target {:?}", at(), e.target))?;
+        let file_stem = format!("{}_{}.jsonl", room.name(), kind.name());
+        if r.file.file_name().is_some_and(|n| n != file_stem.as_str()) {
+            bail!(
+                "{}: a {} {} episode in the wrong file (it belongs in {file_stem})",
+                at(),
+                room.name(),
+                kind.name()
+            );
+        }
+        if self.scenes[scene].room != room {
+            bail!(
+                "{}: room {} disagrees with scene {}, which is a {}",
+                at(),
+                room.name(),
+                e.scene,
+                self.scenes[scene].room.name()
+            );
+        }
+        // The split's target lists (DeskLamp is listed both seen and unseen, see
+        // attributes.json `split.note`, so membership is what is checked).
+        let (kind_list, room_list) = match kind {
+            TargetKind::Seen => (&self.seen, &self.eval_targets[room.index()].0),
+            TargetKind::Unseen => (&self.unseen, &self.eval_targets[room.index()].1),
+        };
+        if !kind_list.contains(&target) || !(room_list.is_empty() || room_list.contains(&target)) {
+            bail!(
+                "{}: target {} is not among the {} targets{} in the split of attributes.json",
+                at(),
+                e.target,
+                kind.name(),
+                if room_list.is_empty() {
+                    String::new()
+                } else {
+                    format!(" of {} rooms", room.name())
+                }
+            );
+        }
+        if e.target_ids.is_empty() {
+            bail!("{}: target_ids is empty", at());
+        }
+        if let Some(id) = e.target_ids.iter().find(|id| {
+            !self.scenes[scene]
+                .objects
+                .iter()
+                .any(|o| o.category == target && o.ids.iter().any(|i| i == *id))
+        }) {
+            bail!(
+                "{}: target id {id:?} is not a {} of scene {}",
+                at(),
+                e.target,
+                e.scene
+            );
+        }
+        for (axis, v) in [("x", e.start.x), ("z", e.start.z)] {
+            let cells = v / super::geometry::GRID;
+            if !v.is_finite() || (cells - cells.round()).abs() * super::geometry::GRID > 1e-3 {
+                bail!(
+                    "{}: start {axis} = {v} is not on the {} m grid",
+                    at(),
+                    super::geometry::GRID
+                );
+            }
+        }
         let rot = e.start.rotation.rem_euclid(360.0);
         if (rot / 45.0 - (rot / 45.0).round()).abs() > 1e-3 {
             bail!(
@@ -557,23 +620,56 @@ impl World {
     /// Samples a training task: a random training scene, a random training target of its room
     /// type present in it, and a random reachable start (position and heading, horizon 0) from
     /// which a goal-visible state can be reached.
+    ///
+    /// # Panics
+    /// If the world has no training scene with a reachable start (never the case for the data
+    /// directory or the synthetic world); [`World::try_sample_train_episode_min`] returns an
+    /// error instead.
     pub fn sample_train_episode<R: Rng + ?Sized>(&self, rng: &mut R) -> EpisodeSpec {
-        self.sample_train_episode_min(rng, 0)
+        match self.try_sample_train_episode_min(rng, 0) {
+            Ok(e) => e,
+            Err(e) => panic!("{e:#}"),
+        }
     }
 
     /// Like [`World::sample_train_episode`], but the start needs at least `min_actions`
     /// actions to reach a state where the target is visible (`1`: the target is not in view
     /// at the start, so that issuing Done at once never succeeds).
+    ///
+    /// # Panics
+    /// When no start qualifies (see [`World::try_sample_train_episode_min`]).
     pub fn sample_train_episode_min<R: Rng + ?Sized>(
         &self,
         rng: &mut R,
         min_actions: u32,
     ) -> EpisodeSpec {
-        let train = self
-            .split_scenes
-            .get(&Split::Train)
-            .expect("world has no training scenes");
-        loop {
+        match self.try_sample_train_episode_min(rng, min_actions) {
+            Ok(e) => e,
+            Err(e) => panic!("{e:#}"),
+        }
+    }
+
+    /// Draws of [`World::try_sample_train_episode_min`] (scene and target choices, 32 starts
+    /// each) before it gives up: far more than any satisfiable setting needs (on the real data
+    /// and the synthetic world, `--min-start-actions` up to 10 is met within a few draws).
+    pub const MAX_START_DRAWS: usize = 20_000;
+
+    /// [`World::sample_train_episode_min`] with a bound: after
+    /// [`World::MAX_START_DRAWS`] scene and target draws without a start that needs at least
+    /// `min_actions` actions, an error says how far the farthest start seen was and that
+    /// `--min-start-actions` must be lowered (the unbounded loop hung forever). For settings
+    /// that can be met, the random draws and the result are those of the unbounded loop.
+    pub fn try_sample_train_episode_min<R: Rng + ?Sized>(
+        &self,
+        rng: &mut R,
+        min_actions: u32,
+    ) -> Result<EpisodeSpec> {
+        let train = match self.split_scenes.get(&Split::Train) {
+            Some(t) if !t.is_empty() => t,
+            _ => bail!("the world has no training scenes"),
+        };
+        let mut farthest: Option<u32> = None;
+        for _ in 0..Self::MAX_START_DRAWS {
             let scene = train[rng.random_range(0..train.len())];
             let sc = &self.scenes[scene];
             let targets: Vec<CategoryId> = self.train_targets[sc.room.index()]
@@ -581,7 +677,7 @@ impl World {
                 .copied()
                 .filter(|&c| sc.instances_of(c).next().is_some())
                 .collect();
-            if targets.is_empty() {
+            if targets.is_empty() || sc.positions.is_empty() {
                 continue;
             }
             let target = targets[rng.random_range(0..targets.len())];
@@ -590,19 +686,34 @@ impl World {
                 let p = rng.random_range(0..sc.positions.len());
                 let heading = rng.random_range(0..NUM_HEADINGS) as u8;
                 let state = p * STATES_PER_POSITION + heading as usize * 2;
-                if goal.dist[state] != UNREACHABLE && goal.dist[state] as u32 >= min_actions {
-                    return EpisodeSpec {
-                        index: 0,
-                        scene,
-                        room: sc.room,
-                        kind: TargetKind::Seen,
-                        target,
-                        target_ids: Vec::new(),
-                        start: sc.state(state),
-                        seed: rng.random(),
-                    };
+                if goal.dist[state] != UNREACHABLE {
+                    let d = goal.dist[state] as u32;
+                    farthest = Some(farthest.map_or(d, |f| f.max(d)));
+                    if d >= min_actions {
+                        return Ok(EpisodeSpec {
+                            index: 0,
+                            scene,
+                            room: sc.room,
+                            kind: TargetKind::Seen,
+                            target,
+                            target_ids: Vec::new(),
+                            start: sc.state(state),
+                            seed: rng.random(),
+                        });
+                    }
                 }
             }
+        }
+        match farthest {
+            Some(f) => bail!(
+                "no training start needs at least {min_actions} actions to see the target: the \
+                 farthest of {} sampled starts needs {f}; lower --min-start-actions (to {f} or less)",
+                Self::MAX_START_DRAWS * 32
+            ),
+            None => bail!(
+                "no reachable training start with a visible target was found in {} draws",
+                Self::MAX_START_DRAWS
+            ),
         }
     }
 }

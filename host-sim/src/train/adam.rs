@@ -33,6 +33,30 @@ pub struct AdamConfig {
     pub clip_norm: Option<f32>,
 }
 
+impl AdamConfig {
+    /// Checks the hyper-parameters as the command line does: a finite positive learning rate,
+    /// betas in [0, 1), a finite positive eps and clip norm.
+    pub fn validate(&self) -> Result<()> {
+        if !(self.lr.is_finite() && self.lr > 0.0) {
+            bail!("Adam lr {} must be finite and positive", self.lr);
+        }
+        for (name, b) in [("beta1", self.beta1), ("beta2", self.beta2)] {
+            if !(0.0..1.0).contains(&b) {
+                bail!("Adam {name} {b} must be in [0, 1)");
+            }
+        }
+        if !(self.eps.is_finite() && self.eps > 0.0) {
+            bail!("Adam eps {} must be finite and positive", self.eps);
+        }
+        if let Some(c) = self.clip_norm {
+            if !(c.is_finite() && c > 0.0) {
+                bail!("Adam clip norm {c} must be finite and positive");
+            }
+        }
+        Ok(())
+    }
+}
+
 impl Default for AdamConfig {
     /// The reference's outer optimiser: lr 1e-4, betas (0.9, 0.999), eps 1e-8, AMSGrad.
     fn default() -> Self {
@@ -224,6 +248,7 @@ impl Adam {
             amsgrad,
             clip_norm: has_clip.then_some(clip),
         };
+        cfg.validate().context("Adam state")?;
         let mut adam = Adam::new(cfg, params);
         adam.t = t;
         let n = r.u32()? as usize;
@@ -257,6 +282,18 @@ impl Adam {
         }
         if r.pos != bytes.len() {
             bail!("Adam state has {} trailing bytes", bytes.len() - r.pos);
+        }
+        for (k, (name, _)) in adam.layout.iter().enumerate() {
+            let bad_m = adam.m[k].iter().any(|x| !x.is_finite());
+            let bad_v = adam.v[k]
+                .iter()
+                .chain(adam.vmax.get(k).into_iter().flatten())
+                .any(|x| !(x.is_finite() && *x >= 0.0));
+            if bad_m || bad_v {
+                bail!(
+                    "Adam state of tensor {name:?} holds non-finite (or negative second) moments"
+                );
+            }
         }
         Ok(adam)
     }

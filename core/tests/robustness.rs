@@ -1,0 +1,368 @@
+//! "No panic on any input" for the parts of gman-core that take sizes and call sequences from
+//! the outside: the navigator driven by arbitrary call sequences (`Schedule::Manual` and
+//! `Auto`, both adaptation modes, hostile observations, mutated blobs) and every size derived
+//! from a blob's dims (parameter counts, tensor bytes, RAM layout), with overflow checks on
+//! (the test profile keeps them).
+//!
+//! The number of property cases is `GMAN_PROPTEST_CASES` (default 2000, which CI runs); the
+//! 1 M-case run is done by hand, without `--release` (the test profile has overflow checks
+//! and `opt-level = 2`):
+//! `GMAN_PROPTEST_CASES=1000000 cargo test -p gman-core --test robustness`
+
+mod common;
+use common::*;
+use gman_core::blob::{Blob, MAGIC};
+use gman_core::memory::{
+    arena_len, checked_int8_weight_bytes, int8_weight_bytes, try_arena_len, AdaptMode, NavLayout,
+};
+use gman_core::navigator::{
+    Efficient, Full, Mode, NavConfig, NavWeights, Navigator, NoiseMode, Schedule, Selection,
+};
+use gman_core::{BlobError, Dims, Error};
+use proptest::prelude::*;
+
+/// Property cases per test: `GMAN_PROPTEST_CASES`, default 2000.
+fn cases() -> u32 {
+    std::env::var("GMAN_PROPTEST_CASES")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(2000)
+}
+
+fn varint(mut v: u64) -> Vec<u8> {
+    let mut o = Vec::new();
+    loop {
+        let b = (v & 0x7f) as u8;
+        v >>= 7;
+        if v == 0 {
+            o.push(b);
+            return o;
+        }
+        o.push(b | 0x80);
+    }
+}
+
+/// A valid format-v2 blob with these raw dims and no tensors (empty payload, CRC 0).
+fn header_only_blob(dims: [u32; 8]) -> Vec<u8> {
+    let mut b = MAGIC.to_vec();
+    b.extend(varint(2));
+    for d in dims {
+        b.extend(varint(d.into()));
+    }
+    b.extend(varint(0)); // flags
+    b.extend(1e-4f32.to_le_bytes());
+    b.extend(1e-4f32.to_le_bytes());
+    b.extend(varint(4)); // max_inner
+    b.extend(varint(0)); // n_tensors
+    b.extend(varint(0)); // payload_len
+    b.extend(varint(0)); // CRC-32 of the empty payload
+    b
+}
+
+fn dims_of(v: [u32; 8]) -> Dims {
+    Dims {
+        attr: v[0] as usize,
+        noise: v[1] as usize,
+        gen_hidden: v[2] as usize,
+        feat: v[3] as usize,
+        disc_hidden: v[4] as usize,
+        lstm_hidden: v[5] as usize,
+        embed: v[6] as usize,
+        ps: v[7] as usize,
+        map_rows: 0,
+        map_cols: 0,
+        cell_embed: 0,
+    }
+}
+
+/// Every size function on `d`: never panics; the saturating forms equal the checked ones when
+/// those fit and are `usize::MAX` otherwise.
+fn sizes_are_consistent(d: &Dims) -> Result<(), TestCaseError> {
+    sizes_consistent_one(d)?;
+    // The same dims with a spatial map (a small grid, the possibly huge embed width as the
+    // per-cell channels), as a v3 header can carry.
+    sizes_consistent_one(&d.with_map(d.attr % 4, d.noise % 4, d.embed))
+}
+
+fn sizes_consistent_one(d: &Dims) -> Result<(), TestCaseError> {
+    let pairs = [
+        (d.gen_in(), d.checked_gen_in()),
+        (d.fuse_in(), d.checked_fuse_in()),
+        (d.gen_params(), d.checked_gen_params()),
+        (d.disc_params(), d.checked_disc_params()),
+        (d.policy_params(), d.checked_policy_params()),
+        (d.macs_per_step(), d.checked_macs_per_step()),
+        (int8_weight_bytes(d), checked_int8_weight_bytes(d)),
+    ];
+    for (sat, checked) in pairs {
+        prop_assert_eq!(sat, checked.unwrap_or(usize::MAX));
+    }
+    for mode in [AdaptMode::Full, AdaptMode::Efficient] {
+        for k in [1usize, 20, usize::MAX] {
+            let l = NavLayout::new(d, mode, k);
+            match try_arena_len(d, mode, k) {
+                Some(n) => {
+                    prop_assert_eq!(arena_len(d, mode, k), n);
+                    prop_assert_eq!(l.total_floats(), n);
+                    prop_assert_eq!(l.total_bytes(), 4 * n);
+                }
+                None => {
+                    prop_assert_eq!(arena_len(d, mode, k), usize::MAX);
+                    prop_assert_eq!(l.total_bytes(), usize::MAX);
+                }
+            }
+        }
+    }
+    for &id in gman_core::blob::TensorId::ALL {
+        let _ = id.shape(d);
+    }
+    Ok(())
+}
+
+#[test]
+fn huge_dims_are_rejected_by_parse_and_sizes_never_wrap() {
+    // Case 2 of issue 17: a valid v2 header with every dim u32::MAX and no tensors parsed,
+    // and the sizes computed from its dims overflowed (wrapped without overflow checks).
+    let bytes = header_only_blob([u32::MAX; 8]);
+    assert_eq!(Blob::parse(&bytes).unwrap_err(), BlobError::DimsTooLarge);
+    let d = dims_of([u32::MAX; 8]);
+    assert!(!d.checked_sizes());
+    assert_eq!(try_arena_len(&d, AdaptMode::Full, 20), None);
+    assert_eq!(arena_len(&d, AdaptMode::Full, 20), usize::MAX);
+    // (The Efficient arena of these dims does fit in a 64-bit usize; the Full one must never
+    // come out smaller than it, which it did when the sum wrapped.)
+    assert!(arena_len(&d, AdaptMode::Full, 20) >= arena_len(&d, AdaptMode::Efficient, 20));
+    assert_eq!(checked_int8_weight_bytes(&d), None);
+    assert_eq!(int8_weight_bytes(&d), usize::MAX);
+    // The same header with the real sizes parses (no tensors: the loader reports them missing).
+    let mcu = Dims::MCU;
+    let ok = header_only_blob([45, 45, 256, 512, 64, 64, 64, 0]);
+    let blob = Blob::parse(&ok).unwrap();
+    assert_eq!(blob.dims(), mcu);
+    assert!(mcu.checked_sizes() && Dims::PAPER.checked_sizes());
+    assert_eq!(
+        NavWeights::from_blob(&blob, &mcu).unwrap_err(),
+        Error::Blob(BlobError::MissingTensor { id: 0 })
+    );
+}
+
+/// Small weights for every tensor of `SMALL`, f32 or int8, as a parsed-able blob.
+fn small_blob(seed: u64, int8: bool) -> Vec<u8> {
+    make_blob(&SMALL, &random_tensors(&SMALL, seed), int8)
+}
+
+#[test]
+fn manual_schedule_refuses_a_step_with_a_full_buffer() {
+    // Case 1 of issue 17: the (K+1)-th step() without adapt_now()/clear_buffer() indexed past
+    // Ψ ("range end index 10752 out of range for slice of length 10240" with MCU dims).
+    const K: usize = 20;
+    let bytes = small_blob(3, false);
+    let blob = Blob::parse(&bytes).unwrap();
+    let w = NavWeights::from_blob(&blob, &SMALL).unwrap();
+    let mut arena = vec![0.0f32; Navigator::<Full, K>::arena_len(&SMALL)];
+    let cfg = NavConfig {
+        schedule: Schedule::Manual,
+        ..NavConfig::default()
+    };
+    let mut nav = Navigator::<Full, K>::new(w, &mut arena, cfg).unwrap();
+    nav.reset(&[0.5; 5], 1).unwrap();
+    let obs = [0.1f32; 6];
+    let ps = [0.0f32; 5];
+    for _ in 0..K {
+        nav.step(&obs, &ps).unwrap();
+    }
+    assert_eq!(nav.buffered(), K);
+    let e = nav.step(&obs, &ps).unwrap_err();
+    assert!(
+        matches!(e, Error::Config { what } if what.contains("buffer full")),
+        "{e:?}"
+    );
+    // Nothing changed, and the documented ways out work.
+    assert_eq!(nav.buffered(), K);
+    assert_eq!(nav.counters().steps, K as u32);
+    assert!(nav.adapt_now().unwrap());
+    nav.step(&obs, &ps).unwrap();
+    for _ in 1..K {
+        nav.step(&obs, &ps).unwrap();
+    }
+    assert!(nav.step(&obs, &ps).is_err());
+    nav.clear_buffer();
+    nav.step(&obs, &ps).unwrap();
+}
+
+/// One call on a navigator.
+#[derive(Clone, Debug)]
+enum Op {
+    Step { obs: Vec<f32>, ps: Vec<f32> },
+    AdaptNow,
+    Clear,
+    Reset { attr: Vec<f32>, seed: u64 },
+    ResetDisc,
+}
+
+fn value() -> impl Strategy<Value = f32> {
+    prop_oneof![
+        8 => -2.0f32..2.0,
+        1 => prop::sample::select(vec![
+            f32::NAN, f32::INFINITY, f32::NEG_INFINITY, 1e30, -1e30, f32::MAX, f32::MIN_POSITIVE, 0.0
+        ]),
+    ]
+}
+
+fn vec_around(n: usize) -> impl Strategy<Value = Vec<f32>> {
+    // Mostly the right length, sometimes not.
+    prop_oneof![
+        6 => prop::collection::vec(value(), n..=n),
+        1 => prop::collection::vec(value(), 0..(n + 3)),
+    ]
+}
+
+fn op() -> impl Strategy<Value = Op> {
+    prop_oneof![
+        12 => (vec_around(SMALL.feat), vec_around(SMALL.ps)).prop_map(|(obs, ps)| Op::Step { obs, ps }),
+        2 => Just(Op::AdaptNow),
+        2 => Just(Op::Clear),
+        2 => (vec_around(SMALL.attr), any::<u64>()).prop_map(|(attr, seed)| Op::Reset { attr, seed }),
+        1 => Just(Op::ResetDisc),
+    ]
+}
+
+fn config() -> impl Strategy<Value = NavConfig> {
+    (
+        any::<bool>(),
+        any::<bool>(),
+        any::<bool>(),
+        any::<bool>(),
+        0u32..6,
+        prop_oneof![
+            Just(1e-4f32),
+            Just(0.0),
+            Just(10.0),
+            Just(1e30),
+            Just(f32::NAN)
+        ],
+        prop_oneof![Just(1e-4f32), Just(0.0), Just(100.0), Just(1e30)],
+    )
+        .prop_map(|(manual, adapt, zero, sample, cap, a1, a2)| NavConfig {
+            schedule: if manual {
+                Schedule::Manual
+            } else {
+                Schedule::Auto
+            },
+            adapt,
+            noise: if zero {
+                NoiseMode::Zero
+            } else {
+                NoiseMode::Gaussian
+            },
+            selection: if sample {
+                Selection::Sample
+            } else {
+                Selection::Greedy
+            },
+            max_inner_updates: cap,
+            alpha_disc: a1,
+            alpha_adapt: a2,
+            ..NavConfig::default()
+        })
+}
+
+/// Runs `ops` on a navigator over `blob`: every call returns `Ok` or a typed error.
+fn drive<M: Mode, const K: usize>(blob: &Blob<'_>, cfg: NavConfig, ops: &[Op]) {
+    let Ok(w) = NavWeights::from_blob(blob, &SMALL) else {
+        return;
+    };
+    let mut arena = vec![0.0f32; Navigator::<M, K>::arena_len(&SMALL)];
+    let Ok(mut nav) = Navigator::<M, K>::new(w, &mut arena, cfg) else {
+        return;
+    };
+    for op in ops {
+        match op {
+            Op::Step { obs, ps } => {
+                let before = nav.buffered();
+                if let Ok(out) = nav.step(obs, ps) {
+                    assert!(out.probs.iter().all(|p| p.is_finite()));
+                    assert!(nav.buffered() <= K);
+                } else {
+                    assert_eq!(nav.buffered(), before);
+                }
+            }
+            Op::AdaptNow => {
+                let _ = nav.adapt_now();
+            }
+            Op::Clear => nav.clear_buffer(),
+            Op::Reset { attr, seed } => {
+                let _ = nav.reset(attr, *seed);
+            }
+            Op::ResetDisc => {
+                let _ = nav.reset_discriminator();
+            }
+        }
+        assert!(nav.buffered() <= K);
+    }
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: cases(), failure_persistence: None, .. ProptestConfig::default() })]
+
+    /// Arbitrary call sequences (including more than K steps without adapting under
+    /// `Schedule::Manual`, wrong lengths, NaN/infinite/huge inputs, diverging rates) on
+    /// navigators of both modes and two buffer sizes, over f32 and int8 blobs that may carry
+    /// resealed random byte edits: every call returns Ok or a typed error, never a panic.
+    #[test]
+    fn navigator_call_sequences_never_panic(
+        cfg in config(),
+        ops in prop::collection::vec(op(), 0..48),
+        int8 in any::<bool>(),
+        efficient in any::<bool>(),
+        small_k in any::<bool>(),
+        edits in prop::collection::vec((any::<prop::sample::Index>(), any::<u8>()), 0..4),
+    ) {
+        let bytes = small_blob(11, int8);
+        let parsed = Blob::parse(&bytes).unwrap();
+        let (plen, crc) = (parsed.header().payload_len() as usize, parsed.header().payload_crc());
+        let hlen = bytes.len() - plen;
+        let mut m = bytes.clone();
+        for (i, b) in &edits {
+            m[hlen + i.index(plen)] = *b;
+        }
+        let m = if edits.is_empty() { m } else { reseal(&m, plen, crc) };
+        let Ok(blob) = Blob::parse(&m) else { return Ok(()); };
+        match (efficient, small_k) {
+            (false, false) => drive::<Full, 20>(&blob, cfg, &ops),
+            (false, true) => drive::<Full, 3>(&blob, cfg, &ops),
+            (true, false) => drive::<Efficient, 20>(&blob, cfg, &ops),
+            (true, true) => drive::<Efficient, 3>(&blob, cfg, &ops),
+        }
+    }
+
+    /// Blob headers with arbitrary dims (small, large and near `u32::MAX`): parsing never
+    /// panics; what parses has sizes that all fit (checked arithmetic), and for any dims the
+    /// size functions never panic or wrap.
+    #[test]
+    fn blob_derived_sizes_never_overflow(
+        raw in prop::array::uniform8(prop_oneof![
+            4 => 0u32..64,
+            2 => 0u32..100_000,
+            1 => any::<u32>(),
+            1 => (u32::MAX - 8)..=u32::MAX,
+            1 => prop::sample::select(vec![1u32 << 16, 1 << 20, 1 << 24, 1 << 30, 1 << 31]),
+        ]),
+    ) {
+        let d = dims_of(raw);
+        sizes_are_consistent(&d)?;
+        match Blob::parse(&header_only_blob(raw)) {
+            Ok(blob) => {
+                prop_assert!(d.checked_sizes());
+                prop_assert_eq!(blob.dims(), d);
+                for mode in [AdaptMode::Full, AdaptMode::Efficient] {
+                    prop_assert!(try_arena_len(&d, mode, 1).is_some());
+                }
+                prop_assert!(checked_int8_weight_bytes(&d).is_some());
+                // No tensors: every loader gets a typed error, never an allocation.
+                prop_assert!(NavWeights::from_blob(&blob, &d).is_err());
+            }
+            Err(e) => prop_assert_eq!(e, BlobError::DimsTooLarge),
+        }
+    }
+}

@@ -1,0 +1,695 @@
+//! Issue 17 ("no panic, no hang, no silent wrong result, no lost run data"): each case as a
+//! reproduction through the built `gman` binary or the library, with crafted blobs,
+//! checkpoints, data files and run directories in temporary directories.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+use gman_host_sim::sim::{Split, World};
+use gman_host_sim::train::checkpoint::Checkpoint;
+
+fn gman(args: &[&str]) -> (bool, String, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_gman"))
+        .args(args)
+        .output()
+        .expect("run gman");
+    (
+        out.status.success(),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+/// Runs gman, killing it (and failing) after `secs`: for cases that used to hang.
+fn gman_within(secs: u64, args: &[&str]) -> (bool, String) {
+    let mut child = Command::new(env!("CARGO_BIN_EXE_gman"))
+        .args(args)
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("run gman");
+    let t0 = Instant::now();
+    loop {
+        if let Some(status) = child.try_wait().unwrap() {
+            let mut err = String::new();
+            std::io::Read::read_to_string(child.stderr.as_mut().unwrap(), &mut err).unwrap();
+            return (status.success(), err);
+        }
+        if t0.elapsed() > Duration::from_secs(secs) {
+            let _ = child.kill();
+            let _ = child.wait();
+            panic!("gman {args:?} still running after {secs} s (hang)");
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+fn tmp(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("gman-rel-test-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+/// A short synthetic A3C run of `updates` updates (checkpoint every update) in `dir`.
+fn train_run(dir: &Path, updates: u32) {
+    let u = updates.to_string();
+    let (ok, _, err) = gman(&[
+        "train",
+        "--method",
+        "a3c",
+        "--config",
+        "tiny",
+        "--min-steps",
+        "12",
+        "--workers",
+        "1",
+        "--updates",
+        &u,
+        "--checkpoint-every",
+        "1",
+        "--quiet",
+        "--out",
+        s(dir),
+    ]);
+    assert!(ok, "{err}");
+}
+
+fn resume(dir: &Path, updates: u32, extra: &[&str]) -> (bool, String) {
+    let u = updates.to_string();
+    let mut args = vec!["train", "--resume", s(dir), "--updates", &u, "--quiet"];
+    args.extend_from_slice(extra);
+    let (ok, _, err) = gman(&args);
+    assert!(!err.contains("panicked"), "{err}");
+    (ok, err)
+}
+
+/// Loads `dir/checkpoint.ckpt`, lets `edit` change it, saves it (a valid CRC again).
+fn edit_checkpoint(dir: &Path, edit: impl FnOnce(&mut Checkpoint)) {
+    let path = dir.join("checkpoint.ckpt");
+    let mut ck = Checkpoint::load(&path).unwrap();
+    edit(&mut ck);
+    ck.save(&path).unwrap();
+}
+
+fn varint(mut v: u64) -> Vec<u8> {
+    let mut o = Vec::new();
+    loop {
+        let b = (v & 0x7f) as u8;
+        v >>= 7;
+        if v == 0 {
+            o.push(b);
+            return o;
+        }
+        o.push(b | 0x80);
+    }
+}
+
+/// A valid v2 blob header with these dims and no tensors.
+fn header_only_blob(dims: [u64; 8]) -> Vec<u8> {
+    let mut b = gman_core::blob::MAGIC.to_vec();
+    b.extend(varint(2));
+    for d in dims {
+        b.extend(varint(d));
+    }
+    b.extend(varint(1));
+    b.extend(1e-4f32.to_le_bytes());
+    b.extend(1e-4f32.to_le_bytes());
+    b.extend(varint(4));
+    b.extend([0, 0, 0]); // n_tensors, payload_len, CRC of the empty payload
+    b
+}
+
+/// Case 3: `gman eval --agent` on a header-only blob with huge dims panicked with "capacity
+/// overflow" (allocation from the header's dims); `inspect` accepted it.
+#[test]
+fn case03_header_only_blobs_are_typed_errors() {
+    let d = tmp("blob");
+    for (name, dims, needle) in [
+        ("max.gman", [u32::MAX as u64; 8], "dimensions too large"),
+        ("big.gman", [1 << 20; 8], "missing"),
+        ("mcu.gman", [45, 45, 256, 512, 64, 64, 64, 0], "missing"),
+    ] {
+        let p = d.join(name);
+        std::fs::write(&p, header_only_blob(dims)).unwrap();
+        let (ok, _, e) = gman(&["eval", "--agent", s(&p), "--episodes", "1", "--quiet"]);
+        assert!(!ok && e.contains(name) && e.contains(needle), "{name}: {e}");
+        assert!(!e.contains("panicked"), "{e}");
+    }
+    let (ok, _, e) = gman(&["inspect", s(&d.join("max.gman"))]);
+    assert!(!ok && e.contains("dimensions too large"), "{e}");
+}
+
+/// Case 4: `--min-start-actions 30` on the synthetic world busy-looped forever.
+#[test]
+fn case04_unsatisfiable_min_start_actions_is_an_error() {
+    let d = tmp("minstart");
+    let (ok, e) = gman_within(
+        120,
+        &[
+            "train",
+            "--method",
+            "a3c",
+            "--config",
+            "tiny",
+            "--min-start-actions",
+            "30",
+            "--updates",
+            "1",
+            "--quiet",
+            "--out",
+            s(&d.join("run")),
+        ],
+    );
+    assert!(!ok && e.contains("--min-start-actions"), "{e}");
+    // The bounded sampler returns the same episodes as before when the setting can be met.
+    let w = World::synthetic(gman_host_sim::sim::DEFAULT_WORLD_SEED);
+    use rand::SeedableRng;
+    let mut r1 = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+    let mut r2 = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+    for _ in 0..20 {
+        assert_eq!(
+            w.try_sample_train_episode_min(&mut r1, 1).unwrap(),
+            w.sample_train_episode_min(&mut r2, 1)
+        );
+    }
+}
+
+/// Cases 5 and 8: a checkpoint with NaN weights. `eval` printed a normal table and exited 0;
+/// `export` wrote a valid blob with the NaN quantised to 0.
+#[test]
+fn case05_case08_nan_weights_fail_eval_and_export() {
+    let d = tmp("nan");
+    let run = d.join("run");
+    train_run(&run, 1);
+    edit_checkpoint(&run, |ck| {
+        // A policy weight: every method uses it at every step.
+        ck.tensors.get_mut("FuseW").unwrap().data[0] = f32::NAN;
+    });
+    let ckpt = run.join("checkpoint.ckpt");
+    let json = d.join("eval.json");
+    let (ok, stdout, e) = gman(&[
+        "eval",
+        "--agent",
+        s(&ckpt),
+        "--episodes",
+        "2",
+        "--quiet",
+        "--json",
+        s(&json),
+    ]);
+    assert!(!ok, "eval of a NaN model exited 0: {stdout}");
+    assert!(stdout.contains("FAILED: 16 of 16 episodes"), "{stdout}");
+    assert!(
+        e.contains("16 of 16 episodes") && !e.contains("panicked"),
+        "{e}"
+    );
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    assert_eq!(v["failed_episodes"], 16);
+    assert_eq!(v["failures"].as_array().unwrap().len(), 10);
+    // The healthy model evaluates with no failure and says so in the JSON.
+    let ok_run = d.join("ok");
+    train_run(&ok_run, 1);
+    let (ok, stdout, e) = gman(&[
+        "eval",
+        "--agent",
+        s(&ok_run.join("checkpoint.ckpt")),
+        "--episodes",
+        "1",
+        "--quiet",
+        "--json",
+        s(&json),
+    ]);
+    assert!(ok && !stdout.contains("FAILED"), "{e}");
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    assert_eq!(v["failed_episodes"], 0);
+
+    let blob = d.join("m.gman");
+    let (ok, _, e) = gman(&[
+        "export",
+        "--ckpt",
+        s(&ckpt),
+        "--preset",
+        "mcu",
+        "--out",
+        s(&blob),
+    ]);
+    assert!(!ok && e.contains("non-finite"), "{e}");
+    assert!(!blob.exists());
+}
+
+/// Case 6: stored settings of a checkpoint (with a valid CRC) were trained on unchecked.
+#[test]
+fn case06_resume_validates_stored_settings() {
+    let d = tmp("settings");
+    let base = d.join("base");
+    train_run(&base, 1);
+    let copy = |name: &str| {
+        let p = d.join(name);
+        std::fs::create_dir_all(&p).unwrap();
+        std::fs::copy(base.join("checkpoint.ckpt"), p.join("checkpoint.ckpt")).unwrap();
+        std::fs::copy(base.join("metrics.csv"), p.join("metrics.csv")).unwrap();
+        p
+    };
+    type Edit = Box<dyn FnOnce(&mut Checkpoint)>;
+    let cases: Vec<(&str, Edit, &str)> = vec![
+        (
+            "inner",
+            Box::new(|ck| ck.metadata["inner_lr"] = serde_json::json!(-1.0)),
+            "inner_lr",
+        ),
+        (
+            "adamlr",
+            Box::new(|ck| ck.metadata["trainer"]["adam"]["lr"] = serde_json::json!(-0.001)),
+            "lr",
+        ),
+        (
+            "method",
+            Box::new(|ck| ck.metadata["method"] = serde_json::json!("a3c-fg")),
+            "trained as a3c",
+        ),
+        (
+            "entropy",
+            Box::new(|ck| ck.metadata["trainer"]["a3c"]["entropy"] = serde_json::json!(-5.0)),
+            "entropy",
+        ),
+        (
+            "adamstate",
+            Box::new(|ck| {
+                let b = &mut ck.blobs.iter_mut().find(|(n, _)| n == "adam").unwrap().1;
+                let n = b.len();
+                b[n - 4..].copy_from_slice(&f32::NAN.to_le_bytes());
+            }),
+            "non-finite",
+        ),
+        (
+            "workers",
+            Box::new(|ck| ck.metadata["trainer"]["workers"] = serde_json::json!(0)),
+            "workers",
+        ),
+    ];
+    for (name, edit, needle) in cases {
+        let p = copy(name);
+        edit_checkpoint(&p, edit);
+        let (ok, e) = resume(&p, 2, &[]);
+        assert!(!ok && e.contains(needle), "{name}: {e}");
+    }
+    // The untouched copy resumes.
+    let p = copy("untouched");
+    let (ok, e) = resume(&p, 2, &[]);
+    assert!(ok, "{e}");
+}
+
+/// Case 7: a synthetic-world run continued on `--data` or with another `--world-seed`.
+#[test]
+fn case07_resume_refuses_another_world() {
+    let d = tmp("world");
+    let run = d.join("run");
+    train_run(&run, 1);
+    let (ok, e) = resume(&run, 2, &["--world-seed", "7"]);
+    assert!(
+        !ok && e.contains("synthetic world") && e.contains("--world-seed"),
+        "{e}"
+    );
+    if let Some(data) = common::data_dir() {
+        let (ok, e) = resume(&run, 2, &["--data", s(&data)]);
+        assert!(!ok && e.contains("trained on the synthetic world"), "{e}");
+    }
+    let v = Checkpoint::load(&run.join("checkpoint.ckpt"))
+        .unwrap()
+        .metadata;
+    assert_eq!(v["trainer"]["world"]["kind"], "synthetic");
+    let (ok, e) = resume(&run, 2, &[]);
+    assert!(ok, "{e}");
+}
+
+/// Case 9: data files accepted without a message. Each malformed copy of a small piece of the
+/// official data is refused with the file (and line) named; the unmodified copy loads.
+#[test]
+fn case09_malformed_data_files_are_refused() {
+    let Some(data) = common::data_dir() else {
+        return;
+    };
+    // The official data loads with every check on: 8000 episodes.
+    let w = World::load(&data).unwrap();
+    assert_eq!(w.episodes(Split::Val, None).unwrap().len(), 8000);
+
+    let make = |name: &str| -> PathBuf {
+        let d = tmp(&format!("data-{name}"));
+        std::fs::copy(data.join("attributes.json"), d.join("attributes.json")).unwrap();
+        std::fs::create_dir_all(d.join("scenes/val")).unwrap();
+        std::fs::create_dir_all(d.join("episodes/val")).unwrap();
+        for f in std::fs::read_dir(data.join("scenes/val")).unwrap() {
+            let f = f.unwrap().path();
+            std::fs::copy(&f, d.join("scenes/val").join(f.file_name().unwrap())).unwrap();
+        }
+        for f in std::fs::read_dir(data.join("episodes/val")).unwrap() {
+            let f = f.unwrap().path();
+            let text = std::fs::read_to_string(&f).unwrap();
+            let head: String = text.lines().take(3).map(|l| format!("{l}\n")).collect();
+            std::fs::write(d.join("episodes/val").join(f.file_name().unwrap()), head).unwrap();
+        }
+        d
+    };
+    let load = |d: &Path| -> Result<usize, String> {
+        World::load(d)
+            .and_then(|w| w.episodes(Split::Val, None))
+            .map(|e| e.len())
+            .map_err(|e| format!("{e:#}"))
+    };
+    let ok = make("ok");
+    assert_eq!(load(&ok), Ok(24));
+
+    let rewrite = |path: &Path, f: &dyn Fn(String) -> String| {
+        let t = std::fs::read_to_string(path).unwrap();
+        std::fs::write(path, f(t)).unwrap();
+    };
+    let first_line = |path: &Path, f: &dyn Fn(&mut serde_json::Value)| {
+        let t = std::fs::read_to_string(path).unwrap();
+        let mut lines: Vec<String> = t.lines().map(String::from).collect();
+        let mut v: serde_json::Value = serde_json::from_str(&lines[0]).unwrap();
+        f(&mut v);
+        lines[0] = v.to_string();
+        std::fs::write(path, lines.join("\n") + "\n").unwrap();
+    };
+    let ep = |d: &Path, f: &str| d.join("episodes/val").join(f);
+
+    // Attribute values outside [0, 1].
+    for bad in ["5", "-3", "1e30"] {
+        let d = make(&format!("attr{bad}"));
+        let p = d.join("attributes.json");
+        let mut v: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&p).unwrap()).unwrap();
+        v["categories"]["Bathtub"][0] = serde_json::from_str(bad).unwrap();
+        std::fs::write(&p, v.to_string()).unwrap();
+        let e = load(&d).unwrap_err();
+        assert!(e.contains("attributes.json") && e.contains("[0, 1]"), "{e}");
+    }
+    // An empty and a missing episode file, an unknown room file.
+    let d = make("empty");
+    std::fs::write(ep(&d, "kitchen_seen.jsonl"), "").unwrap();
+    let e = load(&d).unwrap_err();
+    assert!(
+        e.contains("kitchen_seen.jsonl") && e.contains("no episode"),
+        "{e}"
+    );
+    let d = make("missing");
+    std::fs::remove_file(ep(&d, "kitchen_seen.jsonl")).unwrap();
+    let e = load(&d).unwrap_err();
+    assert!(
+        e.contains("kitchen_seen.jsonl") && e.contains("missing"),
+        "{e}"
+    );
+    let d = make("garage");
+    std::fs::copy(ep(&d, "kitchen_seen.jsonl"), ep(&d, "garage_seen.jsonl")).unwrap();
+    let e = load(&d).unwrap_err();
+    assert!(e.contains("garage_seen.jsonl"), "{e}");
+    // An episode whose room disagrees with its scene (and with its file).
+    let d = make("room");
+    first_line(&ep(&d, "bathroom_seen.jsonl"), &|v| {
+        v["scene"] = "FloorPlan22".into()
+    });
+    let e = load(&d).unwrap_err();
+    assert!(
+        e.contains("bathroom_seen.jsonl line 1") && e.contains("disagrees"),
+        "{e}"
+    );
+    // A "seen" target that is an unseen category.
+    let d = make("seenunseen");
+    first_line(&ep(&d, "bathroom_seen.jsonl"), &|v| {
+        v["target"] = "Toilet".into()
+    });
+    let e = load(&d).unwrap_err();
+    assert!(
+        e.contains("line 1") && e.contains("not among the seen targets"),
+        "{e}"
+    );
+    // A start 0.13 m off the grid.
+    let d = make("grid");
+    first_line(&ep(&d, "bathroom_seen.jsonl"), &|v| {
+        let x = v["start"]["x"].as_f64().unwrap();
+        v["start"]["x"] = (x + 0.13).into();
+    });
+    let e = load(&d).unwrap_err();
+    assert!(e.contains("line 1") && e.contains("grid"), "{e}");
+    // Empty and unknown target_ids.
+    let d = make("noids");
+    first_line(&ep(&d, "bathroom_seen.jsonl"), &|v| {
+        v["target_ids"] = serde_json::json!([])
+    });
+    let e = load(&d).unwrap_err();
+    assert!(
+        e.contains("line 1") && e.contains("target_ids is empty"),
+        "{e}"
+    );
+    let d = make("badid");
+    first_line(&ep(&d, "bathroom_seen.jsonl"), &|v| {
+        v["target_ids"] = serde_json::json!(["Bathtub|+9.99|+0.00|+9.99"])
+    });
+    let e = load(&d).unwrap_err();
+    assert!(e.contains("line 1") && e.contains("target id"), "{e}");
+    // An object at x = 1e300.
+    let d = make("far");
+    rewrite(&d.join("scenes/val/FloorPlan426.json"), &|t| {
+        let mut v: serde_json::Value = serde_json::from_str(&t).unwrap();
+        v["objects"][0]["x"] = serde_json::from_str("1e300").unwrap();
+        v.to_string()
+    });
+    let e = load(&d).unwrap_err();
+    assert!(e.contains("FloorPlan426.json"), "{e}");
+    // Through the CLI: a non-zero exit and the file and line.
+    let d = make("cli");
+    first_line(&ep(&d, "bedroom_unseen.jsonl"), &|v| {
+        v["target"] = "Bowl".into()
+    });
+    let (ok, _, e) = gman(&["eval", "--data", s(&d), "--quiet"]);
+    assert!(!ok && e.contains("bedroom_unseen.jsonl line 1"), "{e}");
+}
+
+/// Case 10: flags that do not apply were ignored silently; values that give a wrong result
+/// were accepted.
+#[test]
+fn case10_flags_that_do_not_apply() {
+    let (ok, _, e) = gman(&["eval", "--episodes", "0", "--quiet"]);
+    assert!(!ok && e.contains("--episodes 0"), "{e}");
+    let (ok, _, e) = gman(&[
+        "eval",
+        "--agent",
+        "x{seed}.ckpt",
+        "--seeds",
+        "1,1",
+        "--quiet",
+    ]);
+    assert!(!ok && e.contains("seed 1 twice"), "{e}");
+    let (ok, _, e) = gman(&[
+        "eval",
+        "--agent",
+        "random",
+        "--inner-lr",
+        "0.1",
+        "--episodes",
+        "1",
+        "--quiet",
+    ]);
+    assert!(ok && e.contains("--inner-lr is ignored"), "{e}");
+    let (ok, _, e) = gman(&[
+        "eval",
+        "--agent",
+        "oracle",
+        "--max-inner",
+        "2",
+        "--episodes",
+        "1",
+        "--quiet",
+    ]);
+    assert!(ok && e.contains("--max-inner is ignored"), "{e}");
+    let d = tmp("flags");
+    let (ok, _, e) = gman(&[
+        "train",
+        "--workers",
+        "1000",
+        "--out",
+        s(&d.join("w")),
+        "--quiet",
+    ]);
+    assert!(!ok && e.contains("--workers 1000"), "{e}");
+    let run = d.join("run");
+    train_run(&run, 1);
+    let (ok, e) = resume(&run, 2, &["--preset", "paper"]);
+    assert!(
+        !ok && e.contains("--preset paper") && e.contains("not the paper preset"),
+        "{e}"
+    );
+    let (ok, e) = resume(&run, 2, &["--fg", "whatever.ckpt"]);
+    assert!(ok && e.contains("--fg is ignored"), "{e}");
+    assert!(e.contains("(mcu)"), "{e}");
+}
+
+/// Case 11: two trainers into one `--out` both exited 0 and interleaved `metrics.csv`.
+#[test]
+fn case11_second_trainer_on_a_run_dir_is_refused() {
+    let d = tmp("lock");
+    let run = d.join("run");
+    train_run(&run, 1);
+    // A writer in this process holds the lock: the binary is refused, the files untouched.
+    let before = std::fs::read(run.join("metrics.csv")).unwrap();
+    {
+        let _lock = gman_host_sim::nav::trainer::lock_run_dir(&run).unwrap();
+        let (ok, e) = resume(&run, 3, &[]);
+        assert!(!ok && e.contains("in use by another trainer"), "{e}");
+        assert_eq!(std::fs::read(run.join("metrics.csv")).unwrap(), before);
+    }
+    // Two real processes: the second one started while the first runs is refused.
+    let first = Command::new(env!("CARGO_BIN_EXE_gman"))
+        .args([
+            "train",
+            "--resume",
+            s(&run),
+            "--updates",
+            "100000",
+            "--quiet",
+        ])
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let mut first = KillOnDrop(first);
+    let t0 = Instant::now();
+    // Wait until the first one writes (it holds the lock from its start).
+    while std::fs::read(run.join("metrics.csv")).unwrap().len() <= before.len() {
+        assert!(
+            t0.elapsed() < Duration::from_secs(120),
+            "first trainer wrote nothing"
+        );
+        assert!(first.0.try_wait().unwrap().is_none(), "first trainer ended");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let (ok, e) = resume(&run, 100000, &[]);
+    assert!(!ok && e.contains("in use by another trainer"), "{e}");
+    let _ = first.0.kill();
+    let _ = first.0.wait();
+    // After the first one is gone, the lock is free again.
+    let (ok, e) = resume(&run, 2, &[]);
+    assert!(ok || e.contains("already"), "{e}");
+}
+
+struct KillOnDrop(std::process::Child);
+impl Drop for KillOnDrop {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+/// Cases 12, 13, 14: metrics.csv was rewritten in place on resume, corrupt rows were kept
+/// (and `plot` failed later), and stale `.checkpoint.ckpt.tmp.PID` files were never removed.
+#[test]
+fn case12_13_14_metrics_repair_atomic_rewrite_and_stale_temporaries() {
+    let d = tmp("csv");
+    let run = d.join("run");
+    train_run(&run, 3);
+    let csv = run.join("metrics.csv");
+    let text = std::fs::read_to_string(&csv).unwrap();
+    let lines: Vec<&str> = text.lines().collect();
+    assert_eq!(lines.len(), 4);
+    let (header, r1, r2, r3) = (lines[0], lines[1], lines[2], lines[3]);
+    // No header, a duplicate, a partial row at or below the checkpoint's update (3), garbage,
+    // and a row after the checkpoint.
+    let corrupt = format!(
+        "{r1}\n{r2}\n{r1}\n{}\n3,zz\n{r3}\n{}\n",
+        &r2[..r2.len() / 2],
+        r3.replacen("3,", "4,", 1)
+    );
+    std::fs::write(&csv, &corrupt).unwrap();
+    // plot names the first bad line instead of failing late.
+    let (ok, _, e) = gman(&["plot", "--run", s(&run), "--png", s(&d.join("p.png"))]);
+    assert!(!ok && e.contains("metrics.csv line 1"), "{e}");
+    // Stale temporaries of killed writers.
+    let stale = run.join(".checkpoint.ckpt.tmp.999999");
+    std::fs::write(&stale, vec![0u8; 1000]).unwrap();
+    let keep = run.join("notes.tmp.txt");
+    std::fs::write(&keep, "mine").unwrap();
+    #[cfg(unix)]
+    let inode = {
+        use std::os::unix::fs::MetadataExt;
+        std::fs::metadata(&csv).unwrap().ino()
+    };
+    // Resume to the same update: only the repair and the rewrite happen.
+    let (ok, e) = resume(&run, 3, &[]);
+    assert!(ok, "{e}");
+    assert!(e.contains("dropped 3 malformed or duplicate row(s)"), "{e}");
+    assert!(
+        e.contains("removed 1 stale temporary file(s) (1000 bytes)"),
+        "{e}"
+    );
+    assert!(!stale.exists() && keep.exists());
+    let repaired = std::fs::read_to_string(&csv).unwrap();
+    assert_eq!(repaired, format!("{header}\n{r1}\n{r2}\n{r3}\n"));
+    #[cfg(unix)]
+    {
+        // Rewritten through a temporary file and a rename, not truncated in place.
+        use std::os::unix::fs::MetadataExt;
+        assert_ne!(std::fs::metadata(&csv).unwrap().ino(), inode);
+    }
+    assert!(std::fs::read_dir(&run).unwrap().all(|e| {
+        let n = e.unwrap().file_name().to_string_lossy().into_owned();
+        !(n.starts_with('.') && n.contains(".tmp."))
+    }));
+    // A row lost at or before the checkpoint is reported as a gap, and training goes on.
+    std::fs::write(&csv, format!("{header}\n{r1}\n{r3}\n")).unwrap();
+    let (ok, e) = resume(&run, 4, &[]);
+    assert!(
+        ok && e.contains("1 of the 3 updates before the checkpoint have no row"),
+        "{e}"
+    );
+    let (ok, _, e) = gman(&["plot", "--run", s(&run), "--png", s(&d.join("p.png"))]);
+    assert!(ok, "{e}");
+}
+
+/// `gman eval` runs on every core: the results are the same, in the same order, with one
+/// worker thread or two.
+#[test]
+fn eval_results_do_not_depend_on_the_thread_count() {
+    use gman_host_sim::nav::agent::NavAgent;
+    use gman_host_sim::nav::model::load_model;
+    use gman_host_sim::sim::{evaluate, EvalConfig};
+    let world = World::synthetic(gman_host_sim::sim::DEFAULT_WORLD_SEED);
+    let episodes = world.episodes(Split::Val, Some(3)).unwrap();
+    let model = std::sync::Arc::new(
+        load_model(
+            Path::new(concat!(
+                env!("CARGO_MANIFEST_DIR"),
+                "/models/gman-mcu-int8-seed1.gman"
+            )),
+            None,
+        )
+        .unwrap(),
+    );
+    let run = |threads: usize| {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
+        let results = pool.install(|| {
+            evaluate(
+                &world,
+                &episodes,
+                |_| Box::new(NavAgent::new(model.clone())),
+                &EvalConfig::default(),
+            )
+        });
+        serde_json::to_string(&results).unwrap()
+    };
+    let one = run(1);
+    assert_eq!(one, run(2));
+    assert_eq!(one, run(2));
+}
