@@ -193,12 +193,7 @@ fn attributes(seed: u64) -> BTreeMap<String, Vec<f32>> {
         .collect()
 }
 
-fn feature_map(
-    seed: u64,
-    scene: &str,
-    s: AgentState,
-    seen: &[(&str, [f32; 3])],
-) -> Vec<f32> {
+fn feature_map(seed: u64, scene: &str, s: AgentState, seen: &[(&str, [f32; 3])]) -> Vec<f32> {
     let sh = hash_str(seed, scene);
     let bg = hash2(sh, s.heading as u64 + 100 * s.horizon as u64);
     let noise = hash_str(sh, &state_key(s));

@@ -59,7 +59,7 @@ mod real {
         pub fn check(&self, key: &str, shapes: &[&[usize]]) -> Result<()> {
             let ds = self.dataset(key)?;
             let shape = ds.shape();
-            if !shapes.iter().any(|s| *s == shape.as_slice()) {
+            if !shapes.contains(&shape.as_slice()) {
                 let expected: Vec<String> = shapes.iter().map(|s| format!("{s:?}")).collect();
                 bail!(
                     "{}: dataset {key:?} has shape {shape:?}, expected {}",

@@ -135,8 +135,8 @@ pub fn scene_room_split(name: &str) -> Result<(RoomType, Split)> {
     let k = n % 100;
     let split = match k {
         1..=20 => Split::Train,
-        21..=30 if k % 2 == 0 => Split::Val,
-        21..=30 => Split::Test,
+        22 | 24 | 26 | 28 | 30 => Split::Val,
+        21 | 23 | 25 | 27 | 29 => Split::Test,
         _ => bail!("{name}: not an iTHOR floor plan (1-30, 201-230, 301-330, 401-430)"),
     };
     Ok((room, split))
@@ -623,8 +623,7 @@ impl OfflineScene {
                 }
                 None if !visible.is_empty() => {
                     for &c in &visible {
-                        for (t, a) in ps_target.iter_mut().zip(&categories[c as usize].attributes)
-                        {
+                        for (t, a) in ps_target.iter_mut().zip(&categories[c as usize].attributes) {
                             *t += a;
                         }
                     }
@@ -716,6 +715,44 @@ mod tests {
         );
         assert!(scene_room_split("FloorPlan31").is_err());
         assert!(scene_room_split("FloorPlan_x").is_err());
+    }
+
+    /// Without the `offline` feature an offline directory is recognised and the error says
+    /// how to build with HDF5 support.
+    #[cfg(not(feature = "offline"))]
+    #[test]
+    fn without_the_feature_loading_says_how_to_get_it() {
+        let d = std::env::temp_dir().join(format!("gman-offline-nofeature-{}", std::process::id()));
+        let _ = fs::remove_dir_all(&d);
+        let sd = d.join("FloorPlan1");
+        fs::create_dir_all(&sd).unwrap();
+        let attrs = serde_json::json!({
+            "dim": ATTR_DIM,
+            "categories": {"Fridge": vec![0.5f32; ATTR_DIM]},
+            "split": {
+                "train_targets_by_room": {
+                    "kitchen": ["Fridge"], "living_room": [], "bedroom": [], "bathroom": []
+                },
+                "seen": ["Fridge"],
+                "unseen": []
+            }
+        });
+        fs::write(d.join("attributes.json"), attrs.to_string()).unwrap();
+        fs::write(sd.join(GRID_FILE), r#"[{"x": 0.0, "y": 0.9, "z": 0.0}]"#).unwrap();
+        fs::write(
+            sd.join(GRAPH_FILE),
+            r#"{"directed": true, "nodes": [{"id": "0.00|0.00|0|0"}], "links": []}"#,
+        )
+        .unwrap();
+        fs::write(sd.join(VISIBLE_FILE), "{}").unwrap();
+        fs::write(sd.join(FEATURE_FILE), b"not read").unwrap();
+        assert!(is_offline_dir(&d));
+        let e = format!("{:#}", crate::sim::World::load(&d).unwrap_err());
+        assert!(
+            e.contains("--features offline") && e.contains(FEATURE_FILE),
+            "{e}"
+        );
+        let _ = fs::remove_dir_all(&d);
     }
 
     #[test]
