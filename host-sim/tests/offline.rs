@@ -8,7 +8,7 @@
 use std::collections::{HashMap, HashSet, VecDeque};
 use std::path::{Path, PathBuf};
 use std::process::Command;
-use std::sync::{Arc, OnceLock};
+use std::sync::{Arc, Mutex, MutexGuard, OnceLock};
 
 use gman_core::blob::Blob;
 use gman_core::navigator::{Efficient, NavWeights, Navigator};
@@ -25,6 +25,14 @@ use gman_host_sim::sim::{
 use gman_host_sim::train::adam::AdamConfig;
 use gman_host_sim::train::generator::init_generator;
 use serde_json::Value;
+
+/// One test at a time: HDF5 locks every file it opens (flock), and a `gman` child process
+/// spawned by one test inherits the descriptors, and so the locks, of files that another test
+/// has open at that moment, which would then fail to open ("unable to lock file").
+fn serial() -> MutexGuard<'static, ()> {
+    static M: Mutex<()> = Mutex::new(());
+    M.lock().unwrap_or_else(|e| e.into_inner())
+}
 
 fn tmp(name: &str) -> PathBuf {
     let d = std::env::temp_dir().join(format!("gman-offline-{}-{name}", std::process::id()));
@@ -106,6 +114,7 @@ fn intended(s: AgentState, a: Action) -> AgentState {
 
 #[test]
 fn state_graph_visibility_and_features_are_as_written() {
+    let _serial = serial();
     let (dir, info) = fixture();
     let w = world();
     assert!(matches!(&w.source, WorldSource::Offline(d) if d == dir));
@@ -259,6 +268,7 @@ fn state_graph_visibility_and_features_are_as_written() {
 
 #[test]
 fn oracle_reaches_sr_100_on_the_graphs_shortest_paths() {
+    let _serial = serial();
     let (dir, info) = fixture();
     let w = world();
     let episodes = w.episodes(Split::Val, None).unwrap();
@@ -337,6 +347,7 @@ fn opts(out: PathBuf, updates: u64) -> TrainOptions {
 /// evaluation path and a bare gman-core navigator over the blob choose the same actions.
 #[test]
 fn short_training_run_then_blob_replays_through_gman_core() {
+    let _serial = serial();
     let w = world();
     let dir = tmp("train");
     let mut rng = gman_core::rng::Xoshiro128::seed_from_u64(2);
@@ -412,6 +423,7 @@ fn gman(args: &[&str]) -> (bool, String, String) {
 /// pretrain-fg -> train (GMAN) -> export (int8 blob) -> eval with the blob (gman-core).
 #[test]
 fn cli_fixture_train_export_eval() {
+    let _serial = serial();
     let d = tmp("cli");
     let data = d.join("data");
     let s = |p: &Path| p.to_str().unwrap().to_string();
@@ -550,6 +562,7 @@ fn load_err(d: &Path) -> String {
 
 #[test]
 fn hand_made_scene_loads_and_bad_files_are_named() {
+    let _serial = serial();
     // The valid hand-made scene loads: one move edge, Fridge visible from one state.
     let ok = mini("ok", |_| true, &MAP_SHAPE);
     let w = World::load(&ok).unwrap();
@@ -617,6 +630,17 @@ fn hand_made_scene_loads_and_bad_files_are_named() {
     assert!(
         e.contains("visible_object_map.json") && e.contains("0.00|0.75|0|0"),
         "{e}"
+    );
+    // A visible state written differently from the node id still maps to that state.
+    std::fs::write(
+        d.join("FloorPlan3/visible_object_map.json"),
+        r#"{"Fridge|+00.00|+00.90|+01.00": ["0.0|0.250|0.0|0"]}"#,
+    )
+    .unwrap();
+    let w = World::load(&d).unwrap();
+    assert_eq!(
+        w.tables(0).obs[s1].visible,
+        vec![w.category_id("Fridge").unwrap()]
     );
     // Broken HDF5.
     let d = mini("broken", |_| true, &MAP_SHAPE);

@@ -405,8 +405,13 @@ fn load_scene(
         let (ty, pos) = parse_object_id(id).with_context(|| vis_path.display().to_string())?;
         let mut at = Vec::with_capacity(keys.len());
         for k in keys {
-            match node_of.get(k) {
-                Some(&i) => at.push(i),
+            // The same string as a node id, or (written differently) the same state.
+            let node = node_of.get(k).copied().or_else(|| {
+                let s = parse_state_key(k).ok().flatten()?;
+                node_of.get(state_of.get(&s)?).copied()
+            });
+            match node {
+                Some(i) => at.push(i),
                 None if known_keys.contains(k) => {} // a node our agent does not have
                 None => bail!(
                     "{}: object {id:?} lists state {k:?}, which is not a node of {}",
