@@ -57,6 +57,22 @@ pub enum Commands {
     /// Single-thread benchmarks: navigator step/adaptation latency against this machine's
     /// measured bandwidth and FMA peak, training throughput, firmware instruction counts.
     Bench(crate::cli_bench::BenchArgs),
+    /// Write a small data directory in the AI2THOR offline format of SAVN/GMAN (HDF5 feature
+    /// maps, state graph, visibility; made-up data) for trying `--data` on it.
+    #[cfg(feature = "offline")]
+    MakeOfflineFixture(MakeOfflineFixtureArgs),
+}
+
+/// `gman make-offline-fixture`.
+#[cfg(feature = "offline")]
+#[derive(Debug, Args)]
+pub struct MakeOfflineFixtureArgs {
+    /// Output directory (created if missing).
+    #[arg(long, value_name = "DIR")]
+    pub out: PathBuf,
+    /// Seed of the attribute vectors and feature values.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
 }
 
 /// Network size preset.
@@ -178,8 +194,9 @@ pub struct PretrainPsArgs {
 /// Options that choose the world.
 #[derive(Debug, Args, Clone)]
 pub struct WorldArgs {
-    /// Data directory (`attributes.json`, `scenes/<split>/`, `episodes/<split>/`). Without it the
-    /// built-in synthetic demo world is used.
+    /// Data directory (`attributes.json`, `scenes/<split>/`, `episodes/<split>/`), or AI2THOR
+    /// offline data (`attributes.json`, `FloorPlanN/` folders, `episodes/<split>/`; needs the
+    /// `offline` build feature). Without it the built-in synthetic demo world is used.
     #[arg(long, value_name = "DIR")]
     pub data: Option<PathBuf>,
     /// World seed: placement of objects without positions, feature model, scene styles (and the
@@ -325,6 +342,17 @@ pub fn run(cli: Cli, matches: &clap::ArgMatches) -> Result<()> {
         Commands::Table(a) => crate::cli_nav::cmd_table(a),
         Commands::Demo(a) => crate::cli_nav::cmd_demo(a),
         Commands::Bench(a) => crate::cli_bench::cmd_bench(a),
+        #[cfg(feature = "offline")]
+        Commands::MakeOfflineFixture(a) => {
+            let info = gman_host_sim::sim::offline::fixture::write_fixture(&a.out, a.seed)?;
+            println!(
+                "wrote {}: scenes {}, {} val episodes",
+                a.out.display(),
+                info.scenes.join(", "),
+                info.episodes
+            );
+            Ok(())
+        }
     }
 }
 

@@ -15,6 +15,8 @@
 //! * [`world`]: the [`World`] (loading, episodes, training sampler).
 //! * [`env`](mod@env): one episode ([`Env`]).
 //! * [`synthetic`]: the built-in demo world.
+//! * [`offline`]: the AI2THOR offline data of SAVN/GMAN (real ResNet18 feature maps) as a
+//!   world source (HDF5 behind the `offline` feature).
 //! * [`eval`]: agents and the parallel evaluator.
 //! * [`render`]: top-down PNG maps of scenes.
 
@@ -25,6 +27,7 @@ pub mod eval;
 pub mod features;
 pub mod geometry;
 pub mod metrics;
+pub mod offline;
 pub mod render;
 pub mod reward;
 pub mod scene;

@@ -57,6 +57,10 @@ pub struct SceneSource {
     pub present: Vec<CategoryId>,
     /// Instances with known positions: (id, category, centre).
     pub known: Vec<(String, CategoryId, [f32; 3])>,
+    /// Take the reachable cells and the instances exactly as given (the AI2THOR offline data,
+    /// [`crate::sim::offline`]): no gap filling, no merging of nearby instances, no placed
+    /// instances. The unseen categories are still removed from training scenes.
+    pub exact: bool,
 }
 
 /// A built scene.
@@ -101,7 +105,7 @@ impl Scene {
         let mut filled_set = BTreeSet::new();
         for x in min_x..=max_x {
             for z in min_z..=max_z {
-                if orig.contains(&(x, z)) {
+                if src.exact || orig.contains(&(x, z)) {
                     continue;
                 }
                 let lr = orig.contains(&(x - 1, z)) && orig.contains(&(x + 1, z));
@@ -153,7 +157,8 @@ impl Scene {
             }
             present.insert(cat);
             if let Some(o) = objects.iter_mut().find(|o| {
-                o.category == cat
+                !src.exact
+                    && o.category == cat
                     && ((o.pos[0] - pos[0]).powi(2) + (o.pos[2] - pos[2]).powi(2)).sqrt() < 0.3
                     && (o.pos[1] - pos[1]).abs() < 0.3
             }) {
@@ -173,7 +178,7 @@ impl Scene {
         let slots = scene.boundary_slots();
         let mut used = vec![false; slots.len()];
         for &cat in &present {
-            if objects.iter().any(|o| o.category == cat) || slots.is_empty() {
+            if src.exact || objects.iter().any(|o| o.category == cat) || slots.is_empty() {
                 continue;
             }
             let c = &categories[cat as usize];
@@ -357,6 +362,7 @@ mod tests {
             reachable: cells,
             present: vec![0, 1],
             known: vec![],
+            exact: false,
         }
     }
 

@@ -199,6 +199,7 @@ pub fn generate(seed: u64, cfg: &SyntheticConfig) -> World {
                     reachable,
                     present,
                     known: Vec::new(),
+                    exact: false,
                 });
             }
         }

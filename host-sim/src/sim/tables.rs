@@ -73,28 +73,6 @@ impl SceneTables {
     ) -> SceneTables {
         let next = scene.transition_table();
         let n = next.len();
-        // Reverse graph.
-        let mut count = vec![0u32; n + 1];
-        for (s, row) in next.iter().enumerate() {
-            for &t in row.iter().take(Action::Done.index()) {
-                if t as usize != s {
-                    count[t as usize + 1] += 1;
-                }
-            }
-        }
-        for i in 0..n {
-            count[i + 1] += count[i];
-        }
-        let mut fill = count.clone();
-        let mut pred = vec![0u32; count[n] as usize];
-        for (s, row) in next.iter().enumerate() {
-            for &t in row.iter().take(Action::Done.index()) {
-                if t as usize != s {
-                    pred[fill[t as usize] as usize] = s as u32;
-                    fill[t as usize] += 1;
-                }
-            }
-        }
         let (min_x, _, max_x, _) = scene.bounds();
         let span = (max_x - min_x).max(1) as f32;
         let mut obs = Vec::with_capacity(n);
@@ -179,6 +157,42 @@ impl SceneTables {
                     in_view,
                 });
                 visible_instances.push(vis);
+            }
+        }
+        SceneTables::from_parts(next, obs, visible_instances)
+    }
+
+    /// Tables from successors, observations and visible instances (one entry per state);
+    /// computes the reverse graph. Used by [`SceneTables::build`] and the offline data
+    /// ([`crate::sim::offline`]).
+    pub fn from_parts(
+        next: Vec<[u32; NUM_ACTIONS]>,
+        obs: Vec<Observation>,
+        visible_instances: Vec<Vec<u16>>,
+    ) -> SceneTables {
+        let n = next.len();
+        debug_assert_eq!(obs.len(), n);
+        debug_assert_eq!(visible_instances.len(), n);
+        // Reverse graph.
+        let mut count = vec![0u32; n + 1];
+        for (s, row) in next.iter().enumerate() {
+            for &t in row.iter().take(Action::Done.index()) {
+                if t as usize != s {
+                    count[t as usize + 1] += 1;
+                }
+            }
+        }
+        for i in 0..n {
+            count[i + 1] += count[i];
+        }
+        let mut fill = count.clone();
+        let mut pred = vec![0u32; count[n] as usize];
+        for (s, row) in next.iter().enumerate() {
+            for &t in row.iter().take(Action::Done.index()) {
+                if t as usize != s {
+                    pred[fill[t as usize] as usize] = s as u32;
+                    fill[t as usize] += 1;
+                }
             }
         }
         SceneTables {

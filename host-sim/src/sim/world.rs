@@ -12,6 +12,7 @@ use rand::Rng;
 use super::catalog::props_of;
 use super::data;
 use super::features::{FeatureModel, SceneStyle};
+use super::offline::{self, OfflineScene};
 use super::scene::{Scene, SceneSource};
 use super::tables::{GoalTable, Observation, SceneTables, UNREACHABLE};
 use super::types::{
@@ -49,6 +50,9 @@ pub struct EpisodeSpec {
 pub enum WorldSource {
     /// A data directory with the GMAN/iTHOR layout.
     Data(PathBuf),
+    /// A data directory with the AI2THOR offline scene folders of SAVN/GMAN
+    /// ([`crate::sim::offline`]).
+    Offline(PathBuf),
     /// The built-in procedurally generated demo world.
     Synthetic,
 }
@@ -105,6 +109,8 @@ pub struct World {
     tables: Vec<OnceLock<SceneTables>>,
     goals: Vec<Vec<OnceLock<GoalTable>>>,
     generated_episodes: BTreeMap<Split, Vec<EpisodeSpec>>,
+    /// Per scene: its offline data, `None` for simulated scenes.
+    offline: Vec<Option<OfflineScene>>,
 }
 
 impl std::fmt::Debug for World {
@@ -133,7 +139,8 @@ pub(crate) struct WorldParts {
 impl World {
     /// Loads the real floor plans from a data directory (`attributes.json`, `scenes/<split>/`,
     /// `episodes/<split>/`) with [`DEFAULT_WORLD_SEED`]. Every split directory present under
-    /// `scenes/` is loaded; at least one must exist.
+    /// `scenes/` is loaded; at least one must exist. A directory without `scenes/` but with
+    /// `FloorPlanN/` folders is read as AI2THOR offline data ([`crate::sim::offline`]).
     pub fn load(dir: &Path) -> Result<World> {
         World::load_with_seed(dir, DEFAULT_WORLD_SEED)
     }
@@ -199,7 +206,13 @@ impl World {
                 );
             }
         }
-        let mut scenes = Vec::new();
+        let is_offline = offline::is_offline_dir(dir);
+        let offline_raw = if is_offline {
+            offline::load_scenes(dir, &by_name)?
+        } else {
+            Vec::new()
+        };
+        let mut scenes: Vec<SceneSource> = offline_raw.iter().map(|r| r.source.clone()).collect();
         for split in Split::ALL {
             if !data::scenes_dir(dir, split).is_dir() {
                 continue;
@@ -245,17 +258,23 @@ impl World {
                     reachable,
                     present,
                     known,
+                    exact: false,
                 });
             }
         }
         if scenes.is_empty() {
             bail!(
-                "{}: no scenes found (expected scenes/train, scenes/val or scenes/test)",
+                "{}: no scenes found (expected scenes/train, scenes/val or scenes/test, or \
+                 offline scene folders FloorPlanN/)",
                 dir.display()
             );
         }
         let parts = WorldParts {
-            source: WorldSource::Data(dir.to_path_buf()),
+            source: if is_offline {
+                WorldSource::Offline(dir.to_path_buf())
+            } else {
+                WorldSource::Data(dir.to_path_buf())
+            },
             seed,
             categories,
             seen,
@@ -264,7 +283,11 @@ impl World {
             eval_targets,
             scenes,
         };
-        Ok(World::assemble(parts, BTreeMap::new()))
+        let mut world = World::assemble(parts, BTreeMap::new());
+        if is_offline {
+            world.offline = offline::index_scenes(offline_raw, &world.scenes)?;
+        }
+        Ok(world)
     }
 
     /// The built-in synthetic demo world (see [`crate::sim::synthetic`]).
@@ -312,6 +335,7 @@ impl World {
                 .map(|_| (0..nc).map(|_| OnceLock::new()).collect())
                 .collect(),
             generated_episodes,
+            offline: (0..n).map(|_| None).collect(),
         }
     }
 
@@ -330,6 +354,10 @@ impl World {
                 ),
                 WorldSource::Synthetic => bail!(
                     "split {split} does not exist in the synthetic world (train and val only)"
+                ),
+                WorldSource::Offline(dir) => bail!(
+                    "split {split}: none of the FloorPlanN/ folders in {} is a {split} scene",
+                    dir.display()
                 ),
             },
         }
@@ -360,14 +388,36 @@ impl World {
 
     /// The cached state tables of a scene (built on first use; thread-safe).
     pub fn tables(&self, scene: SceneId) -> &SceneTables {
-        self.tables[scene].get_or_init(|| {
-            SceneTables::build(
+        self.tables[scene].get_or_init(|| match &self.offline[scene] {
+            // The files were checked when the world was loaded; a read error now means they
+            // changed or broke since.
+            Some(o) => o
+                .build_tables(&self.scenes[scene], &self.categories)
+                .unwrap_or_else(|e| panic!("offline scene {}: {e:#}", self.scenes[scene].name)),
+            None => SceneTables::build(
                 &self.scenes[scene],
                 &self.categories,
                 &self.model,
                 &self.styles[scene],
-            )
+            ),
         })
+    }
+
+    /// The offline data of a scene (`None` for simulated scenes).
+    pub fn offline_scene(&self, scene: SceneId) -> Option<&OfflineScene> {
+        self.offline[scene].as_ref()
+    }
+
+    /// The full 512x7x7 feature map of a state of an offline scene, 512 x 49 channel-major
+    /// ([`OfflineScene::feature_map`]); an error for simulated scenes.
+    pub fn feature_map(&self, scene: SceneId, state: usize) -> Result<Vec<f32>> {
+        match &self.offline[scene] {
+            Some(o) => o.feature_map(state),
+            None => bail!(
+                "scene {} is simulated: it has no stored feature maps",
+                self.scenes[scene].name
+            ),
+        }
     }
 
     /// The cached goal table of (scene, target category) (built on first use).
@@ -486,7 +536,7 @@ impl World {
                 }
                 Ok(out)
             }
-            WorldSource::Data(dir) => {
+            WorldSource::Data(dir) | WorldSource::Offline(dir) => {
                 self.split_scenes(split)?;
                 let raw = data::load_raw_episodes(dir, split, per_file)?;
                 raw.iter()
@@ -596,7 +646,7 @@ impl World {
             heading: ((rot / 45.0).round() as usize % NUM_HEADINGS) as u8,
             horizon,
         };
-        if self.scenes[scene].state_index(start).is_none() {
+        let Some(start_index) = self.scenes[scene].state_index(start) else {
             bail!(
                 "{}: start ({}, {}) is not reachable in {}",
                 at(),
@@ -604,6 +654,16 @@ impl World {
                 e.start.z,
                 e.scene
             );
+        };
+        if let Some(o) = &self.offline[scene] {
+            if !o.has_state(start_index) {
+                bail!(
+                    "{}: start {} is not a node of {}",
+                    at(),
+                    offline::state_key(start),
+                    o.dir.join(offline::GRAPH_FILE).display()
+                );
+            }
         }
         Ok(EpisodeSpec {
             index,

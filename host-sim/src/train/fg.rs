@@ -735,7 +735,7 @@ pub struct ReferenceEval {
 pub fn source_label(world: &World) -> String {
     match &world.source {
         WorldSource::Synthetic => "synthetic".into(),
-        WorldSource::Data(d) => d.display().to_string(),
+        WorldSource::Data(d) | WorldSource::Offline(d) => d.display().to_string(),
     }
 }
 
