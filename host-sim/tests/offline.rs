@@ -18,6 +18,7 @@ use gman_host_sim::nav::model::{load_model, Method, NavModel};
 use gman_host_sim::nav::trainer::{train, TrainOptions, TrainState};
 use gman_host_sim::sim::offline::fixture::{write_fixture, FixtureInfo};
 use gman_host_sim::sim::offline::{self, h5, state_key, MAP_LEN, MAP_SHAPE};
+use gman_host_sim::sim::spatial::MapGrid;
 use gman_host_sim::sim::{
     evaluate, AgentState, Env, EpisodeLimits, EvalConfig, OracleAgent, RewardKind, Split, World,
     WorldSource,
@@ -337,6 +338,7 @@ fn opts(out: PathBuf, updates: u64) -> TrainOptions {
         },
         a3c: Default::default(),
         checkpoint_every: 2,
+        objective: Default::default(),
         meta_order: 1,
         out,
         progress: false,
@@ -352,8 +354,12 @@ fn short_training_run_then_blob_replays_through_gman_core() {
     let dir = tmp("train");
     let mut rng = gman_core::rng::Xoshiro128::seed_from_u64(2);
     let g = init_generator(&Dims::MCU, &mut rng).unwrap();
-    let mut model = NavModel::init(Method::Gman, Dims::MCU, 2, Some(&g), None).unwrap();
+    // With a 3 x 3 spatial map pooled from the stored 7 x 7 ResNet maps, meta-trained in
+    // the device's mode.
+    let dims = Dims::MCU.with_map(3, 3, 4);
+    let mut model = NavModel::init(Method::Gman, dims, 2, Some(&g), None).unwrap();
     model.inner_lr = 1e-2;
+    model.adapt_mode = gman_core::memory::AdaptMode::Efficient;
     let before = model.params.clone();
     let mut st = TrainState::new(
         model,
@@ -387,15 +393,18 @@ fn short_training_run_then_blob_replays_through_gman_core() {
         assert_eq!(agent.errors, 0);
         let states = env.trajectory().to_vec();
         let blob = Blob::parse(&blob_bytes).unwrap();
-        let weights = NavWeights::from_blob(&blob, &Dims::MCU).unwrap();
-        let mut arena = vec![0.0f32; Navigator::<Efficient, 20>::arena_len(&Dims::MCU)];
+        let weights = NavWeights::from_blob(&blob, &dims).unwrap();
+        let mut arena = vec![0.0f32; Navigator::<Efficient, 20>::arena_len(&dims)];
         let mut nav: Navigator<'_, Efficient, 20> =
             Navigator::new(weights, &mut arena, host.nav_config(false)).unwrap();
         nav.reset(w.attributes(spec.target), spec.seed).unwrap();
         let mut env2 = Env::new(w, spec, RewardKind::Mixed, 40);
         let mut visited = vec![env2.agent_state()];
+        let grid = MapGrid { rows: 3, cols: 3 };
+        let mut map = vec![0.0f32; grid.len()];
         while !env2.is_done() {
-            let out = nav.step(&env2.observe().features, &[]).unwrap();
+            env2.observe_map(grid, &mut map);
+            let out = nav.step_map(&env2.observe().features, &map, &[]).unwrap();
             env2.step(out.action);
             visited.push(env2.agent_state());
             steps += 1;
@@ -405,6 +414,33 @@ fn short_training_run_then_blob_replays_through_gman_core() {
         assert_eq!(states, visited[..states.len()].to_vec());
     }
     assert!(steps > 10, "{steps}");
+}
+
+/// The spatial map of an offline state is the stored ResNet map pooled to the grid: 7 x 7
+/// is the map itself (cell-major), 1 x 1 its average, i.e. the pooled embedding.
+#[test]
+fn spatial_maps_pool_the_stored_feature_maps() {
+    let _serial = serial();
+    let w = world();
+    let scene = w.split_scenes(Split::Val).unwrap()[0];
+    for state in [0usize, 5, 17] {
+        let stored = w.feature_map(scene, state).unwrap();
+        let full = MapGrid { rows: 7, cols: 7 };
+        let mut m = vec![0.0f32; full.len()];
+        w.view_map(scene, state, full, &mut m);
+        for cell in 0..49 {
+            for ch in 0..512 {
+                assert_eq!(m[cell * 512 + ch], stored[ch * 49 + cell]);
+            }
+        }
+        let one = MapGrid { rows: 1, cols: 1 };
+        let mut p = vec![0.0f32; one.len()];
+        w.view_map(scene, state, one, &mut p);
+        let pooled = &w.observation(scene, state).features;
+        for (a, b) in p.iter().zip(pooled.iter()) {
+            assert!((a - b).abs() < 1e-5, "{a} vs {b}");
+        }
+    }
 }
 
 fn gman(args: &[&str]) -> (bool, String, String) {
@@ -662,7 +698,7 @@ fn hand_made_scene_loads_and_bad_files_are_named() {
     std::fs::create_dir_all(d.join("episodes/val")).unwrap();
     std::fs::write(
         d.join("episodes/val/kitchen_seen.jsonl"),
-        r#"{"room": "kitchen", "scene": "FloorPlan22", "split": "val", "start": {"horizon": 0, "rotation": 90, "x": 0.0, "y": 0.9, "z": 0.25}, "target": "Fridge", "target_ids": [], "target_kind": "seen"}"#,
+        r#"{"room": "kitchen", "scene": "FloorPlan22", "split": "val", "start": {"horizon": 0, "rotation": 90, "x": 0.0, "y": 0.9, "z": 0.25}, "target": "Fridge", "target_ids": ["Fridge|+00.00|+00.90|+01.00"], "target_kind": "seen"}"#,
     )
     .unwrap();
     let w = World::load(&d).unwrap();

@@ -295,11 +295,14 @@ pub struct RawEpisodeLine {
 }
 
 /// Reads every `*.jsonl` of `DIR/episodes/<split>` in sorted file order, keeping at most
-/// `per_file` episodes of each file (in file order).
+/// `per_file` episodes of each file (in file order). With `every_room`, the benchmark's
+/// eight files (each room type, seen and unseen) must all be there; without it (offline
+/// data, which may cover fewer room types), only the rooms present.
 pub fn load_raw_episodes(
     dir: &Path,
     split: Split,
     per_file: Option<usize>,
+    every_room: bool,
 ) -> Result<Vec<RawEpisodeLine>> {
     let edir = episodes_dir(dir, split);
     if !edir.is_dir() {
@@ -342,6 +345,9 @@ pub fn load_raw_episodes(
         }
     }
     for e in &expected {
+        if !every_room {
+            continue;
+        }
         if !edir.join(e).is_file() {
             bail!(
                 "split {}: episode file {} is missing (every room type needs a seen and an unseen file)",

@@ -181,3 +181,36 @@ pub fn view_map(world: &World, scene: SceneId, state: usize, grid: MapGrid, out:
         }
     }
 }
+
+/// Side of the reference's ResNet18 feature map (7 x 7 cells).
+pub const RESNET_SIDE: usize = 7;
+
+/// Average-pools a stored 512 x 7 x 7 feature map (`512 * 49` floats, channel-major as in
+/// the offline data's `(1, 512, 7, 7)` datasets) to `grid` and writes it cell-major into
+/// `out`. Cell `(r, c)` of an `R x C` grid averages the 7 x 7 cells `i` with
+/// `floor(i R / 7) = r` (rows) and likewise for columns, so 7 x 7 is the map itself and
+/// 1 x 1 the global average the pooled embedding is.
+pub fn pool_map(map: &[f32], grid: MapGrid, out: &mut [f32]) {
+    let n = RESNET_SIDE;
+    assert_eq!(map.len(), FEATURE_DIM * n * n, "stored feature map length");
+    assert_eq!(out.len(), grid.len(), "map buffer length");
+    assert!(grid.rows <= n && grid.cols <= n, "a grid finer than 7 x 7");
+    out.fill(0.0);
+    let mut count = vec![0u32; grid.cells()];
+    for i in 0..n {
+        for j in 0..n {
+            let cell = (i * grid.rows / n) * grid.cols + j * grid.cols / n;
+            count[cell] += 1;
+            let o = &mut out[cell * FEATURE_DIM..(cell + 1) * FEATURE_DIM];
+            for (ch, v) in o.iter_mut().enumerate() {
+                *v += map[ch * n * n + i * n + j];
+            }
+        }
+    }
+    for (cell, &k) in count.iter().enumerate() {
+        let s = 1.0 / k.max(1) as f32;
+        out[cell * FEATURE_DIM..(cell + 1) * FEATURE_DIM]
+            .iter_mut()
+            .for_each(|v| *v *= s);
+    }
+}

@@ -159,7 +159,9 @@ impl SceneTables {
                 visible_instances.push(vis);
             }
         }
-        SceneTables::from_parts(next, obs, visible_instances)
+        let mut t = SceneTables::from_parts(next, obs, visible_instances);
+        t.styled = styled;
+        t
     }
 
     /// Tables from successors, observations and visible instances (one entry per state);
@@ -199,7 +201,7 @@ impl SceneTables {
             next,
             obs,
             visible_instances,
-            styled,
+            styled: Vec::new(),
             pred_start: count,
             pred,
         }

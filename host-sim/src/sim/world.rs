@@ -444,7 +444,9 @@ impl World {
     }
 
     /// The spatial map of a state (the view as `grid` sectors, see [`crate::sim::spatial`])
-    /// into `out` (`grid.len()` floats, cell-major).
+    /// into `out` (`grid.len()` floats, cell-major). For offline data, the stored 512 x 7 x 7
+    /// ResNet map average-pooled to the grid ([`crate::sim::spatial::pool_map`]); a stored
+    /// map that fails to read after loading panics with the file named, as the tables do.
     pub fn view_map(
         &self,
         scene: SceneId,
@@ -452,7 +454,14 @@ impl World {
         grid: crate::sim::spatial::MapGrid,
         out: &mut [f32],
     ) {
-        crate::sim::spatial::view_map(self, scene, state, grid, out)
+        match &self.offline[scene] {
+            Some(o) => crate::sim::spatial::pool_map(
+                &o.feature_map(state).unwrap_or_else(|e| panic!("{e:#}")),
+                grid,
+                out,
+            ),
+            None => crate::sim::spatial::view_map(self, scene, state, grid, out),
+        }
     }
 
     /// The ideal target feature of `category` in `scene`: its appearance rendered with the
@@ -538,7 +547,8 @@ impl World {
             }
             WorldSource::Data(dir) | WorldSource::Offline(dir) => {
                 self.split_scenes(split)?;
-                let raw = data::load_raw_episodes(dir, split, per_file)?;
+                let every_room = matches!(self.source, WorldSource::Data(_));
+                let raw = data::load_raw_episodes(dir, split, per_file, every_room)?;
                 raw.iter()
                     .enumerate()
                     .map(|(i, r)| self.resolve_episode(i, split, r))
