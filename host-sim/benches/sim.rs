@@ -66,6 +66,24 @@ fn bench(c: &mut Criterion) {
     g.bench_function("env_step_with_features", |b| {
         b.iter(|| black_box(run(&world, &mut rng)))
     });
+    // The spatial map of a 3 x 3 and a 7 x 7 grid, computed on demand per step.
+    for (rows, cols) in [(3usize, 3usize), (7, 7)] {
+        let grid = gman_host_sim::sim::spatial::MapGrid { rows, cols };
+        let mut map = vec![0.0f32; grid.len()];
+        let train = world.split_scenes(Split::Train).unwrap().to_vec();
+        g.bench_function(format!("view_map_{rows}x{cols}"), |b| {
+            b.iter(|| {
+                let mut acc = 0.0f32;
+                for i in 0..STEPS as usize {
+                    let scene = train[i % train.len()];
+                    let n = world.tables(scene).num_states();
+                    world.view_map(scene, (i * 7919) % n, grid, &mut map);
+                    acc += map[i % map.len()];
+                }
+                black_box(acc)
+            })
+        });
+    }
     g.finish();
 
     let val = world.split_scenes(Split::Val).unwrap()[0];

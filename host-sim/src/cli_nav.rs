@@ -826,6 +826,12 @@ pub fn cmd_inspect(a: InspectArgs) -> Result<()> {
         "dims: attr {} noise {} gen_hidden {} feat {} disc_hidden {} lstm_hidden {} embed {} ps {}",
         d.attr, d.noise, d.gen_hidden, d.feat, d.disc_hidden, d.lstm_hidden, d.embed, d.ps
     );
+    if d.map_cells() > 0 {
+        println!(
+            "spatial map: {} x {} cells, per-cell layer {} channels",
+            d.map_rows, d.map_cols, d.cell_embed
+        );
+    }
     let mut flags = Vec::new();
     if h.flags() & FLAG_ADAPT != 0 {
         flags.push("adapt (GMAN inner loop on)");
@@ -835,6 +841,12 @@ pub fn cmd_inspect(a: InspectArgs) -> Result<()> {
     }
     if h.flags() & gman_core::blob::FLAG_COSSIM != 0 {
         flags.push("cosine-similarity EMD (no D)");
+    }
+    if h.flags() & FLAG_ADAPT != 0 {
+        flags.push(match h.adapt_mode() {
+            gman_core::memory::AdaptMode::Full => "Full adaptation mode",
+            gman_core::memory::AdaptMode::Efficient => "Efficient adaptation mode",
+        });
     }
     println!(
         "flags: {:#x} {}",

@@ -28,6 +28,15 @@
 //! * **The `gman-noemd` control** runs the loop with the inner loop off but lets Adam train θ
 //!   like GMAN does, so comparing it with `gman` isolates what the inner loop (the EMD) adds
 //!   and comparing it with `a3c-fg` what training θ adds (README "Results").
+//! * **Adaptation mode.** The inner loop runs in the mode the model will run in on the
+//!   device ([`NavModel::adapt_mode`](super::model::NavModel::adapt_mode), `--adapt-mode`,
+//!   Efficient by default for `mcu`): in `Efficient` the segment gradients of θ and of the
+//!   actor head are taken through the adapted per-unit gains, exactly the parameters the
+//!   robot adapts. The exported blob records the mode.
+//! * **Objectives** ([`Objective`]): the A3C loss, or DAgger imitation of the shortest-path
+//!   oracle (`--objective dagger`, a ceiling diagnostic: the learner acts, the oracle labels).
+//!   `--privileged-feature` replaces x_t by the target's true feature in the scene (the
+//!   privileged-feature bound). `--map RxC` gives the policy a spatial observation map.
 //! * **Resuming** (`gman train --resume`) restores the model, Adam's state, the counters and
 //!   the trainer settings stored in the checkpoint, so a resumed run ends bit for bit where
 //!   an uninterrupted one does.

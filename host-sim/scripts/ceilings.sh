@@ -1,0 +1,37 @@
+#!/usr/bin/env bash
+# Issue 13's ceiling diagnostics on the real floor plans and the official val episodes (README
+# "Ceilings"): A3C+FG with the pooled observation and with a 3x3 spatial map, each trained
+# (a) with the A3C loss, (b) with 30-step training episodes, (c) by DAgger imitation of the
+# shortest-path oracle, (d) with the target's true feature in place of G's output; then the
+# recognition probe. Runs land in runs/ceilings/ (existing outputs are reused).
+#   DATA=../shared/data/gman SEEDS="1 2" bash host-sim/scripts/ceilings.sh
+set -euo pipefail
+cd "$(dirname "$0")/../.."
+cargo build --release -p gman-host-sim --bin gman --example recognition_probe
+G=./target/release/gman
+D=${DATA:-../shared/data/gman}
+R=${OUT:-runs/ceilings}
+U=${UPDATES:-15000}
+mkdir -p "$R"
+[ -f "$R/fg/fg.ckpt" ] || $G pretrain-fg --data "$D" --preset mcu --seed 1 --out "$R/fg" --quiet
+[ -f "$R/eval-random.json" ] || $G eval --data "$D" --split val --agent random --json "$R/eval-random.json" --quiet
+run() {
+  local name=$1; shift
+  [ -f "$R/$name/checkpoint.ckpt" ] || $G train --data "$D" --preset mcu --fg "$R/fg/fg.ckpt" \
+    --updates "$U" --out "$R/$name" --quiet "$@"
+  [ -f "$R/eval-$name.json" ] || $G eval --data "$D" --split val --agent "$R/$name/checkpoint.ckpt" \
+    --json "$R/eval-$name.json" --quiet
+}
+for s in ${SEEDS:-1}; do
+  run old-a3cfg-s$s --method a3c-fg --seed "$s"
+  run old-a3cfg-cap30-s$s --method a3c-fg --max-steps 30 --seed "$s"
+  run old-dagger-s$s --method a3c-fg --objective dagger --seed "$s"
+  run old-priv-s$s --method a3c-fg --privileged-feature --seed "$s"
+  run map3-a3cfg-s$s --method a3c-fg --map 3x3 --seed "$s"
+  run map3-dagger-s$s --method a3c-fg --map 3x3 --objective dagger --seed "$s"
+  run map3-priv-s$s --method a3c-fg --map 3x3 --privileged-feature --seed "$s"
+  run map3-dagger-priv-s$s --method a3c-fg --map 3x3 --privileged-feature --objective dagger --seed "$s"
+done
+./target/release/examples/recognition_probe "$D" "$R/fg/fg.ckpt" none 20
+./target/release/examples/recognition_probe "$D" "$R/fg/fg.ckpt" 3x3 20
+$G table --runs "$R"/eval-*.json
