@@ -1,14 +1,16 @@
 //! Weight blobs: the versioned, checksummed `postcard` container the core loads weights from.
 //!
-//! # Layout (format version 2)
+//! # Layout (format version 2; v3 inserts `map` after `dims`)
 //! ```text
 //! blob    = header payload
 //! header  = postcard(HeaderV2)        in this order:
 //!             magic        [u8; 4]      "GMAN" (4 raw bytes)
-//!             version      u16 varint   2
+//!             version      u16 varint   2 (3)
 //!             dims         8 x u32 varint  attr noise gen_hidden feat disc_hidden
 //!                                          lstm_hidden embed ps
+//!            (map          3 x u32 varint  map_rows map_cols cell_embed       v3 only)
 //!             flags        u32 varint   FLAG_ADAPT | FLAG_ZERO_NOISE | FLAG_COSSIM
+//!                                       | FLAG_FULL_ADAPT
 //!             alpha_disc   f32 (4 bytes, little-endian)  α1, D's ascent rate
 //!             alpha_adapt  f32 (4 bytes, little-endian)  α2, θ/φ's descent rate
 //!             max_inner    u32 varint   cap on inner updates per episode
@@ -22,7 +24,13 @@
 //! Vectors (biases) are f32 with `cols = 1`.
 //!
 //! # Versions
-//! * **v2** (what [`encode`], [`encode_with_flags`] and [`encode_with_settings`] write) adds
+//! * **v3** (what the encoders write for a model with a spatial observation map) adds the
+//!   map's dims (`map_rows`, `map_cols`, `cell_embed`) after `dims`, and the per-cell layer's
+//!   tensors [`TensorId::CellW`] and [`TensorId::CellB`]. A model without a map is still
+//!   written as v2, byte for byte as before; a v1/v2 blob has no map and may not carry the
+//!   per-cell tensors.
+//! * **v2** (what [`encode`], [`encode_with_flags`] and [`encode_with_settings`] write for a
+//!   model without a map) adds
 //!   the inner-loop settings of Algorithm 1 the model was trained with, `alpha_disc`,
 //!   `alpha_adapt` and `max_inner` (see [`AdaptSettings`]), between `flags` and `n_tensors`.
 //!   A model meta-trained with other rates or another cap than the paper's would silently
@@ -445,6 +453,48 @@ struct HeaderV3 {
     payload_crc: u32,
 }
 
+impl HeaderV3 {
+    /// The checked [`Header`] (inner-loop rates first, then the sizes the dims imply).
+    fn into_header(self, version: u16) -> Result<Header, BlobError> {
+        let settings = AdaptSettings {
+            alpha_disc: self.alpha_disc,
+            alpha_adapt: self.alpha_adapt,
+            max_inner: self.max_inner,
+        };
+        settings.validate()?;
+        check_dims_fit(&self.dims, self.map)?;
+        Ok(Header {
+            version,
+            dims: self.dims,
+            map: self.map,
+            flags: self.flags,
+            settings,
+            n_tensors: self.n_tensors,
+            payload_len: self.payload_len,
+            payload_crc: self.payload_crc,
+        })
+    }
+}
+
+impl From<HeaderV2> for HeaderV3 {
+    /// A v2 header is a v3 header without a map.
+    fn from(h: HeaderV2) -> HeaderV3 {
+        HeaderV3 {
+            magic: h.magic,
+            version: h.version,
+            dims: h.dims,
+            map: MapRecord::default(),
+            flags: h.flags,
+            alpha_disc: h.alpha_disc,
+            alpha_adapt: h.alpha_adapt,
+            max_inner: h.max_inner,
+            n_tensors: h.n_tensors,
+            payload_len: h.payload_len,
+            payload_crc: h.payload_crc,
+        }
+    }
+}
+
 /// The header of a format-v2 blob (see the module docs for the field order).
 #[derive(Serialize, Deserialize)]
 struct HeaderV2 {
@@ -586,49 +636,11 @@ fn parse_header(bytes: &[u8]) -> Result<(Header, &[u8]), BlobError> {
         }
         2 => {
             let (h, rest) = postcard::take_from_bytes::<HeaderV2>(bytes).map_err(map_err)?;
-            let settings = AdaptSettings {
-                alpha_disc: h.alpha_disc,
-                alpha_adapt: h.alpha_adapt,
-                max_inner: h.max_inner,
-            };
-            settings.validate()?;
-            check_dims_fit(&h.dims, MapRecord::default())?;
-            Ok((
-                Header {
-                    version: 2,
-                    dims: h.dims,
-                    map: MapRecord::default(),
-                    flags: h.flags,
-                    settings,
-                    n_tensors: h.n_tensors,
-                    payload_len: h.payload_len,
-                    payload_crc: h.payload_crc,
-                },
-                rest,
-            ))
+            Ok((HeaderV3::from(h).into_header(2)?, rest))
         }
         3 => {
             let (h, rest) = postcard::take_from_bytes::<HeaderV3>(bytes).map_err(map_err)?;
-            check_dims_fit(&h.dims, h.map)?;
-            let settings = AdaptSettings {
-                alpha_disc: h.alpha_disc,
-                alpha_adapt: h.alpha_adapt,
-                max_inner: h.max_inner,
-            };
-            settings.validate()?;
-            Ok((
-                Header {
-                    version: 3,
-                    dims: h.dims,
-                    map: h.map,
-                    flags: h.flags,
-                    settings,
-                    n_tensors: h.n_tensors,
-                    payload_len: h.payload_len,
-                    payload_crc: h.payload_crc,
-                },
-                rest,
-            ))
+            Ok((h.into_header(3)?, rest))
         }
         found => Err(BlobError::UnsupportedVersion { found }),
     }
