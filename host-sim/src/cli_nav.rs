@@ -346,8 +346,6 @@ fn stored_int<T: TryFrom<u64>>(trainer: &serde_json::Value, key: &str) -> Option
     trainer.get(key)?.as_u64()?.try_into().ok()
 }
 
-/// `gman train`. `explicit(id)` says whether the flag of field `id` was given on the command
-/// line (on `--resume`, only those are checked against the checkpoint's settings).
 /// Most `--workers` a run may have (one thread each).
 const MAX_WORKERS: usize = 256;
 
@@ -446,7 +444,43 @@ fn check_same_world(stored: &serde_json::Value, now: &serde_json::Value) -> Resu
     Ok(())
 }
 
+/// The adaptation mode of a new run: `--adapt-mode`, else Full for the paper preset and
+/// Efficient (what a microcontroller runs) for mcu.
+fn new_run_adapt_mode(a: &TrainArgs) -> gman_core::memory::AdaptMode {
+    match (a.adapt_mode, a.preset) {
+        (Some(m), _) => m.mode(),
+        (None, PresetArg::Paper) => gman_core::memory::AdaptMode::Full,
+        (None, _) => gman_core::memory::AdaptMode::Efficient,
+    }
+}
+
+/// Combinations of the new flags that cannot work, refused before anything is loaded.
+fn check_train_flags(a: &TrainArgs) -> Result<()> {
+    if a.map.0 > 0 && a.cell_embed == 0 {
+        bail!("--cell-embed must be at least 1 with a --map");
+    }
+    if a.resume.is_some() {
+        return Ok(());
+    }
+    if a.privileged_feature && a.method.adapts_in_training() {
+        bail!(
+            "--privileged-feature replaces G's output, so it goes with a method without inner loop (a3c, a3c-fg, a3c-ps, a3c-fg-ps), not {}",
+            a.method.name()
+        );
+    }
+    if a.meta_order == 2
+        && a.method.adapts_in_training()
+        && new_run_adapt_mode(a) == gman_core::memory::AdaptMode::Efficient
+    {
+        bail!("--meta-order 2 is implemented for the Full adaptation mode; add --adapt-mode full");
+    }
+    Ok(())
+}
+
+/// `gman train`. `explicit(id)` says whether the flag of field `id` was given on the command
+/// line (on `--resume`, only those are checked against the checkpoint's settings).
 pub fn cmd_train(a: TrainArgs, explicit: &dyn Fn(&str) -> bool) -> Result<()> {
+    check_train_flags(&a)?;
     if a.workers == 0 || a.checkpoint_every == 0 {
         bail!("--workers and --checkpoint-every must be at least 1");
     }
@@ -553,32 +587,14 @@ pub fn cmd_train(a: TrainArgs, explicit: &dyn Fn(&str) -> bool) -> Result<()> {
                 None
             };
             let (rows, cols) = a.map;
-            if rows > 0 && a.cell_embed == 0 {
-                bail!("--cell-embed must be at least 1 with a --map");
-            }
             let dims = if rows > 0 {
                 a.preset.dims().with_map(rows, cols, a.cell_embed)
             } else {
                 a.preset.dims()
             };
             let mut model = NavModel::init(a.method, dims, a.seed, gen.as_ref(), psm)?;
-            model.adapt_mode = match (a.adapt_mode, a.preset) {
-                (Some(m), _) => m.mode(),
-                (None, PresetArg::Paper) => gman_core::memory::AdaptMode::Full,
-                (None, _) => gman_core::memory::AdaptMode::Efficient,
-            };
-            if a.meta_order == 2
-                && model.method.adapts_in_training()
-                && model.adapt_mode == gman_core::memory::AdaptMode::Efficient
-            {
-                bail!("--meta-order 2 is implemented for the Full adaptation mode; add --adapt-mode full");
-            }
-            if a.privileged_feature {
-                if model.method.adapts_in_training() {
-                    bail!("--privileged-feature replaces G's output, so it goes with a method without inner loop (a3c, a3c-fg, a3c-ps, a3c-fg-ps), not {}", model.method.name());
-                }
-                model.privileged = true;
-            }
+            model.adapt_mode = new_run_adapt_mode(&a);
+            model.privileged = a.privileged_feature;
             let adam = AdamConfig {
                 lr,
                 ..AdamConfig::default()

@@ -217,3 +217,34 @@ fn scene_png_is_written() {
         assert!(std::fs::metadata(&png).unwrap().len() > 1000);
     }
 }
+
+/// The flags of the ceiling diagnostics, the spatial map and the adaptation mode: impossible
+/// combinations are refused before anything is loaded or trained.
+#[test]
+fn train_refuses_impossible_flag_combinations() {
+    let d = tmp("train-flags");
+    let out = d.join("run");
+    let o = out.to_str().unwrap();
+    for (args, needle) in [
+        (vec!["--map", "3y3"], "ROWSxCOLS"),
+        (vec!["--map", "0x3"], "ROWSxCOLS"),
+        (vec!["--map", "3x3", "--cell-embed", "0"], "--cell-embed"),
+        (
+            vec!["--method", "gman", "--privileged-feature"],
+            "--privileged-feature",
+        ),
+        (
+            vec!["--method", "gman", "--meta-order", "2"],
+            "--adapt-mode full",
+        ),
+        (vec!["--objective", "imitate"], "objective"),
+        (vec!["--adapt-mode", "half"], "adapt-mode"),
+    ] {
+        let mut a = vec!["train", "--config", "tiny", "--out", o];
+        a.extend(args.iter());
+        let (ok, _, err) = gman(&a);
+        assert!(!ok, "{args:?} was accepted");
+        assert!(err.contains(needle), "{args:?}: {err}");
+        assert!(!out.join("checkpoint.ckpt").exists());
+    }
+}
