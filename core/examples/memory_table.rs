@@ -7,7 +7,12 @@ use gman_core::Dims;
 fn main() {
     println!("| preset | mode | RAM arena (KiB) | of which Psi (KiB) | adapted params (floats) | int8 weights in flash (KiB) | f32 weights (KiB) |");
     println!("|---|---|---:|---:|---:|---:|---:|");
-    for (name, d) in [("paper", Dims::PAPER), ("mcu", Dims::MCU)] {
+    for (name, d) in [
+        ("paper", Dims::PAPER),
+        ("paper + 7x7 map (64 ch)", Dims::PAPER.with_map(7, 7, 64)),
+        ("mcu", Dims::MCU),
+        ("mcu + 3x3 map (8 ch)", Dims::MCU.with_map(3, 3, 8)),
+    ] {
         for mode in [AdaptMode::Full, AdaptMode::Efficient] {
             let l = NavLayout::new(&d, mode, 20);
             let f32_bytes = 4 * (d.gen_params() + d.disc_params() + d.policy_params());
