@@ -517,6 +517,16 @@ pub fn cmd_train(a: TrainArgs, explicit: &dyn Fn(&str) -> bool) -> Result<()> {
         None => None,
     };
     let world = a.world.load()?;
+    if matches!(world.source, gman_host_sim::sim::WorldSource::Offline(_))
+        && (a.map.0 > gman_host_sim::sim::spatial::RESNET_SIDE
+            || a.map.1 > gman_host_sim::sim::spatial::RESNET_SIDE)
+    {
+        bail!(
+            "--map {}x{}: offline data stores 7 x 7 feature maps, so a map grid has at most 7 rows and 7 columns",
+            a.map.0,
+            a.map.1
+        );
+    }
     let world_id = world_identity(&a.world)?;
     // Fail now, not after pre-training, if no training start can satisfy the setting (a
     // separate generator: the run's own draws are untouched).

@@ -477,6 +477,18 @@ fn cli_fixture_train_export_eval() {
         "--quiet",
     ]);
     assert!(ok, "{err}");
+    // A map finer than the stored 7 x 7 maps is refused up front.
+    let (ok, _, err) = gman(&[
+        "train",
+        "--data",
+        &s(&data),
+        "--map",
+        "9x9",
+        "--out",
+        &s(&d.join("run9")),
+        "--quiet",
+    ]);
+    assert!(!ok && err.contains("7 x 7"), "{err}");
     let run = d.join("run");
     let (ok, _, err) = gman(&[
         "train",
@@ -484,6 +496,8 @@ fn cli_fixture_train_export_eval() {
         &s(&data),
         "--method",
         "gman",
+        "--map",
+        "3x3",
         "--fg",
         &s(&d.join("fg/fg.ckpt")),
         "--updates",
