@@ -2,8 +2,8 @@
 # Issue 13's ceiling diagnostics on the real floor plans and the official val episodes (README
 # "Ceilings"): A3C+FG with the pooled observation and with a 3x3 spatial map, each trained
 # (a) with the A3C loss, (b) with 30-step training episodes, (c) by DAgger imitation of the
-# shortest-path oracle, (d) with the target's true feature in place of G's output; then the
-# recognition probe. Runs land in runs/ceilings/ (existing outputs are reused).
+# shortest-path oracle, (d) with the target's true feature in place of G's output; GMAN in the
+# device's mode with adaptation on and off; then the recognition probe. Runs land in runs/ceilings/ (existing outputs are reused).
 #   DATA=../shared/data/gman SEEDS="1 2" bash host-sim/scripts/ceilings.sh
 set -euo pipefail
 cd "$(dirname "$0")/../.."
@@ -31,6 +31,11 @@ for s in ${SEEDS:-1}; do
   run map3-dagger-s$s --method a3c-fg --map 3x3 --objective dagger --seed "$s"
   run map3-priv-s$s --method a3c-fg --map 3x3 --privileged-feature --seed "$s"
   run map3-dagger-priv-s$s --method a3c-fg --map 3x3 --privileged-feature --objective dagger --seed "$s"
+  # GMAN meta-trained in the device's (Efficient) mode, then evaluated with adaptation off.
+  run map3-gman-a1e-2-s$s --method gman --map 3x3 --inner-lr 0.01 --seed "$s"
+  [ -f "$R/adaptoff-map3-gman-a1e-2-s$s.json" ] || $G eval --data "$D" --split val \
+    --agent "$R/map3-gman-a1e-2-s$s/checkpoint.ckpt" --method gman-noemd \
+    --json "$R/adaptoff-map3-gman-a1e-2-s$s.json" --quiet
 done
 ./target/release/examples/recognition_probe "$D" "$R/fg/fg.ckpt" none 20
 ./target/release/examples/recognition_probe "$D" "$R/fg/fg.ckpt" 3x3 20
