@@ -353,7 +353,7 @@ impl<'w> NavWeights<'w> {
     pub fn from_blob(blob: &Blob<'w>, dims: &Dims) -> Result<Self> {
         blob.check_dims(dims)?;
         let mut t = [empty(); NUM_TENSORS];
-        for &id in TensorId::ALL.iter().filter(|id| id.present(dims)) {
+        for id in TensorId::all_for(dims) {
             t[id as usize] = blob.matrix(id)?;
         }
         Ok(NavWeights { dims: *dims, t })

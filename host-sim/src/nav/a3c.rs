@@ -14,6 +14,7 @@
 //! into the policy (fusion, LSTM, heads) and, through the generated feature x_t, into G.
 
 use anyhow::{bail, Result};
+use gman_core::blob::TensorId;
 use gman_core::dense::DenseGrads;
 use gman_core::generator::{GeneratorCache, GeneratorScratch};
 use gman_core::lstm::LstmGrads;
@@ -259,9 +260,13 @@ pub fn segment_backward<M: Mode, const K: usize>(
 
     // The per-cell layer's gradient is accumulated here and added to `grads` at the end
     // (its tensors exist only in models with a spatial map).
+    let size = |id: TensorId| {
+        let (r, c) = id.shape(&dims);
+        r * c
+    };
     let (mut cellw_g, mut cellb_g) = (
-        vec![0.0f32; dims.cell_embed * dims.cell_in() * (dims.map_cells() > 0) as usize],
-        vec![0.0f32; dims.cell_embed * (dims.map_cells() > 0) as usize],
+        vec![0.0f32; size(TensorId::CellW)],
+        vec![0.0f32; size(TensorId::CellB)],
     );
     let [fw, fb, lwx, lwh, lb, aw, ab, cw, cb, g1w, g1b, g2w, g2b] = grads.slices_mut(NAMES)?;
     let mut pg = PolicyGrads {

@@ -194,7 +194,7 @@ impl NavModel {
         let mut params = ParamSet::new();
         // (The per-cell layer comes last in `ALL`, so models without a map draw exactly the
         // random numbers they always did.)
-        for &id in TensorId::ALL.iter().filter(|id| id.present(&dims)) {
+        for id in TensorId::all_for(&dims) {
             let (r, c) = id.shape(&dims);
             let init = match id {
                 _ if id.is_vector() => Init::Zeros,
@@ -248,9 +248,6 @@ impl NavModel {
         let mut err = None;
         let w = NavWeights::from_fn(&self.dims, |id| {
             let (r, c) = id.shape(&self.dims);
-            if !id.present(&self.dims) {
-                return MatRef::f32(0, 0, &[]).expect("empty matrix");
-            }
             match self
                 .params
                 .tensor(id.name())
@@ -361,7 +358,7 @@ impl NavModel {
             cell_embed: get("cell_embed").unwrap_or(0),
         };
         let mut params = ParamSet::new();
-        for &id in TensorId::ALL.iter().filter(|id| id.present(&dims)) {
+        for id in TensorId::all_for(&dims) {
             let (r, c) = id.shape(&dims);
             params.push(ck.tensor(id.name(), r, c)?.clone())?;
         }
@@ -477,10 +474,7 @@ impl NavModel {
         }
         let mut quantised: Vec<(TensorId, Vec<u8>, Vec<f32>)> = Vec::new();
         if int8 {
-            for &id in TensorId::ALL
-                .iter()
-                .filter(|id| !id.is_vector() && id.present(&self.dims))
-            {
+            for id in TensorId::all_for(&self.dims).filter(|id| !id.is_vector()) {
                 let p = self.params.tensor(id.name())?;
                 let (mut q, mut s) = (vec![0u8; p.data.len()], vec![0.0f32; p.rows]);
                 quantize_rows(&p.data, p.rows, p.cols, &mut q, &mut s)?;
@@ -488,7 +482,7 @@ impl NavModel {
             }
         }
         let mut specs = Vec::new();
-        for &id in TensorId::ALL.iter().filter(|id| id.present(&self.dims)) {
+        for id in TensorId::all_for(&self.dims) {
             let data = match quantised.iter().find(|(q, _, _)| *q == id) {
                 Some((_, q, s)) => TensorData::I8 { q, scales: s },
                 None => TensorData::F32(&self.params.tensor(id.name())?.data),
@@ -534,7 +528,7 @@ pub fn model_from_blob(bytes: &[u8], method: Option<Method>) -> Result<NavModel>
         );
     }
     let mut params = ParamSet::new();
-    for &id in TensorId::ALL.iter().filter(|id| id.present(&dims)) {
+    for id in TensorId::all_for(&dims) {
         let (r, c) = id.shape(&dims);
         let mut p = Param::zeros(id.name(), r, c);
         blob.copy_f32(id, &mut p.data)

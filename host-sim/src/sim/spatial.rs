@@ -21,8 +21,10 @@
 //!    shares scaled to at most 0.95 per cell, the same background in every cell), plus
 //!    ±0.02 noise drawn per (scene, state, cell, dimension), clamped to [0, 1].
 //!
-//! Maps are computed on demand (a few microseconds per step) rather than cached: a 3 x 3 map
-//! of every state of the 100 floor plans would take gigabytes.
+//! Maps are computed on demand rather than cached (a 3 x 3 map of every state of the 100
+//! floor plans would take gigabytes); that costs about 35 µs per 3 x 3 map, measured under
+//! load (`cargo bench -p gman-host-sim --bench sim -- view_map`, see `SIMULATOR.md`), most of
+//! it the per-dimension noise hashing.
 
 use gman_core::FEATURE_DIM;
 
