@@ -31,6 +31,7 @@
 pub mod action;
 pub mod activation;
 pub mod adapt;
+pub mod batch;
 pub mod blob;
 pub mod crc32;
 pub mod dense;
