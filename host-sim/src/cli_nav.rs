@@ -1007,31 +1007,6 @@ fn smooth(v: &[f64], w: usize) -> Vec<f64> {
         .collect()
 }
 
-/// Registers a system TrueType font for plot labels, if one is installed; returns whether
-/// labels can be drawn (the PNG is still written without one).
-fn register_plot_font() -> bool {
-    const CANDIDATES: [&str; 3] = [
-        "/usr/share/fonts/truetype/dejavu/DejaVuSans.ttf",
-        "/usr/share/fonts/TTF/DejaVuSans.ttf",
-        "/usr/share/fonts/truetype/liberation/LiberationSans-Regular.ttf",
-    ];
-    for c in CANDIDATES {
-        if let Ok(bytes) = std::fs::read(c) {
-            let bytes: &'static [u8] = Box::leak(bytes.into_boxed_slice());
-            if plotters::style::register_font(
-                "sans-serif",
-                plotters::style::FontStyle::Normal,
-                bytes,
-            )
-            .is_ok()
-            {
-                return true;
-            }
-        }
-    }
-    false
-}
-
 /// `gman plot`: learning curves (success rate and reward against environment steps).
 pub fn cmd_plot(a: PlotArgs) -> Result<()> {
     use plotters::prelude::*;
@@ -1040,7 +1015,7 @@ pub fn cmd_plot(a: PlotArgs) -> Result<()> {
         .iter()
         .map(|r| Ok((r.display().to_string(), read_metrics(r)?)))
         .collect::<Result<_>>()?;
-    let labels = register_plot_font();
+    let labels = gman_host_sim::sim::render::register_plot_font();
     let xmax = runs
         .iter()
         .flat_map(|(_, m)| m.iter().map(|p| p.0))
