@@ -63,6 +63,10 @@ fn main() -> Result<()> {
         println!("wrote {png}: Fig. 3 for scenes {scenes:?} ({n} unseen-target episodes)");
     }
 
+    if disc_lr.is_some() {
+        println!("(SR not measured: the evaluation below would not apply DISC_LR)");
+        return Ok(());
+    }
     let cfg = EvalConfig {
         reward: RewardKind::Mixed,
         limits: EpisodeLimits::default(),
