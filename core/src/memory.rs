@@ -21,14 +21,7 @@
 use crate::preset::{sat, tri, Dims};
 use crate::NUM_ACTIONS;
 
-/// Which parameters adaptation updates, and where they live. See the module docs.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-pub enum AdaptMode {
-    /// All of θ, ω and the actor head in f32 RAM.
-    Full,
-    /// Per-unit gain and bias over int8 base weights in flash.
-    Efficient,
-}
+pub use crate::schema::AdaptMode;
 
 const fn max(a: usize, b: usize) -> usize {
     if a > b {
@@ -261,7 +254,7 @@ mod tests {
 
     #[test]
     fn int8_bytes_match_tensor_shapes() {
-        use crate::blob::TensorId;
+        use crate::schema::TensorId;
         for d in [
             Dims::PAPER,
             Dims::MCU,

@@ -49,24 +49,14 @@
 //! use gman_core::memory::{arena_len, AdaptMode};
 //! use gman_core::blob::Blob;
 //! use gman_core::Dims;
-//! # use gman_core::blob::{encode_with_flags, encoded_len_bound, TensorData, TensorId, TensorSpec, FLAG_ADAPT};
+//! # use gman_core::blob::{encode_model_scratch_len, encoded_model_len_bound, AdaptSettings, Quant};
+//! # use gman_core::schema::FLAG_ADAPT;
 //! # // Hidden: make an Mcu int8 blob from seeded weights (a firmware embeds a trained one).
 //! # let d = Dims::MCU;
-//! # let mut rng = gman_core::rng::Xoshiro128::seed_from_u64(1);
-//! # let mut store = Vec::new();
-//! # for id in TensorId::all_for(&d) {
-//! #     let (r, c) = id.shape(&d);
-//! #     let mut v = vec![0.0f32; r * c];
-//! #     gman_core::rng::fill_gaussian(&mut rng, &mut v);
-//! #     v.iter_mut().for_each(|x| *x *= 0.05);
-//! #     let (mut q, mut s) = (vec![0u8; r * c], vec![0.0f32; r]);
-//! #     gman_core::quant::quantize_rows(&v, r, c, &mut q, &mut s).unwrap();
-//! #     store.push((id, v, q, s));
-//! # }
-//! # let specs: Vec<_> = store.iter().map(|(id, v, q, s)| TensorSpec { id: *id,
-//! #     data: if id.is_vector() { TensorData::F32(v) } else { TensorData::I8 { q, scales: s } } }).collect();
-//! # let mut bytes = vec![0u8; encoded_len_bound(&specs)];
-//! # let n = encode_with_flags(&d, FLAG_ADAPT, &specs, &mut bytes).unwrap();
+//! # let mut bytes = vec![0u8; encoded_model_len_bound(&d, Quant::I8)];
+//! # let (nf, nb) = encode_model_scratch_len(&d);
+//! # let n = gman_core::seeded::encode_seeded(&d, FLAG_ADAPT, AdaptSettings::PAPER, Quant::I8,
+//! #     1, 0.05, &mut bytes, &mut vec![0.0; nf], &mut vec![0; nb]).unwrap();
 //! # bytes.truncate(n);
 //! // In firmware: `static BLOB: &[u8] = include_bytes!("model.gman");` and a static arena.
 //! const LEN: usize = arena_len(&Dims::MCU, AdaptMode::Efficient, 20);
@@ -92,9 +82,7 @@ use core::marker::PhantomData;
 
 use crate::activation::{all_finite, softmax_backward};
 use crate::adapt::{adapt_generator_grad, adapt_generator_grad_cos, AdaptLossKind, AdaptWork};
-use crate::blob::{
-    AdaptSettings, Blob, Header, TensorId, FLAG_ADAPT, FLAG_COSSIM, FLAG_ZERO_NOISE, NUM_TENSORS,
-};
+use crate::blob::{AdaptSettings, Blob, Header};
 use crate::dense::{Dense, DenseGrads};
 use crate::discriminator::{DiscGrads, DiscScratch, Discriminator, LdConfig, LdValue};
 use crate::error::{check_len, Error, Result};
@@ -105,6 +93,8 @@ use crate::memory::{arena_len, AdaptMode};
 use crate::policy::{Policy, PolicyCache, PolicyInput};
 use crate::preset::Dims;
 use crate::rng::{fill_gaussian, uniform, Xoshiro128};
+pub use crate::schema::{Emd, NoiseMode};
+use crate::schema::{ModelFlags, TensorId, NUM_TENSORS};
 use crate::{Action, NUM_ACTIONS};
 
 /// Compile-time choice of the adaptation mode (see [`AdaptMode`]).
@@ -127,16 +117,6 @@ impl Mode for Efficient {
     const MODE: AdaptMode = AdaptMode::Efficient;
 }
 
-/// Noise z fed to G at navigation time.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
-pub enum NoiseMode {
-    /// A fresh N(0, I) sample every step (the paper's G(SE(y), z) with random z). Default.
-    #[default]
-    Gaussian,
-    /// z = 0 always (the reference implementation); then x_t only changes when θ adapts.
-    Zero,
-}
-
 /// How the action is chosen from the probabilities.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
 pub enum Selection {
@@ -145,16 +125,6 @@ pub enum Selection {
     Greedy,
     /// A sample from the probabilities, with the navigator's seeded generator.
     Sample,
-}
-
-/// What scores the generated features in L_ad (the EMD variants of the paper's Table 3).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
-pub enum Emd {
-    /// The learned discriminator D (GMAN). Default.
-    #[default]
-    Discriminator,
-    /// The cosine similarity between x_t and s_t ("CosSim"); D is not used or updated.
-    CosSim,
 }
 
 /// When the inner update runs.
@@ -206,8 +176,8 @@ impl NavConfig {
     /// The navigator configuration a weight blob asks for, from its header.
     ///
     /// A blob records how its model was trained: whether the method adapts at inference
-    /// ([`FLAG_ADAPT`]), what scores the generated features ([`FLAG_COSSIM`]), which noise
-    /// drives G ([`FLAG_ZERO_NOISE`]) and, from format v2 on, the inner-loop rates and the cap
+    /// ([`FLAG_ADAPT`](crate::schema::FLAG_ADAPT)), what scores the generated features ([`FLAG_COSSIM`](crate::schema::FLAG_COSSIM)), which noise
+    /// drives G ([`FLAG_ZERO_NOISE`](crate::schema::FLAG_ZERO_NOISE)) and, from format v2 on, the inner-loop rates and the cap
     /// on inner updates ([`AdaptSettings`]; a v1 blob reports the paper's). Any loader — the
     /// firmware, the host's evaluation, a user's controller — must run the model with exactly
     /// these settings: the host meta-trained and evaluated the weights with them, so a device
@@ -218,13 +188,13 @@ impl NavConfig {
     /// ever disagreeing.
     ///
     /// The result is [`NavConfig::default`] with:
-    /// * `adapt` = the header has [`FLAG_ADAPT`];
-    /// * `emd` = [`Emd::CosSim`] if it has [`FLAG_COSSIM`], else [`Emd::Discriminator`];
-    /// * `noise` = [`NoiseMode::Zero`] if it has [`FLAG_ZERO_NOISE`], else
+    /// * `adapt` = the header has [`FLAG_ADAPT`](crate::schema::FLAG_ADAPT);
+    /// * `emd` = [`Emd::CosSim`] if it has [`FLAG_COSSIM`](crate::schema::FLAG_COSSIM), else [`Emd::Discriminator`];
+    /// * `noise` = [`NoiseMode::Zero`] if it has [`FLAG_ZERO_NOISE`](crate::schema::FLAG_ZERO_NOISE), else
     ///   [`NoiseMode::Gaussian`];
     /// * `alpha_disc`, `alpha_adapt`, `max_inner_updates` = [`Header::alpha_disc`],
     ///   [`Header::alpha_adapt`], [`Header::max_inner`] (v1: 1e-4, 1e-4, 4);
-    /// * `mode` = [`Header::adapt_mode`] (Full with [`FLAG_FULL_ADAPT`](crate::blob::FLAG_FULL_ADAPT), else
+    /// * `mode` = [`Header::adapt_mode`] (Full with [`FLAG_FULL_ADAPT`](crate::schema::FLAG_FULL_ADAPT), else
     ///   Efficient), so
     ///   that a navigator of the other mode refuses an adapting model.
     ///
@@ -238,26 +208,31 @@ impl NavConfig {
     /// [`Blob::parse`]), so the result is accepted by [`Navigator::new`] as far as the rates
     /// are concerned. See also [`Blob::nav_config`].
     pub fn from_header(header: &Header) -> NavConfig {
-        let flags = header.flags();
+        let ModelFlags {
+            adapt,
+            emd,
+            noise,
+            mode,
+        } = header.model_flags();
         let settings = header.adapt_settings();
         NavConfig {
-            adapt: flags & FLAG_ADAPT != 0,
-            emd: if flags & FLAG_COSSIM != 0 {
-                Emd::CosSim
-            } else {
-                Emd::Discriminator
-            },
-            noise: if flags & FLAG_ZERO_NOISE != 0 {
-                NoiseMode::Zero
-            } else {
-                NoiseMode::Gaussian
-            },
+            adapt,
+            emd,
+            noise,
             alpha_disc: settings.alpha_disc,
             alpha_adapt: settings.alpha_adapt,
             max_inner_updates: settings.max_inner,
-            mode: Some(header.adapt_mode()),
+            mode: Some(mode),
             ..NavConfig::default()
         }
+    }
+}
+
+impl Blob<'_> {
+    /// The navigator configuration this blob asks for: [`NavConfig::from_header`] of its
+    /// header.
+    pub fn nav_config(&self) -> NavConfig {
+        NavConfig::from_header(self.header())
     }
 }
 

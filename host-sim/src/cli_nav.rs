@@ -7,7 +7,7 @@ use std::time::Instant;
 
 use anyhow::{anyhow, bail, Context, Result};
 use clap::{Args, ValueEnum};
-use gman_core::blob::{Blob, Quant, FLAG_ADAPT, FLAG_ZERO_NOISE};
+use gman_core::blob::{Blob, Quant};
 use gman_host_sim::nav::a3c::Objective;
 use gman_host_sim::nav::agent::NavAgent;
 use gman_host_sim::nav::model::{load_model, Method, NavModel};
@@ -858,18 +858,19 @@ pub fn cmd_inspect(a: InspectArgs) -> Result<()> {
             d.map_rows, d.map_cols, d.cell_embed
         );
     }
+    let mf = h.model_flags();
     let mut flags = Vec::new();
-    if h.flags() & FLAG_ADAPT != 0 {
+    if mf.adapt {
         flags.push("adapt (GMAN inner loop on)");
     }
-    if h.flags() & FLAG_ZERO_NOISE != 0 {
+    if mf.noise == gman_core::schema::NoiseMode::Zero {
         flags.push("zero noise");
     }
-    if h.flags() & gman_core::blob::FLAG_COSSIM != 0 {
+    if mf.emd == gman_core::schema::Emd::CosSim {
         flags.push("cosine-similarity EMD (no D)");
     }
-    if h.flags() & FLAG_ADAPT != 0 {
-        flags.push(match h.adapt_mode() {
+    if mf.adapt {
+        flags.push(match mf.mode {
             gman_core::memory::AdaptMode::Full => "Full adaptation mode",
             gman_core::memory::AdaptMode::Efficient => "Efficient adaptation mode",
         });

@@ -4,14 +4,14 @@ use std::path::Path;
 
 use anyhow::{anyhow, bail, Context, Result};
 use gman_core::blob::{
-    encode_with_settings, encoded_len_bound, AdaptSettings, Blob, TensorData, TensorId, TensorSpec,
-    FLAG_ADAPT, FLAG_COSSIM, FLAG_FULL_ADAPT, FLAG_ZERO_NOISE,
+    encode_model, encode_model_scratch_len, encoded_model_len_bound, AdaptSettings, Blob, Quant,
+    TensorId,
 };
 use gman_core::matrix::MatRef;
 use gman_core::memory::AdaptMode;
 use gman_core::navigator::{NavConfig, NavWeights, NoiseMode, Selection};
-use gman_core::quant::quantize_rows;
 use gman_core::rng::Xoshiro128;
+use gman_core::schema::{Emd, ModelFlags};
 use gman_core::Dims;
 use serde::{Deserialize, Serialize};
 
@@ -19,100 +19,185 @@ use crate::train::checkpoint::Checkpoint;
 use crate::train::params::{Init, Param, ParamSet};
 use crate::train::ps::PsModule;
 
-/// A navigation method (rows of the paper's Tables 2 and 3).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize, clap::ValueEnum)]
-#[serde(rename_all = "kebab-case")]
-pub enum Method {
-    /// A3C baseline: observation, target attributes, previous action → LSTM → actor-critic.
-    A3c,
-    /// A3C + the pre-trained feature generator's target feature (FG), no adaptation.
-    A3cFg,
-    /// A3C with the PS module (A3C†).
-    A3cPs,
-    /// A3C + FG + PS.
-    A3cFgPs,
-    /// GMAN: FG + environmental meta discriminator, meta-trained (Algorithm 1).
-    Gman,
-    /// GMAN with the PS module (GMAN†).
-    GmanPs,
-    /// EMD without meta-learning: trained as A3C + FG, adapted at test time only.
-    GmanNometa,
-    /// EMD variant: cosine similarity between x_t and s_t in place of D (paper Table 3),
-    /// meta-trained like GMAN.
-    GmanCossim,
-    /// Control without the EMD: G's θ and the policy are trained by the outer loop exactly as
-    /// in GMAN, but no inner loop runs, in training or at evaluation. It differs from `a3c-fg`
-    /// only in that θ is trained, and from `gman` only in the adaptation, so it separates the
-    /// two sources of GMAN's gain.
-    GmanNoemd,
+/// When the inner loop of Algorithm 1 (the EMD's adaptation) runs.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum InnerLoop {
+    /// Never (the A3C baselines and the `gman-noemd` control).
+    Off,
+    /// At evaluation only: trained without it, adapted at test time (`gman-nometa`).
+    EvalOnly,
+    /// In training and at evaluation, so θ and φ are meta-learned through it (GMAN).
+    Meta,
 }
 
+/// A navigation method: independent switches. The rows of the paper's Tables 2 and 3 are
+/// the named presets of [`Method::PRESETS`] (`--method a3c`, `gman`, ...); a new variant is
+/// one line there plus the maths of its new switch.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct Method {
+    /// Uses the pre-trained feature generator G (FG); otherwise G is zero and x_t carries
+    /// nothing.
+    pub fg: bool,
+    /// Feeds the PS module's prediction to the policy (the † rows).
+    pub ps: bool,
+    /// When the inner loop runs.
+    pub inner: InnerLoop,
+    /// What scores generated features in the inner loop (D, or the cosine similarity).
+    pub emd: Emd,
+    /// The outer loop updates G's θ (the FG baselines keep the pre-trained generator frozen,
+    /// as the paper's "FG" row).
+    pub train_theta: bool,
+}
+
+/// One preset: its name on the command line and in files, its switches, its help text.
+type Preset = (&'static str, Method, &'static str);
+
+const fn m(fg: bool, ps: bool, inner: InnerLoop, emd: Emd, train_theta: bool) -> Method {
+    Method {
+        fg,
+        ps,
+        inner,
+        emd,
+        train_theta,
+    }
+}
+
+use Emd::{CosSim, Discriminator as D};
+use InnerLoop::{EvalOnly, Meta, Off};
+
+#[allow(non_upper_case_globals)]
 impl Method {
-    /// The name used on the command line and in files.
-    pub fn name(self) -> &'static str {
-        match self {
-            Method::A3c => "a3c",
-            Method::A3cFg => "a3c-fg",
-            Method::A3cPs => "a3c-ps",
-            Method::A3cFgPs => "a3c-fg-ps",
-            Method::Gman => "gman",
-            Method::GmanPs => "gman-ps",
-            Method::GmanNometa => "gman-nometa",
-            Method::GmanCossim => "gman-cossim",
-            Method::GmanNoemd => "gman-noemd",
+    /// The paper's rows, in `--help` order: name, switches
+    /// (`fg, ps, inner loop, EMD, θ trained`), help.
+    #[rustfmt::skip]
+    pub const PRESETS: [Preset; 9] = [
+        ("a3c", m(false, false, Off, D, false),
+         "A3C baseline: observation, target attributes, previous action → LSTM → actor-critic"),
+        ("a3c-fg", m(true, false, Off, D, false),
+         "A3C + the pre-trained feature generator's target feature (FG), no adaptation"),
+        ("a3c-ps", m(false, true, Off, D, false), "A3C with the PS module (A3C†)"),
+        ("a3c-fg-ps", m(true, true, Off, D, false), "A3C + FG + PS"),
+        ("gman", m(true, false, Meta, D, true),
+         "GMAN: FG + environmental meta discriminator, meta-trained (Algorithm 1)"),
+        ("gman-ps", m(true, true, Meta, D, true), "GMAN with the PS module (GMAN†)"),
+        ("gman-nometa", m(true, false, EvalOnly, D, false),
+         "EMD without meta-learning: trained as A3C + FG, adapted at test time only"),
+        ("gman-cossim", m(true, false, Meta, CosSim, true),
+         "EMD variant: cosine similarity between x_t and s_t in place of D (paper Table 3), meta-trained like GMAN"),
+        ("gman-noemd", m(true, false, Off, D, true),
+         "Control without the EMD: θ and the policy trained by the outer loop as in GMAN, but no inner loop runs, in training or at evaluation (differs from a3c-fg only in that θ is trained, from gman only in the adaptation)"),
+    ];
+    /// A3C baseline.
+    pub const A3c: Method = Method::PRESETS[0].1;
+    /// A3C + FG.
+    pub const A3cFg: Method = Method::PRESETS[1].1;
+    /// A3C with the PS module (A3C†).
+    pub const A3cPs: Method = Method::PRESETS[2].1;
+    /// A3C + FG + PS.
+    pub const A3cFgPs: Method = Method::PRESETS[3].1;
+    /// GMAN (Algorithm 1).
+    pub const Gman: Method = Method::PRESETS[4].1;
+    /// GMAN with the PS module (GMAN†).
+    pub const GmanPs: Method = Method::PRESETS[5].1;
+    /// EMD without meta-learning (adapted at test time only).
+    pub const GmanNometa: Method = Method::PRESETS[6].1;
+    /// The CosSim EMD variant, meta-trained.
+    pub const GmanCossim: Method = Method::PRESETS[7].1;
+    /// θ trained as in GMAN, no inner loop.
+    pub const GmanNoemd: Method = Method::PRESETS[8].1;
+
+    /// Every preset, in `--help` order.
+    const ALL: [Method; 9] = {
+        let mut out = [Method::A3c; 9];
+        let mut i = 0;
+        while i < 9 {
+            out[i] = Method::PRESETS[i].1;
+            i += 1;
         }
+        out
+    };
+
+    fn preset(self) -> Option<&'static Preset> {
+        Method::PRESETS.iter().find(|p| p.1 == self)
+    }
+
+    /// The preset name used on the command line and in files; `"custom"` for a combination
+    /// of switches that is no preset (such a method cannot be stored in a checkpoint).
+    pub fn name(self) -> &'static str {
+        self.preset().map_or("custom", |p| p.0)
     }
 
     /// Parses [`Method::name`].
     pub fn parse(s: &str) -> Option<Method> {
-        [
-            Method::A3c,
-            Method::A3cFg,
-            Method::A3cPs,
-            Method::A3cFgPs,
-            Method::Gman,
-            Method::GmanPs,
-            Method::GmanNometa,
-            Method::GmanCossim,
-            Method::GmanNoemd,
-        ]
-        .into_iter()
-        .find(|m| m.name() == s)
+        Method::PRESETS.iter().find(|p| p.0 == s).map(|p| p.1)
     }
 
     /// Uses the pre-trained feature generator (otherwise G is zero and x_t carries nothing).
     pub fn uses_fg(self) -> bool {
-        !matches!(self, Method::A3c | Method::A3cPs)
+        self.fg
     }
 
     /// Feeds the PS module's prediction to the policy.
     pub fn uses_ps(self) -> bool {
-        matches!(self, Method::A3cPs | Method::A3cFgPs | Method::GmanPs)
+        self.ps
     }
 
     /// Runs the inner loop during training (and therefore meta-learns θ and φ through it).
     pub fn adapts_in_training(self) -> bool {
-        matches!(self, Method::Gman | Method::GmanPs | Method::GmanCossim)
+        self.inner == Meta
     }
 
     /// Scores generated features with the cosine similarity instead of D.
     pub fn uses_cossim(self) -> bool {
-        matches!(self, Method::GmanCossim)
+        self.emd == CosSim
+    }
+
+    /// What scores generated features in the inner loop.
+    pub fn emd(self) -> Emd {
+        self.emd
     }
 
     /// Runs the inner loop at evaluation.
     pub fn adapts_at_eval(self) -> bool {
-        matches!(
-            self,
-            Method::Gman | Method::GmanPs | Method::GmanNometa | Method::GmanCossim
-        )
+        self.inner != Off
     }
 
     /// The outer loop updates G's θ (the meta-trained methods and their `gman-noemd`
     /// control; the FG baselines keep the pre-trained generator frozen, as the paper's "FG"
     /// row).
     pub fn trains_generator(self) -> bool {
-        self.adapts_in_training() || self == Method::GmanNoemd
+        self.train_theta
+    }
+}
+
+impl clap::ValueEnum for Method {
+    fn value_variants<'a>() -> &'a [Self] {
+        &Method::ALL
+    }
+
+    fn to_possible_value(&self) -> Option<clap::builder::PossibleValue> {
+        self.preset()
+            .map(|p| clap::builder::PossibleValue::new(p.0).help(p.2))
+    }
+}
+
+impl Serialize for Method {
+    /// As its preset name (what the enum of earlier builds wrote).
+    fn serialize<S: serde::Serializer>(&self, s: S) -> std::result::Result<S::Ok, S::Error> {
+        match self.preset() {
+            Some(p) => s.serialize_str(p.0),
+            None => Err(serde::ser::Error::custom(
+                "a method that is no preset has no name",
+            )),
+        }
+    }
+}
+
+impl<'de> Deserialize<'de> for Method {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> std::result::Result<Method, D::Error> {
+        let name = String::deserialize(d)?;
+        Method::parse(&name)
+            .ok_or_else(|| serde::de::Error::custom(format!("unknown method {name:?}")))
     }
 }
 
@@ -126,11 +211,6 @@ pub fn mode_name(m: AdaptMode) -> &'static str {
 
 /// Default cap on inner updates per episode (gman-core's default).
 pub const DEFAULT_MAX_INNER: u32 = 4;
-
-/// The names of the tensors of a model, as in blobs and checkpoints.
-pub fn tensor_name(id: TensorId) -> &'static str {
-    id.name()
-}
 
 /// A navigation model: method, sizes, parameters (named like the blob's tensors), and the
 /// host-side PS module for the dagger variants.
@@ -163,7 +243,7 @@ pub struct NavModel {
     /// The adaptation mode of the inner loop, in training and wherever the model runs
     /// (gman-core's [`AdaptMode`]): `Efficient` (per-unit gains and biases over the base
     /// weights, what the microcontroller runs) or `Full` (every parameter of θ, ω and the
-    /// actor head). Blobs record it ([`FLAG_FULL_ADAPT`]), so the device adapts exactly as
+    /// actor head). Blobs record it ([`FLAG_FULL_ADAPT`](gman_core::schema::FLAG_FULL_ADAPT)), so the device adapts exactly as
     /// the trainer meta-learned. Checkpoints from before this setting existed were trained in
     /// `Full`.
     pub adapt_mode: AdaptMode,
@@ -278,11 +358,7 @@ impl NavModel {
             adapt,
             noise: self.noise,
             selection: Selection::Sample,
-            emd: if self.method.uses_cossim() {
-                gman_core::navigator::Emd::CosSim
-            } else {
-                gman_core::navigator::Emd::Discriminator
-            },
+            emd: self.method.emd(),
             alpha_disc: self.inner_lr,
             alpha_adapt: self.inner_lr,
             max_inner_updates: self.max_inner,
@@ -427,20 +503,13 @@ impl NavModel {
 
     /// Blob flags of this model.
     pub fn blob_flags(&self) -> u32 {
-        let mut f = 0;
-        if self.method.adapts_at_eval() {
-            f |= FLAG_ADAPT;
+        ModelFlags {
+            adapt: self.method.adapts_at_eval(),
+            emd: self.method.emd(),
+            noise: self.noise,
+            mode: self.adapt_mode,
         }
-        if self.noise == NoiseMode::Zero {
-            f |= FLAG_ZERO_NOISE;
-        }
-        if self.method.uses_cossim() {
-            f |= FLAG_COSSIM;
-        }
-        if self.adapt_mode == AdaptMode::Full {
-            f |= FLAG_FULL_ADAPT;
-        }
-        f
+        .bits()
     }
 
     /// The inner-loop settings stored in the model's blobs: `inner_lr` as both α1 and α2,
@@ -472,30 +541,21 @@ impl NavModel {
                 );
             }
         }
-        let mut quantised: Vec<(TensorId, Vec<u8>, Vec<f32>)> = Vec::new();
-        if int8 {
-            for id in TensorId::all_for(&self.dims).filter(|id| !id.is_vector()) {
-                let p = self.params.tensor(id.name())?;
-                let (mut q, mut s) = (vec![0u8; p.data.len()], vec![0.0f32; p.rows]);
-                quantize_rows(&p.data, p.rows, p.cols, &mut q, &mut s)?;
-                quantised.push((id, q, s));
-            }
-        }
-        let mut specs = Vec::new();
-        for id in TensorId::all_for(&self.dims) {
-            let data = match quantised.iter().find(|(q, _, _)| *q == id) {
-                Some((_, q, s)) => TensorData::I8 { q, scales: s },
-                None => TensorData::F32(&self.params.tensor(id.name())?.data),
-            };
-            specs.push(TensorSpec { id, data });
-        }
-        let mut out = vec![0u8; encoded_len_bound(&specs)];
-        let n = encode_with_settings(
+        let quant = if int8 { Quant::I8 } else { Quant::F32 };
+        let mut out = vec![0u8; encoded_model_len_bound(&self.dims, quant)];
+        let (nf, nb) = encode_model_scratch_len(&self.dims);
+        let n = encode_model(
             &self.dims,
             self.blob_flags(),
             self.adapt_settings(),
-            &specs,
+            quant,
+            |id, v: &mut [f32]| -> Result<()> {
+                v.copy_from_slice(&self.params.tensor(id.name())?.data);
+                Ok(())
+            },
             &mut out,
+            &mut vec![0.0; nf],
+            &mut vec![0; nb],
         )
         .map_err(|e| anyhow!("encoding the blob: {e}"))?;
         out.truncate(n);
@@ -513,7 +573,7 @@ impl NavModel {
 pub fn model_from_blob(bytes: &[u8], method: Option<Method>) -> Result<NavModel> {
     let blob = Blob::parse(bytes).map_err(|e| anyhow!("{e}"))?;
     let dims = blob.dims();
-    let flags = blob.header().flags();
+    let flags = blob.header().model_flags();
     // Every tensor must be present before anything is allocated from the header's dims
     // (present tensors were checked against the dims by the parser, so their sizes are backed
     // by bytes of the file).
@@ -535,8 +595,8 @@ pub fn model_from_blob(bytes: &[u8], method: Option<Method>) -> Result<NavModel>
             .map_err(|e| anyhow!("{}: {e}", id.name()))?;
         params.push(p)?;
     }
-    let method = method.unwrap_or(match (flags & FLAG_ADAPT != 0, dims.ps > 0) {
-        (true, false) if flags & FLAG_COSSIM != 0 => Method::GmanCossim,
+    let method = method.unwrap_or(match (flags.adapt, dims.ps > 0) {
+        (true, false) if flags.emd == Emd::CosSim => Method::GmanCossim,
         (true, false) => Method::Gman,
         (true, true) => Method::GmanPs,
         (false, false) => Method::A3cFg,
@@ -545,11 +605,7 @@ pub fn model_from_blob(bytes: &[u8], method: Option<Method>) -> Result<NavModel>
     if method.uses_ps() {
         bail!("blob evaluation of PS variants needs the PS module, which blobs do not carry; evaluate the checkpoint instead");
     }
-    let noise = if flags & FLAG_ZERO_NOISE != 0 {
-        NoiseMode::Zero
-    } else {
-        NoiseMode::Gaussian
-    };
+    let noise = flags.noise;
     let settings = blob.header().adapt_settings();
     if settings.alpha_disc.to_bits() != settings.alpha_adapt.to_bits() {
         bail!(
@@ -569,7 +625,7 @@ pub fn model_from_blob(bytes: &[u8], method: Option<Method>) -> Result<NavModel>
         max_inner: settings.max_inner,
         blob: Some(std::sync::Arc::new(bytes.to_vec())),
         privileged: false,
-        adapt_mode: blob.header().adapt_mode(),
+        adapt_mode: flags.mode,
     })
 }
 
@@ -586,4 +642,61 @@ pub fn load_model(path: &Path, method: Option<Method>) -> Result<NavModel> {
         m.method = method;
     }
     Ok(m)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The presets answer the six predicates exactly as the 9-variant enum of earlier builds
+    /// did (its truth table, written out), have distinct switches and round-trip their names.
+    #[test]
+    fn presets_keep_the_old_predicates_and_names() {
+        // name, uses_fg, uses_ps, adapts_in_training, uses_cossim, adapts_at_eval,
+        // trains_generator
+        let old = [
+            ("a3c", [false, false, false, false, false, false]),
+            ("a3c-fg", [true, false, false, false, false, false]),
+            ("a3c-ps", [false, true, false, false, false, false]),
+            ("a3c-fg-ps", [true, true, false, false, false, false]),
+            ("gman", [true, false, true, false, true, true]),
+            ("gman-ps", [true, true, true, false, true, true]),
+            ("gman-nometa", [true, false, false, false, true, false]),
+            ("gman-cossim", [true, false, true, true, true, true]),
+            ("gman-noemd", [true, false, false, false, false, true]),
+        ];
+        assert_eq!(old.len(), Method::PRESETS.len());
+        for (name, p) in old {
+            let m = Method::parse(name).unwrap();
+            assert_eq!(m.name(), name);
+            let got = [
+                m.uses_fg(),
+                m.uses_ps(),
+                m.adapts_in_training(),
+                m.uses_cossim(),
+                m.adapts_at_eval(),
+                m.trains_generator(),
+            ];
+            assert_eq!(got, p, "{name}");
+            assert_eq!(serde_json::to_value(m).unwrap(), serde_json::json!(name));
+            let back: Method = serde_json::from_value(serde_json::json!(name)).unwrap();
+            assert_eq!(back, m);
+        }
+        for (i, a) in Method::PRESETS.iter().enumerate() {
+            for b in &Method::PRESETS[i + 1..] {
+                assert_ne!(a.1, b.1, "{} and {} have the same switches", a.0, b.0);
+            }
+        }
+        let custom = Method {
+            emd: Emd::CosSim,
+            ..Method::GmanNometa
+        };
+        assert_eq!(custom.name(), "custom");
+        assert!(serde_json::to_value(custom).is_err());
+        assert!(Method::parse("gman-x").is_none());
+        assert_eq!(
+            <Method as clap::ValueEnum>::from_str("gman-cossim", false).unwrap(),
+            Method::GmanCossim
+        );
+    }
 }
