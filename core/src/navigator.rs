@@ -89,7 +89,7 @@ use crate::error::{check_len, Error, Result};
 use crate::generator::{Generator, GeneratorCache, GeneratorScratch};
 use crate::lstm::Lstm;
 use crate::matrix::MatRef;
-use crate::memory::{arena_len, AdaptMode};
+use crate::memory::{arena_len, region_lens, AdaptMode, Region, NUM_REGIONS};
 use crate::policy::{Policy, PolicyCache, PolicyInput};
 use crate::preset::Dims;
 use crate::rng::{fill_gaussian, uniform, Xoshiro128};
@@ -374,13 +374,15 @@ fn copy_mat(m: &MatRef<'_>, out: &mut [f32]) -> Result<()> {
     m.copy_to(out)
 }
 
+const ARENA_TOO_SMALL: Error = Error::Config {
+    what: "arena too small for these dims, mode and k (see memory::arena_len)",
+};
+
 /// Takes the next `n` floats of the arena.
 fn take<'a>(rest: &mut &'a mut [f32], n: usize) -> Result<&'a mut [f32]> {
     let r = core::mem::take(rest);
     if r.len() < n {
-        return Err(Error::Config {
-            what: "arena too small for these dims, mode and k (see memory::arena_len)",
-        });
+        return Err(ARENA_TOO_SMALL);
     }
     let (a, b) = r.split_at_mut(n);
     *rest = b;
@@ -396,14 +398,6 @@ struct LayerRam<'w> {
 }
 
 impl<'w> LayerRam<'w> {
-    fn carve(rest: &mut &'w mut [f32], full: bool, rows: usize, cols: usize) -> Result<Self> {
-        Ok(LayerRam {
-            w: take(rest, if full { rows * cols } else { 0 })?,
-            gain: take(rest, if full { 0 } else { rows })?,
-            b: take(rest, rows)?,
-        })
-    }
-
     fn view<'s>(&'s self, base: MatRef<'s>) -> Result<Dense<'s>> {
         let w = if self.w.is_empty() {
             base
@@ -439,13 +433,6 @@ struct LayerGrad<'w> {
 }
 
 impl<'w> LayerGrad<'w> {
-    fn carve(rest: &mut &'w mut [f32], full: bool, rows: usize, cols: usize) -> Result<Self> {
-        Ok(LayerGrad {
-            a: take(rest, if full { rows * cols } else { rows })?,
-            b: take(rest, rows)?,
-            full,
-        })
-    }
     fn grads(&mut self) -> DenseGrads<'_> {
         if self.full {
             DenseGrads::Full {
@@ -559,79 +546,87 @@ struct Ram<'w> {
 }
 
 impl<'w> Ram<'w> {
+    /// Carves the regions of [`crate::memory`]'s arena table (the one statement of their
+    /// order and sizes) from `arena`; returns them and the floats used.
     fn carve(arena: &'w mut [f32], d: &Dims, mode: AdaptMode, k: usize) -> Result<(Self, usize)> {
         let total = arena.len();
-        let r = &mut &mut *arena;
+        let lens = region_lens(d, mode, k).ok_or(ARENA_TOO_SMALL)?;
         let full = mode == AdaptMode::Full;
-        let g = if full { 0 } else { 1 };
-        let (h, f, z, a, dh, lh, e) = (
-            d.gen_hidden,
-            d.feat,
-            d.noise,
-            d.attr,
-            d.disc_hidden,
-            d.lstm_hidden,
-            d.embed,
-        );
+        let mut rest = arena;
+        let mut short = false;
+        let mut regions: [&'w mut [f32]; NUM_REGIONS] =
+            core::array::from_fn(|i| match take(&mut rest, lens[i]) {
+                Ok(s) => s,
+                Err(_) => {
+                    short = true;
+                    &mut []
+                }
+            });
+        if short {
+            return Err(ARENA_TOO_SMALL);
+        }
+        let used = total - rest.len();
+        let mut t = |r: Region| core::mem::take(&mut regions[r as usize]);
+        let layer = |w, gain, b| LayerRam { w, gain, b };
+        let grad = |a, b| LayerGrad { a, b, full };
         let ram = Ram {
-            gen1: LayerRam::carve(r, full, h, d.gen_in())?,
-            gen2: LayerRam::carve(r, full, f, h)?,
-            disc1: LayerRam::carve(r, full, dh, f)?,
-            disc_w2: take(r, dh)?,
-            disc_b2: take(r, 1)?,
-            actor: LayerRam::carve(r, full, NUM_ACTIONS, lh)?,
-            fuse_b: take(r, e)?,
-            lstm_b: take(r, 4 * lh)?,
-            critic_b: take(r, 1)?,
-            cell_b: take(r, if d.map_cells() > 0 { d.cell_embed } else { 0 })?,
-            g_gen1: LayerGrad::carve(r, full, h, d.gen_in())?,
-            g_gen2: LayerGrad::carve(r, full, f, h)?,
-            g_disc1: LayerGrad::carve(r, full, dh, f)?,
-            g_disc_w2: take(r, dh)?,
-            g_disc_b2: take(r, 1)?,
-            g_actor: LayerGrad::carve(r, full, NUM_ACTIONS, lh)?,
-            psi_s: take(r, k * f)?,
-            psi_z: take(r, k * z)?,
-            psi_p: take(r, k * NUM_ACTIONS)?,
-            psi_h: take(r, k * lh)?,
-            u1: take(r, g * h)?,
-            h1: take(r, h)?,
-            u2: take(r, g * f)?,
-            x: take(r, f)?,
-            dpre2: take(r, f)?,
-            dh1: take(r, h)?,
-            dpre1: take(r, h)?,
-            gtmp: take(r, f.max(h))?,
-            du: take(r, g * dh)?,
-            dh: take(r, dh)?,
-            dv: take(r, dh)?,
-            dw1g: take(r, dh)?,
-            dg: take(r, f)?,
-            dmix: take(r, f)?,
-            eps: take(r, k)?,
-            d: take(r, k)?,
-            dd: take(r, k)?,
-            dprobs: take(r, k * NUM_ACTIONS)?,
-            dx: take(r, f)?,
-            prod: take(r, f)?,
-            fuse: take(r, e)?,
-            gates: take(r, 4 * lh)?,
-            h: take(r, lh)?,
-            c: take(r, lh)?,
-            h_state: take(r, lh)?,
-            c_state: take(r, lh)?,
-            logits: take(r, NUM_ACTIONS)?,
-            probs: take(r, NUM_ACTIONS)?,
-            prev_probs: take(r, NUM_ACTIONS)?,
-            dlogits: take(r, NUM_ACTIONS)?,
-            actor_u: take(r, g * NUM_ACTIONS)?,
-            z: take(r, z)?,
-            attr: take(r, a)?,
-            ps: take(r, d.ps)?,
-            cell: take(r, d.cell_out())?,
-            cell_prod: take(r, if d.map_cells() > 0 { f } else { 0 })?,
+            gen1: layer(t(Region::Gen1W), t(Region::Gen1Gain), t(Region::Gen1B)),
+            gen2: layer(t(Region::Gen2W), t(Region::Gen2Gain), t(Region::Gen2B)),
+            disc1: layer(t(Region::Disc1W), t(Region::Disc1Gain), t(Region::Disc1B)),
+            disc_w2: t(Region::DiscW2),
+            disc_b2: t(Region::DiscB2),
+            actor: layer(t(Region::ActorW), t(Region::ActorGain), t(Region::ActorB)),
+            fuse_b: t(Region::FuseB),
+            lstm_b: t(Region::LstmB),
+            critic_b: t(Region::CriticB),
+            cell_b: t(Region::CellB),
+            g_gen1: grad(t(Region::GGen1A), t(Region::GGen1B)),
+            g_gen2: grad(t(Region::GGen2A), t(Region::GGen2B)),
+            g_disc1: grad(t(Region::GDisc1A), t(Region::GDisc1B)),
+            g_disc_w2: t(Region::GDiscW2),
+            g_disc_b2: t(Region::GDiscB2),
+            g_actor: grad(t(Region::GActorA), t(Region::GActorB)),
+            psi_s: t(Region::PsiS),
+            psi_z: t(Region::PsiZ),
+            psi_p: t(Region::PsiP),
+            psi_h: t(Region::PsiH),
+            u1: t(Region::U1),
+            h1: t(Region::H1),
+            u2: t(Region::U2),
+            x: t(Region::X),
+            dpre2: t(Region::DPre2),
+            dh1: t(Region::DH1),
+            dpre1: t(Region::DPre1),
+            gtmp: t(Region::GTmp),
+            du: t(Region::DU),
+            dh: t(Region::DH),
+            dv: t(Region::DV),
+            dw1g: t(Region::DW1G),
+            dg: t(Region::DG),
+            dmix: t(Region::DMix),
+            eps: t(Region::Eps),
+            d: t(Region::D),
+            dd: t(Region::DD),
+            dprobs: t(Region::DProbs),
+            dx: t(Region::DX),
+            prod: t(Region::Prod),
+            fuse: t(Region::Fuse),
+            gates: t(Region::Gates),
+            h: t(Region::HNew),
+            c: t(Region::CNew),
+            h_state: t(Region::HState),
+            c_state: t(Region::CState),
+            logits: t(Region::Logits),
+            probs: t(Region::Probs),
+            prev_probs: t(Region::PrevProbs),
+            dlogits: t(Region::DLogits),
+            actor_u: t(Region::ActorU),
+            z: t(Region::Z),
+            attr: t(Region::Attr),
+            ps: t(Region::Ps),
+            cell: t(Region::Cell),
+            cell_prod: t(Region::CellProd),
         };
-        let used = total - r.len();
         Ok((ram, used))
     }
 }
