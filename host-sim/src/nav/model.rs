@@ -182,14 +182,10 @@ impl clap::ValueEnum for Method {
 }
 
 impl Serialize for Method {
-    /// As its preset name (what the enum of earlier builds wrote).
+    /// As its preset name (what the enum of earlier builds wrote); `"custom"` for a
+    /// combination that is no preset, which [`Method::parse`] then refuses on reading.
     fn serialize<S: serde::Serializer>(&self, s: S) -> std::result::Result<S::Ok, S::Error> {
-        match self.preset() {
-            Some(p) => s.serialize_str(p.0),
-            None => Err(serde::ser::Error::custom(
-                "a method that is no preset has no name",
-            )),
-        }
+        s.serialize_str(self.name())
     }
 }
 
@@ -211,6 +207,154 @@ pub fn mode_name(m: AdaptMode) -> &'static str {
 
 /// Default cap on inner updates per episode (gman-core's default).
 pub const DEFAULT_MAX_INNER: u32 = 4;
+
+/// The `kind` of a navigator checkpoint's metadata.
+pub const NAVIGATOR_KIND: &str = "gman-navigator";
+
+/// The model settings of a navigator checkpoint (its metadata; the trainer adds its own
+/// `trainer` object beside them), typed and serde-serialised. Written by
+/// [`NavModel::metadata`], read by [`NavModel::from_checkpoint`]; the fields that did not
+/// exist in the first checkpoints default to the values those runs had.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ModelMeta {
+    /// Always [`NAVIGATOR_KIND`].
+    pub kind: String,
+    /// The method (its preset name).
+    pub method: Method,
+    /// The sizes.
+    pub dims: DimsMeta,
+    /// Noise of G (absent: Gaussian).
+    #[serde(default)]
+    pub noise: NoiseName,
+    /// Hidden width of the PS module (PS variants only; `null` otherwise).
+    #[serde(default)]
+    pub ps_hidden: Option<usize>,
+    /// Inner-loop rate α1 = α2 (absent: 1e-4).
+    #[serde(default = "default_inner_lr")]
+    pub inner_lr: f32,
+    /// Cap on inner updates per episode (absent: [`DEFAULT_MAX_INNER`]).
+    #[serde(default = "default_max_inner")]
+    pub max_inner: u32,
+    /// The privileged-feature bound (absent: false).
+    #[serde(default)]
+    pub privileged: bool,
+    /// The adaptation mode (absent: `full`, what checkpoints before the setting were trained
+    /// in).
+    #[serde(default)]
+    pub adapt_mode: ModeName,
+}
+
+fn default_inner_lr() -> f32 {
+    1e-4
+}
+
+fn default_max_inner() -> u32 {
+    DEFAULT_MAX_INNER
+}
+
+/// [`NoiseMode`] as stored in checkpoints.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum NoiseName {
+    /// `gaussian`.
+    #[default]
+    Gaussian,
+    /// `zero`.
+    Zero,
+}
+
+/// [`AdaptMode`] as stored in checkpoints ([`mode_name`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ModeName {
+    /// `full` (the default: checkpoints from before the setting existed were trained in it).
+    #[default]
+    Full,
+    /// `efficient`.
+    Efficient,
+}
+
+impl From<AdaptMode> for ModeName {
+    fn from(m: AdaptMode) -> ModeName {
+        match m {
+            AdaptMode::Full => ModeName::Full,
+            AdaptMode::Efficient => ModeName::Efficient,
+        }
+    }
+}
+
+impl From<ModeName> for AdaptMode {
+    fn from(m: ModeName) -> AdaptMode {
+        match m {
+            ModeName::Full => AdaptMode::Full,
+            ModeName::Efficient => AdaptMode::Efficient,
+        }
+    }
+}
+
+/// [`Dims`] as stored in checkpoints: the eight sizes, and the spatial-map sizes only for a
+/// model with a map (absent: no map), so checkpoints without one are byte for byte as before
+/// maps existed.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct DimsMeta(pub Dims);
+
+#[derive(Serialize, Deserialize)]
+struct DimsRecord {
+    attr: usize,
+    noise: usize,
+    gen_hidden: usize,
+    feat: usize,
+    disc_hidden: usize,
+    lstm_hidden: usize,
+    embed: usize,
+    ps: usize,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    map_rows: Option<usize>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    map_cols: Option<usize>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    cell_embed: Option<usize>,
+}
+
+impl Serialize for DimsMeta {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> std::result::Result<S::Ok, S::Error> {
+        let d = &self.0;
+        let map = d.map_rows + d.map_cols + d.cell_embed > 0;
+        DimsRecord {
+            attr: d.attr,
+            noise: d.noise,
+            gen_hidden: d.gen_hidden,
+            feat: d.feat,
+            disc_hidden: d.disc_hidden,
+            lstm_hidden: d.lstm_hidden,
+            embed: d.embed,
+            ps: d.ps,
+            map_rows: map.then_some(d.map_rows),
+            map_cols: map.then_some(d.map_cols),
+            cell_embed: map.then_some(d.cell_embed),
+        }
+        .serialize(s)
+    }
+}
+
+impl<'de> Deserialize<'de> for DimsMeta {
+    fn deserialize<D: serde::Deserializer<'de>>(de: D) -> std::result::Result<Self, D::Error> {
+        let r = DimsRecord::deserialize(de)?;
+        Ok(DimsMeta(Dims {
+            attr: r.attr,
+            noise: r.noise,
+            gen_hidden: r.gen_hidden,
+            feat: r.feat,
+            disc_hidden: r.disc_hidden,
+            lstm_hidden: r.lstm_hidden,
+            embed: r.embed,
+            ps: r.ps,
+            map_rows: r.map_rows.unwrap_or(0),
+            map_cols: r.map_cols.unwrap_or(0),
+            cell_embed: r.cell_embed.unwrap_or(0),
+        }))
+    }
+}
 
 /// A navigation model: method, sizes, parameters (named like the blob's tensors), and the
 /// host-side PS module for the dagger variants.
@@ -372,19 +516,28 @@ impl NavModel {
         }
     }
 
-    /// Metadata stored in checkpoints.
+    /// The typed settings stored in checkpoints ([`ModelMeta`]).
+    pub fn meta(&self) -> ModelMeta {
+        ModelMeta {
+            kind: NAVIGATOR_KIND.to_string(),
+            method: self.method,
+            dims: DimsMeta(self.dims),
+            noise: match self.noise {
+                NoiseMode::Gaussian => NoiseName::Gaussian,
+                NoiseMode::Zero => NoiseName::Zero,
+            },
+            ps_hidden: self.ps.as_ref().map(|p| p.hidden),
+            inner_lr: self.inner_lr,
+            max_inner: self.max_inner,
+            privileged: self.privileged,
+            adapt_mode: self.adapt_mode.into(),
+        }
+    }
+
+    /// Metadata stored in checkpoints: [`NavModel::meta`] as JSON (keys sorted, as always).
     pub fn metadata(&self) -> serde_json::Value {
-        serde_json::json!({
-            "kind": "gman-navigator",
-            "method": self.method.name(),
-            "dims": crate::train::dims_json(&self.dims),
-            "noise": match self.noise { NoiseMode::Gaussian => "gaussian", NoiseMode::Zero => "zero" },
-            "ps_hidden": self.ps.as_ref().map(|p| p.hidden),
-            "inner_lr": self.inner_lr,
-            "max_inner": self.max_inner,
-            "privileged": self.privileged,
-            "adapt_mode": mode_name(self.adapt_mode),
-        })
+        // Strings, numbers and booleans only: serialising to a `Value` cannot fail.
+        serde_json::to_value(self.meta()).unwrap_or_default()
     }
 
     /// Adds the model's tensors (and the PS module's) to a checkpoint.
@@ -396,51 +549,26 @@ impl NavModel {
         Ok(())
     }
 
-    /// Rebuilds a model from a checkpoint written by the trainer.
+    /// Rebuilds a model from a checkpoint written by the trainer (any build: the fields
+    /// [`ModelMeta`] gained over time default to what earlier checkpoints were trained with).
     pub fn from_checkpoint(ck: &Checkpoint) -> Result<NavModel> {
         let meta = &ck.metadata;
-        if meta.get("kind").and_then(|v| v.as_str()) != Some("gman-navigator") {
+        if meta.get("kind").and_then(|v| v.as_str()) != Some(NAVIGATOR_KIND) {
             bail!(
                 "not a navigator checkpoint (metadata kind {:?})",
                 meta.get("kind")
             );
         }
-        let method = meta
-            .get("method")
-            .and_then(|v| v.as_str())
-            .and_then(Method::parse)
-            .ok_or_else(|| anyhow!("checkpoint has no known method"))?;
-        let d = meta
-            .get("dims")
-            .ok_or_else(|| anyhow!("checkpoint has no dims"))?;
-        let get = |k: &str| -> Result<usize> {
-            d.get(k)
-                .and_then(|v| v.as_u64())
-                .map(|v| v as usize)
-                .ok_or_else(|| anyhow!("dims.{k} missing"))
-        };
-        let dims = Dims {
-            attr: get("attr")?,
-            noise: get("noise")?,
-            gen_hidden: get("gen_hidden")?,
-            feat: get("feat")?,
-            disc_hidden: get("disc_hidden")?,
-            lstm_hidden: get("lstm_hidden")?,
-            embed: get("embed")?,
-            ps: get("ps")?,
-            // Absent before spatial maps existed: no map.
-            map_rows: get("map_rows").unwrap_or(0),
-            map_cols: get("map_cols").unwrap_or(0),
-            cell_embed: get("cell_embed").unwrap_or(0),
-        };
+        let m: ModelMeta = serde_json::from_value(meta.clone())
+            .map_err(|e| anyhow!("checkpoint metadata: {e}"))?;
+        let (method, dims) = (m.method, m.dims.0);
         let mut params = ParamSet::new();
         for id in TensorId::all_for(&dims) {
             let (r, c) = id.shape(&dims);
             params.push(ck.tensor(id.name(), r, c)?.clone())?;
         }
-        let ps = match meta.get("ps_hidden").and_then(|v| v.as_u64()) {
+        let ps = match m.ps_hidden {
             Some(h) => {
-                let h = h as usize;
                 let mut set = ParamSet::new();
                 for (name, r, c) in [
                     (crate::train::ps::PS_W1, h, gman_core::FEATURE_DIM),
@@ -454,14 +582,7 @@ impl NavModel {
             }
             None => None,
         };
-        let noise = match meta.get("noise").and_then(|v| v.as_str()) {
-            Some("zero") => NoiseMode::Zero,
-            _ => NoiseMode::Gaussian,
-        };
-        let inner_lr = meta
-            .get("inner_lr")
-            .and_then(|v| v.as_f64())
-            .unwrap_or(1e-4) as f32;
+        let inner_lr = m.inner_lr;
         // The checks `gman train` applies to the flags, applied to what the file says.
         if !(inner_lr.is_finite() && inner_lr >= 0.0) {
             bail!("stored inner_lr {inner_lr} is invalid: it must be finite and non-negative (like --inner-lr)");
@@ -474,30 +595,20 @@ impl NavModel {
                 if ps.is_some() { "present" } else { "absent" }
             );
         }
-        let max_inner = meta
-            .get("max_inner")
-            .and_then(|v| v.as_u64())
-            .map_or(DEFAULT_MAX_INNER, |v| v.min(u32::MAX as u64) as u32);
         Ok(NavModel {
             method,
             dims,
             params,
             ps,
-            noise,
-            inner_lr,
-            max_inner,
-            blob: None,
-            privileged: meta
-                .get("privileged")
-                .and_then(|v| v.as_bool())
-                .unwrap_or(false),
-            adapt_mode: match meta.get("adapt_mode").and_then(|v| v.as_str()) {
-                None | Some("full") => AdaptMode::Full,
-                Some("efficient") => AdaptMode::Efficient,
-                Some(other) => {
-                    bail!("checkpoint adapt_mode {other:?} (expected full or efficient)")
-                }
+            noise: match m.noise {
+                NoiseName::Gaussian => NoiseMode::Gaussian,
+                NoiseName::Zero => NoiseMode::Zero,
             },
+            inner_lr,
+            max_inner: m.max_inner,
+            blob: None,
+            privileged: m.privileged,
+            adapt_mode: m.adapt_mode.into(),
         })
     }
 
@@ -692,11 +803,85 @@ mod tests {
             ..Method::GmanNometa
         };
         assert_eq!(custom.name(), "custom");
-        assert!(serde_json::to_value(custom).is_err());
+        let v = serde_json::to_value(custom).unwrap();
+        assert!(serde_json::from_value::<Method>(v).is_err());
         assert!(Method::parse("gman-x").is_none());
         assert_eq!(
             <Method as clap::ValueEnum>::from_str("gman-cossim", false).unwrap(),
             Method::GmanCossim
         );
+    }
+
+    /// The metadata the old untyped code wrote, written out: the typed settings must give
+    /// the same JSON (so checkpoints stay byte for byte) and read it back.
+    fn old_metadata(m: &NavModel) -> serde_json::Value {
+        serde_json::json!({
+            "kind": "gman-navigator",
+            "method": m.method.name(),
+            "dims": crate::train::dims_json(&m.dims),
+            "noise": match m.noise { NoiseMode::Gaussian => "gaussian", NoiseMode::Zero => "zero" },
+            "ps_hidden": m.ps.as_ref().map(|p| p.hidden),
+            "inner_lr": m.inner_lr,
+            "max_inner": m.max_inner,
+            "privileged": m.privileged,
+            "adapt_mode": mode_name(m.adapt_mode),
+        })
+    }
+
+    #[test]
+    fn typed_metadata_is_the_old_json_and_reads_old_checkpoints() {
+        let g =
+            crate::train::generator::init_generator(&Dims::MCU, &mut Xoshiro128::seed_from_u64(1))
+                .unwrap();
+        for (method, dims) in [
+            (Method::Gman, Dims::MCU),
+            (Method::A3cFg, Dims::MCU.with_map(3, 3, 8)),
+        ] {
+            let mut m = NavModel::init(method, dims, 1, Some(&g), None).unwrap();
+            m.noise = NoiseMode::Zero;
+            m.inner_lr = 3e-3;
+            m.max_inner = 7;
+            m.adapt_mode = AdaptMode::Efficient;
+            let old = old_metadata(&m);
+            assert_eq!(m.metadata().to_string(), old.to_string());
+            let mut ck = Checkpoint::new(old);
+            m.add_to_checkpoint(&mut ck).unwrap();
+            let back = NavModel::from_checkpoint(&ck).unwrap();
+            assert_eq!(back.meta(), m.meta());
+            assert_eq!(back.params.names(), m.params.names());
+            assert_eq!(back.params.num_values(), m.params.num_values());
+        }
+        // The first checkpoints had none of the later fields: their defaults apply.
+        let m = NavModel::init(Method::Gman, Dims::MCU, 2, Some(&g), None).unwrap();
+        let mut first = serde_json::json!({
+            "kind": "gman-navigator",
+            "method": "gman",
+            "dims": crate::train::dims_json(&m.dims),
+            "ps_hidden": null,
+        });
+        let mut ck = Checkpoint::new(first.clone());
+        m.add_to_checkpoint(&mut ck).unwrap();
+        let back = NavModel::from_checkpoint(&ck).unwrap();
+        assert_eq!(
+            (
+                back.noise,
+                back.inner_lr,
+                back.max_inner,
+                back.privileged,
+                back.adapt_mode
+            ),
+            (
+                NoiseMode::Gaussian,
+                1e-4,
+                DEFAULT_MAX_INNER,
+                false,
+                AdaptMode::Full
+            )
+        );
+        // A wrong type is a typed error naming the field, not a silent default.
+        first["adapt_mode"] = serde_json::json!("sideways");
+        ck.metadata = first;
+        let e = NavModel::from_checkpoint(&ck).unwrap_err().to_string();
+        assert!(e.contains("sideways") || e.contains("variant"), "{e}");
     }
 }
