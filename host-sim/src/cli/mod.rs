@@ -4,6 +4,8 @@
 //! ([`gman_host_sim::sim::synthetic`]); `--data DIR` switches to the real iTHOR floor plans and
 //! the official GMAN episodes.
 
+pub mod nav;
+
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -43,17 +45,17 @@ pub enum Commands {
     PretrainPs(PretrainPsArgs),
     /// Train a navigation method (A3C baselines, GMAN): writes RUN_DIR/metrics.csv and
     /// RUN_DIR/checkpoint.ckpt; `--resume RUN_DIR` continues a run exactly.
-    Train(crate::cli_nav::TrainArgs),
+    Train(nav::TrainArgs),
     /// Export a trained checkpoint as a gman-core weight blob (int8 or f32).
-    Export(crate::cli_nav::ExportArgs),
+    Export(nav::ExportArgs),
     /// Print a weight blob's header, tensors, quantisation and size (validates the checksum).
-    Inspect(crate::cli_nav::InspectArgs),
+    Inspect(nav::InspectArgs),
     /// Draw learning curves of training runs into a PNG.
-    Plot(crate::cli_nav::PlotArgs),
+    Plot(nav::PlotArgs),
     /// Print the paper's table layout (mean ± std) from evaluation JSON files.
-    Table(crate::cli_nav::TableArgs),
+    Table(nav::TableArgs),
     /// Quick start: pre-train G, train A3C+FG and GMAN briefly, evaluate them against random.
-    Demo(crate::cli_nav::DemoArgs),
+    Demo(nav::DemoArgs),
     /// Single-thread benchmarks: navigator step/adaptation latency against this machine's
     /// measured bandwidth and FMA peak, training throughput, firmware instruction counts.
     Bench(crate::cli_bench::BenchArgs),
@@ -275,8 +277,8 @@ pub struct EvalArgs {
 
 impl EvalArgs {
     /// The model changes these arguments ask for.
-    fn overrides(&self) -> crate::cli_nav::ModelOverrides {
-        crate::cli_nav::ModelOverrides {
+    fn overrides(&self) -> nav::ModelOverrides {
+        nav::ModelOverrides {
             method: self.method,
             inner_lr: self.inner_lr,
             max_inner: self.max_inner,
@@ -334,13 +336,13 @@ pub fn run(cli: Cli, matches: &clap::ArgMatches) -> Result<()> {
             let explicit = |id: &str| {
                 sub.and_then(|m| m.value_source(id)) == Some(clap::parser::ValueSource::CommandLine)
             };
-            crate::cli_nav::cmd_train(a, &explicit)
+            nav::cmd_train(a, &explicit)
         }
-        Commands::Export(a) => crate::cli_nav::cmd_export(a),
-        Commands::Inspect(a) => crate::cli_nav::cmd_inspect(a),
-        Commands::Plot(a) => crate::cli_nav::cmd_plot(a),
-        Commands::Table(a) => crate::cli_nav::cmd_table(a),
-        Commands::Demo(a) => crate::cli_nav::cmd_demo(a),
+        Commands::Export(a) => nav::cmd_export(a),
+        Commands::Inspect(a) => nav::cmd_inspect(a),
+        Commands::Plot(a) => nav::cmd_plot(a),
+        Commands::Table(a) => nav::cmd_table(a),
+        Commands::Demo(a) => nav::cmd_demo(a),
         Commands::Bench(a) => crate::cli_bench::cmd_bench(a),
         #[cfg(feature = "offline")]
         Commands::MakeOfflineFixture(a) => {
@@ -357,18 +359,14 @@ pub fn run(cli: Cli, matches: &clap::ArgMatches) -> Result<()> {
 }
 
 /// A built-in agent factory by name; a clear error for model files (not supported yet).
-pub fn agent_factory(
-    name: &str,
-    seed: u64,
-    ov: &crate::cli_nav::ModelOverrides,
-) -> Result<AgentFactory> {
+pub fn agent_factory(name: &str, seed: u64, ov: &nav::ModelOverrides) -> Result<AgentFactory> {
     match name {
         "random" => Ok(Box::new(move |_| Box::new(RandomAgent::new(seed)))),
         "oracle" => Ok(Box::new(|_| Box::new(OracleAgent))),
         other => {
             let p = Path::new(other);
             if p.exists() {
-                return Ok(crate::cli_nav::model_factory(p, ov)?.0);
+                return Ok(nav::model_factory(p, ov)?.0);
             }
             bail!("agent {other}: not `random` or `oracle`, and no such model file")
         }
