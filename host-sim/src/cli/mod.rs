@@ -4,19 +4,20 @@
 //! ([`gman_host_sim::sim::synthetic`]); `--data DIR` switches to the real iTHOR floor plans and
 //! the official GMAN episodes.
 
+pub mod args;
 pub mod nav;
+
+pub use args::{PresetArg, WorldArgs};
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{bail, Context, Result};
-use clap::{Args, Parser, Subcommand, ValueEnum};
-use gman_core::Dims;
+use clap::{Args, Parser, Subcommand};
 use gman_host_sim::sim::eval::{drive, AgentFactory};
 use gman_host_sim::sim::render::draw_scene;
 use gman_host_sim::sim::{
     evaluate, EpisodeLimits, EvalConfig, EvalReport, OracleAgent, RandomAgent, RewardKind, Split,
-    World, DEFAULT_WORLD_SEED,
 };
 use gman_host_sim::train::fg::{self, FgCollectConfig, FgTrainConfig};
 use gman_host_sim::train::ps::{self, PsDataConfig, PsTrainConfig};
@@ -75,33 +76,6 @@ pub struct MakeOfflineFixtureArgs {
     /// Seed of the attribute vectors and feature values.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
-}
-
-/// Network size preset.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
-pub enum PresetArg {
-    /// Microcontroller sizes (G hidden 256, D hidden 64).
-    Mcu,
-    /// The paper's sizes (G hidden 4096, D hidden 1024).
-    Paper,
-}
-
-impl PresetArg {
-    /// The sizes.
-    pub fn dims(self) -> Dims {
-        match self {
-            PresetArg::Mcu => Dims::MCU,
-            PresetArg::Paper => Dims::PAPER,
-        }
-    }
-
-    /// The name.
-    pub fn name(self) -> &'static str {
-        match self {
-            PresetArg::Mcu => "mcu",
-            PresetArg::Paper => "paper",
-        }
-    }
 }
 
 /// `gman pretrain-fg`.
@@ -191,36 +165,6 @@ pub struct PretrainPsArgs {
     /// No progress bar.
     #[arg(long)]
     pub quiet: bool,
-}
-
-/// Options that choose the world.
-#[derive(Debug, Args, Clone)]
-pub struct WorldArgs {
-    /// Data directory (`attributes.json`, `scenes/<split>/`, `episodes/<split>/`), or AI2THOR
-    /// offline data (`attributes.json`, `FloorPlanN/` folders, `episodes/<split>/`; needs the
-    /// `offline` build feature). Without it the built-in synthetic demo world is used.
-    #[arg(long, value_name = "DIR")]
-    pub data: Option<PathBuf>,
-    /// World seed: placement of objects without positions, feature model, scene styles (and the
-    /// whole synthetic world).
-    #[arg(long, default_value_t = DEFAULT_WORLD_SEED)]
-    pub world_seed: u64,
-}
-
-impl WorldArgs {
-    /// Loads the chosen world.
-    pub fn load(&self) -> Result<World> {
-        match &self.data {
-            Some(dir) => World::load_with_seed(dir, self.world_seed),
-            None => {
-                eprintln!(
-                    "note: no --data given, using the built-in synthetic demo world (seed {})",
-                    self.world_seed
-                );
-                Ok(World::synthetic(self.world_seed))
-            }
-        }
-    }
 }
 
 /// `gman eval`.

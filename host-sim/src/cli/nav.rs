@@ -18,7 +18,7 @@ use gman_host_sim::train::adam::AdamConfig;
 use gman_host_sim::train::fg::{self, FgCollectConfig, FgTrainConfig};
 use gman_host_sim::train::ps::{self, PsDataConfig, PsModule, PsTrainConfig};
 
-use crate::cli::{PresetArg, WorldArgs};
+use super::args::{PresetArg, WorldArgs};
 
 /// `--adapt-mode`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
