@@ -5,7 +5,7 @@
 //! the official GMAN episodes.
 
 pub mod args;
-pub mod nav;
+pub mod train;
 
 pub use args::{PresetArg, WorldArgs};
 
@@ -46,17 +46,17 @@ pub enum Commands {
     PretrainPs(PretrainPsArgs),
     /// Train a navigation method (A3C baselines, GMAN): writes RUN_DIR/metrics.csv and
     /// RUN_DIR/checkpoint.ckpt; `--resume RUN_DIR` continues a run exactly.
-    Train(nav::TrainArgs),
+    Train(train::TrainArgs),
     /// Export a trained checkpoint as a gman-core weight blob (int8 or f32).
-    Export(nav::ExportArgs),
+    Export(train::ExportArgs),
     /// Print a weight blob's header, tensors, quantisation and size (validates the checksum).
-    Inspect(nav::InspectArgs),
+    Inspect(train::InspectArgs),
     /// Draw learning curves of training runs into a PNG.
-    Plot(nav::PlotArgs),
+    Plot(train::PlotArgs),
     /// Print the paper's table layout (mean ± std) from evaluation JSON files.
-    Table(nav::TableArgs),
+    Table(train::TableArgs),
     /// Quick start: pre-train G, train A3C+FG and GMAN briefly, evaluate them against random.
-    Demo(nav::DemoArgs),
+    Demo(train::DemoArgs),
     /// Single-thread benchmarks: navigator step/adaptation latency against this machine's
     /// measured bandwidth and FMA peak, training throughput, firmware instruction counts.
     Bench(crate::cli_bench::BenchArgs),
@@ -221,8 +221,8 @@ pub struct EvalArgs {
 
 impl EvalArgs {
     /// The model changes these arguments ask for.
-    fn overrides(&self) -> nav::ModelOverrides {
-        nav::ModelOverrides {
+    fn overrides(&self) -> train::ModelOverrides {
+        train::ModelOverrides {
             method: self.method,
             inner_lr: self.inner_lr,
             max_inner: self.max_inner,
@@ -280,13 +280,13 @@ pub fn run(cli: Cli, matches: &clap::ArgMatches) -> Result<()> {
             let explicit = |id: &str| {
                 sub.and_then(|m| m.value_source(id)) == Some(clap::parser::ValueSource::CommandLine)
             };
-            nav::cmd_train(a, &explicit)
+            train::cmd_train(a, &explicit)
         }
-        Commands::Export(a) => nav::cmd_export(a),
-        Commands::Inspect(a) => nav::cmd_inspect(a),
-        Commands::Plot(a) => nav::cmd_plot(a),
-        Commands::Table(a) => nav::cmd_table(a),
-        Commands::Demo(a) => nav::cmd_demo(a),
+        Commands::Export(a) => train::cmd_export(a),
+        Commands::Inspect(a) => train::cmd_inspect(a),
+        Commands::Plot(a) => train::cmd_plot(a),
+        Commands::Table(a) => train::cmd_table(a),
+        Commands::Demo(a) => train::cmd_demo(a),
         Commands::Bench(a) => crate::cli_bench::cmd_bench(a),
         #[cfg(feature = "offline")]
         Commands::MakeOfflineFixture(a) => {
@@ -303,14 +303,14 @@ pub fn run(cli: Cli, matches: &clap::ArgMatches) -> Result<()> {
 }
 
 /// A built-in agent factory by name; a clear error for model files (not supported yet).
-pub fn agent_factory(name: &str, seed: u64, ov: &nav::ModelOverrides) -> Result<AgentFactory> {
+pub fn agent_factory(name: &str, seed: u64, ov: &train::ModelOverrides) -> Result<AgentFactory> {
     match name {
         "random" => Ok(Box::new(move |_| Box::new(RandomAgent::new(seed)))),
         "oracle" => Ok(Box::new(|_| Box::new(OracleAgent))),
         other => {
             let p = Path::new(other);
             if p.exists() {
-                return Ok(nav::model_factory(p, ov)?.0);
+                return Ok(train::model_factory(p, ov)?.0);
             }
             bail!("agent {other}: not `random` or `oracle`, and no such model file")
         }
