@@ -5,6 +5,12 @@
 //! the official GMAN episodes.
 
 pub mod args;
+pub mod demo;
+pub mod export;
+pub mod inspect;
+pub mod models;
+pub mod plot;
+pub mod table;
 pub mod train;
 
 pub use args::{PresetArg, WorldArgs};
@@ -48,15 +54,15 @@ pub enum Commands {
     /// RUN_DIR/checkpoint.ckpt; `--resume RUN_DIR` continues a run exactly.
     Train(train::TrainArgs),
     /// Export a trained checkpoint as a gman-core weight blob (int8 or f32).
-    Export(train::ExportArgs),
+    Export(export::ExportArgs),
     /// Print a weight blob's header, tensors, quantisation and size (validates the checksum).
-    Inspect(train::InspectArgs),
+    Inspect(inspect::InspectArgs),
     /// Draw learning curves of training runs into a PNG.
-    Plot(train::PlotArgs),
+    Plot(plot::PlotArgs),
     /// Print the paper's table layout (mean ± std) from evaluation JSON files.
-    Table(train::TableArgs),
+    Table(table::TableArgs),
     /// Quick start: pre-train G, train A3C+FG and GMAN briefly, evaluate them against random.
-    Demo(train::DemoArgs),
+    Demo(demo::DemoArgs),
     /// Single-thread benchmarks: navigator step/adaptation latency against this machine's
     /// measured bandwidth and FMA peak, training throughput, firmware instruction counts.
     Bench(crate::cli_bench::BenchArgs),
@@ -221,8 +227,8 @@ pub struct EvalArgs {
 
 impl EvalArgs {
     /// The model changes these arguments ask for.
-    fn overrides(&self) -> train::ModelOverrides {
-        train::ModelOverrides {
+    fn overrides(&self) -> models::ModelOverrides {
+        models::ModelOverrides {
             method: self.method,
             inner_lr: self.inner_lr,
             max_inner: self.max_inner,
@@ -282,11 +288,11 @@ pub fn run(cli: Cli, matches: &clap::ArgMatches) -> Result<()> {
             };
             train::cmd_train(a, &explicit)
         }
-        Commands::Export(a) => train::cmd_export(a),
-        Commands::Inspect(a) => train::cmd_inspect(a),
-        Commands::Plot(a) => train::cmd_plot(a),
-        Commands::Table(a) => train::cmd_table(a),
-        Commands::Demo(a) => train::cmd_demo(a),
+        Commands::Export(a) => export::cmd_export(a),
+        Commands::Inspect(a) => inspect::cmd_inspect(a),
+        Commands::Plot(a) => plot::cmd_plot(a),
+        Commands::Table(a) => table::cmd_table(a),
+        Commands::Demo(a) => demo::cmd_demo(a),
         Commands::Bench(a) => crate::cli_bench::cmd_bench(a),
         #[cfg(feature = "offline")]
         Commands::MakeOfflineFixture(a) => {
@@ -303,14 +309,14 @@ pub fn run(cli: Cli, matches: &clap::ArgMatches) -> Result<()> {
 }
 
 /// A built-in agent factory by name; a clear error for model files (not supported yet).
-pub fn agent_factory(name: &str, seed: u64, ov: &train::ModelOverrides) -> Result<AgentFactory> {
+pub fn agent_factory(name: &str, seed: u64, ov: &models::ModelOverrides) -> Result<AgentFactory> {
     match name {
         "random" => Ok(Box::new(move |_| Box::new(RandomAgent::new(seed)))),
         "oracle" => Ok(Box::new(|_| Box::new(OracleAgent))),
         other => {
             let p = Path::new(other);
             if p.exists() {
-                return Ok(train::model_factory(p, ov)?.0);
+                return Ok(models::model_factory(p, ov)?.0);
             }
             bail!("agent {other}: not `random` or `oracle`, and no such model file")
         }
