@@ -1,47 +1,29 @@
 //! Deterministic seeded `Mcu` int8 blob, shared by `build.rs` and the host-side parity test
 //! (`tests/tests/firmware_qemu.rs`) so that both use the very same bytes.
 
-use gman_core::blob::{
-    encode_with_settings, encoded_len_bound, AdaptSettings, TensorData, TensorId, TensorSpec,
-    FLAG_ADAPT,
-};
-use gman_core::quant::quantize_rows;
-use gman_core::rng::{fill_gaussian, Xoshiro128};
+use gman_core::blob::{encode_model_scratch_len, encoded_model_len_bound, AdaptSettings, Quant};
+use gman_core::schema::FLAG_ADAPT;
+use gman_core::seeded::encode_seeded;
 use gman_core::Dims;
 
 /// An int8 blob (format v2) of seeded N(0, 0.05) weights for every tensor of `dims`, flagged
 /// [`FLAG_ADAPT`] with the paper's inner-loop settings ([`AdaptSettings::PAPER`]), so that the
 /// firmware's `NavConfig::from_header` runs the GMAN inner loop on it.
 pub fn seeded_blob(dims: &Dims, seed: u64) -> Vec<u8> {
-    let mut rng = Xoshiro128::seed_from_u64(seed);
-    // (id, f32 values, int8 values, row scales)
-    type Stored = (TensorId, Vec<f32>, Vec<u8>, Vec<f32>);
-    let mut store: Vec<Stored> = Vec::new();
-    for id in TensorId::all_for(dims) {
-        let (r, c) = id.shape(dims);
-        let mut v = vec![0.0f32; r * c];
-        fill_gaussian(&mut rng, &mut v);
-        v.iter_mut().for_each(|x| *x *= 0.05);
-        let (mut q, mut s) = (vec![0u8; r * c], vec![0.0f32; r]);
-        if !id.is_vector() {
-            quantize_rows(&v, r, c, &mut q, &mut s).expect("quantize");
-        }
-        store.push((id, v, q, s));
-    }
-    let specs: Vec<TensorSpec<'_>> = store
-        .iter()
-        .map(|(id, v, q, s)| TensorSpec {
-            id: *id,
-            data: if id.is_vector() {
-                TensorData::F32(v)
-            } else {
-                TensorData::I8 { q, scales: s }
-            },
-        })
-        .collect();
-    let mut buf = vec![0u8; encoded_len_bound(&specs)];
-    let n = encode_with_settings(dims, FLAG_ADAPT, AdaptSettings::PAPER, &specs, &mut buf)
-        .expect("encode");
+    let mut buf = vec![0u8; encoded_model_len_bound(dims, Quant::I8)];
+    let (nf, nb) = encode_model_scratch_len(dims);
+    let n = encode_seeded(
+        dims,
+        FLAG_ADAPT,
+        AdaptSettings::PAPER,
+        Quant::I8,
+        seed,
+        0.05,
+        &mut buf,
+        &mut vec![0.0; nf],
+        &mut vec![0; nb],
+    )
+    .expect("encode");
     buf.truncate(n);
     buf
 }

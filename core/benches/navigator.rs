@@ -7,11 +7,13 @@
 //! comparison and what limits each number are in `host-sim/BENCHMARKS.md`.
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
-use gman_core::blob::{encode, encoded_len_bound, Blob, TensorData, TensorId, TensorSpec};
+use gman_core::blob::{
+    encode_model_scratch_len, encoded_model_len_bound, AdaptSettings, Blob, Quant, TensorId,
+};
 use gman_core::matrix::MatRef;
 use gman_core::navigator::{Efficient, Full, Mode, NavConfig, NavWeights, Navigator};
-use gman_core::quant::quantize_rows;
-use gman_core::rng::{fill_gaussian, uniform, Xoshiro128};
+use gman_core::rng::{uniform, Xoshiro128};
+use gman_core::seeded::{encode_seeded, SeededWeights};
 use gman_core::Dims;
 use std::hint::black_box;
 use std::time::{Duration, Instant};
@@ -19,44 +21,32 @@ use std::time::{Duration, Instant};
 const K: usize = 20;
 
 fn tensors(d: &Dims) -> Vec<Vec<f32>> {
-    let mut rng = Xoshiro128::seed_from_u64(1);
+    let mut w = SeededWeights::new(1, 0.05);
     TensorId::all_for(d)
         .map(|id| {
-            let (r, c) = id.shape(d);
-            let mut v = vec![0.0f32; r * c];
-            fill_gaussian(&mut rng, &mut v);
-            v.iter_mut().for_each(|x| *x *= 0.05);
+            let mut v = vec![0.0f32; id.numel(d)];
+            w.fill(&mut v);
             v
         })
         .collect()
 }
 
-fn int8_blob(d: &Dims, t: &[Vec<f32>]) -> Vec<u8> {
-    let q: Vec<(Vec<u8>, Vec<f32>)> = TensorId::all_for(d)
-        .map(|id| {
-            let (r, c) = id.shape(d);
-            let (mut q, mut s) = (vec![0u8; r * c], vec![0.0f32; r]);
-            if !id.is_vector() {
-                quantize_rows(&t[id as usize], r, c, &mut q, &mut s).unwrap();
-            }
-            (q, s)
-        })
-        .collect();
-    let specs: Vec<TensorSpec<'_>> = TensorId::all_for(d)
-        .map(|id| TensorSpec {
-            id,
-            data: if id.is_vector() {
-                TensorData::F32(&t[id as usize])
-            } else {
-                TensorData::I8 {
-                    q: &q[id as usize].0,
-                    scales: &q[id as usize].1,
-                }
-            },
-        })
-        .collect();
-    let mut buf = vec![0u8; encoded_len_bound(&specs)];
-    let n = encode(d, &specs, &mut buf).unwrap();
+/// The int8 blob of [`tensors`].
+fn int8_blob(d: &Dims) -> Vec<u8> {
+    let mut buf = vec![0u8; encoded_model_len_bound(d, Quant::I8)];
+    let (nf, nb) = encode_model_scratch_len(d);
+    let n = encode_seeded(
+        d,
+        0,
+        AdaptSettings::PAPER,
+        Quant::I8,
+        1,
+        0.05,
+        &mut buf,
+        &mut vec![0.0; nf],
+        &mut vec![0; nb],
+    )
+    .unwrap();
     buf.truncate(n);
     buf
 }
@@ -127,7 +117,7 @@ fn benches(c: &mut Criterion) {
             })
             .unwrap()
         };
-        let bytes = int8_blob(&d, &t);
+        let bytes = int8_blob(&d);
         let blob = Blob::parse(&bytes).unwrap();
         let i8w = || NavWeights::from_blob(&blob, &d).unwrap();
         bench_one::<Full>(c, preset, d, "f32", f32w());

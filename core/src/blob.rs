@@ -72,7 +72,10 @@ use crate::crc32::crc32;
 use crate::error::BlobError;
 use crate::matrix::{MatRef, Scales};
 use crate::preset::Dims;
-use crate::NUM_ACTIONS;
+use crate::schema::{AdaptMode, ModelFlags};
+pub use crate::schema::{
+    TensorId, FLAG_ADAPT, FLAG_COSSIM, FLAG_FULL_ADAPT, FLAG_ZERO_NOISE, NUM_TENSORS,
+};
 
 /// The four magic bytes at the start of every blob.
 pub const MAGIC: [u8; 4] = *b"GMAN";
@@ -102,182 +105,6 @@ impl Quant {
             Quant::I8 => 1,
         }
     }
-}
-
-macro_rules! tensor_ids {
-    ($($(#[$m:meta])* $name:ident = $v:expr),* $(,)?) => {
-        /// Identifies a tensor in a blob.
-        #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-        #[repr(u16)]
-        pub enum TensorId { $($(#[$m])* $name = $v),* }
-        impl TensorId {
-            /// Every id, in storage order.
-            pub const ALL: &'static [TensorId] = &[$(TensorId::$name),*];
-            /// The id with raw value `v`.
-            pub fn from_raw(v: u16) -> Option<TensorId> {
-                match v { $($v => Some(TensorId::$name),)* _ => None }
-            }
-            /// The name used by `gman inspect`.
-            pub fn name(self) -> &'static str {
-                match self { $(TensorId::$name => stringify!($name)),* }
-            }
-        }
-    };
-}
-
-tensor_ids! {
-    /// G hidden layer weights, `gen_hidden x (noise + attr)` (noise columns first).
-    GenW1 = 0,
-    /// G hidden bias, `gen_hidden`.
-    GenB1 = 1,
-    /// G output weights, `feat x gen_hidden`.
-    GenW2 = 2,
-    /// G output bias, `feat`.
-    GenB2 = 3,
-    /// D hidden weights, `disc_hidden x feat`.
-    DiscW1 = 4,
-    /// D hidden bias, `disc_hidden`.
-    DiscB1 = 5,
-    /// D output weights, `1 x disc_hidden`.
-    DiscW2 = 6,
-    /// D output bias, `1`.
-    DiscB2 = 7,
-    /// Policy fusion weights, `embed x fuse_in`.
-    FuseW = 8,
-    /// Policy fusion bias, `embed`.
-    FuseB = 9,
-    /// LSTM input weights, `4 lstm_hidden x embed`.
-    LstmWx = 10,
-    /// LSTM recurrent weights, `4 lstm_hidden x lstm_hidden`.
-    LstmWh = 11,
-    /// LSTM bias, `4 lstm_hidden`.
-    LstmB = 12,
-    /// Actor head weights, `6 x lstm_hidden`.
-    ActorW = 13,
-    /// Actor head bias, `6`.
-    ActorB = 14,
-    /// Critic head weights, `1 x lstm_hidden`.
-    CriticW = 15,
-    /// Critic head bias, `1`.
-    CriticB = 16,
-    /// Per-cell layer weights (shared by every map cell), `cell_embed x 2 feat`; only in
-    /// models with a spatial observation map (format v3).
-    CellW = 17,
-    /// Per-cell layer bias, `cell_embed`; only with a map.
-    CellB = 18,
-}
-
-/// Number of tensor ids.
-pub const NUM_TENSORS: usize = 19;
-
-/// True when, for every tensor of `d`, the widths, `rows * cols` and its byte lengths as f32
-/// (`4 rows cols`) and as int8 (`rows cols + 4 rows`) fit in `usize` (part of
-/// [`Dims::checked_sizes`]).
-pub(crate) const fn checked_tensor_bytes(d: &Dims) -> bool {
-    if d.checked_gen_in().is_none() || d.checked_fuse_in().is_none() {
-        return false;
-    }
-    if d.lstm_hidden.checked_mul(4).is_none()
-        || d.feat.checked_mul(2).is_none()
-        || d.checked_cell_out().is_none()
-        || d.checked_cell_params().is_none()
-    {
-        return false;
-    }
-    let mut i = 0;
-    while i < TensorId::ALL.len() {
-        let (r, c) = TensorId::ALL[i].shape(d);
-        let n = match r.checked_mul(c) {
-            Some(n) => n,
-            None => return false,
-        };
-        let i8_bytes = match r.checked_mul(4) {
-            Some(s) => n.checked_add(s),
-            None => None,
-        };
-        if n.checked_mul(4).is_none() || i8_bytes.is_none() {
-            return false;
-        }
-        i += 1;
-    }
-    true
-}
-
-impl TensorId {
-    /// `(rows, cols)` of this tensor for the given dims; vectors have `cols == 1`. A width
-    /// that does not fit in `usize` saturates at `usize::MAX` (such dims never come out of
-    /// [`Blob::parse`], see [`Dims::checked_sizes`]).
-    pub const fn shape(self, d: &Dims) -> (usize, usize) {
-        match self {
-            TensorId::GenW1 => (d.gen_hidden, d.gen_in()),
-            TensorId::GenB1 => (d.gen_hidden, 1),
-            TensorId::GenW2 => (d.feat, d.gen_hidden),
-            TensorId::GenB2 => (d.feat, 1),
-            TensorId::DiscW1 => (d.disc_hidden, d.feat),
-            TensorId::DiscB1 => (d.disc_hidden, 1),
-            TensorId::DiscW2 => (1, d.disc_hidden),
-            TensorId::DiscB2 => (1, 1),
-            TensorId::FuseW => (d.embed, d.fuse_in()),
-            TensorId::FuseB => (d.embed, 1),
-            TensorId::LstmWx => (d.lstm_hidden.saturating_mul(4), d.embed),
-            TensorId::LstmWh => (d.lstm_hidden.saturating_mul(4), d.lstm_hidden),
-            TensorId::LstmB => (d.lstm_hidden.saturating_mul(4), 1),
-            TensorId::ActorW => (NUM_ACTIONS, d.lstm_hidden),
-            TensorId::ActorB => (NUM_ACTIONS, 1),
-            TensorId::CriticW => (1, d.lstm_hidden),
-            TensorId::CriticB => (1, 1),
-            TensorId::CellW if d.map_cells() > 0 => (d.cell_embed, d.cell_in()),
-            TensorId::CellB if d.map_cells() > 0 => (d.cell_embed, 1),
-            TensorId::CellW | TensorId::CellB => (0, 0),
-        }
-    }
-
-    /// The tensors of a model of these dims, in storage order ([`TensorId::ALL`] without
-    /// the per-cell layer when there is no spatial map).
-    pub fn all_for(d: &Dims) -> impl Iterator<Item = TensorId> + '_ {
-        TensorId::ALL
-            .iter()
-            .copied()
-            .filter(move |id| id.present(d))
-    }
-
-    /// True when a model of these dims has this tensor: every id but the per-cell layer's,
-    /// which exists only with a spatial map (its shape is `(0, 0)` otherwise, and blobs and
-    /// checkpoints do not store it).
-    pub const fn present(self, d: &Dims) -> bool {
-        !matches!(self, TensorId::CellW | TensorId::CellB) || d.map_cells() > 0
-    }
-
-    /// True for bias vectors, which are always stored as f32.
-    pub const fn is_vector(self) -> bool {
-        matches!(
-            self,
-            TensorId::GenB1
-                | TensorId::GenB2
-                | TensorId::DiscB1
-                | TensorId::DiscB2
-                | TensorId::FuseB
-                | TensorId::LstmB
-                | TensorId::ActorB
-                | TensorId::CriticB
-                | TensorId::CellB
-        )
-    }
-
-    /// The tensors of G.
-    pub const GENERATOR: [TensorId; 4] = [
-        TensorId::GenW1,
-        TensorId::GenB1,
-        TensorId::GenW2,
-        TensorId::GenB2,
-    ];
-    /// The tensors of D.
-    pub const DISCRIMINATOR: [TensorId; 4] = [
-        TensorId::DiscW1,
-        TensorId::DiscB1,
-        TensorId::DiscW2,
-        TensorId::DiscB2,
-    ];
 }
 
 #[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq)]
@@ -342,25 +169,6 @@ impl MapRecord {
         }
     }
 }
-
-/// Bit of [`Header::flags`]: the model was meta-trained to adapt at inference (GMAN); a
-/// loader should enable the inner loop.
-pub const FLAG_ADAPT: u32 = 1;
-/// Bit of [`Header::flags`]: G is driven with zero noise (the reference implementation's
-/// choice) instead of fresh Gaussian noise.
-pub const FLAG_ZERO_NOISE: u32 = 2;
-
-/// Bit of [`Header::flags`]: the inner loop scores generated features with the cosine
-/// similarity to the observation instead of D (the CosSim EMD variant).
-pub const FLAG_COSSIM: u32 = 4;
-
-/// Bit of [`Header::flags`]: the model was meta-trained with the inner loop in the
-/// [`AdaptMode::Full`](crate::memory::AdaptMode::Full) mode (every parameter of θ, ω and the
-/// actor head adapted in f32 RAM), so it must run in that mode. Without it the model runs in
-/// the [`AdaptMode::Efficient`](crate::memory::AdaptMode::Efficient) mode (per-unit gains and
-/// biases over the base weights), which is how every blob without the bit has always been
-/// run on the device. See [`Header::adapt_mode`].
-pub const FLAG_FULL_ADAPT: u32 = 8;
 
 /// The inner-loop settings of Algorithm 1 a model was trained with, stored in the header of
 /// a v2 blob (see the module docs) so that the device adapts exactly as the trainer did.
@@ -538,12 +346,12 @@ impl Header {
     /// The adaptation mode the model was meta-trained in and must run in:
     /// [`AdaptMode::Full`](crate::memory::AdaptMode::Full) with [`FLAG_FULL_ADAPT`], else
     /// [`AdaptMode::Efficient`](crate::memory::AdaptMode::Efficient).
-    pub fn adapt_mode(&self) -> crate::memory::AdaptMode {
-        if self.flags & FLAG_FULL_ADAPT != 0 {
-            crate::memory::AdaptMode::Full
-        } else {
-            crate::memory::AdaptMode::Efficient
-        }
+    pub fn adapt_mode(&self) -> AdaptMode {
+        self.model_flags().mode
+    }
+    /// The flags as the settings they stand for ([`ModelFlags::from_bits`]).
+    pub fn model_flags(&self) -> ModelFlags {
+        ModelFlags::from_bits(self.flags)
     }
     /// Format version of the parsed blob (1, 2 or 3).
     pub fn version(&self) -> u16 {
@@ -762,12 +570,6 @@ impl<'a> Blob<'a> {
     /// The header.
     pub fn header(&self) -> &Header {
         &self.header
-    }
-
-    /// The navigator configuration this blob asks for:
-    /// [`NavConfig::from_header`](crate::navigator::NavConfig::from_header) of its header.
-    pub fn nav_config(&self) -> crate::navigator::NavConfig {
-        crate::navigator::NavConfig::from_header(&self.header)
     }
 
     /// The dims the blob was made for.
@@ -997,7 +799,8 @@ pub fn encode_with_flags(
 /// Encodes a format-v2 blob for `dims`, model `flags` and the inner-loop `settings` the model
 /// was trained with, holding `tensors`, into `out`; returns the number of bytes written.
 /// Checks the settings ([`AdaptSettings::validate`]), shapes, finiteness and quantisation
-/// like the parser does, so what it writes always parses.
+/// like the parser does, so what it writes always parses. (A v3 blob when `dims` has a
+/// spatial map.) See [`Encoder`] for writing tensor by tensor.
 pub fn encode_with_settings(
     dims: &Dims,
     flags: u32,
@@ -1005,15 +808,56 @@ pub fn encode_with_settings(
     tensors: &[TensorSpec<'_>],
     out: &mut [u8],
 ) -> Result<usize, BlobError> {
-    settings.validate()?;
-    if out.len() < HEADER_RESERVE {
-        return Err(BlobError::BufferTooSmall);
-    }
-    let mut seen = [false; NUM_TENSORS];
-    let mut pos = HEADER_RESERVE;
+    let mut e = Encoder::new(dims, flags, settings, out)?;
     for t in tensors {
+        e.push(t)?;
+    }
+    e.finish()
+}
+
+/// The one emitter of blobs: writes tensor records one by one into the caller's buffer, then
+/// the header in front of them ([`Encoder::finish`]). The `encode*` functions and
+/// [`encode_model`] use it; it needs no allocation and no buffer beyond `out`.
+#[derive(Debug)]
+pub struct Encoder<'o> {
+    out: &'o mut [u8],
+    dims: Dims,
+    flags: u32,
+    settings: AdaptSettings,
+    seen: [bool; NUM_TENSORS],
+    n_tensors: u16,
+    pos: usize,
+}
+
+impl<'o> Encoder<'o> {
+    /// Starts a blob for `dims`, model `flags` and inner-loop `settings` in `out` (checks
+    /// the settings, then that `out` can hold a header).
+    pub fn new(
+        dims: &Dims,
+        flags: u32,
+        settings: AdaptSettings,
+        out: &'o mut [u8],
+    ) -> Result<Self, BlobError> {
+        settings.validate()?;
+        if out.len() < HEADER_RESERVE {
+            return Err(BlobError::BufferTooSmall);
+        }
+        Ok(Encoder {
+            out,
+            dims: *dims,
+            flags,
+            settings,
+            seen: [false; NUM_TENSORS],
+            n_tensors: 0,
+            pos: HEADER_RESERVE,
+        })
+    }
+
+    /// Appends one tensor record (checked like the parser checks it).
+    pub fn push(&mut self, t: &TensorSpec<'_>) -> Result<(), BlobError> {
+        let dims = &self.dims;
         let raw = t.id as u16;
-        if core::mem::replace(&mut seen[t.id as usize], true) {
+        if core::mem::replace(&mut self.seen[t.id as usize], true) {
             return Err(BlobError::DuplicateTensor { id: raw });
         }
         if !t.id.present(dims) {
@@ -1051,51 +895,140 @@ pub fn encode_with_settings(
             data,
             scales,
         };
-        let n = postcard::to_slice(&rec, &mut out[pos..])
+        let n = postcard::to_slice(&rec, &mut self.out[self.pos..])
             .map_err(|_| BlobError::BufferTooSmall)?
             .len();
-        pos += n;
+        self.pos += n;
+        self.n_tensors = self.n_tensors.wrapping_add(1);
+        Ok(())
     }
-    let payload_len = pos - HEADER_RESERVE;
-    let payload_crc = crc32(&out[HEADER_RESERVE..pos]);
-    let mut hbuf = [0u8; HEADER_RESERVE];
-    // The oldest version that can describe the model: v2 without a map, v3 with one.
-    let written = if dims.map_cells() == 0 && dims.map_rows == 0 && dims.map_cols == 0 {
-        postcard::to_slice(
-            &HeaderV2 {
-                magic: MAGIC,
-                version: 2,
-                dims: DimsRecord::from_dims(dims),
-                flags,
-                alpha_disc: settings.alpha_disc,
-                alpha_adapt: settings.alpha_adapt,
-                max_inner: settings.max_inner,
-                n_tensors: tensors.len() as u16,
-                payload_len: payload_len as u32,
-                payload_crc,
-            },
-            &mut hbuf,
-        )
-    } else {
-        postcard::to_slice(
-            &HeaderV3 {
-                magic: MAGIC,
-                version: FORMAT_VERSION,
-                dims: DimsRecord::from_dims(dims),
-                map: MapRecord::from_dims(dims),
-                flags,
-                alpha_disc: settings.alpha_disc,
-                alpha_adapt: settings.alpha_adapt,
-                max_inner: settings.max_inner,
-                n_tensors: tensors.len() as u16,
-                payload_len: payload_len as u32,
-                payload_crc,
-            },
-            &mut hbuf,
-        )
-    };
-    let hlen = written.map_err(|_| BlobError::BufferTooSmall)?.len();
-    out.copy_within(HEADER_RESERVE..pos, hlen);
-    out[..hlen].copy_from_slice(&hbuf[..hlen]);
-    Ok(hlen + payload_len)
+
+    /// Writes the header and returns the length of the blob, which starts at `out[0]`.
+    pub fn finish(self) -> Result<usize, BlobError> {
+        let Encoder {
+            out,
+            dims,
+            flags,
+            settings,
+            n_tensors,
+            pos,
+            ..
+        } = self;
+        let dims = &dims;
+        let payload_len = pos - HEADER_RESERVE;
+        let payload_crc = crc32(&out[HEADER_RESERVE..pos]);
+        let mut hbuf = [0u8; HEADER_RESERVE];
+        // The oldest version that can describe the model: v2 without a map, v3 with one.
+        let written = if dims.map_cells() == 0 && dims.map_rows == 0 && dims.map_cols == 0 {
+            postcard::to_slice(
+                &HeaderV2 {
+                    magic: MAGIC,
+                    version: 2,
+                    dims: DimsRecord::from_dims(dims),
+                    flags,
+                    alpha_disc: settings.alpha_disc,
+                    alpha_adapt: settings.alpha_adapt,
+                    max_inner: settings.max_inner,
+                    n_tensors,
+                    payload_len: payload_len as u32,
+                    payload_crc,
+                },
+                &mut hbuf,
+            )
+        } else {
+            postcard::to_slice(
+                &HeaderV3 {
+                    magic: MAGIC,
+                    version: FORMAT_VERSION,
+                    dims: DimsRecord::from_dims(dims),
+                    map: MapRecord::from_dims(dims),
+                    flags,
+                    alpha_disc: settings.alpha_disc,
+                    alpha_adapt: settings.alpha_adapt,
+                    max_inner: settings.max_inner,
+                    n_tensors,
+                    payload_len: payload_len as u32,
+                    payload_crc,
+                },
+                &mut hbuf,
+            )
+        };
+        let hlen = written.map_err(|_| BlobError::BufferTooSmall)?.len();
+        out.copy_within(HEADER_RESERVE..pos, hlen);
+        out[..hlen].copy_from_slice(&hbuf[..hlen]);
+        Ok(hlen + payload_len)
+    }
+}
+
+/// Bytes a blob of every tensor of `d` takes at most, in `quant` (matrices; vectors are
+/// always f32): the length of the `out` buffer [`encode_model`] needs (saturating).
+pub const fn encoded_model_len_bound(d: &Dims, quant: Quant) -> usize {
+    let mut n = HEADER_RESERVE;
+    let mut i = 0;
+    while i < TensorId::ALL.len() {
+        let id = TensorId::ALL[i];
+        i += 1;
+        if !id.present(d) {
+            continue;
+        }
+        let (r, c) = id.shape(d);
+        let rc = r.saturating_mul(c);
+        let bytes = match quant {
+            Quant::I8 if !id.is_vector() => rc.saturating_add(r.saturating_mul(4)),
+            _ => rc.saturating_mul(4),
+        };
+        n = n.saturating_add(32).saturating_add(bytes);
+    }
+    n
+}
+
+/// `(floats, bytes)` of scratch [`encode_model`] needs for `d`: the largest tensor plus its
+/// row scales as f32, and the largest tensor as int8 (saturating).
+pub const fn encode_model_scratch_len(d: &Dims) -> (usize, usize) {
+    let (n, rows) = crate::schema::max_tensor_len(d);
+    (n.saturating_add(rows), n)
+}
+
+/// Encodes a whole model of `dims` (every tensor of [`TensorId::all_for`], in storage order)
+/// whose f32 values `values(id, out)` writes into `out` (`rows * cols` floats), matrices
+/// int8-quantised per row when `quant` is [`Quant::I8`] (vectors stay f32): the one
+/// weights-to-blob builder of the workspace (seeded test weights, see
+/// [`crate::seeded`], and the host's exporter alike). `floats` and `bytes` are scratch of at
+/// least [`encode_model_scratch_len`]; `out` should be [`encoded_model_len_bound`] long.
+/// Returns the blob's length. Errors of `values` are passed through.
+#[allow(clippy::too_many_arguments)]
+pub fn encode_model<E: From<BlobError>>(
+    dims: &Dims,
+    flags: u32,
+    settings: AdaptSettings,
+    quant: Quant,
+    mut values: impl FnMut(TensorId, &mut [f32]) -> Result<(), E>,
+    out: &mut [u8],
+    floats: &mut [f32],
+    bytes: &mut [u8],
+) -> Result<usize, E> {
+    let mut e = Encoder::new(dims, flags, settings, out)?;
+    for id in TensorId::all_for(dims) {
+        let (r, c) = id.shape(dims);
+        let n = r * c;
+        if floats.len() < n + r || (quant == Quant::I8 && bytes.len() < n) {
+            return Err(BlobError::BufferTooSmall.into());
+        }
+        let (v, rest) = floats.split_at_mut(n);
+        values(id, v)?;
+        let data = if quant == Quant::I8 && !id.is_vector() {
+            let (q, s) = (&mut bytes[..n], &mut rest[..r]);
+            if v.iter().any(|x| !x.is_finite()) {
+                // int8 quantisation would hide it; report it as the f32 path does.
+                return Err(BlobError::NonFiniteWeight { id: id as u16 }.into());
+            }
+            crate::quant::quantize_rows(v, r, c, q, s)
+                .map_err(|_| BlobError::BadTensorShape { id: id as u16 })?;
+            TensorData::I8 { q, scales: s }
+        } else {
+            TensorData::F32(v)
+        };
+        e.push(&TensorSpec { id, data })?;
+    }
+    Ok(e.finish()?)
 }

@@ -14,7 +14,8 @@
 //! | D, parameters ω; L_D (Eq. 1, WGAN-GP); L_G (Eq. 2) | [`discriminator::Discriminator`] |
 //! | L_ad (Eq. 3) and its gradients | [`adapt`] |
 //! | LSTM actor-critic policy π, parameters φ | [`lstm`], [`dense`] |
-//! | weights | [`blob`] (postcard, CRC-32, int8/f32, zero-copy) |
+//! | every tensor, its shape, group and quantisation; the model flags | [`schema`] |
+//! | weights | [`blob`] (postcard, CRC-32, int8/f32, zero-copy; the wire format of [`schema`]) |
 //! | sizes | [`preset`] (`Paper`, `Mcu`, user-defined) |
 //!
 //! ## Design rules
@@ -46,6 +47,8 @@ pub mod policy;
 pub mod preset;
 pub mod quant;
 pub mod rng;
+pub mod schema;
+pub mod seeded;
 
 pub use action::{Action, NUM_ACTIONS};
 pub use error::{BlobError, Error, Result, ShapeError};

@@ -21,14 +21,7 @@
 use crate::preset::{sat, tri, Dims};
 use crate::NUM_ACTIONS;
 
-/// Which parameters adaptation updates, and where they live. See the module docs.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-pub enum AdaptMode {
-    /// All of θ, ω and the actor head in f32 RAM.
-    Full,
-    /// Per-unit gain and bias over int8 base weights in flash.
-    Efficient,
-}
+pub use crate::schema::AdaptMode;
 
 const fn max(a: usize, b: usize) -> usize {
     if a > b {
@@ -78,72 +71,25 @@ impl NavLayout {
     }
 
     /// The layout for `dims`, `mode` and buffer capacity `k`, or `None` when any region or
-    /// the total byte count overflows `usize` (checked arithmetic throughout).
+    /// the total byte count overflows `usize` (checked arithmetic throughout). Each field is
+    /// the sum of its regions of the arena table ([`region_lens`]).
     pub const fn try_new(d: &Dims, mode: AdaptMode, k: usize) -> Option<NavLayout> {
-        let (h, f, z, a, dh, lh, e) = (
-            d.gen_hidden,
-            d.feat,
-            d.noise,
-            d.attr,
-            d.disc_hidden,
-            d.lstm_hidden,
-            d.embed,
-        );
-        let gain = matches!(mode, AdaptMode::Efficient);
-        let gen_params = match mode {
-            AdaptMode::Full => tri!(d.checked_gen_params()),
-            AdaptMode::Efficient => tri!(tri!(h.checked_add(f)).checked_mul(2)),
-        };
-        let disc_params = match mode {
-            AdaptMode::Full => tri!(d.checked_disc_params()),
-            AdaptMode::Efficient => tri!(tri!(dh.checked_mul(3)).checked_add(1)),
-        };
-        let lh4 = tri!(lh.checked_mul(4));
-        let actor_params = match mode {
-            AdaptMode::Full => tri!(tri!(lh.checked_mul(NUM_ACTIONS)).checked_add(NUM_ACTIONS)),
-            AdaptMode::Efficient => 2 * NUM_ACTIONS,
-        };
-        let map = tri!(d.map_rows.checked_mul(d.map_cols)) > 0;
-        let cell_b = if map { d.cell_embed } else { 0 };
-        let fixed_biases = tri!(tri!(tri!(e.checked_add(lh4)).checked_add(1)).checked_add(cell_b));
-        let grads = tri!(tri!(gen_params.checked_add(disc_params)).checked_add(actor_params));
-        let per_step = tri!(tri!(tri!(f.checked_add(z)).checked_add(NUM_ACTIONS)).checked_add(lh));
-        let psi = tri!(k.checked_mul(per_step));
-        // With gains (Efficient) some buffers exist, otherwise they are empty (`g` is 0 or 1).
-        let g = if gain { 1 } else { 0 };
-        let gen_work = tri!(sum(&[g * h, h, g * f, f, f, h, h, max(f, h)]));
-        let disc_work = tri!(sum(&[
-            g * dh,
-            tri!(dh.checked_mul(3)),
-            tri!(f.checked_mul(2))
-        ]));
-        let adapt_work = tri!(sum(&[
-            tri!(k.checked_mul(3)),
-            tri!(k.checked_mul(NUM_ACTIONS)),
-            f
-        ]));
-        let policy_work = tri!(sum(&[
-            f,
-            e,
-            lh4,
-            lh4,
-            4 * NUM_ACTIONS,
-            g * NUM_ACTIONS,
-            z,
-            a,
-            d.ps,
-            tri!(d.checked_cell_out()),
-            if map { f } else { 0 }
-        ]));
-        let work = tri!(sum(&[gen_work, disc_work, adapt_work, policy_work]));
+        let lens = tri!(region_lens(d, mode, k));
+        let mut sums = [0usize; 7];
+        let mut i = 0;
+        while i < NUM_REGIONS {
+            let g = REGION_PART[i] as usize;
+            sums[g] = tri!(sums[g].checked_add(lens[i]));
+            i += 1;
+        }
         let l = NavLayout {
-            gen_params,
-            disc_params,
-            actor_params,
-            fixed_biases,
-            grads,
-            psi,
-            work,
+            gen_params: sums[Part::GenParams as usize],
+            disc_params: sums[Part::DiscParams as usize],
+            actor_params: sums[Part::ActorParams as usize],
+            fixed_biases: sums[Part::FixedBiases as usize],
+            grads: sums[Part::Grads as usize],
+            psi: sums[Part::Psi as usize],
+            work: sums[Part::Work as usize],
         };
         // The total in floats and in bytes must fit as well.
         tri!(tri!(l.checked_total_floats()).checked_mul(4));
@@ -171,6 +117,140 @@ impl NavLayout {
     pub const fn total_bytes(&self) -> usize {
         self.total_floats().saturating_mul(4)
     }
+}
+
+/// The [`NavLayout`] field a region of the arena counts towards.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum Part {
+    GenParams,
+    DiscParams,
+    ActorParams,
+    FixedBiases,
+    Grads,
+    Psi,
+    Work,
+}
+
+macro_rules! arena_regions {
+    (|$d:ident, $full:ident, $g:ident, $k:ident, $map:ident, $gen_in:ident|
+     $($(#[$m:meta])* $name:ident in $part:ident = $len:expr;)*) => {
+        /// One region of the navigator's arena, in carve order (`Ram::carve` in
+        /// `navigator.rs` takes each by name; [`NavLayout`] sums them per field).
+        #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+        #[allow(missing_docs)]
+        pub(crate) enum Region { $($(#[$m])* $name),* }
+
+        /// Number of regions.
+        pub(crate) const NUM_REGIONS: usize = [$(Region::$name),*].len();
+
+        const REGION_PART: [Part; NUM_REGIONS] = [$(Part::$part),*];
+
+        /// Length in f32 of every region, in carve order, for `d`, `mode` and buffer
+        /// capacity `k` (`None` when one overflows `usize`). The one statement of the arena
+        /// layout.
+        pub(crate) const fn region_lens(
+            $d: &Dims,
+            mode: AdaptMode,
+            $k: usize,
+        ) -> Option<[usize; NUM_REGIONS]> {
+            let $full = matches!(mode, AdaptMode::Full);
+            // With gains (Efficient) some buffers exist, otherwise they are empty.
+            let $g: usize = if $full { 0 } else { 1 };
+            let $map = tri!($d.map_rows.checked_mul($d.map_cols)) > 0;
+            let $gen_in = tri!($d.checked_gen_in());
+            Some([$($len),*])
+        }
+    };
+}
+
+/// `n` in `Full` mode, else 0.
+const fn if_full(full: bool, n: Option<usize>) -> Option<usize> {
+    if full {
+        n
+    } else {
+        Some(0)
+    }
+}
+
+arena_regions! { |d, full, g, k, map, gen_in|
+    // Adapted G (θ, or its gains and biases): weights in Full, gains in Efficient, biases.
+    Gen1W in GenParams = tri!(if_full(full, d.gen_hidden.checked_mul(gen_in)));
+    Gen1Gain in GenParams = g * d.gen_hidden;
+    Gen1B in GenParams = d.gen_hidden;
+    Gen2W in GenParams = tri!(if_full(full, d.feat.checked_mul(d.gen_hidden)));
+    Gen2Gain in GenParams = g * d.feat;
+    Gen2B in GenParams = d.feat;
+    // D in RAM (ω, or its hidden layer's gains and biases and its output layer).
+    Disc1W in DiscParams = tri!(if_full(full, d.disc_hidden.checked_mul(d.feat)));
+    Disc1Gain in DiscParams = g * d.disc_hidden;
+    Disc1B in DiscParams = d.disc_hidden;
+    DiscW2 in DiscParams = d.disc_hidden;
+    DiscB2 in DiscParams = 1;
+    // The adapted actor head.
+    ActorW in ActorParams = tri!(if_full(full, d.lstm_hidden.checked_mul(NUM_ACTIONS)));
+    ActorGain in ActorParams = g * NUM_ACTIONS;
+    ActorB in ActorParams = NUM_ACTIONS;
+    // Biases of the layers read in place from the blob.
+    FuseB in FixedBiases = d.embed;
+    LstmB in FixedBiases = tri!(d.lstm_hidden.checked_mul(4));
+    CriticB in FixedBiases = 1;
+    CellB in FixedBiases = if map { d.cell_embed } else { 0 };
+    // Gradients: dW (Full) or dgain (Efficient), and db, of each adapted layer.
+    GGen1A in Grads = if full { tri!(d.gen_hidden.checked_mul(gen_in)) } else { d.gen_hidden };
+    GGen1B in Grads = d.gen_hidden;
+    GGen2A in Grads = if full { tri!(d.feat.checked_mul(d.gen_hidden)) } else { d.feat };
+    GGen2B in Grads = d.feat;
+    GDisc1A in Grads = if full { tri!(d.disc_hidden.checked_mul(d.feat)) } else { d.disc_hidden };
+    GDisc1B in Grads = d.disc_hidden;
+    GDiscW2 in Grads = d.disc_hidden;
+    GDiscB2 in Grads = 1;
+    GActorA in Grads = if full { tri!(d.lstm_hidden.checked_mul(NUM_ACTIONS)) } else { NUM_ACTIONS };
+    GActorB in Grads = NUM_ACTIONS;
+    // Ψ: k observations, noises, action probabilities and LSTM hidden states.
+    PsiS in Psi = tri!(k.checked_mul(d.feat));
+    PsiZ in Psi = tri!(k.checked_mul(d.noise));
+    PsiP in Psi = tri!(k.checked_mul(NUM_ACTIONS));
+    PsiH in Psi = tri!(k.checked_mul(d.lstm_hidden));
+    // G activations and scratch.
+    U1 in Work = g * d.gen_hidden;
+    H1 in Work = d.gen_hidden;
+    U2 in Work = g * d.feat;
+    X in Work = d.feat;
+    DPre2 in Work = d.feat;
+    DH1 in Work = d.gen_hidden;
+    DPre1 in Work = d.gen_hidden;
+    GTmp in Work = max(d.feat, d.gen_hidden);
+    // D scratch.
+    DU in Work = g * d.disc_hidden;
+    DH in Work = d.disc_hidden;
+    DV in Work = d.disc_hidden;
+    DW1G in Work = d.disc_hidden;
+    DG in Work = d.feat;
+    DMix in Work = d.feat;
+    // Adaptation work.
+    Eps in Work = k;
+    D in Work = k;
+    DD in Work = k;
+    DProbs in Work = tri!(k.checked_mul(NUM_ACTIONS));
+    DX in Work = d.feat;
+    // Policy work and state.
+    Prod in Work = d.feat;
+    Fuse in Work = d.embed;
+    Gates in Work = tri!(d.lstm_hidden.checked_mul(4));
+    HNew in Work = d.lstm_hidden;
+    CNew in Work = d.lstm_hidden;
+    HState in Work = d.lstm_hidden;
+    CState in Work = d.lstm_hidden;
+    Logits in Work = NUM_ACTIONS;
+    Probs in Work = NUM_ACTIONS;
+    PrevProbs in Work = NUM_ACTIONS;
+    DLogits in Work = NUM_ACTIONS;
+    ActorU in Work = g * NUM_ACTIONS;
+    Z in Work = d.noise;
+    Attr in Work = d.attr;
+    Ps in Work = d.ps;
+    Cell in Work = tri!(d.checked_cell_out());
+    CellProd in Work = if map { d.feat } else { 0 };
 }
 
 /// Checked sum of `v`.
@@ -261,7 +341,7 @@ mod tests {
 
     #[test]
     fn int8_bytes_match_tensor_shapes() {
-        use crate::blob::TensorId;
+        use crate::schema::TensorId;
         for d in [
             Dims::PAPER,
             Dims::MCU,
@@ -274,6 +354,113 @@ mod tests {
                 bytes += if id.is_vector() { 4 * r } else { r * c + 4 * r };
             }
             assert_eq!(bytes, int8_weight_bytes(&d));
+        }
+    }
+
+    /// The layout derived from the region table is the one the hand-written formulas of
+    /// earlier builds gave (figures printed by that code for these dims, modes and k).
+    #[test]
+    fn region_table_gives_the_pinned_layout() {
+        let expected = [
+            (
+                AdaptMode::Full,
+                1,
+                [154880, 32897, 390, 321, 188167, 627, 5243],
+            ),
+            (
+                AdaptMode::Full,
+                20,
+                [154880, 32897, 390, 321, 188167, 12540, 5414],
+            ),
+            (
+                AdaptMode::Efficient,
+                1,
+                [1536, 193, 12, 321, 1741, 627, 6081],
+            ),
+            (
+                AdaptMode::Efficient,
+                20,
+                [1536, 193, 12, 321, 1741, 12540, 6252],
+            ),
+            (
+                AdaptMode::Full,
+                1,
+                [2470400, 526337, 3078, 2561, 2999815, 1075, 27259],
+            ),
+            (
+                AdaptMode::Full,
+                20,
+                [2470400, 526337, 3078, 2561, 2999815, 21500, 27430],
+            ),
+            (
+                AdaptMode::Efficient,
+                1,
+                [9216, 3073, 12, 2561, 12301, 1075, 32897],
+            ),
+            (
+                AdaptMode::Efficient,
+                20,
+                [9216, 3073, 12, 2561, 12301, 21500, 33068],
+            ),
+            (
+                AdaptMode::Full,
+                1,
+                [154880, 32897, 390, 321, 188167, 627, 5288],
+            ),
+            (
+                AdaptMode::Full,
+                20,
+                [154880, 32897, 390, 321, 188167, 12540, 5459],
+            ),
+            (
+                AdaptMode::Efficient,
+                1,
+                [1536, 193, 12, 321, 1741, 627, 6126],
+            ),
+            (
+                AdaptMode::Efficient,
+                20,
+                [1536, 193, 12, 321, 1741, 12540, 6297],
+            ),
+            (
+                AdaptMode::Full,
+                1,
+                [154880, 32897, 390, 329, 188167, 627, 5827],
+            ),
+            (
+                AdaptMode::Full,
+                20,
+                [154880, 32897, 390, 329, 188167, 12540, 5998],
+            ),
+            (
+                AdaptMode::Efficient,
+                1,
+                [1536, 193, 12, 329, 1741, 627, 6665],
+            ),
+            (
+                AdaptMode::Efficient,
+                20,
+                [1536, 193, 12, 329, 1741, 12540, 6836],
+            ),
+        ];
+        let dims = [
+            Dims::MCU,
+            Dims::PAPER,
+            Dims::MCU.with_ps(),
+            Dims::MCU.with_map(3, 3, 8),
+        ];
+        for (i, (mode, k, e)) in expected.iter().enumerate() {
+            let l = NavLayout::new(&dims[i / 4], *mode, *k);
+            let got = [
+                l.gen_params,
+                l.disc_params,
+                l.actor_params,
+                l.fixed_biases,
+                l.grads,
+                l.psi,
+                l.work,
+            ];
+            assert_eq!(got, *e, "{:?} {mode:?} k={k}", dims[i / 4]);
         }
     }
 

@@ -49,24 +49,14 @@
 //! use gman_core::memory::{arena_len, AdaptMode};
 //! use gman_core::blob::Blob;
 //! use gman_core::Dims;
-//! # use gman_core::blob::{encode_with_flags, encoded_len_bound, TensorData, TensorId, TensorSpec, FLAG_ADAPT};
+//! # use gman_core::blob::{encode_model_scratch_len, encoded_model_len_bound, AdaptSettings, Quant};
+//! # use gman_core::schema::FLAG_ADAPT;
 //! # // Hidden: make an Mcu int8 blob from seeded weights (a firmware embeds a trained one).
 //! # let d = Dims::MCU;
-//! # let mut rng = gman_core::rng::Xoshiro128::seed_from_u64(1);
-//! # let mut store = Vec::new();
-//! # for id in TensorId::all_for(&d) {
-//! #     let (r, c) = id.shape(&d);
-//! #     let mut v = vec![0.0f32; r * c];
-//! #     gman_core::rng::fill_gaussian(&mut rng, &mut v);
-//! #     v.iter_mut().for_each(|x| *x *= 0.05);
-//! #     let (mut q, mut s) = (vec![0u8; r * c], vec![0.0f32; r]);
-//! #     gman_core::quant::quantize_rows(&v, r, c, &mut q, &mut s).unwrap();
-//! #     store.push((id, v, q, s));
-//! # }
-//! # let specs: Vec<_> = store.iter().map(|(id, v, q, s)| TensorSpec { id: *id,
-//! #     data: if id.is_vector() { TensorData::F32(v) } else { TensorData::I8 { q, scales: s } } }).collect();
-//! # let mut bytes = vec![0u8; encoded_len_bound(&specs)];
-//! # let n = encode_with_flags(&d, FLAG_ADAPT, &specs, &mut bytes).unwrap();
+//! # let mut bytes = vec![0u8; encoded_model_len_bound(&d, Quant::I8)];
+//! # let (nf, nb) = encode_model_scratch_len(&d);
+//! # let n = gman_core::seeded::encode_seeded(&d, FLAG_ADAPT, AdaptSettings::PAPER, Quant::I8,
+//! #     1, 0.05, &mut bytes, &mut vec![0.0; nf], &mut vec![0; nb]).unwrap();
 //! # bytes.truncate(n);
 //! // In firmware: `static BLOB: &[u8] = include_bytes!("model.gman");` and a static arena.
 //! const LEN: usize = arena_len(&Dims::MCU, AdaptMode::Efficient, 20);
@@ -92,19 +82,19 @@ use core::marker::PhantomData;
 
 use crate::activation::{all_finite, softmax_backward};
 use crate::adapt::{adapt_generator_grad, adapt_generator_grad_cos, AdaptLossKind, AdaptWork};
-use crate::blob::{
-    AdaptSettings, Blob, Header, TensorId, FLAG_ADAPT, FLAG_COSSIM, FLAG_ZERO_NOISE, NUM_TENSORS,
-};
+use crate::blob::{AdaptSettings, Blob, Header};
 use crate::dense::{Dense, DenseGrads};
 use crate::discriminator::{DiscGrads, DiscScratch, Discriminator, LdConfig, LdValue};
 use crate::error::{check_len, Error, Result};
 use crate::generator::{Generator, GeneratorCache, GeneratorScratch};
 use crate::lstm::Lstm;
 use crate::matrix::MatRef;
-use crate::memory::{arena_len, AdaptMode};
+use crate::memory::{arena_len, region_lens, AdaptMode, Region, NUM_REGIONS};
 use crate::policy::{Policy, PolicyCache, PolicyInput};
 use crate::preset::Dims;
 use crate::rng::{fill_gaussian, uniform, Xoshiro128};
+pub use crate::schema::{Emd, NoiseMode};
+use crate::schema::{ModelFlags, TensorId, NUM_TENSORS};
 use crate::{Action, NUM_ACTIONS};
 
 /// Compile-time choice of the adaptation mode (see [`AdaptMode`]).
@@ -127,16 +117,6 @@ impl Mode for Efficient {
     const MODE: AdaptMode = AdaptMode::Efficient;
 }
 
-/// Noise z fed to G at navigation time.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
-pub enum NoiseMode {
-    /// A fresh N(0, I) sample every step (the paper's G(SE(y), z) with random z). Default.
-    #[default]
-    Gaussian,
-    /// z = 0 always (the reference implementation); then x_t only changes when θ adapts.
-    Zero,
-}
-
 /// How the action is chosen from the probabilities.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
 pub enum Selection {
@@ -145,16 +125,6 @@ pub enum Selection {
     Greedy,
     /// A sample from the probabilities, with the navigator's seeded generator.
     Sample,
-}
-
-/// What scores the generated features in L_ad (the EMD variants of the paper's Table 3).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
-pub enum Emd {
-    /// The learned discriminator D (GMAN). Default.
-    #[default]
-    Discriminator,
-    /// The cosine similarity between x_t and s_t ("CosSim"); D is not used or updated.
-    CosSim,
 }
 
 /// When the inner update runs.
@@ -206,8 +176,8 @@ impl NavConfig {
     /// The navigator configuration a weight blob asks for, from its header.
     ///
     /// A blob records how its model was trained: whether the method adapts at inference
-    /// ([`FLAG_ADAPT`]), what scores the generated features ([`FLAG_COSSIM`]), which noise
-    /// drives G ([`FLAG_ZERO_NOISE`]) and, from format v2 on, the inner-loop rates and the cap
+    /// ([`FLAG_ADAPT`](crate::schema::FLAG_ADAPT)), what scores the generated features ([`FLAG_COSSIM`](crate::schema::FLAG_COSSIM)), which noise
+    /// drives G ([`FLAG_ZERO_NOISE`](crate::schema::FLAG_ZERO_NOISE)) and, from format v2 on, the inner-loop rates and the cap
     /// on inner updates ([`AdaptSettings`]; a v1 blob reports the paper's). Any loader — the
     /// firmware, the host's evaluation, a user's controller — must run the model with exactly
     /// these settings: the host meta-trained and evaluated the weights with them, so a device
@@ -218,13 +188,13 @@ impl NavConfig {
     /// ever disagreeing.
     ///
     /// The result is [`NavConfig::default`] with:
-    /// * `adapt` = the header has [`FLAG_ADAPT`];
-    /// * `emd` = [`Emd::CosSim`] if it has [`FLAG_COSSIM`], else [`Emd::Discriminator`];
-    /// * `noise` = [`NoiseMode::Zero`] if it has [`FLAG_ZERO_NOISE`], else
+    /// * `adapt` = the header has [`FLAG_ADAPT`](crate::schema::FLAG_ADAPT);
+    /// * `emd` = [`Emd::CosSim`] if it has [`FLAG_COSSIM`](crate::schema::FLAG_COSSIM), else [`Emd::Discriminator`];
+    /// * `noise` = [`NoiseMode::Zero`] if it has [`FLAG_ZERO_NOISE`](crate::schema::FLAG_ZERO_NOISE), else
     ///   [`NoiseMode::Gaussian`];
     /// * `alpha_disc`, `alpha_adapt`, `max_inner_updates` = [`Header::alpha_disc`],
     ///   [`Header::alpha_adapt`], [`Header::max_inner`] (v1: 1e-4, 1e-4, 4);
-    /// * `mode` = [`Header::adapt_mode`] (Full with [`FLAG_FULL_ADAPT`](crate::blob::FLAG_FULL_ADAPT), else
+    /// * `mode` = [`Header::adapt_mode`] (Full with [`FLAG_FULL_ADAPT`](crate::schema::FLAG_FULL_ADAPT), else
     ///   Efficient), so
     ///   that a navigator of the other mode refuses an adapting model.
     ///
@@ -238,26 +208,31 @@ impl NavConfig {
     /// [`Blob::parse`]), so the result is accepted by [`Navigator::new`] as far as the rates
     /// are concerned. See also [`Blob::nav_config`].
     pub fn from_header(header: &Header) -> NavConfig {
-        let flags = header.flags();
+        let ModelFlags {
+            adapt,
+            emd,
+            noise,
+            mode,
+        } = header.model_flags();
         let settings = header.adapt_settings();
         NavConfig {
-            adapt: flags & FLAG_ADAPT != 0,
-            emd: if flags & FLAG_COSSIM != 0 {
-                Emd::CosSim
-            } else {
-                Emd::Discriminator
-            },
-            noise: if flags & FLAG_ZERO_NOISE != 0 {
-                NoiseMode::Zero
-            } else {
-                NoiseMode::Gaussian
-            },
+            adapt,
+            emd,
+            noise,
             alpha_disc: settings.alpha_disc,
             alpha_adapt: settings.alpha_adapt,
             max_inner_updates: settings.max_inner,
-            mode: Some(header.adapt_mode()),
+            mode: Some(mode),
             ..NavConfig::default()
         }
+    }
+}
+
+impl Blob<'_> {
+    /// The navigator configuration this blob asks for: [`NavConfig::from_header`] of its
+    /// header.
+    pub fn nav_config(&self) -> NavConfig {
+        NavConfig::from_header(self.header())
     }
 }
 
@@ -399,13 +374,15 @@ fn copy_mat(m: &MatRef<'_>, out: &mut [f32]) -> Result<()> {
     m.copy_to(out)
 }
 
+const ARENA_TOO_SMALL: Error = Error::Config {
+    what: "arena too small for these dims, mode and k (see memory::arena_len)",
+};
+
 /// Takes the next `n` floats of the arena.
 fn take<'a>(rest: &mut &'a mut [f32], n: usize) -> Result<&'a mut [f32]> {
     let r = core::mem::take(rest);
     if r.len() < n {
-        return Err(Error::Config {
-            what: "arena too small for these dims, mode and k (see memory::arena_len)",
-        });
+        return Err(ARENA_TOO_SMALL);
     }
     let (a, b) = r.split_at_mut(n);
     *rest = b;
@@ -421,14 +398,6 @@ struct LayerRam<'w> {
 }
 
 impl<'w> LayerRam<'w> {
-    fn carve(rest: &mut &'w mut [f32], full: bool, rows: usize, cols: usize) -> Result<Self> {
-        Ok(LayerRam {
-            w: take(rest, if full { rows * cols } else { 0 })?,
-            gain: take(rest, if full { 0 } else { rows })?,
-            b: take(rest, rows)?,
-        })
-    }
-
     fn view<'s>(&'s self, base: MatRef<'s>) -> Result<Dense<'s>> {
         let w = if self.w.is_empty() {
             base
@@ -464,13 +433,6 @@ struct LayerGrad<'w> {
 }
 
 impl<'w> LayerGrad<'w> {
-    fn carve(rest: &mut &'w mut [f32], full: bool, rows: usize, cols: usize) -> Result<Self> {
-        Ok(LayerGrad {
-            a: take(rest, if full { rows * cols } else { rows })?,
-            b: take(rest, rows)?,
-            full,
-        })
-    }
     fn grads(&mut self) -> DenseGrads<'_> {
         if self.full {
             DenseGrads::Full {
@@ -584,79 +546,87 @@ struct Ram<'w> {
 }
 
 impl<'w> Ram<'w> {
+    /// Carves the regions of [`crate::memory`]'s arena table (the one statement of their
+    /// order and sizes) from `arena`; returns them and the floats used.
     fn carve(arena: &'w mut [f32], d: &Dims, mode: AdaptMode, k: usize) -> Result<(Self, usize)> {
         let total = arena.len();
-        let r = &mut &mut *arena;
+        let lens = region_lens(d, mode, k).ok_or(ARENA_TOO_SMALL)?;
         let full = mode == AdaptMode::Full;
-        let g = if full { 0 } else { 1 };
-        let (h, f, z, a, dh, lh, e) = (
-            d.gen_hidden,
-            d.feat,
-            d.noise,
-            d.attr,
-            d.disc_hidden,
-            d.lstm_hidden,
-            d.embed,
-        );
+        let mut rest = arena;
+        let mut short = false;
+        let mut regions: [&'w mut [f32]; NUM_REGIONS] =
+            core::array::from_fn(|i| match take(&mut rest, lens[i]) {
+                Ok(s) => s,
+                Err(_) => {
+                    short = true;
+                    &mut []
+                }
+            });
+        if short {
+            return Err(ARENA_TOO_SMALL);
+        }
+        let used = total - rest.len();
+        let mut t = |r: Region| core::mem::take(&mut regions[r as usize]);
+        let layer = |w, gain, b| LayerRam { w, gain, b };
+        let grad = |a, b| LayerGrad { a, b, full };
         let ram = Ram {
-            gen1: LayerRam::carve(r, full, h, d.gen_in())?,
-            gen2: LayerRam::carve(r, full, f, h)?,
-            disc1: LayerRam::carve(r, full, dh, f)?,
-            disc_w2: take(r, dh)?,
-            disc_b2: take(r, 1)?,
-            actor: LayerRam::carve(r, full, NUM_ACTIONS, lh)?,
-            fuse_b: take(r, e)?,
-            lstm_b: take(r, 4 * lh)?,
-            critic_b: take(r, 1)?,
-            cell_b: take(r, if d.map_cells() > 0 { d.cell_embed } else { 0 })?,
-            g_gen1: LayerGrad::carve(r, full, h, d.gen_in())?,
-            g_gen2: LayerGrad::carve(r, full, f, h)?,
-            g_disc1: LayerGrad::carve(r, full, dh, f)?,
-            g_disc_w2: take(r, dh)?,
-            g_disc_b2: take(r, 1)?,
-            g_actor: LayerGrad::carve(r, full, NUM_ACTIONS, lh)?,
-            psi_s: take(r, k * f)?,
-            psi_z: take(r, k * z)?,
-            psi_p: take(r, k * NUM_ACTIONS)?,
-            psi_h: take(r, k * lh)?,
-            u1: take(r, g * h)?,
-            h1: take(r, h)?,
-            u2: take(r, g * f)?,
-            x: take(r, f)?,
-            dpre2: take(r, f)?,
-            dh1: take(r, h)?,
-            dpre1: take(r, h)?,
-            gtmp: take(r, f.max(h))?,
-            du: take(r, g * dh)?,
-            dh: take(r, dh)?,
-            dv: take(r, dh)?,
-            dw1g: take(r, dh)?,
-            dg: take(r, f)?,
-            dmix: take(r, f)?,
-            eps: take(r, k)?,
-            d: take(r, k)?,
-            dd: take(r, k)?,
-            dprobs: take(r, k * NUM_ACTIONS)?,
-            dx: take(r, f)?,
-            prod: take(r, f)?,
-            fuse: take(r, e)?,
-            gates: take(r, 4 * lh)?,
-            h: take(r, lh)?,
-            c: take(r, lh)?,
-            h_state: take(r, lh)?,
-            c_state: take(r, lh)?,
-            logits: take(r, NUM_ACTIONS)?,
-            probs: take(r, NUM_ACTIONS)?,
-            prev_probs: take(r, NUM_ACTIONS)?,
-            dlogits: take(r, NUM_ACTIONS)?,
-            actor_u: take(r, g * NUM_ACTIONS)?,
-            z: take(r, z)?,
-            attr: take(r, a)?,
-            ps: take(r, d.ps)?,
-            cell: take(r, d.cell_out())?,
-            cell_prod: take(r, if d.map_cells() > 0 { f } else { 0 })?,
+            gen1: layer(t(Region::Gen1W), t(Region::Gen1Gain), t(Region::Gen1B)),
+            gen2: layer(t(Region::Gen2W), t(Region::Gen2Gain), t(Region::Gen2B)),
+            disc1: layer(t(Region::Disc1W), t(Region::Disc1Gain), t(Region::Disc1B)),
+            disc_w2: t(Region::DiscW2),
+            disc_b2: t(Region::DiscB2),
+            actor: layer(t(Region::ActorW), t(Region::ActorGain), t(Region::ActorB)),
+            fuse_b: t(Region::FuseB),
+            lstm_b: t(Region::LstmB),
+            critic_b: t(Region::CriticB),
+            cell_b: t(Region::CellB),
+            g_gen1: grad(t(Region::GGen1A), t(Region::GGen1B)),
+            g_gen2: grad(t(Region::GGen2A), t(Region::GGen2B)),
+            g_disc1: grad(t(Region::GDisc1A), t(Region::GDisc1B)),
+            g_disc_w2: t(Region::GDiscW2),
+            g_disc_b2: t(Region::GDiscB2),
+            g_actor: grad(t(Region::GActorA), t(Region::GActorB)),
+            psi_s: t(Region::PsiS),
+            psi_z: t(Region::PsiZ),
+            psi_p: t(Region::PsiP),
+            psi_h: t(Region::PsiH),
+            u1: t(Region::U1),
+            h1: t(Region::H1),
+            u2: t(Region::U2),
+            x: t(Region::X),
+            dpre2: t(Region::DPre2),
+            dh1: t(Region::DH1),
+            dpre1: t(Region::DPre1),
+            gtmp: t(Region::GTmp),
+            du: t(Region::DU),
+            dh: t(Region::DH),
+            dv: t(Region::DV),
+            dw1g: t(Region::DW1G),
+            dg: t(Region::DG),
+            dmix: t(Region::DMix),
+            eps: t(Region::Eps),
+            d: t(Region::D),
+            dd: t(Region::DD),
+            dprobs: t(Region::DProbs),
+            dx: t(Region::DX),
+            prod: t(Region::Prod),
+            fuse: t(Region::Fuse),
+            gates: t(Region::Gates),
+            h: t(Region::HNew),
+            c: t(Region::CNew),
+            h_state: t(Region::HState),
+            c_state: t(Region::CState),
+            logits: t(Region::Logits),
+            probs: t(Region::Probs),
+            prev_probs: t(Region::PrevProbs),
+            dlogits: t(Region::DLogits),
+            actor_u: t(Region::ActorU),
+            z: t(Region::Z),
+            attr: t(Region::Attr),
+            ps: t(Region::Ps),
+            cell: t(Region::Cell),
+            cell_prod: t(Region::CellProd),
         };
-        let used = total - r.len();
         Ok((ram, used))
     }
 }

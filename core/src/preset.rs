@@ -274,7 +274,7 @@ impl Dims {
         f32_bytes.is_some()
             && self.checked_macs_per_step().is_some()
             && crate::memory::checked_int8_weight_bytes(self).is_some()
-            && crate::blob::checked_tensor_bytes(self)
+            && crate::schema::checked_tensor_bytes(self)
             && crate::memory::NavLayout::try_new(self, crate::memory::AdaptMode::Full, 1).is_some()
             && crate::memory::NavLayout::try_new(self, crate::memory::AdaptMode::Efficient, 1)
                 .is_some()

@@ -648,3 +648,53 @@ fn v3_blobs_carry_the_spatial_map() {
         assert!(Blob::parse(&bytes[..n]).is_err());
     }
 }
+
+/// The one seeded-weights builder writes, byte for byte, the blobs the six hand-written
+/// builders it replaced wrote: length and CRC-32 of the whole blob, pinned from the code
+/// before the schema refactor (N(0, 0.05) weights, seed 1, `FLAG_ADAPT`, paper settings).
+#[test]
+fn seeded_builder_bytes_are_pinned() {
+    use gman_core::blob::{encode_model_scratch_len, encoded_model_len_bound};
+    for (d, int8, len, crc) in [
+        (Dims::MCU, false, 1_291_718, 0x3909_b8dd),
+        (Dims::MCU, true, 332_202, 0xde6c_960a),
+        (Dims::PAPER, false, 23_650_521, 0x7cea_f01d),
+        (Dims::PAPER, true, 5_978_364, 0x8b28_d7e6),
+        (Dims::MCU.with_map(3, 3, 8), false, 1_342_968, 0xcdfa_e770),
+        (Dims::MCU.with_map(3, 3, 8), true, 345_083, 0x843e_b694),
+    ] {
+        let quant = if int8 { Quant::I8 } else { Quant::F32 };
+        let mut out = vec![0u8; encoded_model_len_bound(&d, quant)];
+        let (nf, nb) = encode_model_scratch_len(&d);
+        let n = gman_core::seeded::encode_seeded(
+            &d,
+            FLAG_ADAPT,
+            AdaptSettings::PAPER,
+            quant,
+            1,
+            0.05,
+            &mut out,
+            &mut vec![0.0; nf],
+            &mut vec![0; nb],
+        )
+        .unwrap();
+        out.truncate(n);
+        assert_eq!(
+            (out.len(), gman_core::crc32::crc32(&out)),
+            (len, crc),
+            "{d:?} int8={int8}"
+        );
+    }
+}
+
+/// [`common::seeded_blob`] (the builder) equals encoding the spec list of
+/// [`common::random_tensors`] by hand, for f32 and int8, with and without a map.
+#[test]
+fn seeded_builder_equals_the_spec_list_encoder() {
+    for d in [SMALL, SMALL.with_map(2, 3, 4)] {
+        for int8 in [false, true] {
+            let by_hand = make_blob(&d, &random_tensors(&d, 9), int8);
+            assert_eq!(seeded_blob(&d, 9, int8, 0), by_hand, "{d:?} int8={int8}");
+        }
+    }
+}

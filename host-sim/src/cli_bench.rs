@@ -14,11 +14,10 @@ use std::time::Instant;
 
 use anyhow::{anyhow, Context, Result};
 use clap::{Args, ValueEnum};
-use gman_core::blob::{encode, encoded_len_bound, Blob, TensorData, TensorId, TensorSpec};
+use gman_core::blob::{Blob, TensorId};
 use gman_core::matrix::MatRef;
 use gman_core::navigator::{Efficient, Full, Mode, NavConfig, NavWeights, Navigator};
-use gman_core::quant::quantize_rows;
-use gman_core::rng::{fill_gaussian, uniform, Xoshiro128};
+use gman_core::rng::{uniform, Xoshiro128};
 use gman_core::Dims;
 use gman_host_sim::nav::model::{Method, NavModel};
 use gman_host_sim::nav::trainer::{train, TrainOptions, TrainState};
@@ -248,44 +247,33 @@ fn measure_limits(a: &BenchArgs) -> Limits {
 
 /// Seeded weights, as in `core/benches/navigator.rs`.
 fn tensors(d: &Dims) -> Vec<Vec<f32>> {
-    let mut rng = Xoshiro128::seed_from_u64(1);
+    let mut w = gman_core::seeded::SeededWeights::new(1, 0.05);
     TensorId::all_for(d)
         .map(|id| {
-            let (r, c) = id.shape(d);
-            let mut v = vec![0.0f32; r * c];
-            fill_gaussian(&mut rng, &mut v);
-            v.iter_mut().for_each(|x| *x *= 0.05);
+            let mut v = vec![0.0f32; id.numel(d)];
+            w.fill(&mut v);
             v
         })
         .collect()
 }
 
-fn int8_blob(d: &Dims, t: &[Vec<f32>]) -> Result<Vec<u8>> {
-    let mut q: Vec<(Vec<u8>, Vec<f32>)> = Vec::new();
-    for id in TensorId::all_for(d) {
-        let (r, c) = id.shape(d);
-        let (mut qq, mut s) = (vec![0u8; r * c], vec![0.0f32; r]);
-        if !id.is_vector() {
-            quantize_rows(&t[id as usize], r, c, &mut qq, &mut s)
-                .map_err(|e| anyhow!("quantising {}: {e:?}", id.name()))?;
-        }
-        q.push((qq, s));
-    }
-    let specs: Vec<TensorSpec<'_>> = TensorId::all_for(d)
-        .map(|id| TensorSpec {
-            id,
-            data: if id.is_vector() {
-                TensorData::F32(&t[id as usize])
-            } else {
-                TensorData::I8 {
-                    q: &q[id as usize].0,
-                    scales: &q[id as usize].1,
-                }
-            },
-        })
-        .collect();
-    let mut buf = vec![0u8; encoded_len_bound(&specs)];
-    let n = encode(d, &specs, &mut buf).map_err(|e| anyhow!("encoding blob: {e:?}"))?;
+/// The int8 blob of [`tensors`] (gman-core's one seeded-weights builder).
+fn int8_blob(d: &Dims, _t: &[Vec<f32>]) -> Result<Vec<u8>> {
+    let mut buf =
+        vec![0u8; gman_core::blob::encoded_model_len_bound(d, gman_core::blob::Quant::I8)];
+    let (nf, nb) = gman_core::blob::encode_model_scratch_len(d);
+    let n = gman_core::seeded::encode_seeded(
+        d,
+        0,
+        gman_core::blob::AdaptSettings::PAPER,
+        gman_core::blob::Quant::I8,
+        1,
+        0.05,
+        &mut buf,
+        &mut vec![0.0; nf],
+        &mut vec![0; nb],
+    )
+    .map_err(|e| anyhow!("encoding blob: {e:?}"))?;
     buf.truncate(n);
     Ok(buf)
 }

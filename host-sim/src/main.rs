@@ -1,11 +1,10 @@
-//! `gman`: command line of gman-rs (see `cli.rs`).
+//! `gman`: command line of gman-rs (see `cli/mod.rs`).
 use std::process::ExitCode;
 
 use clap::{CommandFactory, FromArgMatches};
 
 mod cli;
 mod cli_bench;
-mod cli_nav;
 
 /// Restores the default action of SIGPIPE, so that `gman inspect m.gman | head` ends quietly
 /// like any Unix tool instead of panicking in `println!` (Rust ignores SIGPIPE by default,

@@ -2,8 +2,9 @@
 #![allow(dead_code)]
 
 use gman_core::blob::{encode, encoded_len_bound, TensorData, TensorId, TensorSpec};
+use gman_core::blob::{encode_model_scratch_len, encoded_model_len_bound, AdaptSettings, Quant};
 use gman_core::quant::quantize_rows;
-use gman_core::rng::{fill_gaussian, Xoshiro128};
+use gman_core::seeded::{encode_seeded, SeededWeights};
 use gman_core::Dims;
 
 /// Small dims so that tests are fast.
@@ -23,19 +24,40 @@ pub const SMALL: Dims = Dims {
 
 /// Random f32 values for every tensor of `dims`.
 pub fn random_tensors(dims: &Dims, seed: u64) -> Vec<(TensorId, Vec<f32>)> {
-    let mut rng = Xoshiro128::seed_from_u64(seed);
+    let mut w = SeededWeights::new(seed, 0.1);
     TensorId::all_for(dims)
         .map(|id| {
-            let (r, c) = id.shape(dims);
-            let mut v = vec![0.0f32; r * c];
-            fill_gaussian(&mut rng, &mut v);
-            v.iter_mut().for_each(|x| *x *= 0.1);
+            let mut v = vec![0.0f32; id.numel(dims)];
+            w.fill(&mut v);
             (id, v)
         })
         .collect()
 }
 
-/// Encodes `tensors`, int8-quantising the matrices when `int8` is set.
+/// The blob of [`random_tensors`]`(dims, seed)` with model `flags` and the paper's inner-loop
+/// settings, through gman-core's one builder ([`encode_seeded`]).
+pub fn seeded_blob(dims: &Dims, seed: u64, int8: bool, flags: u32) -> Vec<u8> {
+    let quant = if int8 { Quant::I8 } else { Quant::F32 };
+    let mut out = vec![0u8; encoded_model_len_bound(dims, quant)];
+    let (nf, nb) = encode_model_scratch_len(dims);
+    let n = encode_seeded(
+        dims,
+        flags,
+        AdaptSettings::PAPER,
+        quant,
+        seed,
+        0.1,
+        &mut out,
+        &mut vec![0.0; nf],
+        &mut vec![0; nb],
+    )
+    .unwrap();
+    out.truncate(n);
+    out
+}
+
+/// Encodes an arbitrary list of `tensors` (possibly incomplete or out of order, to test the
+/// parser), int8-quantising the matrices when `int8` is set.
 pub fn make_blob(dims: &Dims, tensors: &[(TensorId, Vec<f32>)], int8: bool) -> Vec<u8> {
     let quantised: Vec<(TensorId, Vec<u8>, Vec<f32>)> = tensors
         .iter()

@@ -70,15 +70,10 @@ use gman_core::{Dims, NUM_ACTIONS};
 use crate::train::params::ParamSet;
 
 /// The adapted tensors of G (θ), in the order of the flat vectors of this module.
-pub const THETA: [TensorId; 4] = [
-    TensorId::GenW1,
-    TensorId::GenB1,
-    TensorId::GenW2,
-    TensorId::GenB2,
-];
+pub const THETA: [TensorId; 4] = TensorId::GENERATOR;
 
 /// The adapted tensors of the policy (φ: the actor head), in flat-vector order.
-pub const PHI: [TensorId; 2] = [TensorId::ActorW, TensorId::ActorB];
+pub const PHI: [TensorId; 2] = TensorId::ACTOR_HEAD;
 
 fn len_of(ids: &[TensorId], d: &Dims) -> usize {
     ids.iter()

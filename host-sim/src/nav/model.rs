@@ -4,14 +4,14 @@ use std::path::Path;
 
 use anyhow::{anyhow, bail, Context, Result};
 use gman_core::blob::{
-    encode_with_settings, encoded_len_bound, AdaptSettings, Blob, TensorData, TensorId, TensorSpec,
-    FLAG_ADAPT, FLAG_COSSIM, FLAG_FULL_ADAPT, FLAG_ZERO_NOISE,
+    encode_model, encode_model_scratch_len, encoded_model_len_bound, AdaptSettings, Blob, Quant,
+    TensorId,
 };
 use gman_core::matrix::MatRef;
 use gman_core::memory::AdaptMode;
 use gman_core::navigator::{NavConfig, NavWeights, NoiseMode, Selection};
-use gman_core::quant::quantize_rows;
 use gman_core::rng::Xoshiro128;
+use gman_core::schema::{Emd, ModelFlags};
 use gman_core::Dims;
 use serde::{Deserialize, Serialize};
 
@@ -19,100 +19,181 @@ use crate::train::checkpoint::Checkpoint;
 use crate::train::params::{Init, Param, ParamSet};
 use crate::train::ps::PsModule;
 
-/// A navigation method (rows of the paper's Tables 2 and 3).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize, clap::ValueEnum)]
-#[serde(rename_all = "kebab-case")]
-pub enum Method {
-    /// A3C baseline: observation, target attributes, previous action → LSTM → actor-critic.
-    A3c,
-    /// A3C + the pre-trained feature generator's target feature (FG), no adaptation.
-    A3cFg,
-    /// A3C with the PS module (A3C†).
-    A3cPs,
-    /// A3C + FG + PS.
-    A3cFgPs,
-    /// GMAN: FG + environmental meta discriminator, meta-trained (Algorithm 1).
-    Gman,
-    /// GMAN with the PS module (GMAN†).
-    GmanPs,
-    /// EMD without meta-learning: trained as A3C + FG, adapted at test time only.
-    GmanNometa,
-    /// EMD variant: cosine similarity between x_t and s_t in place of D (paper Table 3),
-    /// meta-trained like GMAN.
-    GmanCossim,
-    /// Control without the EMD: G's θ and the policy are trained by the outer loop exactly as
-    /// in GMAN, but no inner loop runs, in training or at evaluation. It differs from `a3c-fg`
-    /// only in that θ is trained, and from `gman` only in the adaptation, so it separates the
-    /// two sources of GMAN's gain.
-    GmanNoemd,
+/// When the inner loop of Algorithm 1 (the EMD's adaptation) runs.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum InnerLoop {
+    /// Never (the A3C baselines and the `gman-noemd` control).
+    Off,
+    /// At evaluation only: trained without it, adapted at test time (`gman-nometa`).
+    EvalOnly,
+    /// In training and at evaluation, so θ and φ are meta-learned through it (GMAN).
+    Meta,
 }
 
+/// A navigation method: independent switches. The rows of the paper's Tables 2 and 3 are
+/// the named presets of [`Method::PRESETS`] (`--method a3c`, `gman`, ...); a new variant is
+/// one line there plus the maths of its new switch.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct Method {
+    /// Uses the pre-trained feature generator G (FG); otherwise G is zero and x_t carries
+    /// nothing.
+    pub fg: bool,
+    /// Feeds the PS module's prediction to the policy (the † rows).
+    pub ps: bool,
+    /// When the inner loop runs.
+    pub inner: InnerLoop,
+    /// What scores generated features in the inner loop (D, or the cosine similarity).
+    pub emd: Emd,
+    /// The outer loop updates G's θ (the FG baselines keep the pre-trained generator frozen,
+    /// as the paper's "FG" row).
+    pub train_theta: bool,
+}
+
+/// One preset: its name on the command line and in files, its switches, its help text.
+type Preset = (&'static str, Method, &'static str);
+
+const fn m(fg: bool, ps: bool, inner: InnerLoop, emd: Emd, train_theta: bool) -> Method {
+    Method {
+        fg,
+        ps,
+        inner,
+        emd,
+        train_theta,
+    }
+}
+
+use Emd::{CosSim, Discriminator as D};
+use InnerLoop::{EvalOnly, Meta, Off};
+
+#[allow(non_upper_case_globals)]
 impl Method {
-    /// The name used on the command line and in files.
-    pub fn name(self) -> &'static str {
-        match self {
-            Method::A3c => "a3c",
-            Method::A3cFg => "a3c-fg",
-            Method::A3cPs => "a3c-ps",
-            Method::A3cFgPs => "a3c-fg-ps",
-            Method::Gman => "gman",
-            Method::GmanPs => "gman-ps",
-            Method::GmanNometa => "gman-nometa",
-            Method::GmanCossim => "gman-cossim",
-            Method::GmanNoemd => "gman-noemd",
+    /// The paper's rows, in `--help` order: name, switches
+    /// (`fg, ps, inner loop, EMD, θ trained`), help.
+    #[rustfmt::skip]
+    pub const PRESETS: [Preset; 9] = [
+        ("a3c", m(false, false, Off, D, false),
+         "A3C baseline: observation, target attributes, previous action → LSTM → actor-critic"),
+        ("a3c-fg", m(true, false, Off, D, false),
+         "A3C + the pre-trained feature generator's target feature (FG), no adaptation"),
+        ("a3c-ps", m(false, true, Off, D, false), "A3C with the PS module (A3C†)"),
+        ("a3c-fg-ps", m(true, true, Off, D, false), "A3C + FG + PS"),
+        ("gman", m(true, false, Meta, D, true),
+         "GMAN: FG + environmental meta discriminator, meta-trained (Algorithm 1)"),
+        ("gman-ps", m(true, true, Meta, D, true), "GMAN with the PS module (GMAN†)"),
+        ("gman-nometa", m(true, false, EvalOnly, D, false),
+         "EMD without meta-learning: trained as A3C + FG, adapted at test time only"),
+        ("gman-cossim", m(true, false, Meta, CosSim, true),
+         "EMD variant: cosine similarity between x_t and s_t in place of D (paper Table 3), meta-trained like GMAN"),
+        ("gman-noemd", m(true, false, Off, D, true),
+         "Control without the EMD: θ and the policy trained by the outer loop as in GMAN, but no inner loop runs, in training or at evaluation (differs from a3c-fg only in that θ is trained, from gman only in the adaptation)"),
+    ];
+    /// A3C baseline.
+    pub const A3c: Method = Method::PRESETS[0].1;
+    /// A3C + FG.
+    pub const A3cFg: Method = Method::PRESETS[1].1;
+    /// A3C with the PS module (A3C†).
+    pub const A3cPs: Method = Method::PRESETS[2].1;
+    /// A3C + FG + PS.
+    pub const A3cFgPs: Method = Method::PRESETS[3].1;
+    /// GMAN (Algorithm 1).
+    pub const Gman: Method = Method::PRESETS[4].1;
+    /// GMAN with the PS module (GMAN†).
+    pub const GmanPs: Method = Method::PRESETS[5].1;
+    /// EMD without meta-learning (adapted at test time only).
+    pub const GmanNometa: Method = Method::PRESETS[6].1;
+    /// The CosSim EMD variant, meta-trained.
+    pub const GmanCossim: Method = Method::PRESETS[7].1;
+    /// θ trained as in GMAN, no inner loop.
+    pub const GmanNoemd: Method = Method::PRESETS[8].1;
+
+    /// Every preset, in `--help` order.
+    const ALL: [Method; 9] = {
+        let mut out = [Method::A3c; 9];
+        let mut i = 0;
+        while i < 9 {
+            out[i] = Method::PRESETS[i].1;
+            i += 1;
         }
+        out
+    };
+
+    fn preset(self) -> Option<&'static Preset> {
+        Method::PRESETS.iter().find(|p| p.1 == self)
+    }
+
+    /// The preset name used on the command line and in files; `"custom"` for a combination
+    /// of switches that is no preset (such a method cannot be stored in a checkpoint).
+    pub fn name(self) -> &'static str {
+        self.preset().map_or("custom", |p| p.0)
     }
 
     /// Parses [`Method::name`].
     pub fn parse(s: &str) -> Option<Method> {
-        [
-            Method::A3c,
-            Method::A3cFg,
-            Method::A3cPs,
-            Method::A3cFgPs,
-            Method::Gman,
-            Method::GmanPs,
-            Method::GmanNometa,
-            Method::GmanCossim,
-            Method::GmanNoemd,
-        ]
-        .into_iter()
-        .find(|m| m.name() == s)
+        Method::PRESETS.iter().find(|p| p.0 == s).map(|p| p.1)
     }
 
     /// Uses the pre-trained feature generator (otherwise G is zero and x_t carries nothing).
     pub fn uses_fg(self) -> bool {
-        !matches!(self, Method::A3c | Method::A3cPs)
+        self.fg
     }
 
     /// Feeds the PS module's prediction to the policy.
     pub fn uses_ps(self) -> bool {
-        matches!(self, Method::A3cPs | Method::A3cFgPs | Method::GmanPs)
+        self.ps
     }
 
     /// Runs the inner loop during training (and therefore meta-learns θ and φ through it).
     pub fn adapts_in_training(self) -> bool {
-        matches!(self, Method::Gman | Method::GmanPs | Method::GmanCossim)
+        self.inner == Meta
     }
 
     /// Scores generated features with the cosine similarity instead of D.
     pub fn uses_cossim(self) -> bool {
-        matches!(self, Method::GmanCossim)
+        self.emd == CosSim
+    }
+
+    /// What scores generated features in the inner loop.
+    pub fn emd(self) -> Emd {
+        self.emd
     }
 
     /// Runs the inner loop at evaluation.
     pub fn adapts_at_eval(self) -> bool {
-        matches!(
-            self,
-            Method::Gman | Method::GmanPs | Method::GmanNometa | Method::GmanCossim
-        )
+        self.inner != Off
     }
 
     /// The outer loop updates G's θ (the meta-trained methods and their `gman-noemd`
     /// control; the FG baselines keep the pre-trained generator frozen, as the paper's "FG"
     /// row).
     pub fn trains_generator(self) -> bool {
-        self.adapts_in_training() || self == Method::GmanNoemd
+        self.train_theta
+    }
+}
+
+impl clap::ValueEnum for Method {
+    fn value_variants<'a>() -> &'a [Self] {
+        &Method::ALL
+    }
+
+    fn to_possible_value(&self) -> Option<clap::builder::PossibleValue> {
+        self.preset()
+            .map(|p| clap::builder::PossibleValue::new(p.0).help(p.2))
+    }
+}
+
+impl Serialize for Method {
+    /// As its preset name (what the enum of earlier builds wrote); `"custom"` for a
+    /// combination that is no preset, which [`Method::parse`] then refuses on reading.
+    fn serialize<S: serde::Serializer>(&self, s: S) -> std::result::Result<S::Ok, S::Error> {
+        s.serialize_str(self.name())
+    }
+}
+
+impl<'de> Deserialize<'de> for Method {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> std::result::Result<Method, D::Error> {
+        let name = String::deserialize(d)?;
+        Method::parse(&name)
+            .ok_or_else(|| serde::de::Error::custom(format!("unknown method {name:?}")))
     }
 }
 
@@ -127,9 +208,152 @@ pub fn mode_name(m: AdaptMode) -> &'static str {
 /// Default cap on inner updates per episode (gman-core's default).
 pub const DEFAULT_MAX_INNER: u32 = 4;
 
-/// The names of the tensors of a model, as in blobs and checkpoints.
-pub fn tensor_name(id: TensorId) -> &'static str {
-    id.name()
+/// The `kind` of a navigator checkpoint's metadata.
+pub const NAVIGATOR_KIND: &str = "gman-navigator";
+
+/// The model settings of a navigator checkpoint (its metadata; the trainer adds its own
+/// `trainer` object beside them), typed and serde-serialised. Written by
+/// [`NavModel::metadata`], read by [`NavModel::from_checkpoint`]; the fields that did not
+/// exist in the first checkpoints default to the values those runs had.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ModelMeta {
+    /// Always [`NAVIGATOR_KIND`].
+    pub kind: String,
+    /// The method (its preset name).
+    pub method: Method,
+    /// The sizes.
+    pub dims: DimsMeta,
+    /// Noise of G (absent: Gaussian).
+    #[serde(default)]
+    pub noise: NoiseName,
+    /// Hidden width of the PS module (PS variants only; `null` otherwise).
+    #[serde(default)]
+    pub ps_hidden: Option<usize>,
+    /// Inner-loop rate α1 = α2 (absent: 1e-4).
+    #[serde(default = "default_inner_lr")]
+    pub inner_lr: f32,
+    /// Cap on inner updates per episode (absent: [`DEFAULT_MAX_INNER`]).
+    #[serde(default = "default_max_inner")]
+    pub max_inner: u32,
+    /// The privileged-feature bound (absent: false).
+    #[serde(default)]
+    pub privileged: bool,
+    /// The adaptation mode (absent: `full`, what checkpoints before the setting were trained
+    /// in).
+    #[serde(default)]
+    pub adapt_mode: ModeName,
+}
+
+fn default_inner_lr() -> f32 {
+    1e-4
+}
+
+fn default_max_inner() -> u32 {
+    DEFAULT_MAX_INNER
+}
+
+/// [`NoiseMode`] as stored in checkpoints.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum NoiseName {
+    /// `gaussian`.
+    #[default]
+    Gaussian,
+    /// `zero`.
+    Zero,
+}
+
+/// [`AdaptMode`] as stored in checkpoints ([`mode_name`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ModeName {
+    /// `full` (the default: checkpoints from before the setting existed were trained in it).
+    #[default]
+    Full,
+    /// `efficient`.
+    Efficient,
+}
+
+impl From<AdaptMode> for ModeName {
+    fn from(m: AdaptMode) -> ModeName {
+        match m {
+            AdaptMode::Full => ModeName::Full,
+            AdaptMode::Efficient => ModeName::Efficient,
+        }
+    }
+}
+
+impl From<ModeName> for AdaptMode {
+    fn from(m: ModeName) -> AdaptMode {
+        match m {
+            ModeName::Full => AdaptMode::Full,
+            ModeName::Efficient => AdaptMode::Efficient,
+        }
+    }
+}
+
+/// [`Dims`] as stored in checkpoints: the eight sizes, and the spatial-map sizes only for a
+/// model with a map (absent: no map), so checkpoints without one are byte for byte as before
+/// maps existed.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct DimsMeta(pub Dims);
+
+#[derive(Serialize, Deserialize)]
+struct DimsRecord {
+    attr: usize,
+    noise: usize,
+    gen_hidden: usize,
+    feat: usize,
+    disc_hidden: usize,
+    lstm_hidden: usize,
+    embed: usize,
+    ps: usize,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    map_rows: Option<usize>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    map_cols: Option<usize>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    cell_embed: Option<usize>,
+}
+
+impl Serialize for DimsMeta {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> std::result::Result<S::Ok, S::Error> {
+        let d = &self.0;
+        let map = d.map_rows + d.map_cols + d.cell_embed > 0;
+        DimsRecord {
+            attr: d.attr,
+            noise: d.noise,
+            gen_hidden: d.gen_hidden,
+            feat: d.feat,
+            disc_hidden: d.disc_hidden,
+            lstm_hidden: d.lstm_hidden,
+            embed: d.embed,
+            ps: d.ps,
+            map_rows: map.then_some(d.map_rows),
+            map_cols: map.then_some(d.map_cols),
+            cell_embed: map.then_some(d.cell_embed),
+        }
+        .serialize(s)
+    }
+}
+
+impl<'de> Deserialize<'de> for DimsMeta {
+    fn deserialize<D: serde::Deserializer<'de>>(de: D) -> std::result::Result<Self, D::Error> {
+        let r = DimsRecord::deserialize(de)?;
+        Ok(DimsMeta(Dims {
+            attr: r.attr,
+            noise: r.noise,
+            gen_hidden: r.gen_hidden,
+            feat: r.feat,
+            disc_hidden: r.disc_hidden,
+            lstm_hidden: r.lstm_hidden,
+            embed: r.embed,
+            ps: r.ps,
+            map_rows: r.map_rows.unwrap_or(0),
+            map_cols: r.map_cols.unwrap_or(0),
+            cell_embed: r.cell_embed.unwrap_or(0),
+        }))
+    }
 }
 
 /// A navigation model: method, sizes, parameters (named like the blob's tensors), and the
@@ -163,7 +387,7 @@ pub struct NavModel {
     /// The adaptation mode of the inner loop, in training and wherever the model runs
     /// (gman-core's [`AdaptMode`]): `Efficient` (per-unit gains and biases over the base
     /// weights, what the microcontroller runs) or `Full` (every parameter of θ, ω and the
-    /// actor head). Blobs record it ([`FLAG_FULL_ADAPT`]), so the device adapts exactly as
+    /// actor head). Blobs record it ([`FLAG_FULL_ADAPT`](gman_core::schema::FLAG_FULL_ADAPT)), so the device adapts exactly as
     /// the trainer meta-learned. Checkpoints from before this setting existed were trained in
     /// `Full`.
     pub adapt_mode: AdaptMode,
@@ -278,11 +502,7 @@ impl NavModel {
             adapt,
             noise: self.noise,
             selection: Selection::Sample,
-            emd: if self.method.uses_cossim() {
-                gman_core::navigator::Emd::CosSim
-            } else {
-                gman_core::navigator::Emd::Discriminator
-            },
+            emd: self.method.emd(),
             alpha_disc: self.inner_lr,
             alpha_adapt: self.inner_lr,
             max_inner_updates: self.max_inner,
@@ -296,19 +516,28 @@ impl NavModel {
         }
     }
 
-    /// Metadata stored in checkpoints.
+    /// The typed settings stored in checkpoints ([`ModelMeta`]).
+    pub fn meta(&self) -> ModelMeta {
+        ModelMeta {
+            kind: NAVIGATOR_KIND.to_string(),
+            method: self.method,
+            dims: DimsMeta(self.dims),
+            noise: match self.noise {
+                NoiseMode::Gaussian => NoiseName::Gaussian,
+                NoiseMode::Zero => NoiseName::Zero,
+            },
+            ps_hidden: self.ps.as_ref().map(|p| p.hidden),
+            inner_lr: self.inner_lr,
+            max_inner: self.max_inner,
+            privileged: self.privileged,
+            adapt_mode: self.adapt_mode.into(),
+        }
+    }
+
+    /// Metadata stored in checkpoints: [`NavModel::meta`] as JSON (keys sorted, as always).
     pub fn metadata(&self) -> serde_json::Value {
-        serde_json::json!({
-            "kind": "gman-navigator",
-            "method": self.method.name(),
-            "dims": crate::train::dims_json(&self.dims),
-            "noise": match self.noise { NoiseMode::Gaussian => "gaussian", NoiseMode::Zero => "zero" },
-            "ps_hidden": self.ps.as_ref().map(|p| p.hidden),
-            "inner_lr": self.inner_lr,
-            "max_inner": self.max_inner,
-            "privileged": self.privileged,
-            "adapt_mode": mode_name(self.adapt_mode),
-        })
+        // Strings, numbers and booleans only: serialising to a `Value` cannot fail.
+        serde_json::to_value(self.meta()).unwrap_or_default()
     }
 
     /// Adds the model's tensors (and the PS module's) to a checkpoint.
@@ -320,51 +549,26 @@ impl NavModel {
         Ok(())
     }
 
-    /// Rebuilds a model from a checkpoint written by the trainer.
+    /// Rebuilds a model from a checkpoint written by the trainer (any build: the fields
+    /// [`ModelMeta`] gained over time default to what earlier checkpoints were trained with).
     pub fn from_checkpoint(ck: &Checkpoint) -> Result<NavModel> {
         let meta = &ck.metadata;
-        if meta.get("kind").and_then(|v| v.as_str()) != Some("gman-navigator") {
+        if meta.get("kind").and_then(|v| v.as_str()) != Some(NAVIGATOR_KIND) {
             bail!(
                 "not a navigator checkpoint (metadata kind {:?})",
                 meta.get("kind")
             );
         }
-        let method = meta
-            .get("method")
-            .and_then(|v| v.as_str())
-            .and_then(Method::parse)
-            .ok_or_else(|| anyhow!("checkpoint has no known method"))?;
-        let d = meta
-            .get("dims")
-            .ok_or_else(|| anyhow!("checkpoint has no dims"))?;
-        let get = |k: &str| -> Result<usize> {
-            d.get(k)
-                .and_then(|v| v.as_u64())
-                .map(|v| v as usize)
-                .ok_or_else(|| anyhow!("dims.{k} missing"))
-        };
-        let dims = Dims {
-            attr: get("attr")?,
-            noise: get("noise")?,
-            gen_hidden: get("gen_hidden")?,
-            feat: get("feat")?,
-            disc_hidden: get("disc_hidden")?,
-            lstm_hidden: get("lstm_hidden")?,
-            embed: get("embed")?,
-            ps: get("ps")?,
-            // Absent before spatial maps existed: no map.
-            map_rows: get("map_rows").unwrap_or(0),
-            map_cols: get("map_cols").unwrap_or(0),
-            cell_embed: get("cell_embed").unwrap_or(0),
-        };
+        let m: ModelMeta = serde_json::from_value(meta.clone())
+            .map_err(|e| anyhow!("checkpoint metadata: {e}"))?;
+        let (method, dims) = (m.method, m.dims.0);
         let mut params = ParamSet::new();
         for id in TensorId::all_for(&dims) {
             let (r, c) = id.shape(&dims);
             params.push(ck.tensor(id.name(), r, c)?.clone())?;
         }
-        let ps = match meta.get("ps_hidden").and_then(|v| v.as_u64()) {
+        let ps = match m.ps_hidden {
             Some(h) => {
-                let h = h as usize;
                 let mut set = ParamSet::new();
                 for (name, r, c) in [
                     (crate::train::ps::PS_W1, h, gman_core::FEATURE_DIM),
@@ -378,14 +582,7 @@ impl NavModel {
             }
             None => None,
         };
-        let noise = match meta.get("noise").and_then(|v| v.as_str()) {
-            Some("zero") => NoiseMode::Zero,
-            _ => NoiseMode::Gaussian,
-        };
-        let inner_lr = meta
-            .get("inner_lr")
-            .and_then(|v| v.as_f64())
-            .unwrap_or(1e-4) as f32;
+        let inner_lr = m.inner_lr;
         // The checks `gman train` applies to the flags, applied to what the file says.
         if !(inner_lr.is_finite() && inner_lr >= 0.0) {
             bail!("stored inner_lr {inner_lr} is invalid: it must be finite and non-negative (like --inner-lr)");
@@ -398,49 +595,32 @@ impl NavModel {
                 if ps.is_some() { "present" } else { "absent" }
             );
         }
-        let max_inner = meta
-            .get("max_inner")
-            .and_then(|v| v.as_u64())
-            .map_or(DEFAULT_MAX_INNER, |v| v.min(u32::MAX as u64) as u32);
         Ok(NavModel {
             method,
             dims,
             params,
             ps,
-            noise,
-            inner_lr,
-            max_inner,
-            blob: None,
-            privileged: meta
-                .get("privileged")
-                .and_then(|v| v.as_bool())
-                .unwrap_or(false),
-            adapt_mode: match meta.get("adapt_mode").and_then(|v| v.as_str()) {
-                None | Some("full") => AdaptMode::Full,
-                Some("efficient") => AdaptMode::Efficient,
-                Some(other) => {
-                    bail!("checkpoint adapt_mode {other:?} (expected full or efficient)")
-                }
+            noise: match m.noise {
+                NoiseName::Gaussian => NoiseMode::Gaussian,
+                NoiseName::Zero => NoiseMode::Zero,
             },
+            inner_lr,
+            max_inner: m.max_inner,
+            blob: None,
+            privileged: m.privileged,
+            adapt_mode: m.adapt_mode.into(),
         })
     }
 
     /// Blob flags of this model.
     pub fn blob_flags(&self) -> u32 {
-        let mut f = 0;
-        if self.method.adapts_at_eval() {
-            f |= FLAG_ADAPT;
+        ModelFlags {
+            adapt: self.method.adapts_at_eval(),
+            emd: self.method.emd(),
+            noise: self.noise,
+            mode: self.adapt_mode,
         }
-        if self.noise == NoiseMode::Zero {
-            f |= FLAG_ZERO_NOISE;
-        }
-        if self.method.uses_cossim() {
-            f |= FLAG_COSSIM;
-        }
-        if self.adapt_mode == AdaptMode::Full {
-            f |= FLAG_FULL_ADAPT;
-        }
-        f
+        .bits()
     }
 
     /// The inner-loop settings stored in the model's blobs: `inner_lr` as both α1 and α2,
@@ -472,30 +652,21 @@ impl NavModel {
                 );
             }
         }
-        let mut quantised: Vec<(TensorId, Vec<u8>, Vec<f32>)> = Vec::new();
-        if int8 {
-            for id in TensorId::all_for(&self.dims).filter(|id| !id.is_vector()) {
-                let p = self.params.tensor(id.name())?;
-                let (mut q, mut s) = (vec![0u8; p.data.len()], vec![0.0f32; p.rows]);
-                quantize_rows(&p.data, p.rows, p.cols, &mut q, &mut s)?;
-                quantised.push((id, q, s));
-            }
-        }
-        let mut specs = Vec::new();
-        for id in TensorId::all_for(&self.dims) {
-            let data = match quantised.iter().find(|(q, _, _)| *q == id) {
-                Some((_, q, s)) => TensorData::I8 { q, scales: s },
-                None => TensorData::F32(&self.params.tensor(id.name())?.data),
-            };
-            specs.push(TensorSpec { id, data });
-        }
-        let mut out = vec![0u8; encoded_len_bound(&specs)];
-        let n = encode_with_settings(
+        let quant = if int8 { Quant::I8 } else { Quant::F32 };
+        let mut out = vec![0u8; encoded_model_len_bound(&self.dims, quant)];
+        let (nf, nb) = encode_model_scratch_len(&self.dims);
+        let n = encode_model(
             &self.dims,
             self.blob_flags(),
             self.adapt_settings(),
-            &specs,
+            quant,
+            |id, v: &mut [f32]| -> Result<()> {
+                v.copy_from_slice(&self.params.tensor(id.name())?.data);
+                Ok(())
+            },
             &mut out,
+            &mut vec![0.0; nf],
+            &mut vec![0; nb],
         )
         .map_err(|e| anyhow!("encoding the blob: {e}"))?;
         out.truncate(n);
@@ -513,7 +684,7 @@ impl NavModel {
 pub fn model_from_blob(bytes: &[u8], method: Option<Method>) -> Result<NavModel> {
     let blob = Blob::parse(bytes).map_err(|e| anyhow!("{e}"))?;
     let dims = blob.dims();
-    let flags = blob.header().flags();
+    let flags = blob.header().model_flags();
     // Every tensor must be present before anything is allocated from the header's dims
     // (present tensors were checked against the dims by the parser, so their sizes are backed
     // by bytes of the file).
@@ -535,8 +706,8 @@ pub fn model_from_blob(bytes: &[u8], method: Option<Method>) -> Result<NavModel>
             .map_err(|e| anyhow!("{}: {e}", id.name()))?;
         params.push(p)?;
     }
-    let method = method.unwrap_or(match (flags & FLAG_ADAPT != 0, dims.ps > 0) {
-        (true, false) if flags & FLAG_COSSIM != 0 => Method::GmanCossim,
+    let method = method.unwrap_or(match (flags.adapt, dims.ps > 0) {
+        (true, false) if flags.emd == Emd::CosSim => Method::GmanCossim,
         (true, false) => Method::Gman,
         (true, true) => Method::GmanPs,
         (false, false) => Method::A3cFg,
@@ -545,11 +716,7 @@ pub fn model_from_blob(bytes: &[u8], method: Option<Method>) -> Result<NavModel>
     if method.uses_ps() {
         bail!("blob evaluation of PS variants needs the PS module, which blobs do not carry; evaluate the checkpoint instead");
     }
-    let noise = if flags & FLAG_ZERO_NOISE != 0 {
-        NoiseMode::Zero
-    } else {
-        NoiseMode::Gaussian
-    };
+    let noise = flags.noise;
     let settings = blob.header().adapt_settings();
     if settings.alpha_disc.to_bits() != settings.alpha_adapt.to_bits() {
         bail!(
@@ -569,7 +736,7 @@ pub fn model_from_blob(bytes: &[u8], method: Option<Method>) -> Result<NavModel>
         max_inner: settings.max_inner,
         blob: Some(std::sync::Arc::new(bytes.to_vec())),
         privileged: false,
-        adapt_mode: blob.header().adapt_mode(),
+        adapt_mode: flags.mode,
     })
 }
 
@@ -586,4 +753,135 @@ pub fn load_model(path: &Path, method: Option<Method>) -> Result<NavModel> {
         m.method = method;
     }
     Ok(m)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The presets answer the six predicates exactly as the 9-variant enum of earlier builds
+    /// did (its truth table, written out), have distinct switches and round-trip their names.
+    #[test]
+    fn presets_keep_the_old_predicates_and_names() {
+        // name, uses_fg, uses_ps, adapts_in_training, uses_cossim, adapts_at_eval,
+        // trains_generator
+        let old = [
+            ("a3c", [false, false, false, false, false, false]),
+            ("a3c-fg", [true, false, false, false, false, false]),
+            ("a3c-ps", [false, true, false, false, false, false]),
+            ("a3c-fg-ps", [true, true, false, false, false, false]),
+            ("gman", [true, false, true, false, true, true]),
+            ("gman-ps", [true, true, true, false, true, true]),
+            ("gman-nometa", [true, false, false, false, true, false]),
+            ("gman-cossim", [true, false, true, true, true, true]),
+            ("gman-noemd", [true, false, false, false, false, true]),
+        ];
+        assert_eq!(old.len(), Method::PRESETS.len());
+        for (name, p) in old {
+            let m = Method::parse(name).unwrap();
+            assert_eq!(m.name(), name);
+            let got = [
+                m.uses_fg(),
+                m.uses_ps(),
+                m.adapts_in_training(),
+                m.uses_cossim(),
+                m.adapts_at_eval(),
+                m.trains_generator(),
+            ];
+            assert_eq!(got, p, "{name}");
+            assert_eq!(serde_json::to_value(m).unwrap(), serde_json::json!(name));
+            let back: Method = serde_json::from_value(serde_json::json!(name)).unwrap();
+            assert_eq!(back, m);
+        }
+        for (i, a) in Method::PRESETS.iter().enumerate() {
+            for b in &Method::PRESETS[i + 1..] {
+                assert_ne!(a.1, b.1, "{} and {} have the same switches", a.0, b.0);
+            }
+        }
+        let custom = Method {
+            emd: Emd::CosSim,
+            ..Method::GmanNometa
+        };
+        assert_eq!(custom.name(), "custom");
+        let v = serde_json::to_value(custom).unwrap();
+        assert!(serde_json::from_value::<Method>(v).is_err());
+        assert!(Method::parse("gman-x").is_none());
+        assert_eq!(
+            <Method as clap::ValueEnum>::from_str("gman-cossim", false).unwrap(),
+            Method::GmanCossim
+        );
+    }
+
+    /// The metadata the old untyped code wrote, written out: the typed settings must give
+    /// the same JSON (so checkpoints stay byte for byte) and read it back.
+    fn old_metadata(m: &NavModel) -> serde_json::Value {
+        serde_json::json!({
+            "kind": "gman-navigator",
+            "method": m.method.name(),
+            "dims": crate::train::dims_json(&m.dims),
+            "noise": match m.noise { NoiseMode::Gaussian => "gaussian", NoiseMode::Zero => "zero" },
+            "ps_hidden": m.ps.as_ref().map(|p| p.hidden),
+            "inner_lr": m.inner_lr,
+            "max_inner": m.max_inner,
+            "privileged": m.privileged,
+            "adapt_mode": mode_name(m.adapt_mode),
+        })
+    }
+
+    #[test]
+    fn typed_metadata_is_the_old_json_and_reads_old_checkpoints() {
+        let g =
+            crate::train::generator::init_generator(&Dims::MCU, &mut Xoshiro128::seed_from_u64(1))
+                .unwrap();
+        for (method, dims) in [
+            (Method::Gman, Dims::MCU),
+            (Method::A3cFg, Dims::MCU.with_map(3, 3, 8)),
+        ] {
+            let mut m = NavModel::init(method, dims, 1, Some(&g), None).unwrap();
+            m.noise = NoiseMode::Zero;
+            m.inner_lr = 3e-3;
+            m.max_inner = 7;
+            m.adapt_mode = AdaptMode::Efficient;
+            let old = old_metadata(&m);
+            assert_eq!(m.metadata().to_string(), old.to_string());
+            let mut ck = Checkpoint::new(old);
+            m.add_to_checkpoint(&mut ck).unwrap();
+            let back = NavModel::from_checkpoint(&ck).unwrap();
+            assert_eq!(back.meta(), m.meta());
+            assert_eq!(back.params.names(), m.params.names());
+            assert_eq!(back.params.num_values(), m.params.num_values());
+        }
+        // The first checkpoints had none of the later fields: their defaults apply.
+        let m = NavModel::init(Method::Gman, Dims::MCU, 2, Some(&g), None).unwrap();
+        let mut first = serde_json::json!({
+            "kind": "gman-navigator",
+            "method": "gman",
+            "dims": crate::train::dims_json(&m.dims),
+            "ps_hidden": null,
+        });
+        let mut ck = Checkpoint::new(first.clone());
+        m.add_to_checkpoint(&mut ck).unwrap();
+        let back = NavModel::from_checkpoint(&ck).unwrap();
+        assert_eq!(
+            (
+                back.noise,
+                back.inner_lr,
+                back.max_inner,
+                back.privileged,
+                back.adapt_mode
+            ),
+            (
+                NoiseMode::Gaussian,
+                1e-4,
+                DEFAULT_MAX_INNER,
+                false,
+                AdaptMode::Full
+            )
+        );
+        // A wrong type is a typed error naming the field, not a silent default.
+        first["adapt_mode"] = serde_json::json!("sideways");
+        ck.metadata = first;
+        let e = NavModel::from_checkpoint(&ck).unwrap_err().to_string();
+        assert!(e.contains("sideways") || e.contains("variant"), "{e}");
+    }
 }

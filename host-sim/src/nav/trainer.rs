@@ -443,12 +443,7 @@ pub fn train(world: &World, opts: &TrainOptions, state: &mut TrainState) -> Resu
     } else {
         ProgressBar::hidden()
     };
-    let disc_ids = [
-        TensorId::DiscW1,
-        TensorId::DiscB1,
-        TensorId::DiscW2,
-        TensorId::DiscB2,
-    ];
+    let disc_ids = TensorId::DISCRIMINATOR;
     let start = Instant::now();
     let steps_at_start = state.env_steps;
     let mut recent: std::collections::VecDeque<(bool, f32)> = Default::default();

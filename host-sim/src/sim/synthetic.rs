@@ -129,6 +129,15 @@ fn floor_plan(rng: &mut ChaCha8Rng, room: RoomType) -> Vec<(i32, i32)> {
     best.iter().map(|&(x, z)| (x - w / 2, z - d / 2)).collect()
 }
 
+impl World {
+    /// The built-in synthetic demo world: [`generate`] with the default
+    /// [`SyntheticConfig`]. (Defined here, beside the generator, so that `world.rs` does not
+    /// depend on this module, which builds on it.)
+    pub fn synthetic(seed: u64) -> World {
+        generate(seed, &SyntheticConfig::default())
+    }
+}
+
 /// Generates the synthetic world.
 pub fn generate(seed: u64, cfg: &SyntheticConfig) -> World {
     let mut rng = ChaCha8Rng::seed_from_u64(mix64(seed ^ 0x5157));

@@ -290,11 +290,6 @@ impl World {
         Ok(world)
     }
 
-    /// The built-in synthetic demo world (see [`crate::sim::synthetic`]).
-    pub fn synthetic(seed: u64) -> World {
-        super::synthetic::generate(seed, &super::synthetic::SyntheticConfig::default())
-    }
-
     pub(crate) fn assemble(
         parts: WorldParts,
         generated_episodes: BTreeMap<Split, Vec<EpisodeSpec>>,

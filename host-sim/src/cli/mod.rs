@@ -4,17 +4,26 @@
 //! ([`gman_host_sim::sim::synthetic`]); `--data DIR` switches to the real iTHOR floor plans and
 //! the official GMAN episodes.
 
+pub mod args;
+pub mod demo;
+pub mod export;
+pub mod inspect;
+pub mod models;
+pub mod plot;
+pub mod table;
+pub mod train;
+
+pub use args::{PresetArg, WorldArgs};
+
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{bail, Context, Result};
-use clap::{Args, Parser, Subcommand, ValueEnum};
-use gman_core::Dims;
+use clap::{Args, Parser, Subcommand};
 use gman_host_sim::sim::eval::{drive, AgentFactory};
 use gman_host_sim::sim::render::draw_scene;
 use gman_host_sim::sim::{
     evaluate, EpisodeLimits, EvalConfig, EvalReport, OracleAgent, RandomAgent, RewardKind, Split,
-    World, DEFAULT_WORLD_SEED,
 };
 use gman_host_sim::train::fg::{self, FgCollectConfig, FgTrainConfig};
 use gman_host_sim::train::ps::{self, PsDataConfig, PsTrainConfig};
@@ -43,17 +52,17 @@ pub enum Commands {
     PretrainPs(PretrainPsArgs),
     /// Train a navigation method (A3C baselines, GMAN): writes RUN_DIR/metrics.csv and
     /// RUN_DIR/checkpoint.ckpt; `--resume RUN_DIR` continues a run exactly.
-    Train(crate::cli_nav::TrainArgs),
+    Train(train::TrainArgs),
     /// Export a trained checkpoint as a gman-core weight blob (int8 or f32).
-    Export(crate::cli_nav::ExportArgs),
+    Export(export::ExportArgs),
     /// Print a weight blob's header, tensors, quantisation and size (validates the checksum).
-    Inspect(crate::cli_nav::InspectArgs),
+    Inspect(inspect::InspectArgs),
     /// Draw learning curves of training runs into a PNG.
-    Plot(crate::cli_nav::PlotArgs),
+    Plot(plot::PlotArgs),
     /// Print the paper's table layout (mean ± std) from evaluation JSON files.
-    Table(crate::cli_nav::TableArgs),
+    Table(table::TableArgs),
     /// Quick start: pre-train G, train A3C+FG and GMAN briefly, evaluate them against random.
-    Demo(crate::cli_nav::DemoArgs),
+    Demo(demo::DemoArgs),
     /// Single-thread benchmarks: navigator step/adaptation latency against this machine's
     /// measured bandwidth and FMA peak, training throughput, firmware instruction counts.
     Bench(crate::cli_bench::BenchArgs),
@@ -73,33 +82,6 @@ pub struct MakeOfflineFixtureArgs {
     /// Seed of the attribute vectors and feature values.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
-}
-
-/// Network size preset.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
-pub enum PresetArg {
-    /// Microcontroller sizes (G hidden 256, D hidden 64).
-    Mcu,
-    /// The paper's sizes (G hidden 4096, D hidden 1024).
-    Paper,
-}
-
-impl PresetArg {
-    /// The sizes.
-    pub fn dims(self) -> Dims {
-        match self {
-            PresetArg::Mcu => Dims::MCU,
-            PresetArg::Paper => Dims::PAPER,
-        }
-    }
-
-    /// The name.
-    pub fn name(self) -> &'static str {
-        match self {
-            PresetArg::Mcu => "mcu",
-            PresetArg::Paper => "paper",
-        }
-    }
 }
 
 /// `gman pretrain-fg`.
@@ -191,36 +173,6 @@ pub struct PretrainPsArgs {
     pub quiet: bool,
 }
 
-/// Options that choose the world.
-#[derive(Debug, Args, Clone)]
-pub struct WorldArgs {
-    /// Data directory (`attributes.json`, `scenes/<split>/`, `episodes/<split>/`), or AI2THOR
-    /// offline data (`attributes.json`, `FloorPlanN/` folders, `episodes/<split>/`; needs the
-    /// `offline` build feature). Without it the built-in synthetic demo world is used.
-    #[arg(long, value_name = "DIR")]
-    pub data: Option<PathBuf>,
-    /// World seed: placement of objects without positions, feature model, scene styles (and the
-    /// whole synthetic world).
-    #[arg(long, default_value_t = DEFAULT_WORLD_SEED)]
-    pub world_seed: u64,
-}
-
-impl WorldArgs {
-    /// Loads the chosen world.
-    pub fn load(&self) -> Result<World> {
-        match &self.data {
-            Some(dir) => World::load_with_seed(dir, self.world_seed),
-            None => {
-                eprintln!(
-                    "note: no --data given, using the built-in synthetic demo world (seed {})",
-                    self.world_seed
-                );
-                Ok(World::synthetic(self.world_seed))
-            }
-        }
-    }
-}
-
 /// `gman eval`.
 #[derive(Debug, Args)]
 pub struct EvalArgs {
@@ -275,8 +227,8 @@ pub struct EvalArgs {
 
 impl EvalArgs {
     /// The model changes these arguments ask for.
-    fn overrides(&self) -> crate::cli_nav::ModelOverrides {
-        crate::cli_nav::ModelOverrides {
+    fn overrides(&self) -> models::ModelOverrides {
+        models::ModelOverrides {
             method: self.method,
             inner_lr: self.inner_lr,
             max_inner: self.max_inner,
@@ -334,13 +286,13 @@ pub fn run(cli: Cli, matches: &clap::ArgMatches) -> Result<()> {
             let explicit = |id: &str| {
                 sub.and_then(|m| m.value_source(id)) == Some(clap::parser::ValueSource::CommandLine)
             };
-            crate::cli_nav::cmd_train(a, &explicit)
+            train::cmd_train(a, &explicit)
         }
-        Commands::Export(a) => crate::cli_nav::cmd_export(a),
-        Commands::Inspect(a) => crate::cli_nav::cmd_inspect(a),
-        Commands::Plot(a) => crate::cli_nav::cmd_plot(a),
-        Commands::Table(a) => crate::cli_nav::cmd_table(a),
-        Commands::Demo(a) => crate::cli_nav::cmd_demo(a),
+        Commands::Export(a) => export::cmd_export(a),
+        Commands::Inspect(a) => inspect::cmd_inspect(a),
+        Commands::Plot(a) => plot::cmd_plot(a),
+        Commands::Table(a) => table::cmd_table(a),
+        Commands::Demo(a) => demo::cmd_demo(a),
         Commands::Bench(a) => crate::cli_bench::cmd_bench(a),
         #[cfg(feature = "offline")]
         Commands::MakeOfflineFixture(a) => {
@@ -357,18 +309,14 @@ pub fn run(cli: Cli, matches: &clap::ArgMatches) -> Result<()> {
 }
 
 /// A built-in agent factory by name; a clear error for model files (not supported yet).
-pub fn agent_factory(
-    name: &str,
-    seed: u64,
-    ov: &crate::cli_nav::ModelOverrides,
-) -> Result<AgentFactory> {
+pub fn agent_factory(name: &str, seed: u64, ov: &models::ModelOverrides) -> Result<AgentFactory> {
     match name {
         "random" => Ok(Box::new(move |_| Box::new(RandomAgent::new(seed)))),
         "oracle" => Ok(Box::new(|_| Box::new(OracleAgent))),
         other => {
             let p = Path::new(other);
             if p.exists() {
-                return Ok(crate::cli_nav::model_factory(p, ov)?.0);
+                return Ok(models::model_factory(p, ov)?.0);
             }
             bail!("agent {other}: not `random` or `oracle`, and no such model file")
         }

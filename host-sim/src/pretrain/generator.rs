@@ -12,30 +12,23 @@ use super::params::{Init, ParamSet, INIT_STD};
 /// The names of G's tensors, exactly gman-core's blob tensor ids:
 /// `[GenW1, GenB1, GenW2, GenB2]`.
 pub fn gen_names() -> [&'static str; 4] {
-    [
-        TensorId::GenW1.name(),
-        TensorId::GenB1.name(),
-        TensorId::GenW2.name(),
-        TensorId::GenB2.name(),
-    ]
+    TensorId::GENERATOR.map(TensorId::name)
 }
 
 /// Fresh parameters of G for `dims`: `GenW1` is `gen_hidden x (noise + attr)` (noise
 /// columns first), `GenW2` is `feat x gen_hidden`, biases are `n x 1`; weights `N(0, 0.02)`,
 /// biases 0, no gains.
 pub fn init_generator(dims: &Dims, rng: &mut Xoshiro128) -> Result<ParamSet> {
-    let [w1, b1, w2, b2] = gen_names();
     let mut p = ParamSet::new();
-    p.add(
-        w1,
-        dims.gen_hidden,
-        dims.gen_in(),
-        Init::Normal(INIT_STD),
-        rng,
-    )?;
-    p.add(b1, dims.gen_hidden, 1, Init::Zeros, rng)?;
-    p.add(w2, dims.feat, dims.gen_hidden, Init::Normal(INIT_STD), rng)?;
-    p.add(b2, dims.feat, 1, Init::Zeros, rng)?;
+    for id in TensorId::GENERATOR {
+        let (r, c) = id.shape(dims);
+        let init = if id.is_vector() {
+            Init::Zeros
+        } else {
+            Init::Normal(INIT_STD)
+        };
+        p.add(id.name(), r, c, init, rng)?;
+    }
     Ok(p)
 }
 

@@ -1,28 +1,19 @@
-//! Host-side training: parameter store, optimiser, checkpoints, deterministic data-parallel
-//! gradient accumulation, and the pre-training stages of GMAN.
-//!
-//! Every forward and backward pass of a network runs on gman-core's kernels
-//! ([`gman_core::dense::Dense`], [`gman_core::generator::Generator`], ...), so the host trains
-//! exactly what the device runs; this module adds batching, optimisers, data and I/O.
+//! Host-side optimisation plumbing shared by every training stage: parameter store,
+//! optimiser, checkpoints and deterministic data-parallel gradient accumulation.
 //!
 //! Module map:
 //! * [`params`]: named f32 tensors ([`params::ParamSet`]) and views for the core kernels.
 //! * [`adam`]: Adam / AMSGrad with clipping and a checkpointable state.
 //! * [`checkpoint`]: versioned, checksummed, atomically written checkpoint files.
 //! * [`parallel`]: fixed-chunk, order-deterministic gradient accumulation on rayon.
-//! * [`generator`]: G's parameters (blob tensor names) and owned buffers.
-//! * [`critic`]: the conditional WGAN-GP critic of feature-generator pre-training.
-//! * [`fg`]: `gman pretrain-fg` (paper Sec. 4.1).
-//! * [`ps`]: `gman pretrain-ps`, the PS module (paper Sec. 5.2).
+//!
+//! The pre-training stages live in [`crate::pretrain`], the navigation trainer (`gman
+//! train`) in [`crate::nav`].
 
 pub mod adam;
 pub mod checkpoint;
-pub mod critic;
-pub mod fg;
-pub mod generator;
 pub mod parallel;
 pub mod params;
-pub mod ps;
 
 use anyhow::{bail, Result};
 use gman_core::rng::Xoshiro128;

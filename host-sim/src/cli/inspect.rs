@@ -1,0 +1,118 @@
+//! `gman inspect`: a weight blob's header, tensors, quantisation and size.
+
+use std::path::PathBuf;
+
+use anyhow::{anyhow, Context, Result};
+use clap::Args;
+use gman_core::blob::{Blob, Quant};
+
+/// `gman inspect`.
+#[derive(Debug, Args)]
+pub struct InspectArgs {
+    /// A weight blob.
+    pub blob: PathBuf,
+}
+
+/// `gman inspect`.
+pub fn cmd_inspect(a: InspectArgs) -> Result<()> {
+    let bytes = std::fs::read(&a.blob).with_context(|| format!("reading {}", a.blob.display()))?;
+    let blob = Blob::parse(&bytes).map_err(|e| anyhow!("{}: {e}", a.blob.display()))?;
+    let h = blob.header();
+    let d = blob.dims();
+    println!(
+        "{}: GMAN weight blob, format v{}, {} bytes, checksum OK (CRC-32 {:#010x})",
+        a.blob.display(),
+        h.version(),
+        blob.len(),
+        h.payload_crc()
+    );
+    println!(
+        "dims: attr {} noise {} gen_hidden {} feat {} disc_hidden {} lstm_hidden {} embed {} ps {}",
+        d.attr, d.noise, d.gen_hidden, d.feat, d.disc_hidden, d.lstm_hidden, d.embed, d.ps
+    );
+    if d.map_cells() > 0 {
+        println!(
+            "spatial map: {} x {} cells, per-cell layer {} channels",
+            d.map_rows, d.map_cols, d.cell_embed
+        );
+    }
+    let mf = h.model_flags();
+    let mut flags = Vec::new();
+    if mf.adapt {
+        flags.push("adapt (GMAN inner loop on)");
+    }
+    if mf.noise == gman_core::schema::NoiseMode::Zero {
+        flags.push("zero noise");
+    }
+    if mf.emd == gman_core::schema::Emd::CosSim {
+        flags.push("cosine-similarity EMD (no D)");
+    }
+    if mf.adapt {
+        flags.push(match mf.mode {
+            gman_core::memory::AdaptMode::Full => "Full adaptation mode",
+            gman_core::memory::AdaptMode::Efficient => "Efficient adaptation mode",
+        });
+    }
+    println!(
+        "flags: {:#x} {}",
+        h.flags(),
+        if flags.is_empty() {
+            "(no adaptation)".to_string()
+        } else {
+            flags.join(", ")
+        }
+    );
+    let st = h.adapt_settings();
+    println!(
+        "inner loop: alpha_disc (α1, D ascent) {:e}, alpha_adapt (α2, θ/φ descent) {:e}, \
+         max {} inner updates per episode{}",
+        st.alpha_disc,
+        st.alpha_adapt,
+        st.max_inner,
+        if h.has_adapt_settings() {
+            String::new()
+        } else {
+            format!(
+                " (format v{} stores no settings: the paper's defaults)",
+                h.version()
+            )
+        }
+    );
+    let cfg = blob.nav_config();
+    println!(
+        "navigator (NavConfig::from_header): adapt {}, emd {:?}, noise {:?}",
+        cfg.adapt, cfg.emd, cfg.noise
+    );
+    println!(
+        "{:<8} {:>6} {:>6} {:>5} {:>10} {:>14}",
+        "tensor", "rows", "cols", "quant", "bytes", "max |err|/2"
+    );
+    for t in blob.tensors() {
+        println!(
+            "{:<8} {:>6} {:>6} {:>5} {:>10} {:>14}",
+            t.id.name(),
+            t.rows,
+            t.cols,
+            match t.quant {
+                Quant::F32 => "f32",
+                Quant::I8 => "int8",
+            },
+            t.storage_bytes(),
+            match t.quant {
+                Quant::F32 => "-".to_string(),
+                Quant::I8 => format!("{:.3e}", t.max_rounding_error()),
+            }
+        );
+    }
+    let missing: Vec<&str> = gman_core::blob::TensorId::all_for(&blob.dims())
+        .filter(|id| !blob.has(*id))
+        .map(|id| id.name())
+        .collect();
+    if !missing.is_empty() {
+        println!(
+            "missing tensors (not a complete navigator): {}",
+            missing.join(", ")
+        );
+    }
+    Ok(())
+}

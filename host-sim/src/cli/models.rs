@@ -1,0 +1,38 @@
+//! Model files as agents of `gman eval` (`--agent PATH`, with the model overrides).
+
+use std::path::Path;
+use std::sync::Arc;
+
+use anyhow::{bail, Result};
+use gman_host_sim::nav::agent::NavAgent;
+use gman_host_sim::nav::model::{load_model, Method};
+use gman_host_sim::sim::eval::AgentFactory;
+
+/// Evaluation-time changes to a loaded model (`gman eval --method/--inner-lr/--max-inner`).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct ModelOverrides {
+    /// Treat the model as this method.
+    pub method: Option<Method>,
+    /// Inner-loop rate α (both α1 and α2).
+    pub inner_lr: Option<f32>,
+    /// Cap on inner updates per episode.
+    pub max_inner: Option<u32>,
+}
+
+/// Model-file agents for `gman eval`: a checkpoint or a blob.
+pub fn model_factory(path: &Path, ov: &ModelOverrides) -> Result<(AgentFactory, String)> {
+    let mut model = load_model(path, ov.method)?;
+    if let Some(lr) = ov.inner_lr {
+        if !(lr.is_finite() && lr >= 0.0) {
+            bail!("--inner-lr must be finite and non-negative, got {lr}");
+        }
+        model.inner_lr = lr;
+    }
+    if let Some(n) = ov.max_inner {
+        model.max_inner = n;
+    }
+    let model = Arc::new(model);
+    let label = format!("{} ({})", model.method.name(), path.display());
+    let factory: AgentFactory = Box::new(move |_| Box::new(NavAgent::new(model.clone())));
+    Ok((factory, label))
+}
