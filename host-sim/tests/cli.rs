@@ -248,3 +248,61 @@ fn train_refuses_impossible_flag_combinations() {
         assert!(!out.join("checkpoint.ckpt").exists());
     }
 }
+
+#[test]
+fn emd_report_measures_a_gman_model() {
+    let d = tmp("emd");
+    let run = d.join("run");
+    let (ok, _, err) = gman(&[
+        "train",
+        "--method",
+        "gman",
+        "--config",
+        "tiny",
+        "--workers",
+        "1",
+        "--updates",
+        "2",
+        "--quiet",
+        "--out",
+        run.to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    let ckpt = run.join("checkpoint.ckpt");
+    let (png, json) = (d.join("fig3.png"), d.join("emd.json"));
+    let (ok, stdout, err) = gman(&[
+        "emd-report",
+        "--agent",
+        ckpt.to_str().unwrap(),
+        "--episodes",
+        "10",
+        "--inner-lr",
+        "1",
+        "--png",
+        png.to_str().unwrap(),
+        "--json",
+        json.to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    assert!(stdout.contains("% closed"), "{stdout}");
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    assert_eq!(v["inner_lr"], 1.0);
+    let adapted =
+        v["seen"]["episodes"].as_u64().unwrap() + v["unseen"]["episodes"].as_u64().unwrap();
+    assert!(adapted > 0, "no adapted episode: {v}");
+    // at α = 1 the inner loop moves G's output
+    let moved = v["seen"]["moved"]
+        .as_f64()
+        .unwrap()
+        .max(v["unseen"]["moved"].as_f64().unwrap());
+    assert!(moved > 0.0, "{v}");
+    assert!(std::fs::metadata(&png).unwrap().len() > 1000);
+    // a missing model is a clear error naming it
+    let (ok, _, err) = gman(&[
+        "emd-report",
+        "--agent",
+        d.join("nope.ckpt").to_str().unwrap(),
+    ]);
+    assert!(!ok && err.contains("nope.ckpt"), "{err}");
+}

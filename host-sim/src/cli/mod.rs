@@ -6,6 +6,7 @@
 
 pub mod args;
 pub mod demo;
+pub mod emd_report;
 pub mod export;
 pub mod inspect;
 pub mod models;
@@ -59,6 +60,9 @@ pub enum Commands {
     Inspect(inspect::InspectArgs),
     /// Draw learning curves of training runs into a PNG.
     Plot(plot::PlotArgs),
+    /// Fig. 3 as a measurement: how far a GMAN model's inner loop moves G toward the
+    /// target's true feature in val scenes, with the picture (PCA of two scenes).
+    EmdReport(emd_report::EmdReportArgs),
     /// Print the paper's table layout (mean ± std) from evaluation JSON files.
     Table(table::TableArgs),
     /// Quick start: pre-train G, train A3C+FG and GMAN briefly, evaluate them against random.
@@ -291,6 +295,7 @@ pub fn run(cli: Cli, matches: &clap::ArgMatches) -> Result<()> {
         Commands::Export(a) => export::cmd_export(a),
         Commands::Inspect(a) => inspect::cmd_inspect(a),
         Commands::Plot(a) => plot::cmd_plot(a),
+        Commands::EmdReport(a) => emd_report::cmd_emd_report(a),
         Commands::Table(a) => table::cmd_table(a),
         Commands::Demo(a) => demo::cmd_demo(a),
         Commands::Bench(a) => crate::cli_bench::cmd_bench(a),

@@ -88,7 +88,6 @@ fn smooth(v: &[f64], w: usize) -> Vec<f64> {
         .collect()
 }
 
-
 /// `gman plot`: learning curves (success rate and reward against environment steps).
 pub fn cmd_plot(a: PlotArgs) -> Result<()> {
     use plotters::prelude::*;

@@ -1,0 +1,137 @@
+//! `gman emd-report`: the paper's Fig. 3 as a measurement (see `gman_host_sim::emd_report`).
+
+use std::path::PathBuf;
+
+use anyhow::{bail, Context, Result};
+use clap::Args;
+use gman_host_sim::emd_report::{self, Summary};
+use gman_host_sim::nav::model::load_model;
+use gman_host_sim::sim::{Split, TargetKind};
+use serde::Serialize;
+
+use super::args::WorldArgs;
+
+/// `gman emd-report`.
+#[derive(Debug, Args)]
+pub struct EmdReportArgs {
+    /// World selection.
+    #[command(flatten)]
+    pub world: WorldArgs,
+    /// A GMAN training checkpoint (or blob) whose inner loop is measured, in its own
+    /// adaptation mode.
+    #[arg(long, value_name = "MODEL")]
+    pub agent: PathBuf,
+    /// Split whose official episodes are run (val or test).
+    #[arg(long, default_value = "val")]
+    pub split: String,
+    /// At most N episodes per episode file (file order); all when omitted.
+    #[arg(long, value_name = "N", default_value_t = 250)]
+    pub episodes: usize,
+    /// Override the inner-loop rate α (α1 = α2).
+    #[arg(long, value_name = "ALPHA")]
+    pub inner_lr: Option<f32>,
+    /// Override α1 alone (D's ascent rate on L_D).
+    #[arg(long, value_name = "ALPHA1")]
+    pub disc_lr: Option<f32>,
+    /// Override the cap on inner updates per episode.
+    #[arg(long, value_name = "N")]
+    pub max_inner: Option<u32>,
+    /// Write the Fig. 3 picture (two scenes, PCA) to this PNG.
+    #[arg(long, value_name = "OUT.png")]
+    pub png: Option<PathBuf>,
+    /// Write the summaries as JSON.
+    #[arg(long, value_name = "OUT.json")]
+    pub json: Option<PathBuf>,
+}
+
+#[derive(Serialize)]
+struct Report<'a> {
+    agent: String,
+    split: &'a str,
+    inner_lr: f32,
+    disc_lr: Option<f32>,
+    max_inner: u32,
+    mode: &'a str,
+    seen: Summary,
+    unseen: Summary,
+}
+
+/// Runs `gman emd-report`.
+pub fn cmd_emd_report(a: EmdReportArgs) -> Result<()> {
+    let split = Split::parse(&a.split)?;
+    if split == Split::Train {
+        bail!("split train has no official episodes; use --split val or --split test");
+    }
+    let world = a.world.load()?;
+    let mut model = load_model(&a.agent, None)?;
+    if let Some(lr) = a.inner_lr {
+        if !(lr.is_finite() && lr >= 0.0) {
+            bail!("--inner-lr {lr} must be finite and non-negative");
+        }
+        model.inner_lr = lr;
+    }
+    if let Some(lr) = a.disc_lr {
+        if !(lr.is_finite() && lr >= 0.0) {
+            bail!("--disc-lr {lr} must be finite and non-negative");
+        }
+    }
+    if let Some(n) = a.max_inner {
+        model.max_inner = n;
+    }
+    let episodes = world.episodes(split, Some(a.episodes))?;
+    eprintln!(
+        "emd-report: {} episodes of {}, inner rate {} (α1 {}), cap {}, mode {:?}",
+        episodes.len(),
+        split.name(),
+        model.inner_lr,
+        a.disc_lr.unwrap_or(model.inner_lr),
+        model.max_inner,
+        model.adapt_mode
+    );
+    let disc_lr = a.disc_lr;
+    let records = emd_report::measure_with(&world, &model, &episodes, &|c| {
+        if let Some(lr) = disc_lr {
+            c.alpha_disc = lr;
+        }
+    })?;
+    let seen = emd_report::summarize(&records, TargetKind::Seen);
+    let unseen = emd_report::summarize(&records, TargetKind::Unseen);
+    for (name, m) in [("seen", &seen), ("unseen", &unseen)] {
+        println!(
+            "{name}: {} adapted episodes; |G(y,0) - true target feature| {:.4} -> {:.4} ({:.2}% closed); G moved {:.5} (cosine to the true feature {:.3}, to the mean view {:.3}); the mean view is {:.4} from the true feature; {:.2} inner updates per episode, {:.3} rollbacks per update",
+            m.episodes, m.before, m.after, m.closed_percent, m.moved, m.cos_to_true,
+            m.cos_to_views, m.view_mean, m.adaptations, m.rollbacks_per_update
+        );
+    }
+    if records.is_empty() {
+        println!("no episode reached an inner update (does the model adapt? is k larger than the episodes?)");
+    }
+    if let Some(png) = &a.png {
+        let scenes = emd_report::busiest_scenes(&records);
+        let n = emd_report::plot(&records, &scenes, &world, png)?;
+        let names: Vec<&str> = scenes
+            .iter()
+            .filter_map(|&s| world.scenes.get(s).map(|sc| sc.name.as_str()))
+            .collect();
+        println!(
+            "wrote {}: Fig. 3 for {names:?} ({n} unseen-target episodes)",
+            png.display()
+        );
+    }
+    if let Some(path) = &a.json {
+        let r = Report {
+            agent: a.agent.display().to_string(),
+            split: split.name(),
+            inner_lr: model.inner_lr,
+            disc_lr,
+            max_inner: model.max_inner,
+            mode: gman_host_sim::nav::model::mode_name(model.adapt_mode),
+            seen,
+            unseen,
+        };
+        let text = serde_json::to_string_pretty(&r)?;
+        std::fs::write(path, text).with_context(|| format!("writing {}", path.display()))?;
+        println!("wrote {}", path.display());
+    }
+    Ok(())
+}
