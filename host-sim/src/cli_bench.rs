@@ -499,6 +499,7 @@ fn train_rows(updates: u64) -> Result<Vec<TrainRow>> {
                 updates,
                 seed: 1,
                 workers,
+                batch_envs: 1,
                 min_steps: 40,
                 reward: RewardKind::Mixed,
                 max_steps: None,
