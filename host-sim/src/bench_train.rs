@@ -3,9 +3,9 @@
 //! one environment per worker (`--batch-envs 1`) and [`BATCH_ENVS`] in lockstep, 1 and 2
 //! workers, all measured in one run.
 //!
-//! Each row trains a fresh model (seed 1, a random generator) for a few warm-up updates
-//! (not timed), then times `updates / B` more (an update holds at least `B` episodes per
-//! worker, so every row takes a similar number of environment steps). `gman` runs its inner
+//! Each row trains a fresh model (seed 1, a random generator) for two warm-up updates (not
+//! timed), then times as many more as take about the same number of environment steps in
+//! every row of a preset (an update holds at least `B` episodes per worker). `gman` runs its inner
 //! loop per episode, which the vectorised path does not batch: its `B > 1` rows are absent.
 
 use std::time::Instant;
@@ -41,8 +41,11 @@ impl TrainRow {
     }
 }
 
-/// Measures every row (`updates`: timed updates of a `B = 1` mcu row; paper rows take a
-/// tenth).
+/// Steps per worker and update (`--min-steps`, the CLI default).
+const MIN_STEPS: u32 = 40;
+
+/// Measures every row: each times about `updates x 40 x workers` environment steps (the
+/// steps of `updates` batch-1 updates; `paper` a tenth of that).
 pub fn rows(updates: u64) -> Result<Vec<TrainRow>> {
     let world = World::synthetic(DEFAULT_WORLD_SEED);
     let mut rows = Vec::new();
@@ -55,12 +58,12 @@ pub fn rows(updates: u64) -> Result<Vec<TrainRow>> {
                     continue;
                 }
                 for workers in [1usize, 2] {
-                    let n = (updates / scale / b as u64).max(2);
+                    let target = updates / scale * MIN_STEPS as u64 * workers as u64;
                     eprintln!(
-                        "bench: train {} ({preset}) --batch-envs {b} --workers {workers}, {n} updates ...",
+                        "bench: train {} ({preset}) --batch-envs {b} --workers {workers}, ~{target} env steps ...",
                         method.name()
                     );
-                    rows.push(row(&world, model.clone(), preset, b, workers, n)?);
+                    rows.push(row(&world, model.clone(), preset, b, workers, target)?);
                 }
             }
         }
@@ -74,7 +77,7 @@ fn row(
     preset: &'static str,
     batch_envs: usize,
     workers: usize,
-    updates: u64,
+    target_steps: u64,
 ) -> Result<TrainRow> {
     let method = model.method.name();
     let out = std::env::temp_dir().join(format!(
@@ -87,25 +90,27 @@ fn row(
     };
     let mut state = TrainState::new(model, adam);
     let opts = TrainOptions {
-        updates,
+        updates: 1,
         seed: 1,
         workers,
         batch_envs,
-        min_steps: 40,
+        min_steps: MIN_STEPS,
         reward: RewardKind::Mixed,
         max_steps: None,
         min_start_actions: 1,
         adam,
         a3c: Default::default(),
-        checkpoint_every: updates.max(1) * 10,
+        checkpoint_every: u64::MAX,
         objective: Default::default(),
         meta_order: 1,
         out: out.clone(),
         progress: false,
     };
-    // Warm-up updates (allocation, page faults, thread start-up) are not timed: `updates`
-    // counts from the start of the run, so the timed call continues it.
-    let warm = (updates / 5).max(1);
+    // Warm-up updates (allocation, page faults, thread start-up) are not timed; they also
+    // give the steps per update, from which the timed updates are chosen to take about
+    // `target_steps` steps. `updates` counts from the start of the run, so the timed call
+    // continues it.
+    let warm = 2;
     let r = train(
         world,
         &TrainOptions {
@@ -115,6 +120,8 @@ fn row(
         &mut state,
     );
     let (u0, s0) = (state.update, state.env_steps);
+    let per_update = (s0 / warm).max(1);
+    let updates = target_steps.div_ceil(per_update).max(2);
     let t0 = Instant::now();
     let r = r.and_then(|_| {
         train(
