@@ -5,6 +5,7 @@
 //! and `b` live in RAM and are adapted. Without a gain the layer is the ordinary `W x + b`
 //! and, in the `Full` mode, `W` itself is an f32 tensor in RAM that adaptation updates.
 
+use crate::batch::{matmul_acc, matmul_t_acc, outer_acc_batch};
 use crate::error::{check_len, Result};
 use crate::matrix::{outer_acc, seg_len, MatRef};
 
@@ -143,6 +144,126 @@ impl<'a> Dense<'a> {
                         *s = d * gi;
                     }
                     self.w.matvec_t_acc(scratch, dx)?;
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+/// The input gradient requested from [`Dense::backward_batch`]: batch-major segments and
+/// their per-vector lengths.
+pub type BatchDx<'s, 'x> = (&'s mut [&'x mut [f32]], &'s [usize]);
+
+impl<'a> Dense<'a> {
+    /// [`Dense::forward`] over a batch of `n` inputs (batch-major segments `x` with per-vector
+    /// lengths `lens`, see [`crate::batch`]): `pre` (`n x out`) and, with a gain, `u`
+    /// (`n x out`) receive for every vector exactly the bits [`Dense::forward`] gives it.
+    pub fn forward_batch(
+        &self,
+        x: &[&[f32]],
+        lens: &[usize],
+        n: usize,
+        u: &mut [f32],
+        pre: &mut [f32],
+    ) -> Result<()> {
+        self.validate()?;
+        let o = self.out_dim();
+        check_len("dense.pre", n.saturating_mul(o), pre.len())?;
+        if o == 0 {
+            return Ok(());
+        }
+        match self.gain {
+            None => {
+                for p in pre.chunks_exact_mut(o) {
+                    p.copy_from_slice(self.b);
+                }
+                matmul_acc(&self.w, x, lens, n, pre)
+            }
+            Some(g) => {
+                check_len("dense.u", n.saturating_mul(o), u.len())?;
+                u.fill(0.0);
+                matmul_acc(&self.w, x, lens, n, u)?;
+                for (p, ur) in pre.chunks_exact_mut(o).zip(u.chunks_exact(o)) {
+                    for (((p, &ui), &gi), &bi) in p.iter_mut().zip(ur).zip(g).zip(self.b) {
+                        *p = gi * ui + bi;
+                    }
+                }
+                Ok(())
+            }
+        }
+    }
+
+    /// [`Dense::backward`] over a batch of `n` vectors: `dpre` and `u` are `n x out`, `x` are
+    /// batch-major segments with per-vector lengths `lens`, `dx` (if given) batch-major
+    /// segments with their lengths, `scratch` `n x out` (used with a gain). The parameter
+    /// gradients are accumulated for `b = 0, 1, .., n - 1` in that order, so the result is
+    /// bit for bit that of calling [`Dense::backward`] for each vector in batch order.
+    #[allow(clippy::too_many_arguments)]
+    pub fn backward_batch(
+        &self,
+        x: &[&[f32]],
+        lens: &[usize],
+        n: usize,
+        u: &[f32],
+        dpre: &[f32],
+        dx: Option<BatchDx<'_, '_>>,
+        grads: &mut DenseGrads<'_>,
+        scratch: &mut [f32],
+    ) -> Result<()> {
+        self.validate()?;
+        let o = self.out_dim();
+        check_len("dense.dpre", n.saturating_mul(o), dpre.len())?;
+        if n == 0 || o == 0 {
+            return Ok(());
+        }
+        // gain ⊙ dpre, when the layer has a gain and something needs it.
+        let scaled = |scratch: &mut [f32], g: &[f32]| -> Result<()> {
+            check_len("dense.scratch", n.saturating_mul(o), scratch.len())?;
+            for (s, d) in scratch.chunks_exact_mut(o).zip(dpre.chunks_exact(o)) {
+                for ((s, &d), &gi) in s.iter_mut().zip(d).zip(g) {
+                    *s = d * gi;
+                }
+            }
+            Ok(())
+        };
+        match grads {
+            DenseGrads::None => {}
+            DenseGrads::Full { w, b } => {
+                check_len("dense.db", o, b.len())?;
+                match self.gain {
+                    None => outer_acc_batch(w, dpre, x, lens, n, 1.0)?,
+                    Some(g) => {
+                        scaled(scratch, g)?;
+                        outer_acc_batch(w, scratch, x, lens, n, 1.0)?;
+                    }
+                }
+                for d in dpre.chunks_exact(o) {
+                    for (bi, &d) in b.iter_mut().zip(d) {
+                        *bi += d;
+                    }
+                }
+            }
+            DenseGrads::Gain { gain, b } => {
+                check_len("dense.dgain", o, gain.len())?;
+                check_len("dense.db", o, b.len())?;
+                check_len("dense.u", n.saturating_mul(o), u.len())?;
+                for (d, ur) in dpre.chunks_exact(o).zip(u.chunks_exact(o)) {
+                    for ((gg, &d), &ui) in gain.iter_mut().zip(d).zip(ur) {
+                        *gg += d * ui;
+                    }
+                    for (bi, &d) in b.iter_mut().zip(d) {
+                        *bi += d;
+                    }
+                }
+            }
+        }
+        if let Some((dx, dx_lens)) = dx {
+            match self.gain {
+                None => matmul_t_acc(&self.w, dpre, n, dx, dx_lens)?,
+                Some(g) => {
+                    scaled(scratch, g)?;
+                    matmul_t_acc(&self.w, scratch, n, dx, dx_lens)?;
                 }
             }
         }

@@ -33,6 +33,7 @@ pub mod action;
 pub mod activation;
 pub mod adapt;
 pub mod batch;
+pub mod batch_cols;
 pub mod blob;
 pub mod crc32;
 pub mod dense;

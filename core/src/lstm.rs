@@ -13,6 +13,7 @@
 
 use crate::activation::{sigmoid, tanh};
 
+use crate::batch::{matmul_acc, matmul_t_acc, outer_acc_batch};
 use crate::error::{check_len, Result};
 use crate::matrix::{outer_acc, seg_len, MatRef};
 
@@ -169,6 +170,142 @@ impl<'a> Lstm<'a> {
         self.wh.matvec_t_acc(dgates, &mut [dh_prev])?;
         if let Some(dx) = dx {
             self.wx.matvec_t_acc(dgates, dx)?;
+        }
+        Ok(())
+    }
+}
+
+impl<'a> Lstm<'a> {
+    /// [`Lstm::forward`] over a batch of `n` steps of independent sequences: `x` batch-major
+    /// segments with per-vector lengths `lens` (see [`crate::batch`]), `h_prev`, `c_prev`,
+    /// `c`, `h` `n x H`, `gates` `n x 4H`. Every vector gets the bits of [`Lstm::forward`].
+    #[allow(clippy::too_many_arguments)]
+    pub fn forward_batch(
+        &self,
+        x: &[&[f32]],
+        lens: &[usize],
+        n: usize,
+        h_prev: &[f32],
+        c_prev: &[f32],
+        gates: &mut [f32],
+        c: &mut [f32],
+        h: &mut [f32],
+    ) -> Result<()> {
+        self.validate()?;
+        let hd = self.hidden();
+        let nh = n.saturating_mul(hd);
+        check_len("lstm.h_prev", nh, h_prev.len())?;
+        check_len("lstm.c_prev", nh, c_prev.len())?;
+        check_len("lstm.gates", nh.saturating_mul(4), gates.len())?;
+        check_len("lstm.c", nh, c.len())?;
+        check_len("lstm.h", nh, h.len())?;
+        if hd == 0 {
+            return Ok(());
+        }
+        for g in gates.chunks_exact_mut(4 * hd) {
+            g.copy_from_slice(self.b);
+        }
+        matmul_acc(&self.wx, x, lens, n, gates)?;
+        matmul_acc(&self.wh, &[h_prev], &[hd], n, gates)?;
+        for b in 0..n {
+            let gates = &mut gates[b * 4 * hd..(b + 1) * 4 * hd];
+            let (gi, rest) = gates.split_at_mut(hd);
+            let (gf, rest) = rest.split_at_mut(hd);
+            let (gg, go) = rest.split_at_mut(hd);
+            let cp = &c_prev[b * hd..(b + 1) * hd];
+            let cb = &mut c[b * hd..(b + 1) * hd];
+            let hb = &mut h[b * hd..(b + 1) * hd];
+            for j in 0..hd {
+                let i = sigmoid(gi[j]);
+                let f = sigmoid(gf[j]);
+                let g = tanh(gg[j]);
+                let o = sigmoid(go[j]);
+                gi[j] = i;
+                gf[j] = f;
+                gg[j] = g;
+                go[j] = o;
+                let cj = f * cp[j] + i * g;
+                cb[j] = cj;
+                hb[j] = o * tanh(cj);
+            }
+        }
+        Ok(())
+    }
+
+    /// [`Lstm::backward`] over a batch of `n` steps of independent sequences (all buffers
+    /// batch-major, `n` times the batch-1 sizes; `dx` batch-major segments with their
+    /// per-vector lengths). Parameter gradients are accumulated for `b = 0, .., n - 1` in that
+    /// order: bit for bit [`Lstm::backward`] called for each vector in batch order.
+    #[allow(clippy::too_many_arguments)]
+    pub fn backward_batch(
+        &self,
+        x: &[&[f32]],
+        lens: &[usize],
+        n: usize,
+        h_prev: &[f32],
+        c_prev: &[f32],
+        gates: &[f32],
+        c: &[f32],
+        dh: &[f32],
+        dc: &[f32],
+        dh_prev: &mut [f32],
+        dc_prev: &mut [f32],
+        dx: Option<crate::dense::BatchDx<'_, '_>>,
+        grads: Option<LstmGrads<'_>>,
+        dgates: &mut [f32],
+    ) -> Result<()> {
+        self.validate()?;
+        let hd = self.hidden();
+        let nh = n.saturating_mul(hd);
+        for (what, s) in [
+            ("lstm.h_prev", h_prev),
+            ("lstm.c_prev", c_prev),
+            ("lstm.c", c),
+            ("lstm.dh", dh),
+            ("lstm.dc", dc),
+        ] {
+            check_len(what, nh, s.len())?;
+        }
+        check_len("lstm.dh_prev", nh, dh_prev.len())?;
+        check_len("lstm.dc_prev", nh, dc_prev.len())?;
+        check_len("lstm.gates", nh.saturating_mul(4), gates.len())?;
+        check_len("lstm.dgates", nh.saturating_mul(4), dgates.len())?;
+        if n == 0 || hd == 0 {
+            return Ok(());
+        }
+        for b in 0..n {
+            let g4 = &gates[b * 4 * hd..(b + 1) * 4 * hd];
+            let d4 = &mut dgates[b * 4 * hd..(b + 1) * 4 * hd];
+            let r = b * hd;
+            for j in 0..hd {
+                let (i, f, g, o) = (g4[j], g4[hd + j], g4[2 * hd + j], g4[3 * hd + j]);
+                let tc = tanh(c[r + j]);
+                let d_o = dh[r + j] * tc;
+                let dct = dc[r + j] + dh[r + j] * o * (1.0 - tc * tc);
+                let d_i = dct * g;
+                let d_g = dct * i;
+                let d_f = dct * c_prev[r + j];
+                dc_prev[r + j] = dct * f;
+                d4[j] = d_i * i * (1.0 - i);
+                d4[hd + j] = d_f * f * (1.0 - f);
+                d4[2 * hd + j] = d_g * (1.0 - g * g);
+                d4[3 * hd + j] = d_o * o * (1.0 - o);
+            }
+        }
+        if let Some(gr) = grads {
+            outer_acc_batch(gr.wx, dgates, x, lens, n, 1.0)?;
+            outer_acc_batch(gr.wh, dgates, &[h_prev], &[hd], n, 1.0)?;
+            check_len("lstm.db", 4 * hd, gr.b.len())?;
+            for d in dgates.chunks_exact(4 * hd) {
+                for (b, &d) in gr.b.iter_mut().zip(d) {
+                    *b += d;
+                }
+            }
+        }
+        dh_prev.fill(0.0);
+        matmul_t_acc(&self.wh, dgates, n, &mut [dh_prev], &[hd])?;
+        if let Some((dx, dx_lens)) = dx {
+            matmul_t_acc(&self.wx, dgates, n, dx, dx_lens)?;
         }
         Ok(())
     }

@@ -29,6 +29,7 @@
 //! back-propagation through time, used by the host trainer (A3C, meta-gradients).
 
 use crate::activation::{leaky_relu_backward, leaky_relu_grad, leaky_relu_inplace, softmax};
+use crate::batch_cols::matmul_t_acc_cols;
 use crate::dense::{Dense, DenseGrads};
 use crate::error::{check_len, Result};
 use crate::lstm::{Lstm, LstmGrads};
@@ -348,6 +349,320 @@ impl<'a> Policy<'a> {
                 cell.w.matvec_t_acc_cols(dpre, f, s.cell_tmp)?;
                 for ((o, &d), &mv) in out.feat.iter_mut().zip(s.cell_tmp.iter()).zip(m) {
                     *o += d * mv;
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Activations of a batch of `n` policy steps ([`Policy::forward_batch`]): the fields of
+/// [`PolicyCache`], batch-major, each `n` times its batch-1 size, except `cell_prod`, which
+/// holds every cell's product: `n x map_cells x feat` (empty without a map).
+#[derive(Debug)]
+pub struct PolicyBatchCache<'a> {
+    /// `n x feat`.
+    pub prod: &'a mut [f32],
+    /// `n x embed`.
+    pub fuse: &'a mut [f32],
+    /// `n x 4 lstm_hidden`.
+    pub gates: &'a mut [f32],
+    /// `n x lstm_hidden`.
+    pub c: &'a mut [f32],
+    /// `n x lstm_hidden`.
+    pub h: &'a mut [f32],
+    /// `n x 6` (empty when the actor has no gain).
+    pub actor_u: &'a mut [f32],
+    /// `n x 6`.
+    pub logits: &'a mut [f32],
+    /// `n x 6`.
+    pub probs: &'a mut [f32],
+    /// `n` state values.
+    pub value: &'a mut [f32],
+    /// `n x map_cells x cell_embed` (empty without a map).
+    pub cell: &'a mut [f32],
+    /// `n x map_cells x feat` (empty without a map).
+    pub cell_prod: &'a mut [f32],
+}
+
+/// Per-vector widths of a batched policy input.
+#[derive(Clone, Copy)]
+struct BatchWidths {
+    f: usize,
+    a: usize,
+    ps: usize,
+    cells: usize,
+    ce: usize,
+}
+
+impl<'a> Policy<'a> {
+    /// Checks a batch of `n >= 1` inputs and returns the per-vector widths.
+    fn batch_widths(
+        &self,
+        inp: &PolicyInput<'_>,
+        n: usize,
+        cell_out: usize,
+    ) -> Result<BatchWidths> {
+        let per = |what: &'static str, len: usize| -> Result<usize> {
+            let w = len / n;
+            check_len(what, n * w, len)?;
+            Ok(w)
+        };
+        let f = per("policy.obs", inp.obs.len())?;
+        check_len("policy.feat", inp.obs.len(), inp.feat.len())?;
+        let a = per("policy.attr", inp.attr.len())?;
+        let ps = per("policy.ps", inp.ps.len())?;
+        check_len("policy.prev_probs", n * NUM_ACTIONS, inp.prev_probs.len())?;
+        let (cells, ce) = match &self.cell {
+            None => {
+                check_len("policy.map", 0, inp.map.len())?;
+                check_len("policy.cell_out", 0, cell_out)?;
+                (0, 0)
+            }
+            Some(cell) => {
+                check_len("policy.cell.in", 2 * f, cell.in_dim())?;
+                let ce = cell.out_dim();
+                let cells = (inp.map.len() / n).checked_div(f).unwrap_or(0);
+                check_len("policy.map", n * cells * f, inp.map.len())?;
+                check_len("policy.cell_out", n * cells * ce, cell_out)?;
+                (cells, ce)
+            }
+        };
+        Ok(BatchWidths {
+            f,
+            a,
+            ps,
+            cells,
+            ce,
+        })
+    }
+
+    /// [`Policy::forward`] over a batch of `n` steps of independent episodes that share these
+    /// parameters: the fields of `inp` are batch-major (`n` times their batch-1 sizes), and so
+    /// are `h_prev`, `c_prev` and `cache` (see [`PolicyBatchCache`]). Every step of the batch
+    /// gets exactly the bits [`Policy::forward`] gives it alone.
+    pub fn forward_batch(
+        &self,
+        n: usize,
+        inp: &PolicyInput<'_>,
+        h_prev: &[f32],
+        c_prev: &[f32],
+        cache: &mut PolicyBatchCache<'_>,
+    ) -> Result<()> {
+        self.validate()?;
+        if n == 0 {
+            return Ok(());
+        }
+        let wd = self.batch_widths(inp, n, cache.cell.len())?;
+        let f = wd.f;
+        check_len("policy.prod", inp.obs.len(), cache.prod.len())?;
+        check_len("policy.value", n, cache.value.len())?;
+        check_len("policy.probs", n * NUM_ACTIONS, cache.probs.len())?;
+        check_len("policy.logits", n * NUM_ACTIONS, cache.logits.len())?;
+        for ((p, &s), &x) in cache.prod.iter_mut().zip(inp.obs).zip(inp.feat) {
+            *p = s * x;
+        }
+        if let Some(cell) = &self.cell {
+            let nc = n * wd.cells;
+            check_len("policy.cell_prod", nc * f, cache.cell_prod.len())?;
+            if f > 0 {
+                for (b, x) in inp.feat.chunks_exact(f).enumerate() {
+                    let m = &inp.map[b * wd.cells * f..(b + 1) * wd.cells * f];
+                    let cp = &mut cache.cell_prod[b * wd.cells * f..(b + 1) * wd.cells * f];
+                    for (pc, mc) in cp.chunks_exact_mut(f).zip(m.chunks_exact(f)) {
+                        for ((p, &mv), &xv) in pc.iter_mut().zip(mc).zip(x) {
+                            *p = mv * xv;
+                        }
+                    }
+                }
+            }
+            cell.forward_batch(
+                &[inp.map, cache.cell_prod],
+                &[f, f],
+                nc,
+                &mut [],
+                cache.cell,
+            )?;
+            leaky_relu_inplace(cache.cell);
+        }
+        let segs: [&[f32]; 7] = [
+            inp.obs,
+            inp.feat,
+            cache.prod,
+            inp.attr,
+            inp.prev_probs,
+            inp.ps,
+            cache.cell,
+        ];
+        let lens = [f, f, f, wd.a, NUM_ACTIONS, wd.ps, wd.cells * wd.ce];
+        self.fuse
+            .forward_batch(&segs, &lens, n, &mut [], cache.fuse)?;
+        leaky_relu_inplace(cache.fuse);
+        let e = self.fuse.out_dim();
+        self.lstm.forward_batch(
+            &[cache.fuse],
+            &[e],
+            n,
+            h_prev,
+            c_prev,
+            cache.gates,
+            cache.c,
+            cache.h,
+        )?;
+        let hd = self.lstm.hidden();
+        self.actor
+            .forward_batch(&[cache.h], &[hd], n, cache.actor_u, cache.logits)?;
+        for (l, p) in cache
+            .logits
+            .chunks_exact(NUM_ACTIONS)
+            .zip(cache.probs.chunks_exact_mut(NUM_ACTIONS))
+        {
+            softmax(l, p)?;
+        }
+        self.critic
+            .forward_batch(&[cache.h], &[hd], n, &mut [], cache.value)
+    }
+
+    /// [`Policy::backward`] over a batch of `n` steps of independent episodes: every buffer is
+    /// batch-major, `n` times its batch-1 size (`dvalue` is `n` values; in `s`, `tmp` is
+    /// `n x max(embed, 6)`, `dcell` `n x map_cells x cell_embed` and `cell_tmp`
+    /// `n x map_cells x feat`). Each parameter gradient is accumulated over the batch in the
+    /// order `b = 0, 1, .., n - 1`, so the result is bit for bit that of calling
+    /// [`Policy::backward`] for each step in batch order.
+    #[allow(clippy::too_many_arguments)]
+    pub fn backward_batch(
+        &self,
+        n: usize,
+        inp: &PolicyInput<'_>,
+        h_prev: &[f32],
+        c_prev: &[f32],
+        cache: &PolicyBatchCache<'_>,
+        dlogits: &[f32],
+        dvalue: &[f32],
+        dh_next: &[f32],
+        dc_next: &[f32],
+        grads: &mut PolicyGrads<'_>,
+        out: &mut PolicyInputGrads<'_>,
+        s: &mut PolicyScratch<'_>,
+    ) -> Result<()> {
+        self.validate()?;
+        if n == 0 {
+            return Ok(());
+        }
+        let wd = self.batch_widths(inp, n, cache.cell.len())?;
+        let (f, hd, e) = (wd.f, self.lstm.hidden(), self.fuse.out_dim());
+        check_len("policy.dh_next", n * hd, dh_next.len())?;
+        check_len("policy.dh", n * hd, s.dh.len())?;
+        check_len("policy.dfeat", n * f, out.feat.len())?;
+        check_len("policy.dprod", n * f, s.dprod.len())?;
+        check_len("policy.de", n * e, s.de.len())?;
+        check_len("policy.tmp", n * e.max(NUM_ACTIONS), s.tmp.len())?;
+        // Heads: dh = W_actorᵀ dlogits (+ gain) + W_criticᵀ dvalue + dh_next.
+        s.dh.copy_from_slice(dh_next);
+        self.actor.backward_batch(
+            &[cache.h],
+            &[hd],
+            n,
+            cache.actor_u,
+            dlogits,
+            Some((&mut [&mut *s.dh], &[hd])),
+            &mut grads.actor,
+            &mut s.tmp[..n * NUM_ACTIONS],
+        )?;
+        self.critic.backward_batch(
+            &[cache.h],
+            &[hd],
+            n,
+            &[],
+            dvalue,
+            Some((&mut [&mut *s.dh], &[hd])),
+            &mut grads.critic,
+            &mut s.tmp[..n],
+        )?;
+        s.de.fill(0.0);
+        self.lstm.backward_batch(
+            &[cache.fuse],
+            &[e],
+            n,
+            h_prev,
+            c_prev,
+            cache.gates,
+            cache.c,
+            s.dh,
+            dc_next,
+            out.h_prev,
+            out.c_prev,
+            Some((&mut [&mut *s.de], &[e])),
+            grads.lstm.as_mut().map(|g| LstmGrads {
+                wx: &mut *g.wx,
+                wh: &mut *g.wh,
+                b: &mut *g.b,
+            }),
+            s.dgates,
+        )?;
+        let tmp = &mut s.tmp[..n * e];
+        leaky_relu_backward(cache.fuse, s.de, tmp)?;
+        let segs: [&[f32]; 7] = [
+            inp.obs,
+            inp.feat,
+            cache.prod,
+            inp.attr,
+            inp.prev_probs,
+            inp.ps,
+            cache.cell,
+        ];
+        let lens = [f, f, f, wd.a, NUM_ACTIONS, wd.ps, wd.cells * wd.ce];
+        self.fuse
+            .backward_batch(&segs, &lens, n, &[], tmp, None, &mut grads.fuse, &mut [])?;
+        matmul_t_acc_cols(&self.fuse.w, tmp, n, f, out.feat, f)?;
+        s.dprod.fill(0.0);
+        matmul_t_acc_cols(&self.fuse.w, tmp, n, 2 * f, s.dprod, f)?;
+        for ((o, &d), &sv) in out.feat.iter_mut().zip(s.dprod.iter()).zip(inp.obs) {
+            *o += d * sv;
+        }
+        if let Some(cell) = &self.cell {
+            let (cells, ce) = (wd.cells, wd.ce);
+            let nc = n * cells;
+            check_len("policy.dcell", nc * ce, s.dcell.len())?;
+            check_len("policy.cell_tmp", nc * f, s.cell_tmp.len())?;
+            let col0 = self.fuse.in_dim() - cells * ce;
+            s.dcell.fill(0.0);
+            matmul_t_acc_cols(&self.fuse.w, tmp, n, col0, s.dcell, cells * ce)?;
+            for (d, &a) in s.dcell.iter_mut().zip(cache.cell.iter()) {
+                *d *= leaky_relu_grad(a);
+            }
+            if f > 0 {
+                for (b, x) in inp.feat.chunks_exact(f).enumerate() {
+                    let m = &inp.map[b * cells * f..(b + 1) * cells * f];
+                    let cp = &mut s.cell_tmp[b * cells * f..(b + 1) * cells * f];
+                    for (pc, mc) in cp.chunks_exact_mut(f).zip(m.chunks_exact(f)) {
+                        for ((p, &mv), &xv) in pc.iter_mut().zip(mc).zip(x) {
+                            *p = mv * xv;
+                        }
+                    }
+                }
+            }
+            cell.backward_batch(
+                &[inp.map, s.cell_tmp],
+                &[f, f],
+                nc,
+                &[],
+                s.dcell,
+                None,
+                &mut grads.cell,
+                &mut [],
+            )?;
+            s.cell_tmp.fill(0.0);
+            matmul_t_acc_cols(&cell.w, s.dcell, nc, f, s.cell_tmp, f)?;
+            if f > 0 {
+                for (b, o) in out.feat.chunks_exact_mut(f).enumerate() {
+                    let m = &inp.map[b * cells * f..(b + 1) * cells * f];
+                    let ct = &s.cell_tmp[b * cells * f..(b + 1) * cells * f];
+                    for (dc, mc) in ct.chunks_exact(f).zip(m.chunks_exact(f)) {
+                        for ((o, &d), &mv) in o.iter_mut().zip(dc).zip(mc) {
+                            *o += d * mv;
+                        }
+                    }
                 }
             }
         }

@@ -2,7 +2,7 @@
 //! update on k = 20 buffered steps) for the `mcu` and `paper` presets, f32 and int8 weights,
 //! `Full` and `Efficient` adaptation, next to this machine's limits measured in the same run
 //! (a STREAM-like copy bandwidth, a read bandwidth and a peak multiply-add loop), plus the
-//! training throughput of `gman train` (a3c, gman; 1 and 2 workers) and the firmware's QEMU
+//! training throughput of `gman train` (see `bench_train`) and the firmware's QEMU
 //! instruction counts (quoted from `firmware-example/README.md`).
 //!
 //! Timing uses `std::time::Instant` and medians over repetitions; nothing here is a test.
@@ -19,11 +19,6 @@ use gman_core::matrix::MatRef;
 use gman_core::navigator::{Efficient, Full, Mode, NavConfig, NavWeights, Navigator};
 use gman_core::rng::{uniform, Xoshiro128};
 use gman_core::Dims;
-use gman_host_sim::nav::model::{Method, NavModel};
-use gman_host_sim::nav::trainer::{train, TrainOptions, TrainState};
-use gman_host_sim::sim::{RewardKind, World, DEFAULT_WORLD_SEED};
-use gman_host_sim::train::adam::AdamConfig;
-use gman_host_sim::train::generator::init_generator;
 use serde_json::{json, Value};
 
 use crate::cli::PresetArg;
@@ -456,87 +451,7 @@ fn nav_rows(a: &BenchArgs) -> Result<Vec<NavRow>> {
 
 // ---------------------------------------------------------------- training
 
-struct TrainRow {
-    method: &'static str,
-    workers: usize,
-    updates: u64,
-    env_steps: u64,
-    secs: f64,
-}
-
-fn train_rows(updates: u64) -> Result<Vec<TrainRow>> {
-    let world = World::synthetic(DEFAULT_WORLD_SEED);
-    let dims = Dims::MCU;
-    let gen = init_generator(&dims, &mut Xoshiro128::seed_from_u64(7))?;
-    let mut rows = Vec::new();
-    for method in [Method::A3c, Method::Gman] {
-        for workers in [1usize, 2] {
-            eprintln!("bench: train {} --workers {workers} ...", method.name());
-            let out = std::env::temp_dir().join(format!(
-                "gman-bench-{}-{}-{workers}",
-                std::process::id(),
-                method.name()
-            ));
-            let model = NavModel::init(method, dims, 1, Some(&gen), None)?;
-            let adam = AdamConfig {
-                lr: 1e-3,
-                ..AdamConfig::default()
-            };
-            let mut state = TrainState::new(model, adam);
-            let opts = TrainOptions {
-                updates,
-                seed: 1,
-                workers,
-                min_steps: 40,
-                reward: RewardKind::Mixed,
-                max_steps: None,
-                min_start_actions: 1,
-                adam,
-                a3c: Default::default(),
-                checkpoint_every: updates.max(1) * 10,
-                objective: Default::default(),
-                meta_order: 1,
-                out: out.clone(),
-                progress: false,
-            };
-            // Warm-up updates (allocation, page faults, thread start-up) are not timed:
-            // `updates` counts from the start of the run, so the timed call continues it.
-            let warm = (updates / 5).max(1);
-            let r = train(
-                &world,
-                &TrainOptions {
-                    updates: warm,
-                    out: out.clone(),
-                    ..opts.clone()
-                },
-                &mut state,
-            );
-            let (u0, s0) = (state.update, state.env_steps);
-            let t0 = Instant::now();
-            let r = r.and_then(|_| {
-                train(
-                    &world,
-                    &TrainOptions {
-                        updates: warm + updates,
-                        ..opts
-                    },
-                    &mut state,
-                )
-            });
-            let secs = t0.elapsed().as_secs_f64();
-            let _ = std::fs::remove_dir_all(&out);
-            r.with_context(|| format!("training {}", method.name()))?;
-            rows.push(TrainRow {
-                method: method.name(),
-                workers,
-                updates: state.update - u0,
-                env_steps: state.env_steps - s0,
-                secs,
-            });
-        }
-    }
-    Ok(rows)
-}
+// The training-throughput rows live in `crate::bench_train`.
 
 // ---------------------------------------------------------------- report
 
@@ -559,7 +474,7 @@ pub fn cmd_bench(a: BenchArgs) -> Result<()> {
     let lim = measure_limits(&a);
     let rows = nav_rows(&a)?;
     let trains = if a.train_updates > 0 {
-        train_rows(a.train_updates)?
+        crate::bench_train::rows(a.train_updates)?
     } else {
         Vec::new()
     };
@@ -584,23 +499,7 @@ pub fn cmd_bench(a: BenchArgs) -> Result<()> {
             })
         })
         .collect();
-    let base_sps = |m: &str| {
-        trains
-            .iter()
-            .find(|t| t.method == m && t.workers == 1)
-            .map(|t| t.env_steps as f64 / t.secs)
-    };
-    let train_json: Vec<Value> = trains
-        .iter()
-        .map(|t| {
-            let sps = t.env_steps as f64 / t.secs;
-            json!({
-                "method": t.method, "preset": "mcu", "workers": t.workers, "updates": t.updates,
-                "env_steps": t.env_steps, "secs": t.secs, "env_steps_per_s": sps,
-                "scaling_vs_1_worker": base_sps(t.method).map(|b| sps / b),
-            })
-        })
-        .collect();
+    let train_json = crate::bench_train::json(&trains);
     let report = json!({
         "threads": 1,
         "k": K,
@@ -672,19 +571,6 @@ pub fn cmd_bench(a: BenchArgs) -> Result<()> {
             pct(gbs / lim.copy_gbs),
         );
     }
-    for t in &trains {
-        let sps = t.env_steps as f64 / t.secs;
-        println!(
-            "| train {} (mcu) | f32 | --workers {} | {:.0} env steps/s | {} updates, {} steps in {:.1} s | scaling {} | | | | | | | |",
-            t.method,
-            t.workers,
-            sps,
-            t.updates,
-            t.env_steps,
-            t.secs,
-            base_sps(t.method).map_or("-".into(), |b| format!("{:.2}x", sps / b)),
-        );
-    }
     println!(
         "| firmware M4F (QEMU) | int8 | Efficient | {:.0} instr ≈ {:.1} ms @168 MHz | {:.1} M instr ≈ {:.0} ms | {:.0} | {} | {:.1} instr/MAC | | | | | |",
         FW_STEP_INSTR,
@@ -695,6 +581,7 @@ pub fn cmd_bench(a: BenchArgs) -> Result<()> {
         Dims::MCU.macs_per_step(),
         FW_STEP_INSTR / Dims::MCU.macs_per_step() as f64,
     );
+    crate::bench_train::print_table(&trains);
     println!();
     println!(
         "(1 thread for the navigator rows; medians of {} repetitions; firmware row quoted from \

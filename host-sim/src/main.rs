@@ -3,6 +3,7 @@ use std::process::ExitCode;
 
 use clap::{CommandFactory, FromArgMatches};
 
+mod bench_train;
 mod cli;
 mod cli_bench;
 

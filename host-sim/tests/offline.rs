@@ -328,6 +328,7 @@ fn opts(out: PathBuf, updates: u64) -> TrainOptions {
         updates,
         seed: 3,
         workers: 2,
+        batch_envs: 1,
         min_steps: 20,
         reward: RewardKind::Mixed,
         max_steps: Some(30),

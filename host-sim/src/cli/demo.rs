@@ -74,6 +74,7 @@ pub fn cmd_demo(a: DemoArgs) -> Result<()> {
             updates: a.updates,
             seed: 1,
             workers: 2,
+            batch_envs: 1,
             min_steps: 40,
             reward: RewardKind::Mixed,
             max_steps: None,

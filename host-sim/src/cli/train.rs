@@ -78,6 +78,11 @@ pub struct TrainArgs {
     /// Parallel workers (one thread each).
     #[arg(long, default_value_t = 2)]
     pub workers: usize,
+    /// Environments each worker steps in lockstep, with the policy's passes run over them
+    /// as matrices (methods without an inner loop in training; 1: one episode at a time).
+    /// Every update then holds at least this many episodes per worker.
+    #[arg(long, default_value_t = 1)]
+    pub batch_envs: usize,
     /// Outer Adam learning rate β (overrides the config).
     #[arg(long)]
     pub lr: Option<f32>,
@@ -279,6 +284,13 @@ fn validate_train_settings(
     }
     if opts.checkpoint_every == 0 {
         return Err(bad("checkpoint-every must be at least 1".into()));
+    }
+    let max_b = gman_host_sim::nav::vec_rollout::MAX_BATCH_ENVS;
+    if opts.batch_envs == 0 || opts.batch_envs > max_b {
+        return Err(bad(format!(
+            "batch-envs must be in 1..={max_b}, got {}",
+            opts.batch_envs
+        )));
     }
     if !(inner_lr.is_finite() && inner_lr >= 0.0) {
         return Err(bad(format!(
@@ -529,6 +541,7 @@ pub fn cmd_train(a: TrainArgs, explicit: &dyn Fn(&str) -> bool) -> Result<()> {
         updates,
         seed: a.seed,
         workers: a.workers,
+        batch_envs: a.batch_envs,
         min_steps: a.min_steps,
         reward: a.reward,
         max_steps: a.max_steps,
@@ -609,6 +622,19 @@ pub fn cmd_train(a: TrainArgs, explicit: &dyn Fn(&str) -> bool) -> Result<()> {
             a.workers,
             stored_int(t, "workers"),
             explicit("workers"),
+        )?;
+        // Runs from before vectorised episodes stepped one environment per worker.
+        opts.batch_envs = resumed(
+            "--batch-envs",
+            a.batch_envs,
+            Some(match t.get("batch_envs") {
+                None => 1,
+                Some(v) => v
+                    .as_u64()
+                    .and_then(|x| usize::try_from(x).ok())
+                    .ok_or_else(|| anyhow!("checkpoint trainer.batch_envs {v} is not a count"))?,
+            }),
+            explicit("batch_envs"),
         )?;
         opts.min_steps = resumed(
             "--min-steps",

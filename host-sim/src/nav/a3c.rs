@@ -114,7 +114,7 @@ impl SegmentLoss {
 }
 
 /// Names of the gradient tensors written by [`segment_backward`].
-const NAMES: [&str; 13] = [
+pub(crate) const GRAD_NAMES: [&str; 13] = [
     "FuseW", "FuseB", "LstmWx", "LstmWh", "LstmB", "ActorW", "ActorB", "CriticW", "CriticB",
     "GenW1", "GenB1", "GenW2", "GenB2",
 ];
@@ -268,7 +268,8 @@ pub fn segment_backward<M: Mode, const K: usize>(
         vec![0.0f32; size(TensorId::CellW)],
         vec![0.0f32; size(TensorId::CellB)],
     );
-    let [fw, fb, lwx, lwh, lb, aw, ab, cw, cb, g1w, g1b, g2w, g2b] = grads.slices_mut(NAMES)?;
+    let [fw, fb, lwx, lwh, lb, aw, ab, cw, cb, g1w, g1b, g2w, g2b] =
+        grads.slices_mut(GRAD_NAMES)?;
     let mut pg = PolicyGrads {
         fuse: DenseGrads::Full { w: fw, b: fb },
         lstm: Some(LstmGrads {

@@ -12,6 +12,7 @@ pub mod meta;
 pub mod model;
 pub mod rollout;
 pub mod trainer;
+pub mod vec_rollout;
 
 /// Capacity k of the navigation buffer Ψ (the paper's k = 20).
 pub const K: usize = 20;

@@ -23,6 +23,10 @@
 //!   Adam step. Every random choice of an update derives from
 //!   `(seed, update, worker)`, so a run is reproducible bit for bit for a given worker count
 //!   and a resumed run continues exactly where the checkpoint left off.
+//! * **Vectorised episodes** (`--batch-envs B`, methods without an inner loop in training):
+//!   each worker steps `B` environments in lockstep with the policy's passes over them as
+//!   matrices, see [`super::vec_rollout`]; `B = 1` (the default) is this loop's batch-1
+//!   runner, and the vectorised runner with `B = 1` gives the same update bit for bit.
 //! * **Baselines** run the same loop with the inner loop off (`a3c`, `a3c-fg`, `gman-nometa`):
 //!   plain synchronous advantage actor-critic, with G's θ frozen at its pre-trained value.
 //! * **The `gman-noemd` control** runs the loop with the inner loop off but lets Adam train θ
@@ -55,6 +59,7 @@ use rand_chacha::ChaCha8Rng;
 use super::a3c::{A3cConfig, Objective, SegmentLoss};
 use super::model::NavModel;
 use super::rollout::{train_episode, EpisodeStats, Worker};
+use super::vec_rollout::{self, VecSettings};
 use crate::sim::{EpisodeLimits, RewardKind, World};
 use crate::train::adam::{Adam, AdamConfig};
 use crate::train::checkpoint::Checkpoint;
@@ -68,6 +73,9 @@ pub struct TrainOptions {
     pub seed: u64,
     /// Parallel workers.
     pub workers: usize,
+    /// Environments each worker steps in lockstep (`B`, see [`super::vec_rollout`]); 1 is
+    /// the batch-1 episode runner. Stored in the checkpoint (absent in older ones: 1).
+    pub batch_envs: usize,
     /// Each worker runs whole episodes (tasks) until it has taken at least this many steps
     /// in the update (at least one episode).
     pub min_steps: u32,
@@ -144,6 +152,7 @@ impl TrainState {
             "env_steps": self.env_steps,
             "seed": opts.seed,
             "workers": opts.workers,
+            "batch_envs": opts.batch_envs,
             "min_steps": opts.min_steps,
             "reward": format!("{:?}", opts.reward),
             "max_steps": opts.max_steps,
@@ -419,6 +428,20 @@ pub fn train(world: &World, opts: &TrainOptions, state: &mut TrainState) -> Resu
     if !(1..=2).contains(&opts.meta_order) {
         bail!("--meta-order must be 1 or 2");
     }
+    if opts.batch_envs == 0 || opts.batch_envs > vec_rollout::MAX_BATCH_ENVS {
+        bail!(
+            "--batch-envs must be in 1..={}, got {}",
+            vec_rollout::MAX_BATCH_ENVS,
+            opts.batch_envs
+        );
+    }
+    if opts.batch_envs > 1 && !vec_rollout::supports(&state.model) {
+        bail!(
+            "--batch-envs {} is implemented for the methods without an inner loop in training (a3c, a3c-fg, a3c-ps, a3c-fg-ps, gman-nometa, gman-noemd); {} runs its inner loop per episode: use --batch-envs 1",
+            opts.batch_envs,
+            state.model.method.name()
+        );
+    }
     if opts.meta_order == 2 && state.model.method.uses_cossim() {
         bail!("--meta-order 2 is implemented for the discriminator EMD only; use --meta-order 1 with gman-cossim");
     }
@@ -458,15 +481,32 @@ pub fn train(world: &World, opts: &TrainOptions, state: &mut TrainState) -> Resu
                 .map(|(w, (worker, grads))| {
                     s.spawn(move || -> Result<Out> {
                         grads.zero();
-                        let mut out = Vec::new();
-                        let mut steps = 0u32;
-                        let mut e = 0u32;
-                        while e == 0 || steps < opts.min_steps {
+                        let sample = |e: u32| -> Result<(crate::sim::EpisodeSpec, u32)> {
                             let mut rng =
                                 ChaCha8Rng::seed_from_u64(episode_seed(opts.seed, u, w, e));
                             let spec = world
                                 .try_sample_train_episode_min(&mut rng, opts.min_start_actions)?;
                             let max = opts.max_steps.unwrap_or_else(|| limits.for_room(spec.room));
+                            Ok((spec, max))
+                        };
+                        if opts.batch_envs > 1 {
+                            let settings = VecSettings {
+                                batch_envs: opts.batch_envs,
+                                min_steps: opts.min_steps,
+                                reward: opts.reward,
+                                a3c: &opts.a3c,
+                                objective: opts.objective,
+                            };
+                            let done = vec_rollout::run_worker(
+                                world, model, &settings, worker, grads, sample,
+                            )?;
+                            return Ok(done.into_iter().map(|(_, st, d)| (st, d)).collect());
+                        }
+                        let mut out = Vec::new();
+                        let mut steps = 0u32;
+                        let mut e = 0u32;
+                        while e == 0 || steps < opts.min_steps {
+                            let (spec, max) = sample(e)?;
                             let (st, disc) = train_episode(
                                 world,
                                 &spec,

@@ -1,0 +1,209 @@
+//! The training-throughput rows of `gman bench`: environment steps per second of
+//! `gman train` on the synthetic world for a3c and gman, the `mcu` and `paper` presets,
+//! one environment per worker (`--batch-envs 1`) and [`BATCH_ENVS`] in lockstep, 1 and 2
+//! workers, all measured in one run.
+//!
+//! Each row trains a fresh model (seed 1, a random generator) for two warm-up updates (not
+//! timed), then times as many more as take about the same number of environment steps in
+//! every row of a preset (an update holds at least `B` episodes per worker). `gman` runs its inner
+//! loop per episode, which the vectorised path does not batch: its `B > 1` rows are absent.
+
+use std::time::Instant;
+
+use anyhow::{Context, Result};
+use gman_core::rng::Xoshiro128;
+use gman_core::Dims;
+use gman_host_sim::nav::model::{Method, NavModel};
+use gman_host_sim::nav::trainer::{train, TrainOptions, TrainState};
+use gman_host_sim::nav::vec_rollout;
+use gman_host_sim::sim::{RewardKind, World, DEFAULT_WORLD_SEED};
+use gman_host_sim::train::adam::AdamConfig;
+use gman_host_sim::train::generator::init_generator;
+use serde_json::{json, Value};
+
+/// The batched setting the bench measures next to `--batch-envs 1`.
+pub const BATCH_ENVS: usize = 16;
+
+/// One measured training configuration.
+pub struct TrainRow {
+    method: &'static str,
+    preset: &'static str,
+    batch_envs: usize,
+    workers: usize,
+    updates: u64,
+    env_steps: u64,
+    secs: f64,
+}
+
+impl TrainRow {
+    fn sps(&self) -> f64 {
+        self.env_steps as f64 / self.secs
+    }
+}
+
+/// Steps per worker and update (`--min-steps`, the CLI default).
+const MIN_STEPS: u32 = 40;
+
+/// Measures every row: each times about `updates x 40 x workers` environment steps (the
+/// steps of `updates` batch-1 updates; `paper` a tenth of that).
+pub fn rows(updates: u64) -> Result<Vec<TrainRow>> {
+    let world = World::synthetic(DEFAULT_WORLD_SEED);
+    let mut rows = Vec::new();
+    for (preset, dims, scale) in [("mcu", Dims::MCU, 1), ("paper", Dims::PAPER, 10)] {
+        let gen = init_generator(&dims, &mut Xoshiro128::seed_from_u64(7))?;
+        for method in [Method::A3c, Method::Gman] {
+            for b in [1, BATCH_ENVS] {
+                let model = NavModel::init(method, dims, 1, Some(&gen), None)?;
+                if b > 1 && !vec_rollout::supports(&model) {
+                    continue;
+                }
+                for workers in [1usize, 2] {
+                    let target = updates / scale * MIN_STEPS as u64 * workers as u64;
+                    eprintln!(
+                        "bench: train {} ({preset}) --batch-envs {b} --workers {workers}, ~{target} env steps ...",
+                        method.name()
+                    );
+                    rows.push(row(&world, model.clone(), preset, b, workers, target)?);
+                }
+            }
+        }
+    }
+    Ok(rows)
+}
+
+fn row(
+    world: &World,
+    model: NavModel,
+    preset: &'static str,
+    batch_envs: usize,
+    workers: usize,
+    target_steps: u64,
+) -> Result<TrainRow> {
+    let method = model.method.name();
+    let out = std::env::temp_dir().join(format!(
+        "gman-bench-{}-{method}-{preset}-{batch_envs}-{workers}",
+        std::process::id(),
+    ));
+    let adam = AdamConfig {
+        lr: 1e-3,
+        ..AdamConfig::default()
+    };
+    let mut state = TrainState::new(model, adam);
+    let opts = TrainOptions {
+        updates: 1,
+        seed: 1,
+        workers,
+        batch_envs,
+        min_steps: MIN_STEPS,
+        reward: RewardKind::Mixed,
+        max_steps: None,
+        min_start_actions: 1,
+        adam,
+        a3c: Default::default(),
+        checkpoint_every: u64::MAX,
+        objective: Default::default(),
+        meta_order: 1,
+        out: out.clone(),
+        progress: false,
+    };
+    // Warm-up updates (allocation, page faults, thread start-up) are not timed; they also
+    // give the steps per update, from which the timed updates are chosen to take about
+    // `target_steps` steps. `updates` counts from the start of the run, so the timed call
+    // continues it.
+    let warm = 2;
+    let r = train(
+        world,
+        &TrainOptions {
+            updates: warm,
+            ..opts.clone()
+        },
+        &mut state,
+    );
+    let (u0, s0) = (state.update, state.env_steps);
+    let per_update = (s0 / warm).max(1);
+    let updates = target_steps.div_ceil(per_update).max(2);
+    let t0 = Instant::now();
+    let r = r.and_then(|_| {
+        train(
+            world,
+            &TrainOptions {
+                updates: warm + updates,
+                ..opts
+            },
+            &mut state,
+        )
+    });
+    let secs = t0.elapsed().as_secs_f64();
+    let _ = std::fs::remove_dir_all(&out);
+    r.with_context(|| format!("training {method} ({preset}, --batch-envs {batch_envs})"))?;
+    Ok(TrainRow {
+        method,
+        preset,
+        batch_envs,
+        workers,
+        updates: state.update - u0,
+        env_steps: state.env_steps - s0,
+        secs,
+    })
+}
+
+/// The same (method, preset) row with `B = 1` and one worker.
+fn base<'a>(rows: &'a [TrainRow], r: &TrainRow) -> Option<&'a TrainRow> {
+    rows.iter().find(|t| {
+        t.method == r.method && t.preset == r.preset && t.batch_envs == 1 && t.workers == 1
+    })
+}
+
+/// The same row with one worker.
+fn one_worker<'a>(rows: &'a [TrainRow], r: &TrainRow) -> Option<&'a TrainRow> {
+    rows.iter().find(|t| {
+        t.method == r.method
+            && t.preset == r.preset
+            && t.batch_envs == r.batch_envs
+            && t.workers == 1
+    })
+}
+
+/// The rows as JSON.
+pub fn json(rows: &[TrainRow]) -> Vec<Value> {
+    rows.iter()
+        .map(|t| {
+            json!({
+                "method": t.method, "preset": t.preset, "batch_envs": t.batch_envs,
+                "workers": t.workers, "updates": t.updates, "env_steps": t.env_steps,
+                "secs": t.secs, "env_steps_per_s": t.sps(),
+                "scaling_vs_1_worker": one_worker(rows, t).map(|b| t.sps() / b.sps()),
+                "speedup_vs_b1_1_worker": base(rows, t).map(|b| t.sps() / b.sps()),
+            })
+        })
+        .collect()
+}
+
+/// Prints the rows as a markdown table.
+pub fn print_table(rows: &[TrainRow]) {
+    if rows.is_empty() {
+        return;
+    }
+    println!();
+    println!(
+        "| train (synthetic world) | preset | --batch-envs | --workers | env steps/s | updates, steps, s | vs 1 worker | vs B=1, 1 worker |"
+    );
+    println!("|---|---|---:|---:|---:|---:|---:|---:|");
+    for t in rows {
+        let ratio =
+            |o: Option<&TrainRow>| o.map_or("-".into(), |b| format!("{:.2}x", t.sps() / b.sps()));
+        println!(
+            "| {} | {} | {} | {} | {:.0} | {}, {}, {:.1} | {} | {} |",
+            t.method,
+            t.preset,
+            t.batch_envs,
+            t.workers,
+            t.sps(),
+            t.updates,
+            t.env_steps,
+            t.secs,
+            ratio(one_worker(rows, t)),
+            ratio(base(rows, t)),
+        );
+    }
+}

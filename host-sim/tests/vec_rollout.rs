@@ -1,0 +1,369 @@
+//! Vectorised training episodes (`--batch-envs B`) against the batch-1 episode runner:
+//!
+//! * with `B = 1` a worker's update (gradient, episode statistics) is bit for bit the batch-1
+//!   trainer's, for every configuration the vectorised path serves (FG or not, Full or
+//!   Efficient mode, θ trained, spatial map, DAgger, the privileged feature, PS input);
+//! * with `B > 1` every episode is bit for bit the episode the navigator runs alone, the
+//!   gradient is the same sum in the new, pinned order (checked against the per-episode
+//!   gradients summed in that order exactly, and within a float tolerance of the batch-1 sum),
+//!   and a run is reproducible and resumes bit for bit;
+//! * methods with an inner loop refuse `B > 1` with a clear error.
+
+use gman_core::memory::AdaptMode;
+use gman_core::navigator::NoiseMode;
+use gman_core::Dims;
+use gman_host_sim::nav::a3c::{A3cConfig, Objective};
+use gman_host_sim::nav::model::{Method, NavModel};
+use gman_host_sim::nav::rollout::{train_episode, EpisodeStats, Worker};
+use gman_host_sim::nav::trainer::{train, TrainOptions, TrainState};
+use gman_host_sim::nav::vec_rollout::{run_worker, VecSettings};
+use gman_host_sim::sim::{EpisodeLimits, EpisodeSpec, RewardKind, World};
+use gman_host_sim::train::adam::AdamConfig;
+use gman_host_sim::train::generator::init_generator;
+use gman_host_sim::train::params::ParamSet;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+
+fn model(method: Method, dims: Dims, mode: AdaptMode, seed: u64) -> NavModel {
+    let mut rng = gman_core::rng::Xoshiro128::seed_from_u64(seed);
+    let g = init_generator(&dims, &mut rng).unwrap();
+    let mut m = NavModel::init(method, dims, seed, Some(&g), None).unwrap();
+    m.adapt_mode = mode;
+    m
+}
+
+fn sampler(world: &World, seed: u64) -> impl FnMut(u32) -> anyhow::Result<(EpisodeSpec, u32)> + '_ {
+    move |e| {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed.wrapping_mul(1000).wrapping_add(e as u64));
+        let spec = world.try_sample_train_episode_min(&mut rng, 1)?;
+        let max = 30.min(EpisodeLimits::default().for_room(spec.room));
+        Ok((spec, max))
+    }
+}
+
+/// The batch-1 trainer's worker loop (trainer.rs) over the same episodes.
+fn batch1(
+    world: &World,
+    m: &NavModel,
+    objective: Objective,
+    min_steps: u32,
+    seed: u64,
+) -> (ParamSet, Vec<EpisodeStats>) {
+    let mut worker = Worker::new(m);
+    let mut grads = m.params.zeros_like();
+    let mut sample = sampler(world, seed);
+    let (mut out, mut steps, mut e) = (Vec::new(), 0u32, 0u32);
+    while e == 0 || steps < min_steps {
+        let (spec, max) = sample(e).unwrap();
+        let (st, _) = train_episode(
+            world,
+            &spec,
+            m,
+            RewardKind::Mixed,
+            max,
+            &A3cConfig::default(),
+            objective,
+            1,
+            &mut worker,
+            &mut grads,
+        )
+        .unwrap();
+        steps += st.steps;
+        e += 1;
+        out.push(st);
+    }
+    (grads, out)
+}
+
+fn vectorised(
+    world: &World,
+    m: &NavModel,
+    objective: Objective,
+    min_steps: u32,
+    seed: u64,
+    b: usize,
+) -> (ParamSet, Vec<EpisodeStats>) {
+    let mut worker = Worker::new(m);
+    let mut grads = m.params.zeros_like();
+    let a3c = A3cConfig::default();
+    let s = VecSettings {
+        batch_envs: b,
+        min_steps,
+        reward: RewardKind::Mixed,
+        a3c: &a3c,
+        objective,
+    };
+    let done = run_worker(world, m, &s, &mut worker, &mut grads, sampler(world, seed)).unwrap();
+    for (k, f) in done.iter().enumerate() {
+        assert_eq!(f.0 as usize, k, "episodes are returned in index order");
+    }
+    (grads, done.into_iter().map(|f| f.1).collect())
+}
+
+fn same_bits(a: &ParamSet, b: &ParamSet, what: &str) {
+    let mut nonzero = false;
+    for (x, y) in a.tensors.iter().zip(&b.tensors) {
+        assert_eq!(x.name, y.name);
+        for (i, (u, v)) in x.data.iter().zip(&y.data).enumerate() {
+            assert_eq!(
+                u.to_bits(),
+                v.to_bits(),
+                "{what}: {}[{i}]: {u} vs {v}",
+                x.name
+            );
+            nonzero |= *u != 0.0;
+        }
+    }
+    assert!(nonzero, "{what}: the gradient is all zero");
+}
+
+fn same_episode(a: &EpisodeStats, b: &EpisodeStats, what: &str) {
+    assert_eq!(a.actions, b.actions, "{what}: actions");
+    assert_eq!(a.steps, b.steps, "{what}: steps");
+    assert_eq!(a.success, b.success, "{what}: success");
+    assert_eq!(
+        a.total_reward.to_bits(),
+        b.total_reward.to_bits(),
+        "{what}: reward"
+    );
+    assert_eq!(a.loss, b.loss, "{what}: loss parts");
+    assert_eq!(a.adaptations, b.adaptations);
+    let fb = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+    assert_eq!(fb(&a.final_feature), fb(&b.final_feature), "{what}: x_t");
+}
+
+struct Case {
+    name: &'static str,
+    method: Method,
+    dims: Dims,
+    mode: AdaptMode,
+    objective: Objective,
+    privileged: bool,
+    noise: NoiseMode,
+}
+
+fn cases() -> Vec<Case> {
+    let c = |name, method, dims, mode| Case {
+        name,
+        method,
+        dims,
+        mode,
+        objective: Objective::A3c,
+        privileged: false,
+        noise: NoiseMode::Gaussian,
+    };
+    vec![
+        c(
+            "a3c-fg efficient",
+            Method::A3cFg,
+            Dims::MCU,
+            AdaptMode::Efficient,
+        ),
+        c("a3c-fg full", Method::A3cFg, Dims::MCU, AdaptMode::Full),
+        c("a3c", Method::A3c, Dims::MCU, AdaptMode::Efficient),
+        c(
+            "gman-noemd (trains G)",
+            Method::GmanNoemd,
+            Dims::MCU,
+            AdaptMode::Efficient,
+        ),
+        c(
+            "gman-noemd full",
+            Method::GmanNoemd,
+            Dims::MCU,
+            AdaptMode::Full,
+        ),
+        c(
+            "a3c-fg map 2x2",
+            Method::A3cFg,
+            Dims::MCU.with_map(2, 2, 4),
+            AdaptMode::Full,
+        ),
+        Case {
+            objective: Objective::Dagger,
+            ..c(
+                "a3c-fg dagger",
+                Method::A3cFg,
+                Dims::MCU,
+                AdaptMode::Efficient,
+            )
+        },
+        Case {
+            privileged: true,
+            ..c(
+                "a3c-fg privileged",
+                Method::A3cFg,
+                Dims::MCU,
+                AdaptMode::Efficient,
+            )
+        },
+        Case {
+            noise: NoiseMode::Zero,
+            ..c(
+                "gman-noemd zero noise",
+                Method::GmanNoemd,
+                Dims::MCU,
+                AdaptMode::Full,
+            )
+        },
+    ]
+}
+
+fn case_model(c: &Case) -> NavModel {
+    let mut m = model(c.method, c.dims, c.mode, 3);
+    m.privileged = c.privileged;
+    m.noise = c.noise;
+    m
+}
+
+#[test]
+fn batch_of_one_is_the_batch1_update_bit_for_bit() {
+    let world = World::synthetic(7);
+    for c in cases() {
+        let m = case_model(&c);
+        for seed in [1u64, 2] {
+            let (ga, sa) = batch1(&world, &m, c.objective, 45, seed);
+            let (gb, sb) = vectorised(&world, &m, c.objective, 45, seed, 1);
+            assert!(sa.len() >= 2, "{}: several episodes per update", c.name);
+            assert_eq!(sa.len(), sb.len(), "{}: episodes", c.name);
+            for (k, (a, b)) in sa.iter().zip(&sb).enumerate() {
+                same_episode(a, b, &format!("{} seed {seed} episode {k}", c.name));
+            }
+            same_bits(&ga, &gb, c.name);
+        }
+    }
+}
+
+#[test]
+fn batched_episodes_are_the_episodes_run_alone() {
+    let world = World::synthetic(7);
+    for c in cases() {
+        let m = case_model(&c);
+        let b = 5;
+        let (g, st) = vectorised(&world, &m, c.objective, 60, 4, b);
+        assert!(st.len() >= b, "{}: at least B episodes", c.name);
+        // Each episode alone, through the batch-1 runner (navigator) into its own gradient.
+        let mut sum = m.params.zeros_like();
+        let mut sample = sampler(&world, 4);
+        for (k, s) in st.iter().enumerate() {
+            let mut worker = Worker::new(&m);
+            let mut ge = m.params.zeros_like();
+            let (spec, max) = sample(k as u32).unwrap();
+            let (alone, _) = train_episode(
+                &world,
+                &spec,
+                &m,
+                RewardKind::Mixed,
+                max,
+                &A3cConfig::default(),
+                c.objective,
+                1,
+                &mut worker,
+                &mut ge,
+            )
+            .unwrap();
+            same_episode(s, &alone, &format!("{} episode {k}", c.name));
+            sum.add_assign(&ge).unwrap();
+        }
+        // The batched sum adds the same terms in another order: equal within float rounding.
+        for (x, y) in g.tensors.iter().zip(&sum.tensors) {
+            let scale = y.data.iter().fold(0.0f32, |a, v| a.max(v.abs())).max(1e-6);
+            for (u, v) in x.data.iter().zip(&y.data) {
+                assert!(
+                    (u - v).abs() <= 1e-4 * scale,
+                    "{}: {} {u} vs {v} (scale {scale})",
+                    c.name,
+                    x.name
+                );
+            }
+        }
+        // ... and the order is fixed: the same batch gives the same bits.
+        let (g2, _) = vectorised(&world, &m, c.objective, 60, 4, b);
+        same_bits(&g, &g2, c.name);
+    }
+}
+
+fn opts(out: std::path::PathBuf, updates: u64, b: usize) -> TrainOptions {
+    TrainOptions {
+        updates,
+        seed: 3,
+        workers: 2,
+        batch_envs: b,
+        min_steps: 20,
+        reward: RewardKind::Mixed,
+        max_steps: Some(40),
+        min_start_actions: 1,
+        adam: AdamConfig {
+            lr: 1e-3,
+            ..AdamConfig::default()
+        },
+        a3c: Default::default(),
+        checkpoint_every: 2,
+        objective: Default::default(),
+        meta_order: 1,
+        out,
+        progress: false,
+    }
+}
+
+fn tmp(name: &str) -> std::path::PathBuf {
+    let d = std::env::temp_dir().join(format!("gman-vec-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+fn state(method: Method) -> TrainState {
+    TrainState::new(
+        model(method, Dims::MCU, AdaptMode::Efficient, 1),
+        AdamConfig {
+            lr: 1e-3,
+            ..AdamConfig::default()
+        },
+    )
+}
+
+#[test]
+fn batched_runs_are_reproducible_and_resume_bit_for_bit() {
+    let world = World::synthetic(7);
+    let a = tmp("straight");
+    let mut sa = state(Method::GmanNoemd);
+    train(&world, &opts(a.clone(), 4, 3), &mut sa).unwrap();
+    let b = tmp("resumed");
+    let mut sb = state(Method::GmanNoemd);
+    train(&world, &opts(b.clone(), 2, 3), &mut sb).unwrap();
+    let ck = gman_host_sim::nav::trainer::checkpoint_path(&b);
+    let (mut sb, t) = TrainState::load_with_options(&ck).unwrap();
+    assert_eq!(
+        t["batch_envs"].as_u64(),
+        Some(3),
+        "B is stored in the checkpoint"
+    );
+    train(&world, &opts(b.clone(), 4, 3), &mut sb).unwrap();
+    assert_eq!(sa.env_steps, sb.env_steps);
+    for (x, y) in sa.model.params.tensors.iter().zip(&sb.model.params.tensors) {
+        let bx: Vec<u32> = x.data.iter().map(|v| v.to_bits()).collect();
+        let by: Vec<u32> = y.data.iter().map(|v| v.to_bits()).collect();
+        assert_eq!(bx, by, "{}", x.name);
+    }
+    // B = 3 is a different run from B = 1 (more episodes per update).
+    let c = tmp("b1");
+    let mut sc = state(Method::GmanNoemd);
+    train(&world, &opts(c.clone(), 4, 1), &mut sc).unwrap();
+    assert!(sc.episodes < sa.episodes);
+    for d in [a, b, c] {
+        let _ = std::fs::remove_dir_all(d);
+    }
+}
+
+#[test]
+fn methods_with_an_inner_loop_refuse_batched_episodes() {
+    let world = World::synthetic(7);
+    let d = tmp("gman");
+    let mut st = state(Method::Gman);
+    let e = train(&world, &opts(d.clone(), 1, 4), &mut st).unwrap_err();
+    assert!(format!("{e:#}").contains("--batch-envs"), "{e:#}");
+    let e = train(&world, &opts(d.clone(), 1, 0), &mut st).unwrap_err();
+    assert!(format!("{e:#}").contains("--batch-envs"), "{e:#}");
+    let _ = std::fs::remove_dir_all(d);
+}
