@@ -2,4 +2,5 @@
 #![warn(missing_docs)]
 pub mod nav;
 pub mod sim;
+pub mod simd;
 pub mod train;
