@@ -410,8 +410,8 @@ fn mm_tile<K: Kind, const R: usize, const B: usize>(
         for r in 0..R {
             for b in 0..B {
                 let mut s = tree(&acc[r][b]);
-                for j in 8 * n8..l {
-                    s += K::w1(ws[r], j) * xs[b][j];
+                for (j, &xj) in xs[b].iter().enumerate().skip(8 * n8) {
+                    s += K::w1(ws[r], j) * xj;
                 }
                 tot[r][b] += s;
             }

@@ -96,9 +96,12 @@ fn every_kernel_gives_the_same_bits_with_and_without_avx2() {
 
 const K: usize = 20;
 
+/// A tensor in f32 and int8 (values, per-row scales).
+type Quantised = (TensorId, Vec<f32>, Vec<u8>, Vec<f32>);
+
 fn blob(d: &Dims, int8: bool) -> Vec<u8> {
     let mut rng = Xoshiro128::seed_from_u64(9);
-    let t: Vec<(TensorId, Vec<f32>, Vec<u8>, Vec<f32>)> = TensorId::all_for(d)
+    let t: Vec<Quantised> = TensorId::all_for(d)
         .map(|id| {
             let (r, c) = id.shape(d);
             let mut v = randv(&mut rng, r * c);
