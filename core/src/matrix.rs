@@ -242,18 +242,45 @@ impl<'a> MatRef<'a> {
         if self.cols == 0 {
             return Ok(());
         }
-        if x.len() > MAX_SEGS {
+        // The Cortex-M4F (no vector unit) runs the row-at-a-time loop: the same canonical
+        // order, fewer instructions there than the blocked body (measured in QEMU).
+        if x.len() > MAX_SEGS || cfg!(target_arch = "arm") {
             self.matvec_acc_many(x, y);
             return Ok(());
         }
         match self.k {
             Some(k) => k.matmul_acc(&self.without_kernels(), x, 1, y),
-            None => batch::matmul_acc_blocked::<4, 1>(self, x, 1, y),
+            None => batch::matmul_acc_blocked::<MV_R, 1>(self, x, 1, y),
         }
     }
 
-    /// [`MatRef::matvec_acc`] for more than [`MAX_SEGS`] segments (one row at a time; the
-    /// same canonical order).
+    /// [`MatRef::matvec_t_acc_cols`] one row at a time (the Cortex-M4F's loop; the same
+    /// order as the blocked body: every element sums its rows in order).
+    fn matvec_t_rowwise(&self, dy: &[f32], col0: usize, dx: &mut [f32]) {
+        let end = col0 + dx.len();
+        match self.w {
+            Weights::F32(d) => {
+                for (row, &g) in d.chunks_exact(self.cols).zip(dy) {
+                    axpy(g, &row[col0..end], dx);
+                }
+            }
+            Weights::F32Le(d) => {
+                for (row, &g) in d.chunks_exact(4 * self.cols).zip(dy) {
+                    for (o, b) in dx.iter_mut().zip(row[4 * col0..4 * end].chunks_exact(4)) {
+                        *o += g * f32::from_le_bytes([b[0], b[1], b[2], b[3]]);
+                    }
+                }
+            }
+            Weights::I8 { q, scales } => {
+                for (i, (row, &g)) in q.chunks_exact(self.cols).zip(dy).enumerate() {
+                    axpy_i8(g * scales.get(i), &row[col0..end], dx);
+                }
+            }
+        }
+    }
+
+    /// [`MatRef::matvec_acc`] one row at a time: for more than [`MAX_SEGS`] segments, and on
+    /// the Cortex-M4F (the same canonical order as the blocked body).
     fn matvec_acc_many(&self, x: &[&[f32]], y: &mut [f32]) {
         match self.w {
             Weights::F32(d) => {
@@ -321,12 +348,23 @@ impl<'a> MatRef<'a> {
         if self.cols == 0 {
             return Ok(());
         }
+        if cfg!(target_arch = "arm") {
+            self.matvec_t_rowwise(dy, col0, dx);
+            return Ok(());
+        }
         match self.k {
             Some(k) => k.matmul_t_acc(&self.without_kernels(), dy, 1, &mut [dx], col0),
-            None => batch::matmul_t_acc_blocked::<4, 1>(self, dy, 1, &mut [dx], col0),
+            None => batch::matmul_t_acc_blocked::<MVT_C, 1>(self, dy, 1, &mut [dx], col0),
         }
     }
 }
+
+// Block shapes of the batch-1 kernels on hosts (speed only, never the bits): four rows per
+// pass share each input load (16 vector registers on x86-64).
+const MV_R: usize = 4;
+const MVT_C: usize = 4;
+const OUTER_R: usize = 2;
+const OUTER_C: usize = 2;
 
 /// Total length of a segmented vector.
 #[inline]
@@ -342,7 +380,7 @@ pub fn outer_acc(dw: &mut [f32], dy: &[f32], x: &[&[f32]], alpha: f32) -> Result
     if cols == 0 {
         return Ok(());
     }
-    if x.len() > MAX_SEGS {
+    if x.len() > MAX_SEGS || cfg!(target_arch = "arm") {
         for (row, &g) in dw.chunks_exact_mut(cols).zip(dy) {
             let a = alpha * g;
             if a == 0.0 {
@@ -356,7 +394,7 @@ pub fn outer_acc(dw: &mut [f32], dy: &[f32], x: &[&[f32]], alpha: f32) -> Result
         }
         return Ok(());
     }
-    batch::outer_acc_batch_blocked::<2, 2>(dw, dy, x, 1, alpha)
+    batch::outer_acc_batch_blocked::<OUTER_R, OUTER_C>(dw, dy, x, 1, alpha)
 }
 
 /// Dot product with eight independent accumulators (deterministic order; see module docs).
