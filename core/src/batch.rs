@@ -1,4 +1,6 @@
-//! Batched dense kernels: one matrix `W` against `n` vectors at once.
+//! Batched dense kernels: one matrix `W` against `n` vectors at once, and the register- and
+//! cache-blocked bodies every dense kernel of the crate runs on (the batch-1 kernels of
+//! [`MatRef`] are these with `n = 1`).
 //!
 //! A batch of `n` vectors is stored **batch-major**: vector `b` of a segment of length `len`
 //! is `seg[b * len .. (b + 1) * len]`, so a batch of inputs given as segments is a list of
@@ -10,22 +12,68 @@
 //! [`outer_acc_batch`] gives exactly the bits of calling [`crate::matrix::outer_acc`] for
 //! `b = 0, 1, .., n - 1` in that order. A batch is therefore a pure speed-up: results,
 //! training runs and the host/device parity do not depend on how work is batched. The unit
-//! tests below pin this contract against the batch-1 kernels.
+//! tests below pin this contract against a plain transcription of the canonical order
+//! ([`crate::matrix::dot`], [`crate::matrix::axpy`]).
 //!
-//! These are the reference implementations (a loop over the batch calling the batch-1
-//! kernels); faster bodies keep the signatures and the contract.
+//! # The canonical order, and how the blocked bodies keep it
+//! * `y = W x`: per (row, vector, segment) eight accumulators over the segment's chunks of
+//!   eight, the fixed tree `((a0+a4)+(a1+a5))+((a2+a6)+(a3+a7))`, then the tail in order;
+//!   the segment sums are added to `0.0` in segment order, then to `y` (after the int8 row
+//!   scale). The blocked body computes `R` rows x `B` vectors of these at once (each weight
+//!   chunk is loaded and converted once for `B` vectors, each input chunk once for `R`
+//!   rows), which changes which dot products run side by side, never the operations inside
+//!   one.
+//! * `dx += W^T dy` and `dW += alpha dy x^T`: every output element is a sequence of
+//!   `+= c * w` over rows (resp. vectors) in ascending order, with no reduction. The blocked
+//!   bodies keep a tile of `8 C` columns x `B` vectors (resp. `R` rows) in registers and walk
+//!   the rows (resp. vectors) in order.
+//! * Multiply and add are always separate (Rust never contracts `a * b + c` into an FMA), so
+//!   the bits are the same whatever the vector width the compiler picks: SSE2, AVX2 (see
+//!   [`Kernels`]) or the Cortex-M4F's scalar FPU.
+//!
+//! The block shapes (`R`, `B`, `C`) are const parameters of the `*_blocked` functions; they
+//! change speed only. [`matmul_acc`], [`matmul_t_acc`] and [`outer_acc_batch`] use shapes
+//! that fit the 16 vector registers of baseline x86-64 and the Cortex-M4F's 32 single
+//! registers; a host can compile the same bodies for a wider instruction set and install
+//! them on a matrix view with [`MatRef::with_kernels`].
 
 use crate::error::{check_len, Result};
-use crate::matrix::{outer_acc, MatRef};
-
-/// Vector `b` of a batch-major block of vectors of length `len`.
-#[inline]
-fn row(block: &[f32], b: usize, len: usize) -> &[f32] {
-    &block[b * len..(b + 1) * len]
-}
+use crate::matrix::{MatRef, Scales, Weights};
 
 /// Most segments a batched input may have (the layers use at most four).
 pub const MAX_SEGS: usize = 8;
+
+/// Dense kernels a host can compile for another instruction set and attach to a matrix view
+/// ([`MatRef::with_kernels`]); every kernel of the view then runs through them. An
+/// implementation must keep the contract of this module (the same bits as the canonical
+/// order): the intended implementation calls the `*_blocked` functions of this module from
+/// code compiled with more vector features (e.g. AVX2), which keeps every operation and only
+/// widens the registers. The argument lists are those of the module's functions; the
+/// shapes are already checked when a kernel is called.
+pub trait Kernels: Sync + core::fmt::Debug {
+    /// [`matmul_acc`] (the matrix `w` carries no kernels, so calling back into this module
+    /// does not recurse).
+    fn matmul_acc(&self, w: &MatRef<'_>, x: &[&[f32]], n: usize, y: &mut [f32]) -> Result<()>;
+    /// [`matmul_t_acc`] on the column block starting at `col0` (the segments of `dx` cover
+    /// columns `col0 ..` in order).
+    fn matmul_t_acc(
+        &self,
+        w: &MatRef<'_>,
+        dy: &[f32],
+        n: usize,
+        dx: &mut [&mut [f32]],
+        col0: usize,
+    ) -> Result<()>;
+    /// [`outer_acc_batch`] for a gradient of `rows = dy.len() / n` rows.
+    fn outer_acc_batch(
+        &self,
+        dw: &mut [f32],
+        dy: &[f32],
+        x: &[&[f32]],
+        n: usize,
+        alpha: f32,
+    ) -> Result<()>;
+}
 
 /// Checks a batch-major segmented input: at most [`MAX_SEGS`] segments, one per-vector length
 /// per segment, segment `s` holding `n * lens[s]` values, lengths adding up to `cols`.
@@ -58,15 +106,13 @@ pub fn matmul_acc(
 ) -> Result<()> {
     check_batch("matmul.x", x.iter().map(|s| s.len()), lens, n, w.cols())?;
     check_len("matmul.y", n.saturating_mul(w.rows()), y.len())?;
-    let rows = w.rows();
-    for b in 0..n {
-        let mut segs: [&[f32]; MAX_SEGS] = [&[]; MAX_SEGS];
-        for (s, (seg, &l)) in x.iter().zip(lens).enumerate() {
-            segs[s] = row(seg, b, l);
-        }
-        w.matvec_acc(&segs[..x.len()], &mut y[b * rows..(b + 1) * rows])?;
+    if n == 0 {
+        return Ok(());
     }
-    Ok(())
+    match w.kernels() {
+        Some(k) => k.matmul_acc(&w.without_kernels(), x, n, y),
+        None => matmul_acc_blocked::<1, 4>(w, x, n, y),
+    }
 }
 
 /// `dX[b] += W^T dY[b]` for `b in 0..n`: `dy` is `n x W.rows()` batch-major, `dx` are
@@ -80,22 +126,34 @@ pub fn matmul_t_acc(
 ) -> Result<()> {
     check_batch("matmul_t.dx", dx.iter().map(|s| s.len()), lens, n, w.cols())?;
     check_len("matmul_t.dy", n.saturating_mul(w.rows()), dy.len())?;
-    let rows = w.rows();
-    for b in 0..n {
-        let mut off = 0;
-        for (seg, &l) in dx.iter_mut().zip(lens) {
-            w.matvec_t_acc_cols(row(dy, b, rows), off, &mut seg[b * l..(b + 1) * l])?;
-            off += l;
-        }
+    if n == 0 {
+        return Ok(());
     }
-    Ok(())
+    match w.kernels() {
+        Some(k) => k.matmul_t_acc(&w.without_kernels(), dy, n, dx, 0),
+        None => matmul_t_acc_blocked::<1, 4>(w, dy, n, dx, 0),
+    }
 }
 
 /// `dW += alpha * sum_b dY[b] X[b]^T`, accumulated for `b = 0, 1, .., n - 1` in that order
-/// (bit for bit as [`outer_acc`] called once per vector): the weight gradient of
-/// `Y[b] = W X[b]` summed over the batch. `dy` is `n x rows` batch-major, `x` batch-major
+/// (bit for bit as [`crate::matrix::outer_acc`] called once per vector): the weight gradient
+/// of `Y[b] = W X[b]` summed over the batch. `dy` is `n x rows` batch-major, `x` batch-major
 /// segments with per-vector lengths `lens`.
 pub fn outer_acc_batch(
+    dw: &mut [f32],
+    dy: &[f32],
+    x: &[&[f32]],
+    lens: &[usize],
+    n: usize,
+    alpha: f32,
+) -> Result<()> {
+    outer_acc_batch_with(None, dw, dy, x, lens, n, alpha)
+}
+
+/// [`outer_acc_batch`] through `kernels` when given (e.g. those of the matrix the gradient
+/// belongs to, [`MatRef::kernels`]); the same bits either way.
+pub fn outer_acc_batch_with(
+    kernels: Option<&dyn Kernels>,
     dw: &mut [f32],
     dy: &[f32],
     x: &[&[f32]],
@@ -111,20 +169,526 @@ pub fn outer_acc_batch(
     let rows = dy.len() / n;
     check_len("outer_batch.dy", n.saturating_mul(rows), dy.len())?;
     check_len("outer_batch.dw", rows.saturating_mul(cols), dw.len())?;
-    for b in 0..n {
-        let mut segs: [&[f32]; MAX_SEGS] = [&[]; MAX_SEGS];
-        for (s, (seg, &l)) in x.iter().zip(lens).enumerate() {
-            segs[s] = row(seg, b, l);
+    match kernels {
+        Some(k) => k.outer_acc_batch(dw, dy, x, n, alpha),
+        None => outer_acc_batch_blocked::<2, 2>(dw, dy, x, n, alpha),
+    }
+}
+
+// ---------------------------------------------------------------------------------------
+// Weight storage: how a chunk of eight weights (or one weight) of a row is read as f32.
+// Every conversion is exact (f32 copy, little-endian decode, i8 -> f32).
+
+/// One storage kind of weights.
+trait Kind {
+    /// Raw unit of storage (`f32` or a byte).
+    type R: Copy;
+    /// Raw units per weight.
+    const U: usize;
+    /// Weights `8 c .. 8 c + 8` of a raw row segment.
+    fn w8(raw: &[Self::R], c: usize) -> [f32; 8];
+    /// Weight `j` of a raw row segment.
+    fn w1(raw: &[Self::R], j: usize) -> f32;
+}
+
+struct F32K;
+impl Kind for F32K {
+    type R = f32;
+    const U: usize = 1;
+    #[inline(always)]
+    fn w8(raw: &[f32], c: usize) -> [f32; 8] {
+        ld8(raw, c)
+    }
+    #[inline(always)]
+    fn w1(raw: &[f32], j: usize) -> f32 {
+        raw[j]
+    }
+}
+
+struct LeK;
+impl Kind for LeK {
+    type R = u8;
+    const U: usize = 4;
+    #[inline(always)]
+    fn w8(raw: &[u8], c: usize) -> [f32; 8] {
+        let s = &raw[32 * c..32 * c + 32];
+        let mut o = [0.0f32; 8];
+        for (k, v) in o.iter_mut().enumerate() {
+            *v = f32::from_le_bytes([s[4 * k], s[4 * k + 1], s[4 * k + 2], s[4 * k + 3]]);
         }
-        outer_acc(dw, row(dy, b, rows), &segs[..x.len()], alpha)?;
+        o
+    }
+    #[inline(always)]
+    fn w1(raw: &[u8], j: usize) -> f32 {
+        let s = &raw[4 * j..4 * j + 4];
+        f32::from_le_bytes([s[0], s[1], s[2], s[3]])
+    }
+}
+
+struct I8K;
+impl Kind for I8K {
+    type R = u8;
+    const U: usize = 1;
+    #[inline(always)]
+    fn w8(raw: &[u8], c: usize) -> [f32; 8] {
+        let s = &raw[8 * c..8 * c + 8];
+        let mut o = [0.0f32; 8];
+        for (v, &b) in o.iter_mut().zip(s) {
+            *v = b as i8 as f32;
+        }
+        o
+    }
+    #[inline(always)]
+    fn w1(raw: &[u8], j: usize) -> f32 {
+        raw[j] as i8 as f32
+    }
+}
+
+/// A `rows x cols` matrix of one storage kind, with the int8 row scales.
+struct M<'a, K: Kind> {
+    d: &'a [K::R],
+    cols: usize,
+    scales: Option<Scales<'a>>,
+}
+
+impl<'a, K: Kind> M<'a, K> {
+    /// Raw storage of row `r`, columns `c0 .. c0 + len`.
+    #[inline(always)]
+    fn seg(&self, r: usize, c0: usize, len: usize) -> &'a [K::R] {
+        let s = (r * self.cols + c0) * K::U;
+        &self.d[s..s + len * K::U]
+    }
+}
+
+/// Chunk `c` (elements `8 c .. 8 c + 8`) of an f32 slice.
+#[inline(always)]
+fn ld8(s: &[f32], c: usize) -> [f32; 8] {
+    let s = &s[8 * c..8 * c + 8];
+    [s[0], s[1], s[2], s[3], s[4], s[5], s[6], s[7]]
+}
+
+/// The fixed reduction tree of the eight accumulators.
+#[inline(always)]
+fn tree(a: &[f32; 8]) -> f32 {
+    ((a[0] + a[4]) + (a[1] + a[5])) + ((a[2] + a[6]) + (a[3] + a[7]))
+}
+
+/// Calls `$body` with `$m` bound to the typed view of `$w`'s storage.
+macro_rules! with_kind {
+    ($w:expr, |$m:ident| $body:expr) => {
+        match $w.weights() {
+            Weights::F32(d) => {
+                let $m = M::<F32K> {
+                    d,
+                    cols: $w.cols(),
+                    scales: None,
+                };
+                $body
+            }
+            Weights::F32Le(d) => {
+                let $m = M::<LeK> {
+                    d,
+                    cols: $w.cols(),
+                    scales: None,
+                };
+                $body
+            }
+            Weights::I8 { q, scales } => {
+                let $m = M::<I8K> {
+                    d: q,
+                    cols: $w.cols(),
+                    scales: Some(scales),
+                };
+                $body
+            }
+        }
+    };
+}
+
+// ---------------------------------------------------------------------------------------
+// y += W x
+
+/// [`matmul_acc`] with an explicit block of `R` rows x `B` vectors (speed only; the same
+/// bits for every shape). The shapes must already be checked (`x[s].len()` a multiple of
+/// `n`, per-vector lengths adding up to `w.cols()`, `y` holding `n x w.rows()`); a kernel
+/// table ([`Kernels`]) on `w` is not consulted. `#[inline(always)]` so that a caller
+/// compiled with more vector features gets the whole body in those features.
+#[inline(always)]
+pub fn matmul_acc_blocked<const R: usize, const B: usize>(
+    w: &MatRef<'_>,
+    x: &[&[f32]],
+    n: usize,
+    y: &mut [f32],
+) -> Result<()> {
+    let (rows, cols) = (w.rows(), w.cols());
+    check_len("matmul.y", n.saturating_mul(rows), y.len())?;
+    if n == 0 || cols == 0 || x.len() > MAX_SEGS {
+        return Ok(());
+    }
+    let mut lens = [0usize; MAX_SEGS];
+    for (l, s) in lens.iter_mut().zip(x) {
+        *l = s.len() / n;
+    }
+    check_len("matmul.x", cols, lens.iter().sum())?;
+    let lens = &lens[..x.len()];
+    with_kind!(w, |m| mm_all::<_, R, B>(&m, rows, x, lens, n, y));
+    Ok(())
+}
+
+#[inline(always)]
+fn mm_all<K: Kind, const R: usize, const B: usize>(
+    m: &M<'_, K>,
+    rows: usize,
+    x: &[&[f32]],
+    lens: &[usize],
+    n: usize,
+    y: &mut [f32],
+) {
+    let rb = rows / R * R;
+    let nb = n / B * B;
+    let mut r0 = 0;
+    while r0 < rb {
+        let mut b0 = 0;
+        while b0 < nb {
+            mm_tile::<K, R, B>(m, rows, x, lens, r0, b0, y);
+            b0 += B;
+        }
+        while b0 < n {
+            mm_tile::<K, R, 1>(m, rows, x, lens, r0, b0, y);
+            b0 += 1;
+        }
+        r0 += R;
+    }
+    while r0 < rows {
+        let mut b0 = 0;
+        while b0 < nb {
+            mm_tile::<K, 1, B>(m, rows, x, lens, r0, b0, y);
+            b0 += B;
+        }
+        while b0 < n {
+            mm_tile::<K, 1, 1>(m, rows, x, lens, r0, b0, y);
+            b0 += 1;
+        }
+        r0 += 1;
+    }
+}
+
+/// Rows `r0 .. r0 + R` x vectors `b0 .. b0 + B` of `y += W x`.
+#[inline(always)]
+fn mm_tile<K: Kind, const R: usize, const B: usize>(
+    m: &M<'_, K>,
+    rows: usize,
+    x: &[&[f32]],
+    lens: &[usize],
+    r0: usize,
+    b0: usize,
+    y: &mut [f32],
+) {
+    let mut tot = [[0.0f32; B]; R];
+    let mut off = 0;
+    for (seg, &l) in x.iter().zip(lens) {
+        let n8 = l / 8;
+        let ws: [&[K::R]; R] = core::array::from_fn(|r| m.seg(r0 + r, off, l));
+        let xs: [&[f32]; B] = core::array::from_fn(|b| &seg[(b0 + b) * l..(b0 + b + 1) * l]);
+        let mut acc = [[[0.0f32; 8]; B]; R];
+        for c in 0..n8 {
+            let xv: [[f32; 8]; B] = core::array::from_fn(|b| ld8(xs[b], c));
+            for r in 0..R {
+                let wv = K::w8(ws[r], c);
+                for b in 0..B {
+                    for k in 0..8 {
+                        acc[r][b][k] += wv[k] * xv[b][k];
+                    }
+                }
+            }
+        }
+        // Through memory, eight contiguous floats per dot product: this steers LLVM's
+        // vectoriser to put the eight accumulators of one dot product in the lanes (rather
+        // than the same accumulator of several vectors, which costs shuffles). No effect on
+        // the values.
+        let acc = core::hint::black_box(acc);
+        for r in 0..R {
+            for b in 0..B {
+                let mut s = tree(&acc[r][b]);
+                for (j, &xj) in xs[b].iter().enumerate().skip(8 * n8) {
+                    s += K::w1(ws[r], j) * xj;
+                }
+                tot[r][b] += s;
+            }
+        }
+        off += l;
+    }
+    for r in 0..R {
+        let sc = m.scales.map(|s| s.get(r0 + r));
+        for b in 0..B {
+            let o = &mut y[(b0 + b) * rows + r0 + r];
+            match sc {
+                None => *o += tot[r][b],
+                Some(s) => *o += tot[r][b] * s,
+            }
+        }
+    }
+}
+
+// ---------------------------------------------------------------------------------------
+// dx += W^T dy
+
+/// [`matmul_t_acc`] with an explicit block of `8 C` columns x `B` vectors, on the column
+/// block of `w` starting at `col0` (the segments of `dx` cover columns `col0 ..` in order;
+/// per-vector lengths are `dx[s].len() / n`). Speed only: the same bits for every shape.
+/// Shapes must already be checked; a kernel table on `w` is not consulted.
+#[inline(always)]
+pub fn matmul_t_acc_blocked<const C: usize, const B: usize>(
+    w: &MatRef<'_>,
+    dy: &[f32],
+    n: usize,
+    dx: &mut [&mut [f32]],
+    col0: usize,
+) -> Result<()> {
+    let (rows, cols) = (w.rows(), w.cols());
+    check_len("matmul_t.dy", n.saturating_mul(rows), dy.len())?;
+    if n == 0 || cols == 0 {
+        return Ok(());
+    }
+    let total: usize = dx.iter().map(|s| s.len() / n).sum();
+    if col0.saturating_add(total) > cols {
+        return Err(crate::Error::Shape(crate::ShapeError {
+            what: "matmul_t.cols",
+            expected: cols,
+            actual: col0.saturating_add(total),
+        }));
+    }
+    with_kind!(w, |m| {
+        let mut off = col0;
+        for seg in dx.iter_mut() {
+            let l = seg.len() / n;
+            mt_seg::<_, C, B>(&m, rows, dy, n, seg, l, off);
+            off += l;
+        }
+    });
+    Ok(())
+}
+
+#[inline(always)]
+fn mt_seg<K: Kind, const C: usize, const B: usize>(
+    m: &M<'_, K>,
+    rows: usize,
+    dy: &[f32],
+    n: usize,
+    seg: &mut [f32],
+    l: usize,
+    off: usize,
+) {
+    let n8 = l / 8;
+    let cb = n8 / C * C;
+    let nb = n / B * B;
+    let mut b0 = 0;
+    while b0 < nb {
+        let mut c = 0;
+        while c < cb {
+            mt_tile::<K, C, B>(m, rows, dy, seg, l, off, b0, c);
+            c += C;
+        }
+        while c < n8 {
+            mt_tile::<K, 1, B>(m, rows, dy, seg, l, off, b0, c);
+            c += 1;
+        }
+        b0 += B;
+    }
+    while b0 < n {
+        let mut c = 0;
+        while c < n8 {
+            mt_tile::<K, 1, 1>(m, rows, dy, seg, l, off, b0, c);
+            c += 1;
+        }
+        b0 += 1;
+    }
+    // The tail columns, element by element (rows in order).
+    for b in 0..n {
+        let out = &mut seg[b * l..(b + 1) * l];
+        for (i, &g) in dy[b * rows..(b + 1) * rows].iter().enumerate() {
+            let coef = row_coef(m, i, g);
+            let ws = m.seg(i, off, l);
+            for (j, o) in out.iter_mut().enumerate().skip(8 * n8) {
+                *o += coef * K::w1(ws, j);
+            }
+        }
+    }
+}
+
+/// The factor of row `i` in `dx += W^T dy`: `dy_i`, times the row scale for int8 (as in the
+/// batch-1 kernel, `dy_i * scale_i` first).
+#[inline(always)]
+fn row_coef<K: Kind>(m: &M<'_, K>, i: usize, g: f32) -> f32 {
+    match m.scales {
+        None => g,
+        Some(s) => g * s.get(i),
+    }
+}
+
+/// Columns `8 c .. 8 (c + C)` of the segment x vectors `b0 .. b0 + B`, over all rows in order.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn mt_tile<K: Kind, const C: usize, const B: usize>(
+    m: &M<'_, K>,
+    rows: usize,
+    dy: &[f32],
+    seg: &mut [f32],
+    l: usize,
+    off: usize,
+    b0: usize,
+    c: usize,
+) {
+    let mut acc = [[[0.0f32; 8]; C]; B];
+    for (b, a) in acc.iter_mut().enumerate() {
+        let o = &seg[(b0 + b) * l..(b0 + b + 1) * l];
+        for (cc, v) in a.iter_mut().enumerate() {
+            *v = ld8(o, c + cc);
+        }
+    }
+    for i in 0..rows {
+        let ws = m.seg(i, off, l);
+        let wv: [[f32; 8]; C] = core::array::from_fn(|cc| K::w8(ws, c + cc));
+        for b in 0..B {
+            let coef = row_coef(m, i, dy[(b0 + b) * rows + i]);
+            for cc in 0..C {
+                for k in 0..8 {
+                    acc[b][cc][k] += coef * wv[cc][k];
+                }
+            }
+        }
+    }
+    for (b, a) in acc.iter().enumerate() {
+        let o = &mut seg[(b0 + b) * l..(b0 + b + 1) * l];
+        for (cc, v) in a.iter().enumerate() {
+            o[8 * (c + cc)..8 * (c + cc) + 8].copy_from_slice(v);
+        }
+    }
+}
+
+// ---------------------------------------------------------------------------------------
+// dW += alpha dy x^T
+
+/// [`outer_acc_batch`] with an explicit block of `R` rows x `8 C` columns (speed only; the
+/// same bits for every shape). `rows = dy.len() / n`, per-vector lengths `x[s].len() / n`;
+/// shapes must already be checked.
+#[inline(always)]
+pub fn outer_acc_batch_blocked<const R: usize, const C: usize>(
+    dw: &mut [f32],
+    dy: &[f32],
+    x: &[&[f32]],
+    n: usize,
+    alpha: f32,
+) -> Result<()> {
+    if n == 0 || x.len() > MAX_SEGS {
+        return Ok(());
+    }
+    let mut lens = [0usize; MAX_SEGS];
+    for (l, s) in lens.iter_mut().zip(x) {
+        *l = s.len() / n;
+    }
+    let lens = &lens[..x.len()];
+    let cols: usize = lens.iter().sum();
+    let rows = dy.len() / n;
+    check_len("outer_batch.dw", rows.saturating_mul(cols), dw.len())?;
+    if cols == 0 {
+        return Ok(());
+    }
+    let rb = rows / R * R;
+    let mut off = 0;
+    for (seg, &l) in x.iter().zip(lens) {
+        let n8 = l / 8;
+        let cb = n8 / C * C;
+        let mut r0 = 0;
+        while r0 < rb {
+            let mut c = 0;
+            while c < cb {
+                op_tile::<R, C>(dw, cols, dy, rows, n, alpha, seg, l, off, r0, c);
+                c += C;
+            }
+            while c < n8 {
+                op_tile::<R, 1>(dw, cols, dy, rows, n, alpha, seg, l, off, r0, c);
+                c += 1;
+            }
+            r0 += R;
+        }
+        while r0 < rows {
+            for c in 0..n8 {
+                op_tile::<1, 1>(dw, cols, dy, rows, n, alpha, seg, l, off, r0, c);
+            }
+            r0 += 1;
+        }
+        // The tail columns, element by element (vectors in order).
+        if 8 * n8 < l {
+            for i in 0..rows {
+                let drow = &mut dw[i * cols + off + 8 * n8..i * cols + off + l];
+                for b in 0..n {
+                    let a = alpha * dy[b * rows + i];
+                    if a == 0.0 {
+                        continue;
+                    }
+                    let xs = &seg[b * l + 8 * n8..(b + 1) * l];
+                    for (o, &xv) in drow.iter_mut().zip(xs) {
+                        *o += a * xv;
+                    }
+                }
+            }
+        }
+        off += l;
     }
     Ok(())
+}
+
+/// Rows `r0 .. r0 + R` x columns `8 c .. 8 (c + C)` of one segment, over all vectors in order.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn op_tile<const R: usize, const C: usize>(
+    dw: &mut [f32],
+    cols: usize,
+    dy: &[f32],
+    rows: usize,
+    n: usize,
+    alpha: f32,
+    seg: &[f32],
+    l: usize,
+    off: usize,
+    r0: usize,
+    c: usize,
+) {
+    let mut acc = [[[0.0f32; 8]; C]; R];
+    for (r, a) in acc.iter_mut().enumerate() {
+        let o = &dw[(r0 + r) * cols + off..(r0 + r) * cols + off + l];
+        for (cc, v) in a.iter_mut().enumerate() {
+            *v = ld8(o, c + cc);
+        }
+    }
+    for b in 0..n {
+        let xs = &seg[b * l..(b + 1) * l];
+        let xv: [[f32; 8]; C] = core::array::from_fn(|cc| ld8(xs, c + cc));
+        for r in 0..R {
+            let a = alpha * dy[b * rows + r0 + r];
+            if a == 0.0 {
+                continue;
+            }
+            for cc in 0..C {
+                for k in 0..8 {
+                    acc[r][cc][k] += a * xv[cc][k];
+                }
+            }
+        }
+    }
+    for (r, a) in acc.iter().enumerate() {
+        let o = &mut dw[(r0 + r) * cols + off..(r0 + r) * cols + off + l];
+        for (cc, v) in a.iter().enumerate() {
+            o[8 * (c + cc)..8 * (c + cc) + 8].copy_from_slice(v);
+        }
+    }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::matrix::MatRef;
+    use crate::matrix::{outer_acc, MatRef};
 
     fn vals(n: usize, seed: u32) -> [f32; 512] {
         let mut out = [0.0f32; 512];
@@ -234,5 +798,274 @@ mod tests {
         // too many segments
         let many: [&[f32]; 9] = [&a[..N]; 9];
         assert!(matmul_acc(&w, &many, &[1; 9], N, &mut y).is_err());
+    }
+
+    // ---- against a plain transcription of the canonical order, every storage kind ----
+
+    /// The canonical `y += W x` of one vector, written out (no blocking).
+    fn ref_matvec(w: &MatRef<'_>, x: &[&[f32]], y: &mut [f32]) {
+        use crate::matrix::{dot, dot_i8, dot_le};
+        if w.cols() == 0 {
+            return;
+        }
+        for (i, yi) in y.iter_mut().enumerate() {
+            let mut acc = 0.0f32;
+            let mut off = 0;
+            for seg in x {
+                let l = seg.len();
+                acc += match w.weights() {
+                    Weights::F32(d) => dot(&d[i * w.cols() + off..i * w.cols() + off + l], seg),
+                    Weights::F32Le(d) => dot_le(
+                        &d[4 * (i * w.cols() + off)..4 * (i * w.cols() + off + l)],
+                        seg,
+                    ),
+                    Weights::I8 { q, .. } => {
+                        dot_i8(&q[i * w.cols() + off..i * w.cols() + off + l], seg)
+                    }
+                };
+                off += l;
+            }
+            match w.weights() {
+                Weights::I8 { scales, .. } => *yi += acc * scales.get(i),
+                _ => *yi += acc,
+            }
+        }
+    }
+
+    /// The canonical `dx += W[:, col0..]^T dy` of one vector.
+    fn ref_matvec_t(w: &MatRef<'_>, dy: &[f32], col0: usize, dx: &mut [f32]) {
+        for (i, &g) in dy.iter().enumerate() {
+            let c = match w.weights() {
+                Weights::I8 { scales, .. } => g * scales.get(i),
+                _ => g,
+            };
+            for (j, o) in dx.iter_mut().enumerate() {
+                let wij = match w.weights() {
+                    Weights::I8 { q, .. } => q[i * w.cols() + col0 + j] as i8 as f32,
+                    _ => w.get(i, col0 + j),
+                };
+                *o += c * wij;
+            }
+        }
+    }
+
+    /// The canonical `dW += alpha dy x^T` of one vector.
+    fn ref_outer(dw: &mut [f32], dy: &[f32], x: &[f32], alpha: f32) {
+        let cols = x.len();
+        for (i, &g) in dy.iter().enumerate() {
+            let a = alpha * g;
+            if a == 0.0 {
+                continue;
+            }
+            crate::matrix::axpy(a, x, &mut dw[i * cols..(i + 1) * cols]);
+        }
+    }
+
+    const BIG: usize = 4096;
+
+    fn big(n: usize, seed: u32) -> [f32; BIG] {
+        let mut out = [0.0f32; BIG];
+        out[..n.min(512)].copy_from_slice(&vals(n.min(512), seed)[..n.min(512)]);
+        let mut s = seed.wrapping_mul(747796405).wrapping_add(3);
+        for v in out.iter_mut().take(n).skip(512) {
+            s ^= s << 13;
+            s ^= s >> 17;
+            s ^= s << 5;
+            *v = (s % 4001) as f32 / 997.0 - 2.0;
+        }
+        // Special values the canonical order must treat identically.
+        if n > 7 {
+            out[1] = -0.0;
+            out[3] = 0.0;
+            out[n - 2] = 1.0e-39; // subnormal
+        }
+        out
+    }
+
+    /// Matrices of every kind over the same values: f32, little-endian f32, int8.
+    fn kinds<'a>(
+        r: usize,
+        c: usize,
+        wv: &'a [f32],
+        le: &'a mut [u8],
+        q: &'a mut [u8],
+        sc: &'a mut [f32],
+    ) -> [MatRef<'a>; 3] {
+        for (b, v) in le.chunks_exact_mut(4).zip(wv) {
+            b.copy_from_slice(&v.to_le_bytes());
+        }
+        for (i, qv) in q.iter_mut().enumerate() {
+            *qv = ((wv[i] * 60.0) as i32).clamp(-127, 127) as i8 as u8;
+        }
+        for (i, s) in sc.iter_mut().enumerate() {
+            *s = 0.01 + i as f32 * 0.003;
+        }
+        [
+            MatRef::f32(r, c, wv).unwrap(),
+            MatRef::f32_le(r, c, le).unwrap(),
+            MatRef::i8(r, c, q, Scales::F32(sc)).unwrap(),
+        ]
+    }
+
+    #[test]
+    fn blocked_kernels_keep_the_canonical_order_for_every_kind_and_shape() {
+        // (rows, segment lengths, batch) with tails, short segments, empty segments.
+        let cases: &[(usize, &[usize], usize)] = &[
+            (1, &[1], 1),
+            (3, &[7], 5),
+            (5, &[3, 8], 4),
+            (6, &[64], 20),
+            (7, &[45, 45], 3),
+            (9, &[17, 0, 6, 33], 6),
+            (4, &[0], 2),
+            (2, &[100, 9], 9),
+        ];
+        for (ci, &(r, lens, n)) in cases.iter().enumerate() {
+            let c: usize = lens.iter().sum();
+            let wv = big(r * c, 100 + ci as u32);
+            let mut le = [0u8; 4 * 1024];
+            let mut q = [0u8; 1024];
+            let mut sc = [0.0f32; 16];
+            let mats = kinds(
+                r,
+                c,
+                &wv[..r * c],
+                &mut le[..4 * r * c],
+                &mut q[..r * c],
+                &mut sc[..r],
+            );
+            let xs: [[f32; BIG]; 4] = core::array::from_fn(|s| big(n * 128, 200 + s as u32));
+            let segs: [&[f32]; 4] =
+                core::array::from_fn(|s| &xs[s][..n * lens.get(s).copied().unwrap_or(0)]);
+            let segs = &segs[..lens.len()];
+            let dy = {
+                let mut d = big(n * r, 300 + ci as u32);
+                d[0] = 0.0; // a skipped outer-product row
+                d
+            };
+            for (mi, m) in mats.iter().enumerate() {
+                // y += W x
+                let y0 = big(n * r, 400);
+                let mut y = y0;
+                matmul_acc(m, segs, lens, n, &mut y[..n * r]).unwrap();
+                let mut y2 = y0;
+                matmul_acc_blocked::<3, 5>(m, segs, n, &mut y2[..n * r]).unwrap();
+                for b in 0..n {
+                    let mut want = [0.0f32; 16];
+                    want[..r].copy_from_slice(&y0[b * r..(b + 1) * r]);
+                    let mut one: [&[f32]; 4] = [&[]; 4];
+                    for (s, &l) in lens.iter().enumerate() {
+                        one[s] = &segs[s][b * l..(b + 1) * l];
+                    }
+                    ref_matvec(m, &one[..lens.len()], &mut want[..r]);
+                    let mut mv = [0.0f32; 16];
+                    mv[..r].copy_from_slice(&y0[b * r..(b + 1) * r]);
+                    m.matvec_acc(&one[..lens.len()], &mut mv[..r]).unwrap();
+                    for i in 0..r {
+                        let w = want[i].to_bits();
+                        assert_eq!(
+                            y[b * r + i].to_bits(),
+                            w,
+                            "matmul case {ci} kind {mi} b {b} i {i}"
+                        );
+                        assert_eq!(y2[b * r + i].to_bits(), w, "matmul 3x5 case {ci} kind {mi}");
+                        assert_eq!(mv[i].to_bits(), w, "matvec case {ci} kind {mi}");
+                    }
+                }
+                // dx += W^T dy
+                let mut dxs: [[f32; BIG]; 4] =
+                    core::array::from_fn(|s| big(n * 128, 500 + s as u32));
+                let dx0 = dxs;
+                {
+                    let [a, b2, c2, d2] = &mut dxs;
+                    let mut parts: [&mut [f32]; 4] = [
+                        &mut a[..n * lens.first().copied().unwrap_or(0)],
+                        &mut b2[..n * lens.get(1).copied().unwrap_or(0)],
+                        &mut c2[..n * lens.get(2).copied().unwrap_or(0)],
+                        &mut d2[..n * lens.get(3).copied().unwrap_or(0)],
+                    ];
+                    matmul_t_acc(m, &dy[..n * r], n, &mut parts[..lens.len()], lens).unwrap();
+                }
+                let mut dxs2 = dx0;
+                {
+                    let [a, b2, c2, d2] = &mut dxs2;
+                    let mut parts: [&mut [f32]; 4] = [
+                        &mut a[..n * lens.first().copied().unwrap_or(0)],
+                        &mut b2[..n * lens.get(1).copied().unwrap_or(0)],
+                        &mut c2[..n * lens.get(2).copied().unwrap_or(0)],
+                        &mut d2[..n * lens.get(3).copied().unwrap_or(0)],
+                    ];
+                    matmul_t_acc_blocked::<3, 2>(m, &dy[..n * r], n, &mut parts[..lens.len()], 0)
+                        .unwrap();
+                }
+                let mut off = 0;
+                for (s, &l) in lens.iter().enumerate() {
+                    for b in 0..n {
+                        let mut want = [0.0f32; 128];
+                        want[..l].copy_from_slice(&dx0[s][b * l..(b + 1) * l]);
+                        ref_matvec_t(m, &dy[b * r..(b + 1) * r], off, &mut want[..l]);
+                        for j in 0..l {
+                            assert_eq!(
+                                dxs[s][b * l + j].to_bits(),
+                                want[j].to_bits(),
+                                "matmul_t case {ci} kind {mi} seg {s}"
+                            );
+                            assert_eq!(
+                                dxs2[s][b * l + j].to_bits(),
+                                want[j].to_bits(),
+                                "matmul_t 3x2 case {ci} kind {mi}"
+                            );
+                        }
+                    }
+                    off += l;
+                }
+            }
+            // dW += alpha sum_b dy_b x_b^T
+            let dw0 = big(r * c, 600 + ci as u32);
+            let mut dw = dw0;
+            outer_acc_batch(&mut dw[..r * c], &dy[..n * r], segs, lens, n, 0.75).unwrap();
+            let mut dw2 = dw0;
+            outer_acc_batch_blocked::<3, 2>(&mut dw2[..r * c], &dy[..n * r], segs, n, 0.75)
+                .unwrap();
+            let mut want = dw0;
+            for b in 0..n {
+                let mut xb = [0.0f32; 512];
+                let mut off = 0;
+                for (s, &l) in lens.iter().enumerate() {
+                    xb[off..off + l].copy_from_slice(&segs[s][b * l..(b + 1) * l]);
+                    off += l;
+                }
+                ref_outer(&mut want[..r * c], &dy[b * r..(b + 1) * r], &xb[..c], 0.75);
+            }
+            for i in 0..r * c {
+                assert_eq!(
+                    dw[i].to_bits(),
+                    want[i].to_bits(),
+                    "outer case {ci} elem {i}"
+                );
+                assert_eq!(dw2[i].to_bits(), want[i].to_bits(), "outer 3x2 case {ci}");
+            }
+        }
+    }
+
+    #[test]
+    fn non_finite_values_propagate_exactly_as_the_canonical_order() {
+        let (r, c, n) = (3, 19, 4);
+        let mut wv = big(r * c, 7);
+        wv[5] = f32::INFINITY;
+        wv[30] = f32::NAN;
+        let w = MatRef::f32(r, c, &wv[..r * c]).unwrap();
+        let mut x = big(n * c, 8);
+        x[c + 2] = f32::NEG_INFINITY;
+        let mut y = [0.0f32; 12];
+        matmul_acc(&w, &[&x[..n * c]], &[c], n, &mut y).unwrap();
+        for b in 0..n {
+            let mut want = [0.0f32; 3];
+            ref_matvec(&w, &[&x[b * c..(b + 1) * c]], &mut want);
+            for i in 0..r {
+                assert_eq!(y[b * r + i].to_bits(), want[i].to_bits());
+            }
+        }
+        assert!(y.iter().any(|v| v.is_nan()), "the NaN weight reaches y");
     }
 }

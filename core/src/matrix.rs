@@ -22,6 +22,7 @@
 //! Cortex-M4F build of the same code produce bit-identical results: no fused multiply-add
 //! is ever introduced because Rust never contracts `a * b + c`.
 
+use crate::batch::{self, Kernels, MAX_SEGS};
 use crate::error::{check_len, Result};
 
 /// Row scales of an int8 matrix.
@@ -81,11 +82,15 @@ pub enum Weights<'a> {
 
 /// A read-only `rows x cols` row-major matrix view. Construct with [`MatRef::f32`] or
 /// [`MatRef::i8`], which check the lengths once so the kernels can trust them.
+///
+/// A view may carry a table of [`Kernels`] ([`MatRef::with_kernels`]): the host's way to run
+/// the same kernels compiled for a wider instruction set (same bits, see [`crate::batch`]).
 #[derive(Clone, Copy, Debug)]
 pub struct MatRef<'a> {
     rows: usize,
     cols: usize,
     w: Weights<'a>,
+    k: Option<&'static dyn Kernels>,
 }
 
 impl<'a> MatRef<'a> {
@@ -96,6 +101,7 @@ impl<'a> MatRef<'a> {
             rows,
             cols,
             w: Weights::F32(data),
+            k: None,
         })
     }
 
@@ -110,6 +116,7 @@ impl<'a> MatRef<'a> {
             rows,
             cols,
             w: Weights::F32Le(data),
+            k: None,
         })
     }
 
@@ -121,7 +128,34 @@ impl<'a> MatRef<'a> {
             rows,
             cols,
             w: Weights::I8 { q, scales },
+            k: None,
         })
+    }
+
+    /// The same view, running its kernels through `k` (see [`Kernels`]; the results are the
+    /// same bits, only the speed changes).
+    #[inline]
+    pub fn with_kernels(self, k: &'static dyn Kernels) -> Self {
+        MatRef { k: Some(k), ..self }
+    }
+
+    /// The same view with the crate's own (portable) kernels.
+    #[inline]
+    pub fn without_kernels(self) -> Self {
+        MatRef { k: None, ..self }
+    }
+
+    /// The kernel table attached with [`MatRef::with_kernels`], if any.
+    #[inline]
+    pub fn kernels(&self) -> Option<&'static dyn Kernels> {
+        self.k
+    }
+
+    /// A view of other storage with the same kernel table as `self` (e.g. adapted f32
+    /// weights in RAM standing in for the blob's).
+    #[inline]
+    pub fn kernels_from(self, other: &MatRef<'_>) -> Self {
+        MatRef { k: other.k, ..self }
     }
 
     /// Number of rows (outputs).
@@ -208,6 +242,46 @@ impl<'a> MatRef<'a> {
         if self.cols == 0 {
             return Ok(());
         }
+        // The Cortex-M4F (no vector unit) runs the row-at-a-time loop: the same canonical
+        // order, fewer instructions there than the blocked body (measured in QEMU).
+        if x.len() > MAX_SEGS || cfg!(target_arch = "arm") {
+            self.matvec_acc_many(x, y);
+            return Ok(());
+        }
+        match self.k {
+            Some(k) => k.matmul_acc(&self.without_kernels(), x, 1, y),
+            None => batch::matmul_acc_blocked::<MV_R, 1>(self, x, 1, y),
+        }
+    }
+
+    /// [`MatRef::matvec_t_acc_cols`] one row at a time (the Cortex-M4F's loop; the same
+    /// order as the blocked body: every element sums its rows in order).
+    fn matvec_t_rowwise(&self, dy: &[f32], col0: usize, dx: &mut [f32]) {
+        let end = col0 + dx.len();
+        match self.w {
+            Weights::F32(d) => {
+                for (row, &g) in d.chunks_exact(self.cols).zip(dy) {
+                    axpy(g, &row[col0..end], dx);
+                }
+            }
+            Weights::F32Le(d) => {
+                for (row, &g) in d.chunks_exact(4 * self.cols).zip(dy) {
+                    for (o, b) in dx.iter_mut().zip(row[4 * col0..4 * end].chunks_exact(4)) {
+                        *o += g * f32::from_le_bytes([b[0], b[1], b[2], b[3]]);
+                    }
+                }
+            }
+            Weights::I8 { q, scales } => {
+                for (i, (row, &g)) in q.chunks_exact(self.cols).zip(dy).enumerate() {
+                    axpy_i8(g * scales.get(i), &row[col0..end], dx);
+                }
+            }
+        }
+    }
+
+    /// [`MatRef::matvec_acc`] one row at a time: for more than [`MAX_SEGS`] segments, and on
+    /// the Cortex-M4F (the same canonical order as the blocked body).
+    fn matvec_acc_many(&self, x: &[&[f32]], y: &mut [f32]) {
         match self.w {
             Weights::F32(d) => {
                 for (row, yi) in d.chunks_exact(self.cols).zip(y.iter_mut()) {
@@ -243,7 +317,6 @@ impl<'a> MatRef<'a> {
                 }
             }
         }
-        Ok(())
     }
 
     /// `dx += W^T dy`, where `dx` is given as consecutive segments (the input gradient of a
@@ -275,29 +348,23 @@ impl<'a> MatRef<'a> {
         if self.cols == 0 {
             return Ok(());
         }
-        let end = col0 + dx.len();
-        match self.w {
-            Weights::F32(d) => {
-                for (row, &g) in d.chunks_exact(self.cols).zip(dy) {
-                    axpy(g, &row[col0..end], dx);
-                }
-            }
-            Weights::F32Le(d) => {
-                for (row, &g) in d.chunks_exact(4 * self.cols).zip(dy) {
-                    for (o, b) in dx.iter_mut().zip(row[4 * col0..4 * end].chunks_exact(4)) {
-                        *o += g * f32::from_le_bytes([b[0], b[1], b[2], b[3]]);
-                    }
-                }
-            }
-            Weights::I8 { q, scales } => {
-                for (i, (row, &g)) in q.chunks_exact(self.cols).zip(dy).enumerate() {
-                    axpy_i8(g * scales.get(i), &row[col0..end], dx);
-                }
-            }
+        if cfg!(target_arch = "arm") {
+            self.matvec_t_rowwise(dy, col0, dx);
+            return Ok(());
         }
-        Ok(())
+        match self.k {
+            Some(k) => k.matmul_t_acc(&self.without_kernels(), dy, 1, &mut [dx], col0),
+            None => batch::matmul_t_acc_blocked::<MVT_C, 1>(self, dy, 1, &mut [dx], col0),
+        }
     }
 }
+
+// Block shapes of the batch-1 kernels on hosts (speed only, never the bits): four rows per
+// pass share each input load (16 vector registers on x86-64).
+const MV_R: usize = 4;
+const MVT_C: usize = 4;
+const OUTER_R: usize = 2;
+const OUTER_C: usize = 2;
 
 /// Total length of a segmented vector.
 #[inline]
@@ -313,18 +380,21 @@ pub fn outer_acc(dw: &mut [f32], dy: &[f32], x: &[&[f32]], alpha: f32) -> Result
     if cols == 0 {
         return Ok(());
     }
-    for (row, &g) in dw.chunks_exact_mut(cols).zip(dy) {
-        let a = alpha * g;
-        if a == 0.0 {
-            continue;
+    if x.len() > MAX_SEGS || cfg!(target_arch = "arm") {
+        for (row, &g) in dw.chunks_exact_mut(cols).zip(dy) {
+            let a = alpha * g;
+            if a == 0.0 {
+                continue;
+            }
+            let mut off = 0;
+            for seg in x {
+                axpy(a, seg, &mut row[off..off + seg.len()]);
+                off += seg.len();
+            }
         }
-        let mut off = 0;
-        for seg in x {
-            axpy(a, seg, &mut row[off..off + seg.len()]);
-            off += seg.len();
-        }
+        return Ok(());
     }
-    Ok(())
+    batch::outer_acc_batch_blocked::<OUTER_R, OUTER_C>(dw, dy, x, 1, alpha)
 }
 
 /// Dot product with eight independent accumulators (deterministic order; see module docs).

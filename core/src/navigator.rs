@@ -351,6 +351,16 @@ impl<'w> NavWeights<'w> {
         Ok(NavWeights { dims: *dims, t })
     }
 
+    /// The same views running their kernels through `k` (see [`crate::batch::Kernels`]; a
+    /// host's wider-SIMD build of the same kernels). Every result keeps its bits; the f32
+    /// copies the navigator adapts in RAM inherit `k` from the view they stand in for.
+    pub fn with_kernels(mut self, k: &'static dyn crate::batch::Kernels) -> Self {
+        for m in self.t.iter_mut() {
+            *m = m.with_kernels(k);
+        }
+        self
+    }
+
     /// The dims.
     pub fn dims(&self) -> &Dims {
         &self.dims
@@ -402,7 +412,7 @@ impl<'w> LayerRam<'w> {
         let w = if self.w.is_empty() {
             base
         } else {
-            MatRef::f32(base.rows(), base.cols(), self.w)?
+            MatRef::f32(base.rows(), base.cols(), self.w)?.kernels_from(&base)
         };
         Ok(Dense {
             w,

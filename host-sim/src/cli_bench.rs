@@ -17,7 +17,8 @@ use clap::{Args, ValueEnum};
 use gman_core::blob::{Blob, TensorId};
 use gman_core::matrix::MatRef;
 use gman_core::navigator::{Efficient, Full, Mode, NavConfig, NavWeights, Navigator};
-use gman_core::rng::{uniform, Xoshiro128};
+use gman_core::quant::quantize_rows;
+use gman_core::rng::{fill_gaussian, uniform, Xoshiro128};
 use gman_core::Dims;
 use serde_json::{json, Value};
 
@@ -98,6 +99,9 @@ struct Limits {
     /// Peak of separate f32 multiply and add (the instructions this build's kernels can use:
     /// baseline x86-64 = SSE2, 4 lanes, no FMA), GFLOP/s.
     peak_muladd_gflops: f64,
+    /// Peak of separate f32 multiply and add with AVX2 (8 lanes, no FMA): the limit of the
+    /// AVX2 build of the kernels (`gman_host_sim::simd`), GFLOP/s.
+    peak_muladd_avx2_gflops: Option<f64>,
     /// Peak of fused multiply-add with AVX2+FMA when the CPU has it (the machine's limit for
     /// f32; AVX-512 on Zen 4 has the same FLOP/cycle), GFLOP/s.
     peak_fma_gflops: Option<f64>,
@@ -179,6 +183,29 @@ fn muladd_loop(iters: usize, a: f32, b: f32) -> f32 {
     acc.iter().sum()
 }
 
+/// 12 independent chains of 8-lane `acc = acc * a + b` with a separate multiply and add in
+/// AVX2 registers (what the AVX2 build of gman-core's kernels can use).
+///
+/// # Safety
+/// The CPU must support AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn muladd_loop_avx2(iters: usize, a: f32, b: f32) -> f32 {
+    use std::arch::x86_64::{
+        _mm256_add_ps, _mm256_castps256_ps128, _mm256_mul_ps, _mm256_set1_ps, _mm_cvtss_f32,
+    };
+    let (va, vb) = (_mm256_set1_ps(a), _mm256_set1_ps(b));
+    let mut acc = [_mm256_set1_ps(0.5); 12];
+    for _ in 0..iters {
+        for v in acc.iter_mut() {
+            *v = _mm256_add_ps(_mm256_mul_ps(*v, va), vb);
+        }
+    }
+    acc.iter()
+        .map(|&v| _mm_cvtss_f32(_mm256_castps256_ps128(v)))
+        .sum()
+}
+
 /// 10 independent chains of 8-lane fused `acc = acc * a + b` in AVX2 registers (FMA latency 4
 /// cycles, 2 per cycle: 8 chains suffice).
 ///
@@ -229,7 +256,19 @@ fn measure_limits(a: &BenchArgs) -> Limits {
     };
     #[cfg(not(target_arch = "x86_64"))]
     let peak_fma_gflops = None;
+    #[cfg(target_arch = "x86_64")]
+    let peak_muladd_avx2_gflops = if is_x86_feature_detected!("avx2") {
+        // SAFETY: AVX2 was detected at run time just above.
+        Some(peak_gflops(2.0 * 96.0, a.reps, |n| unsafe {
+            muladd_loop_avx2(n, ca, cb)
+        }))
+    } else {
+        None
+    };
+    #[cfg(not(target_arch = "x86_64"))]
+    let peak_muladd_avx2_gflops = None;
     Limits {
+        peak_muladd_avx2_gflops,
         copy_gbs: copy_bandwidth(a.stream_mib, 7),
         read_gbs: read_bandwidth(a.stream_mib << 20, 7),
         read_l3_gbs: read_bandwidth(8 << 20, a.reps),
@@ -433,6 +472,10 @@ fn nav_rows(a: &BenchArgs) -> Result<Vec<NavRow>> {
                     }),
                     QuantArg::Int8 => NavWeights::from_blob(blob, &d),
                 }
+                .map(|w| match gman_host_sim::simd::host_kernels() {
+                    Some(k) => w.with_kernels(k),
+                    None => w,
+                })
                 .map_err(|e| anyhow!("weights: {e:?}"))
             };
             eprintln!("bench: {} {} ...", p.name(), q.name());
@@ -446,6 +489,106 @@ fn nav_rows(a: &BenchArgs) -> Result<Vec<NavRow>> {
             )?);
         }
     }
+    Ok(rows)
+}
+
+// ---------------------------------------------------------------- kernels
+
+/// One cache-resident kernel timing.
+struct KernelRow {
+    what: &'static str,
+    quant: &'static str,
+    kernels: &'static str,
+    macs: usize,
+    secs: f64,
+}
+
+/// Best-of timings of gman-core's dense kernels on a cache-resident 512 x 256 matrix (the
+/// `mcu` G output layer), batch 1 and batch 20, with the portable build and, when the CPU has
+/// it, the AVX2 build (`gman_host_sim::simd`).
+fn kernel_rows(reps: usize) -> Result<Vec<KernelRow>> {
+    use gman_core::batch::{matmul_acc, matmul_t_acc, outer_acc_batch_with, Kernels};
+    use gman_core::matrix::Scales;
+    let (r, c, n) = (512usize, 256usize, K);
+    let mut rng = Xoshiro128::seed_from_u64(6);
+    let mut w = vec![0.0f32; r * c];
+    fill_gaussian(&mut rng, &mut w);
+    let (mut q, mut sc) = (vec![0u8; r * c], vec![0.0f32; r]);
+    quantize_rows(&w, r, c, &mut q, &mut sc).map_err(|e| anyhow!("{e:?}"))?;
+    let mut x = vec![0.0f32; n * c];
+    fill_gaussian(&mut rng, &mut x);
+    let mut dy = vec![0.0f32; n * r];
+    fill_gaussian(&mut rng, &mut dy);
+    let (mut y, mut dx, mut dw) = (
+        vec![0.0f32; n * r],
+        vec![0.0f32; n * c],
+        vec![0.0f32; r * c],
+    );
+    let sets: Vec<(&'static str, Option<&'static dyn Kernels>)> =
+        std::iter::once(("portable", None))
+            .chain(gman_host_sim::simd::avx2().map(|k| ("avx2", Some(k))))
+            .collect();
+    let time = |f: &mut dyn FnMut() -> gman_core::Result<()>| -> Result<f64> {
+        let t0 = Instant::now();
+        f().map_err(|e| anyhow!("{e:?}"))?;
+        let inner = ((2e-3 / t0.elapsed().as_secs_f64().max(1e-9)) as usize).clamp(1, 10_000);
+        let mut best = f64::INFINITY;
+        for _ in 0..reps.max(3) {
+            let t0 = Instant::now();
+            for _ in 0..inner {
+                f().map_err(|e| anyhow!("{e:?}"))?;
+            }
+            best = best.min(t0.elapsed().as_secs_f64() / inner as f64);
+        }
+        Ok(best)
+    };
+    let mut rows = Vec::new();
+    for (name, k) in sets {
+        let with = |m: MatRef<'static>| match k {
+            Some(k) => m.with_kernels(k),
+            None => m,
+        };
+        let wf: &'static [f32] = Vec::leak(w.clone());
+        let qs: &'static [u8] = Vec::leak(q.clone());
+        let ss: &'static [f32] = Vec::leak(sc.clone());
+        let mf = with(MatRef::f32(r, c, wf).map_err(|e| anyhow!("{e:?}"))?);
+        let mq = with(MatRef::i8(r, c, qs, Scales::F32(ss)).map_err(|e| anyhow!("{e:?}"))?);
+        for (quant, m) in [("f32", mf), ("int8", mq)] {
+            let t = time(&mut || m.matvec_acc(&[&x[..c]], &mut y[..r]))?;
+            rows.push(KernelRow {
+                what: "matvec (batch 1)",
+                quant,
+                kernels: name,
+                macs: r * c,
+                secs: t,
+            });
+            let t = time(&mut || matmul_acc(&m, &[&x], &[c], n, &mut y))?;
+            rows.push(KernelRow {
+                what: "matmul (batch 20)",
+                quant,
+                kernels: name,
+                macs: r * c * n,
+                secs: t,
+            });
+            let t = time(&mut || matmul_t_acc(&m, &dy, n, &mut [&mut dx], &[c]))?;
+            rows.push(KernelRow {
+                what: "matmul_t (batch 20)",
+                quant,
+                kernels: name,
+                macs: r * c * n,
+                secs: t,
+            });
+        }
+        let t = time(&mut || outer_acc_batch_with(k, &mut dw, &dy, &[&x], &[c], n, 1e-6))?;
+        rows.push(KernelRow {
+            what: "outer (batch 20)",
+            quant: "f32",
+            kernels: name,
+            macs: r * c * n,
+            secs: t,
+        });
+    }
+    black_box((&y, &dx, &dw));
     Ok(rows)
 }
 
@@ -472,6 +615,8 @@ pub fn cmd_bench(a: BenchArgs) -> Result<()> {
     let started = Instant::now();
     eprintln!("bench: machine limits ...");
     let lim = measure_limits(&a);
+    eprintln!("bench: kernels ...");
+    let krows = kernel_rows(a.reps)?;
     let rows = nav_rows(&a)?;
     let trains = if a.train_updates > 0 {
         crate::bench_train::rows(a.train_updates)?
@@ -500,13 +645,33 @@ pub fn cmd_bench(a: BenchArgs) -> Result<()> {
         })
         .collect();
     let train_json = crate::bench_train::json(&trains);
+    let peak_for = |k: &str| {
+        if k == "avx2" {
+            lim.peak_muladd_avx2_gflops.unwrap_or(f64::NAN)
+        } else {
+            lim.peak_muladd_gflops
+        }
+    };
+    let kernel_json: Vec<Value> = krows
+        .iter()
+        .map(|r| {
+            let g = 2.0 * r.macs as f64 / r.secs / 1e9;
+            json!({
+                "kernel": r.what, "quant": r.quant, "kernels": r.kernels, "macs": r.macs,
+                "us": r.secs * 1e6, "gflops": g, "frac_peak_muladd_same_isa": g / peak_for(r.kernels),
+            })
+        })
+        .collect();
     let report = json!({
         "threads": 1,
+        "navigator_kernels": gman_host_sim::simd::host_kernels_name(),
+        "kernels": kernel_json,
         "k": K,
         "limits": {
             "copy_gbs": lim.copy_gbs, "copy_mib": a.stream_mib,
             "read_gbs": lim.read_gbs, "read_l3_8mib_gbs": lim.read_l3_gbs,
             "peak_muladd_gflops": lim.peak_muladd_gflops,
+            "peak_muladd_avx2_gflops": lim.peak_muladd_avx2_gflops,
             "peak_fma_avx2_gflops": lim.peak_fma_gflops,
         },
         "navigator": nav_json,
@@ -536,14 +701,39 @@ pub fn cmd_bench(a: BenchArgs) -> Result<()> {
     println!(
         "Machine limits (1 thread, this run): copy {:.1} GB/s ({} MiB arrays, read+write), \
          read {:.1} GB/s (DRAM), {:.1} GB/s (8 MiB, L3); peak f32 mul+add {:.1} GFLOP/s \
-         (SSE2, this build's ISA), peak FMA {} (AVX2+FMA)",
+         (SSE2, the portable build's ISA), {} (AVX2 without FMA, the AVX2 build's), peak FMA {} \
+         (AVX2+FMA)",
         lim.copy_gbs,
         a.stream_mib,
         lim.read_gbs,
         lim.read_l3_gbs,
         lim.peak_muladd_gflops,
+        lim.peak_muladd_avx2_gflops
+            .map_or("n/a".to_string(), |g| format!("{g:.1} GFLOP/s")),
         lim.peak_fma_gflops
             .map_or("n/a".to_string(), |g| format!("{g:.1} GFLOP/s")),
+    );
+    println!();
+    println!(
+        "| kernel (512 x 256, cache-resident) | weights | kernels | time (best) | GFLOP/s | % mul+add peak of that ISA |"
+    );
+    println!("|---|---|---|---:|---:|---:|");
+    for r in &krows {
+        let g = 2.0 * r.macs as f64 / r.secs / 1e9;
+        println!(
+            "| {} | {} | {} | {} | {:.1} | {} |",
+            r.what,
+            r.quant,
+            r.kernels,
+            us(r.secs),
+            g,
+            pct(g / peak_for(r.kernels)),
+        );
+    }
+    println!();
+    println!(
+        "Navigator rows below use the {} kernels (`GMAN_KERNELS=portable` selects the portable build; same bits).",
+        gman_host_sim::simd::host_kernels_name()
     );
     println!();
     println!(

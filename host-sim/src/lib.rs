@@ -5,6 +5,7 @@ pub mod nav;
 pub mod optim;
 pub mod pretrain;
 pub mod sim;
+pub mod simd;
 
 /// The earlier home of [`optim`] and [`pretrain`] (one `train/` folder held both), kept so
 /// that `gman_host_sim::train::...` paths keep working.

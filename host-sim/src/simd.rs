@@ -1,0 +1,172 @@
+//! gman-core's dense kernels compiled for AVX2, chosen at run time.
+//!
+//! # Design
+//! gman-core is `no_std` and `#![forbid(unsafe_code)]`, and its kernels fix one canonical
+//! order of floating-point operations (eight accumulators over chunks of eight, a fixed
+//! reduction tree, separate multiply and add; see `gman_core::batch`). The bits therefore do
+//! not depend on the vector width the compiler picks, only the speed does. The host binary
+//! is built for baseline x86-64 (SSE2, four lanes) so that it runs on any x86-64 CPU; this
+//! module compiles the *same* kernel bodies a second time inside
+//! `#[target_feature(enable = "avx2")]` functions (the bodies are `#[inline(always)]`
+//! generics in gman-core, so they are instantiated here, with eight-lane registers) and
+//! exposes them as a `gman_core::batch::Kernels` table. A matrix view (or a whole
+//! `NavWeights`) runs through the table once it is attached with `with_kernels`.
+//!
+//! * FMA is **not** enabled: Rust never contracts `a * b + c`, and enabling only `avx2`
+//!   keeps even the instruction selection free of fused operations.
+//! * The table is handed out only after `is_x86_feature_detected!("avx2")` said yes, which is
+//!   what makes the `unsafe` calls below sound.
+//! * `GMAN_KERNELS=portable` in the environment makes [`host_kernels`] return `None`
+//!   (gman-core's own build), e.g. to compare speeds; the results are identical either way
+//!   (pinned by this module's tests and `tests/avx2_parity.rs`).
+
+use gman_core::batch::{
+    matmul_acc_blocked, matmul_t_acc_blocked, outer_acc_batch_blocked, Kernels,
+};
+use gman_core::matrix::MatRef;
+use gman_core::Result;
+
+/// The AVX2 build of gman-core's kernels. Only reachable through [`avx2`], i.e. on a CPU that
+/// has AVX2.
+#[derive(Debug)]
+pub struct Avx2 {
+    _private: (),
+}
+
+static AVX2: Avx2 = Avx2 { _private: () };
+
+/// The AVX2 kernel table if this CPU supports AVX2 (always `None` off x86-64).
+pub fn avx2() -> Option<&'static dyn Kernels> {
+    #[cfg(target_arch = "x86_64")]
+    {
+        if std::is_x86_feature_detected!("avx2") {
+            return Some(&AVX2);
+        }
+    }
+    None
+}
+
+/// The fastest kernel table for this CPU ([`avx2`]), unless `GMAN_KERNELS=portable` is set;
+/// `None` means gman-core's portable build. Same bits in every case.
+pub fn host_kernels() -> Option<&'static dyn Kernels> {
+    if std::env::var("GMAN_KERNELS").is_ok_and(|v| v == "portable") {
+        return None;
+    }
+    avx2()
+}
+
+/// Name of what [`host_kernels`] selects, for reports.
+pub fn host_kernels_name() -> &'static str {
+    if host_kernels().is_some() {
+        "avx2"
+    } else {
+        "portable (sse2)"
+    }
+}
+
+impl Kernels for Avx2 {
+    fn matmul_acc(&self, w: &MatRef<'_>, x: &[&[f32]], n: usize, y: &mut [f32]) -> Result<()> {
+        // SAFETY: an `Avx2` is only handed out by `avx2()` after detecting AVX2.
+        unsafe { x86::matmul_acc(w, x, n, y) }
+    }
+
+    fn matmul_t_acc(
+        &self,
+        w: &MatRef<'_>,
+        dy: &[f32],
+        n: usize,
+        dx: &mut [&mut [f32]],
+        col0: usize,
+    ) -> Result<()> {
+        // SAFETY: as above.
+        unsafe { x86::matmul_t_acc(w, dy, n, dx, col0) }
+    }
+
+    fn outer_acc_batch(
+        &self,
+        dw: &mut [f32],
+        dy: &[f32],
+        x: &[&[f32]],
+        n: usize,
+        alpha: f32,
+    ) -> Result<()> {
+        // SAFETY: as above.
+        unsafe { x86::outer_acc_batch(dw, dy, x, n, alpha) }
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+mod x86 {
+    use super::*;
+
+    #[target_feature(enable = "avx2")]
+    pub(super) unsafe fn matmul_acc(
+        w: &MatRef<'_>,
+        x: &[&[f32]],
+        n: usize,
+        y: &mut [f32],
+    ) -> Result<()> {
+        if n == 1 {
+            matmul_acc_blocked::<8, 1>(w, x, n, y)
+        } else {
+            matmul_acc_blocked::<4, 2>(w, x, n, y)
+        }
+    }
+
+    #[target_feature(enable = "avx2")]
+    pub(super) unsafe fn matmul_t_acc(
+        w: &MatRef<'_>,
+        dy: &[f32],
+        n: usize,
+        dx: &mut [&mut [f32]],
+        col0: usize,
+    ) -> Result<()> {
+        if n == 1 {
+            matmul_t_acc_blocked::<8, 1>(w, dy, n, dx, col0)
+        } else {
+            matmul_t_acc_blocked::<2, 4>(w, dy, n, dx, col0)
+        }
+    }
+
+    #[target_feature(enable = "avx2")]
+    pub(super) unsafe fn outer_acc_batch(
+        dw: &mut [f32],
+        dy: &[f32],
+        x: &[&[f32]],
+        n: usize,
+        alpha: f32,
+    ) -> Result<()> {
+        outer_acc_batch_blocked::<2, 4>(dw, dy, x, n, alpha)
+    }
+}
+
+#[cfg(not(target_arch = "x86_64"))]
+mod x86 {
+    use super::*;
+    pub(super) unsafe fn matmul_acc(
+        w: &MatRef<'_>,
+        x: &[&[f32]],
+        n: usize,
+        y: &mut [f32],
+    ) -> Result<()> {
+        matmul_acc_blocked::<1, 4>(w, x, n, y)
+    }
+    pub(super) unsafe fn matmul_t_acc(
+        w: &MatRef<'_>,
+        dy: &[f32],
+        n: usize,
+        dx: &mut [&mut [f32]],
+        col0: usize,
+    ) -> Result<()> {
+        matmul_t_acc_blocked::<1, 4>(w, dy, n, dx, col0)
+    }
+    pub(super) unsafe fn outer_acc_batch(
+        dw: &mut [f32],
+        dy: &[f32],
+        x: &[&[f32]],
+        n: usize,
+        alpha: f32,
+    ) -> Result<()> {
+        outer_acc_batch_blocked::<2, 2>(dw, dy, x, n, alpha)
+    }
+}
