@@ -344,8 +344,8 @@ impl Header {
         self.flags
     }
     /// The adaptation mode the model was meta-trained in and must run in:
-    /// [`AdaptMode::Full`](crate::memory::AdaptMode::Full) with [`FLAG_FULL_ADAPT`], else
-    /// [`AdaptMode::Efficient`](crate::memory::AdaptMode::Efficient).
+    /// [`AdaptMode::Full`] with [`FLAG_FULL_ADAPT`], else
+    /// [`AdaptMode::Efficient`].
     pub fn adapt_mode(&self) -> AdaptMode {
         self.model_flags().mode
     }

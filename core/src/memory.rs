@@ -72,7 +72,7 @@ impl NavLayout {
 
     /// The layout for `dims`, `mode` and buffer capacity `k`, or `None` when any region or
     /// the total byte count overflows `usize` (checked arithmetic throughout). Each field is
-    /// the sum of its regions of the arena table ([`region_lens`]).
+    /// the sum of its regions of the arena table (`region_lens`, the one statement of the layout).
     pub const fn try_new(d: &Dims, mode: AdaptMode, k: usize) -> Option<NavLayout> {
         let lens = tri!(region_lens(d, mode, k));
         let mut sums = [0usize; 7];
