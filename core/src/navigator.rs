@@ -1183,7 +1183,11 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
         // CosSim variant, which has no D).
         let use_d = cfg.emd == Emd::Discriminator;
         let mut disc_ok = true;
-        let disc_steps = if use_d { cfg.disc_steps.clamp(1, 256) } else { 0 };
+        let disc_steps = if use_d {
+            cfg.disc_steps.clamp(1, 256)
+        } else {
+            0
+        };
         for _ in 0..disc_steps {
             disc_ok = {
                 g_disc1.zero();

@@ -978,3 +978,47 @@ mod tests {
         assert!(e.contains("sideways") || e.contains("variant"), "{e}");
     }
 }
+
+#[cfg(test)]
+mod inner_rule_tests {
+    use super::*;
+    use crate::optim::checkpoint::Checkpoint;
+
+    #[test]
+    fn inner_rule_round_trips_through_checkpoint_and_blob() {
+        let g =
+            crate::train::generator::init_generator(&Dims::MCU, &mut Xoshiro128::seed_from_u64(1))
+                .unwrap();
+        let mut m = NavModel::init(Method::Gman, Dims::MCU, 1, Some(&g), None).unwrap();
+        m.adapt_mode = AdaptMode::Efficient;
+        m.inner_lr = 0.5;
+        // The paper's rule writes no `inner_rule` key (old checkpoints' JSON unchanged).
+        assert!(m.metadata().get("inner_rule").is_none());
+        m.inner_rule = InnerRule {
+            disc_lr: Some(0.05),
+            disc_steps: 5,
+            step_rule: StepRuleName::Normalized,
+        };
+        let mut ck = Checkpoint::new(m.metadata());
+        m.add_to_checkpoint(&mut ck).unwrap();
+        let back = NavModel::from_checkpoint(&ck).unwrap();
+        assert_eq!(back.inner_rule, m.inner_rule);
+        // The blob carries it too, and the device's configuration follows.
+        let blob = m.to_blob(false).unwrap();
+        let b = model_from_blob(&blob, None).unwrap();
+        assert_eq!(b.inner_rule, m.inner_rule);
+        assert_eq!(b.inner_lr, 0.5);
+        let parsed = gman_core::blob::Blob::parse(&blob).unwrap();
+        let cfg = parsed.nav_config();
+        assert_eq!((cfg.alpha_disc, cfg.alpha_adapt), (0.05, 0.5));
+        assert_eq!((cfg.disc_steps, cfg.step_rule), (5, StepRule::Normalized));
+        assert_eq!(cfg.disc_steps, m.nav_config(false).disc_steps);
+        // Nonsense in a file is refused with the field named.
+        let mut bad = m.metadata();
+        bad["inner_rule"]["disc_steps"] = serde_json::json!(0);
+        let mut ck = Checkpoint::new(bad);
+        m.add_to_checkpoint(&mut ck).unwrap();
+        let err = format!("{:#}", NavModel::from_checkpoint(&ck).unwrap_err());
+        assert!(err.contains("disc-steps"), "{err}");
+    }
+}
