@@ -165,6 +165,11 @@ pub struct NavConfig {
     pub selection: Selection,
     /// An adaptation step whose |loss| exceeds this is rolled back.
     pub loss_bound: f32,
+    /// Ascent steps of D on L_D per inner update (paper: 1; a blob records it, see
+    /// [`ModelFlags::disc_steps`]; 0 counts as 1).
+    pub disc_steps: u32,
+    /// How the descent step on L_ad is sized.
+    pub step_rule: StepRule,
     /// The adaptation mode the weights were meta-trained in, when known (a blob records it,
     /// see [`Header::adapt_mode`]): [`Navigator::new`] refuses to run such weights in the
     /// other mode, since the inner loop would then not be the one that was meta-learned.
@@ -213,6 +218,8 @@ impl NavConfig {
             emd,
             noise,
             mode,
+            disc_steps,
+            step_rule,
         } = header.model_flags();
         let settings = header.adapt_settings();
         NavConfig {
@@ -223,6 +230,8 @@ impl NavConfig {
             alpha_adapt: settings.alpha_adapt,
             max_inner_updates: settings.max_inner,
             mode: Some(mode),
+            disc_steps,
+            step_rule,
             ..NavConfig::default()
         }
     }
@@ -253,10 +262,14 @@ impl Default for NavConfig {
             noise: NoiseMode::Gaussian,
             selection: Selection::Greedy,
             loss_bound: 1e6,
+            disc_steps: 1,
+            step_rule: StepRule::Gradient,
             mode: None,
         }
     }
 }
+
+pub use crate::schema::StepRule;
 
 /// Counters, per episode (reset by [`Navigator::reset`]) and over the navigator's life.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -468,6 +481,9 @@ impl<'w> LayerGrad<'w> {
     }
     fn finite(&self) -> bool {
         all_finite(self.a) && all_finite(self.b)
+    }
+    fn sum_sq(&self) -> f32 {
+        self.a.iter().chain(self.b.iter()).map(|v| v * v).sum()
     }
     /// True if `p + step * g` stays finite everywhere.
     fn update_ok(&self, p: &LayerRam<'_>, step: f32) -> bool {
@@ -1166,93 +1182,102 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
         // Lines 15-16: one ascent step of D on L_D (Eq. 1) over Ψ_s and Ψ_x (not with the
         // CosSim variant, which has no D).
         let use_d = cfg.emd == Emd::Discriminator;
-        let disc_ok = if use_d {
-            g_disc1.zero();
-            g_disc_w2.fill(0.0);
-            g_disc_b2.fill(0.0);
-            let mut ld = LdValue::default();
-            {
-                let gen = Generator {
-                    l1: gen1.view(w.get(TensorId::GenW1))?,
-                    l2: gen2.view(w.get(TensorId::GenW2))?,
-                };
-                let disc = Discriminator {
-                    l1: disc1.view(w.get(TensorId::DiscW1))?,
-                    w2: disc_w2,
-                    b2: disc_b2.first().copied().unwrap_or(0.0),
-                };
-                let mut db2 = 0.0f32;
-                let mut grads = DiscGrads {
-                    l1: g_disc1.grads(),
-                    w2: g_disc_w2,
-                    b2: &mut db2,
-                };
-                let inv = 1.0 / n as f32;
-                for t in 0..n {
-                    eps[t] = uniform(&mut self.rng);
-                }
-                let mut last_z: Option<usize> = None;
-                for t in 0..n {
-                    let z = &psi_z[t * zd..(t + 1) * zd];
-                    let same = last_z.is_some_and(|p| {
-                        psi_z[p * zd..(p + 1) * zd]
-                            .iter()
-                            .zip(z)
-                            .all(|(a, b)| a.to_bits() == b.to_bits())
-                    });
-                    if !same {
-                        let mut cache = GeneratorCache { u1, h1, u2, x };
-                        gen.forward(z, attr, &mut cache)?;
-                        last_z = Some(t);
-                    }
-                    let mut s = DiscScratch {
-                        u: du,
-                        h: dh,
-                        v: dv,
-                        w1g: dw1g,
-                        g: dg,
-                        mix: dmix,
-                    };
-                    let v = disc.ld_loss(
-                        &psi_s[t * f..(t + 1) * f],
-                        x,
-                        &eps[t..t + 1],
-                        cfg.ld,
-                        &mut s,
-                        Some(&mut grads),
-                    )?;
-                    ld.loss += v.loss * inv;
-                    ld.mean_real += v.mean_real * inv;
-                    ld.mean_fake += v.mean_fake * inv;
-                    ld.penalty += v.penalty * inv;
-                }
-                g_disc_b2[0] = db2;
-                g_disc1.scale(inv);
-                g_disc_w2
-                    .iter_mut()
-                    .chain(g_disc_b2.iter_mut())
-                    .for_each(|v| *v *= inv);
-            }
-            report.ld = ld;
-            // Ascent: ω ← ω + α1 ∇_ω L_D, only if everything stays finite and bounded.
-            let a1 = cfg.alpha_disc;
-            let disc_ok = ld.loss.is_finite()
-                && libm::fabsf(ld.loss) <= cfg.loss_bound
-                && g_disc1.finite()
-                && all_finite(g_disc_w2)
-                && all_finite(g_disc_b2)
-                && g_disc1.update_ok(disc1, a1)
-                && ok_update(disc_w2, g_disc_w2, a1)
-                && ok_update(disc_b2, g_disc_b2, a1);
-            if disc_ok {
-                g_disc1.apply(disc1, a1);
-                axpy_inplace(disc_w2, g_disc_w2, a1);
-                axpy_inplace(disc_b2, g_disc_b2, a1);
-            }
-            disc_ok
+        let mut disc_ok = true;
+        let disc_steps = if use_d {
+            cfg.disc_steps.clamp(1, 256)
         } else {
-            true
+            0
         };
+        for _ in 0..disc_steps {
+            disc_ok = {
+                g_disc1.zero();
+                g_disc_w2.fill(0.0);
+                g_disc_b2.fill(0.0);
+                let mut ld = LdValue::default();
+                {
+                    let gen = Generator {
+                        l1: gen1.view(w.get(TensorId::GenW1))?,
+                        l2: gen2.view(w.get(TensorId::GenW2))?,
+                    };
+                    let disc = Discriminator {
+                        l1: disc1.view(w.get(TensorId::DiscW1))?,
+                        w2: disc_w2,
+                        b2: disc_b2.first().copied().unwrap_or(0.0),
+                    };
+                    let mut db2 = 0.0f32;
+                    let mut grads = DiscGrads {
+                        l1: g_disc1.grads(),
+                        w2: g_disc_w2,
+                        b2: &mut db2,
+                    };
+                    let inv = 1.0 / n as f32;
+                    for t in 0..n {
+                        eps[t] = uniform(&mut self.rng);
+                    }
+                    let mut last_z: Option<usize> = None;
+                    for t in 0..n {
+                        let z = &psi_z[t * zd..(t + 1) * zd];
+                        let same = last_z.is_some_and(|p| {
+                            psi_z[p * zd..(p + 1) * zd]
+                                .iter()
+                                .zip(z)
+                                .all(|(a, b)| a.to_bits() == b.to_bits())
+                        });
+                        if !same {
+                            let mut cache = GeneratorCache { u1, h1, u2, x };
+                            gen.forward(z, attr, &mut cache)?;
+                            last_z = Some(t);
+                        }
+                        let mut s = DiscScratch {
+                            u: du,
+                            h: dh,
+                            v: dv,
+                            w1g: dw1g,
+                            g: dg,
+                            mix: dmix,
+                        };
+                        let v = disc.ld_loss(
+                            &psi_s[t * f..(t + 1) * f],
+                            x,
+                            &eps[t..t + 1],
+                            cfg.ld,
+                            &mut s,
+                            Some(&mut grads),
+                        )?;
+                        ld.loss += v.loss * inv;
+                        ld.mean_real += v.mean_real * inv;
+                        ld.mean_fake += v.mean_fake * inv;
+                        ld.penalty += v.penalty * inv;
+                    }
+                    g_disc_b2[0] = db2;
+                    g_disc1.scale(inv);
+                    g_disc_w2
+                        .iter_mut()
+                        .chain(g_disc_b2.iter_mut())
+                        .for_each(|v| *v *= inv);
+                }
+                report.ld = ld;
+                // Ascent: ω ← ω + α1 ∇_ω L_D, only if everything stays finite and bounded.
+                let a1 = cfg.alpha_disc;
+                let disc_ok = ld.loss.is_finite()
+                    && libm::fabsf(ld.loss) <= cfg.loss_bound
+                    && g_disc1.finite()
+                    && all_finite(g_disc_w2)
+                    && all_finite(g_disc_b2)
+                    && g_disc1.update_ok(disc1, a1)
+                    && ok_update(disc_w2, g_disc_w2, a1)
+                    && ok_update(disc_b2, g_disc_b2, a1);
+                if disc_ok {
+                    g_disc1.apply(disc1, a1);
+                    axpy_inplace(disc_w2, g_disc_w2, a1);
+                    axpy_inplace(disc_b2, g_disc_b2, a1);
+                }
+                disc_ok
+            };
+            if !disc_ok {
+                break;
+            }
+        }
         report.disc_applied = use_d && disc_ok;
 
         // Lines 17-19: L_ad (Eq. 3) and its gradients for θ_i and φ_i.
@@ -1334,7 +1359,18 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
             }
         }
         report.adapt_loss = loss;
-        let a2 = -cfg.alpha_adapt;
+        let a2 = match cfg.step_rule {
+            StepRule::Gradient => -cfg.alpha_adapt,
+            StepRule::Normalized => {
+                let sq = g_gen1.sum_sq() + g_gen2.sum_sq() + g_actor.sum_sq();
+                let norm = libm::sqrtf(sq);
+                if norm > 0.0 {
+                    -cfg.alpha_adapt / norm
+                } else {
+                    0.0
+                }
+            }
+        };
         let adapt_ok = loss.is_finite()
             && libm::fabsf(loss) <= cfg.loss_bound
             && g_gen1.finite()

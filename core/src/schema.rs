@@ -287,6 +287,28 @@ pub const FLAG_COSSIM: u32 = 4;
 /// the bit has always been run on the device ([`ModelFlags::mode`]).
 pub const FLAG_FULL_ADAPT: u32 = 8;
 
+/// Bit of the blob header's flags: the inner loop's descent step on L_ad is normalised
+/// ([`StepRule::Normalized`], [`ModelFlags::step_rule`]); without it the paper's gradient step.
+pub const FLAG_NORMALIZED_STEP: u32 = 1 << 16;
+
+/// Bits 8..16 of the blob header's flags: D's ascent steps per inner update minus one
+/// ([`ModelFlags::disc_steps`], 1..=256; 0 in every blob written before the setting, i.e. the
+/// paper's one step).
+pub const DISC_STEPS_SHIFT: u32 = 8;
+/// Mask of [`DISC_STEPS_SHIFT`]'s field.
+pub const DISC_STEPS_MASK: u32 = 0xFF << DISC_STEPS_SHIFT;
+
+/// How the inner loop's descent step on L_ad (Eq. 3) is sized.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum StepRule {
+    /// `θ ← θ − α2 ∇θ L_ad` (the paper).
+    #[default]
+    Gradient,
+    /// `θ ← θ − α2 ∇/‖∇‖`, the norm over every adapted parameter (θ and φ together): α2 is
+    /// the length of the step.
+    Normalized,
+}
+
 /// The model flags of a blob header as the settings they stand for: the one mapping between
 /// the `FLAG_*` bits and the navigator's configuration (see
 /// [`NavConfig::from_header`](crate::navigator::NavConfig::from_header)).
@@ -300,6 +322,11 @@ pub struct ModelFlags {
     pub noise: NoiseMode,
     /// [`FLAG_FULL_ADAPT`]: [`AdaptMode::Full`], else [`AdaptMode::Efficient`].
     pub mode: AdaptMode,
+    /// [`DISC_STEPS_MASK`]: D's ascent steps per inner update (1..=256; values above 256 are
+    /// written as 256).
+    pub disc_steps: u32,
+    /// [`FLAG_NORMALIZED_STEP`]: [`StepRule::Normalized`], else [`StepRule::Gradient`].
+    pub step_rule: StepRule,
 }
 
 impl ModelFlags {
@@ -322,6 +349,12 @@ impl ModelFlags {
             } else {
                 AdaptMode::Efficient
             },
+            disc_steps: ((bits & DISC_STEPS_MASK) >> DISC_STEPS_SHIFT) + 1,
+            step_rule: if bits & FLAG_NORMALIZED_STEP != 0 {
+                StepRule::Normalized
+            } else {
+                StepRule::Gradient
+            },
         }
     }
 
@@ -339,6 +372,17 @@ impl ModelFlags {
         }
         if matches!(self.mode, AdaptMode::Full) {
             f |= FLAG_FULL_ADAPT;
+        }
+        let steps = if self.disc_steps == 0 {
+            0
+        } else if self.disc_steps > 256 {
+            255
+        } else {
+            self.disc_steps - 1
+        };
+        f |= steps << DISC_STEPS_SHIFT;
+        if matches!(self.step_rule, StepRule::Normalized) {
+            f |= FLAG_NORMALIZED_STEP;
         }
         f
     }
@@ -389,5 +433,24 @@ mod tests {
             assert_eq!(ModelFlags::from_bits(bits).bits(), bits);
         }
         assert_eq!(ModelFlags::from_bits(0xF0).bits(), 0);
+        // the inner-rule levers: every step count and both rules, next to the other bits
+        for steps in [0u32, 1, 2, 5, 256] {
+            for norm in [false, true] {
+                let bits = 0b1011
+                    | (steps.saturating_sub(1) << DISC_STEPS_SHIFT)
+                    | if norm { FLAG_NORMALIZED_STEP } else { 0 };
+                let f = ModelFlags::from_bits(bits);
+                assert_eq!(f.disc_steps, steps.max(1));
+                assert_eq!(f.step_rule == StepRule::Normalized, norm);
+                assert!(f.adapt && f.mode == AdaptMode::Full);
+                assert_eq!(f.bits(), bits);
+            }
+        }
+        // blobs written before the levers read as the paper's rule
+        let old = ModelFlags::from_bits(FLAG_ADAPT);
+        assert_eq!((old.disc_steps, old.step_rule), (1, StepRule::Gradient));
+        let mut f = old;
+        f.disc_steps = 1000;
+        assert_eq!(ModelFlags::from_bits(f.bits()).disc_steps, 256);
     }
 }

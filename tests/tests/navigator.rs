@@ -479,3 +479,66 @@ fn cossim_variant_adapts_without_discriminator() {
     assert_ne!(before[0], after[0], "G adapted");
     assert_ne!(before[4], after[4], "actor head adapted");
 }
+
+/// The inner rule's levers (issue 14): the normalised step moves the adapted parameters
+/// (θ and the actor head) by exactly α2 in L2, and more D steps move ω further.
+#[test]
+fn inner_rule_levers_do_what_they_say() {
+    use gman_core::navigator::StepRule;
+    let dims = Dims::MCU;
+    let w = weights(&dims, 8, 0.05);
+    let run = |disc_steps: u32, step_rule: StepRule| {
+        let cfg = NavConfig {
+            alpha_disc: 0.05,
+            alpha_adapt: 0.3,
+            max_inner_updates: 1,
+            noise: NoiseMode::Zero,
+            disc_steps,
+            step_rule,
+            ..NavConfig::default()
+        };
+        let mut arena = vec![0.0f32; Navigator::<Full, 10>::arena_len(&dims)];
+        let mut nav: Navigator<'_, Full, 10> =
+            Navigator::new(nav_weights(&dims, &w), &mut arena, cfg).unwrap();
+        nav.reset(&[0.4; 45], 3).unwrap();
+        let before = core_snapshot(&nav, false);
+        let mut rng = Xoshiro128::seed_from_u64(4);
+        while nav.counters().adaptations == 0 {
+            let obs: Vec<f32> = (0..512).map(|_| uniform(&mut rng)).collect();
+            nav.step(&obs, &[]).unwrap();
+        }
+        assert_eq!(nav.counters().rollbacks, 0);
+        let after = core_snapshot(&nav, false);
+        let moved = |layers: &[usize]| -> f64 {
+            layers
+                .iter()
+                .map(|&l| {
+                    let (a, b) = (&before[l], &after[l]);
+                    let s: f64 = sub(&a.0, &b.0)
+                        .iter()
+                        .chain(sub(&a.1, &b.1).iter())
+                        .map(|v| v * v)
+                        .sum();
+                    s
+                })
+                .sum::<f64>()
+                .sqrt()
+        };
+        (moved(&[0, 1, 4]), moved(&[2, 3]))
+    };
+    let (theta_norm, _) = run(1, StepRule::Normalized);
+    assert!(
+        (theta_norm - 0.3).abs() < 1e-3,
+        "a normalised step of length 0.3 moved θ, φ by {theta_norm}"
+    );
+    let (theta_grad, omega_1) = run(1, StepRule::Gradient);
+    assert!(
+        (theta_grad - 0.3).abs() > 1e-2,
+        "the gradient step is not normalised: {theta_grad}"
+    );
+    let (_, omega_3) = run(3, StepRule::Gradient);
+    assert!(
+        omega_1 > 0.0 && omega_3 > 1.05 * omega_1,
+        "ω moved {omega_1} with 1 step, {omega_3} with 3"
+    );
+}

@@ -33,6 +33,12 @@ pub struct EmdReportArgs {
     /// Override α1 alone (D's ascent rate on L_D).
     #[arg(long, value_name = "ALPHA1")]
     pub disc_lr: Option<f32>,
+    /// Override D's ascent steps per inner update.
+    #[arg(long, value_name = "N")]
+    pub disc_steps: Option<u32>,
+    /// Override the descent step rule (`gradient` or `normalized`).
+    #[arg(long, value_enum)]
+    pub step_rule: Option<gman_host_sim::nav::model::StepRuleName>,
     /// Override the cap on inner updates per episode.
     #[arg(long, value_name = "N")]
     pub max_inner: Option<u32>,
@@ -51,6 +57,7 @@ struct Report<'a> {
     inner_lr: f32,
     disc_lr: Option<f32>,
     max_inner: u32,
+    inner_rule: gman_host_sim::nav::model::InnerRule,
     mode: &'a str,
     seen: Summary,
     unseen: Summary,
@@ -78,15 +85,26 @@ pub fn cmd_emd_report(a: EmdReportArgs) -> Result<()> {
     if let Some(n) = a.max_inner {
         model.max_inner = n;
     }
+    if let Some(n) = a.disc_steps {
+        model.inner_rule.disc_steps = n;
+    }
+    if let Some(r) = a.step_rule {
+        model.inner_rule.step_rule = r;
+    }
+    model.inner_rule.validate()?;
     let episodes = world.episodes(split, Some(a.episodes))?;
     eprintln!(
-        "emd-report: {} episodes of {}, inner rate {} (α1 {}), cap {}, mode {:?}",
+        "emd-report: {} episodes of {}, inner rate {} (α1 {}), cap {}, mode {:?}, {} D steps, {:?} step",
         episodes.len(),
         split.name(),
         model.inner_lr,
-        a.disc_lr.unwrap_or(model.inner_lr),
+        a.disc_lr
+            .or(model.inner_rule.disc_lr)
+            .unwrap_or(model.inner_lr),
         model.max_inner,
-        model.adapt_mode
+        model.adapt_mode,
+        model.inner_rule.disc_steps,
+        model.inner_rule.step_rule
     );
     let disc_lr = a.disc_lr;
     let records = emd_report::measure_with(&world, &model, &episodes, &|c| {
@@ -125,6 +143,7 @@ pub fn cmd_emd_report(a: EmdReportArgs) -> Result<()> {
             inner_lr: model.inner_lr,
             disc_lr,
             max_inner: model.max_inner,
+            inner_rule: model.inner_rule,
             mode: gman_host_sim::nav::model::mode_name(model.adapt_mode),
             seen,
             unseen,

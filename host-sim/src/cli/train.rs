@@ -92,6 +92,16 @@ pub struct TrainArgs {
     /// At most this many inner updates per episode (GMAN variants).
     #[arg(long, default_value_t = gman_host_sim::nav::model::DEFAULT_MAX_INNER)]
     pub max_inner: u32,
+    /// α1 alone, D's ascent rate on L_D (default: --inner-lr, the paper's α1 = α2).
+    #[arg(long, value_name = "ALPHA1")]
+    pub disc_lr: Option<f32>,
+    /// D's ascent steps on L_D per inner update (paper: 1).
+    #[arg(long, value_name = "N", default_value_t = 1)]
+    pub disc_steps: u32,
+    /// The descent step of θ and φ on L_ad: `gradient` (α2 ∇, the paper) or `normalized`
+    /// (α2 ∇/‖∇‖: --inner-lr is then the step's length). Recorded in the blob.
+    #[arg(long, value_enum, default_value = "gradient")]
+    pub step_rule: gman_host_sim::nav::model::StepRuleName,
     /// Minimum steps per worker and update.
     #[arg(long, default_value_t = 40)]
     pub min_steps: u32,
@@ -262,6 +272,15 @@ fn stored_int<T: TryFrom<u64>>(trainer: &serde_json::Value, key: &str) -> Option
     trainer.get(key)?.as_u64()?.try_into().ok()
 }
 
+/// The inner rule the flags ask for.
+fn inner_rule(a: &TrainArgs) -> gman_host_sim::nav::model::InnerRule {
+    gman_host_sim::nav::model::InnerRule {
+        disc_lr: a.disc_lr,
+        disc_steps: a.disc_steps,
+        step_rule: a.step_rule,
+    }
+}
+
 /// Most `--workers` a run may have (one thread each).
 const MAX_WORKERS: usize = 256;
 
@@ -396,6 +415,10 @@ fn check_train_flags(a: &TrainArgs) -> Result<()> {
         && new_run_adapt_mode(a) == gman_core::memory::AdaptMode::Efficient
     {
         bail!("--meta-order 2 is implemented for the Full adaptation mode; add --adapt-mode full");
+    }
+    inner_rule(a).validate()?;
+    if a.meta_order == 2 && a.method.adapts_in_training() && !inner_rule(a).is_paper() {
+        bail!("--meta-order 2 differentiates the paper's inner rule only (one D step, the gradient step, α1 = α2); use --meta-order 1 with --disc-lr, --disc-steps or --step-rule");
     }
     Ok(())
 }
@@ -563,6 +586,7 @@ pub fn cmd_train(a: TrainArgs, explicit: &dyn Fn(&str) -> bool) -> Result<()> {
     if a.resume.is_none() {
         state.model.inner_lr = a.inner_lr;
         state.model.max_inner = a.max_inner;
+        state.model.inner_rule = inner_rule(&a);
         validate_train_settings("command line", &opts, a.inner_lr, a.max_inner)?;
     } else {
         // Continue with the run's own settings (bit-exact resume); explicit flags must agree.
@@ -579,6 +603,24 @@ pub fn cmd_train(a: TrainArgs, explicit: &dyn Fn(&str) -> bool) -> Result<()> {
             a.max_inner,
             Some(m.max_inner),
             explicit("max_inner"),
+        )?;
+        resumed(
+            "--disc-lr",
+            a.disc_lr,
+            Some(m.inner_rule.disc_lr),
+            explicit("disc_lr"),
+        )?;
+        resumed(
+            "--disc-steps",
+            a.disc_steps,
+            Some(m.inner_rule.disc_steps),
+            explicit("disc_steps"),
+        )?;
+        resumed(
+            "--step-rule",
+            a.step_rule,
+            Some(m.inner_rule.step_rule),
+            explicit("step_rule"),
         )?;
         resumed("--method", a.method, Some(m.method), explicit("method"))?;
         if let Some(mode) = a.adapt_mode {

@@ -9,7 +9,7 @@ use gman_core::blob::{
 };
 use gman_core::matrix::MatRef;
 use gman_core::memory::AdaptMode;
-use gman_core::navigator::{NavConfig, NavWeights, NoiseMode, Selection};
+use gman_core::navigator::{NavConfig, NavWeights, NoiseMode, Selection, StepRule};
 use gman_core::rng::Xoshiro128;
 use gman_core::schema::{Emd, ModelFlags};
 use gman_core::Dims;
@@ -242,6 +242,9 @@ pub struct ModelMeta {
     /// in).
     #[serde(default)]
     pub adapt_mode: ModeName,
+    /// The inner rule's levers (absent, and not written, for the paper's rule).
+    #[serde(default, skip_serializing_if = "InnerRule::is_paper")]
+    pub inner_rule: InnerRule,
 }
 
 fn default_inner_lr() -> f32 {
@@ -250,6 +253,85 @@ fn default_inner_lr() -> f32 {
 
 fn default_max_inner() -> u32 {
     DEFAULT_MAX_INNER
+}
+
+/// The inner loop's rule where it departs from the paper's (issue 14's levers), recorded in
+/// checkpoints and blobs so that evaluation and the device run the rule that was meta-learned.
+/// [`InnerRule::default`] is the paper's: α1 = α2, one D step, the plain gradient step.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct InnerRule {
+    /// α1 (D's ascent rate on L_D) when it differs from the model's `inner_lr` (then α2 only).
+    #[serde(default)]
+    pub disc_lr: Option<f32>,
+    /// D's ascent steps per inner update (1..=256).
+    #[serde(default = "one")]
+    pub disc_steps: u32,
+    /// The descent step on L_ad: `gradient` (α2 ∇) or `normalized` (α2 ∇/‖∇‖).
+    #[serde(default)]
+    pub step_rule: StepRuleName,
+}
+
+fn one() -> u32 {
+    1
+}
+
+impl Default for InnerRule {
+    fn default() -> Self {
+        InnerRule {
+            disc_lr: None,
+            disc_steps: 1,
+            step_rule: StepRuleName::Gradient,
+        }
+    }
+}
+
+impl InnerRule {
+    /// True for the paper's rule (what every checkpoint before the levers used).
+    pub fn is_paper(&self) -> bool {
+        *self == InnerRule::default()
+    }
+
+    /// Checks the values (from flags or a file): a finite non-negative α1, 1..=256 steps.
+    pub fn validate(&self) -> Result<()> {
+        if let Some(a) = self.disc_lr {
+            if !(a.is_finite() && a >= 0.0) {
+                bail!("disc-lr must be finite and non-negative, got {a}");
+            }
+        }
+        if !(1..=256).contains(&self.disc_steps) {
+            bail!("disc-steps must be in 1..=256, got {}", self.disc_steps);
+        }
+        Ok(())
+    }
+}
+
+/// [`StepRule`] as stored in checkpoints and named on the command line.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum StepRuleName {
+    /// θ ← θ − α2 ∇ (the paper).
+    #[default]
+    Gradient,
+    /// θ ← θ − α2 ∇/‖∇‖ (α2 is the step's length).
+    Normalized,
+}
+
+impl From<StepRuleName> for StepRule {
+    fn from(r: StepRuleName) -> StepRule {
+        match r {
+            StepRuleName::Gradient => StepRule::Gradient,
+            StepRuleName::Normalized => StepRule::Normalized,
+        }
+    }
+}
+
+impl From<StepRule> for StepRuleName {
+    fn from(r: StepRule) -> StepRuleName {
+        match r {
+            StepRule::Gradient => StepRuleName::Gradient,
+            StepRule::Normalized => StepRuleName::Normalized,
+        }
+    }
 }
 
 /// [`NoiseMode`] as stored in checkpoints.
@@ -391,6 +473,8 @@ pub struct NavModel {
     /// the trainer meta-learned. Checkpoints from before this setting existed were trained in
     /// `Full`.
     pub adapt_mode: AdaptMode,
+    /// The inner rule's levers beyond `inner_lr` and `max_inner` (default: the paper's).
+    pub inner_rule: InnerRule,
 }
 
 impl NavModel {
@@ -460,6 +544,7 @@ impl NavModel {
             blob: None,
             privileged: false,
             adapt_mode: AdaptMode::Full,
+            inner_rule: InnerRule::default(),
         })
     }
 
@@ -503,9 +588,11 @@ impl NavModel {
             noise: self.noise,
             selection: Selection::Sample,
             emd: self.method.emd(),
-            alpha_disc: self.inner_lr,
+            alpha_disc: self.inner_rule.disc_lr.unwrap_or(self.inner_lr),
             alpha_adapt: self.inner_lr,
             max_inner_updates: self.max_inner,
+            disc_steps: self.inner_rule.disc_steps,
+            step_rule: self.inner_rule.step_rule.into(),
             schedule: if training {
                 gman_core::navigator::Schedule::Manual
             } else {
@@ -531,6 +618,7 @@ impl NavModel {
             max_inner: self.max_inner,
             privileged: self.privileged,
             adapt_mode: self.adapt_mode.into(),
+            inner_rule: self.inner_rule,
         }
     }
 
@@ -587,6 +675,9 @@ impl NavModel {
         if !(inner_lr.is_finite() && inner_lr >= 0.0) {
             bail!("stored inner_lr {inner_lr} is invalid: it must be finite and non-negative (like --inner-lr)");
         }
+        m.inner_rule
+            .validate()
+            .context("stored inner_rule is invalid")?;
         if method.uses_ps() != (dims.ps > 0) || method.uses_ps() != ps.is_some() {
             bail!(
                 "stored method {} does not match the model (PS input width {}, PS module {}); the metadata was changed",
@@ -609,6 +700,7 @@ impl NavModel {
             blob: None,
             privileged: m.privileged,
             adapt_mode: m.adapt_mode.into(),
+            inner_rule: m.inner_rule,
         })
     }
 
@@ -619,15 +711,17 @@ impl NavModel {
             emd: self.method.emd(),
             noise: self.noise,
             mode: self.adapt_mode,
+            disc_steps: self.inner_rule.disc_steps,
+            step_rule: self.inner_rule.step_rule.into(),
         }
         .bits()
     }
 
-    /// The inner-loop settings stored in the model's blobs: `inner_lr` as both α1 and α2,
-    /// and `max_inner`.
+    /// The inner-loop settings stored in the model's blobs: α1 (`inner_lr` unless the inner
+    /// rule sets its own), α2 = `inner_lr`, and `max_inner`.
     pub fn adapt_settings(&self) -> AdaptSettings {
         AdaptSettings {
-            alpha_disc: self.inner_lr,
+            alpha_disc: self.inner_rule.disc_lr.unwrap_or(self.inner_lr),
             alpha_adapt: self.inner_lr,
             max_inner: self.max_inner,
         }
@@ -718,14 +812,12 @@ pub fn model_from_blob(bytes: &[u8], method: Option<Method>) -> Result<NavModel>
     }
     let noise = flags.noise;
     let settings = blob.header().adapt_settings();
-    if settings.alpha_disc.to_bits() != settings.alpha_adapt.to_bits() {
-        bail!(
-            "the blob's inner-loop rates differ (alpha_disc {}, alpha_adapt {}); the host \
-             models one rate for both (--inner-lr)",
-            settings.alpha_disc,
-            settings.alpha_adapt
-        );
-    }
+    let inner_rule = InnerRule {
+        disc_lr: (settings.alpha_disc.to_bits() != settings.alpha_adapt.to_bits())
+            .then_some(settings.alpha_disc),
+        disc_steps: flags.disc_steps,
+        step_rule: flags.step_rule.into(),
+    };
     Ok(NavModel {
         method,
         dims,
@@ -737,6 +829,7 @@ pub fn model_from_blob(bytes: &[u8], method: Option<Method>) -> Result<NavModel>
         blob: Some(std::sync::Arc::new(bytes.to_vec())),
         privileged: false,
         adapt_mode: flags.mode,
+        inner_rule,
     })
 }
 
@@ -883,5 +976,49 @@ mod tests {
         ck.metadata = first;
         let e = NavModel::from_checkpoint(&ck).unwrap_err().to_string();
         assert!(e.contains("sideways") || e.contains("variant"), "{e}");
+    }
+}
+
+#[cfg(test)]
+mod inner_rule_tests {
+    use super::*;
+    use crate::optim::checkpoint::Checkpoint;
+
+    #[test]
+    fn inner_rule_round_trips_through_checkpoint_and_blob() {
+        let g =
+            crate::train::generator::init_generator(&Dims::MCU, &mut Xoshiro128::seed_from_u64(1))
+                .unwrap();
+        let mut m = NavModel::init(Method::Gman, Dims::MCU, 1, Some(&g), None).unwrap();
+        m.adapt_mode = AdaptMode::Efficient;
+        m.inner_lr = 0.5;
+        // The paper's rule writes no `inner_rule` key (old checkpoints' JSON unchanged).
+        assert!(m.metadata().get("inner_rule").is_none());
+        m.inner_rule = InnerRule {
+            disc_lr: Some(0.05),
+            disc_steps: 5,
+            step_rule: StepRuleName::Normalized,
+        };
+        let mut ck = Checkpoint::new(m.metadata());
+        m.add_to_checkpoint(&mut ck).unwrap();
+        let back = NavModel::from_checkpoint(&ck).unwrap();
+        assert_eq!(back.inner_rule, m.inner_rule);
+        // The blob carries it too, and the device's configuration follows.
+        let blob = m.to_blob(false).unwrap();
+        let b = model_from_blob(&blob, None).unwrap();
+        assert_eq!(b.inner_rule, m.inner_rule);
+        assert_eq!(b.inner_lr, 0.5);
+        let parsed = gman_core::blob::Blob::parse(&blob).unwrap();
+        let cfg = parsed.nav_config();
+        assert_eq!((cfg.alpha_disc, cfg.alpha_adapt), (0.05, 0.5));
+        assert_eq!((cfg.disc_steps, cfg.step_rule), (5, StepRule::Normalized));
+        assert_eq!(cfg.disc_steps, m.nav_config(false).disc_steps);
+        // Nonsense in a file is refused with the field named.
+        let mut bad = m.metadata();
+        bad["inner_rule"]["disc_steps"] = serde_json::json!(0);
+        let mut ck = Checkpoint::new(bad);
+        m.add_to_checkpoint(&mut ck).unwrap();
+        let err = format!("{:#}", NavModel::from_checkpoint(&ck).unwrap_err());
+        assert!(err.contains("disc-steps"), "{err}");
     }
 }
