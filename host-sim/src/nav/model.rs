@@ -550,6 +550,17 @@ impl NavModel {
 
     /// Zero-copy views of the parameters for gman-core's navigator.
     pub fn weights(&self) -> Result<NavWeights<'_>> {
+        // The host's fastest kernels (AVX2 when the CPU has it): the same bits as the portable
+        // build (see `crate::simd`), so training, evaluation and the device agree.
+        let w = self.weights_portable()?;
+        Ok(match crate::simd::host_kernels() {
+            Some(k) => w.with_kernels(k),
+            None => w,
+        })
+    }
+
+    /// [`NavModel::weights`] on the portable kernels.
+    fn weights_portable(&self) -> Result<NavWeights<'_>> {
         if let Some(bytes) = &self.blob {
             let blob = Blob::parse(bytes).map_err(|e| anyhow!("{e}"))?;
             return Ok(NavWeights::from_blob(&blob, &self.dims)?);
