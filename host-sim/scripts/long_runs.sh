@@ -1,0 +1,23 @@
+#!/usr/bin/env bash
+# Longer budgets for the seed-1 ceiling runs (README, "Longer budgets"): resume each run of
+# host-sim/scripts/ceilings.sh to U updates (bit-exact continuation), keep a snapshot and
+# evaluate it on all val episodes at every U. Re-running skips what is done.
+set -euo pipefail
+cd "$(dirname "$0")/../.."
+cargo build --release -p gman-host-sim --bin gman
+G=./target/release/gman
+D=${DATA:-../shared/data/gman}
+R=${OUT:-runs/ceilings}
+L=${LONG:-runs/long}
+mkdir -p "$L"
+for r in map3-a3cfg-s1 map3-gman-a1e-2-s1 map3-priv-s1; do
+  [ -d "$L/$r" ] || cp -r "$R/$r" "$L/$r"
+  for u in ${BUDGETS:-30000 45000 60000 90000}; do
+    [ -f "$L/eval-$r-u$u.json" ] && continue
+    $G train --data "$D" --resume "$L/$r" --updates "$u" --quiet
+    cp -r "$L/$r" "$L/$r.u$u.snap"
+    $G eval --data "$D" --split val --agent "$L/$r/checkpoint.ckpt" --json "$L/eval-$r-u$u.json" --quiet
+    case $r in *gman*) $G eval --data "$D" --split val --agent "$L/$r/checkpoint.ckpt" \
+      --method gman-noemd --json "$L/adaptoff-$r-u$u.json" --quiet ;; esac
+  done
+done
