@@ -11,7 +11,8 @@
 //! into G's parameters θ) and `∂L/∂a_t` (which back-propagates through the softmax into the
 //! adapted policy parameters φ).
 
-use crate::dense::DenseGrads;
+use crate::activation::softmax_backward;
+use crate::dense::{Dense, DenseGrads};
 use crate::discriminator::{DiscScratch, Discriminator};
 use crate::error::{check_len, Result};
 use crate::generator::{Generator, GeneratorCache, GeneratorScratch};
@@ -313,4 +314,40 @@ pub fn adapt_generator_grad_cos(
         gen.backward(z, attr, &w.gen, w.dx, grads1, grads2, &mut w.gen_scratch)?;
     }
     Ok(loss)
+}
+
+/// The actor head's (φ's) gradient of L_ad (Eq. 3), accumulated into `grads`: for every
+/// entry `t` of Ψ, `dlogits_t = J_softmax(p_t) ∂L/∂p_t` back through the head `y = W h_t + b`
+/// (and its gains in the Efficient mode). `probs` and `dprobs` are `n x 6` (from
+/// [`adapt_loss`]), `hidden` is `n x LH` (the LSTM states Ψ_h the actions were taken in).
+/// `dlogits` (6) and `actor_u` (6; used when the head has gains) are scratch. The on-device
+/// inner loop and the host's second-order meta-gradient both use this one function.
+#[allow(clippy::too_many_arguments)]
+pub fn actor_head_grad(
+    head: &Dense<'_>,
+    probs: &[f32],
+    dprobs: &[f32],
+    hidden: &[f32],
+    n: usize,
+    dlogits: &mut [f32],
+    actor_u: &mut [f32],
+    grads: &mut DenseGrads<'_>,
+) -> Result<()> {
+    let lh = head.in_dim();
+    check_len("actor_head.probs", n * NUM_ACTIONS, probs.len())?;
+    check_len("actor_head.dprobs", n * NUM_ACTIONS, dprobs.len())?;
+    check_len("actor_head.hidden", n * lh, hidden.len())?;
+    let mut logits = [0.0f32; NUM_ACTIONS];
+    let mut tmp = [0.0f32; NUM_ACTIONS];
+    for t in 0..n {
+        let p = &probs[t * NUM_ACTIONS..(t + 1) * NUM_ACTIONS];
+        let dp = &dprobs[t * NUM_ACTIONS..(t + 1) * NUM_ACTIONS];
+        softmax_backward(p, dp, dlogits)?;
+        let ht = &hidden[t * lh..(t + 1) * lh];
+        if head.gain.is_some() {
+            head.forward(&[ht], actor_u, &mut logits)?;
+        }
+        head.backward(&[ht], actor_u, dlogits, None, grads, &mut tmp)?;
+    }
+    Ok(())
 }

@@ -80,8 +80,10 @@
 
 use core::marker::PhantomData;
 
-use crate::activation::{all_finite, softmax_backward};
-use crate::adapt::{adapt_generator_grad, adapt_generator_grad_cos, AdaptLossKind, AdaptWork};
+use crate::activation::all_finite;
+use crate::adapt::{
+    actor_head_grad, adapt_generator_grad, adapt_generator_grad_cos, AdaptLossKind, AdaptWork,
+};
 use crate::blob::{AdaptSettings, Blob, Header};
 use crate::dense::{Dense, DenseGrads};
 use crate::discriminator::{DiscGrads, DiscScratch, Discriminator, LdConfig, LdValue};
@@ -1129,14 +1131,187 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
         Ok(true)
     }
 
-    /// Lines 15-20 of Algorithm 1 on the `n_buf` (normally `K`) samples in Ψ.
+    /// Lines 15-20 of Algorithm 1 on the `n_buf` (normally `K`) samples in Ψ: D ascends L_D
+    /// (Eq. 1), then θ and the actor head φ descend L_ad (Eq. 3); a step whose loss or result
+    /// is not finite or exceeds the loss bound is not applied (rolled back).
     fn inner_update(&mut self) -> Result<()> {
+        let mut report = AdaptReport::default();
+        // Lines 15-16: D ascends L_D over Ψ_s and Ψ_x, `disc_steps` times (the paper: once;
+        // not with the CosSim variant, which has no D).
+        let use_d = self.cfg.emd == Emd::Discriminator;
+        let disc_steps = if use_d {
+            self.cfg.disc_steps.clamp(1, 256)
+        } else {
+            0
+        };
+        let mut disc_ok = true;
+        for _ in 0..disc_steps {
+            report.ld = self.disc_gradient()?;
+            disc_ok = self.ascend_disc(report.ld.loss);
+            if !disc_ok {
+                break;
+            }
+        }
+        report.disc_applied = use_d && disc_ok;
+        // Lines 17-19: L_ad and its gradients for θ_i and φ_i.
+        report.adapt_loss = self.adapt_gradient(use_d)?;
+        // Line 20: the descent step of θ_i and φ_i.
+        let adapt_ok = self.descend_adapted(report.adapt_loss);
+        report.adapt_applied = adapt_ok;
+        let rolled = (!disc_ok) as u32 + (!adapt_ok) as u32;
+        let c = &mut self.counters;
+        c.rollbacks = c.rollbacks.saturating_add(rolled);
+        c.total_rollbacks = c.total_rollbacks.saturating_add(rolled as u64);
+        c.adaptations = c.adaptations.saturating_add(1);
+        c.total_adaptations = c.total_adaptations.saturating_add(1);
+        self.x_valid = false;
+        self.last = report;
+        Ok(())
+    }
+
+    /// ∇_ω L_D (Eq. 1, WGAN-GP) over the `n_buf` entries of Ψ into D's gradient buffers,
+    /// with fresh interpolation weights ε; returns L_D and its parts.
+    fn disc_gradient(&mut self) -> Result<LdValue> {
+        let n = self.n_buf;
+        let d = self.w.dims;
+        let cfg = self.cfg;
+        let (f, zd) = (d.feat, d.noise);
+        let w = self.w;
+        let Ram {
+            gen1,
+            gen2,
+            disc1,
+            disc_w2,
+            disc_b2,
+            g_disc1,
+            g_disc_w2,
+            g_disc_b2,
+            psi_s,
+            psi_z,
+            u1,
+            h1,
+            u2,
+            x,
+            du,
+            dh,
+            dv,
+            dw1g,
+            dg,
+            dmix,
+            eps,
+            attr,
+            ..
+        } = &mut self.r;
+
+        g_disc1.zero();
+        g_disc_w2.fill(0.0);
+        g_disc_b2.fill(0.0);
+        let mut ld = LdValue::default();
+        {
+            let gen = Generator {
+                l1: gen1.view(w.get(TensorId::GenW1))?,
+                l2: gen2.view(w.get(TensorId::GenW2))?,
+            };
+            let disc = Discriminator {
+                l1: disc1.view(w.get(TensorId::DiscW1))?,
+                w2: disc_w2,
+                b2: disc_b2.first().copied().unwrap_or(0.0),
+            };
+            let mut db2 = 0.0f32;
+            let mut grads = DiscGrads {
+                l1: g_disc1.grads(),
+                w2: g_disc_w2,
+                b2: &mut db2,
+            };
+            let inv = 1.0 / n as f32;
+            for t in 0..n {
+                eps[t] = uniform(&mut self.rng);
+            }
+            let mut last_z: Option<usize> = None;
+            for t in 0..n {
+                let z = &psi_z[t * zd..(t + 1) * zd];
+                let same = last_z.is_some_and(|p| {
+                    psi_z[p * zd..(p + 1) * zd]
+                        .iter()
+                        .zip(z)
+                        .all(|(a, b)| a.to_bits() == b.to_bits())
+                });
+                if !same {
+                    let mut cache = GeneratorCache { u1, h1, u2, x };
+                    gen.forward(z, attr, &mut cache)?;
+                    last_z = Some(t);
+                }
+                let mut s = DiscScratch {
+                    u: du,
+                    h: dh,
+                    v: dv,
+                    w1g: dw1g,
+                    g: dg,
+                    mix: dmix,
+                };
+                let v = disc.ld_loss(
+                    &psi_s[t * f..(t + 1) * f],
+                    x,
+                    &eps[t..t + 1],
+                    cfg.ld,
+                    &mut s,
+                    Some(&mut grads),
+                )?;
+                ld.loss += v.loss * inv;
+                ld.mean_real += v.mean_real * inv;
+                ld.mean_fake += v.mean_fake * inv;
+                ld.penalty += v.penalty * inv;
+            }
+            g_disc_b2[0] = db2;
+            g_disc1.scale(inv);
+            g_disc_w2
+                .iter_mut()
+                .chain(g_disc_b2.iter_mut())
+                .for_each(|v| *v *= inv);
+        }
+        Ok(ld)
+    }
+
+    /// Ascent ω ← ω + α1 ∇_ω L_D, only if everything stays finite and `|L_D|` within the
+    /// loss bound; returns whether it was applied.
+    fn ascend_disc(&mut self, loss: f32) -> bool {
+        let cfg = self.cfg;
+        let Ram {
+            disc1,
+            disc_w2,
+            disc_b2,
+            g_disc1,
+            g_disc_w2,
+            g_disc_b2,
+            ..
+        } = &mut self.r;
+        // Ascent: ω ← ω + α1 ∇_ω L_D, only if everything stays finite and bounded.
+        let a1 = cfg.alpha_disc;
+        let disc_ok = loss.is_finite()
+            && libm::fabsf(loss) <= cfg.loss_bound
+            && g_disc1.finite()
+            && all_finite(g_disc_w2)
+            && all_finite(g_disc_b2)
+            && g_disc1.update_ok(disc1, a1)
+            && ok_update(disc_w2, g_disc_w2, a1)
+            && ok_update(disc_b2, g_disc_b2, a1);
+        if disc_ok {
+            g_disc1.apply(disc1, a1);
+            axpy_inplace(disc_w2, g_disc_w2, a1);
+            axpy_inplace(disc_b2, g_disc_b2, a1);
+        }
+        disc_ok
+    }
+
+    /// L_ad (Eq. 3) over Ψ and its gradients for θ (G) and φ (the actor head) into their
+    /// gradient buffers; D scores the generated features (`use_d`), else their cosine
+    /// similarity to the observations does (CosSim).
+    fn adapt_gradient(&mut self, use_d: bool) -> Result<f32> {
         let n = self.n_buf;
         let d = self.w.dims;
         let cfg = self.cfg;
         let (f, zd, lh) = (d.feat, d.noise, d.lstm_hidden);
         let w = self.w;
-        let mut report = AdaptReport::default();
         let Ram {
             gen1,
             gen2,
@@ -1146,9 +1321,6 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
             actor,
             g_gen1,
             g_gen2,
-            g_disc1,
-            g_disc_w2,
-            g_disc_b2,
             g_actor,
             psi_s,
             psi_z,
@@ -1168,7 +1340,6 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
             dw1g,
             dg,
             dmix,
-            eps,
             d: dvals,
             dd,
             dprobs,
@@ -1179,108 +1350,6 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
             ..
         } = &mut self.r;
 
-        // Lines 15-16: one ascent step of D on L_D (Eq. 1) over Ψ_s and Ψ_x (not with the
-        // CosSim variant, which has no D).
-        let use_d = cfg.emd == Emd::Discriminator;
-        let mut disc_ok = true;
-        let disc_steps = if use_d {
-            cfg.disc_steps.clamp(1, 256)
-        } else {
-            0
-        };
-        for _ in 0..disc_steps {
-            disc_ok = {
-                g_disc1.zero();
-                g_disc_w2.fill(0.0);
-                g_disc_b2.fill(0.0);
-                let mut ld = LdValue::default();
-                {
-                    let gen = Generator {
-                        l1: gen1.view(w.get(TensorId::GenW1))?,
-                        l2: gen2.view(w.get(TensorId::GenW2))?,
-                    };
-                    let disc = Discriminator {
-                        l1: disc1.view(w.get(TensorId::DiscW1))?,
-                        w2: disc_w2,
-                        b2: disc_b2.first().copied().unwrap_or(0.0),
-                    };
-                    let mut db2 = 0.0f32;
-                    let mut grads = DiscGrads {
-                        l1: g_disc1.grads(),
-                        w2: g_disc_w2,
-                        b2: &mut db2,
-                    };
-                    let inv = 1.0 / n as f32;
-                    for t in 0..n {
-                        eps[t] = uniform(&mut self.rng);
-                    }
-                    let mut last_z: Option<usize> = None;
-                    for t in 0..n {
-                        let z = &psi_z[t * zd..(t + 1) * zd];
-                        let same = last_z.is_some_and(|p| {
-                            psi_z[p * zd..(p + 1) * zd]
-                                .iter()
-                                .zip(z)
-                                .all(|(a, b)| a.to_bits() == b.to_bits())
-                        });
-                        if !same {
-                            let mut cache = GeneratorCache { u1, h1, u2, x };
-                            gen.forward(z, attr, &mut cache)?;
-                            last_z = Some(t);
-                        }
-                        let mut s = DiscScratch {
-                            u: du,
-                            h: dh,
-                            v: dv,
-                            w1g: dw1g,
-                            g: dg,
-                            mix: dmix,
-                        };
-                        let v = disc.ld_loss(
-                            &psi_s[t * f..(t + 1) * f],
-                            x,
-                            &eps[t..t + 1],
-                            cfg.ld,
-                            &mut s,
-                            Some(&mut grads),
-                        )?;
-                        ld.loss += v.loss * inv;
-                        ld.mean_real += v.mean_real * inv;
-                        ld.mean_fake += v.mean_fake * inv;
-                        ld.penalty += v.penalty * inv;
-                    }
-                    g_disc_b2[0] = db2;
-                    g_disc1.scale(inv);
-                    g_disc_w2
-                        .iter_mut()
-                        .chain(g_disc_b2.iter_mut())
-                        .for_each(|v| *v *= inv);
-                }
-                report.ld = ld;
-                // Ascent: ω ← ω + α1 ∇_ω L_D, only if everything stays finite and bounded.
-                let a1 = cfg.alpha_disc;
-                let disc_ok = ld.loss.is_finite()
-                    && libm::fabsf(ld.loss) <= cfg.loss_bound
-                    && g_disc1.finite()
-                    && all_finite(g_disc_w2)
-                    && all_finite(g_disc_b2)
-                    && g_disc1.update_ok(disc1, a1)
-                    && ok_update(disc_w2, g_disc_w2, a1)
-                    && ok_update(disc_b2, g_disc_b2, a1);
-                if disc_ok {
-                    g_disc1.apply(disc1, a1);
-                    axpy_inplace(disc_w2, g_disc_w2, a1);
-                    axpy_inplace(disc_b2, g_disc_b2, a1);
-                }
-                disc_ok
-            };
-            if !disc_ok {
-                break;
-            }
-        }
-        report.disc_applied = use_d && disc_ok;
-
-        // Lines 17-19: L_ad (Eq. 3) and its gradients for θ_i and φ_i.
         g_gen1.zero();
         g_gen2.zero();
         g_actor.zero();
@@ -1342,23 +1411,34 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
                 )?
             }
         };
-        {
-            let head = actor.view(w.get(TensorId::ActorW))?;
-            let mut ga = g_actor.grads();
-            let mut logits = [0.0f32; NUM_ACTIONS];
-            let mut tmp = [0.0f32; NUM_ACTIONS];
-            for t in 0..n {
-                let p = &psi_p[t * NUM_ACTIONS..(t + 1) * NUM_ACTIONS];
-                let dp = &dprobs[t * NUM_ACTIONS..(t + 1) * NUM_ACTIONS];
-                softmax_backward(p, dp, dlogits)?;
-                let ht = &psi_h[t * lh..(t + 1) * lh];
-                if head.gain.is_some() {
-                    head.forward(&[ht], actor_u, &mut logits)?;
-                }
-                head.backward(&[ht], actor_u, dlogits, None, &mut ga, &mut tmp)?;
-            }
-        }
-        report.adapt_loss = loss;
+        let head = actor.view(w.get(TensorId::ActorW))?;
+        actor_head_grad(
+            &head,
+            &psi_p[..n * NUM_ACTIONS],
+            &dprobs[..n * NUM_ACTIONS],
+            &psi_h[..n * lh],
+            n,
+            dlogits,
+            actor_u,
+            &mut g_actor.grads(),
+        )?;
+        Ok(loss)
+    }
+
+    /// Line 20: θ_i, φ_i ← θ_i, φ_i − α2 ∇ (or the normalised step of [`StepRule`]), only if
+    /// everything stays finite and `|L_ad|` within the loss bound; returns whether it was
+    /// applied.
+    fn descend_adapted(&mut self, loss: f32) -> bool {
+        let cfg = self.cfg;
+        let Ram {
+            gen1,
+            gen2,
+            actor,
+            g_gen1,
+            g_gen2,
+            g_actor,
+            ..
+        } = &mut self.r;
         let a2 = match cfg.step_rule {
             StepRule::Gradient => -cfg.alpha_adapt,
             StepRule::Normalized => {
@@ -1384,16 +1464,7 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
             g_gen2.apply(gen2, a2);
             g_actor.apply(actor, a2);
         }
-        report.adapt_applied = adapt_ok;
-        let rolled = (!disc_ok) as u32 + (!adapt_ok) as u32;
-        let c = &mut self.counters;
-        c.rollbacks = c.rollbacks.saturating_add(rolled);
-        c.total_rollbacks = c.total_rollbacks.saturating_add(rolled as u64);
-        c.adaptations = c.adaptations.saturating_add(1);
-        c.total_adaptations = c.total_adaptations.saturating_add(1);
-        self.x_valid = false;
-        self.last = report;
-        Ok(())
+        adapt_ok
     }
 }
 

@@ -57,8 +57,9 @@
 //! no finite differences.
 
 use anyhow::{bail, ensure, Result};
-use gman_core::activation::softmax_backward;
-use gman_core::adapt::{adapt_generator_grad, generator_score_backward, AdaptLossKind, AdaptWork};
+use gman_core::adapt::{
+    actor_head_grad, adapt_generator_grad, generator_score_backward, AdaptLossKind, AdaptWork,
+};
 use gman_core::blob::TensorId;
 use gman_core::dense::{Dense, DenseGrads};
 use gman_core::discriminator::{DiscScratch, Discriminator};
@@ -396,21 +397,29 @@ pub fn inner_grads(
             &mut dprobs,
         )?;
     }
-    // φ: dlogits_t = J_softmax(p_t) ∂L/∂p_t, outer product with h_t (and 1 for the bias).
+    // φ: gman-core's actor-head gradient of L_ad (the device's function), on a gain-free head
+    // (Full mode) whose weights do not enter its gradient.
     let lh = d.lstm_hidden;
     let mut gp = vec![0.0f32; phi_len(d)];
-    let (gw, gb) = gp.split_at_mut(NUM_ACTIONS * lh);
-    let mut dl = [0.0f32; NUM_ACTIONS];
-    for t in 0..n {
-        let p = &step.probs[t * NUM_ACTIONS..(t + 1) * NUM_ACTIONS];
-        softmax_backward(p, &dprobs[t * NUM_ACTIONS..(t + 1) * NUM_ACTIONS], &mut dl)?;
-        let h = &step.hidden[t * lh..(t + 1) * lh];
-        for (i, &g) in dl.iter().enumerate() {
-            gb[i] += g;
-            for (o, &hk) in gw[i * lh..(i + 1) * lh].iter_mut().zip(h) {
-                *o += g * hk;
-            }
-        }
+    {
+        let (gw, gb) = gp.split_at_mut(NUM_ACTIONS * lh);
+        let zeros = vec![0.0f32; NUM_ACTIONS * lh];
+        let head = Dense {
+            w: MatRef::f32(NUM_ACTIONS, lh, &zeros)?,
+            b: &[0.0; NUM_ACTIONS],
+            gain: None,
+        };
+        let (mut dl, mut u) = ([0.0f32; NUM_ACTIONS], [0.0f32; NUM_ACTIONS]);
+        actor_head_grad(
+            &head,
+            &step.probs,
+            &dprobs,
+            &step.hidden,
+            n,
+            &mut dl,
+            &mut u,
+            &mut DenseGrads::Full { w: gw, b: gb },
+        )?;
     }
     Ok((gt, gp))
 }
