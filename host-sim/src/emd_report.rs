@@ -24,7 +24,7 @@ use crate::sim::spatial::MapGrid;
 use crate::sim::{Env, EpisodeLimits, EpisodeSpec, RewardKind, TargetKind, World};
 
 /// Keep every this many steps' view as an environment feature of the picture.
-const VIEW_STRIDE: usize = 4;
+pub const VIEW_STRIDE: usize = 4;
 
 /// One val episode with at least one inner update.
 #[derive(Clone, Debug)]
