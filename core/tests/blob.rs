@@ -7,7 +7,8 @@ use gman_core::blob::{
     TensorSpec, FLAG_ADAPT, FLAG_COSSIM, FLAG_FULL_ADAPT, FLAG_ZERO_NOISE, FORMAT_VERSION, MAGIC,
 };
 use gman_core::memory::AdaptMode;
-use gman_core::navigator::{Emd, NavConfig, NoiseMode};
+use gman_core::navigator::{Emd, NavConfig, NoiseMode, StepRule};
+use gman_core::schema::{DISC_STEPS_SHIFT, FLAG_NORMALIZED_STEP};
 use gman_core::{BlobError, Dims};
 use proptest::prelude::*;
 
@@ -497,7 +498,7 @@ fn nav_config_follows_the_header() {
         max_inner: 2,
     };
     for flags in 0..32u32 {
-        let flags = flags | if flags & 16 != 0 { 0x100 } else { 0 }; // unknown bits are ignored
+        let flags = flags | if flags & 16 != 0 { 1 << 24 } else { 0 }; // unknown bits are ignored
         let bytes = blob_with(flags, settings, 15);
         let blob = Blob::parse(&bytes).unwrap();
         let cfg = NavConfig::from_header(blob.header());
@@ -525,6 +526,25 @@ fn nav_config_follows_the_header() {
             ..NavConfig::default()
         };
         assert_eq!(cfg, expected, "flags {flags:#x}");
+    }
+    // The inner rule's levers: D's steps in bits 8..16 (minus one), the normalised step.
+    for (bits, steps, rule) in [
+        (0u32, 1u32, StepRule::Gradient),
+        (4 << DISC_STEPS_SHIFT, 5, StepRule::Gradient),
+        (FLAG_NORMALIZED_STEP, 1, StepRule::Normalized),
+        (
+            (255 << DISC_STEPS_SHIFT) | FLAG_NORMALIZED_STEP,
+            256,
+            StepRule::Normalized,
+        ),
+    ] {
+        let bytes = blob_with(FLAG_ADAPT | bits, settings, 15);
+        let cfg = Blob::parse(&bytes).unwrap().nav_config();
+        assert_eq!(
+            (cfg.disc_steps, cfg.step_rule),
+            (steps, rule),
+            "flags {bits:#x}"
+        );
     }
     // A blob with FLAG_ADAPT and the paper's settings asks for NavConfig::default() in the
     // mode it records.
