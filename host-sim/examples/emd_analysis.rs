@@ -44,12 +44,11 @@ fn main() -> Result<()> {
         "adaptation mode {:?}, spatial map {} x {}",
         model.adapt_mode, model.dims.map_rows, model.dims.map_cols
     );
-    let disc_lr: Option<f32> = args.get(7).map(|s| s.parse()).transpose()?;
-    let records = emd_report::measure_with(&world, &model, &episodes, &|c| {
-        if let Some(a) = disc_lr {
-            c.alpha_disc = a;
-        }
-    })?;
+    if let Some(a) = args.get(7) {
+        model.inner_rule.disc_lr = Some(a.parse()?);
+        model.inner_rule.validate()?;
+    }
+    let records = emd_report::measure(&world, &model, &episodes)?;
     for (name, kind) in [("seen", TargetKind::Seen), ("unseen", TargetKind::Unseen)] {
         let m = emd_report::summarize(&records, kind);
         println!(
@@ -63,10 +62,6 @@ fn main() -> Result<()> {
         println!("wrote {png}: Fig. 3 for scenes {scenes:?} ({n} unseen-target episodes)");
     }
 
-    if disc_lr.is_some() {
-        println!("(SR not measured: the evaluation below would not apply DISC_LR)");
-        return Ok(());
-    }
     let cfg = EvalConfig {
         reward: RewardKind::Mixed,
         limits: EpisodeLimits::default(),

@@ -15,11 +15,12 @@ use std::path::Path;
 use anyhow::{Context, Result};
 use gman_core::generator::GeneratorCache;
 use gman_core::memory::AdaptMode;
-use gman_core::navigator::{Efficient, Full, Mode, NavConfig, Navigator};
+use gman_core::navigator::{Efficient, Full, Mode, Navigator};
 use serde::Serialize;
 
 use crate::nav::model::NavModel;
 use crate::nav::K;
+use crate::pretrain::fg::l2 as dist;
 use crate::sim::spatial::MapGrid;
 use crate::sim::{Env, EpisodeLimits, EpisodeSpec, RewardKind, TargetKind, World};
 
@@ -47,14 +48,6 @@ pub struct Record {
     pub adaptations: u32,
     /// Adaptation steps rolled back.
     pub rollbacks: u32,
-}
-
-fn dist(a: &[f32], b: &[f32]) -> f64 {
-    a.iter()
-        .zip(b)
-        .map(|(x, y)| ((x - y) as f64).powi(2))
-        .sum::<f64>()
-        .sqrt()
 }
 
 impl Record {
@@ -124,17 +117,11 @@ fn generated<M: Mode>(nav: &Navigator<'_, M, K>, noise: usize, attr: &[f32]) -> 
     Ok(x)
 }
 
-fn episode<M: Mode>(
-    world: &World,
-    model: &NavModel,
-    spec: &EpisodeSpec,
-    tweak: &(dyn Fn(&mut NavConfig) + Sync),
-) -> Result<Option<Record>> {
+fn episode<M: Mode>(world: &World, model: &NavModel, spec: &EpisodeSpec) -> Result<Option<Record>> {
     let limits = EpisodeLimits::default();
     let mut arena = vec![0.0f32; Navigator::<M, K>::arena_len(&model.dims)];
-    let mut cfg = model.nav_config(false);
-    tweak(&mut cfg);
-    let mut nav: Navigator<'_, M, K> = Navigator::new(model.weights()?, &mut arena, cfg)?;
+    let mut nav: Navigator<'_, M, K> =
+        Navigator::new(model.weights()?, &mut arena, model.nav_config(false))?;
     let attr = world.attributes(spec.target).to_vec();
     nav.reset(&attr, spec.seed)?;
     let initial = generated(&nav, model.dims.noise, &attr)?;
@@ -175,26 +162,15 @@ fn episode<M: Mode>(
     }))
 }
 
-/// Runs `episodes` with `model`'s own adaptation mode, rate and cap (in parallel; the order of
+/// Runs `episodes` with `model`'s own adaptation mode and inner rule (in parallel; the order of
 /// the returned records is the order of `episodes`).
 pub fn measure(world: &World, model: &NavModel, episodes: &[EpisodeSpec]) -> Result<Vec<Record>> {
-    measure_with(world, model, episodes, &|_| {})
-}
-
-/// [`measure`] with the navigator configuration changed by `tweak` (test-time sweeps of the
-/// inner loop's settings on a trained model).
-pub fn measure_with(
-    world: &World,
-    model: &NavModel,
-    episodes: &[EpisodeSpec],
-    tweak: &(dyn Fn(&mut NavConfig) + Sync),
-) -> Result<Vec<Record>> {
     use rayon::prelude::*;
     let out: Vec<Option<Record>> = episodes
         .par_iter()
         .map(|spec| match model.adapt_mode {
-            AdaptMode::Full => episode::<Full>(world, model, spec, tweak),
-            AdaptMode::Efficient => episode::<Efficient>(world, model, spec, tweak),
+            AdaptMode::Full => episode::<Full>(world, model, spec),
+            AdaptMode::Efficient => episode::<Efficient>(world, model, spec),
         })
         .collect::<Result<_>>()?;
     Ok(out.into_iter().flatten().collect())

@@ -55,7 +55,6 @@ struct Report<'a> {
     agent: String,
     split: &'a str,
     inner_lr: f32,
-    disc_lr: Option<f32>,
     max_inner: u32,
     inner_rule: gman_host_sim::nav::model::InnerRule,
     mode: &'a str,
@@ -77,13 +76,11 @@ pub fn cmd_emd_report(a: EmdReportArgs) -> Result<()> {
         }
         model.inner_lr = lr;
     }
-    if let Some(lr) = a.disc_lr {
-        if !(lr.is_finite() && lr >= 0.0) {
-            bail!("--disc-lr {lr} must be finite and non-negative");
-        }
-    }
     if let Some(n) = a.max_inner {
         model.max_inner = n;
+    }
+    if a.disc_lr.is_some() {
+        model.inner_rule.disc_lr = a.disc_lr;
     }
     if let Some(n) = a.disc_steps {
         model.inner_rule.disc_steps = n;
@@ -98,20 +95,13 @@ pub fn cmd_emd_report(a: EmdReportArgs) -> Result<()> {
         episodes.len(),
         split.name(),
         model.inner_lr,
-        a.disc_lr
-            .or(model.inner_rule.disc_lr)
-            .unwrap_or(model.inner_lr),
+        model.inner_rule.disc_lr.unwrap_or(model.inner_lr),
         model.max_inner,
         model.adapt_mode,
         model.inner_rule.disc_steps,
         model.inner_rule.step_rule
     );
-    let disc_lr = a.disc_lr;
-    let records = emd_report::measure_with(&world, &model, &episodes, &|c| {
-        if let Some(lr) = disc_lr {
-            c.alpha_disc = lr;
-        }
-    })?;
+    let records = emd_report::measure(&world, &model, &episodes)?;
     let seen = emd_report::summarize(&records, TargetKind::Seen);
     let unseen = emd_report::summarize(&records, TargetKind::Unseen);
     for (name, m) in [("seen", &seen), ("unseen", &unseen)] {
@@ -141,7 +131,6 @@ pub fn cmd_emd_report(a: EmdReportArgs) -> Result<()> {
             agent: a.agent.display().to_string(),
             split: split.name(),
             inner_lr: model.inner_lr,
-            disc_lr,
             max_inner: model.max_inner,
             inner_rule: model.inner_rule,
             mode: gman_host_sim::nav::model::mode_name(model.adapt_mode),

@@ -522,7 +522,8 @@ pub struct GroupEval {
     pub nearest_acc_all: f64,
 }
 
-fn l2(a: &[f32], b: &[f32]) -> f64 {
+/// Euclidean distance, accumulated in f64.
+pub(crate) fn l2(a: &[f32], b: &[f32]) -> f64 {
     a.iter()
         .zip(b)
         .map(|(x, y)| ((x - y) as f64).powi(2))
