@@ -28,7 +28,7 @@ use crate::sim::{Env, EpisodeLimits, EpisodeSpec, RewardKind, TargetKind, World}
 pub const VIEW_STRIDE: usize = 4;
 
 /// One val episode with at least one inner update.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, Serialize)]
 pub struct Record {
     /// Scene index in the world.
     pub scene: usize,
@@ -91,6 +91,38 @@ impl Record {
     /// Cosine between G's move and the direction to the mean of the kept views.
     pub fn cos_to_views(&self) -> f64 {
         self.cos_toward(&self.view_mean())
+    }
+    /// The share of [`Record::before`] that the best point on the segment from G's initial
+    /// output to the mean view closes: what a move straight toward the scene's average look
+    /// (the direction an EMD that only learned "look like this scene" gives) can close at
+    /// its best length. In `[0, 1]`.
+    pub fn best_toward_views(&self) -> f64 {
+        let v = self.view_mean();
+        let (mut uw, mut uu) = (0.0f64, 0.0f64);
+        for ((x0, m), t) in self.initial.iter().zip(&v).zip(&self.real) {
+            let (u, w) = ((m - x0) as f64, (t - x0) as f64);
+            uw += u * w;
+            uu += u * u;
+        }
+        let lam = (uw / uu.max(1e-30)).clamp(0.0, 1.0);
+        let best: Vec<f32> = self
+            .initial
+            .iter()
+            .zip(&v)
+            .map(|(x0, m)| (*x0 as f64 + lam * (m - x0) as f64) as f32)
+            .collect();
+        let before = self.before();
+        ((before - dist(&best, &self.real)) / before.max(1e-12)).max(0.0)
+    }
+    /// Share of G's initial output dimensions within 0.01 of the sigmoid's bounds (0 or 1),
+    /// where its gradient is nearly zero and adaptation can hardly move them.
+    pub fn saturated(&self) -> f64 {
+        let n = self.initial.len().max(1) as f64;
+        self.initial
+            .iter()
+            .filter(|v| **v < 0.01 || **v > 0.99)
+            .count() as f64
+            / n
     }
     /// Distance of the mean of the kept views to the true feature: where a G that only
     /// learned the scene's average look would land (a reference point, not a bound).
@@ -191,6 +223,11 @@ pub struct Summary {
     pub moved: f64,
     /// Mean distance of the episode's mean view to the true target feature.
     pub view_mean: f64,
+    /// Mean share of the distance (percent) that the best point on the segment from G's
+    /// output to the episode's mean view closes ([`Record::best_toward_views`]).
+    pub best_toward_views_percent: f64,
+    /// Mean share (percent) of G's output dimensions saturated at the sigmoid's bounds.
+    pub saturated_percent: f64,
     /// Mean cosine between G's move and the direction to the true target feature.
     pub cos_to_true: f64,
     /// Mean cosine between G's move and the direction to the episode's mean view.
@@ -218,6 +255,8 @@ pub fn summarize(records: &[Record], kind: TargetKind) -> Summary {
         closed_percent: 100.0 * (before - after) / before.max(1e-12),
         moved: r.iter().map(|r| r.moved()).sum::<f64>() / n,
         view_mean: r.iter().map(|r| r.view_mean_distance()).sum::<f64>() / n,
+        best_toward_views_percent: 100.0 * r.iter().map(|r| r.best_toward_views()).sum::<f64>() / n,
+        saturated_percent: 100.0 * r.iter().map(|r| r.saturated()).sum::<f64>() / n,
         cos_to_true: r.iter().map(|r| r.cos_to_true()).sum::<f64>() / n,
         cos_to_views: r.iter().map(|r| r.cos_to_views()).sum::<f64>() / n,
         adaptations: updates / n,
@@ -433,6 +472,24 @@ mod tests {
         let s = summarize(&r, TargetKind::Seen);
         assert!(s.cos_to_true.abs() < 1e-9 && s.closed_percent < 0.0);
         assert_eq!(summarize(&r[..0], TargetKind::Seen).episodes, 0);
+    }
+
+    #[test]
+    fn best_point_toward_the_views_and_saturation() {
+        // From (0, 0) toward the mean view (3, 0) with the truth at (4, 0): the whole
+        // segment helps, the best point is (3, 0), 3 of 4 closed.
+        let r = record(TargetKind::Unseen, &[0.0, 0.0], &[0.0, 0.0], &[4.0, 0.0]);
+        assert!((r.best_toward_views() - 0.75).abs() < 1e-9);
+        // Truth at (0, 3), at right angles to the views: nothing to gain that way.
+        let r = record(TargetKind::Unseen, &[0.0, 0.0], &[0.0, 0.0], &[0.0, 3.0]);
+        assert!(r.best_toward_views().abs() < 1e-9);
+        // Truth at (3, 3): the best point is the foot (3, 0), 3 of √18 left: 1 − 1/√2 closed.
+        let r = record(TargetKind::Unseen, &[0.0, 0.0], &[0.0, 0.0], &[3.0, 3.0]);
+        assert!((r.best_toward_views() - (1.0 - std::f64::consts::FRAC_1_SQRT_2)).abs() < 1e-6);
+        let r = record(TargetKind::Unseen, &[0.005, 0.5], &[0.0, 0.0], &[1.0, 1.0]);
+        assert!((r.saturated() - 0.5).abs() < 1e-12);
+        let s = summarize(&[r], TargetKind::Unseen);
+        assert!((s.saturated_percent - 50.0).abs() < 1e-9);
     }
 
     #[test]

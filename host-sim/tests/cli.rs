@@ -298,6 +298,27 @@ fn emd_report_measures_a_gman_model() {
         .max(v["unseen"]["moved"].as_f64().unwrap());
     assert!(moved > 0.0, "{v}");
     assert!(std::fs::metadata(&png).unwrap().len() > 1000);
+    // the probe flags: D's head zeroed, every adapted episode's vectors dumped
+    let dump = d.join("records.json");
+    let (ok, stdout, err) = gman(&[
+        "emd-report",
+        "--agent",
+        ckpt.to_str().unwrap(),
+        "--episodes",
+        "10",
+        "--inner-lr",
+        "1",
+        "--zero-disc-head",
+        "--dump",
+        dump.to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    assert!(stdout.contains("best point toward it closes"), "{stdout}");
+    let recs: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&dump).unwrap()).unwrap();
+    let recs = recs.as_array().unwrap();
+    assert_eq!(recs.len() as u64, adapted, "one record per adapted episode");
+    assert_eq!(recs[0]["initial"].as_array().unwrap().len(), 512);
     // a missing model is a clear error naming it
     let (ok, _, err) = gman(&[
         "emd-report",

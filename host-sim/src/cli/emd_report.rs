@@ -4,6 +4,7 @@ use std::path::PathBuf;
 
 use anyhow::{bail, Context, Result};
 use clap::Args;
+use gman_core::schema::TensorId;
 use gman_host_sim::emd_report::{self, Summary};
 use gman_host_sim::nav::model::load_model;
 use gman_host_sim::sim::{Split, TargetKind};
@@ -21,6 +22,10 @@ pub struct EmdReportArgs {
     /// adaptation mode.
     #[arg(long, value_name = "MODEL")]
     pub agent: PathBuf,
+    /// Treat the model as this method (e.g. measure an `a3c-fg` checkpoint as
+    /// `gman-nometa`: the pre-trained G, adapted at test time only).
+    #[arg(long, value_name = "METHOD")]
+    pub method: Option<gman_host_sim::nav::model::Method>,
     /// Split whose official episodes are run (val or test).
     #[arg(long, default_value = "val")]
     pub split: String,
@@ -42,9 +47,18 @@ pub struct EmdReportArgs {
     /// Override the cap on inner updates per episode.
     #[arg(long, value_name = "N")]
     pub max_inner: Option<u32>,
+    /// Zero D's output layer (w2, b2) before measuring: D then starts every episode with no
+    /// opinion, and its first ascent step on L_D sets the head to the scene's mean feature
+    /// difference (a probe of the `--disc-head zero` lever; checkpoints only).
+    #[arg(long)]
+    pub zero_disc_head: bool,
     /// Write the Fig. 3 picture (two scenes, PCA) to this PNG.
     #[arg(long, value_name = "OUT.png")]
     pub png: Option<PathBuf>,
+    /// Write every adapted episode's vectors (initial, adapted and true target feature, the
+    /// kept views) as JSON, for analyses outside the tool.
+    #[arg(long, value_name = "OUT.json")]
+    pub dump: Option<PathBuf>,
     /// Write the summaries as JSON.
     #[arg(long, value_name = "OUT.json")]
     pub json: Option<PathBuf>,
@@ -69,7 +83,7 @@ pub fn cmd_emd_report(a: EmdReportArgs) -> Result<()> {
         bail!("split train has no official episodes; use --split val or --split test");
     }
     let world = a.world.load()?;
-    let mut model = load_model(&a.agent, None)?;
+    let mut model = load_model(&a.agent, a.method)?;
     if let Some(lr) = a.inner_lr {
         if !(lr.is_finite() && lr >= 0.0) {
             bail!("--inner-lr {lr} must be finite and non-negative");
@@ -89,6 +103,19 @@ pub fn cmd_emd_report(a: EmdReportArgs) -> Result<()> {
         model.inner_rule.step_rule = r;
     }
     model.inner_rule.validate()?;
+    if a.zero_disc_head {
+        if model.blob.is_some() {
+            bail!("--zero-disc-head needs a training checkpoint, not a blob");
+        }
+        for id in [TensorId::DiscW2, TensorId::DiscB2] {
+            model
+                .params
+                .get_mut(id.name())
+                .with_context(|| format!("{} has no tensor {}", a.agent.display(), id.name()))?
+                .data
+                .fill(0.0);
+        }
+    }
     let episodes = world.episodes(split, Some(a.episodes))?;
     eprintln!(
         "emd-report: {} episodes of {}, inner rate {} (α1 {}), cap {}, mode {:?}, {} D steps, {:?} step",
@@ -106,9 +133,10 @@ pub fn cmd_emd_report(a: EmdReportArgs) -> Result<()> {
     let unseen = emd_report::summarize(&records, TargetKind::Unseen);
     for (name, m) in [("seen", &seen), ("unseen", &unseen)] {
         println!(
-            "{name}: {} adapted episodes; |G(y,0) - true target feature| {:.4} -> {:.4} ({:.2}% closed); G moved {:.5} (cosine to the true feature {:.3}, to the mean view {:.3}); the mean view is {:.4} from the true feature; {:.2} inner updates per episode, {:.3} rollbacks per update",
+            "{name}: {} adapted episodes; |G(y,0) - true target feature| {:.4} -> {:.4} ({:.2}% closed); G moved {:.5} (cosine to the true feature {:.3}, to the mean view {:.3}); the mean view is {:.4} from the true feature (the best point toward it closes {:.1}%); {:.1}% of G's dims saturated; {:.2} inner updates per episode, {:.3} rollbacks per update",
             m.episodes, m.before, m.after, m.closed_percent, m.moved, m.cos_to_true,
-            m.cos_to_views, m.view_mean, m.adaptations, m.rollbacks_per_update
+            m.cos_to_views, m.view_mean, m.best_toward_views_percent, m.saturated_percent,
+            m.adaptations, m.rollbacks_per_update
         );
     }
     if records.is_empty() {
@@ -125,6 +153,11 @@ pub fn cmd_emd_report(a: EmdReportArgs) -> Result<()> {
             "wrote {}: Fig. 3 for {names:?} ({n} unseen-target episodes)",
             png.display()
         );
+    }
+    if let Some(path) = &a.dump {
+        let text = serde_json::to_string(&records)?;
+        std::fs::write(path, text).with_context(|| format!("writing {}", path.display()))?;
+        println!("wrote {} ({} episodes)", path.display(), records.len());
     }
     if let Some(path) = &a.json {
         let r = Report {
