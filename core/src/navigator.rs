@@ -172,6 +172,9 @@ pub struct NavConfig {
     pub disc_steps: u32,
     /// How the descent step on L_ad is sized.
     pub step_rule: StepRule,
+    /// D's output layer (w2, b2) restarts at zero with every [`Navigator::reset`] (a blob
+    /// records it, see [`ModelFlags::disc_head_reset`]; the paper: false).
+    pub disc_head_reset: bool,
     /// The adaptation mode the weights were meta-trained in, when known (a blob records it,
     /// see [`Header::adapt_mode`]): [`Navigator::new`] refuses to run such weights in the
     /// other mode, since the inner loop would then not be the one that was meta-learned.
@@ -222,6 +225,7 @@ impl NavConfig {
             mode,
             disc_steps,
             step_rule,
+            disc_head_reset,
         } = header.model_flags();
         let settings = header.adapt_settings();
         NavConfig {
@@ -234,6 +238,7 @@ impl NavConfig {
             mode: Some(mode),
             disc_steps,
             step_rule,
+            disc_head_reset,
             ..NavConfig::default()
         }
     }
@@ -266,6 +271,7 @@ impl Default for NavConfig {
             loss_bound: 1e6,
             disc_steps: 1,
             step_rule: StepRule::Gradient,
+            disc_head_reset: false,
             mode: None,
         }
     }
@@ -768,6 +774,10 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
             return Err(Error::NonFiniteInput { what: "attr" });
         }
         self.restore_adapted()?;
+        if self.cfg.disc_head_reset {
+            self.r.disc_w2.fill(0.0);
+            self.r.disc_b2.fill(0.0);
+        }
         self.r.attr.copy_from_slice(attr);
         self.r.h_state.fill(0.0);
         self.r.c_state.fill(0.0);
@@ -1439,17 +1449,23 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
             g_actor,
             ..
         } = &mut self.r;
-        let a2 = match cfg.step_rule {
-            StepRule::Gradient => -cfg.alpha_adapt,
-            StepRule::Normalized => {
-                let sq = g_gen1.sum_sq() + g_gen2.sum_sq() + g_actor.sum_sq();
-                let norm = libm::sqrtf(sq);
-                if norm > 0.0 {
-                    -cfg.alpha_adapt / norm
-                } else {
-                    0.0
-                }
+        // −α2 / ‖g‖ for a step of length α2 (none for a zero gradient)
+        let unit = |sq: f32| {
+            let norm = libm::sqrtf(sq);
+            if norm > 0.0 {
+                -cfg.alpha_adapt / norm
+            } else {
+                0.0
             }
+        };
+        let theta_sq = || g_gen1.sum_sq() + g_gen2.sum_sq();
+        let (a2, a2_phi) = match cfg.step_rule {
+            StepRule::Gradient => (-cfg.alpha_adapt, -cfg.alpha_adapt),
+            StepRule::Normalized => {
+                let a = unit(theta_sq() + g_actor.sum_sq());
+                (a, a)
+            }
+            StepRule::PerGroup => (unit(theta_sq()), unit(g_actor.sum_sq())),
         };
         let adapt_ok = loss.is_finite()
             && libm::fabsf(loss) <= cfg.loss_bound
@@ -1458,11 +1474,11 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
             && g_actor.finite()
             && g_gen1.update_ok(gen1, a2)
             && g_gen2.update_ok(gen2, a2)
-            && g_actor.update_ok(actor, a2);
+            && g_actor.update_ok(actor, a2_phi);
         if adapt_ok {
             g_gen1.apply(gen1, a2);
             g_gen2.apply(gen2, a2);
-            g_actor.apply(actor, a2);
+            g_actor.apply(actor, a2_phi);
         }
         adapt_ok
     }

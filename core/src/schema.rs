@@ -291,6 +291,14 @@ pub const FLAG_FULL_ADAPT: u32 = 8;
 /// ([`StepRule::Normalized`], [`ModelFlags::step_rule`]); without it the paper's gradient step.
 pub const FLAG_NORMALIZED_STEP: u32 = 1 << 16;
 
+/// Bit of the blob header's flags: the descent step is normalised per parameter group
+/// ([`StepRule::PerGroup`]; takes precedence over [`FLAG_NORMALIZED_STEP`]).
+pub const FLAG_PER_GROUP_STEP: u32 = 1 << 17;
+
+/// Bit of the blob header's flags: D's output layer (w2, b2) restarts at zero with every
+/// episode ([`ModelFlags::disc_head_reset`]).
+pub const FLAG_DISC_HEAD_RESET: u32 = 1 << 18;
+
 /// Bits 8..16 of the blob header's flags: D's ascent steps per inner update minus one
 /// ([`ModelFlags::disc_steps`], 1..=256; 0 in every blob written before the setting, i.e. the
 /// paper's one step).
@@ -307,6 +315,10 @@ pub enum StepRule {
     /// `θ ← θ − α2 ∇/‖∇‖`, the norm over every adapted parameter (θ and φ together): α2 is
     /// the length of the step.
     Normalized,
+    /// Each group normalised on its own: `θ ← θ − α2 ∇θ/‖∇θ‖` and `φ ← φ − α2 ∇φ/‖∇φ‖`, so
+    /// G moves by α2 whatever the actor head's gradient (under [`StepRule::Normalized`] the
+    /// head's larger gradient takes most of the length).
+    PerGroup,
 }
 
 /// The model flags of a blob header as the settings they stand for: the one mapping between
@@ -325,8 +337,12 @@ pub struct ModelFlags {
     /// [`DISC_STEPS_MASK`]: D's ascent steps per inner update (1..=256; values above 256 are
     /// written as 256).
     pub disc_steps: u32,
-    /// [`FLAG_NORMALIZED_STEP`]: [`StepRule::Normalized`], else [`StepRule::Gradient`].
+    /// [`FLAG_PER_GROUP_STEP`]: [`StepRule::PerGroup`]; else [`FLAG_NORMALIZED_STEP`]:
+    /// [`StepRule::Normalized`]; else [`StepRule::Gradient`].
     pub step_rule: StepRule,
+    /// [`FLAG_DISC_HEAD_RESET`]: D's output layer restarts at zero with every episode, so the
+    /// first ascent step sets it from the episode's own buffer (D starts with no opinion).
+    pub disc_head_reset: bool,
 }
 
 impl ModelFlags {
@@ -350,11 +366,14 @@ impl ModelFlags {
                 AdaptMode::Efficient
             },
             disc_steps: ((bits & DISC_STEPS_MASK) >> DISC_STEPS_SHIFT) + 1,
-            step_rule: if bits & FLAG_NORMALIZED_STEP != 0 {
+            step_rule: if bits & FLAG_PER_GROUP_STEP != 0 {
+                StepRule::PerGroup
+            } else if bits & FLAG_NORMALIZED_STEP != 0 {
                 StepRule::Normalized
             } else {
                 StepRule::Gradient
             },
+            disc_head_reset: bits & FLAG_DISC_HEAD_RESET != 0,
         }
     }
 
@@ -381,8 +400,13 @@ impl ModelFlags {
             self.disc_steps - 1
         };
         f |= steps << DISC_STEPS_SHIFT;
-        if matches!(self.step_rule, StepRule::Normalized) {
-            f |= FLAG_NORMALIZED_STEP;
+        match self.step_rule {
+            StepRule::Gradient => {}
+            StepRule::Normalized => f |= FLAG_NORMALIZED_STEP,
+            StepRule::PerGroup => f |= FLAG_PER_GROUP_STEP,
+        }
+        if self.disc_head_reset {
+            f |= FLAG_DISC_HEAD_RESET;
         }
         f
     }
@@ -446,9 +470,22 @@ mod tests {
                 assert_eq!(f.bits(), bits);
             }
         }
+        // the per-group step and D's head reset, with and without the other rule bits
+        for (bits, rule) in [
+            (FLAG_PER_GROUP_STEP, StepRule::PerGroup),
+            (FLAG_NORMALIZED_STEP, StepRule::Normalized),
+        ] {
+            for reset in [false, true] {
+                let bits = bits | FLAG_ADAPT | if reset { FLAG_DISC_HEAD_RESET } else { 0 };
+                let f = ModelFlags::from_bits(bits);
+                assert_eq!((f.step_rule, f.disc_head_reset), (rule, reset));
+                assert_eq!(f.bits(), bits);
+            }
+        }
         // blobs written before the levers read as the paper's rule
         let old = ModelFlags::from_bits(FLAG_ADAPT);
         assert_eq!((old.disc_steps, old.step_rule), (1, StepRule::Gradient));
+        assert!(!old.disc_head_reset);
         let mut f = old;
         f.disc_steps = 1000;
         assert_eq!(ModelFlags::from_bits(f.bits()).disc_steps, 256);

@@ -298,7 +298,7 @@ fn emd_report_measures_a_gman_model() {
         .max(v["unseen"]["moved"].as_f64().unwrap());
     assert!(moved > 0.0, "{v}");
     assert!(std::fs::metadata(&png).unwrap().len() > 1000);
-    // the probe flags: D's head zeroed, every adapted episode's vectors dumped
+    // the probe flags: D's head reset each episode, every adapted episode's vectors dumped
     let dump = d.join("records.json");
     let (ok, stdout, err) = gman(&[
         "emd-report",
@@ -308,7 +308,7 @@ fn emd_report_measures_a_gman_model() {
         "10",
         "--inner-lr",
         "1",
-        "--zero-disc-head",
+        "--disc-head-reset",
         "--dump",
         dump.to_str().unwrap(),
     ]);

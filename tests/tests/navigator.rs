@@ -481,13 +481,14 @@ fn cossim_variant_adapts_without_discriminator() {
 }
 
 /// The inner rule's levers (issue 14): the normalised step moves the adapted parameters
-/// (θ and the actor head) by exactly α2 in L2, and more D steps move ω further.
+/// (θ and the actor head) by exactly α2 in L2, the per-group step moves θ and the head by α2
+/// each, more D steps move ω further, and D's head restarts at zero when asked.
 #[test]
 fn inner_rule_levers_do_what_they_say() {
     use gman_core::navigator::StepRule;
     let dims = Dims::MCU;
     let w = weights(&dims, 8, 0.05);
-    let run = |disc_steps: u32, step_rule: StepRule| {
+    let run_with = |disc_steps: u32, step_rule: StepRule, disc_head_reset: bool| {
         let cfg = NavConfig {
             alpha_disc: 0.05,
             alpha_adapt: 0.3,
@@ -495,6 +496,7 @@ fn inner_rule_levers_do_what_they_say() {
             noise: NoiseMode::Zero,
             disc_steps,
             step_rule,
+            disc_head_reset,
             ..NavConfig::default()
         };
         let mut arena = vec![0.0f32; Navigator::<Full, 10>::arena_len(&dims)];
@@ -524,8 +526,28 @@ fn inner_rule_levers_do_what_they_say() {
                 .sum::<f64>()
                 .sqrt()
         };
-        (moved(&[0, 1, 4]), moved(&[2, 3]))
+        let head_zero = before[3].0.iter().chain(&before[3].1).all(|v| *v == 0.0);
+        (
+            moved(&[0, 1, 4]),
+            moved(&[2, 3]),
+            moved(&[0, 1]),
+            moved(&[4]),
+            head_zero,
+        )
     };
+    let run = |disc_steps: u32, step_rule: StepRule| {
+        let (both, omega, _, _, head_zero) = run_with(disc_steps, step_rule, false);
+        assert!(!head_zero, "D's head is the weights' without the reset");
+        (both, omega)
+    };
+    let (_, _, theta, head, _) = run_with(1, StepRule::PerGroup, false);
+    assert!(
+        (theta - 0.3).abs() < 1e-3 && (head - 0.3).abs() < 1e-3,
+        "a per-group step of length 0.3 moved θ by {theta} and the head by {head}"
+    );
+    let (_, omega_reset, _, _, head_zero) = run_with(1, StepRule::Gradient, true);
+    assert!(head_zero, "D's head restarts at zero with the episode");
+    assert!(omega_reset > 0.0, "D still learns from the buffer");
     let (theta_norm, _) = run(1, StepRule::Normalized);
     assert!(
         (theta_norm - 0.3).abs() < 1e-3,

@@ -4,7 +4,6 @@ use std::path::PathBuf;
 
 use anyhow::{bail, Context, Result};
 use clap::Args;
-use gman_core::schema::TensorId;
 use gman_host_sim::emd_report::{self, Summary};
 use gman_host_sim::nav::model::load_model;
 use gman_host_sim::sim::{Split, TargetKind};
@@ -47,11 +46,10 @@ pub struct EmdReportArgs {
     /// Override the cap on inner updates per episode.
     #[arg(long, value_name = "N")]
     pub max_inner: Option<u32>,
-    /// Zero D's output layer (w2, b2) before measuring: D then starts every episode with no
-    /// opinion, and its first ascent step on L_D sets the head to the scene's mean feature
-    /// difference (a probe of the `--disc-head zero` lever; checkpoints only).
+    /// D's output layer (w2, b2) restarts at zero with every episode: D starts with no
+    /// opinion and its first ascent step on L_D sets the head from the episode's buffer.
     #[arg(long)]
-    pub zero_disc_head: bool,
+    pub disc_head_reset: bool,
     /// Write the Fig. 3 picture (two scenes, PCA) to this PNG.
     #[arg(long, value_name = "OUT.png")]
     pub png: Option<PathBuf>,
@@ -102,20 +100,10 @@ pub fn cmd_emd_report(a: EmdReportArgs) -> Result<()> {
     if let Some(r) = a.step_rule {
         model.inner_rule.step_rule = r;
     }
-    model.inner_rule.validate()?;
-    if a.zero_disc_head {
-        if model.blob.is_some() {
-            bail!("--zero-disc-head needs a training checkpoint, not a blob");
-        }
-        for id in [TensorId::DiscW2, TensorId::DiscB2] {
-            model
-                .params
-                .get_mut(id.name())
-                .with_context(|| format!("{} has no tensor {}", a.agent.display(), id.name()))?
-                .data
-                .fill(0.0);
-        }
+    if a.disc_head_reset {
+        model.inner_rule.disc_head_reset = true;
     }
+    model.inner_rule.validate()?;
     let episodes = world.episodes(split, Some(a.episodes))?;
     eprintln!(
         "emd-report: {} episodes of {}, inner rate {} (α1 {}), cap {}, mode {:?}, {} D steps, {:?} step",

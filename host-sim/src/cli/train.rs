@@ -98,10 +98,15 @@ pub struct TrainArgs {
     /// D's ascent steps on L_D per inner update (paper: 1).
     #[arg(long, value_name = "N", default_value_t = 1)]
     pub disc_steps: u32,
-    /// The descent step of θ and φ on L_ad: `gradient` (α2 ∇, the paper) or `normalized`
-    /// (α2 ∇/‖∇‖: --inner-lr is then the step's length). Recorded in the blob.
+    /// The descent step of θ and φ on L_ad: `gradient` (α2 ∇, the paper), `normalized`
+    /// (α2 ∇/‖∇‖: --inner-lr is then the step's length) or `per-group` (θ and φ each
+    /// normalised to that length). Recorded in the blob.
     #[arg(long, value_enum, default_value = "gradient")]
     pub step_rule: gman_host_sim::nav::model::StepRuleName,
+    /// D's output layer (w2, b2) restarts at zero with every episode, so D's first ascent
+    /// step sets it from the episode's own buffer (paper: off). Recorded in the blob.
+    #[arg(long)]
+    pub disc_head_reset: bool,
     /// Minimum steps per worker and update.
     #[arg(long, default_value_t = 40)]
     pub min_steps: u32,
@@ -278,6 +283,7 @@ fn inner_rule(a: &TrainArgs) -> gman_host_sim::nav::model::InnerRule {
         disc_lr: a.disc_lr,
         disc_steps: a.disc_steps,
         step_rule: a.step_rule,
+        disc_head_reset: a.disc_head_reset,
     }
 }
 
@@ -621,6 +627,12 @@ pub fn cmd_train(a: TrainArgs, explicit: &dyn Fn(&str) -> bool) -> Result<()> {
             a.step_rule,
             Some(m.inner_rule.step_rule),
             explicit("step_rule"),
+        )?;
+        resumed(
+            "--disc-head-reset",
+            a.disc_head_reset,
+            Some(m.inner_rule.disc_head_reset),
+            explicit("disc_head_reset"),
         )?;
         resumed("--method", a.method, Some(m.method), explicit("method"))?;
         if let Some(mode) = a.adapt_mode {

@@ -70,7 +70,7 @@ impl Method {
     /// The paper's rows, in `--help` order: name, switches
     /// (`fg, ps, inner loop, EMD, θ trained`), help.
     #[rustfmt::skip]
-    pub const PRESETS: [Preset; 9] = [
+    pub const PRESETS: [Preset; 10] = [
         ("a3c", m(false, false, Off, D, false),
          "A3C baseline: observation, target attributes, previous action → LSTM → actor-critic"),
         ("a3c-fg", m(true, false, Off, D, false),
@@ -86,6 +86,8 @@ impl Method {
          "EMD variant: cosine similarity between x_t and s_t in place of D (paper Table 3), meta-trained like GMAN"),
         ("gman-noemd", m(true, false, Off, D, true),
          "Control without the EMD: θ and the policy trained by the outer loop as in GMAN, but no inner loop runs, in training or at evaluation (differs from a3c-fg only in that θ is trained, from gman only in the adaptation)"),
+        ("gman-fixed-g", m(true, false, Meta, D, false),
+         "GMAN with G kept at the pre-trained generator by the outer loop: only the inner loop moves θ, per episode (the outer loop meta-trains the policy; the meta-trained G of `gman` drifts off the feature space)"),
     ];
     /// A3C baseline.
     pub const A3c: Method = Method::PRESETS[0].1;
@@ -105,12 +107,14 @@ impl Method {
     pub const GmanCossim: Method = Method::PRESETS[7].1;
     /// θ trained as in GMAN, no inner loop.
     pub const GmanNoemd: Method = Method::PRESETS[8].1;
+    /// GMAN with θ frozen in the outer loop (adapted per episode only).
+    pub const GmanFixedG: Method = Method::PRESETS[9].1;
 
     /// Every preset, in `--help` order.
-    const ALL: [Method; 9] = {
-        let mut out = [Method::A3c; 9];
+    const ALL: [Method; 10] = {
+        let mut out = [Method::A3c; 10];
         let mut i = 0;
-        while i < 9 {
+        while i < 10 {
             out[i] = Method::PRESETS[i].1;
             i += 1;
         }
@@ -266,13 +270,22 @@ pub struct InnerRule {
     /// D's ascent steps per inner update (1..=256).
     #[serde(default = "one")]
     pub disc_steps: u32,
-    /// The descent step on L_ad: `gradient` (α2 ∇) or `normalized` (α2 ∇/‖∇‖).
+    /// The descent step on L_ad: `gradient` (α2 ∇), `normalized` (α2 ∇/‖∇‖) or `per-group`
+    /// (θ and φ each normalised to length α2).
     #[serde(default)]
     pub step_rule: StepRuleName,
+    /// D's output layer restarts at zero with every episode (not written when false, so
+    /// checkpoints of the earlier rules keep their bytes).
+    #[serde(default, skip_serializing_if = "is_false")]
+    pub disc_head_reset: bool,
 }
 
 fn one() -> u32 {
     1
+}
+
+fn is_false(b: &bool) -> bool {
+    !*b
 }
 
 impl Default for InnerRule {
@@ -281,6 +294,7 @@ impl Default for InnerRule {
             disc_lr: None,
             disc_steps: 1,
             step_rule: StepRuleName::Gradient,
+            disc_head_reset: false,
         }
     }
 }
@@ -307,13 +321,15 @@ impl InnerRule {
 
 /// [`StepRule`] as stored in checkpoints and named on the command line.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default, Serialize, Deserialize, clap::ValueEnum)]
-#[serde(rename_all = "lowercase")]
+#[serde(rename_all = "kebab-case")]
 pub enum StepRuleName {
     /// θ ← θ − α2 ∇ (the paper).
     #[default]
     Gradient,
     /// θ ← θ − α2 ∇/‖∇‖ (α2 is the step's length).
     Normalized,
+    /// θ and φ each normalised: G moves by α2 whatever the actor head's gradient.
+    PerGroup,
 }
 
 impl From<StepRuleName> for StepRule {
@@ -321,6 +337,7 @@ impl From<StepRuleName> for StepRule {
         match r {
             StepRuleName::Gradient => StepRule::Gradient,
             StepRuleName::Normalized => StepRule::Normalized,
+            StepRuleName::PerGroup => StepRule::PerGroup,
         }
     }
 }
@@ -330,6 +347,7 @@ impl From<StepRule> for StepRuleName {
         match r {
             StepRule::Gradient => StepRuleName::Gradient,
             StepRule::Normalized => StepRuleName::Normalized,
+            StepRule::PerGroup => StepRuleName::PerGroup,
         }
     }
 }
@@ -604,6 +622,7 @@ impl NavModel {
             max_inner_updates: self.max_inner,
             disc_steps: self.inner_rule.disc_steps,
             step_rule: self.inner_rule.step_rule.into(),
+            disc_head_reset: self.inner_rule.disc_head_reset,
             schedule: if training {
                 gman_core::navigator::Schedule::Manual
             } else {
@@ -724,6 +743,7 @@ impl NavModel {
             mode: self.adapt_mode,
             disc_steps: self.inner_rule.disc_steps,
             step_rule: self.inner_rule.step_rule.into(),
+            disc_head_reset: self.inner_rule.disc_head_reset,
         }
         .bits()
     }
@@ -828,6 +848,7 @@ pub fn model_from_blob(bytes: &[u8], method: Option<Method>) -> Result<NavModel>
             .then_some(settings.alpha_disc),
         disc_steps: flags.disc_steps,
         step_rule: flags.step_rule.into(),
+        disc_head_reset: flags.disc_head_reset,
     };
     Ok(NavModel {
         method,
@@ -864,7 +885,7 @@ mod tests {
     use super::*;
 
     /// The presets answer the six predicates exactly as the 9-variant enum of earlier builds
-    /// did (its truth table, written out), have distinct switches and round-trip their names.
+    /// did (its truth table, written out, plus the presets added since), have distinct switches and round-trip their names.
     #[test]
     fn presets_keep_the_old_predicates_and_names() {
         // name, uses_fg, uses_ps, adapts_in_training, uses_cossim, adapts_at_eval,
@@ -879,6 +900,8 @@ mod tests {
             ("gman-nometa", [true, false, false, false, true, false]),
             ("gman-cossim", [true, false, true, true, true, true]),
             ("gman-noemd", [true, false, false, false, false, true]),
+            // added after the enum: meta-trained, θ frozen in the outer loop
+            ("gman-fixed-g", [true, false, true, false, true, false]),
         ];
         assert_eq!(old.len(), Method::PRESETS.len());
         for (name, p) in old {
@@ -1008,7 +1031,8 @@ mod inner_rule_tests {
         m.inner_rule = InnerRule {
             disc_lr: Some(0.05),
             disc_steps: 5,
-            step_rule: StepRuleName::Normalized,
+            step_rule: StepRuleName::PerGroup,
+            disc_head_reset: true,
         };
         let mut ck = Checkpoint::new(m.metadata());
         m.add_to_checkpoint(&mut ck).unwrap();
@@ -1022,7 +1046,8 @@ mod inner_rule_tests {
         let parsed = gman_core::blob::Blob::parse(&blob).unwrap();
         let cfg = parsed.nav_config();
         assert_eq!((cfg.alpha_disc, cfg.alpha_adapt), (0.05, 0.5));
-        assert_eq!((cfg.disc_steps, cfg.step_rule), (5, StepRule::Normalized));
+        assert_eq!((cfg.disc_steps, cfg.step_rule), (5, StepRule::PerGroup));
+        assert!(cfg.disc_head_reset && m.nav_config(false).disc_head_reset);
         assert_eq!(cfg.disc_steps, m.nav_config(false).disc_steps);
         // Nonsense in a file is refused with the field named.
         let mut bad = m.metadata();
