@@ -7,7 +7,7 @@
 use gman_core::blob::Blob;
 use gman_core::memory::AdaptMode;
 use gman_core::navigator::{Efficient, Full, Mode, Navigator, Selection};
-use gman_host_sim::nav::model::{Method, NavModel};
+use gman_host_sim::nav::model::{InnerRule, Method, NavModel, StepRuleName};
 use gman_host_sim::nav::rollout::{train_episode, Worker};
 use gman_host_sim::nav::K;
 use gman_host_sim::sim::spatial::MapGrid;
@@ -77,8 +77,13 @@ fn device<M: Mode>(
 }
 
 fn check(mode: AdaptMode, dims: gman_core::Dims) {
+    check_with(mode, dims, InnerRule::default());
+}
+
+fn check_with(mode: AdaptMode, dims: gman_core::Dims, rule: InnerRule) {
     let world = World::synthetic(11);
-    let m = model(mode, dims);
+    let mut m = model(mode, dims);
+    m.inner_rule = rule;
     let blob = m.to_blob(false).unwrap();
     assert_eq!(Blob::parse(&blob).unwrap().header().adapt_mode(), mode);
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(2);
@@ -147,4 +152,17 @@ fn an_adapting_blob_refuses_the_other_mode() {
     let w = gman_core::navigator::NavWeights::from_blob(&b, &b.dims()).unwrap();
     let mut arena = vec![0.0f32; Navigator::<Efficient, K>::arena_len(&b.dims())];
     assert!(Navigator::<Efficient, K>::new(w, &mut arena, b.nav_config()).is_err());
+}
+
+/// The issue-14 levers travel in the blob too: the per-group normalised step, D's head reset
+/// with every episode, α1 ≠ α2 and several D steps give the same run on both sides.
+#[test]
+fn trainer_and_device_agree_with_the_levers() {
+    let rule = InnerRule {
+        disc_lr: Some(0.1),
+        disc_steps: 2,
+        step_rule: StepRuleName::PerGroup,
+        disc_head_reset: true,
+    };
+    check_with(AdaptMode::Efficient, gman_core::Dims::MCU, rule);
 }
