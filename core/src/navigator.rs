@@ -172,8 +172,9 @@ pub struct NavConfig {
     pub disc_steps: u32,
     /// How the descent step on L_ad is sized.
     pub step_rule: StepRule,
-    /// D's output layer (w2, b2) restarts at zero with every [`Navigator::reset`] (a blob
-    /// records it, see [`ModelFlags::disc_head_reset`]; the paper: false).
+    /// D restarts with every [`Navigator::reset`]: layer 1 from the weights' ω, the output
+    /// layer (w2, b2) at zero (a blob records it, see [`ModelFlags::disc_head_reset`]; the
+    /// paper: false, D persists across episodes).
     pub disc_head_reset: bool,
     /// The adaptation mode the weights were meta-trained in, when known (a blob records it,
     /// see [`Header::adapt_mode`]): [`Navigator::new`] refuses to run such weights in the
@@ -775,6 +776,8 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
         }
         self.restore_adapted()?;
         if self.cfg.disc_head_reset {
+            // D restarts with the episode: layer 1 from ω, the head at zero.
+            self.reset_discriminator()?;
             self.r.disc_w2.fill(0.0);
             self.r.disc_b2.fill(0.0);
         }

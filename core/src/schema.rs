@@ -295,8 +295,8 @@ pub const FLAG_NORMALIZED_STEP: u32 = 1 << 16;
 /// ([`StepRule::PerGroup`]; takes precedence over [`FLAG_NORMALIZED_STEP`]).
 pub const FLAG_PER_GROUP_STEP: u32 = 1 << 17;
 
-/// Bit of the blob header's flags: D's output layer (w2, b2) restarts at zero with every
-/// episode ([`ModelFlags::disc_head_reset`]).
+/// Bit of the blob header's flags: D restarts with every episode, layer 1 from ω and the
+/// output layer (w2, b2) at zero ([`ModelFlags::disc_head_reset`]).
 pub const FLAG_DISC_HEAD_RESET: u32 = 1 << 18;
 
 /// Bits 8..16 of the blob header's flags: D's ascent steps per inner update minus one
@@ -340,8 +340,9 @@ pub struct ModelFlags {
     /// [`FLAG_PER_GROUP_STEP`]: [`StepRule::PerGroup`]; else [`FLAG_NORMALIZED_STEP`]:
     /// [`StepRule::Normalized`]; else [`StepRule::Gradient`].
     pub step_rule: StepRule,
-    /// [`FLAG_DISC_HEAD_RESET`]: D's output layer restarts at zero with every episode, so the
-    /// first ascent step sets it from the episode's own buffer (D starts with no opinion).
+    /// [`FLAG_DISC_HEAD_RESET`]: D restarts with every episode, layer 1 from ω and the output
+    /// layer at zero, so the first ascent step sets the head from the episode's own buffer (D
+    /// starts with no opinion and carries nothing from earlier episodes).
     pub disc_head_reset: bool,
 }
 

@@ -527,6 +527,15 @@ fn inner_rule_levers_do_what_they_say() {
                 .sqrt()
         };
         let head_zero = before[3].0.iter().chain(&before[3].1).all(|v| *v == 0.0);
+        // The next episode: with the reset, D starts again from ω (layer 1) and zero (head);
+        // without it, D keeps what it learned.
+        nav.reset(&[0.4; 45], 4).unwrap();
+        let next = core_snapshot(&nav, false);
+        assert_eq!(
+            (next[2] == before[2], next[3] == before[3]),
+            (disc_head_reset, disc_head_reset),
+            "D across episodes (reset: {disc_head_reset})"
+        );
         (
             moved(&[0, 1, 4]),
             moved(&[2, 3]),

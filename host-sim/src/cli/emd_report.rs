@@ -46,8 +46,8 @@ pub struct EmdReportArgs {
     /// Override the cap on inner updates per episode.
     #[arg(long, value_name = "N")]
     pub max_inner: Option<u32>,
-    /// D's output layer (w2, b2) restarts at zero with every episode: D starts with no
-    /// opinion and its first ascent step on L_D sets the head from the episode's buffer.
+    /// D restarts with every episode (layer 1 from ω, the output layer at zero): D starts with
+    /// no opinion and its first ascent step on L_D sets the head from the episode's buffer.
     #[arg(long)]
     pub disc_head_reset: bool,
     /// Write the Fig. 3 picture (two scenes, PCA) to this PNG.

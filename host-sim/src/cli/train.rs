@@ -103,8 +103,9 @@ pub struct TrainArgs {
     /// normalised to that length). Recorded in the blob.
     #[arg(long, value_enum, default_value = "gradient")]
     pub step_rule: gman_host_sim::nav::model::StepRuleName,
-    /// D's output layer (w2, b2) restarts at zero with every episode, so D's first ascent
-    /// step sets it from the episode's own buffer (paper: off). Recorded in the blob.
+    /// D restarts with every episode: layer 1 from ω, the output layer (w2, b2) at zero, so
+    /// D's first ascent step sets the head from the episode's own buffer; ω then does not
+    /// learn across episodes (paper: off, D persists). Recorded in the blob.
     #[arg(long)]
     pub disc_head_reset: bool,
     /// Minimum steps per worker and update.

@@ -274,7 +274,7 @@ pub struct InnerRule {
     /// (θ and φ each normalised to length α2).
     #[serde(default)]
     pub step_rule: StepRuleName,
-    /// D's output layer restarts at zero with every episode (not written when false, so
+    /// D restarts with every episode, its output layer at zero (not written when false, so
     /// checkpoints of the earlier rules keep their bytes).
     #[serde(default, skip_serializing_if = "is_false")]
     pub disc_head_reset: bool,

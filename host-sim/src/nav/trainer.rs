@@ -585,7 +585,11 @@ pub fn train(world: &World, opts: &TrainOptions, state: &mut TrainState) -> Resu
             bail!("non-finite gradient at update {u}");
         }
         let info = state.adam.step(&mut state.model.params, &total)?;
-        for (id, delta) in disc_ids.iter().zip(&disc_delta) {
+        // With D's head reset, D restarts from ω with every episode (on the device too), so
+        // ω does not learn across episodes: carrying the episodes' layer-1 changes over lets
+        // the gradient penalty grow layer 1 without bound (it diverged after ~6500 updates).
+        let carry_disc = !state.model.inner_rule.disc_head_reset;
+        for (id, delta) in disc_ids.iter().zip(&disc_delta).filter(|_| carry_disc) {
             let p = state.model.params.get_mut(id.name()).context("D tensor")?;
             for (v, d) in p.data.iter_mut().zip(delta) {
                 *v += d;
