@@ -1,8 +1,9 @@
-//! Argument types shared by several commands (`--preset`, the world options).
+//! Argument types and checks shared by several commands (`--preset`, the world options,
+//! flag range checks).
 
 use std::path::PathBuf;
 
-use anyhow::Result;
+use anyhow::{bail, Result};
 use clap::{Args, ValueEnum};
 use gman_core::Dims;
 use gman_host_sim::sim::{World, DEFAULT_WORLD_SEED};
@@ -62,4 +63,20 @@ impl WorldArgs {
             }
         }
     }
+}
+
+/// Refuses a flag value outside [0, 1).
+pub fn check_unit(name: &str, v: f32) -> Result<()> {
+    if !(0.0..1.0).contains(&v) {
+        bail!("--{name} must be in [0, 1), got {v}");
+    }
+    Ok(())
+}
+
+/// Refuses a flag value that is not a positive finite number.
+pub fn check_positive(name: &str, v: f32) -> Result<()> {
+    if !(v.is_finite() && v > 0.0) {
+        bail!("--{name} must be a positive number, got {v}");
+    }
+    Ok(())
 }
