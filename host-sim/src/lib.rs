@@ -4,6 +4,7 @@ pub mod emd_report;
 pub mod nav;
 pub mod optim;
 pub mod pretrain;
+pub mod progress;
 pub mod sim;
 pub mod simd;
 

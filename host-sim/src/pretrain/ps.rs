@@ -18,7 +18,6 @@ use gman_core::activation::{leaky_relu_backward, leaky_relu_inplace, sigmoid_inp
 use gman_core::dense::{Dense, DenseGrads};
 use gman_core::rng::Xoshiro128;
 use gman_core::{ATTR_DIM, FEATURE_DIM};
-use indicatif::{ProgressBar, ProgressStyle};
 use rand::RngCore;
 use serde::Serialize;
 
@@ -438,18 +437,7 @@ pub fn train_ps(
     let mut idx = vec![0usize; b];
     let mut history = Vec::new();
     let log_every = (cfg.iters / 100).max(1);
-    let pb = if cfg.progress {
-        let pb = ProgressBar::new(cfg.iters as u64);
-        pb.set_style(
-            ProgressStyle::with_template(
-                "{bar:30} {pos}/{len} [{elapsed_precise}<{eta_precise}] {msg}",
-            )
-            .unwrap_or_else(|_| ProgressStyle::default_bar()),
-        );
-        pb
-    } else {
-        ProgressBar::hidden()
-    };
+    let pb = crate::progress::bar(cfg.iters as u64, crate::progress::PRETRAIN, cfg.progress);
     let n = data.train.len() as u64;
     for it in 1..=cfg.iters {
         for i in idx.iter_mut() {
