@@ -5,6 +5,7 @@ pub mod nav;
 pub mod optim;
 pub mod pretrain;
 pub mod progress;
+pub mod ps;
 pub mod sim;
 pub mod simd;
 
