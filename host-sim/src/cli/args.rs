@@ -5,6 +5,7 @@ use std::path::PathBuf;
 
 use anyhow::{bail, Result};
 use clap::{Args, ValueEnum};
+use gman_core::navigator::NoiseMode;
 use gman_core::Dims;
 use gman_host_sim::sim::{World, DEFAULT_WORLD_SEED};
 
@@ -31,6 +32,25 @@ impl PresetArg {
         match self {
             PresetArg::Mcu => "mcu",
             PresetArg::Paper => "paper",
+        }
+    }
+}
+
+/// The noise z of G at navigation time (`gman train --noise`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum NoiseArg {
+    /// z ~ N(0, I) drawn per step (the paper).
+    Gaussian,
+    /// z = 0: G's output is a deterministic function of SE(y) (the reference's option).
+    Zero,
+}
+
+impl NoiseArg {
+    /// The navigator's noise mode.
+    pub fn mode(self) -> NoiseMode {
+        match self {
+            NoiseArg::Gaussian => NoiseMode::Gaussian,
+            NoiseArg::Zero => NoiseMode::Zero,
         }
     }
 }
