@@ -1,7 +1,8 @@
 //! Argument types and checks shared by several commands (`--preset`, the world options,
 //! flag range checks).
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
 
 use anyhow::{bail, Result};
 use clap::{Args, ValueEnum};
@@ -99,4 +100,17 @@ pub fn check_positive(name: &str, v: f32) -> Result<()> {
         bail!("--{name} must be a positive number, got {v}");
     }
     Ok(())
+}
+
+/// Says on stderr which files of `out` a command wrote and how long it took since `t0`.
+pub fn report_written(out: &Path, files: &[&str], t0: Instant) {
+    let names: Vec<String> = files
+        .iter()
+        .map(|f| out.join(f).display().to_string())
+        .collect();
+    eprintln!(
+        "wrote {} ({:.1} s in all)",
+        names.join(" and "),
+        t0.elapsed().as_secs_f64()
+    );
 }

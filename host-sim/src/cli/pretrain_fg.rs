@@ -8,7 +8,7 @@ use anyhow::{bail, Result};
 use clap::Args;
 use gman_host_sim::pretrain::fg::{self, FgCollectConfig, FgTrainConfig};
 
-use super::args::{check_positive, check_unit, PresetArg, WorldArgs};
+use super::args::{check_positive, check_unit, report_written, PresetArg, WorldArgs};
 
 /// `gman pretrain-fg`.
 #[derive(Debug, Args)]
@@ -100,11 +100,6 @@ pub fn cmd_pretrain_fg(a: PretrainFgArgs) -> Result<()> {
     cfg.progress = !a.quiet;
     let report = fg::run_pretrain_fg(&world, a.preset.name(), &dims, &collect, &cfg, &a.out)?;
     print!("{}", fg::report_table(&report));
-    eprintln!(
-        "wrote {} and {} ({:.1} s in all)",
-        a.out.join("fg.ckpt").display(),
-        a.out.join("fg_report.json").display(),
-        t0.elapsed().as_secs_f64()
-    );
+    report_written(&a.out, &["fg.ckpt", "fg_report.json"], t0);
     Ok(())
 }

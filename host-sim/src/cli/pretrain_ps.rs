@@ -8,7 +8,7 @@ use anyhow::{bail, Result};
 use clap::Args;
 use gman_host_sim::pretrain::ps::{self, PsDataConfig, PsTrainConfig};
 
-use super::args::{check_positive, check_unit, WorldArgs};
+use super::args::{check_positive, check_unit, report_written, WorldArgs};
 
 /// `gman pretrain-ps`.
 #[derive(Debug, Args)]
@@ -74,11 +74,6 @@ pub fn cmd_pretrain_ps(a: PretrainPsArgs) -> Result<()> {
     cfg.adam.lr = a.lr;
     let report = ps::run_pretrain_ps(&world, &collect, &cfg, &a.out)?;
     print!("{}", ps::report_table(&report));
-    eprintln!(
-        "wrote {} and {} ({:.1} s in all)",
-        a.out.join("ps.ckpt").display(),
-        a.out.join("ps_report.json").display(),
-        t0.elapsed().as_secs_f64()
-    );
+    report_written(&a.out, &["ps.ckpt", "ps_report.json"], t0);
     Ok(())
 }
