@@ -368,8 +368,7 @@ impl Dims {
             && checked_int8_weight_bytes(self).is_some()
             && crate::schema::checked_tensor_bytes(self)
             && NavLayout::try_new(self, AdaptMode::Full, 1).is_some()
-            && NavLayout::try_new(self, AdaptMode::Efficient, 1)
-                .is_some()
+            && NavLayout::try_new(self, AdaptMode::Efficient, 1).is_some()
     }
 }
 

@@ -183,7 +183,11 @@ fn firmware_under_qemu_matches_host_bit_for_bit() {
         ram < RAM_BUDGET,
         "RAM (static + peak stack) {ram} B over the {RAM_BUDGET} B budget"
     );
-    let lines: Vec<&str> = all.iter().copied().filter(|l| l.starts_with("# ")).collect();
+    let lines: Vec<&str> = all
+        .iter()
+        .copied()
+        .filter(|l| l.starts_with("# "))
+        .collect();
     for l in &lines {
         eprintln!("{l}");
     }

@@ -1,4 +1,8 @@
-//! Command line of the `gman` binary.
+//! Command line of the `gman` binary: one module per command (cargo's
+//! `src/bin/cargo/commands/` layout), each with its `clap` arguments and its `cmd_*` function;
+//! argument types and checks shared by several commands are in [`args`], agents by name
+//! (`random`, `oracle`, model files) in [`models`]. This file only lists the commands and
+//! dispatches.
 //!
 //! Without `--data`, every command uses the built-in synthetic demo world
 //! ([`gman_host_sim::sim::synthetic`]); `--data DIR` switches to the real iTHOR floor plans and

@@ -5,10 +5,10 @@ use std::path::Path;
 use std::sync::Arc;
 
 use anyhow::{bail, Result};
-use gman_host_sim::sim::{OracleAgent, RandomAgent};
 use gman_host_sim::nav::agent::NavAgent;
 use gman_host_sim::nav::model::{load_model, Method};
 use gman_host_sim::sim::eval::AgentFactory;
+use gman_host_sim::sim::{OracleAgent, RandomAgent};
 
 /// Evaluation-time changes to a loaded model (`gman eval --method/--inner-lr/--max-inner`).
 #[derive(Clone, Copy, Debug, Default)]

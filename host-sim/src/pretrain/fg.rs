@@ -31,7 +31,7 @@ use serde::Serialize;
 
 use super::adam::{Adam, AdamConfig};
 use super::checkpoint::{write_atomic, Checkpoint};
-use super::critic::{init_critic, CondCritic, CriticGrads, CriticScratch, CriticSums};
+use super::critic::{critic_grads, init_critic, CondCritic, CriticScratch, CriticSums};
 use super::generator::{gen_names, generator_view, init_generator, GenBuffers};
 use super::parallel::ChunkPool;
 use super::params::ParamSet;
@@ -421,7 +421,7 @@ impl<'a> FgSteps<'a> {
         let (world, data, cfg) = (self.world, self.data, self.cfg);
         let (idx, zs, eps) = (&self.idx, &self.zs, &self.eps);
         let sums = self.cpool.accumulate(b, &mut self.cgrad, |range, g, s| {
-            let mut cg = CriticGrads::from_params(g)?;
+            let mut cg = critic_grads(g)?;
             let mut sums = CriticSums::default();
             for t in range {
                 let smp = &data.train[idx[t]];

@@ -221,8 +221,10 @@ impl Scene {
             }
             let c = &categories[cat as usize];
             for k in 0..c.props.instances.max(1) {
-                let mut rng =
-                    ChaCha8Rng::seed_from_u64(hash_str(hash_str(self.seed, &c.name), &k.to_string()));
+                let mut rng = ChaCha8Rng::seed_from_u64(hash_str(
+                    hash_str(self.seed, &c.name),
+                    &k.to_string(),
+                ));
                 let mut s = rng.random_range(0..slots.len());
                 for _ in 0..16 {
                     if !used[s] {

@@ -220,13 +220,16 @@ impl SplitTargets {
         let mut train: [Vec<CategoryId>; 4] = Default::default();
         let mut eval: [(Vec<CategoryId>, Vec<CategoryId>); 4] = Default::default();
         for room in RoomType::ALL {
-            let tt = split.train_targets_by_room.get(room.name()).ok_or_else(|| {
-                anyhow!(
-                    "{}: split.train_targets_by_room has no {}",
-                    attr_path.display(),
-                    room.name()
-                )
-            })?;
+            let tt = split
+                .train_targets_by_room
+                .get(room.name())
+                .ok_or_else(|| {
+                    anyhow!(
+                        "{}: split.train_targets_by_room has no {}",
+                        attr_path.display(),
+                        room.name()
+                    )
+                })?;
             train[room.index()] = resolve(tt, "split.train_targets_by_room")?;
             if let Some(r) = split.by_room.get(room.name()) {
                 eval[room.index()] = (

@@ -83,7 +83,6 @@ fn median(mut v: Vec<f64>) -> f64 {
     v.get(v.len() / 2).copied().unwrap_or(f64::NAN)
 }
 
-
 /// Runs the benchmark.
 pub fn cmd_bench(a: BenchArgs) -> Result<()> {
     let started = Instant::now();
