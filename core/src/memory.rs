@@ -395,7 +395,8 @@ mod tests {
     }
 
     /// The layout derived from the region table is the one the hand-written formulas of
-    /// earlier builds gave (figures printed by that code for these dims, modes and k).
+    /// earlier builds gave (figures printed by that code for these dims, modes and k). Long
+    /// because most of it is that table of pinned figures.
     #[test]
     fn region_table_gives_the_pinned_layout() {
         let expected = [
