@@ -102,6 +102,69 @@ pub struct LdValue {
     pub penalty: f32,
 }
 
+/// Where the gradient penalty is differentiated: a sample of a two-layer LeakyReLU critic
+/// `w2 · LeakyReLU(gain ⊙ (W1 v) + b1) + b2` after its forward pass and input gradient.
+#[derive(Clone, Copy, Debug)]
+pub struct PenaltyPoint<'s> {
+    /// Hidden activation after LeakyReLU (`DH`): gives the slopes `m`.
+    pub h: &'s [f32],
+    /// `u = gain ⊙ w2 ⊙ m` (`DH`).
+    pub u: &'s [f32],
+    /// The input gradient `g` over the penalised input columns (the first `g.len()`).
+    pub g: &'s [f32],
+    /// Zeros for the remaining input columns, which the penalty does not differentiate
+    /// (the conditional critic's attribute columns of `gman-host-sim`); empty for D.
+    pub zeros: &'s [f32],
+}
+
+/// The closed form of the module docs, the one implementation of the WGAN-GP penalty's
+/// parameter gradient (used by D's L_D here and by the host's conditional pre-training
+/// critic): adds `coef · ∂P/∂ω` for `P = (‖g‖ − 1)²` into `grads` (`W1` or the gains, and
+/// `w2`; `b1`, `b2` get 0) using `w1g` (`DH`) as scratch. Returns `(P, ‖g‖)`.
+pub fn add_penalty_grad(
+    l1: &Dense<'_>,
+    w2: &[f32],
+    at: PenaltyPoint<'_>,
+    coef: f32,
+    w1g: &mut [f32],
+    grads: &mut DiscGrads<'_>,
+) -> Result<(f32, f32)> {
+    let norm = libm::sqrtf(dot(at.g, at.g));
+    let p = (norm - 1.0) * (norm - 1.0);
+    if norm <= 0.0 || coef == 0.0 {
+        return Ok((p, norm));
+    }
+    let c = coef * 2.0 * (norm - 1.0) / norm;
+    let with_zeros = [at.g, at.zeros];
+    let g_cols: &[&[f32]] = if at.zeros.is_empty() {
+        &with_zeros[..1]
+    } else {
+        &with_zeros
+    };
+    // W1 g (columns beyond g multiply zeros)
+    w1g.fill(0.0);
+    l1.w.matvec_acc(g_cols, w1g)?;
+    for j in 0..l1.out_dim() {
+        let gain = l1.gain.map_or(1.0, |g| g.get(j).copied().unwrap_or(0.0));
+        let w2j = w2.get(j).copied().unwrap_or(0.0);
+        let m = leaky_relu_grad(at.h.get(j).copied().unwrap_or(0.0));
+        let wg = w1g.get(j).copied().unwrap_or(0.0);
+        if let Some(d) = grads.w2.get_mut(j) {
+            *d += c * gain * m * wg;
+        }
+        if let DenseGrads::Gain { gain: dg, .. } = &mut grads.l1 {
+            if let Some(d) = dg.get_mut(j) {
+                *d += c * w2j * m * wg;
+            }
+        }
+    }
+    if let DenseGrads::Full { w, .. } = &mut grads.l1 {
+        // c · u gᵀ (the zero columns get c · u · 0)
+        crate::matrix::outer_acc(w, at.u, g_cols, c)?;
+    }
+    Ok((p, norm))
+}
+
 impl<'a> Discriminator<'a> {
     /// Input width F.
     #[inline]
@@ -175,37 +238,13 @@ impl<'a> Discriminator<'a> {
         s: &mut DiscScratch<'_>,
         grads: &mut DiscGrads<'_>,
     ) -> Result<f32> {
-        let norm = libm::sqrtf(dot(s.g, s.g));
-        let p = (norm - 1.0) * (norm - 1.0);
-        if norm <= 0.0 || coef == 0.0 {
-            return Ok(p);
-        }
-        let c = coef * 2.0 * (norm - 1.0) / norm;
-        // W1 g
-        s.w1g.fill(0.0);
-        self.l1.w.matvec_acc(&[s.g], s.w1g)?;
-        for j in 0..self.hidden() {
-            let gain = self
-                .l1
-                .gain
-                .map_or(1.0, |g| g.get(j).copied().unwrap_or(0.0));
-            let w2 = self.w2.get(j).copied().unwrap_or(0.0);
-            let m = leaky_relu_grad(s.h.get(j).copied().unwrap_or(0.0));
-            let wg = s.w1g.get(j).copied().unwrap_or(0.0);
-            if let Some(d) = grads.w2.get_mut(j) {
-                *d += c * gain * m * wg;
-            }
-            if let DenseGrads::Gain { gain: dg, .. } = &mut grads.l1 {
-                if let Some(d) = dg.get_mut(j) {
-                    *d += c * w2 * m * wg;
-                }
-            }
-        }
-        if let DenseGrads::Full { w, .. } = &mut grads.l1 {
-            // c · u gᵀ with u = gain ⊙ w2 ⊙ m (in s.v from input_grad)
-            crate::matrix::outer_acc(w, s.v, &[s.g], c)?;
-        }
-        Ok(p)
+        let at = PenaltyPoint {
+            h: s.h,
+            u: s.v,
+            g: s.g,
+            zeros: &[],
+        };
+        Ok(add_penalty_grad(&self.l1, self.w2, at, coef, s.w1g, grads)?.0)
     }
 
     /// L_D of Eq. 1 over `n` real samples `real` (`n x F`, the observations Ψ_s) and `n`

@@ -335,6 +335,43 @@ pub const fn checked_int8_weight_bytes(d: &Dims) -> Option<usize> {
     ])
 }
 
+/// The overflow check of [`Dims`] over everything derived from them. It lives here, beside
+/// the RAM layout it checks last, so that [`crate::preset`] only declares sizes and the
+/// schema and the layout derive from it (no module depends back on its users).
+impl Dims {
+    /// True when every size derived from these dims fits in `usize`: the input widths, the
+    /// element and byte counts of every tensor (f32 and int8), the parameter counts of G, D
+    /// and the policy and their f32 bytes, the MACs per step, and the RAM layout of both
+    /// adaptation modes for a buffer of one step ([`NavLayout::try_new`]; a
+    /// navigator checks its own `K` again). [`crate::blob::Blob::parse`] rejects dims for
+    /// which this is false ([`crate::BlobError::DimsTooLarge`]), so sizes computed from a
+    /// parsed blob's dims never overflow.
+    pub const fn checked_sizes(&self) -> bool {
+        let (g, d, p) = match (
+            self.checked_gen_params(),
+            self.checked_disc_params(),
+            self.checked_policy_params(),
+        ) {
+            (Some(g), Some(d), Some(p)) => (g, d, p),
+            _ => return false,
+        };
+        let total = match g.checked_add(d) {
+            Some(v) => v.checked_add(p),
+            None => None,
+        };
+        let f32_bytes = match total {
+            Some(t) => t.checked_mul(4),
+            None => None,
+        };
+        f32_bytes.is_some()
+            && self.checked_macs_per_step().is_some()
+            && checked_int8_weight_bytes(self).is_some()
+            && crate::schema::checked_tensor_bytes(self)
+            && NavLayout::try_new(self, AdaptMode::Full, 1).is_some()
+            && NavLayout::try_new(self, AdaptMode::Efficient, 1).is_some()
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -358,7 +395,8 @@ mod tests {
     }
 
     /// The layout derived from the region table is the one the hand-written formulas of
-    /// earlier builds gave (figures printed by that code for these dims, modes and k).
+    /// earlier builds gave (figures printed by that code for these dims, modes and k). Long
+    /// because most of it is that table of pinned figures.
     #[test]
     fn region_table_gives_the_pinned_layout() {
         let expected = [

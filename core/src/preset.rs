@@ -246,39 +246,6 @@ impl Dims {
         let cells = tri!(self.checked_cell_out());
         v.checked_add(tri!(cells.checked_mul(tri!(self.feat.checked_mul(2)))))
     }
-
-    /// True when every size derived from these dims fits in `usize`: the input widths, the
-    /// element and byte counts of every tensor (f32 and int8), the parameter counts of G, D
-    /// and the policy and their f32 bytes, the MACs per step, and the RAM layout of both
-    /// adaptation modes for a buffer of one step ([`crate::memory::NavLayout::try_new`]; a
-    /// navigator checks its own `K` again). [`crate::blob::Blob::parse`] rejects dims for
-    /// which this is false ([`crate::BlobError::DimsTooLarge`]), so sizes computed from a
-    /// parsed blob's dims never overflow.
-    pub const fn checked_sizes(&self) -> bool {
-        let (g, d, p) = match (
-            self.checked_gen_params(),
-            self.checked_disc_params(),
-            self.checked_policy_params(),
-        ) {
-            (Some(g), Some(d), Some(p)) => (g, d, p),
-            _ => return false,
-        };
-        let total = match g.checked_add(d) {
-            Some(v) => v.checked_add(p),
-            None => None,
-        };
-        let f32_bytes = match total {
-            Some(t) => t.checked_mul(4),
-            None => None,
-        };
-        f32_bytes.is_some()
-            && self.checked_macs_per_step().is_some()
-            && crate::memory::checked_int8_weight_bytes(self).is_some()
-            && crate::schema::checked_tensor_bytes(self)
-            && crate::memory::NavLayout::try_new(self, crate::memory::AdaptMode::Full, 1).is_some()
-            && crate::memory::NavLayout::try_new(self, crate::memory::AdaptMode::Efficient, 1)
-                .is_some()
-    }
 }
 
 /// The value, or `usize::MAX` for a size that does not fit (never wraps, never panics).

@@ -13,7 +13,7 @@
 //! settings ([`ModelFlags`]) are declared here too, so that the wire format, the navigator and
 //! the host read them through one mapping.
 //!
-//! The PS module of the dagger variants (`gman-host-sim`'s `train::ps`) is a host-side
+//! The PS module of the dagger variants (`gman-host-sim`'s `ps`) is a host-side
 //! network: it is not part of this schema and never stored in a blob.
 
 use crate::preset::Dims;

@@ -247,18 +247,7 @@ fn read_varint(b: &[u8], at: &mut usize) -> u64 {
     }
 }
 
-fn varint_bytes(mut v: u64) -> Vec<u8> {
-    let mut o = Vec::new();
-    loop {
-        let b = (v & 0x7f) as u8;
-        v >>= 7;
-        if v == 0 {
-            o.push(b);
-            return o;
-        }
-        o.push(b | 0x80);
-    }
-}
+use common::varint as varint_bytes;
 
 /// Offset of `alpha_disc` in a v2 blob: after magic, version, the 8 dims and the flags.
 fn alpha_offset(bytes: &[u8]) -> usize {

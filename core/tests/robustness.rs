@@ -11,7 +11,7 @@
 
 mod common;
 use common::*;
-use gman_core::blob::{Blob, MAGIC};
+use gman_core::blob::Blob;
 use gman_core::memory::{
     arena_len, checked_int8_weight_bytes, int8_weight_bytes, try_arena_len, AdaptMode, NavLayout,
 };
@@ -29,34 +29,9 @@ fn cases() -> u32 {
         .unwrap_or(2000)
 }
 
-fn varint(mut v: u64) -> Vec<u8> {
-    let mut o = Vec::new();
-    loop {
-        let b = (v & 0x7f) as u8;
-        v >>= 7;
-        if v == 0 {
-            o.push(b);
-            return o;
-        }
-        o.push(b | 0x80);
-    }
-}
-
-/// A valid format-v2 blob with these raw dims and no tensors (empty payload, CRC 0).
+/// A header-only blob (no flags) with these raw dims.
 fn header_only_blob(dims: [u32; 8]) -> Vec<u8> {
-    let mut b = MAGIC.to_vec();
-    b.extend(varint(2));
-    for d in dims {
-        b.extend(varint(d.into()));
-    }
-    b.extend(varint(0)); // flags
-    b.extend(1e-4f32.to_le_bytes());
-    b.extend(1e-4f32.to_le_bytes());
-    b.extend(varint(4)); // max_inner
-    b.extend(varint(0)); // n_tensors
-    b.extend(varint(0)); // payload_len
-    b.extend(varint(0)); // CRC-32 of the empty payload
-    b
+    common::header_only_blob(dims.map(u64::from), 0)
 }
 
 fn dims_of(v: [u32; 8]) -> Dims {

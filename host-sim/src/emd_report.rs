@@ -315,6 +315,104 @@ pub fn busiest_scenes(records: &[Record]) -> Vec<usize> {
     v.into_iter().take(2).map(|(s, _)| s).collect()
 }
 
+/// The first two principal components of a point set, as a projection to the plane.
+struct Plane {
+    mean: Vec<f64>,
+    axes: [Vec<f64>; 2],
+}
+
+impl Plane {
+    fn of(pts: &[&[f32]]) -> Self {
+        let (mean, axes) = pca2(pts);
+        Plane { mean, axes }
+    }
+
+    fn project(&self, p: &[f32]) -> (f64, f64) {
+        let c = |a: &[f64]| -> f64 {
+            p.iter()
+                .zip(&self.mean)
+                .zip(a)
+                .map(|((v, m), a)| (*v as f64 - m) * a)
+                .sum()
+        };
+        (c(&self.axes[0]), c(&self.axes[1]))
+    }
+}
+
+/// The drawing range of `all` (a unit square around 0 when empty), padded by 5%.
+fn plot_range(all: &[(f64, f64)]) -> (std::ops::Range<f64>, std::ops::Range<f64>) {
+    let (mut x0, mut x1, mut y0, mut y1) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
+    for &(x, y) in all {
+        x0 = x0.min(x);
+        x1 = x1.max(x);
+        y0 = y0.min(y);
+        y1 = y1.max(y);
+    }
+    if all.is_empty() {
+        (x0, x1, y0, y1) = (-1.0, 1.0, -1.0, 1.0);
+    }
+    let pad = 0.05 * ((x1 - x0).max(y1 - y0)).max(1e-6);
+    ((x0 - pad)..(x1 + pad), (y0 - pad)..(y1 + pad))
+}
+
+type Chart<'a, 'b> = plotters::chart::ChartContext<
+    'a,
+    plotters::prelude::BitMapBackend<'b>,
+    plotters::prelude::Cartesian2d<
+        plotters::coord::types::RangedCoordf64,
+        plotters::coord::types::RangedCoordf64,
+    >,
+>;
+
+/// One scene's points: environment features, then for each episode the line from the initial
+/// to the adapted feature, the initial (triangle), adapted (circle) and true (cross) features.
+fn draw_scene_points(
+    chart: &mut Chart<'_, '_>,
+    rs: &[&&Record],
+    name: &str,
+    c: plotters::style::RGBColor,
+    labels: bool,
+    plane: &Plane,
+) -> Result<()> {
+    use plotters::prelude::*;
+    let proj = |p: &[f32]| plane.project(p);
+    let views = rs.iter().flat_map(|r| r.views.iter().map(|v| proj(v)));
+    let e = chart.draw_series(views.map(|p| Circle::new(p, 2, c.mix(0.25).filled())))?;
+    if labels {
+        e.label(format!("{name}: environment features"))
+            .legend(move |(x, y)| Circle::new((x + 10, y), 3, c.mix(0.4).filled()));
+    }
+    chart.draw_series(
+        rs.iter()
+            .map(|r| PathElement::new(vec![proj(&r.initial), proj(&r.adapted)], c)),
+    )?;
+    let s1 = chart.draw_series(
+        rs.iter()
+            .map(|r| TriangleMarker::new(proj(&r.initial), 6, c.filled())),
+    )?;
+    if labels {
+        s1.label(format!("{name}: initial G(y)"))
+            .legend(move |(x, y)| TriangleMarker::new((x + 10, y), 6, c.filled()));
+    }
+    let s2 = chart.draw_series(
+        rs.iter()
+            .map(|r| Circle::new(proj(&r.adapted), 5, c.stroke_width(2))),
+    )?;
+    if labels {
+        s2.label(format!("{name}: adapted G(y)"))
+            .legend(move |(x, y)| Circle::new((x + 10, y), 5, c.stroke_width(2)));
+    }
+    let s3 = chart.draw_series(
+        rs.iter()
+            .map(|r| Cross::new(proj(&r.real), 6, c.stroke_width(2))),
+    )?;
+    if labels {
+        s3.label(format!("{name}: true target feature"))
+            .legend(move |(x, y)| Cross::new((x + 10, y), 6, c.stroke_width(2)));
+    }
+    Ok(())
+}
+
 /// Draws Fig. 3 for the unseen-target episodes of `scenes` into a PNG at `png`: environment
 /// features (small dots), G's initial (triangles), adapted (circles, joined to the initial
 /// point) and true target features (crosses), one colour per scene, on the first two principal
@@ -334,29 +432,9 @@ pub fn plot(records: &[Record], scenes: &[usize], world: &World, png: &Path) -> 
             r.real.as_slice(),
         ]);
     }
-    let (mean, axes) = pca2(&pts);
-    let proj = |p: &[f32]| -> (f64, f64) {
-        let c = |a: &[f64]| -> f64 {
-            p.iter()
-                .zip(&mean)
-                .zip(a)
-                .map(|((v, m), a)| (*v as f64 - m) * a)
-                .sum()
-        };
-        (c(&axes[0]), c(&axes[1]))
-    };
-    let all: Vec<(f64, f64)> = pts.iter().map(|p| proj(p)).collect();
-    let (mut x0, mut x1, mut y0, mut y1) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
-    for &(x, y) in &all {
-        x0 = x0.min(x);
-        x1 = x1.max(x);
-        y0 = y0.min(y);
-        y1 = y1.max(y);
-    }
-    if all.is_empty() {
-        (x0, x1, y0, y1) = (-1.0, 1.0, -1.0, 1.0);
-    }
-    let pad = 0.05 * ((x1 - x0).max(y1 - y0)).max(1e-6);
+    let plane = Plane::of(&pts);
+    let all: Vec<(f64, f64)> = pts.iter().map(|p| plane.project(p)).collect();
+    let (xr, yr) = plot_range(&all);
     let labels = crate::sim::render::register_plot_font();
     let root = BitMapBackend::new(png, (1000, 800)).into_drawing_area();
     root.fill(&WHITE)?;
@@ -370,7 +448,7 @@ pub fn plot(records: &[Record], scenes: &[usize], world: &World, png: &Path) -> 
         .x_label_area_size(35)
         .y_label_area_size(55);
     }
-    let mut chart = b.build_cartesian_2d((x0 - pad)..(x1 + pad), (y0 - pad)..(y1 + pad))?;
+    let mut chart = b.build_cartesian_2d(xr, yr)?;
     let mut mesh = chart.configure_mesh();
     if labels {
         mesh.x_desc("PC 1").y_desc("PC 2");
@@ -380,46 +458,12 @@ pub fn plot(records: &[Record], scenes: &[usize], world: &World, png: &Path) -> 
     mesh.draw()?;
     let colours = [RGBColor(30, 90, 200), RGBColor(220, 60, 30)];
     for (i, &s) in scenes.iter().enumerate() {
-        let c = colours[i % 2];
         let rs: Vec<&&Record> = sel.iter().filter(|r| r.scene == s).collect();
         let name = world
             .scenes
             .get(s)
             .map_or_else(|| format!("scene {s}"), |sc| sc.name.clone());
-        let views = rs.iter().flat_map(|r| r.views.iter().map(|v| proj(v)));
-        let e = chart.draw_series(views.map(|p| Circle::new(p, 2, c.mix(0.25).filled())))?;
-        if labels {
-            e.label(format!("{name}: environment features"))
-                .legend(move |(x, y)| Circle::new((x + 10, y), 3, c.mix(0.4).filled()));
-        }
-        chart.draw_series(
-            rs.iter()
-                .map(|r| PathElement::new(vec![proj(&r.initial), proj(&r.adapted)], c)),
-        )?;
-        let s1 = chart.draw_series(
-            rs.iter()
-                .map(|r| TriangleMarker::new(proj(&r.initial), 6, c.filled())),
-        )?;
-        if labels {
-            s1.label(format!("{name}: initial G(y)"))
-                .legend(move |(x, y)| TriangleMarker::new((x + 10, y), 6, c.filled()));
-        }
-        let s2 = chart.draw_series(
-            rs.iter()
-                .map(|r| Circle::new(proj(&r.adapted), 5, c.stroke_width(2))),
-        )?;
-        if labels {
-            s2.label(format!("{name}: adapted G(y)"))
-                .legend(move |(x, y)| Circle::new((x + 10, y), 5, c.stroke_width(2)));
-        }
-        let s3 = chart.draw_series(
-            rs.iter()
-                .map(|r| Cross::new(proj(&r.real), 6, c.stroke_width(2))),
-        )?;
-        if labels {
-            s3.label(format!("{name}: true target feature"))
-                .legend(move |(x, y)| Cross::new((x + 10, y), 6, c.stroke_width(2)));
-        }
+        draw_scene_points(&mut chart, &rs, &name, colours[i % 2], labels, &plane)?;
     }
     if labels {
         chart

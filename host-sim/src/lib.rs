@@ -1,9 +1,15 @@
-//! Host side of gman-rs.
+//! Host side of gman-rs: the simulator ([`sim`]), pre-training ([`pretrain`]), the
+//! navigation trainer ([`nav`]), its optimiser and checkpoints ([`optim`]), the PS network
+//! ([`ps`]), Fig. 3 as a measurement ([`emd_report`]) and the AVX2 kernels ([`simd`]). The
+//! `gman` binary's commands are in `src/cli/`, one file each. `ARCHITECTURE.md` at the
+//! repository root maps the paper's equations to functions.
 #![warn(missing_docs)]
 pub mod emd_report;
 pub mod nav;
 pub mod optim;
 pub mod pretrain;
+pub mod progress;
+pub mod ps;
 pub mod sim;
 pub mod simd;
 

@@ -3,9 +3,7 @@ use std::process::ExitCode;
 
 use clap::{CommandFactory, FromArgMatches};
 
-mod bench_train;
 mod cli;
-mod cli_bench;
 
 /// Restores the default action of SIGPIPE, so that `gman inspect m.gman | head` ends quietly
 /// like any Unix tool instead of panicking in `println!` (Rust ignores SIGPIPE by default,

@@ -327,3 +327,42 @@ fn emd_report_measures_a_gman_model() {
     ]);
     assert!(!ok && err.contains("nope.ckpt"), "{err}");
 }
+
+/// `gman train --noise zero` reaches the model: the checkpoint exports to a blob whose flags
+/// say zero noise (the default run's blob would not).
+#[test]
+fn train_noise_flag_reaches_the_blob() {
+    let d = tmp("noise");
+    let run = d.join("run");
+    let (ok, _, err) = gman(&[
+        "train",
+        "--method",
+        "gman",
+        "--config",
+        "tiny",
+        "--workers",
+        "1",
+        "--updates",
+        "1",
+        "--noise",
+        "zero",
+        "--quiet",
+        "--out",
+        run.to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    let blob = d.join("m.gman");
+    let (ok, _, err) = gman(&[
+        "export",
+        "--ckpt",
+        run.join("checkpoint.ckpt").to_str().unwrap(),
+        "--out",
+        blob.to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    let (ok, stdout, err) = gman(&["inspect", blob.to_str().unwrap()]);
+    assert!(ok, "{err}");
+    assert!(stdout.contains("zero noise"), "{stdout}");
+    let (ok, _, err) = gman(&["train", "--noise", "none", "--out", run.to_str().unwrap()]);
+    assert!(!ok && err.contains("--noise"), "{err}");
+}

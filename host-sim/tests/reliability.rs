@@ -3,6 +3,8 @@
 //! checkpoints, data files and run directories in temporary directories.
 
 mod common;
+#[path = "../../core/tests/common/mod.rs"]
+mod core_common;
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
@@ -99,32 +101,9 @@ fn edit_checkpoint(dir: &Path, edit: impl FnOnce(&mut Checkpoint)) {
     ck.save(&path).unwrap();
 }
 
-fn varint(mut v: u64) -> Vec<u8> {
-    let mut o = Vec::new();
-    loop {
-        let b = (v & 0x7f) as u8;
-        v >>= 7;
-        if v == 0 {
-            o.push(b);
-            return o;
-        }
-        o.push(b | 0x80);
-    }
-}
-
-/// A valid v2 blob header with these dims and no tensors.
+/// A valid v2 blob header with these dims and no tensors (core's test helper, flag bit 0).
 fn header_only_blob(dims: [u64; 8]) -> Vec<u8> {
-    let mut b = gman_core::blob::MAGIC.to_vec();
-    b.extend(varint(2));
-    for d in dims {
-        b.extend(varint(d));
-    }
-    b.extend(varint(1));
-    b.extend(1e-4f32.to_le_bytes());
-    b.extend(1e-4f32.to_le_bytes());
-    b.extend(varint(4));
-    b.extend([0, 0, 0]); // n_tensors, payload_len, CRC of the empty payload
-    b
+    core_common::header_only_blob(dims, 1)
 }
 
 /// Case 3: `gman eval --agent` on a header-only blob with huge dims panicked with "capacity

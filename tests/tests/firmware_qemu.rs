@@ -7,7 +7,9 @@
 //!
 //! It also checks the device's own measurements (lines starting with `# `): the SysTick
 //! calibration that makes the instruction counts valid, and the flash and RAM budget of the
-//! `Mcu` preset (flash < 512 KiB, static RAM + peak stack < 192 KiB).
+//! `Mcu` preset (flash < 512 KiB, static RAM + peak stack < 192 KiB). Those lines are written
+//! to `firmware-example/target/qemu-measurements.txt`, where `gman bench` reads its firmware
+//! row.
 //!
 //! Needs `qemu-system-arm` and the `thumbv7em-none-eabihf` target. Without them the QEMU test
 //! says so and returns, unless `GMAN_REQUIRE_QEMU=1` (set by CI), where it fails. The other
@@ -181,9 +183,20 @@ fn firmware_under_qemu_matches_host_bit_for_bit() {
         ram < RAM_BUDGET,
         "RAM (static + peak stack) {ram} B over the {RAM_BUDGET} B budget"
     );
-    for l in all.iter().filter(|l| l.starts_with("# ")) {
+    let lines: Vec<&str> = all
+        .iter()
+        .copied()
+        .filter(|l| l.starts_with("# "))
+        .collect();
+    for l in &lines {
         eprintln!("{l}");
     }
+    // `gman bench` reads its firmware row from here (written whole, then renamed).
+    let log = target_dir.join("qemu-measurements.txt");
+    let tmp = target_dir.join("qemu-measurements.txt.tmp");
+    std::fs::write(&tmp, lines.join("\n") + "\n")
+        .unwrap_or_else(|e| panic!("{}: {e}", tmp.display()));
+    std::fs::rename(&tmp, &log).unwrap_or_else(|e| panic!("{}: {e}", log.display()));
 }
 
 #[test]

@@ -91,7 +91,8 @@ pub fn make_blob(dims: &Dims, tensors: &[(TensorId, Vec<f32>)], int8: bool) -> V
     out
 }
 
-fn varint(mut v: u32) -> Vec<u8> {
+/// The postcard (LEB128) varint of `v`.
+pub fn varint(mut v: u64) -> Vec<u8> {
     let mut o = Vec::new();
     loop {
         let b = (v & 0x7F) as u8;
@@ -108,11 +109,29 @@ fn varint(mut v: u32) -> Vec<u8> {
 /// field), so that record validation, not the checksum, is what a test exercises.
 pub fn reseal(blob: &[u8], payload_len: usize, old_crc: u32) -> Vec<u8> {
     let hlen = blob.len() - payload_len;
-    let old = varint(old_crc);
+    let old = varint(old_crc.into());
     let prefix = &blob[..hlen - old.len()];
     let payload = &blob[hlen..];
     let mut out = prefix.to_vec();
-    out.extend(varint(gman_core::crc32::crc32(payload)));
+    out.extend(varint(gman_core::crc32::crc32(payload).into()));
     out.extend_from_slice(payload);
     out
+}
+
+/// A valid format-v2 blob with these raw dims and model flags, the paper's inner-loop
+/// settings and no tensors (empty payload, CRC 0).
+pub fn header_only_blob(dims: [u64; 8], flags: u64) -> Vec<u8> {
+    let mut b = gman_core::blob::MAGIC.to_vec();
+    b.extend(varint(2));
+    for d in dims {
+        b.extend(varint(d));
+    }
+    b.extend(varint(flags));
+    b.extend(1e-4f32.to_le_bytes());
+    b.extend(1e-4f32.to_le_bytes());
+    b.extend(varint(4)); // max_inner
+    b.extend(varint(0)); // n_tensors
+    b.extend(varint(0)); // payload_len
+    b.extend(varint(0)); // CRC-32 of the empty payload
+    b
 }

@@ -1,9 +1,12 @@
-//! Argument types shared by several commands (`--preset`, the world options).
+//! Argument types and checks shared by several commands (`--preset`, the world options,
+//! flag range checks).
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
 
-use anyhow::Result;
+use anyhow::{bail, Result};
 use clap::{Args, ValueEnum};
+use gman_core::navigator::NoiseMode;
 use gman_core::Dims;
 use gman_host_sim::sim::{World, DEFAULT_WORLD_SEED};
 
@@ -30,6 +33,25 @@ impl PresetArg {
         match self {
             PresetArg::Mcu => "mcu",
             PresetArg::Paper => "paper",
+        }
+    }
+}
+
+/// The noise z of G at navigation time (`gman train --noise`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum NoiseArg {
+    /// z ~ N(0, I) drawn per step (the paper).
+    Gaussian,
+    /// z = 0: G's output is a deterministic function of SE(y) (the reference's option).
+    Zero,
+}
+
+impl NoiseArg {
+    /// The navigator's noise mode.
+    pub fn mode(self) -> NoiseMode {
+        match self {
+            NoiseArg::Gaussian => NoiseMode::Gaussian,
+            NoiseArg::Zero => NoiseMode::Zero,
         }
     }
 }
@@ -62,4 +84,33 @@ impl WorldArgs {
             }
         }
     }
+}
+
+/// Refuses a flag value outside [0, 1).
+pub fn check_unit(name: &str, v: f32) -> Result<()> {
+    if !(0.0..1.0).contains(&v) {
+        bail!("--{name} must be in [0, 1), got {v}");
+    }
+    Ok(())
+}
+
+/// Refuses a flag value that is not a positive finite number.
+pub fn check_positive(name: &str, v: f32) -> Result<()> {
+    if !(v.is_finite() && v > 0.0) {
+        bail!("--{name} must be a positive number, got {v}");
+    }
+    Ok(())
+}
+
+/// Says on stderr which files of `out` a command wrote and how long it took since `t0`.
+pub fn report_written(out: &Path, files: &[&str], t0: Instant) {
+    let names: Vec<String> = files
+        .iter()
+        .map(|f| out.join(f).display().to_string())
+        .collect();
+    eprintln!(
+        "wrote {} ({:.1} s in all)",
+        names.join(" and "),
+        t0.elapsed().as_secs_f64()
+    );
 }

@@ -1,6 +1,6 @@
 //! `gman inspect`: a weight blob's header, tensors, quantisation and size.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::{anyhow, Context, Result};
 use clap::Args;
@@ -17,11 +17,19 @@ pub struct InspectArgs {
 pub fn cmd_inspect(a: InspectArgs) -> Result<()> {
     let bytes = std::fs::read(&a.blob).with_context(|| format!("reading {}", a.blob.display()))?;
     let blob = Blob::parse(&bytes).map_err(|e| anyhow!("{}: {e}", a.blob.display()))?;
+    print_header(&a.blob, &blob);
+    print_flags(&blob);
+    print_tensors(&blob);
+    Ok(())
+}
+
+/// The format, size, checksum and dims.
+fn print_header(path: &Path, blob: &Blob<'_>) {
     let h = blob.header();
     let d = blob.dims();
     println!(
         "{}: GMAN weight blob, format v{}, {} bytes, checksum OK (CRC-32 {:#010x})",
-        a.blob.display(),
+        path.display(),
         h.version(),
         blob.len(),
         h.payload_crc()
@@ -36,6 +44,11 @@ pub fn cmd_inspect(a: InspectArgs) -> Result<()> {
             d.map_rows, d.map_cols, d.cell_embed
         );
     }
+}
+
+/// The model flags, the inner-loop settings and the navigator configuration they give.
+fn print_flags(blob: &Blob<'_>) {
+    let h = blob.header();
     let mf = h.model_flags();
     let mut flags = Vec::new();
     if mf.adapt {
@@ -83,6 +96,10 @@ pub fn cmd_inspect(a: InspectArgs) -> Result<()> {
         "navigator (NavConfig::from_header): adapt {}, emd {:?}, noise {:?}",
         cfg.adapt, cfg.emd, cfg.noise
     );
+}
+
+/// One line per tensor, then the tensors a navigator needs that the blob lacks.
+fn print_tensors(blob: &Blob<'_>) {
     println!(
         "{:<8} {:>6} {:>6} {:>5} {:>10} {:>14}",
         "tensor", "rows", "cols", "quant", "bytes", "max |err|/2"
@@ -114,5 +131,4 @@ pub fn cmd_inspect(a: InspectArgs) -> Result<()> {
             missing.join(", ")
         );
     }
-    Ok(())
 }

@@ -1,4 +1,5 @@
-//! Model files as agents of `gman eval` (`--agent PATH`, with the model overrides).
+//! Agents by name for `gman eval` and `gman scene`: the built-in `random` and `oracle`, and
+//! model files (`--agent PATH`, with the model overrides).
 
 use std::path::Path;
 use std::sync::Arc;
@@ -7,6 +8,7 @@ use anyhow::{bail, Result};
 use gman_host_sim::nav::agent::NavAgent;
 use gman_host_sim::nav::model::{load_model, Method};
 use gman_host_sim::sim::eval::AgentFactory;
+use gman_host_sim::sim::{OracleAgent, RandomAgent};
 
 /// Evaluation-time changes to a loaded model (`gman eval --method/--inner-lr/--max-inner`).
 #[derive(Clone, Copy, Debug, Default)]
@@ -35,4 +37,19 @@ pub fn model_factory(path: &Path, ov: &ModelOverrides) -> Result<(AgentFactory, 
     let label = format!("{} ({})", model.method.name(), path.display());
     let factory: AgentFactory = Box::new(move |_| Box::new(NavAgent::new(model.clone())));
     Ok((factory, label))
+}
+
+/// A built-in agent factory by name, or a model file's (a clear error when it is neither).
+pub fn agent_factory(name: &str, seed: u64, ov: &ModelOverrides) -> Result<AgentFactory> {
+    match name {
+        "random" => Ok(Box::new(move |_| Box::new(RandomAgent::new(seed)))),
+        "oracle" => Ok(Box::new(|_| Box::new(OracleAgent))),
+        other => {
+            let p = Path::new(other);
+            if p.exists() {
+                return Ok(model_factory(p, ov)?.0);
+            }
+            bail!("agent {other}: not `random` or `oracle`, and no such model file")
+        }
+    }
 }

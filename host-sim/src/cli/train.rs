@@ -146,6 +146,10 @@ pub struct TrainArgs {
     /// current scene in place of G's output (not exportable; methods without inner loop).
     #[arg(long)]
     pub privileged_feature: bool,
+    /// Noise z of G at navigation time, in training and wherever the model runs (recorded in
+    /// the checkpoint and the blob; a resumed run keeps its own).
+    #[arg(long, value_enum, default_value = "gaussian")]
+    pub noise: super::args::NoiseArg,
     /// Meta-gradient order: 1 = first-order MAML (the gradient at the adapted parameters),
     /// 2 = exact through the inner SGD steps (Hessian-vector products by central finite
     /// differences of gradients).
@@ -558,6 +562,7 @@ pub fn cmd_train(a: TrainArgs, explicit: &dyn Fn(&str) -> bool) -> Result<()> {
             let mut model = NavModel::init(a.method, dims, a.seed, gen.as_ref(), psm)?;
             model.adapt_mode = new_run_adapt_mode(&a);
             model.privileged = a.privileged_feature;
+            model.noise = a.noise.mode();
             let adam = AdamConfig {
                 lr,
                 ..AdamConfig::default()

@@ -20,13 +20,15 @@
 //! ```
 //!
 //! (exact almost everywhere: the slopes do not move under an infinitesimal change). This is
-//! the analogue of the closed form in gman-core's `discriminator.rs`; the tests check it
-//! against finite differences of an independent f64 implementation.
+//! gman-core's closed form ([`gman_core::discriminator::add_penalty_grad`], the one
+//! implementation) with the attribute columns held at zero; the tests check it against finite
+//! differences of an independent f64 implementation.
 
 use anyhow::{bail, Result};
 use gman_core::activation::{leaky_relu, leaky_relu_grad};
 use gman_core::dense::{Dense, DenseGrads};
-use gman_core::matrix::{axpy, dot, outer_acc};
+use gman_core::discriminator::{add_penalty_grad, DiscGrads, PenaltyPoint};
+use gman_core::matrix::{axpy, dot};
 use gman_core::rng::Xoshiro128;
 use gman_core::Dims;
 
@@ -72,30 +74,21 @@ pub struct CondCritic<'a> {
     pub feat: usize,
 }
 
-/// Gradient accumulators (`+=`) of the critic's parameters.
-#[derive(Debug)]
-pub struct CriticGrads<'g> {
-    /// Hidden layer (`W1`, `b1`).
-    pub l1: DenseGrads<'g>,
-    /// Output weights.
-    pub w2: &'g mut [f32],
-    /// Output bias.
-    pub b2: &'g mut f32,
-}
+/// Gradient accumulators (`+=`) of the critic's parameters: gman-core's [`DiscGrads`] (the
+/// hidden layer over `[x; a]`, the output weights and bias).
+pub type CriticGrads<'g> = DiscGrads<'g>;
 
-impl<'g> CriticGrads<'g> {
-    /// Accumulators over a gradient twin of [`init_critic`]'s parameters.
-    pub fn from_params(g: &'g mut ParamSet) -> Result<CriticGrads<'g>> {
-        let [w1, b1, w2, b2] = g.slices_mut([CRITIC_W1, CRITIC_B1, CRITIC_W2, CRITIC_B2])?;
-        let Some(b2) = b2.first_mut() else {
-            bail!("{CRITIC_B2} is empty");
-        };
-        Ok(CriticGrads {
-            l1: DenseGrads::Full { w: w1, b: b1 },
-            w2,
-            b2,
-        })
-    }
+/// Accumulators over a gradient twin of [`init_critic`]'s parameters.
+pub fn critic_grads(g: &mut ParamSet) -> Result<CriticGrads<'_>> {
+    let [w1, b1, w2, b2] = g.slices_mut([CRITIC_W1, CRITIC_B1, CRITIC_W2, CRITIC_B2])?;
+    let Some(b2) = b2.first_mut() else {
+        bail!("{CRITIC_B2} is empty");
+    };
+    Ok(CriticGrads {
+        l1: DenseGrads::Full { w: w1, b: b1 },
+        w2,
+        b2,
+    })
 }
 
 /// Scratch of one critic evaluation (sized by [`CriticScratch::new`]).
@@ -230,23 +223,15 @@ impl<'a> CondCritic<'a> {
         s: &mut CriticScratch,
         grads: &mut CriticGrads<'_>,
     ) -> Result<(f32, f32)> {
-        let norm = dot(&s.g, &s.g).sqrt();
-        let p = (norm - 1.0) * (norm - 1.0);
-        if norm <= 0.0 || coef == 0.0 {
-            return Ok((p, norm));
-        }
-        let c = coef * 2.0 * (norm - 1.0) / norm;
-        // W1x g (the attribute columns multiply zeros).
-        s.w1g.fill(0.0);
-        self.l1.w.matvec_acc(&[&s.g, &s.zeros_a], &mut s.w1g)?;
-        for ((d, &wg), &h) in grads.w2.iter_mut().zip(&s.w1g).zip(&s.h) {
-            *d += c * leaky_relu_grad(h) * wg;
-        }
-        if let DenseGrads::Full { w, .. } = &mut grads.l1 {
-            // c · u gᵀ on the feature columns; the attribute columns get c · u · 0.
-            outer_acc(w, &s.u, &[&s.g, &s.zeros_a], c)?;
-        }
-        Ok((p, norm))
+        let at = PenaltyPoint {
+            h: &s.h,
+            u: &s.u,
+            g: &s.g,
+            zeros: &s.zeros_a,
+        };
+        Ok(add_penalty_grad(
+            &self.l1, self.w2, at, coef, &mut s.w1g, grads,
+        )?)
     }
 
     /// Accumulates the gradient of the WGAN-GP critic loss
@@ -488,7 +473,7 @@ mod tests {
                 let c = CondCritic::from_params(&p, 7).unwrap();
                 let mut s = c.scratch();
                 let mut g = p.zeros_like();
-                let mut cg = CriticGrads::from_params(&mut g).unwrap();
+                let mut cg = critic_grads(&mut g).unwrap();
                 c.score(&x, &at, &mut s).unwrap();
                 c.input_grad(&mut s).unwrap();
                 let (pen, _) = c.add_penalty_grad(1.0, &mut s, &mut cg).unwrap();
@@ -541,7 +526,7 @@ mod tests {
         let c = CondCritic::from_params(&p, 7).unwrap();
         let mut s = c.scratch();
         let mut g = p.zeros_like();
-        let mut cg = CriticGrads::from_params(&mut g).unwrap();
+        let mut cg = critic_grads(&mut g).unwrap();
         let sums = c
             .wgan_gp_accumulate(
                 &real,

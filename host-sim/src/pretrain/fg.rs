@@ -25,14 +25,13 @@ use std::time::Instant;
 use anyhow::{bail, Context, Result};
 use gman_core::rng::{fill_gaussian, uniform, Xoshiro128};
 use gman_core::Dims;
-use indicatif::{ProgressBar, ProgressStyle};
 use rand::RngCore;
 use rayon::prelude::*;
 use serde::Serialize;
 
 use super::adam::{Adam, AdamConfig};
 use super::checkpoint::{write_atomic, Checkpoint};
-use super::critic::{init_critic, CondCritic, CriticGrads, CriticScratch, CriticSums};
+use super::critic::{critic_grads, init_critic, CondCritic, CriticScratch, CriticSums};
 use super::generator::{gen_names, generator_view, init_generator, GenBuffers};
 use super::parallel::ChunkPool;
 use super::params::ParamSet;
@@ -351,99 +350,115 @@ struct Scratch {
     dx: Vec<f32>,
 }
 
-/// Runs `cfg.iters - state.iters_done` generator steps (each after `cfg.n_critic` critic
-/// steps) on `data.train`. Deterministic for a seed: batches and noise are drawn on the
-/// calling thread and gradients are summed in a fixed order ([`ChunkPool`]).
-pub fn train_fg(
-    world: &World,
-    dims: &Dims,
-    data: &FgDataset,
-    cfg: &FgTrainConfig,
-    state: &mut FgState,
-) -> Result<()> {
-    if data.train.is_empty() {
-        bail!("no training samples");
-    }
-    if cfg.batch == 0 || cfg.n_critic == 0 {
-        bail!("batch and n_critic must be at least 1");
-    }
-    let (f, a, z) = (dims.feat, dims.attr, dims.noise);
-    let n = data.train.len();
-    let means = class_means(&data.train, world.categories.len(), f);
-    let new_scratch = || Scratch {
-        gb: GenBuffers::new(dims.gen_hidden, f),
-        cs: CriticScratch::new(dims.disc_hidden, f, a),
-        dx: vec![0.0; f],
-    };
-    let mut cpool = ChunkPool::new(&state.critic, cfg.chunks, new_scratch);
-    let mut gpool = ChunkPool::new(&state.gen, cfg.chunks, new_scratch);
-    let mut cgrad = state.critic.zeros_like();
-    let mut ggrad = state.gen.zeros_like();
-    let b = cfg.batch;
-    let inv_n = 1.0 / b as f32;
-    let mut idx = vec![0usize; b];
-    let mut zs = vec![0f32; b * z];
-    let mut eps = vec![0f32; b];
-    let todo = cfg.iters.saturating_sub(state.iters_done);
-    let pb = if cfg.progress {
-        let pb = ProgressBar::new(todo as u64);
-        pb.set_style(
-            ProgressStyle::with_template(
-                "{bar:30} {pos}/{len} [{elapsed_precise}<{eta_precise}] {msg}",
-            )
-            .unwrap_or_else(|_| ProgressStyle::default_bar()),
-        );
-        pb
-    } else {
-        ProgressBar::hidden()
-    };
-    let log_every = (cfg.iters / 100).max(1);
-    for _ in 0..todo {
-        let mut last = CriticSums::default();
-        for _ in 0..cfg.n_critic {
-            for i in idx.iter_mut() {
-                *i = (state.rng.next_u64() % n as u64) as usize;
-            }
-            fill_gaussian(&mut state.rng, &mut zs);
-            for e in eps.iter_mut() {
-                *e = uniform(&mut state.rng);
-            }
-            let gen = generator_view(&state.gen)?;
-            let critic = CondCritic::from_params(&state.critic, f)?;
-            last = cpool.accumulate(b, &mut cgrad, |range, g, s| {
-                let mut cg = CriticGrads::from_params(g)?;
-                let mut sums = CriticSums::default();
-                for t in range {
-                    let smp = &data.train[idx[t]];
-                    let attr = world.attributes(smp.category);
-                    s.gb.forward(&gen, &zs[t * z..(t + 1) * z], attr)?;
-                    sums += critic.wgan_gp_accumulate(
-                        &smp.features,
-                        &s.gb.x,
-                        attr,
-                        &eps[t..t + 1],
-                        cfg.lambda,
-                        inv_n,
-                        &mut s.cs,
-                        &mut cg,
-                    )?;
-                }
-                Ok(sums)
-            })?;
-            state
-                .adam_critic
-                .step(&mut state.critic, &cgrad)
-                .context("critic update")?;
+/// The working state of [`train_fg`]: the chunk pools, gradients and per-step draws.
+struct FgSteps<'a> {
+    world: &'a World,
+    data: &'a FgDataset,
+    cfg: &'a FgTrainConfig,
+    /// Per-category mean training feature (the regression term's target).
+    means: Vec<Vec<f32>>,
+    cpool: ChunkPool<Scratch>,
+    gpool: ChunkPool<Scratch>,
+    cgrad: ParamSet,
+    ggrad: ParamSet,
+    idx: Vec<usize>,
+    zs: Vec<f32>,
+    eps: Vec<f32>,
+    feat: usize,
+    noise: usize,
+}
+
+impl<'a> FgSteps<'a> {
+    fn new(
+        world: &'a World,
+        dims: &Dims,
+        data: &'a FgDataset,
+        cfg: &'a FgTrainConfig,
+        state: &FgState,
+    ) -> Self {
+        let (f, a, z) = (dims.feat, dims.attr, dims.noise);
+        let new_scratch = || Scratch {
+            gb: GenBuffers::new(dims.gen_hidden, f),
+            cs: CriticScratch::new(dims.disc_hidden, f, a),
+            dx: vec![0.0; f],
+        };
+        FgSteps {
+            world,
+            data,
+            cfg,
+            means: class_means(&data.train, world.categories.len(), f),
+            cpool: ChunkPool::new(&state.critic, cfg.chunks, new_scratch),
+            gpool: ChunkPool::new(&state.gen, cfg.chunks, new_scratch),
+            cgrad: state.critic.zeros_like(),
+            ggrad: state.gen.zeros_like(),
+            idx: vec![0usize; cfg.batch],
+            zs: vec![0f32; cfg.batch * z],
+            eps: vec![0f32; cfg.batch],
+            feat: f,
+            noise: z,
         }
-        // Generator step.
-        for i in idx.iter_mut() {
-            *i = (state.rng.next_u64() % n as u64) as usize;
+    }
+
+    /// Draws the batch's sample indices and noise.
+    fn draw_batch(&mut self, state: &mut FgState) {
+        let n = self.data.train.len() as u64;
+        for i in self.idx.iter_mut() {
+            *i = (state.rng.next_u64() % n) as usize;
         }
-        fill_gaussian(&mut state.rng, &mut zs);
+        fill_gaussian(&mut state.rng, &mut self.zs);
+    }
+
+    /// One critic step: the WGAN-GP loss on a fresh batch, then Adam.
+    fn critic_step(&mut self, state: &mut FgState) -> Result<CriticSums> {
+        let (f, z, b) = (self.feat, self.noise, self.cfg.batch);
+        let inv_n = 1.0 / b as f32;
+        self.draw_batch(state);
+        for e in self.eps.iter_mut() {
+            *e = uniform(&mut state.rng);
+        }
         let gen = generator_view(&state.gen)?;
         let critic = CondCritic::from_params(&state.critic, f)?;
-        let reg_coef = cfg.reg * inv_n * 2.0 / f as f32;
-        let gs = gpool.accumulate(b, &mut ggrad, |range, g, s| {
+        let (world, data, cfg) = (self.world, self.data, self.cfg);
+        let (idx, zs, eps) = (&self.idx, &self.zs, &self.eps);
+        let sums = self.cpool.accumulate(b, &mut self.cgrad, |range, g, s| {
+            let mut cg = critic_grads(g)?;
+            let mut sums = CriticSums::default();
+            for t in range {
+                let smp = &data.train[idx[t]];
+                let attr = world.attributes(smp.category);
+                s.gb.forward(&gen, &zs[t * z..(t + 1) * z], attr)?;
+                sums += critic.wgan_gp_accumulate(
+                    &smp.features,
+                    &s.gb.x,
+                    attr,
+                    &eps[t..t + 1],
+                    cfg.lambda,
+                    inv_n,
+                    &mut s.cs,
+                    &mut cg,
+                )?;
+            }
+            Ok(sums)
+        })?;
+        state
+            .adam_critic
+            .step(&mut state.critic, &self.cgrad)
+            .context("critic update")?;
+        Ok(sums)
+    }
+
+    /// One generator step: the adversarial loss plus the regression to the category mean on
+    /// a fresh batch, then Adam.
+    fn generator_step(&mut self, state: &mut FgState) -> Result<GenSums> {
+        let (f, z, b) = (self.feat, self.noise, self.cfg.batch);
+        let inv_n = 1.0 / b as f32;
+        self.draw_batch(state);
+        let gen = generator_view(&state.gen)?;
+        let critic = CondCritic::from_params(&state.critic, f)?;
+        let reg_coef = self.cfg.reg * inv_n * 2.0 / f as f32;
+        let (world, data, means) = (self.world, self.data, &self.means);
+        let (idx, zs) = (&self.idx, &self.zs);
+        let gs = self.gpool.accumulate(b, &mut self.ggrad, |range, g, s| {
             let mut sums = GenSums::default();
             for t in range {
                 let smp = &data.train[idx[t]];
@@ -468,10 +483,40 @@ pub fn train_fg(
         })?;
         state
             .adam_gen
-            .step(&mut state.gen, &ggrad)
+            .step(&mut state.gen, &self.ggrad)
             .context("generator update")?;
+        Ok(gs)
+    }
+}
+
+/// Runs `cfg.iters - state.iters_done` generator steps (each after `cfg.n_critic` critic
+/// steps) on `data.train`. Deterministic for a seed: batches and noise are drawn on the
+/// calling thread and gradients are summed in a fixed order ([`ChunkPool`]).
+pub fn train_fg(
+    world: &World,
+    dims: &Dims,
+    data: &FgDataset,
+    cfg: &FgTrainConfig,
+    state: &mut FgState,
+) -> Result<()> {
+    if data.train.is_empty() {
+        bail!("no training samples");
+    }
+    if cfg.batch == 0 || cfg.n_critic == 0 {
+        bail!("batch and n_critic must be at least 1");
+    }
+    let mut steps = FgSteps::new(world, dims, data, cfg, state);
+    let todo = cfg.iters.saturating_sub(state.iters_done);
+    let pb = crate::progress::bar(todo as u64, crate::progress::PRETRAIN, cfg.progress);
+    let log_every = (cfg.iters / 100).max(1);
+    for _ in 0..todo {
+        let mut last = CriticSums::default();
+        for _ in 0..cfg.n_critic {
+            last = steps.critic_step(state)?;
+        }
+        let gs = steps.generator_step(state)?;
         state.iters_done += 1;
-        let bf = b as f64;
+        let bf = cfg.batch as f64;
         let point = FgLogPoint {
             iter: state.iters_done,
             wasserstein: (last.real - last.fake) / bf,

@@ -1,7 +1,7 @@
 //! Host-side helpers around gman-core's feature generator G(SE(y), z): parameter creation
 //! with the blob tensor names, a view builder and owned forward/backward buffers.
 
-use anyhow::{bail, Result};
+use anyhow::Result;
 use gman_core::blob::TensorId;
 use gman_core::generator::{Generator, GeneratorCache, GeneratorScratch};
 use gman_core::rng::Xoshiro128;
@@ -41,23 +41,6 @@ pub fn generator_view(p: &ParamSet) -> Result<Generator<'_>> {
     };
     g.validate()?;
     Ok(g)
-}
-
-/// Checks that G's tensors in `p` have the shapes `dims` implies.
-pub fn check_generator_dims(p: &ParamSet, dims: &Dims) -> Result<()> {
-    let g = generator_view(p)?;
-    if g.in_dim() != dims.gen_in() || g.hidden() != dims.gen_hidden || g.feat() != dims.feat {
-        bail!(
-            "generator is {} -> {} -> {}, the preset needs {} -> {} -> {}",
-            g.in_dim(),
-            g.hidden(),
-            g.feat(),
-            dims.gen_in(),
-            dims.gen_hidden,
-            dims.feat
-        );
-    }
-    Ok(())
 }
 
 /// Owned activation and scratch buffers for one sample's forward and backward pass of G.

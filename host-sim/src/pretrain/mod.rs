@@ -9,10 +9,12 @@
 //! Module map:
 //! * [`generator`]: G's parameters (the schema's tensor names) and owned buffers.
 //! * [`critic`]: the conditional WGAN-GP critic of feature-generator pre-training (not the
-//!   policy's value head, whose tensors the schema calls `CriticW`/`CriticB`).
+//!   policy's value head, whose tensors the schema calls `CriticW`/`CriticB`); its penalty
+//!   gradient is gman-core's one closed form
+//!   ([`gman_core::discriminator::add_penalty_grad`]).
 //! * [`fg`]: `gman pretrain-fg` (paper Sec. 4.1).
-//! * [`ps`]: `gman pretrain-ps`, and the PS module (paper Sec. 5.2) the PS variants run at
-//!   inference.
+//! * [`ps`]: `gman pretrain-ps` (paper Sec. 5.2): the PS module's BCE gradient and training;
+//!   the network the PS variants run at inference is [`crate::ps`] (re-exported here).
 
 pub mod critic;
 pub mod fg;

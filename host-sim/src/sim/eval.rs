@@ -9,7 +9,6 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Mutex;
 
 use gman_core::{Action, ATTR_DIM, NUM_ACTIONS};
-use indicatif::{ProgressBar, ProgressStyle};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
@@ -164,18 +163,11 @@ where
     F: Fn(usize) -> Box<dyn Agent + Send> + Sync,
 {
     let next = AtomicUsize::new(0);
-    let bar = if cfg.progress {
-        let b = ProgressBar::new(episodes.len() as u64);
-        b.set_style(
-            ProgressStyle::with_template(
-                "{spinner} eval [{elapsed_precise}] {bar:40} {pos}/{len} episodes ({eta})",
-            )
-            .unwrap_or_else(|_| ProgressStyle::default_bar()),
-        );
-        b
-    } else {
-        ProgressBar::hidden()
-    };
+    let bar = crate::progress::bar(
+        episodes.len() as u64,
+        "{spinner} eval [{elapsed_precise}] {bar:40} {pos}/{len} episodes ({eta})",
+        cfg.progress,
+    );
     let out: Mutex<Vec<Option<EpisodeResult>>> = Mutex::new(vec![None; episodes.len()]);
     let workers = rayon::current_num_threads().max(1);
     (0..workers).into_par_iter().for_each(|w| {

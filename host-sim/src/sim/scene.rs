@@ -91,6 +91,66 @@ pub struct Scene {
 
 const NONE: u32 = u32::MAX;
 
+/// The cells added by gap filling (none when `exact`): unreachable cells inside the bounding
+/// box whose left and right, or front and back, neighbours are both reachable.
+fn fill_gaps(
+    orig: &BTreeSet<(i32, i32)>,
+    exact: bool,
+    (min_x, max_x): (i32, i32),
+    (min_z, max_z): (i32, i32),
+) -> BTreeSet<(i32, i32)> {
+    let mut filled_set = BTreeSet::new();
+    for x in min_x..=max_x {
+        for z in min_z..=max_z {
+            if exact || orig.contains(&(x, z)) {
+                continue;
+            }
+            let lr = orig.contains(&(x - 1, z)) && orig.contains(&(x + 1, z));
+            let fb = orig.contains(&(x, z - 1)) && orig.contains(&(x, z + 1));
+            if lr || fb {
+                filled_set.insert((x, z));
+            }
+        }
+    }
+    filled_set
+}
+
+/// The known instances, merged when they are the same object (not when `exact`); their
+/// categories are added to `present`. Banned categories (unseen ones in training scenes) are
+/// dropped.
+fn known_instances(
+    known: Vec<(String, CategoryId, [f32; 3])>,
+    exact: bool,
+    banned: &dyn Fn(CategoryId) -> bool,
+    present: &mut BTreeSet<CategoryId>,
+) -> Vec<ObjectInstance> {
+    let mut objects: Vec<ObjectInstance> = Vec::new();
+    for (id, cat, pos) in known {
+        if banned(cat) {
+            continue;
+        }
+        present.insert(cat);
+        if let Some(o) = objects.iter_mut().find(|o| {
+            !exact
+                && o.category == cat
+                && ((o.pos[0] - pos[0]).powi(2) + (o.pos[2] - pos[2]).powi(2)).sqrt() < 0.3
+                && (o.pos[1] - pos[1]).abs() < 0.3
+        }) {
+            if !o.ids.contains(&id) {
+                o.ids.push(id);
+            }
+            continue;
+        }
+        objects.push(ObjectInstance {
+            ids: vec![id],
+            category: cat,
+            pos,
+            known: true,
+        });
+    }
+    objects
+}
+
 impl Scene {
     /// Builds a scene: fills gaps in the reachable set and places objects without positions.
     pub fn build(src: SceneSource, categories: &[Category], world_seed: u64) -> Scene {
@@ -102,19 +162,7 @@ impl Scene {
             min_z = min_z.min(z);
             max_z = max_z.max(z);
         }
-        let mut filled_set = BTreeSet::new();
-        for x in min_x..=max_x {
-            for z in min_z..=max_z {
-                if src.exact || orig.contains(&(x, z)) {
-                    continue;
-                }
-                let lr = orig.contains(&(x - 1, z)) && orig.contains(&(x + 1, z));
-                let fb = orig.contains(&(x, z - 1)) && orig.contains(&(x, z + 1));
-                if lr || fb {
-                    filled_set.insert((x, z));
-                }
-            }
-        }
+        let filled_set = fill_gaps(&orig, src.exact, (min_x, max_x), (min_z, max_z));
         let all: BTreeSet<(i32, i32)> = orig.union(&filled_set).copied().collect();
         let positions: Vec<(i32, i32)> = all.iter().copied().collect();
         let filled = positions.iter().map(|p| filled_set.contains(p)).collect();
@@ -149,42 +197,34 @@ impl Scene {
             .copied()
             .filter(|&c| !banned(c))
             .collect();
-        // Known instances, merged when they are the same object.
-        let mut objects: Vec<ObjectInstance> = Vec::new();
-        for (id, cat, pos) in src.known {
-            if banned(cat) {
-                continue;
-            }
-            present.insert(cat);
-            if let Some(o) = objects.iter_mut().find(|o| {
-                !src.exact
-                    && o.category == cat
-                    && ((o.pos[0] - pos[0]).powi(2) + (o.pos[2] - pos[2]).powi(2)).sqrt() < 0.3
-                    && (o.pos[1] - pos[1]).abs() < 0.3
-            }) {
-                if !o.ids.contains(&id) {
-                    o.ids.push(id);
-                }
-                continue;
-            }
-            objects.push(ObjectInstance {
-                ids: vec![id],
-                category: cat,
-                pos,
-                known: true,
-            });
-        }
-        // Placed instances for categories without a known position.
-        let slots = scene.boundary_slots();
+        let mut objects = known_instances(src.known, src.exact, &banned, &mut present);
+        scene.place_instances(&mut objects, &present, src.exact, categories);
+        scene.objects = objects;
+        scene.present = present.into_iter().collect();
+        scene
+    }
+
+    /// Placed instances for the present categories without a known position (none when
+    /// `exact`), on the scene's boundary slots.
+    fn place_instances(
+        &self,
+        objects: &mut Vec<ObjectInstance>,
+        present: &BTreeSet<CategoryId>,
+        exact: bool,
+        categories: &[Category],
+    ) {
+        let slots = self.boundary_slots();
         let mut used = vec![false; slots.len()];
-        for &cat in &present {
-            if src.exact || objects.iter().any(|o| o.category == cat) || slots.is_empty() {
+        for &cat in present {
+            if exact || objects.iter().any(|o| o.category == cat) || slots.is_empty() {
                 continue;
             }
             let c = &categories[cat as usize];
             for k in 0..c.props.instances.max(1) {
-                let mut rng =
-                    ChaCha8Rng::seed_from_u64(hash_str(hash_str(seed, &c.name), &k.to_string()));
+                let mut rng = ChaCha8Rng::seed_from_u64(hash_str(
+                    hash_str(self.seed, &c.name),
+                    &k.to_string(),
+                ));
                 let mut s = rng.random_range(0..slots.len());
                 for _ in 0..16 {
                     if !used[s] {
@@ -206,9 +246,6 @@ impl Scene {
                 });
             }
         }
-        scene.objects = objects;
-        scene.present = present.into_iter().collect();
-        scene
     }
 
     /// Boundary slots: (reachable cell, direction to a non-reachable 4-neighbour).

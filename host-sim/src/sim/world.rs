@@ -136,39 +136,72 @@ pub(crate) struct WorldParts {
     pub scenes: Vec<SceneSource>,
 }
 
-impl World {
-    /// Loads the real floor plans from a data directory (`attributes.json`, `scenes/<split>/`,
-    /// `episodes/<split>/`) with [`DEFAULT_WORLD_SEED`]. Every split directory present under
-    /// `scenes/` is loaded; at least one must exist. A directory without `scenes/` but with
-    /// `FloorPlanN/` folders is read as AI2THOR offline data ([`crate::sim::offline`]).
-    pub fn load(dir: &Path) -> Result<World> {
-        World::load_with_seed(dir, DEFAULT_WORLD_SEED)
+/// The start state of an episode (on the grid, a multiple of 45 degrees, horizon 0 or 30).
+fn start_state(at: &dyn Fn() -> String, start: &data::RawStart) -> Result<AgentState> {
+    for (axis, v) in [("x", start.x), ("z", start.z)] {
+        let cells = v / super::geometry::GRID;
+        if !v.is_finite() || (cells - cells.round()).abs() * super::geometry::GRID > 1e-3 {
+            bail!(
+                "{}: start {axis} = {v} is not on the {} m grid",
+                at(),
+                super::geometry::GRID
+            );
+        }
     }
+    let rot = start.rotation.rem_euclid(360.0);
+    if (rot / 45.0 - (rot / 45.0).round()).abs() > 1e-3 {
+        bail!(
+            "{}: start rotation {} is not a multiple of 45",
+            at(),
+            start.rotation
+        );
+    }
+    let horizon = match start.horizon.round() as i32 {
+        0 => 0,
+        30 => 1,
+        h => bail!("{}: start horizon {h} is not 0 or 30", at()),
+    };
+    Ok(AgentState {
+        x: (start.x / super::geometry::GRID).round() as i32,
+        z: (start.z / super::geometry::GRID).round() as i32,
+        heading: ((rot / 45.0).round() as usize % NUM_HEADINGS) as u8,
+        horizon,
+    })
+}
 
-    /// [`World::load`] with an explicit world seed.
-    pub fn load_with_seed(dir: &Path, seed: u64) -> Result<World> {
-        let raw = data::load_attributes(dir)?;
-        let attr_path = dir.join("attributes.json");
-        let unseen_names: Vec<&String> = raw.split.unseen.iter().collect();
-        let categories: Vec<Category> = raw
-            .categories
-            .iter()
-            .map(|(name, v)| {
-                let mut attributes = [0f32; ATTR_DIM];
-                attributes.copy_from_slice(v);
-                Category {
-                    name: name.clone(),
-                    attributes,
-                    unseen: unseen_names.contains(&name),
-                    props: props_of(name),
-                }
-            })
-            .collect();
-        let by_name: HashMap<&str, CategoryId> = categories
-            .iter()
-            .enumerate()
-            .map(|(i, c)| (c.name.as_str(), i as CategoryId))
-            .collect();
+/// The categories of `attributes.json`, in file order.
+fn categories_of(raw: &data::RawAttributes) -> Vec<Category> {
+    let unseen_names: Vec<&String> = raw.split.unseen.iter().collect();
+    raw.categories
+        .iter()
+        .map(|(name, v)| {
+            let mut attributes = [0f32; ATTR_DIM];
+            attributes.copy_from_slice(v);
+            Category {
+                name: name.clone(),
+                attributes,
+                unseen: unseen_names.contains(&name),
+                props: props_of(name),
+            }
+        })
+        .collect()
+}
+
+/// The split of `attributes.json` as category ids.
+struct SplitTargets {
+    seen: Vec<CategoryId>,
+    unseen: Vec<CategoryId>,
+    train: [Vec<CategoryId>; 4],
+    eval: [(Vec<CategoryId>, Vec<CategoryId>); 4],
+}
+
+impl SplitTargets {
+    /// Resolves every name of `split` (an error naming `attr_path` for an unknown one).
+    fn resolve(
+        split: &data::RawSplit,
+        by_name: &HashMap<&str, CategoryId>,
+        attr_path: &Path,
+    ) -> Result<Self> {
         let resolve = |names: &[String], what: &str| -> Result<Vec<CategoryId>> {
             names
                 .iter()
@@ -182,13 +215,12 @@ impl World {
                 })
                 .collect()
         };
-        let seen = resolve(&raw.split.seen, "split.seen")?;
-        let unseen = resolve(&raw.split.unseen, "split.unseen")?;
-        let mut train_targets: [Vec<CategoryId>; 4] = Default::default();
-        let mut eval_targets: [(Vec<CategoryId>, Vec<CategoryId>); 4] = Default::default();
+        let seen = resolve(&split.seen, "split.seen")?;
+        let unseen = resolve(&split.unseen, "split.unseen")?;
+        let mut train: [Vec<CategoryId>; 4] = Default::default();
+        let mut eval: [(Vec<CategoryId>, Vec<CategoryId>); 4] = Default::default();
         for room in RoomType::ALL {
-            let tt = raw
-                .split
+            let tt = split
                 .train_targets_by_room
                 .get(room.name())
                 .ok_or_else(|| {
@@ -198,14 +230,96 @@ impl World {
                         room.name()
                     )
                 })?;
-            train_targets[room.index()] = resolve(tt, "split.train_targets_by_room")?;
-            if let Some(r) = raw.split.by_room.get(room.name()) {
-                eval_targets[room.index()] = (
+            train[room.index()] = resolve(tt, "split.train_targets_by_room")?;
+            if let Some(r) = split.by_room.get(room.name()) {
+                eval[room.index()] = (
                     resolve(&r.seen, "split.by_room")?,
                     resolve(&r.unseen, "split.by_room")?,
                 );
             }
         }
+        Ok(SplitTargets {
+            seen,
+            unseen,
+            train,
+            eval,
+        })
+    }
+}
+
+/// The scenes of `scenes/<split>/` (the JSON floor plans).
+fn json_scenes(
+    dir: &Path,
+    split: Split,
+    by_name: &HashMap<&str, CategoryId>,
+) -> Result<Vec<SceneSource>> {
+    let mut scenes = Vec::new();
+    for s in data::load_scenes(dir, split)? {
+        let file = data::scenes_dir(dir, split).join(format!("{}.json", s.scene));
+        let room = RoomType::parse(&s.room).with_context(|| format!("in {}", file.display()))?;
+        let g = s.grid_size;
+        let cell = |p: &[f32; 2]| ((p[0] / g).round() as i32, (p[1] / g).round() as i32);
+        let reachable = s
+            .reachable
+            .iter()
+            .chain(&s.reachable_sample)
+            .map(cell)
+            .collect();
+        let mut present = Vec::new();
+        for t in &s.object_types {
+            match by_name.get(t.as_str()) {
+                Some(&c) => present.push(c),
+                None => bail!(
+                    "{}: object_types names unknown category {t:?}",
+                    file.display()
+                ),
+            }
+        }
+        let mut known = Vec::new();
+        for o in s.objects.iter().chain(&s.known_objects) {
+            let Some(&c) = by_name.get(o.category.as_str()) else {
+                bail!(
+                    "{}: object {} has unknown category {:?}",
+                    file.display(),
+                    o.id,
+                    o.category
+                )
+            };
+            known.push((o.id.clone(), c, [o.x, o.y, o.z]));
+        }
+        scenes.push(SceneSource {
+            name: s.scene.clone(),
+            room,
+            split,
+            reachable,
+            present,
+            known,
+            exact: false,
+        });
+    }
+    Ok(scenes)
+}
+
+impl World {
+    /// Loads the real floor plans from a data directory (`attributes.json`, `scenes/<split>/`,
+    /// `episodes/<split>/`) with [`DEFAULT_WORLD_SEED`]. Every split directory present under
+    /// `scenes/` is loaded; at least one must exist. A directory without `scenes/` but with
+    /// `FloorPlanN/` folders is read as AI2THOR offline data ([`crate::sim::offline`]).
+    pub fn load(dir: &Path) -> Result<World> {
+        World::load_with_seed(dir, DEFAULT_WORLD_SEED)
+    }
+
+    /// [`World::load`] with an explicit world seed.
+    pub fn load_with_seed(dir: &Path, seed: u64) -> Result<World> {
+        let raw = data::load_attributes(dir)?;
+        let attr_path = dir.join("attributes.json");
+        let categories = categories_of(&raw);
+        let by_name: HashMap<&str, CategoryId> = categories
+            .iter()
+            .enumerate()
+            .map(|(i, c)| (c.name.as_str(), i as CategoryId))
+            .collect();
+        let targets = SplitTargets::resolve(&raw.split, &by_name, &attr_path)?;
         let is_offline = offline::is_offline_dir(dir);
         let offline_raw = if is_offline {
             offline::load_scenes(dir, &by_name)?
@@ -214,52 +328,8 @@ impl World {
         };
         let mut scenes: Vec<SceneSource> = offline_raw.iter().map(|r| r.source.clone()).collect();
         for split in Split::ALL {
-            if !data::scenes_dir(dir, split).is_dir() {
-                continue;
-            }
-            for s in data::load_scenes(dir, split)? {
-                let file = data::scenes_dir(dir, split).join(format!("{}.json", s.scene));
-                let room =
-                    RoomType::parse(&s.room).with_context(|| format!("in {}", file.display()))?;
-                let g = s.grid_size;
-                let cell = |p: &[f32; 2]| ((p[0] / g).round() as i32, (p[1] / g).round() as i32);
-                let reachable = s
-                    .reachable
-                    .iter()
-                    .chain(&s.reachable_sample)
-                    .map(cell)
-                    .collect();
-                let mut present = Vec::new();
-                for t in &s.object_types {
-                    match by_name.get(t.as_str()) {
-                        Some(&c) => present.push(c),
-                        None => bail!(
-                            "{}: object_types names unknown category {t:?}",
-                            file.display()
-                        ),
-                    }
-                }
-                let mut known = Vec::new();
-                for o in s.objects.iter().chain(&s.known_objects) {
-                    let Some(&c) = by_name.get(o.category.as_str()) else {
-                        bail!(
-                            "{}: object {} has unknown category {:?}",
-                            file.display(),
-                            o.id,
-                            o.category
-                        )
-                    };
-                    known.push((o.id.clone(), c, [o.x, o.y, o.z]));
-                }
-                scenes.push(SceneSource {
-                    name: s.scene.clone(),
-                    room,
-                    split,
-                    reachable,
-                    present,
-                    known,
-                    exact: false,
-                });
+            if data::scenes_dir(dir, split).is_dir() {
+                scenes.extend(json_scenes(dir, split, &by_name)?);
             }
         }
         if scenes.is_empty() {
@@ -277,10 +347,10 @@ impl World {
             },
             seed,
             categories,
-            seen,
-            unseen,
-            train_targets,
-            eval_targets,
+            seen: targets.seen,
+            unseen: targets.unseen,
+            train_targets: targets.train,
+            eval_targets: targets.eval,
             scenes,
         };
         let mut world = World::assemble(parts, BTreeMap::new());
@@ -569,6 +639,51 @@ impl World {
         let target = self
             .category_id(&e.target)
             .ok_or_else(|| anyhow!("{}: unknown target {:?}", at(), e.target))?;
+        self.check_episode_target(&at, r, scene, room, kind, target)?;
+        let start = start_state(&at, &e.start)?;
+        let Some(start_index) = self.scenes[scene].state_index(start) else {
+            bail!(
+                "{}: start ({}, {}) is not reachable in {}",
+                at(),
+                e.start.x,
+                e.start.z,
+                e.scene
+            );
+        };
+        if let Some(o) = &self.offline[scene] {
+            if !o.has_state(start_index) {
+                bail!(
+                    "{}: start {} is not a node of {}",
+                    at(),
+                    offline::state_key(start),
+                    o.dir.join(offline::GRAPH_FILE).display()
+                );
+            }
+        }
+        Ok(EpisodeSpec {
+            index,
+            scene,
+            room,
+            kind,
+            target,
+            target_ids: e.target_ids.clone(),
+            start,
+            seed: hash2(hash_str(self.seed, split.name()), index as u64),
+        })
+    }
+
+    /// Checks an episode's file, room, target and target ids against its scene and the split
+    /// of `attributes.json`.
+    fn check_episode_target(
+        &self,
+        at: &dyn Fn() -> String,
+        r: &data::RawEpisodeLine,
+        scene: SceneId,
+        room: RoomType,
+        kind: TargetKind,
+        target: CategoryId,
+    ) -> Result<()> {
+        let e = &r.episode;
         let file_stem = format!("{}_{}.jsonl", room.name(), kind.name());
         if r.file.file_name().is_some_and(|n| n != file_stem.as_str()) {
             bail!(
@@ -622,64 +737,7 @@ impl World {
                 e.scene
             );
         }
-        for (axis, v) in [("x", e.start.x), ("z", e.start.z)] {
-            let cells = v / super::geometry::GRID;
-            if !v.is_finite() || (cells - cells.round()).abs() * super::geometry::GRID > 1e-3 {
-                bail!(
-                    "{}: start {axis} = {v} is not on the {} m grid",
-                    at(),
-                    super::geometry::GRID
-                );
-            }
-        }
-        let rot = e.start.rotation.rem_euclid(360.0);
-        if (rot / 45.0 - (rot / 45.0).round()).abs() > 1e-3 {
-            bail!(
-                "{}: start rotation {} is not a multiple of 45",
-                at(),
-                e.start.rotation
-            );
-        }
-        let horizon = match e.start.horizon.round() as i32 {
-            0 => 0,
-            30 => 1,
-            h => bail!("{}: start horizon {h} is not 0 or 30", at()),
-        };
-        let start = AgentState {
-            x: (e.start.x / super::geometry::GRID).round() as i32,
-            z: (e.start.z / super::geometry::GRID).round() as i32,
-            heading: ((rot / 45.0).round() as usize % NUM_HEADINGS) as u8,
-            horizon,
-        };
-        let Some(start_index) = self.scenes[scene].state_index(start) else {
-            bail!(
-                "{}: start ({}, {}) is not reachable in {}",
-                at(),
-                e.start.x,
-                e.start.z,
-                e.scene
-            );
-        };
-        if let Some(o) = &self.offline[scene] {
-            if !o.has_state(start_index) {
-                bail!(
-                    "{}: start {} is not a node of {}",
-                    at(),
-                    offline::state_key(start),
-                    o.dir.join(offline::GRAPH_FILE).display()
-                );
-            }
-        }
-        Ok(EpisodeSpec {
-            index,
-            scene,
-            room,
-            kind,
-            target,
-            target_ids: e.target_ids.clone(),
-            start,
-            seed: hash2(hash_str(self.seed, split.name()), index as u64),
-        })
+        Ok(())
     }
 
     /// Samples a training task: a random training scene, a random training target of its room

@@ -230,17 +230,31 @@ fn write_json(path: &Path, v: &Value) -> Result<()> {
     fs::write(path, text).with_context(|| format!("cannot write {}", path.display()))
 }
 
-/// Writes the fixture into `out` (created; existing fixture files are replaced). `seed`
-/// changes attribute vectors and feature values, not the layout.
-pub fn write_fixture(out: &Path, seed: u64) -> Result<FixtureInfo> {
-    fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
-    let attrs = attributes(seed);
-    let names = |f: &dyn Fn(&(&str, bool)) -> bool| -> Vec<&str> {
-        CATEGORIES.iter().filter(|c| f(c)).map(|c| c.0).collect()
-    };
-    let seen = names(&|c| !c.1);
-    let unseen = names(&|c| c.1);
-    let kitchen_seen = vec!["Fridge", "Microwave", "Sink"];
+/// The fixture's categories of each kind: (seen, unseen, the kitchens' seen targets).
+struct Targets {
+    seen: Vec<&'static str>,
+    unseen: Vec<&'static str>,
+    kitchen_seen: Vec<&'static str>,
+}
+
+impl Targets {
+    fn new() -> Self {
+        let names = |unseen: bool| -> Vec<&'static str> {
+            CATEGORIES
+                .iter()
+                .filter(|c| c.1 == unseen)
+                .map(|c| c.0)
+                .collect()
+        };
+        Targets {
+            seen: names(false),
+            unseen: names(true),
+            kitchen_seen: vec!["Fridge", "Microwave", "Sink"],
+        }
+    }
+}
+
+fn write_attributes(out: &Path, attrs: &BTreeMap<String, Vec<f32>>, t: &Targets) -> Result<()> {
     write_json(
         &out.join("attributes.json"),
         &json!({
@@ -253,34 +267,28 @@ pub fn write_fixture(out: &Path, seed: u64) -> Result<FixtureInfo> {
                     "bedroom": [],
                     "bathroom": []
                 },
-                "seen": seen,
-                "unseen": unseen,
-                "by_room": {"kitchen": {"seen": kitchen_seen, "unseen": unseen}}
+                "seen": t.seen,
+                "unseen": t.unseen,
+                "by_room": {"kitchen": {"seen": t.kitchen_seen, "unseen": t.unseen}}
             },
             "note": "gman-rs offline fixture: made-up attribute vectors"
         }),
-    )?;
-    let mut info = FixtureInfo::default();
-    let mut episodes: BTreeMap<&str, Vec<Value>> = BTreeMap::new();
-    for spec in specs() {
-        let dir = out.join(spec.name);
-        fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
-        info.scenes.push(spec.name.to_string());
+    )
+}
+
+/// One scene's state graph: its grid cells, its nodes (every state of every cell but the
+/// absent ones) and its edges (every action's move between two nodes, but the blocked ones).
+struct SceneGraph {
+    cells: Vec<(i32, i32)>,
+    nodes: Vec<AgentState>,
+    edges: Vec<(AgentState, AgentState)>,
+}
+
+impl SceneGraph {
+    fn new(spec: &SceneSpec) -> Self {
         let cells = cells();
         let cell_set: HashSet<(i32, i32)> = cells.iter().copied().collect();
-        write_json(
-            &dir.join(GRID_FILE),
-            &Value::Array(
-                cells
-                    .iter()
-                    .map(|&(x, z)| json!({"x": x as f32 * GRID, "y": 0.9009996, "z": z as f32 * GRID}))
-                    .collect(),
-            ),
-        )?;
         let absent: HashSet<AgentState> = spec.absent.iter().copied().collect();
-        for a in &spec.absent {
-            info.absent.push((spec.name.to_string(), state_key(*a)));
-        }
         let mut nodes: Vec<AgentState> = Vec::new();
         for &(x, z) in &cells {
             for h in 0..NUM_HEADINGS as u8 {
@@ -294,10 +302,6 @@ pub fn write_fixture(out: &Path, seed: u64) -> Result<FixtureInfo> {
         }
         let node_set: HashSet<AgentState> = nodes.iter().copied().collect();
         let blocked: HashSet<(AgentState, AgentState)> = spec.blocked.iter().copied().collect();
-        for (a, b) in &spec.blocked {
-            info.blocked
-                .push((spec.name.to_string(), state_key(*a), state_key(*b)));
-        }
         let mut edges: Vec<(AgentState, AgentState)> = Vec::new();
         for &s in &nodes {
             for a in &Action::ALL[..Action::Done.index()] {
@@ -319,13 +323,32 @@ pub fn write_fixture(out: &Path, seed: u64) -> Result<FixtureInfo> {
                 }
             }
         }
-        let mut node_keys: Vec<String> = nodes.iter().map(|&s| state_key(s)).collect();
-        let mut links: Vec<Value> = edges
+        SceneGraph {
+            cells,
+            nodes,
+            edges,
+        }
+    }
+
+    /// The grid file and the graph file (networkx node-link JSON).
+    fn write(&self, dir: &Path, spec: &SceneSpec) -> Result<()> {
+        write_json(
+            &dir.join(GRID_FILE),
+            &Value::Array(
+                self.cells
+                    .iter()
+                    .map(|&(x, z)| json!({"x": x as f32 * GRID, "y": 0.9009996, "z": z as f32 * GRID}))
+                    .collect(),
+            ),
+        )?;
+        let mut node_keys: Vec<String> = self.nodes.iter().map(|&s| state_key(s)).collect();
+        let mut links: Vec<Value> = self
+            .edges
             .iter()
             .map(|(a, b)| json!({"source": state_key(*a), "target": state_key(*b)}))
             .collect();
         if spec.horizon60 {
-            for &(x, z) in &cells {
+            for &(x, z) in &self.cells {
                 let k30 = format!("{:.2}|{:.2}|0|30", x as f32 * GRID, z as f32 * GRID);
                 let k60 = format!("{:.2}|{:.2}|0|60", x as f32 * GRID, z as f32 * GRID);
                 links.push(json!({"source": k30, "target": k60}));
@@ -340,123 +363,177 @@ pub fn write_fixture(out: &Path, seed: u64) -> Result<FixtureInfo> {
             "nodes": node_keys.iter().map(|k| json!({"id": k})).collect::<Vec<_>>(),
         });
         graph[spec.edges_key] = Value::Array(links);
-        write_json(&dir.join(GRAPH_FILE), &graph)?;
-        // Visibility (per object, over nodes at horizons 0/30).
-        let mut vis: BTreeMap<String, Vec<String>> = BTreeMap::new();
-        for (ty, p) in &spec.objects {
-            let keys = nodes
-                .iter()
-                .filter(|&&s| visible(s, ty, *p))
-                .map(|&s| state_key(s))
-                .collect();
-            vis.insert(object_id(ty, *p), keys);
-        }
-        write_json(&dir.join(VISIBLE_FILE), &serde_json::to_value(&vis)?)?;
-        // Feature maps and (optionally) PS targets.
-        let maps: Vec<(String, Vec<f32>)> = nodes
+        write_json(&dir.join(GRAPH_FILE), &graph)
+    }
+}
+
+/// Visibility (per object, over nodes at horizons 0/30).
+fn write_visibility(dir: &Path, spec: &SceneSpec, nodes: &[AgentState]) -> Result<()> {
+    let mut vis: BTreeMap<String, Vec<String>> = BTreeMap::new();
+    for (ty, p) in &spec.objects {
+        let keys = nodes
             .iter()
-            .map(|&s| {
-                let seen: Vec<(&str, [f32; 3])> = spec
-                    .objects
-                    .iter()
-                    .filter(|(ty, p)| visible(s, ty, *p))
-                    .copied()
-                    .collect();
-                (state_key(s), feature_map(seed, spec.name, s, &seen))
-            })
+            .filter(|&&s| visible(s, ty, *p))
+            .map(|&s| state_key(s))
             .collect();
-        h5::write_datasets(
-            &dir.join(FEATURE_FILE),
-            maps.iter()
-                .map(|(k, m)| (k.as_str(), &super::MAP_SHAPE[..], m.as_slice())),
-        )?;
-        if spec.att {
-            let atts: Vec<(String, Vec<f32>)> = nodes
+        vis.insert(object_id(ty, *p), keys);
+    }
+    write_json(&dir.join(VISIBLE_FILE), &serde_json::to_value(&vis)?)
+}
+
+/// The feature maps of every node.
+fn write_features(dir: &Path, spec: &SceneSpec, nodes: &[AgentState], seed: u64) -> Result<()> {
+    let maps: Vec<(String, Vec<f32>)> = nodes
+        .iter()
+        .map(|&s| {
+            let seen: Vec<(&str, [f32; 3])> = spec
+                .objects
                 .iter()
-                .map(|&s| {
-                    let mut cats: Vec<&str> = spec
-                        .objects
-                        .iter()
-                        .filter(|(ty, p)| attrs.contains_key(*ty) && visible(s, ty, *p))
-                        .map(|o| o.0)
-                        .collect();
-                    cats.sort_unstable();
-                    cats.dedup();
-                    let mut v = vec![0f32; ATTR_DIM];
-                    for c in &cats {
-                        for (t, a) in v.iter_mut().zip(&attrs[*c]) {
-                            *t += a / cats.len() as f32;
-                        }
-                    }
-                    v.iter_mut().for_each(|t| *t = 0.25 + 0.5 * *t);
-                    (state_key(s), v)
-                })
+                .filter(|(ty, p)| visible(s, ty, *p))
+                .copied()
                 .collect();
-            h5::write_datasets(
-                &dir.join(ATT_FILE),
-                atts.iter()
-                    .map(|(k, v)| (k.as_str(), &[ATTR_DIM][..], v.as_slice())),
-            )?;
-        } else {
-            let p = dir.join(ATT_FILE);
-            if p.exists() {
-                fs::remove_file(&p).with_context(|| format!("cannot remove {}", p.display()))?;
-            }
+            (state_key(s), feature_map(seed, spec.name, s, &seen))
+        })
+        .collect();
+    h5::write_datasets(
+        &dir.join(FEATURE_FILE),
+        maps.iter()
+            .map(|(k, m)| (k.as_str(), &super::MAP_SHAPE[..], m.as_slice())),
+    )
+}
+
+/// The PS targets of every node when the scene has them (an old file removed otherwise).
+fn write_ps_targets(
+    dir: &Path,
+    spec: &SceneSpec,
+    nodes: &[AgentState],
+    attrs: &BTreeMap<String, Vec<f32>>,
+) -> Result<()> {
+    if !spec.att {
+        let p = dir.join(ATT_FILE);
+        if p.exists() {
+            fs::remove_file(&p).with_context(|| format!("cannot remove {}", p.display()))?;
         }
-        // Val episodes: starts at horizon 0 that need at least one action to see the target.
-        if spec.name == "FloorPlan22" {
-            let index: HashMap<AgentState, usize> =
-                nodes.iter().enumerate().map(|(i, &s)| (s, i)).collect();
-            let mut pred: Vec<Vec<usize>> = vec![Vec::new(); nodes.len()];
-            for (a, b) in &edges {
-                pred[index[b]].push(index[a]);
+        return Ok(());
+    }
+    let atts: Vec<(String, Vec<f32>)> = nodes
+        .iter()
+        .map(|&s| {
+            let mut cats: Vec<&str> = spec
+                .objects
+                .iter()
+                .filter(|(ty, p)| attrs.contains_key(*ty) && visible(s, ty, *p))
+                .map(|o| o.0)
+                .collect();
+            cats.sort_unstable();
+            cats.dedup();
+            let mut v = vec![0f32; ATTR_DIM];
+            for c in &cats {
+                for (t, a) in v.iter_mut().zip(&attrs[*c]) {
+                    *t += a / cats.len() as f32;
+                }
             }
-            for (kind, targets) in [("seen", kitchen_seen.clone()), ("unseen", unseen.clone())] {
-                for target in targets {
-                    let goal: Vec<&(&str, [f32; 3])> =
-                        spec.objects.iter().filter(|o| o.0 == target).collect();
-                    let mut dist = vec![u32::MAX; nodes.len()];
-                    let mut q = VecDeque::new();
-                    for (i, &s) in nodes.iter().enumerate() {
-                        if goal.iter().any(|(ty, p)| visible(s, ty, *p)) {
-                            dist[i] = 0;
-                            q.push_back(i);
-                        }
-                    }
-                    while let Some(i) = q.pop_front() {
-                        for &p in &pred[i] {
-                            if dist[p] == u32::MAX {
-                                dist[p] = dist[i] + 1;
-                                q.push_back(p);
-                            }
-                        }
-                    }
-                    let starts: Vec<AgentState> = nodes
-                        .iter()
-                        .enumerate()
-                        .filter(|&(i, s)| s.horizon == 0 && dist[i] != u32::MAX && dist[i] >= 1)
-                        .map(|(_, &s)| s)
-                        .collect();
-                    for k in 0..starts.len().min(6) {
-                        let s = starts[(k * 7 + target.len()) % starts.len()];
-                        episodes.entry(kind).or_default().push(json!({
-                            "room": "kitchen",
-                            "scene": spec.name,
-                            "split": "val",
-                            "start": {
-                                "horizon": 0,
-                                "rotation": s.heading as u32 * 45,
-                                "x": s.x as f32 * GRID,
-                                "y": 0.9009996,
-                                "z": s.z as f32 * GRID
-                            },
-                            "target": target,
-                            "target_ids": goal.iter().map(|(ty, p)| object_id(ty, *p)).collect::<Vec<_>>(),
-                            "target_kind": kind
-                        }));
+            v.iter_mut().for_each(|t| *t = 0.25 + 0.5 * *t);
+            (state_key(s), v)
+        })
+        .collect();
+    h5::write_datasets(
+        &dir.join(ATT_FILE),
+        atts.iter()
+            .map(|(k, v)| (k.as_str(), &[ATTR_DIM][..], v.as_slice())),
+    )
+}
+
+/// Val episodes of one scene: starts at horizon 0 that need at least one action to see the
+/// target, up to 6 per target, added to `episodes` by kind.
+fn val_episodes(
+    spec: &SceneSpec,
+    g: &SceneGraph,
+    t: &Targets,
+    episodes: &mut BTreeMap<&'static str, Vec<Value>>,
+) {
+    let nodes = &g.nodes;
+    let index: HashMap<AgentState, usize> =
+        nodes.iter().enumerate().map(|(i, &s)| (s, i)).collect();
+    let mut pred: Vec<Vec<usize>> = vec![Vec::new(); nodes.len()];
+    for (a, b) in &g.edges {
+        pred[index[b]].push(index[a]);
+    }
+    for (kind, targets) in [("seen", &t.kitchen_seen), ("unseen", &t.unseen)] {
+        for &target in targets {
+            let goal: Vec<&(&str, [f32; 3])> =
+                spec.objects.iter().filter(|o| o.0 == target).collect();
+            let mut dist = vec![u32::MAX; nodes.len()];
+            let mut q = VecDeque::new();
+            for (i, &s) in nodes.iter().enumerate() {
+                if goal.iter().any(|(ty, p)| visible(s, ty, *p)) {
+                    dist[i] = 0;
+                    q.push_back(i);
+                }
+            }
+            while let Some(i) = q.pop_front() {
+                for &p in &pred[i] {
+                    if dist[p] == u32::MAX {
+                        dist[p] = dist[i] + 1;
+                        q.push_back(p);
                     }
                 }
             }
+            let starts: Vec<AgentState> = nodes
+                .iter()
+                .enumerate()
+                .filter(|&(i, s)| s.horizon == 0 && dist[i] != u32::MAX && dist[i] >= 1)
+                .map(|(_, &s)| s)
+                .collect();
+            for k in 0..starts.len().min(6) {
+                let s = starts[(k * 7 + target.len()) % starts.len()];
+                episodes.entry(kind).or_default().push(json!({
+                    "room": "kitchen",
+                    "scene": spec.name,
+                    "split": "val",
+                    "start": {
+                        "horizon": 0,
+                        "rotation": s.heading as u32 * 45,
+                        "x": s.x as f32 * GRID,
+                        "y": 0.9009996,
+                        "z": s.z as f32 * GRID
+                    },
+                    "target": target,
+                    "target_ids": goal.iter().map(|(ty, p)| object_id(ty, *p)).collect::<Vec<_>>(),
+                    "target_kind": kind
+                }));
+            }
+        }
+    }
+}
+
+/// Writes the fixture into `out` (created; existing fixture files are replaced). `seed`
+/// changes attribute vectors and feature values, not the layout.
+pub fn write_fixture(out: &Path, seed: u64) -> Result<FixtureInfo> {
+    fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
+    let attrs = attributes(seed);
+    let targets = Targets::new();
+    write_attributes(out, &attrs, &targets)?;
+    let mut info = FixtureInfo::default();
+    let mut episodes: BTreeMap<&str, Vec<Value>> = BTreeMap::new();
+    for spec in specs() {
+        let dir = out.join(spec.name);
+        fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
+        info.scenes.push(spec.name.to_string());
+        for a in &spec.absent {
+            info.absent.push((spec.name.to_string(), state_key(*a)));
+        }
+        for (a, b) in &spec.blocked {
+            info.blocked
+                .push((spec.name.to_string(), state_key(*a), state_key(*b)));
+        }
+        let g = SceneGraph::new(&spec);
+        g.write(&dir, &spec)?;
+        write_visibility(&dir, &spec, &g.nodes)?;
+        write_features(&dir, &spec, &g.nodes, seed)?;
+        write_ps_targets(&dir, &spec, &g.nodes, &attrs)?;
+        if spec.name == "FloorPlan22" {
+            val_episodes(&spec, &g, &targets, &mut episodes);
         }
     }
     let edir = out.join("episodes").join("val");

@@ -312,135 +312,10 @@ fn load_scene(
             bail!("missing file {}", p.display());
         }
     }
-    // Reachable points.
-    let grid_path = dir.join(GRID_FILE);
-    let points: Vec<RawPoint> = read_json(&grid_path)?;
-    if points.is_empty() {
-        bail!("{}: no reachable points", grid_path.display());
-    }
-    let mut cells = Vec::with_capacity(points.len());
-    for p in &points {
-        let at = format!("point ({}, {})", p.x, p.z);
-        let c = (
-            grid_index(p.x, "x", &at).with_context(|| grid_path.display().to_string())?,
-            grid_index(p.z, "z", &at).with_context(|| grid_path.display().to_string())?,
-        );
-        cells.push(c);
-    }
-    let cell_set: HashSet<(i32, i32)> = cells.iter().copied().collect();
-    // State graph.
-    let graph_path = dir.join(GRAPH_FILE);
-    let graph: RawGraph = read_json(&graph_path)?;
-    let mut nodes: Vec<(String, AgentState)> = Vec::new();
-    let mut node_of: HashMap<String, u32> = HashMap::new();
-    let mut state_of: HashMap<AgentState, String> = HashMap::new();
-    let mut known_keys: HashSet<String> = HashSet::new();
-    let mut skipped_nodes = 0;
-    for n in &graph.nodes {
-        let key = node_id(&n.id, &graph_path)?;
-        known_keys.insert(key.to_string());
-        let Some(s) = parse_state_key(key).with_context(|| graph_path.display().to_string())?
-        else {
-            skipped_nodes += 1;
-            continue;
-        };
-        if !cell_set.contains(&(s.x, s.z)) {
-            bail!(
-                "{}: node {key:?} is at a point that {} does not list",
-                graph_path.display(),
-                GRID_FILE
-            );
-        }
-        if let Some(other) = state_of.insert(s, key.to_string()) {
-            bail!(
-                "{}: nodes {other:?} and {key:?} are the same state",
-                graph_path.display()
-            );
-        }
-        node_of.insert(key.to_string(), nodes.len() as u32);
-        nodes.push((key.to_string(), s));
-    }
-    if nodes.is_empty() {
-        bail!(
-            "{}: no node with horizon 0 or 30 degrees",
-            graph_path.display()
-        );
-    }
-    let links = match (graph.links, graph.edges) {
-        (Some(l), None) | (None, Some(l)) => l,
-        (Some(_), Some(_)) => bail!(
-            "{}: both \"links\" and \"edges\" are present",
-            graph_path.display()
-        ),
-        (None, None) => bail!(
-            "{}: no \"links\" (node-link edge list)",
-            graph_path.display()
-        ),
-    };
-    let directed = graph.directed.unwrap_or(true);
-    let mut edges = Vec::with_capacity(links.len() * if directed { 1 } else { 2 });
-    for l in &links {
-        let (a, b) = (
-            node_id(&l.source, &graph_path)?,
-            node_id(&l.target, &graph_path)?,
-        );
-        for k in [a, b] {
-            if !known_keys.contains(k) {
-                bail!("{}: edge names unknown node {k:?}", graph_path.display());
-            }
-        }
-        if let (Some(&i), Some(&j)) = (node_of.get(a), node_of.get(b)) {
-            edges.push((i, j));
-            if !directed {
-                edges.push((j, i));
-            }
-        }
-    }
-    // Visibility and objects.
-    let vis_path = dir.join(VISIBLE_FILE);
-    let vis: BTreeMap<String, Vec<String>> = read_json(&vis_path)?;
-    let mut known = Vec::new();
-    let mut visible = Vec::new();
-    for (id, keys) in &vis {
-        let (ty, pos) = parse_object_id(id).with_context(|| vis_path.display().to_string())?;
-        let mut at = Vec::with_capacity(keys.len());
-        for k in keys {
-            // The same string as a node id, or (written differently) the same state.
-            let node = node_of.get(k).copied().or_else(|| {
-                let s = parse_state_key(k).ok().flatten()?;
-                node_of.get(state_of.get(&s)?).copied()
-            });
-            match node {
-                Some(i) => at.push(i),
-                None if known_keys.contains(k) => {} // a node our agent does not have
-                None => bail!(
-                    "{}: object {id:?} lists state {k:?}, which is not a node of {}",
-                    vis_path.display(),
-                    GRAPH_FILE
-                ),
-            }
-        }
-        let Some(&cat) = by_name.get(ty.as_str()) else {
-            continue; // a type without attributes: never a target, never counted
-        };
-        known.push((id.clone(), cat, pos));
-        visible.push((id.clone(), at));
-    }
-    // Feature maps (and PS targets): every node's dataset with the right shape.
-    let features = h5::H5File::open(&dir.join(FEATURE_FILE))?;
-    for (key, _) in &nodes {
-        features.check(key, &[&MAP_SHAPE])?;
-    }
-    let att_path = dir.join(ATT_FILE);
-    let att = if att_path.exists() {
-        let f = h5::H5File::open(&att_path)?;
-        for (key, _) in &nodes {
-            f.check(key, &ATT_SHAPES)?;
-        }
-        Some(f)
-    } else {
-        None
-    };
+    let cells = read_cells(dir)?;
+    let graph = SceneGraph::read(dir, &cells.iter().copied().collect())?;
+    let (known, visible) = read_visibility(dir, &graph, by_name)?;
+    let (features, att) = open_features(dir, &graph.nodes)?;
     let mut present: Vec<CategoryId> = known.iter().map(|k| k.1).collect();
     present.sort_unstable();
     present.dedup();
@@ -455,13 +330,188 @@ fn load_scene(
             exact: true,
         },
         dir: dir.to_path_buf(),
-        nodes,
-        edges,
+        nodes: graph.nodes,
+        edges: graph.edges,
         visible,
         features,
         att,
-        skipped_nodes,
+        skipped_nodes: graph.skipped_nodes,
     })
+}
+
+/// The reachable points of the grid file, as grid cells.
+fn read_cells(dir: &Path) -> Result<Vec<(i32, i32)>> {
+    let grid_path = dir.join(GRID_FILE);
+    let points: Vec<RawPoint> = read_json(&grid_path)?;
+    if points.is_empty() {
+        bail!("{}: no reachable points", grid_path.display());
+    }
+    let mut cells = Vec::with_capacity(points.len());
+    for p in &points {
+        let at = format!("point ({}, {})", p.x, p.z);
+        let c = (
+            grid_index(p.x, "x", &at).with_context(|| grid_path.display().to_string())?,
+            grid_index(p.z, "z", &at).with_context(|| grid_path.display().to_string())?,
+        );
+        cells.push(c);
+    }
+    Ok(cells)
+}
+
+/// A scene's state graph as read: the nodes our agent has, and the edges between them.
+struct SceneGraph {
+    /// Graph nodes our agent has: (key, state).
+    nodes: Vec<(String, AgentState)>,
+    /// Index in `nodes` by key.
+    node_of: HashMap<String, u32>,
+    /// Key by state.
+    state_of: HashMap<AgentState, String>,
+    /// Every node key of the file (also the nodes our agent does not have).
+    known_keys: HashSet<String>,
+    /// Nodes of the file our agent does not have (other horizons).
+    skipped_nodes: usize,
+    /// Edges between entries of `nodes`.
+    edges: Vec<(u32, u32)>,
+}
+
+impl SceneGraph {
+    /// Reads the graph file; every node must sit on one of `cells`.
+    fn read(dir: &Path, cell_set: &HashSet<(i32, i32)>) -> Result<Self> {
+        let graph_path = dir.join(GRAPH_FILE);
+        let graph: RawGraph = read_json(&graph_path)?;
+        let mut g = SceneGraph {
+            nodes: Vec::new(),
+            node_of: HashMap::new(),
+            state_of: HashMap::new(),
+            known_keys: HashSet::new(),
+            skipped_nodes: 0,
+            edges: Vec::new(),
+        };
+        for n in &graph.nodes {
+            let key = node_id(&n.id, &graph_path)?;
+            g.known_keys.insert(key.to_string());
+            let Some(s) = parse_state_key(key).with_context(|| graph_path.display().to_string())?
+            else {
+                g.skipped_nodes += 1;
+                continue;
+            };
+            if !cell_set.contains(&(s.x, s.z)) {
+                bail!(
+                    "{}: node {key:?} is at a point that {} does not list",
+                    graph_path.display(),
+                    GRID_FILE
+                );
+            }
+            if let Some(other) = g.state_of.insert(s, key.to_string()) {
+                bail!(
+                    "{}: nodes {other:?} and {key:?} are the same state",
+                    graph_path.display()
+                );
+            }
+            g.node_of.insert(key.to_string(), g.nodes.len() as u32);
+            g.nodes.push((key.to_string(), s));
+        }
+        if g.nodes.is_empty() {
+            bail!(
+                "{}: no node with horizon 0 or 30 degrees",
+                graph_path.display()
+            );
+        }
+        let links = match (graph.links, graph.edges) {
+            (Some(l), None) | (None, Some(l)) => l,
+            (Some(_), Some(_)) => bail!(
+                "{}: both \"links\" and \"edges\" are present",
+                graph_path.display()
+            ),
+            (None, None) => bail!(
+                "{}: no \"links\" (node-link edge list)",
+                graph_path.display()
+            ),
+        };
+        let directed = graph.directed.unwrap_or(true);
+        g.edges = Vec::with_capacity(links.len() * if directed { 1 } else { 2 });
+        for l in &links {
+            let (a, b) = (
+                node_id(&l.source, &graph_path)?,
+                node_id(&l.target, &graph_path)?,
+            );
+            for k in [a, b] {
+                if !g.known_keys.contains(k) {
+                    bail!("{}: edge names unknown node {k:?}", graph_path.display());
+                }
+            }
+            if let (Some(&i), Some(&j)) = (g.node_of.get(a), g.node_of.get(b)) {
+                g.edges.push((i, j));
+                if !directed {
+                    g.edges.push((j, i));
+                }
+            }
+        }
+        Ok(g)
+    }
+}
+
+/// Objects of known categories and the nodes each is visible from.
+type Visibility = (Vec<(String, CategoryId, [f32; 3])>, Vec<(String, Vec<u32>)>);
+
+/// Reads the visibility file: the objects of known categories and where each is visible.
+fn read_visibility(
+    dir: &Path,
+    g: &SceneGraph,
+    by_name: &HashMap<&str, CategoryId>,
+) -> Result<Visibility> {
+    let vis_path = dir.join(VISIBLE_FILE);
+    let vis: BTreeMap<String, Vec<String>> = read_json(&vis_path)?;
+    let mut known = Vec::new();
+    let mut visible = Vec::new();
+    for (id, keys) in &vis {
+        let (ty, pos) = parse_object_id(id).with_context(|| vis_path.display().to_string())?;
+        let mut at = Vec::with_capacity(keys.len());
+        for k in keys {
+            // The same string as a node id, or (written differently) the same state.
+            let node = g.node_of.get(k).copied().or_else(|| {
+                let s = parse_state_key(k).ok().flatten()?;
+                g.node_of.get(g.state_of.get(&s)?).copied()
+            });
+            match node {
+                Some(i) => at.push(i),
+                None if g.known_keys.contains(k) => {} // a node our agent does not have
+                None => bail!(
+                    "{}: object {id:?} lists state {k:?}, which is not a node of {}",
+                    vis_path.display(),
+                    GRAPH_FILE
+                ),
+            }
+        }
+        let Some(&cat) = by_name.get(ty.as_str()) else {
+            continue; // a type without attributes: never a target, never counted
+        };
+        known.push((id.clone(), cat, pos));
+        visible.push((id.clone(), at));
+    }
+    Ok((known, visible))
+}
+
+/// Opens the feature maps (and PS targets) and checks every node's dataset shape.
+fn open_features(
+    dir: &Path,
+    nodes: &[(String, AgentState)],
+) -> Result<(h5::H5File, Option<h5::H5File>)> {
+    let features = h5::H5File::open(&dir.join(FEATURE_FILE))?;
+    for (key, _) in nodes {
+        features.check(key, &[&MAP_SHAPE])?;
+    }
+    let att_path = dir.join(ATT_FILE);
+    let att = if att_path.exists() {
+        let f = h5::H5File::open(&att_path)?;
+        for (key, _) in nodes {
+            f.check(key, &ATT_SHAPES)?;
+        }
+        Some(f)
+    } else {
+        None
+    };
+    Ok((features, att))
 }
 
 /// The offline data of one scene, indexed by the built scene's state indices.

@@ -1,0 +1,260 @@
+//! `gman eval`: evaluate an agent on the episodes of a split (SR, SPL, EPA, DTS), one run or
+//! the mean ± std over training seeds.
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use anyhow::{bail, Context, Result};
+use clap::Args;
+use gman_host_sim::sim::{evaluate, EpisodeLimits, EvalConfig, EvalReport, RewardKind, Split};
+
+use super::args::WorldArgs;
+use super::models::{self, agent_factory};
+
+/// `gman eval`.
+#[derive(Debug, Args)]
+pub struct EvalArgs {
+    /// World selection.
+    #[command(flatten)]
+    pub world: WorldArgs,
+    /// Split to evaluate (val or test).
+    #[arg(long, default_value = "val")]
+    pub split: String,
+    /// Agent: `random`, `oracle`, or a model file (a training checkpoint, or a weight blob
+    /// evaluated through gman-core as on the device).
+    #[arg(long, default_value = "random")]
+    pub agent: String,
+    /// Treat a model file as this method (e.g. evaluate an `a3c-fg` checkpoint as
+    /// `gman-nometa`: adversarial adaptation at test time only).
+    #[arg(long, value_enum)]
+    pub method: Option<gman_host_sim::nav::model::Method>,
+    /// Override the model's inner-loop rate α (α1 = α2) at evaluation (checkpoints store the
+    /// rate they were trained with; blobs do not and default to the paper's 1e-4).
+    #[arg(long, value_name = "ALPHA")]
+    pub inner_lr: Option<f32>,
+    /// Override the cap on inner updates per episode at evaluation (default: the model's, 4).
+    #[arg(long, value_name = "N")]
+    pub max_inner: Option<u32>,
+    /// At most N episodes per episode file (file order).
+    #[arg(long, value_name = "N")]
+    pub episodes: Option<usize>,
+    /// Seed of the agent's randomness.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Average several training runs: the model path must contain `{seed}`, replaced by each
+    /// of these (e.g. `--agent runs/gman-seed{seed}/checkpoint.ckpt --seeds 1,2,3`); prints
+    /// and writes mean ± sample standard deviation like the paper.
+    #[arg(long, value_delimiter = ',', value_name = "S1,S2,..")]
+    pub seeds: Vec<u64>,
+    /// Write the JSON report here.
+    #[arg(long, value_name = "OUT.json")]
+    pub json: Option<PathBuf>,
+    /// Reward (navigation, distance, similarity, mixed); only affects reported returns.
+    #[arg(long, default_value = "mixed")]
+    pub reward: RewardKind,
+    /// Step limit in living rooms.
+    #[arg(long, default_value_t = 200)]
+    pub max_steps_living_room: u32,
+    /// Step limit in other rooms.
+    #[arg(long, default_value_t = 100)]
+    pub max_steps_other: u32,
+    /// No progress bar.
+    #[arg(long)]
+    pub quiet: bool,
+}
+
+impl EvalArgs {
+    /// The model changes these arguments ask for.
+    fn overrides(&self) -> models::ModelOverrides {
+        models::ModelOverrides {
+            method: self.method,
+            inner_lr: self.inner_lr,
+            max_inner: self.max_inner,
+        }
+    }
+
+    /// The evaluation settings these arguments ask for.
+    fn eval_config(&self) -> EvalConfig {
+        EvalConfig {
+            reward: self.reward,
+            limits: EpisodeLimits {
+                living_room: self.max_steps_living_room,
+                other: self.max_steps_other,
+            },
+            progress: !self.quiet,
+        }
+    }
+}
+
+/// Checks `gman eval` flags: values that would give a wrong result are refused (`--episodes 0`,
+/// a seed repeated in `--seeds`); flags without effect (the model overrides with a built-in
+/// agent) are named in a warning, never silently dropped.
+fn check_eval_flags(a: &EvalArgs) -> Result<()> {
+    if a.episodes == Some(0) {
+        bail!("--episodes 0 evaluates nothing; give at least 1 (or omit it for every episode)");
+    }
+    let mut seen = std::collections::BTreeSet::new();
+    if let Some(dup) = a.seeds.iter().find(|s| !seen.insert(**s)) {
+        bail!("--seeds lists seed {dup} twice; each training seed must be averaged once");
+    }
+    if matches!(a.agent.as_str(), "random" | "oracle") {
+        for (flag, given) in [
+            ("--method", a.method.is_some()),
+            ("--inner-lr", a.inner_lr.is_some()),
+            ("--max-inner", a.max_inner.is_some()),
+        ] {
+            if given {
+                eprintln!(
+                    "warning: {flag} is ignored: it applies to model agents (a checkpoint or a weight blob), not to the built-in `{}` agent",
+                    a.agent
+                );
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Prints the first failed episodes of `report` to stderr and returns an error when any
+/// episode failed (after the table and the JSON were written, so that they can be read).
+fn check_failures(report: &EvalReport) -> Result<()> {
+    if report.failed_episodes == 0 {
+        return Ok(());
+    }
+    for f in report.failures.iter().take(3) {
+        eprintln!(
+            "warning: episode {} ({}) ended early: {}",
+            f.index, f.scene, f.error
+        );
+    }
+    bail!(
+        "{} of {} episodes of {} ended early with an error; the metrics above count them as they ended and are not a valid result",
+        report.failed_episodes,
+        report.episodes,
+        report.agent
+    )
+}
+
+/// Runs `gman eval`.
+pub fn cmd_eval(a: EvalArgs) -> Result<()> {
+    let split = Split::parse(&a.split)?;
+    if split == Split::Train {
+        bail!("split train has no official episodes; use --split val or --split test");
+    }
+    check_eval_flags(&a)?;
+    if !a.seeds.is_empty() {
+        return eval_seeds(a, split);
+    }
+    let factory = agent_factory(&a.agent, a.seed, &a.overrides())?;
+    let t0 = Instant::now();
+    let world = a.world.load()?;
+    let episodes = world.episodes(split, a.episodes)?;
+    let cfg = a.eval_config();
+    let results = evaluate(&world, &episodes, |w| factory(w), &cfg);
+    let report = EvalReport::new(split.name(), &a.agent, &results);
+    print!("{}", report.table());
+    eprintln!(
+        "evaluated {} episodes in {:.1} s",
+        results.len(),
+        t0.elapsed().as_secs_f64()
+    );
+    if let Some(path) = &a.json {
+        let text = serde_json::to_string_pretty(&report)?;
+        std::fs::write(path, text + "\n")
+            .with_context(|| format!("cannot write {}", path.display()))?;
+    }
+    check_failures(&report)
+}
+
+/// `gman eval --seeds`: one evaluation per training seed, then mean ± std.
+fn eval_seeds(a: EvalArgs, split: Split) -> Result<()> {
+    if !a.agent.contains("{seed}") {
+        bail!("--seeds needs an --agent path containing {{seed}}, e.g. runs/gman-seed{{seed}}/checkpoint.ckpt");
+    }
+    let t0 = Instant::now();
+    let world = a.world.load()?;
+    let episodes = world.episodes(split, a.episodes)?;
+    let cfg = a.eval_config();
+    let mut reports = Vec::new();
+    for s in &a.seeds {
+        let path = a.agent.replace("{seed}", &s.to_string());
+        let factory = agent_factory(&path, a.seed, &a.overrides())?;
+        let results = evaluate(&world, &episodes, |w| factory(w), &cfg);
+        let report = EvalReport::new(split.name(), &path, &results);
+        print!("{}", report.table());
+        reports.push(report);
+    }
+    let failed: usize = reports.iter().map(|r| r.failed_episodes).sum();
+    let mut agg = serde_json::Map::new();
+    let mut std = serde_json::Map::new();
+    println!("mean ± std over seeds {:?}:", a.seeds);
+    for kind in ["unseen", "seen"] {
+        let mut m = serde_json::Map::new();
+        let mut sd = serde_json::Map::new();
+        let mut line = format!("  {kind:<7}");
+        for metric in ["sr", "spl", "epa", "dts"] {
+            let v: Vec<f64> = reports
+                .iter()
+                .map(|r| {
+                    let k = if kind == "seen" {
+                        &r.results.seen
+                    } else {
+                        &r.results.unseen
+                    };
+                    match metric {
+                        "sr" => k.sr,
+                        "spl" => k.spl,
+                        "epa" => k.epa,
+                        _ => k.dts,
+                    }
+                })
+                .collect();
+            let n = v.len() as f64;
+            let mean = v.iter().sum::<f64>() / n;
+            let s = if v.len() > 1 {
+                (v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1.0)).sqrt()
+            } else {
+                0.0
+            };
+            line.push_str(&format!(" {metric} {mean:.2}±{s:.2}"));
+            m.insert(metric.into(), mean.into());
+            sd.insert(metric.into(), s.into());
+        }
+        let eps = reports
+            .first()
+            .map(|r| {
+                if kind == "seen" {
+                    r.results.seen.episodes
+                } else {
+                    r.results.unseen.episodes
+                }
+            })
+            .unwrap_or(0);
+        m.insert("episodes".into(), eps.into());
+        println!("{line}");
+        agg.insert(kind.into(), m.into());
+        std.insert(kind.into(), sd.into());
+    }
+    eprintln!(
+        "evaluated {} runs in {:.1} s",
+        reports.len(),
+        t0.elapsed().as_secs_f64()
+    );
+    if let Some(path) = &a.json {
+        let j = serde_json::json!({
+            "split": split.name(),
+            "agent": a.agent,
+            "seeds": a.seeds,
+            "episodes": episodes.len(),
+            "results": agg,
+            "std": std,
+            "failed_episodes": failed,
+            "runs": reports,
+        });
+        std::fs::write(path, serde_json::to_string_pretty(&j)? + "\n")
+            .with_context(|| format!("cannot write {}", path.display()))?;
+    }
+    for r in &reports {
+        check_failures(r)?;
+    }
+    Ok(())
+}

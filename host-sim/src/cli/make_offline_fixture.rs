@@ -1,0 +1,30 @@
+//! `gman make-offline-fixture` (build feature `offline`): a small made-up data directory in
+//! the AI2THOR offline format of SAVN/GMAN, for trying `--data` on it.
+
+use std::path::PathBuf;
+
+use anyhow::Result;
+use clap::Args;
+
+/// `gman make-offline-fixture`.
+#[derive(Debug, Args)]
+pub struct MakeOfflineFixtureArgs {
+    /// Output directory (created if missing).
+    #[arg(long, value_name = "DIR")]
+    pub out: PathBuf,
+    /// Seed of the attribute vectors and feature values.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+}
+
+/// Runs `gman make-offline-fixture`.
+pub fn cmd_make_offline_fixture(a: MakeOfflineFixtureArgs) -> Result<()> {
+    let info = gman_host_sim::sim::offline::fixture::write_fixture(&a.out, a.seed)?;
+    println!(
+        "wrote {}: scenes {}, {} val episodes",
+        a.out.display(),
+        info.scenes.join(", "),
+        info.episodes
+    );
+    Ok(())
+}
