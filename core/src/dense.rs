@@ -5,7 +5,7 @@
 //! and `b` live in RAM and are adapted. Without a gain the layer is the ordinary `W x + b`
 //! and, in the `Full` mode, `W` itself is an f32 tensor in RAM that adaptation updates.
 
-use crate::batch::{matmul_acc, matmul_t_acc, outer_acc_batch};
+use crate::batch::{matmul_acc, matmul_t_acc, outer_acc_batch_with};
 use crate::error::{check_len, Result};
 use crate::matrix::{outer_acc, seg_len, MatRef};
 
@@ -232,10 +232,10 @@ impl<'a> Dense<'a> {
             DenseGrads::Full { w, b } => {
                 check_len("dense.db", o, b.len())?;
                 match self.gain {
-                    None => outer_acc_batch(w, dpre, x, lens, n, 1.0)?,
+                    None => outer_acc_batch_with(self.w.kernels(), w, dpre, x, lens, n, 1.0)?,
                     Some(g) => {
                         scaled(scratch, g)?;
-                        outer_acc_batch(w, scratch, x, lens, n, 1.0)?;
+                        outer_acc_batch_with(self.w.kernels(), w, scratch, x, lens, n, 1.0)?;
                     }
                 }
                 for d in dpre.chunks_exact(o) {
