@@ -111,6 +111,11 @@ pub fn matmul_acc(
     }
     match w.kernels() {
         Some(k) => k.matmul_acc(&w.without_kernels(), x, n, y),
+        // The Cortex-M4F's 32 single registers hold 2 vectors x 8 accumulators and a chunk
+        // of weights (4 vectors spill).
+        // A single vector takes the device's row-at-a-time loop (same bits).
+        None if cfg!(target_arch = "arm") && n == 1 => w.matvec_acc(x, y),
+        None if cfg!(target_arch = "arm") => matmul_acc_blocked::<1, 2>(w, x, n, y),
         None => matmul_acc_blocked::<1, 4>(w, x, n, y),
     }
 }
@@ -131,6 +136,8 @@ pub fn matmul_t_acc(
     }
     match w.kernels() {
         Some(k) => k.matmul_t_acc(&w.without_kernels(), dy, n, dx, 0),
+        None if cfg!(target_arch = "arm") && n == 1 => w.matvec_t_acc(dy, dx),
+        None if cfg!(target_arch = "arm") => matmul_t_acc_blocked::<1, 2>(w, dy, n, dx, 0),
         None => matmul_t_acc_blocked::<1, 4>(w, dy, n, dx, 0),
     }
 }

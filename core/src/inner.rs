@@ -550,6 +550,8 @@ pub fn adapt_grad(
             disc_input_grad(dc, nb, 0, w)?;
             for i in 0..nb {
                 let c = w.dpre1[i];
+                // `c * g` as the batch-1 code writes it (operand order kept for NaN payloads).
+                #[allow(clippy::assign_op_pattern)]
                 for o in w.g[i * f..(i + 1) * f].iter_mut() {
                     *o = c * *o;
                 }

@@ -257,6 +257,7 @@ fn generate_matches_forward_per_entry() {
 
 /// L_D summed over the entries the way the navigator did before batching: `ld_loss` on each
 /// entry alone, parts times `inv`.
+#[allow(clippy::too_many_arguments)]
 fn ld_batch1(
     d: &Discriminator<'_>,
     real: &[f32],
@@ -427,7 +428,7 @@ fn adapt_grad_matches_the_batch1_functions() {
                             },
                             d: &mut dv,
                             dd: &mut ddv,
-                            dx: &mut vec![0.0; F],
+                            dx: &mut [0.0; F],
                         };
                         if use_d {
                             adapt_generator_grad(
