@@ -502,8 +502,13 @@ fn mt_seg<K: Kind, const C: usize, const B: usize>(
         }
         b0 += B;
     }
+    // The vectors left over: 8 C columns x 1 vector per tile.
     while b0 < n {
         let mut c = 0;
+        while c < cb {
+            mt_tile::<K, C, 1>(m, rows, dy, seg, l, off, b0, c);
+            c += C;
+        }
         while c < n8 {
             mt_tile::<K, 1, 1>(m, rows, dy, seg, l, off, b0, c);
             c += 1;
