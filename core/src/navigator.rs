@@ -498,6 +498,32 @@ impl<'w> LayerGrad<'w> {
     }
 }
 
+/// The view of G over its RAM layers (`gen1`, `gen2`) and the blob's base weights.
+fn gen_view<'s>(
+    gen1: &'s LayerRam<'_>,
+    gen2: &'s LayerRam<'_>,
+    w: &NavWeights<'s>,
+) -> Result<Generator<'s>> {
+    Ok(Generator {
+        l1: gen1.view(w.get(TensorId::GenW1))?,
+        l2: gen2.view(w.get(TensorId::GenW2))?,
+    })
+}
+
+/// The view of D over its RAM parameters and the blob's base weights.
+fn disc_view<'s>(
+    disc1: &'s LayerRam<'_>,
+    w2: &'s [f32],
+    b2: &[f32],
+    w: &NavWeights<'s>,
+) -> Result<Discriminator<'s>> {
+    Ok(Discriminator {
+        l1: disc1.view(w.get(TensorId::DiscW1))?,
+        w2,
+        b2: b2.first().copied().unwrap_or(0.0),
+    })
+}
+
 fn ok_update(p: &[f32], g: &[f32], step: f32) -> bool {
     p.iter().zip(g).all(|(a, b)| (a + step * b).is_finite())
 }
@@ -885,19 +911,12 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
 
     /// The adapted generator θ_i as a view (for diagnostics and host-side meta-gradients).
     pub fn generator(&self) -> Result<Generator<'_>> {
-        Ok(Generator {
-            l1: self.r.gen1.view(self.w.get(TensorId::GenW1))?,
-            l2: self.r.gen2.view(self.w.get(TensorId::GenW2))?,
-        })
+        gen_view(&self.r.gen1, &self.r.gen2, &self.w)
     }
 
     /// The current discriminator ω as a view.
     pub fn discriminator(&self) -> Result<Discriminator<'_>> {
-        Ok(Discriminator {
-            l1: self.r.disc1.view(self.w.get(TensorId::DiscW1))?,
-            w2: self.r.disc_w2,
-            b2: self.r.disc_b2.first().copied().unwrap_or(0.0),
-        })
+        disc_view(&self.r.disc1, self.r.disc_w2, self.r.disc_b2, &self.w)
     }
 
     /// The adapted policy φ_i as a view.
@@ -1021,10 +1040,7 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
 
     fn generate(&mut self) -> Result<()> {
         let r = &mut self.r;
-        let gen = Generator {
-            l1: r.gen1.view(self.w.get(TensorId::GenW1))?,
-            l2: r.gen2.view(self.w.get(TensorId::GenW2))?,
-        };
+        let gen = gen_view(&r.gen1, &r.gen2, &self.w)?;
         let mut cache = GeneratorCache {
             u1: r.u1,
             h1: r.h1,
@@ -1185,10 +1201,7 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
             iw,
             ..
         } = &mut self.r;
-        let gen = Generator {
-            l1: gen1.view(w.get(TensorId::GenW1))?,
-            l2: gen2.view(w.get(TensorId::GenW2))?,
-        };
+        let gen = gen_view(gen1, gen2, &w)?;
         inner::generate(
             &gen,
             &psi_z[..n * d.noise],
@@ -1225,11 +1238,7 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
         g_disc_w2.fill(0.0);
         g_disc_b2.fill(0.0);
         let ld = {
-            let disc = Discriminator {
-                l1: disc1.view(w.get(TensorId::DiscW1))?,
-                w2: disc_w2,
-                b2: disc_b2.first().copied().unwrap_or(0.0),
-            };
+            let disc = disc_view(disc1, disc_w2, disc_b2, &w)?;
             let mut db2 = 0.0f32;
             let mut grads = DiscGrads {
                 l1: g_disc1.grads(),
@@ -1329,15 +1338,8 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
         g_gen1.zero();
         g_gen2.zero();
         g_actor.zero();
-        let gen = Generator {
-            l1: gen1.view(w.get(TensorId::GenW1))?,
-            l2: gen2.view(w.get(TensorId::GenW2))?,
-        };
-        let disc = Discriminator {
-            l1: disc1.view(w.get(TensorId::DiscW1))?,
-            w2: disc_w2,
-            b2: disc_b2.first().copied().unwrap_or(0.0),
-        };
+        let gen = gen_view(gen1, gen2, &w)?;
+        let disc = disc_view(disc1, disc_w2, disc_b2, &w)?;
         let loss = inner::adapt_grad(
             cfg.adapt_loss,
             &gen,
