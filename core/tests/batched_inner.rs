@@ -7,6 +7,8 @@
 //! and repeated noise (consecutive identical noise vectors share one pass of G), both forms of
 //! L_ad, batch sizes 1, 2, 3, n and more than n.
 
+mod common;
+use common::vals;
 use gman_core::adapt::{adapt_generator_grad, adapt_generator_grad_cos, AdaptLossKind, AdaptWork};
 use gman_core::dense::{Dense, DenseGrads};
 use gman_core::discriminator::{DiscGrads, DiscScratch, Discriminator, LdConfig, LdValue};
@@ -14,18 +16,6 @@ use gman_core::generator::{Generator, GeneratorCache, GeneratorScratch};
 use gman_core::inner::{self, InnerWork};
 use gman_core::matrix::{MatRef, Scales};
 use gman_core::NUM_ACTIONS;
-
-fn vals(n: usize, seed: u32) -> Vec<f32> {
-    let mut s = seed.wrapping_mul(2654435761).wrapping_add(7);
-    (0..n)
-        .map(|_| {
-            s ^= s << 13;
-            s ^= s >> 17;
-            s ^= s << 5;
-            (s % 2001) as f32 / 1000.0 - 1.0
-        })
-        .collect()
-}
 
 const Z: usize = 11;
 const A: usize = 6;

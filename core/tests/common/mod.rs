@@ -116,3 +116,16 @@ pub fn reseal(blob: &[u8], payload_len: usize, old_crc: u32) -> Vec<u8> {
     out.extend_from_slice(payload);
     out
 }
+
+/// Deterministic values in `[-1, 1]` (xorshift), `n` of them from `seed`.
+pub fn vals(n: usize, seed: u32) -> Vec<f32> {
+    let mut s = seed.wrapping_mul(2654435761).wrapping_add(7);
+    (0..n)
+        .map(|_| {
+            s ^= s << 13;
+            s ^= s >> 17;
+            s ^= s << 5;
+            (s % 2001) as f32 / 1000.0 - 1.0
+        })
+        .collect()
+}
