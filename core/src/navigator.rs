@@ -1344,7 +1344,12 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
             cfg.adapt_loss,
             &gen,
             use_d.then_some(&disc),
-            (attr, &psi_z[..n * zd], &psi_x[..n * f], &psi_s[..n * f]),
+            (
+                attr,
+                &psi_z[..n * zd],
+                Some(&psi_x[..n * f]),
+                &psi_s[..n * f],
+            ),
             &psi_p[..n * NUM_ACTIONS],
             (
                 &mut dvals[..n],

@@ -450,7 +450,10 @@ fn adapt_grad_matches_the_batch1_functions() {
                             .unwrap()
                         }
                     };
-                    for b in [1, 2, 3, N, N + 2] {
+                    for (b, with_xs) in [1, 2, 3, N, N + 2]
+                        .into_iter()
+                        .flat_map(|b| [(b, true), (b, false)])
+                    {
                         let (mut h1g, mut h2g) = (Grad::new(&m.g1, eff), Grad::new(&m.g2, eff));
                         let (mut d2, mut dd2) = (vec![0.0; N], vec![0.0; N]);
                         let mut dp2 = vec![0.0; N * NUM_ACTIONS];
@@ -459,7 +462,7 @@ fn adapt_grad_matches_the_batch1_functions() {
                             kind,
                             &g,
                             use_d.then_some(&d),
-                            (&attr, &zs, &xs, &obs),
+                            (&attr, &zs, with_xs.then_some(&xs[..]), &obs),
                             &probs,
                             (&mut d2, &mut dd2, &mut dp2),
                             &mut w.view(),
@@ -468,7 +471,7 @@ fn adapt_grad_matches_the_batch1_functions() {
                         )
                         .unwrap();
                         let what = format!(
-                            "eff={eff} repeated={repeated} kind={kind:?} use_d={use_d} b={b}"
+                            "eff={eff} repeated={repeated} kind={kind:?} use_d={use_d} b={b} xs={with_xs}"
                         );
                         assert_eq!(got.to_bits(), want.to_bits(), "{what}");
                         assert_eq!(bits(&d2), bits(&dv), "{what}");
