@@ -76,6 +76,21 @@ pub struct InnerWork<'a> {
     pub outer_dy: &'a mut [f32],
 }
 
+/// What L_ad is computed on: SE(y), the entries' noise (`n x Z`), their features
+/// (`n x F`; `None`: regenerated from the noise) and observations (`n x F`; read by CosSim
+/// only, may be empty with D).
+#[derive(Clone, Copy, Debug)]
+pub struct AdaptInputs<'a> {
+    /// The attribute vector SE(y).
+    pub attr: &'a [f32],
+    /// `n x Z` noise.
+    pub zs: &'a [f32],
+    /// `n x F` features made by [`generate`], or `None`.
+    pub xs: Option<&'a [f32]>,
+    /// `n x F` observations (CosSim).
+    pub obs: &'a [f32],
+}
+
 /// The first `n` floats of `s` (all of it when shorter: the kernels then report the
 /// length error).
 #[inline]
@@ -204,7 +219,11 @@ fn with_rows<R>(
         Some(z) => Some(z),
         None => wz.get(..nb * zd),
     };
-    let ar = if nb == 1 { Some(attr) } else { war.get(..nb * a) };
+    let ar = if nb == 1 {
+        Some(attr)
+    } else {
+        war.get(..nb * a)
+    };
     let r = match (zr, ar) {
         (Some(zr), Some(ar)) => body(w, (zr, ar)),
         _ => Err(crate::Error::Shape(crate::ShapeError {
@@ -525,13 +544,14 @@ pub fn adapt_grad(
     kind: AdaptLossKind,
     gen: &Generator<'_>,
     disc: Option<&Discriminator<'_>>,
-    (attr, zs, xs, obs): (&[f32], &[f32], Option<&[f32]>, &[f32]),
+    inp: AdaptInputs<'_>,
     probs: &[f32],
     (d, dd, dprobs): (&mut [f32], &mut [f32], &mut [f32]),
     w: &mut InnerWork<'_>,
     grads1: &mut DenseGrads<'_>,
     grads2: &mut DenseGrads<'_>,
 ) -> Result<f32> {
+    let AdaptInputs { attr, zs, xs, obs } = inp;
     w.check()?;
     gen.validate()?;
     let (n, f) = (d.len(), gen.feat());
@@ -554,12 +574,14 @@ pub fn adapt_grad(
         let nb = w.b.min(n - t0);
         if xs.is_none() {
             let z = rows(zs, zd, t0, nb)?;
-            with_rows(w, nb, (Some(z), attr, zd), |w, r| gen_forward_mix(gen, r, nb, w))?;
+            with_rows(w, nb, (Some(z), attr, zd), |w, r| {
+                gen_forward_mix(gen, r, nb, w)
+            })?;
         }
         let mix = core::mem::take(&mut w.mix);
         let x = match xs {
             Some(xs) => rows(xs, f, t0, nb),
-            None => rows(&mix, f, 0, nb),
+            None => rows(mix.as_ref(), f, 0, nb),
         };
         let r = x.and_then(|x| {
             let d = &mut d[t0..t0 + nb];
@@ -586,7 +608,7 @@ pub fn adapt_grad(
     }
     let loss = adapt_loss(kind, d, probs, dd, dprobs)?;
     // Pass 2.
-    score_backward(gen, disc, (attr, zs, xs, obs), dd, w, grads1, grads2)?;
+    score_backward(gen, disc, inp, dd, w, grads1, grads2)?;
     Ok(loss)
 }
 
@@ -599,12 +621,13 @@ pub fn adapt_grad(
 pub fn score_backward(
     gen: &Generator<'_>,
     disc: Option<&Discriminator<'_>>,
-    (attr, zs, xs, obs): (&[f32], &[f32], Option<&[f32]>, &[f32]),
+    inp: AdaptInputs<'_>,
     coef: &[f32],
     w: &mut InnerWork<'_>,
     grads1: &mut DenseGrads<'_>,
     grads2: &mut DenseGrads<'_>,
 ) -> Result<()> {
+    let AdaptInputs { attr, zs, xs, obs } = inp;
     w.check()?;
     gen.validate()?;
     let (n, f) = (coef.len(), gen.feat());

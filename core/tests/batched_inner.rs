@@ -462,7 +462,12 @@ fn adapt_grad_matches_the_batch1_functions() {
                             kind,
                             &g,
                             use_d.then_some(&d),
-                            (&attr, &zs, with_xs.then_some(&xs[..]), &obs),
+                            inner::AdaptInputs {
+                                attr: &attr,
+                                zs: &zs,
+                                xs: with_xs.then_some(&xs[..]),
+                                obs: &obs,
+                            },
                             &probs,
                             (&mut d2, &mut dd2, &mut dp2),
                             &mut w.view(),
