@@ -1344,12 +1344,12 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
             cfg.adapt_loss,
             &gen,
             use_d.then_some(&disc),
-            (
+            inner::AdaptInputs {
                 attr,
-                &psi_z[..n * zd],
-                Some(&psi_x[..n * f]),
-                &psi_s[..n * f],
-            ),
+                zs: &psi_z[..n * zd],
+                xs: Some(&psi_x[..n * f]),
+                obs: &psi_s[..n * f],
+            },
             &psi_p[..n * NUM_ACTIONS],
             (
                 &mut dvals[..n],
