@@ -581,7 +581,7 @@ pub fn adapt_grad(
         let mix = core::mem::take(&mut w.mix);
         let x = match xs {
             Some(xs) => rows(xs, f, t0, nb),
-            None => rows(mix.as_ref(), f, 0, nb),
+            None => rows(mix, f, 0, nb),
         };
         let r = x.and_then(|x| {
             let d = &mut d[t0..t0 + nb];
