@@ -8,8 +8,9 @@
 //! L_ad, batch sizes 1, 2, 3, n and more than n.
 
 mod common;
+use before::{adapt_generator_grad, adapt_generator_grad_cos};
 use common::vals;
-use gman_core::adapt::{adapt_generator_grad, adapt_generator_grad_cos, AdaptLossKind, AdaptWork};
+use gman_core::adapt::{AdaptLossKind, AdaptWork};
 use gman_core::dense::{Dense, DenseGrads};
 use gman_core::discriminator::{DiscGrads, DiscScratch, Discriminator, LdConfig, LdValue};
 use gman_core::generator::{Generator, GeneratorCache, GeneratorScratch};
@@ -384,72 +385,104 @@ fn adapt_grad_matches_the_batch1_functions() {
             let xs = batch1_features(&g, &zs, &attr);
             for kind in [AdaptLossKind::Paper, AdaptLossKind::Reference] {
                 for use_d in [true, false] {
-                    // The batch-1 function.
-                    let mut bufs = vec![vec![0.0f32; F.max(H)]; 14];
-                    let (mut g1, mut g2) = (Grad::new(&m.g1, eff), Grad::new(&m.g2, eff));
-                    let (mut dv, mut ddv) = (vec![0.0; N], vec![0.0; N]);
-                    let mut dprobs = vec![0.0; N * NUM_ACTIONS];
-                    let want = {
-                        let [u1, h1, u2, x, dpre2, dh1, dpre1, tmp, du, dh, ddv2, w1g, gg, mix] =
-                            &mut bufs[..]
-                        else {
-                            unreachable!()
-                        };
-                        let mut aw = AdaptWork {
-                            gen: GeneratorCache {
-                                u1: &mut u1[..H],
-                                h1: &mut h1[..H],
-                                u2: &mut u2[..F],
-                                x: &mut x[..F],
-                            },
-                            gen_scratch: GeneratorScratch {
-                                dpre2: &mut dpre2[..F],
-                                dh1: &mut dh1[..H],
-                                dpre1: &mut dpre1[..H],
-                                tmp,
-                            },
-                            disc: DiscScratch {
-                                u: &mut du[..DH],
-                                h: &mut dh[..DH],
-                                v: &mut ddv2[..DH],
-                                w1g: &mut w1g[..DH],
-                                g: &mut gg[..F],
-                                mix: &mut mix[..F],
-                            },
-                            d: &mut dv,
-                            dd: &mut ddv,
-                            dx: &mut [0.0; F],
-                        };
-                        if use_d {
-                            adapt_generator_grad(
-                                kind,
-                                &g,
-                                &d,
-                                &attr,
-                                &zs,
-                                &probs,
-                                &mut aw,
-                                &mut g1.grads(),
-                                &mut g2.grads(),
-                                &mut dprobs,
-                            )
-                            .unwrap()
+                    // The reference (`before`) and the public batch-1 functions (the
+                    // batched passes with a batch of one) must agree, then the batches.
+                    let mut runs = Vec::new();
+                    for public in [false, true] {
+                        let fd = if public {
+                            gman_core::adapt::adapt_generator_grad
                         } else {
-                            adapt_generator_grad_cos(
-                                kind,
-                                &g,
-                                &attr,
-                                &zs,
-                                &obs,
-                                &probs,
-                                &mut aw,
-                                &mut g1.grads(),
-                                &mut g2.grads(),
-                                &mut dprobs,
-                            )
-                            .unwrap()
-                        }
-                    };
+                            adapt_generator_grad
+                        };
+                        let fc = if public {
+                            gman_core::adapt::adapt_generator_grad_cos
+                        } else {
+                            adapt_generator_grad_cos
+                        };
+                        let mut bufs = vec![vec![0.0f32; F.max(H)]; 14];
+                        let (mut g1, mut g2) = (Grad::new(&m.g1, eff), Grad::new(&m.g2, eff));
+                        let (mut dv, mut ddv) = (vec![0.0; N], vec![0.0; N]);
+                        let mut dprobs = vec![0.0; N * NUM_ACTIONS];
+                        let want = {
+                            let [u1, h1, u2, x, dpre2, dh1, dpre1, tmp, du, dh, ddv2, w1g, gg, mix] =
+                                &mut bufs[..]
+                            else {
+                                unreachable!()
+                            };
+                            let mut aw = AdaptWork {
+                                gen: GeneratorCache {
+                                    u1: &mut u1[..H],
+                                    h1: &mut h1[..H],
+                                    u2: &mut u2[..F],
+                                    x: &mut x[..F],
+                                },
+                                gen_scratch: GeneratorScratch {
+                                    dpre2: &mut dpre2[..F],
+                                    dh1: &mut dh1[..H],
+                                    dpre1: &mut dpre1[..H],
+                                    tmp,
+                                },
+                                disc: DiscScratch {
+                                    u: &mut du[..DH],
+                                    h: &mut dh[..DH],
+                                    v: &mut ddv2[..DH],
+                                    w1g: &mut w1g[..DH],
+                                    g: &mut gg[..F],
+                                    mix: &mut mix[..F],
+                                },
+                                d: &mut dv,
+                                dd: &mut ddv,
+                                dx: &mut [0.0; F],
+                            };
+                            if use_d {
+                                fd(
+                                    kind,
+                                    &g,
+                                    &d,
+                                    &attr,
+                                    &zs,
+                                    &probs,
+                                    &mut aw,
+                                    &mut g1.grads(),
+                                    &mut g2.grads(),
+                                    &mut dprobs,
+                                )
+                                .unwrap()
+                            } else {
+                                fc(
+                                    kind,
+                                    &g,
+                                    &attr,
+                                    &zs,
+                                    &obs,
+                                    &probs,
+                                    &mut aw,
+                                    &mut g1.grads(),
+                                    &mut g2.grads(),
+                                    &mut dprobs,
+                                )
+                                .unwrap()
+                            }
+                        };
+                        runs.push((
+                            want.to_bits(),
+                            bits(&dv),
+                            bits(&ddv),
+                            bits(&dprobs),
+                            g1.bits(),
+                            g2.bits(),
+                            g1,
+                            g2,
+                            dv,
+                            ddv,
+                            dprobs,
+                            want,
+                        ));
+                    }
+                    let pub_run = runs.pop().unwrap();
+                    let (wb, dvb, ddb, dpb, g1b, g2b, g1, g2, dv, ddv, dprobs, want) =
+                        runs.pop().unwrap();
+                    assert_eq!((wb, dvb, ddb, dpb, g1b, g2b), (pub_run.0, pub_run.1, pub_run.2, pub_run.3, pub_run.4, pub_run.5), "public batch-1 vs reference: eff={eff} repeated={repeated} kind={kind:?} use_d={use_d}");
                     for (b, with_xs) in [1, 2, 3, N, N + 2]
                         .into_iter()
                         .flat_map(|b| [(b, true), (b, false)])
@@ -524,4 +557,165 @@ fn short_buffers_are_errors_not_panics() {
         },
     );
     assert!(r.is_err());
+}
+
+/// The batch-1 implementation the navigator ran before the batched inner update (and
+/// `gman_core::adapt` before it became the batched passes with a batch of one), kept as the
+/// reference transcription of the order of operations.
+mod before {
+    use gman_core::adapt::{adapt_loss, cosine, AdaptLossKind, AdaptWork};
+    use gman_core::dense::DenseGrads;
+    use gman_core::discriminator::{DiscScratch, Discriminator};
+    use gman_core::error::Result;
+
+    /// The reference runs on valid shapes only.
+    fn check_len(what: &str, expected: usize, actual: usize) -> Result<()> {
+        assert_eq!(expected, actual, "{what}");
+        Ok(())
+    }
+    use gman_core::generator::{Generator, GeneratorCache, GeneratorScratch};
+
+    /// L_ad over a buffer of `n` steps and its gradient with respect to G's parameters θ and to
+    /// the action probabilities.
+    ///
+    /// `zs` holds the `n` noise vectors (`n x Z`) the buffer's features were generated with;
+    /// the features are regenerated from them (G is unchanged inside one adaptation window, so
+    /// this is exact, and it spares the device the `n x H` activations). Entries with
+    /// bit-identical noise (always the case with the reference's fixed zero noise) share one
+    /// forward/backward pass of G with their `∂L/∂x` summed. `probs` is `n x 6`.
+    /// The θ gradient is accumulated into `grads1`/`grads2`; `dprobs` (`n x 6`) is overwritten.
+    #[allow(clippy::too_many_arguments)]
+    pub fn adapt_generator_grad(
+        kind: AdaptLossKind,
+        gen: &Generator<'_>,
+        disc: &Discriminator<'_>,
+        attr: &[f32],
+        zs: &[f32],
+        probs: &[f32],
+        w: &mut AdaptWork<'_>,
+        grads1: &mut DenseGrads<'_>,
+        grads2: &mut DenseGrads<'_>,
+        dprobs: &mut [f32],
+    ) -> Result<f32> {
+        let n = w.d.len();
+        let zdim = gen.in_dim().saturating_sub(attr.len());
+        check_len("adapt.zs", n * zdim, zs.len())?;
+        check_len("adapt.dd", n, w.dd.len())?;
+        check_len("adapt.dx", gen.feat(), w.dx.len())?;
+        check_len("adapt.disc_in", gen.feat(), disc.in_dim())?;
+        // Pass 1: D(x_t) for every entry.
+        for t in 0..n {
+            let z = &zs[t * zdim..(t + 1) * zdim];
+            gen.forward(z, attr, &mut w.gen)?;
+            w.d[t] = disc.score(w.gen.x, &mut w.disc)?;
+        }
+        let loss = adapt_loss(kind, w.d, probs, w.dd, dprobs)?;
+        // Pass 2: back-propagate ∂L/∂d_t · ∇D(x_t) through G, grouping identical noise.
+        let AdaptWork {
+            gen: cache,
+            gen_scratch,
+            disc: ds,
+            dd,
+            dx,
+            ..
+        } = w;
+        backprop_scores(
+            gen,
+            disc,
+            attr,
+            zs,
+            zdim,
+            dd,
+            cache,
+            gen_scratch,
+            ds,
+            dx,
+            grads1,
+            grads2,
+        )?;
+        Ok(loss)
+    }
+
+    /// `∇_θ Σ_t coef_t D(G_θ(z_t))`, grouping consecutive bit-identical noise vectors.
+    #[allow(clippy::too_many_arguments)]
+    fn backprop_scores(
+        gen: &Generator<'_>,
+        disc: &Discriminator<'_>,
+        attr: &[f32],
+        zs: &[f32],
+        zdim: usize,
+        coef: &[f32],
+        cache: &mut GeneratorCache<'_>,
+        gen_scratch: &mut GeneratorScratch<'_>,
+        ds: &mut DiscScratch<'_>,
+        dx: &mut [f32],
+        grads1: &mut DenseGrads<'_>,
+        grads2: &mut DenseGrads<'_>,
+    ) -> Result<()> {
+        let n = coef.len();
+        let mut t = 0;
+        while t < n {
+            let z = &zs[t * zdim..(t + 1) * zdim];
+            let mut c = coef[t];
+            let mut end = t + 1;
+            while end < n && same_bits(&zs[end * zdim..(end + 1) * zdim], z) {
+                c += coef[end];
+                end += 1;
+            }
+            gen.forward(z, attr, cache)?;
+            disc.score(cache.x, ds)?;
+            disc.input_grad(ds)?;
+            for (o, &g) in dx.iter_mut().zip(ds.g.iter()) {
+                *o = c * g;
+            }
+            gen.backward(z, attr, cache, dx, grads1, grads2, gen_scratch)?;
+            t = end;
+        }
+        Ok(())
+    }
+
+    fn same_bits(a: &[f32], b: &[f32]) -> bool {
+        a.len() == b.len() && a.iter().zip(b).all(|(x, y)| x.to_bits() == y.to_bits())
+    }
+
+    /// L_ad with the cosine similarity `cos(x_t, s_t)` between each generated feature and the
+    /// observation it was generated with, in place of `D(x_t)`: the "CosSim" variant of the
+    /// environmental meta discriminator (paper Table 3). `obs` holds the buffer's observations
+    /// (`n x F`); the other arguments are those of [`adapt_generator_grad`] (D's scratch in `w`
+    /// is unused). Accumulates the θ gradient into `grads1`/`grads2`, overwrites `dprobs`.
+    #[allow(clippy::too_many_arguments)]
+    pub fn adapt_generator_grad_cos(
+        kind: AdaptLossKind,
+        gen: &Generator<'_>,
+        attr: &[f32],
+        zs: &[f32],
+        obs: &[f32],
+        probs: &[f32],
+        w: &mut AdaptWork<'_>,
+        grads1: &mut DenseGrads<'_>,
+        grads2: &mut DenseGrads<'_>,
+        dprobs: &mut [f32],
+    ) -> Result<f32> {
+        let n = w.d.len();
+        let f = gen.feat();
+        let zdim = gen.in_dim().saturating_sub(attr.len());
+        check_len("adapt.zs", n * zdim, zs.len())?;
+        check_len("adapt.obs", n * f, obs.len())?;
+        check_len("adapt.dd", n, w.dd.len())?;
+        check_len("adapt.dx", f, w.dx.len())?;
+        for t in 0..n {
+            gen.forward(&zs[t * zdim..(t + 1) * zdim], attr, &mut w.gen)?;
+            w.d[t] = cosine(w.gen.x, &obs[t * f..(t + 1) * f], None)?;
+        }
+        let loss = adapt_loss(kind, w.d, probs, w.dd, dprobs)?;
+        for t in 0..n {
+            let z = &zs[t * zdim..(t + 1) * zdim];
+            gen.forward(z, attr, &mut w.gen)?;
+            cosine(w.gen.x, &obs[t * f..(t + 1) * f], Some(w.dx))?;
+            let c = w.dd[t];
+            w.dx.iter_mut().for_each(|v| *v *= c);
+            gen.backward(z, attr, &w.gen, w.dx, grads1, grads2, &mut w.gen_scratch)?;
+        }
+        Ok(loss)
+    }
 }
