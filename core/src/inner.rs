@@ -511,29 +511,6 @@ fn score_grad(
     Ok(())
 }
 
-/// `D(x_t)` for the `n` features `xs` (`n x F`) into `d` (`n`).
-pub fn scores(
-    disc: &Discriminator<'_>,
-    xs: &[f32],
-    d: &mut [f32],
-    w: &mut InnerWork<'_>,
-) -> Result<()> {
-    w.check()?;
-    disc.validate()?;
-    let (n, f) = (d.len(), disc.in_dim());
-    check_len("inner.xs", n * f, xs.len())?;
-    let mut t0 = 0;
-    while t0 < n {
-        let nb = w.b.min(n - t0);
-        disc_hidden(disc, rows(xs, f, t0, nb)?, nb, 0, w)?;
-        for i in 0..nb {
-            d[t0 + i] = disc_score(disc, w, 0, i);
-        }
-        t0 += nb;
-    }
-    Ok(())
-}
-
 /// L_ad (Eq. 3) over Ψ and its θ gradient, batched: [`crate::adapt::adapt_generator_grad`]
 /// (with `disc`) or [`crate::adapt::adapt_generator_grad_cos`] (`disc = None`; `obs` are the
 /// observations). `xs` are the features [`generate`] made (`None`: regenerated from `zs`,
