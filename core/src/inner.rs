@@ -19,8 +19,9 @@
 //! * G is not changed inside one inner update, so the features `x_t` are generated once
 //!   ([`generate`]) and read by every pass (today's code regenerated them, with the same bits).
 //!
-//! `tests/tests/inner_batch.rs`-style pins live in this module's tests and in the navigator's
-//! (whole episodes against the reference oracle in `gman-tests`, and host/QEMU parity).
+//! `core/tests/batched_inner.rs` pins this against a transcription of the batch-1 code, for
+//! batch sizes 1, 2, 3, n and more than n; whole episodes are checked against the f64 oracle
+//! of `gman-tests` and between the host and the Cortex-M4F (QEMU).
 
 use crate::activation::{
     leaky_relu, leaky_relu_backward, leaky_relu_grad, leaky_relu_inplace, sigmoid_backward,
