@@ -4,9 +4,11 @@
 //! [`crate::memory::adapt_batch`]).
 //!
 //! # The same bits as one entry at a time
-//! Every function here gives exactly the bits of the batch-1 code it replaces
-//! ([`Discriminator::ld_loss`] on one entry at a time, [`crate::adapt::adapt_generator_grad`],
-//! [`crate::adapt::adapt_generator_grad_cos`]), whatever `b`:
+//! Every function here gives exactly the bits of the batch-1 code it replaced
+//! ([`Discriminator::ld_loss`] on one entry at a time, and the former one-entry-at-a-time
+//! bodies of [`crate::adapt::adapt_generator_grad`] and
+//! [`crate::adapt::adapt_generator_grad_cos`], which are now these passes with `b = 1`),
+//! whatever `b`:
 //! * the batched kernels give every vector the bits of the batch-1 kernel (the contract of
 //!   [`crate::batch`]), and every input keeps its segmentation (`[z; attr]` for G's first
 //!   layer);
