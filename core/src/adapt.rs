@@ -16,6 +16,7 @@ use crate::dense::{Dense, DenseGrads};
 use crate::discriminator::{DiscScratch, Discriminator};
 use crate::error::{check_len, Result};
 use crate::generator::{Generator, GeneratorCache, GeneratorScratch};
+use crate::inner::{self, AdaptInputs, InnerWork};
 use crate::matrix::dot;
 use crate::NUM_ACTIONS;
 
@@ -94,21 +95,49 @@ pub fn adapt_loss(
     }
 }
 
-/// Everything [`adapt_generator_grad`] writes besides the gradients.
+/// Everything [`adapt_generator_grad`] writes besides the gradients (its batch-1 buffers:
+/// the functions here are [`crate::inner`]'s batched passes with a batch of one).
 #[derive(Debug)]
 pub struct AdaptWork<'a> {
-    /// G's activations (reused per buffer entry).
+    /// G's activations (reused per buffer entry; `x` is not written, the feature goes to
+    /// `disc.mix`).
     pub gen: GeneratorCache<'a>,
-    /// G's backward scratch.
+    /// G's backward scratch (`tmp` is not used).
     pub gen_scratch: GeneratorScratch<'a>,
-    /// D's scratch.
+    /// D's scratch (`mix` holds the generated feature).
     pub disc: DiscScratch<'a>,
     /// `n` floats: receives `D(x_t)`.
     pub d: &'a mut [f32],
     /// `n` floats: receives `∂L_ad/∂D(x_t)`.
     pub dd: &'a mut [f32],
-    /// `F` floats.
+    /// `F` floats (checked, not written).
     pub dx: &'a mut [f32],
+}
+
+impl AdaptWork<'_> {
+    /// The buffers as a batch-of-one [`InnerWork`] (G's noise and attribute rows are then
+    /// read in place, so it needs no room for them).
+    fn inner(&mut self) -> InnerWork<'_> {
+        InnerWork {
+            b: 1,
+            z: &mut [],
+            attr: &mut [],
+            u1: self.gen.u1,
+            h1: self.gen.h1,
+            u2: self.gen.u2,
+            dpre2: self.gen_scratch.dpre2,
+            dh1: self.gen_scratch.dh1,
+            dpre1: self.gen_scratch.dpre1,
+            du: self.disc.u,
+            dh: self.disc.h,
+            dv: self.disc.v,
+            w1g: self.disc.w1g,
+            g: self.disc.g,
+            mix: self.disc.mix,
+            outer_x: &mut [],
+            outer_dy: &mut [],
+        }
+    }
 }
 
 /// L_ad over a buffer of `n` steps and its gradient with respect to G's parameters θ and to
@@ -120,6 +149,8 @@ pub struct AdaptWork<'a> {
 /// bit-identical noise (always the case with the reference's fixed zero noise) share one
 /// forward/backward pass of G with their `∂L/∂x` summed. `probs` is `n x 6`.
 /// The θ gradient is accumulated into `grads1`/`grads2`; `dprobs` (`n x 6`) is overwritten.
+/// [`crate::inner::adapt_grad`] one entry at a time (the navigator's inner update runs it
+/// batched: the same bits).
 #[allow(clippy::too_many_arguments)]
 pub fn adapt_generator_grad(
     kind: AdaptLossKind,
@@ -133,50 +164,63 @@ pub fn adapt_generator_grad(
     grads2: &mut DenseGrads<'_>,
     dprobs: &mut [f32],
 ) -> Result<f32> {
-    let n = w.d.len();
-    let zdim = gen.in_dim().saturating_sub(attr.len());
-    check_len("adapt.zs", n * zdim, zs.len())?;
-    check_len("adapt.dd", n, w.dd.len())?;
     check_len("adapt.dx", gen.feat(), w.dx.len())?;
     check_len("adapt.disc_in", gen.feat(), disc.in_dim())?;
-    // Pass 1: D(x_t) for every entry.
-    for t in 0..n {
-        let z = &zs[t * zdim..(t + 1) * zdim];
-        gen.forward(z, attr, &mut w.gen)?;
-        w.d[t] = disc.score(w.gen.x, &mut w.disc)?;
-    }
-    let loss = adapt_loss(kind, w.d, probs, w.dd, dprobs)?;
-    // Pass 2: back-propagate ∂L/∂d_t · ∇D(x_t) through G, grouping identical noise.
-    let AdaptWork {
-        gen: cache,
-        gen_scratch,
-        disc: ds,
-        dd,
-        dx,
-        ..
-    } = w;
-    backprop_scores(
+    adapt_one_by_one(
+        kind,
         gen,
-        disc,
+        Some(disc),
+        (attr, zs, &[]),
+        probs,
+        w,
+        (grads1, grads2),
+        dprobs,
+    )
+}
+
+/// [`adapt_generator_grad`] and [`adapt_generator_grad_cos`]: the batched passes with a
+/// batch of one over `w`'s buffers.
+#[allow(clippy::too_many_arguments)]
+fn adapt_one_by_one(
+    kind: AdaptLossKind,
+    gen: &Generator<'_>,
+    disc: Option<&Discriminator<'_>>,
+    (attr, zs, obs): (&[f32], &[f32], &[f32]),
+    probs: &[f32],
+    w: &mut AdaptWork<'_>,
+    (grads1, grads2): (&mut DenseGrads<'_>, &mut DenseGrads<'_>),
+    dprobs: &mut [f32],
+) -> Result<f32> {
+    let inp = AdaptInputs {
         attr,
         zs,
-        zdim,
-        dd,
-        cache,
-        gen_scratch,
-        ds,
-        dx,
+        xs: None,
+        obs,
+    };
+    let AdaptWork { d, dd, .. } = w;
+    let (d, dd) = (core::mem::take(d), core::mem::take(dd));
+    let r = inner::adapt_grad(
+        kind,
+        gen,
+        disc,
+        inp,
+        probs,
+        (&mut *d, &mut *dd, dprobs),
+        &mut w.inner(),
         grads1,
         grads2,
-    )?;
-    Ok(loss)
+    );
+    w.d = d;
+    w.dd = dd;
+    r
 }
 
 /// Accumulates `∇_θ Σ_t c_t D(G_θ(z_t, attr))` into `grads1`/`grads2`: the back-propagation
 /// pass of [`adapt_generator_grad`] with caller-chosen per-entry coefficients `coef` (`n`
 /// floats; `zs` is `n x Z`). With `coef = ∂L_ad/∂d_t` it is L_ad's θ gradient; a host-side
 /// meta-gradient uses it for vector-Jacobian products of other functions of the scores
-/// `d_t = D(x_t)`. Only `w.gen`, `w.gen_scratch`, `w.disc` and `w.dx` are written.
+/// `d_t = D(x_t)`. Only `w.gen`, `w.gen_scratch` and `w.disc` are written
+/// ([`crate::inner::score_backward`] one entry at a time).
 #[allow(clippy::too_many_arguments)]
 pub fn generator_score_backward(
     gen: &Generator<'_>,
@@ -188,67 +232,15 @@ pub fn generator_score_backward(
     grads1: &mut DenseGrads<'_>,
     grads2: &mut DenseGrads<'_>,
 ) -> Result<()> {
-    let n = coef.len();
-    let zdim = gen.in_dim().saturating_sub(attr.len());
-    check_len("adapt.zs", n * zdim, zs.len())?;
     check_len("adapt.dx", gen.feat(), w.dx.len())?;
     check_len("adapt.disc_in", gen.feat(), disc.in_dim())?;
-    backprop_scores(
-        gen,
-        disc,
+    let inp = AdaptInputs {
         attr,
         zs,
-        zdim,
-        coef,
-        &mut w.gen,
-        &mut w.gen_scratch,
-        &mut w.disc,
-        w.dx,
-        grads1,
-        grads2,
-    )
-}
-
-/// `∇_θ Σ_t coef_t D(G_θ(z_t))`, grouping consecutive bit-identical noise vectors.
-#[allow(clippy::too_many_arguments)]
-fn backprop_scores(
-    gen: &Generator<'_>,
-    disc: &Discriminator<'_>,
-    attr: &[f32],
-    zs: &[f32],
-    zdim: usize,
-    coef: &[f32],
-    cache: &mut GeneratorCache<'_>,
-    gen_scratch: &mut GeneratorScratch<'_>,
-    ds: &mut DiscScratch<'_>,
-    dx: &mut [f32],
-    grads1: &mut DenseGrads<'_>,
-    grads2: &mut DenseGrads<'_>,
-) -> Result<()> {
-    let n = coef.len();
-    let mut t = 0;
-    while t < n {
-        let z = &zs[t * zdim..(t + 1) * zdim];
-        let mut c = coef[t];
-        let mut end = t + 1;
-        while end < n && same_bits(&zs[end * zdim..(end + 1) * zdim], z) {
-            c += coef[end];
-            end += 1;
-        }
-        gen.forward(z, attr, cache)?;
-        disc.score(cache.x, ds)?;
-        disc.input_grad(ds)?;
-        for (o, &g) in dx.iter_mut().zip(ds.g.iter()) {
-            *o = c * g;
-        }
-        gen.backward(z, attr, cache, dx, grads1, grads2, gen_scratch)?;
-        t = end;
-    }
-    Ok(())
-}
-
-fn same_bits(a: &[f32], b: &[f32]) -> bool {
-    a.len() == b.len() && a.iter().zip(b).all(|(x, y)| x.to_bits() == y.to_bits())
+        xs: None,
+        obs: &[],
+    };
+    inner::score_backward(gen, Some(disc), inp, coef, &mut w.inner(), grads1, grads2)
 }
 
 /// `cos(x, s)`; when `dx` is given, writes `∂cos/∂x = s / (‖x‖‖s‖) − cos · x / ‖x‖²` into it.
@@ -279,7 +271,8 @@ pub fn cosine(x: &[f32], s: &[f32], dx: Option<&mut [f32]>) -> Result<f32> {
 /// observation it was generated with, in place of `D(x_t)`: the "CosSim" variant of the
 /// environmental meta discriminator (paper Table 3). `obs` holds the buffer's observations
 /// (`n x F`); the other arguments are those of [`adapt_generator_grad`] (D's scratch in `w`
-/// is unused). Accumulates the θ gradient into `grads1`/`grads2`, overwrites `dprobs`.
+/// holds the features and input gradients). Accumulates the θ gradient into
+/// `grads1`/`grads2`, overwrites `dprobs`.
 #[allow(clippy::too_many_arguments)]
 pub fn adapt_generator_grad_cos(
     kind: AdaptLossKind,
@@ -293,27 +286,17 @@ pub fn adapt_generator_grad_cos(
     grads2: &mut DenseGrads<'_>,
     dprobs: &mut [f32],
 ) -> Result<f32> {
-    let n = w.d.len();
-    let f = gen.feat();
-    let zdim = gen.in_dim().saturating_sub(attr.len());
-    check_len("adapt.zs", n * zdim, zs.len())?;
-    check_len("adapt.obs", n * f, obs.len())?;
-    check_len("adapt.dd", n, w.dd.len())?;
-    check_len("adapt.dx", f, w.dx.len())?;
-    for t in 0..n {
-        gen.forward(&zs[t * zdim..(t + 1) * zdim], attr, &mut w.gen)?;
-        w.d[t] = cosine(w.gen.x, &obs[t * f..(t + 1) * f], None)?;
-    }
-    let loss = adapt_loss(kind, w.d, probs, w.dd, dprobs)?;
-    for t in 0..n {
-        let z = &zs[t * zdim..(t + 1) * zdim];
-        gen.forward(z, attr, &mut w.gen)?;
-        cosine(w.gen.x, &obs[t * f..(t + 1) * f], Some(w.dx))?;
-        let c = w.dd[t];
-        w.dx.iter_mut().for_each(|v| *v *= c);
-        gen.backward(z, attr, &w.gen, w.dx, grads1, grads2, &mut w.gen_scratch)?;
-    }
-    Ok(loss)
+    check_len("adapt.dx", gen.feat(), w.dx.len())?;
+    adapt_one_by_one(
+        kind,
+        gen,
+        None,
+        (attr, zs, obs),
+        probs,
+        w,
+        (grads1, grads2),
+        dprobs,
+    )
 }
 
 /// The actor head's (φ's) gradient of L_ad (Eq. 3), accumulated into `grads`: for every

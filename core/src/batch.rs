@@ -75,6 +75,19 @@ pub trait Kernels: Sync + core::fmt::Debug {
     ) -> Result<()>;
 }
 
+/// The per-vector segment lengths of one segmented vector (a batch of `n = 1`), to call a
+/// batched function with; at most [`MAX_SEGS`] segments.
+pub fn seg_lens(lens: impl ExactSizeIterator<Item = usize>) -> Result<[usize; MAX_SEGS]> {
+    if lens.len() > MAX_SEGS {
+        check_len("batch.segments", MAX_SEGS, lens.len())?;
+    }
+    let mut out = [0usize; MAX_SEGS];
+    for (o, l) in out.iter_mut().zip(lens) {
+        *o = l;
+    }
+    Ok(out)
+}
+
 /// Checks a batch-major segmented input: at most [`MAX_SEGS`] segments, one per-vector length
 /// per segment, segment `s` holding `n * lens[s]` values, lengths adding up to `cols`.
 fn check_batch(
@@ -111,6 +124,12 @@ pub fn matmul_acc(
     }
     match w.kernels() {
         Some(k) => k.matmul_acc(&w.without_kernels(), x, n, y),
+        // The Cortex-M4F's 32 single registers hold 2 vectors x 8 accumulators and a chunk
+        // of weights (4 vectors spill).
+        // A single vector takes the batch-1 kernel (its row blocking on hosts, the
+        // row-at-a-time loop on the device; the same bits).
+        None if n == 1 => w.matvec_acc(x, y),
+        None if cfg!(target_arch = "arm") => matmul_acc_blocked::<1, 2>(w, x, n, y),
         None => matmul_acc_blocked::<1, 4>(w, x, n, y),
     }
 }
@@ -131,6 +150,8 @@ pub fn matmul_t_acc(
     }
     match w.kernels() {
         Some(k) => k.matmul_t_acc(&w.without_kernels(), dy, n, dx, 0),
+        None if n == 1 => w.matvec_t_acc(dy, dx),
+        None if cfg!(target_arch = "arm") => matmul_t_acc_blocked::<1, 2>(w, dy, n, dx, 0),
         None => matmul_t_acc_blocked::<1, 4>(w, dy, n, dx, 0),
     }
 }
@@ -171,6 +192,8 @@ pub fn outer_acc_batch_with(
     check_len("outer_batch.dw", rows.saturating_mul(cols), dw.len())?;
     match kernels {
         Some(k) => k.outer_acc_batch(dw, dy, x, n, alpha),
+        // One vector: the batch-1 kernel (the row-at-a-time loop on the device).
+        None if n == 1 => crate::matrix::outer_acc(dw, dy, x, alpha),
         None => outer_acc_batch_blocked::<2, 2>(dw, dy, x, n, alpha),
     }
 }
@@ -495,8 +518,13 @@ fn mt_seg<K: Kind, const C: usize, const B: usize>(
         }
         b0 += B;
     }
+    // The vectors left over: 8 C columns x 1 vector per tile.
     while b0 < n {
         let mut c = 0;
+        while c < cb {
+            mt_tile::<K, C, 1>(m, rows, dy, seg, l, off, b0, c);
+            c += C;
+        }
         while c < n8 {
             mt_tile::<K, 1, 1>(m, rows, dy, seg, l, off, b0, c);
             c += 1;

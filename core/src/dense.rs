@@ -5,9 +5,9 @@
 //! and `b` live in RAM and are adapted. Without a gain the layer is the ordinary `W x + b`
 //! and, in the `Full` mode, `W` itself is an f32 tensor in RAM that adaptation updates.
 
-use crate::batch::{matmul_acc, matmul_t_acc, outer_acc_batch};
+use crate::batch::{matmul_acc, matmul_t_acc, outer_acc_batch_with, seg_lens};
 use crate::error::{check_len, Result};
-use crate::matrix::{outer_acc, seg_len, MatRef};
+use crate::matrix::{seg_len, MatRef};
 
 /// A read-only view of a dense layer.
 #[derive(Clone, Copy, Debug)]
@@ -63,27 +63,13 @@ impl<'a> Dense<'a> {
         Ok(())
     }
 
-    /// Forward pass. `x` is the (segmented) input; `pre` receives `gain ⊙ (W x) + b`.
-    /// When the layer has a gain, `u` must have `out` elements and receives `W x` (needed by
-    /// the backward pass); otherwise `u` may be empty.
+    /// Forward pass. `x` is the (segmented, at most [`crate::batch::MAX_SEGS`] segments)
+    /// input; `pre` receives `gain ⊙ (W x) + b`. When the layer has a gain, `u` must have
+    /// `out` elements and receives `W x` (needed by the backward pass); otherwise `u` may be
+    /// empty. [`Dense::forward_batch`] with a batch of one.
     pub fn forward(&self, x: &[&[f32]], u: &mut [f32], pre: &mut [f32]) -> Result<()> {
-        self.validate()?;
-        check_len("dense.pre", self.out_dim(), pre.len())?;
-        match self.gain {
-            None => {
-                pre.copy_from_slice(self.b);
-                self.w.matvec_acc(x, pre)
-            }
-            Some(g) => {
-                check_len("dense.u", self.out_dim(), u.len())?;
-                u.fill(0.0);
-                self.w.matvec_acc(x, u)?;
-                for (((p, &ui), &gi), &bi) in pre.iter_mut().zip(u.iter()).zip(g).zip(self.b) {
-                    *p = gi * ui + bi;
-                }
-                Ok(())
-            }
-        }
+        let lens = seg_lens(x.iter().map(|s| s.len()))?;
+        self.forward_batch(x, &lens[..x.len()], 1, u, pre)
     }
 
     /// Backward pass from `dpre = dL/dpre`.
@@ -91,7 +77,8 @@ impl<'a> Dense<'a> {
     /// Accumulates the parameter gradients into `grads`, and, when `dx` is given, adds
     /// `dL/dx` into its segments. `u` is the `W x` saved by [`Dense::forward`] (only read
     /// for [`DenseGrads::Gain`]); `scratch` (length `out`) is used when the layer has a gain
-    /// and `dx` is requested, to form `gain ⊙ dpre`.
+    /// and `dx` is requested, to form `gain ⊙ dpre`. [`Dense::backward_batch`] with a batch
+    /// of one.
     pub fn backward(
         &self,
         x: &[&[f32]],
@@ -101,53 +88,17 @@ impl<'a> Dense<'a> {
         grads: &mut DenseGrads<'_>,
         scratch: &mut [f32],
     ) -> Result<()> {
-        self.validate()?;
-        check_len("dense.dpre", self.out_dim(), dpre.len())?;
         check_len("dense.x", self.in_dim(), seg_len(x))?;
-        match grads {
-            DenseGrads::None => {}
-            DenseGrads::Full { w, b } => {
-                check_len("dense.db", self.out_dim(), b.len())?;
-                // With a gain, dL/d(Wx) = gain ⊙ dpre; W's gradient uses that.
-                match self.gain {
-                    None => outer_acc(w, dpre, x, 1.0)?,
-                    Some(g) => {
-                        check_len("dense.scratch", self.out_dim(), scratch.len())?;
-                        for ((s, &d), &gi) in scratch.iter_mut().zip(dpre).zip(g) {
-                            *s = d * gi;
-                        }
-                        outer_acc(w, scratch, x, 1.0)?;
-                    }
-                }
-                for (bi, &d) in b.iter_mut().zip(dpre) {
-                    *bi += d;
-                }
-            }
-            DenseGrads::Gain { gain, b } => {
-                check_len("dense.dgain", self.out_dim(), gain.len())?;
-                check_len("dense.db", self.out_dim(), b.len())?;
-                check_len("dense.u", self.out_dim(), u.len())?;
-                for ((gg, &d), &ui) in gain.iter_mut().zip(dpre).zip(u) {
-                    *gg += d * ui;
-                }
-                for (bi, &d) in b.iter_mut().zip(dpre) {
-                    *bi += d;
-                }
+        let lens = seg_lens(x.iter().map(|s| s.len()))?;
+        match dx {
+            None => self.backward_batch(x, &lens[..x.len()], 1, u, dpre, None, grads, scratch),
+            Some(dx) => {
+                let dlens = seg_lens(dx.iter().map(|s| s.len()))?;
+                let nd = dx.len();
+                let dx = Some((dx, &dlens[..nd]));
+                self.backward_batch(x, &lens[..x.len()], 1, u, dpre, dx, grads, scratch)
             }
         }
-        if let Some(dx) = dx {
-            match self.gain {
-                None => self.w.matvec_t_acc(dpre, dx)?,
-                Some(g) => {
-                    check_len("dense.scratch", self.out_dim(), scratch.len())?;
-                    for ((s, &d), &gi) in scratch.iter_mut().zip(dpre).zip(g) {
-                        *s = d * gi;
-                    }
-                    self.w.matvec_t_acc(scratch, dx)?;
-                }
-            }
-        }
-        Ok(())
     }
 }
 
@@ -232,10 +183,10 @@ impl<'a> Dense<'a> {
             DenseGrads::Full { w, b } => {
                 check_len("dense.db", o, b.len())?;
                 match self.gain {
-                    None => outer_acc_batch(w, dpre, x, lens, n, 1.0)?,
+                    None => outer_acc_batch_with(self.w.kernels(), w, dpre, x, lens, n, 1.0)?,
                     Some(g) => {
                         scaled(scratch, g)?;
-                        outer_acc_batch(w, scratch, x, lens, n, 1.0)?;
+                        outer_acc_batch_with(self.w.kernels(), w, scratch, x, lens, n, 1.0)?;
                     }
                 }
                 for d in dpre.chunks_exact(o) {

@@ -40,6 +40,7 @@ pub mod dense;
 pub mod discriminator;
 pub mod error;
 pub mod generator;
+pub mod inner;
 pub mod lstm;
 pub mod matrix;
 pub mod memory;

@@ -13,9 +13,9 @@
 
 use crate::activation::{sigmoid, tanh};
 
-use crate::batch::{matmul_acc, matmul_t_acc, outer_acc_batch};
+use crate::batch::{matmul_acc, matmul_t_acc, outer_acc_batch_with, seg_lens};
 use crate::error::{check_len, Result};
-use crate::matrix::{outer_acc, seg_len, MatRef};
+use crate::matrix::{seg_len, MatRef};
 
 /// A read-only view of an LSTM cell's parameters.
 #[derive(Clone, Copy, Debug)]
@@ -61,7 +61,8 @@ impl<'a> Lstm<'a> {
     }
 
     /// One step. `gates` (`4H`) receives the post-activation `[i f g o]`; `c` and `h` (`H`)
-    /// receive the new cell and hidden state. `x` is the (segmented) input.
+    /// receive the new cell and hidden state. `x` is the (segmented, at most
+    /// [`crate::batch::MAX_SEGS`] segments) input. [`Lstm::forward_batch`] with a batch of one.
     pub fn forward(
         &self,
         x: &[&[f32]],
@@ -71,33 +72,8 @@ impl<'a> Lstm<'a> {
         c: &mut [f32],
         h: &mut [f32],
     ) -> Result<()> {
-        self.validate()?;
-        let hd = self.hidden();
-        check_len("lstm.h_prev", hd, h_prev.len())?;
-        check_len("lstm.c_prev", hd, c_prev.len())?;
-        check_len("lstm.gates", 4 * hd, gates.len())?;
-        check_len("lstm.c", hd, c.len())?;
-        check_len("lstm.h", hd, h.len())?;
-        gates.copy_from_slice(self.b);
-        self.wx.matvec_acc(x, gates)?;
-        self.wh.matvec_acc(&[h_prev], gates)?;
-        let (gi, rest) = gates.split_at_mut(hd);
-        let (gf, rest) = rest.split_at_mut(hd);
-        let (gg, go) = rest.split_at_mut(hd);
-        for j in 0..hd {
-            let i = sigmoid(gi[j]);
-            let f = sigmoid(gf[j]);
-            let g = tanh(gg[j]);
-            let o = sigmoid(go[j]);
-            gi[j] = i;
-            gf[j] = f;
-            gg[j] = g;
-            go[j] = o;
-            let cj = f * c_prev[j] + i * g;
-            c[j] = cj;
-            h[j] = o * tanh(cj);
-        }
-        Ok(())
+        let lens = seg_lens(x.iter().map(|s| s.len()))?;
+        self.forward_batch(x, &lens[..x.len()], 1, h_prev, c_prev, gates, c, h)
     }
 
     /// Backward through one step.
@@ -107,6 +83,7 @@ impl<'a> Lstm<'a> {
     /// step's cell, zero at the last step). Outputs: `dh_prev` and `dc_prev` are *overwritten*;
     /// `dx` (if given) is accumulated; parameter gradients are accumulated into `grads` (if
     /// given). `dgates` (`4H`) is scratch that holds the pre-activation gate gradients.
+    /// [`Lstm::backward_batch`] with a batch of one.
     #[allow(clippy::too_many_arguments)]
     pub fn backward(
         &self,
@@ -123,55 +100,23 @@ impl<'a> Lstm<'a> {
         grads: Option<LstmGrads<'_>>,
         dgates: &mut [f32],
     ) -> Result<()> {
-        self.validate()?;
-        let hd = self.hidden();
         check_len("lstm.x", self.in_dim(), seg_len(x))?;
-        for (what, s) in [
-            ("lstm.h_prev", h_prev),
-            ("lstm.c_prev", c_prev),
-            ("lstm.c", c),
-            ("lstm.dh", dh),
-            ("lstm.dc", dc),
-        ] {
-            check_len(what, hd, s.len())?;
-        }
-        check_len("lstm.dh_prev", hd, dh_prev.len())?;
-        check_len("lstm.dc_prev", hd, dc_prev.len())?;
-        check_len("lstm.gates", 4 * hd, gates.len())?;
-        check_len("lstm.dgates", 4 * hd, dgates.len())?;
-        for j in 0..hd {
-            let (i, f, g, o) = (
-                gates[j],
-                gates[hd + j],
-                gates[2 * hd + j],
-                gates[3 * hd + j],
-            );
-            let tc = tanh(c[j]);
-            let d_o = dh[j] * tc;
-            let dct = dc[j] + dh[j] * o * (1.0 - tc * tc);
-            let d_i = dct * g;
-            let d_g = dct * i;
-            let d_f = dct * c_prev[j];
-            dc_prev[j] = dct * f;
-            dgates[j] = d_i * i * (1.0 - i);
-            dgates[hd + j] = d_f * f * (1.0 - f);
-            dgates[2 * hd + j] = d_g * (1.0 - g * g);
-            dgates[3 * hd + j] = d_o * o * (1.0 - o);
-        }
-        if let Some(gr) = grads {
-            outer_acc(gr.wx, dgates, x, 1.0)?;
-            outer_acc(gr.wh, dgates, &[h_prev], 1.0)?;
-            check_len("lstm.db", 4 * hd, gr.b.len())?;
-            for (b, &d) in gr.b.iter_mut().zip(dgates.iter()) {
-                *b += d;
+        let lens = seg_lens(x.iter().map(|s| s.len()))?;
+        let lens = &lens[..x.len()];
+        let (hp, cp, dp, dcp) = (h_prev, c_prev, dh_prev, dc_prev);
+        match dx {
+            None => self.backward_batch(
+                x, lens, 1, hp, cp, gates, c, dh, dc, dp, dcp, None, grads, dgates,
+            ),
+            Some(dx) => {
+                let dlens = seg_lens(dx.iter().map(|s| s.len()))?;
+                let nd = dx.len();
+                let dx = Some((dx, &dlens[..nd]));
+                self.backward_batch(
+                    x, lens, 1, hp, cp, gates, c, dh, dc, dp, dcp, dx, grads, dgates,
+                )
             }
         }
-        dh_prev.fill(0.0);
-        self.wh.matvec_t_acc(dgates, &mut [dh_prev])?;
-        if let Some(dx) = dx {
-            self.wx.matvec_t_acc(dgates, dx)?;
-        }
-        Ok(())
     }
 }
 
@@ -293,8 +238,8 @@ impl<'a> Lstm<'a> {
             }
         }
         if let Some(gr) = grads {
-            outer_acc_batch(gr.wx, dgates, x, lens, n, 1.0)?;
-            outer_acc_batch(gr.wh, dgates, &[h_prev], &[hd], n, 1.0)?;
+            outer_acc_batch_with(self.wx.kernels(), gr.wx, dgates, x, lens, n, 1.0)?;
+            outer_acc_batch_with(self.wh.kernels(), gr.wh, dgates, &[h_prev], &[hd], n, 1.0)?;
             check_len("lstm.db", 4 * hd, gr.b.len())?;
             for d in dgates.chunks_exact(4 * hd) {
                 for (b, &d) in gr.b.iter_mut().zip(d) {

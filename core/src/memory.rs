@@ -23,14 +23,6 @@ use crate::NUM_ACTIONS;
 
 pub use crate::schema::AdaptMode;
 
-const fn max(a: usize, b: usize) -> usize {
-    if a > b {
-        a
-    } else {
-        b
-    }
-}
-
 /// Sizes (in f32 elements) of every RAM region of the navigator.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct NavLayout {
@@ -132,7 +124,7 @@ pub(crate) enum Part {
 }
 
 macro_rules! arena_regions {
-    (|$d:ident, $full:ident, $g:ident, $k:ident, $map:ident, $gen_in:ident|
+    (|$d:ident, $full:ident, $g:ident, $k:ident, $b:ident, $map:ident, $gen_in:ident|
      $($(#[$m:meta])* $name:ident in $part:ident = $len:expr;)*) => {
         /// One region of the navigator's arena, in carve order (`Ram::carve` in
         /// `navigator.rs` takes each by name; [`NavLayout`] sums them per field).
@@ -158,6 +150,8 @@ macro_rules! arena_regions {
             let $g: usize = if $full { 0 } else { 1 };
             let $map = tri!($d.map_rows.checked_mul($d.map_cols)) > 0;
             let $gen_in = tri!($d.checked_gen_in());
+            // Entries of Ψ the batched inner update processes at a time.
+            let $b: usize = adapt_batch(mode, $k);
             Some([$($len),*])
         }
     };
@@ -172,7 +166,28 @@ const fn if_full(full: bool, n: Option<usize>) -> Option<usize> {
     }
 }
 
-arena_regions! { |d, full, g, k, map, gen_in|
+/// Most entries of Ψ the inner update processes at a time in [`AdaptMode::Efficient`]
+/// (the microcontroller mode, where RAM is the limit; see [`adapt_batch`]).
+pub const EFFICIENT_ADAPT_BATCH: usize = 2;
+
+/// Entries of Ψ the inner update processes as one batch (a matrix through the batched
+/// kernels of [`crate::batch`]): all `k` in [`AdaptMode::Full`], at most
+/// [`EFFICIENT_ADAPT_BATCH`] in [`AdaptMode::Efficient`]. Only the speed and the RAM
+/// depend on it, never the bits (see `crate::inner`).
+pub const fn adapt_batch(mode: AdaptMode, k: usize) -> usize {
+    match mode {
+        AdaptMode::Full => k,
+        AdaptMode::Efficient => {
+            if k < EFFICIENT_ADAPT_BATCH {
+                k
+            } else {
+                EFFICIENT_ADAPT_BATCH
+            }
+        }
+    }
+}
+
+arena_regions! { |d, full, g, k, b, map, gen_in|
     // Adapted G (θ, or its gains and biases): weights in Full, gains in Efficient, biases.
     Gen1W in GenParams = tri!(if_full(full, d.gen_hidden.checked_mul(gen_in)));
     Gen1Gain in GenParams = g * d.gen_hidden;
@@ -211,28 +226,38 @@ arena_regions! { |d, full, g, k, map, gen_in|
     PsiZ in Psi = tri!(k.checked_mul(d.noise));
     PsiP in Psi = tri!(k.checked_mul(NUM_ACTIONS));
     PsiH in Psi = tri!(k.checked_mul(d.lstm_hidden));
-    // G activations and scratch.
+    // Ψ_x: the generated feature of every entry, made once per inner update (G is fixed
+    // within an adaptation window, so these are the bits each entry's forward pass gives).
+    PsiX in Psi = tri!(k.checked_mul(d.feat));
+    // G activations of the step.
     U1 in Work = g * d.gen_hidden;
     H1 in Work = d.gen_hidden;
     U2 in Work = g * d.feat;
     X in Work = d.feat;
-    DPre2 in Work = d.feat;
-    DH1 in Work = d.gen_hidden;
-    DPre1 in Work = d.gen_hidden;
-    GTmp in Work = max(d.feat, d.gen_hidden);
-    // D scratch.
-    DU in Work = g * d.disc_hidden;
-    DH in Work = d.disc_hidden;
-    DV in Work = d.disc_hidden;
-    DW1G in Work = d.disc_hidden;
-    DG in Work = d.feat;
-    DMix in Work = d.feat;
+    // Batched inner update (`b` entries at a time): G's inputs, activations and scratch.
+    BZ in Work = tri!(b.checked_mul(d.noise));
+    BAttr in Work = tri!(b.checked_mul(d.attr));
+    BU1 in Work = g * tri!(b.checked_mul(d.gen_hidden));
+    BH1 in Work = tri!(b.checked_mul(d.gen_hidden));
+    BU2 in Work = g * tri!(b.checked_mul(d.feat));
+    DPre2 in Work = tri!(b.checked_mul(d.feat));
+    DH1 in Work = tri!(b.checked_mul(d.gen_hidden));
+    DPre1 in Work = tri!(b.checked_mul(d.gen_hidden));
+    // D's activations for `3 b` inputs (real, fake, interpolate) and scratch.
+    DU in Work = g * tri!(tri!(b.checked_mul(3)).checked_mul(d.disc_hidden));
+    DH in Work = tri!(tri!(b.checked_mul(3)).checked_mul(d.disc_hidden));
+    DV in Work = tri!(tri!(b.checked_mul(3)).checked_mul(d.disc_hidden));
+    DW1G in Work = tri!(b.checked_mul(d.disc_hidden));
+    DG in Work = tri!(b.checked_mul(d.feat));
+    DMix in Work = tri!(b.checked_mul(d.feat));
+    // Full: the inputs and output gradients of D's `3 b` weight-gradient outer products.
+    DOuterX in Work = tri!(if_full(full, tri!(b.checked_mul(3)).checked_mul(d.feat)));
+    DOuterY in Work = tri!(if_full(full, tri!(b.checked_mul(3)).checked_mul(d.disc_hidden)));
     // Adaptation work.
     Eps in Work = k;
     D in Work = k;
     DD in Work = k;
     DProbs in Work = tri!(k.checked_mul(NUM_ACTIONS));
-    DX in Work = d.feat;
     // Policy work and state.
     Prod in Work = d.feat;
     Fuse in Work = d.embed;
@@ -394,91 +419,92 @@ mod tests {
         }
     }
 
-    /// The layout derived from the region table is the one the hand-written formulas of
-    /// earlier builds gave (figures printed by that code for these dims, modes and k). Long
-    /// because most of it is that table of pinned figures.
+    /// The layout derived from the region table, pinned (figures of the hand-written formulas
+    /// of earlier builds, changed by the batched inner update's regions: Ψ_x, `k x F`, in
+    /// `psi`; batch buffers for `adapt_batch(mode, k)` entries in `work`). Long because most
+    /// of it is that table of pinned figures.
     #[test]
     fn region_table_gives_the_pinned_layout() {
         let expected = [
             (
                 AdaptMode::Full,
                 1,
-                [154880, 32897, 390, 321, 188167, 627, 5243],
+                [154880, 32897, 390, 321, 188167, 1139, 6549],
             ),
             (
                 AdaptMode::Full,
                 20,
-                [154880, 32897, 390, 321, 188167, 12540, 5414],
+                [154880, 32897, 390, 321, 188167, 22780, 93550],
             ),
             (
                 AdaptMode::Efficient,
                 1,
-                [1536, 193, 12, 321, 1741, 627, 6081],
+                [1536, 193, 12, 321, 1741, 1139, 6555],
             ),
             (
                 AdaptMode::Efficient,
                 20,
-                [1536, 193, 12, 321, 1741, 12540, 6252],
+                [1536, 193, 12, 321, 1741, 22780, 10528],
             ),
             (
                 AdaptMode::Full,
                 1,
-                [2470400, 526337, 3078, 2561, 2999815, 1075, 27259],
+                [2470400, 526337, 3078, 2561, 2999815, 1587, 35541],
             ),
             (
                 AdaptMode::Full,
                 20,
-                [2470400, 526337, 3078, 2561, 2999815, 21500, 27430],
+                [2470400, 526337, 3078, 2561, 2999815, 31740, 523822],
             ),
             (
                 AdaptMode::Efficient,
                 1,
-                [9216, 3073, 12, 2561, 12301, 1075, 32897],
+                [9216, 3073, 12, 2561, 12301, 1587, 43227],
             ),
             (
                 AdaptMode::Efficient,
                 20,
-                [9216, 3073, 12, 2561, 12301, 21500, 33068],
+                [9216, 3073, 12, 2561, 12301, 31740, 72160],
             ),
             (
                 AdaptMode::Full,
                 1,
-                [154880, 32897, 390, 321, 188167, 627, 5288],
+                [154880, 32897, 390, 321, 188167, 1139, 6594],
             ),
             (
                 AdaptMode::Full,
                 20,
-                [154880, 32897, 390, 321, 188167, 12540, 5459],
+                [154880, 32897, 390, 321, 188167, 22780, 93595],
             ),
             (
                 AdaptMode::Efficient,
                 1,
-                [1536, 193, 12, 321, 1741, 627, 6126],
+                [1536, 193, 12, 321, 1741, 1139, 6600],
             ),
             (
                 AdaptMode::Efficient,
                 20,
-                [1536, 193, 12, 321, 1741, 12540, 6297],
+                [1536, 193, 12, 321, 1741, 22780, 10573],
             ),
             (
                 AdaptMode::Full,
                 1,
-                [154880, 32897, 390, 329, 188167, 627, 5827],
+                [154880, 32897, 390, 329, 188167, 1139, 7133],
             ),
             (
                 AdaptMode::Full,
                 20,
-                [154880, 32897, 390, 329, 188167, 12540, 5998],
+                [154880, 32897, 390, 329, 188167, 22780, 94134],
             ),
             (
                 AdaptMode::Efficient,
                 1,
-                [1536, 193, 12, 329, 1741, 627, 6665],
+                [1536, 193, 12, 329, 1741, 1139, 7139],
             ),
             (
                 AdaptMode::Efficient,
                 20,
-                [1536, 193, 12, 329, 1741, 12540, 6836],
+                [1536, 193, 12, 329, 1741, 22780, 11112],
             ),
         ];
         let dims = [

@@ -81,17 +81,16 @@
 use core::marker::PhantomData;
 
 use crate::activation::all_finite;
-use crate::adapt::{
-    actor_head_grad, adapt_generator_grad, adapt_generator_grad_cos, AdaptLossKind, AdaptWork,
-};
+use crate::adapt::{actor_head_grad, AdaptLossKind};
 use crate::blob::{AdaptSettings, Blob, Header};
 use crate::dense::{Dense, DenseGrads};
-use crate::discriminator::{DiscGrads, DiscScratch, Discriminator, LdConfig, LdValue};
+use crate::discriminator::{DiscGrads, Discriminator, LdConfig, LdValue};
 use crate::error::{check_len, Error, Result};
-use crate::generator::{Generator, GeneratorCache, GeneratorScratch};
+use crate::generator::{Generator, GeneratorCache};
+use crate::inner::{self, InnerWork};
 use crate::lstm::Lstm;
 use crate::matrix::MatRef;
-use crate::memory::{arena_len, region_lens, AdaptMode, Region, NUM_REGIONS};
+use crate::memory::{adapt_batch, arena_len, region_lens, AdaptMode, Region, NUM_REGIONS};
 use crate::policy::{Policy, PolicyCache, PolicyInput};
 use crate::preset::Dims;
 use crate::rng::{fill_gaussian, uniform, Xoshiro128};
@@ -506,6 +505,32 @@ impl<'w> LayerGrad<'w> {
     }
 }
 
+/// The view of G over its RAM layers (`gen1`, `gen2`) and the blob's base weights.
+fn gen_view<'s>(
+    gen1: &'s LayerRam<'_>,
+    gen2: &'s LayerRam<'_>,
+    w: &NavWeights<'s>,
+) -> Result<Generator<'s>> {
+    Ok(Generator {
+        l1: gen1.view(w.get(TensorId::GenW1))?,
+        l2: gen2.view(w.get(TensorId::GenW2))?,
+    })
+}
+
+/// The view of D over its RAM parameters and the blob's base weights.
+fn disc_view<'s>(
+    disc1: &'s LayerRam<'_>,
+    w2: &'s [f32],
+    b2: &[f32],
+    w: &NavWeights<'s>,
+) -> Result<Discriminator<'s>> {
+    Ok(Discriminator {
+        l1: disc1.view(w.get(TensorId::DiscW1))?,
+        w2,
+        b2: b2.first().copied().unwrap_or(0.0),
+    })
+}
+
 fn ok_update(p: &[f32], g: &[f32], step: f32) -> bool {
     p.iter().zip(g).all(|(a, b)| (a + step * b).is_finite())
 }
@@ -538,28 +563,19 @@ struct Ram<'w> {
     psi_z: &'w mut [f32],
     psi_p: &'w mut [f32],
     psi_h: &'w mut [f32],
-    // G activations and scratch
+    psi_x: &'w mut [f32],
+    // G activations of the step
     u1: &'w mut [f32],
     h1: &'w mut [f32],
     u2: &'w mut [f32],
     x: &'w mut [f32],
-    dpre2: &'w mut [f32],
-    dh1: &'w mut [f32],
-    dpre1: &'w mut [f32],
-    gtmp: &'w mut [f32],
-    // D scratch
-    du: &'w mut [f32],
-    dh: &'w mut [f32],
-    dv: &'w mut [f32],
-    dw1g: &'w mut [f32],
-    dg: &'w mut [f32],
-    dmix: &'w mut [f32],
+    // the batched inner update's work
+    iw: InnerWork<'w>,
     // adaptation work
     eps: &'w mut [f32],
     d: &'w mut [f32],
     dd: &'w mut [f32],
     dprobs: &'w mut [f32],
-    dx: &'w mut [f32],
     // policy work and state
     prod: &'w mut [f32],
     fuse: &'w mut [f32],
@@ -625,25 +641,34 @@ impl<'w> Ram<'w> {
             psi_z: t(Region::PsiZ),
             psi_p: t(Region::PsiP),
             psi_h: t(Region::PsiH),
+            psi_x: t(Region::PsiX),
             u1: t(Region::U1),
             h1: t(Region::H1),
             u2: t(Region::U2),
             x: t(Region::X),
-            dpre2: t(Region::DPre2),
-            dh1: t(Region::DH1),
-            dpre1: t(Region::DPre1),
-            gtmp: t(Region::GTmp),
-            du: t(Region::DU),
-            dh: t(Region::DH),
-            dv: t(Region::DV),
-            dw1g: t(Region::DW1G),
-            dg: t(Region::DG),
-            dmix: t(Region::DMix),
+            iw: InnerWork {
+                b: adapt_batch(mode, k).max(1),
+                z: t(Region::BZ),
+                attr: t(Region::BAttr),
+                u1: t(Region::BU1),
+                h1: t(Region::BH1),
+                u2: t(Region::BU2),
+                dpre2: t(Region::DPre2),
+                dh1: t(Region::DH1),
+                dpre1: t(Region::DPre1),
+                du: t(Region::DU),
+                dh: t(Region::DH),
+                dv: t(Region::DV),
+                w1g: t(Region::DW1G),
+                g: t(Region::DG),
+                mix: t(Region::DMix),
+                outer_x: t(Region::DOuterX),
+                outer_dy: t(Region::DOuterY),
+            },
             eps: t(Region::Eps),
             d: t(Region::D),
             dd: t(Region::DD),
             dprobs: t(Region::DProbs),
-            dx: t(Region::DX),
             prod: t(Region::Prod),
             fuse: t(Region::Fuse),
             gates: t(Region::Gates),
@@ -899,19 +924,12 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
 
     /// The adapted generator θ_i as a view (for diagnostics and host-side meta-gradients).
     pub fn generator(&self) -> Result<Generator<'_>> {
-        Ok(Generator {
-            l1: self.r.gen1.view(self.w.get(TensorId::GenW1))?,
-            l2: self.r.gen2.view(self.w.get(TensorId::GenW2))?,
-        })
+        gen_view(&self.r.gen1, &self.r.gen2, &self.w)
     }
 
     /// The current discriminator ω as a view.
     pub fn discriminator(&self) -> Result<Discriminator<'_>> {
-        Ok(Discriminator {
-            l1: self.r.disc1.view(self.w.get(TensorId::DiscW1))?,
-            w2: self.r.disc_w2,
-            b2: self.r.disc_b2.first().copied().unwrap_or(0.0),
-        })
+        disc_view(&self.r.disc1, self.r.disc_w2, self.r.disc_b2, &self.w)
     }
 
     /// The adapted policy φ_i as a view.
@@ -1035,10 +1053,7 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
 
     fn generate(&mut self) -> Result<()> {
         let r = &mut self.r;
-        let gen = Generator {
-            l1: r.gen1.view(self.w.get(TensorId::GenW1))?,
-            l2: r.gen2.view(self.w.get(TensorId::GenW2))?,
-        };
+        let gen = gen_view(&r.gen1, &r.gen2, &self.w)?;
         let mut cache = GeneratorCache {
             u1: r.u1,
             h1: r.h1,
@@ -1157,6 +1172,8 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
         } else {
             0
         };
+        // Ψ_x once: G is fixed until the descent step of line 20.
+        self.generate_psi_x()?;
         let mut disc_ok = true;
         for _ in 0..disc_steps {
             report.ld = self.disc_gradient()?;
@@ -1182,17 +1199,41 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
         Ok(())
     }
 
-    /// ∇_ω L_D (Eq. 1, WGAN-GP) over the `n_buf` entries of Ψ into D's gradient buffers,
-    /// with fresh interpolation weights ε; returns L_D and its parts.
-    fn disc_gradient(&mut self) -> Result<LdValue> {
+    /// Ψ_x: `x_t = G(z_t, attr)` for the `n_buf` entries of Ψ, once per inner update (G is
+    /// not changed before the descent step, so every pass reads these bits).
+    fn generate_psi_x(&mut self) -> Result<()> {
         let n = self.n_buf;
         let d = self.w.dims;
-        let cfg = self.cfg;
-        let (f, zd) = (d.feat, d.noise);
         let w = self.w;
         let Ram {
             gen1,
             gen2,
+            psi_z,
+            psi_x,
+            attr,
+            iw,
+            ..
+        } = &mut self.r;
+        let gen = gen_view(gen1, gen2, &w)?;
+        inner::generate(
+            &gen,
+            &psi_z[..n * d.noise],
+            attr,
+            &mut psi_x[..n * d.feat],
+            iw,
+        )
+    }
+
+    /// ∇_ω L_D (Eq. 1, WGAN-GP) over the `n_buf` entries of Ψ into D's gradient buffers,
+    /// with fresh interpolation weights ε; returns L_D and its parts. Ψ_x must be current
+    /// ([`Navigator::generate_psi_x`]).
+    fn disc_gradient(&mut self) -> Result<LdValue> {
+        let n = self.n_buf;
+        let d = self.w.dims;
+        let cfg = self.cfg;
+        let f = d.feat;
+        let w = self.w;
+        let Ram {
             disc1,
             disc_w2,
             disc_b2,
@@ -1200,36 +1241,17 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
             g_disc_w2,
             g_disc_b2,
             psi_s,
-            psi_z,
-            u1,
-            h1,
-            u2,
-            x,
-            du,
-            dh,
-            dv,
-            dw1g,
-            dg,
-            dmix,
+            psi_x,
             eps,
-            attr,
+            iw,
             ..
         } = &mut self.r;
 
         g_disc1.zero();
         g_disc_w2.fill(0.0);
         g_disc_b2.fill(0.0);
-        let mut ld = LdValue::default();
-        {
-            let gen = Generator {
-                l1: gen1.view(w.get(TensorId::GenW1))?,
-                l2: gen2.view(w.get(TensorId::GenW2))?,
-            };
-            let disc = Discriminator {
-                l1: disc1.view(w.get(TensorId::DiscW1))?,
-                w2: disc_w2,
-                b2: disc_b2.first().copied().unwrap_or(0.0),
-            };
+        let ld = {
+            let disc = disc_view(disc1, disc_w2, disc_b2, &w)?;
             let mut db2 = 0.0f32;
             let mut grads = DiscGrads {
                 l1: g_disc1.grads(),
@@ -1237,51 +1259,27 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
                 b2: &mut db2,
             };
             let inv = 1.0 / n as f32;
-            for t in 0..n {
-                eps[t] = uniform(&mut self.rng);
+            for e in eps[..n].iter_mut() {
+                *e = uniform(&mut self.rng);
             }
-            let mut last_z: Option<usize> = None;
-            for t in 0..n {
-                let z = &psi_z[t * zd..(t + 1) * zd];
-                let same = last_z.is_some_and(|p| {
-                    psi_z[p * zd..(p + 1) * zd]
-                        .iter()
-                        .zip(z)
-                        .all(|(a, b)| a.to_bits() == b.to_bits())
-                });
-                if !same {
-                    let mut cache = GeneratorCache { u1, h1, u2, x };
-                    gen.forward(z, attr, &mut cache)?;
-                    last_z = Some(t);
-                }
-                let mut s = DiscScratch {
-                    u: du,
-                    h: dh,
-                    v: dv,
-                    w1g: dw1g,
-                    g: dg,
-                    mix: dmix,
-                };
-                let v = disc.ld_loss(
-                    &psi_s[t * f..(t + 1) * f],
-                    x,
-                    &eps[t..t + 1],
-                    cfg.ld,
-                    &mut s,
-                    Some(&mut grads),
-                )?;
-                ld.loss += v.loss * inv;
-                ld.mean_real += v.mean_real * inv;
-                ld.mean_fake += v.mean_fake * inv;
-                ld.penalty += v.penalty * inv;
-            }
+            let ld = inner::ld_grad_sum(
+                &disc,
+                &psi_s[..n * f],
+                &psi_x[..n * f],
+                &eps[..n],
+                cfg.ld,
+                inv,
+                iw,
+                &mut grads,
+            )?;
             g_disc_b2[0] = db2;
             g_disc1.scale(inv);
             g_disc_w2
                 .iter_mut()
                 .chain(g_disc_b2.iter_mut())
                 .for_each(|v| *v *= inv);
-        }
+            ld
+        };
         Ok(ld)
     }
 
@@ -1318,7 +1316,7 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
 
     /// L_ad (Eq. 3) over Ψ and its gradients for θ (G) and φ (the actor head) into their
     /// gradient buffers; D scores the generated features (`use_d`), else their cosine
-    /// similarity to the observations does (CosSim).
+    /// similarity to the observations does (CosSim). Ψ_x must be current.
     fn adapt_gradient(&mut self, use_d: bool) -> Result<f32> {
         let n = self.n_buf;
         let d = self.w.dims;
@@ -1339,91 +1337,42 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
             psi_z,
             psi_p,
             psi_h,
-            u1,
-            h1,
-            u2,
-            x,
-            dpre2,
-            dh1,
-            dpre1,
-            gtmp,
-            du,
-            dh,
-            dv,
-            dw1g,
-            dg,
-            dmix,
+            psi_x,
             d: dvals,
             dd,
             dprobs,
-            dx,
             dlogits,
             actor_u,
             attr,
+            iw,
             ..
         } = &mut self.r;
 
         g_gen1.zero();
         g_gen2.zero();
         g_actor.zero();
-        let loss = {
-            let gen = Generator {
-                l1: gen1.view(w.get(TensorId::GenW1))?,
-                l2: gen2.view(w.get(TensorId::GenW2))?,
-            };
-            let disc = Discriminator {
-                l1: disc1.view(w.get(TensorId::DiscW1))?,
-                w2: disc_w2,
-                b2: disc_b2.first().copied().unwrap_or(0.0),
-            };
-            let mut work = AdaptWork {
-                gen: GeneratorCache { u1, h1, u2, x },
-                gen_scratch: GeneratorScratch {
-                    dpre2,
-                    dh1,
-                    dpre1,
-                    tmp: gtmp,
-                },
-                disc: DiscScratch {
-                    u: du,
-                    h: dh,
-                    v: dv,
-                    w1g: dw1g,
-                    g: dg,
-                    mix: dmix,
-                },
-                d: &mut dvals[..n],
-                dd: &mut dd[..n],
-                dx,
-            };
-            if use_d {
-                adapt_generator_grad(
-                    cfg.adapt_loss,
-                    &gen,
-                    &disc,
-                    attr,
-                    &psi_z[..n * zd],
-                    &psi_p[..n * NUM_ACTIONS],
-                    &mut work,
-                    &mut g_gen1.grads(),
-                    &mut g_gen2.grads(),
-                    &mut dprobs[..n * NUM_ACTIONS],
-                )?
-            } else {
-                adapt_generator_grad_cos(
-                    cfg.adapt_loss,
-                    &gen,
-                    attr,
-                    &psi_z[..n * zd],
-                    &psi_s[..n * f],
-                    &psi_p[..n * NUM_ACTIONS],
-                    &mut work,
-                    &mut g_gen1.grads(),
-                    &mut g_gen2.grads(),
-                    &mut dprobs[..n * NUM_ACTIONS],
-                )?
-            }
-        };
+        let gen = gen_view(gen1, gen2, &w)?;
+        let disc = disc_view(disc1, disc_w2, disc_b2, &w)?;
+        let loss = inner::adapt_grad(
+            cfg.adapt_loss,
+            &gen,
+            use_d.then_some(&disc),
+            inner::AdaptInputs {
+                attr,
+                zs: &psi_z[..n * zd],
+                xs: Some(&psi_x[..n * f]),
+                obs: &psi_s[..n * f],
+            },
+            &psi_p[..n * NUM_ACTIONS],
+            (
+                &mut dvals[..n],
+                &mut dd[..n],
+                &mut dprobs[..n * NUM_ACTIONS],
+            ),
+            iw,
+            &mut g_gen1.grads(),
+            &mut g_gen2.grads(),
+        )?;
         let head = actor.view(w.get(TensorId::ActorW))?;
         actor_head_grad(
             &head,

@@ -327,29 +327,57 @@ impl<'a> Policy<'a> {
         // The per-cell layer: its outputs are the last column block of the fusion input.
         let (cells, ce) = self.check_map(inp, cache.cell.len())?;
         if let Some(cell) = &self.cell {
-            check_len("policy.dcell", cells * ce, s.dcell.len())?;
-            check_len("policy.cell_tmp", f, s.cell_tmp.len())?;
-            let col0 = self.fuse.in_dim() - cells * ce;
-            s.dcell.fill(0.0);
-            self.fuse.w.matvec_t_acc_cols(tmp, col0, s.dcell)?;
-            for c in 0..cells {
-                let m = &inp.map[c * f..(c + 1) * f];
-                let dpre = &mut s.dcell[c * ce..(c + 1) * ce];
-                let act = &cache.cell[c * ce..(c + 1) * ce];
-                for (d, &a) in dpre.iter_mut().zip(act) {
-                    *d *= leaky_relu_grad(a);
-                }
-                // dW_cell += dpre [m; m ⊙ x]ᵀ (the product is recomputed in cell_tmp).
-                for ((p, &mv), &x) in s.cell_tmp.iter_mut().zip(m).zip(inp.feat) {
-                    *p = mv * x;
-                }
-                cell.backward(&[m, s.cell_tmp], &[], dpre, None, &mut grads.cell, &mut [])?;
-                // dx_t += (W_cell[:, f..2f]ᵀ dpre) ⊙ m.
-                s.cell_tmp.fill(0.0);
-                cell.w.matvec_t_acc_cols(dpre, f, s.cell_tmp)?;
-                for ((o, &d), &mv) in out.feat.iter_mut().zip(s.cell_tmp.iter()).zip(m) {
-                    *o += d * mv;
-                }
+            let bufs = (&mut *s.dcell, &mut *s.cell_tmp, &mut *out.feat);
+            self.cell_backward(
+                cell,
+                inp,
+                cache.cell,
+                tmp,
+                (cells, ce),
+                bufs,
+                &mut grads.cell,
+            )?;
+        }
+        Ok(())
+    }
+
+    /// [`Policy::backward`] through the per-cell layer: `dfuse` is the fusion layer's
+    /// pre-activation gradient, `act` the cells' outputs; accumulates into `grads` and adds
+    /// the feature gradient into `dfeat` (`dcell`, `cell_tmp` are scratch).
+    #[allow(clippy::too_many_arguments)]
+    fn cell_backward(
+        &self,
+        cell: &Dense<'_>,
+        inp: &PolicyInput<'_>,
+        act: &[f32],
+        dfuse: &[f32],
+        (cells, ce): (usize, usize),
+        (dcell, cell_tmp, dfeat): (&mut [f32], &mut [f32], &mut [f32]),
+        grads: &mut DenseGrads<'_>,
+    ) -> Result<()> {
+        let f = inp.obs.len();
+        check_len("policy.dcell", cells * ce, dcell.len())?;
+        check_len("policy.cell_tmp", f, cell_tmp.len())?;
+        let col0 = self.fuse.in_dim() - cells * ce;
+        dcell.fill(0.0);
+        self.fuse.w.matvec_t_acc_cols(dfuse, col0, dcell)?;
+        for c in 0..cells {
+            let m = &inp.map[c * f..(c + 1) * f];
+            let dpre = &mut dcell[c * ce..(c + 1) * ce];
+            let act = &act[c * ce..(c + 1) * ce];
+            for (d, &a) in dpre.iter_mut().zip(act) {
+                *d *= leaky_relu_grad(a);
+            }
+            // dW_cell += dpre [m; m ⊙ x]ᵀ (the product is recomputed in cell_tmp).
+            for ((p, &mv), &x) in cell_tmp.iter_mut().zip(m).zip(inp.feat) {
+                *p = mv * x;
+            }
+            cell.backward(&[m, cell_tmp], &[], dpre, None, grads, &mut [])?;
+            // dx_t += (W_cell[:, f..2f]ᵀ dpre) ⊙ m.
+            cell_tmp.fill(0.0);
+            cell.w.matvec_t_acc_cols(dpre, f, cell_tmp)?;
+            for ((o, &d), &mv) in dfeat.iter_mut().zip(cell_tmp.iter()).zip(m) {
+                *o += d * mv;
             }
         }
         Ok(())
@@ -621,47 +649,68 @@ impl<'a> Policy<'a> {
             *o += d * sv;
         }
         if let Some(cell) = &self.cell {
-            let (cells, ce) = (wd.cells, wd.ce);
-            let nc = n * cells;
-            check_len("policy.dcell", nc * ce, s.dcell.len())?;
-            check_len("policy.cell_tmp", nc * f, s.cell_tmp.len())?;
-            let col0 = self.fuse.in_dim() - cells * ce;
-            s.dcell.fill(0.0);
-            matmul_t_acc_cols(&self.fuse.w, tmp, n, col0, s.dcell, cells * ce)?;
-            for (d, &a) in s.dcell.iter_mut().zip(cache.cell.iter()) {
-                *d *= leaky_relu_grad(a);
-            }
-            if f > 0 {
-                for (b, x) in inp.feat.chunks_exact(f).enumerate() {
-                    let m = &inp.map[b * cells * f..(b + 1) * cells * f];
-                    let cp = &mut s.cell_tmp[b * cells * f..(b + 1) * cells * f];
-                    for (pc, mc) in cp.chunks_exact_mut(f).zip(m.chunks_exact(f)) {
-                        for ((p, &mv), &xv) in pc.iter_mut().zip(mc).zip(x) {
-                            *p = mv * xv;
-                        }
+            let bufs = (&mut *s.dcell, &mut *s.cell_tmp, &mut *out.feat);
+            let cc = (wd.cells, wd.ce);
+            self.cell_backward_batch(cell, n, inp, cache.cell, tmp, cc, bufs, &mut grads.cell)?;
+        }
+        Ok(())
+    }
+
+    /// [`Policy::backward_batch`] through the per-cell layer (the batched
+    /// [`Policy::cell_backward`]; `dcell` is `n x cells x ce`, `cell_tmp` `n x cells x F`).
+    #[allow(clippy::too_many_arguments)]
+    fn cell_backward_batch(
+        &self,
+        cell: &Dense<'_>,
+        n: usize,
+        inp: &PolicyInput<'_>,
+        act: &[f32],
+        dfuse: &[f32],
+        cells_ce: (usize, usize),
+        (dcell, cell_tmp, dfeat): (&mut [f32], &mut [f32], &mut [f32]),
+        grads: &mut DenseGrads<'_>,
+    ) -> Result<()> {
+        let f = inp.obs.len() / n.max(1);
+        let (cells, ce) = cells_ce;
+        let nc = n * cells;
+        check_len("policy.dcell", nc * ce, dcell.len())?;
+        check_len("policy.cell_tmp", nc * f, cell_tmp.len())?;
+        let col0 = self.fuse.in_dim() - cells * ce;
+        dcell.fill(0.0);
+        matmul_t_acc_cols(&self.fuse.w, dfuse, n, col0, dcell, cells * ce)?;
+        for (d, &a) in dcell.iter_mut().zip(act.iter()) {
+            *d *= leaky_relu_grad(a);
+        }
+        if f > 0 {
+            for (b, x) in inp.feat.chunks_exact(f).enumerate() {
+                let m = &inp.map[b * cells * f..(b + 1) * cells * f];
+                let cp = &mut cell_tmp[b * cells * f..(b + 1) * cells * f];
+                for (pc, mc) in cp.chunks_exact_mut(f).zip(m.chunks_exact(f)) {
+                    for ((p, &mv), &xv) in pc.iter_mut().zip(mc).zip(x) {
+                        *p = mv * xv;
                     }
                 }
             }
-            cell.backward_batch(
-                &[inp.map, s.cell_tmp],
-                &[f, f],
-                nc,
-                &[],
-                s.dcell,
-                None,
-                &mut grads.cell,
-                &mut [],
-            )?;
-            s.cell_tmp.fill(0.0);
-            matmul_t_acc_cols(&cell.w, s.dcell, nc, f, s.cell_tmp, f)?;
-            if f > 0 {
-                for (b, o) in out.feat.chunks_exact_mut(f).enumerate() {
-                    let m = &inp.map[b * cells * f..(b + 1) * cells * f];
-                    let ct = &s.cell_tmp[b * cells * f..(b + 1) * cells * f];
-                    for (dc, mc) in ct.chunks_exact(f).zip(m.chunks_exact(f)) {
-                        for ((o, &d), &mv) in o.iter_mut().zip(dc).zip(mc) {
-                            *o += d * mv;
-                        }
+        }
+        cell.backward_batch(
+            &[inp.map, cell_tmp],
+            &[f, f],
+            nc,
+            &[],
+            dcell,
+            None,
+            grads,
+            &mut [],
+        )?;
+        cell_tmp.fill(0.0);
+        matmul_t_acc_cols(&cell.w, dcell, nc, f, cell_tmp, f)?;
+        if f > 0 {
+            for (b, o) in dfeat.chunks_exact_mut(f).enumerate() {
+                let m = &inp.map[b * cells * f..(b + 1) * cells * f];
+                let ct = &cell_tmp[b * cells * f..(b + 1) * cells * f];
+                for (dc, mc) in ct.chunks_exact(f).zip(m.chunks_exact(f)) {
+                    for ((o, &d), &mv) in o.iter_mut().zip(dc).zip(mc) {
+                        *o += d * mv;
                     }
                 }
             }

@@ -4,6 +4,8 @@
 //! batch order. Covered: with and without the spatial map, with and without an actor gain,
 //! f32 and int8 fusion weights, PS input present and absent.
 
+mod common;
+use common::vals;
 use gman_core::dense::{Dense, DenseGrads};
 use gman_core::lstm::{Lstm, LstmGrads};
 use gman_core::matrix::{MatRef, Scales};
@@ -12,18 +14,6 @@ use gman_core::policy::{
     PolicyScratch,
 };
 use gman_core::NUM_ACTIONS;
-
-fn vals(n: usize, seed: u32) -> Vec<f32> {
-    let mut s = seed.wrapping_mul(2654435761).wrapping_add(7);
-    (0..n)
-        .map(|_| {
-            s ^= s << 13;
-            s ^= s >> 17;
-            s ^= s << 5;
-            (s % 2001) as f32 / 1000.0 - 1.0
-        })
-        .collect()
-}
 
 const F: usize = 5;
 const A: usize = 3;

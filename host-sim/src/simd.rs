@@ -123,8 +123,11 @@ mod x86 {
     ) -> Result<()> {
         if n == 1 {
             matmul_t_acc_blocked::<8, 1>(w, dy, n, dx, col0)
-        } else {
+        } else if n.is_multiple_of(4) {
             matmul_t_acc_blocked::<2, 4>(w, dy, n, dx, col0)
+        } else {
+            // Small batches (the Efficient inner update's pairs): 32 columns x 2 vectors.
+            matmul_t_acc_blocked::<4, 2>(w, dy, n, dx, col0)
         }
     }
 

@@ -135,3 +135,16 @@ pub fn header_only_blob(dims: [u64; 8], flags: u64) -> Vec<u8> {
     b.extend(varint(0)); // CRC-32 of the empty payload
     b
 }
+
+/// Deterministic values in `[-1, 1]` (xorshift), `n` of them from `seed`.
+pub fn vals(n: usize, seed: u32) -> Vec<f32> {
+    let mut s = seed.wrapping_mul(2654435761).wrapping_add(7);
+    (0..n)
+        .map(|_| {
+            s ^= s << 13;
+            s ^= s >> 17;
+            s ^= s << 5;
+            (s % 2001) as f32 / 1000.0 - 1.0
+        })
+        .collect()
+}
