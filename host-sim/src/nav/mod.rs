@@ -11,6 +11,8 @@ pub mod agent;
 pub mod meta;
 pub mod model;
 pub mod rollout;
+pub mod run_dir;
+pub mod state;
 pub mod trainer;
 pub mod vec_rollout;
 
