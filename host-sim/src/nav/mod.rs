@@ -8,11 +8,13 @@
 
 pub mod a3c;
 pub mod agent;
+pub mod bptt;
 pub mod meta;
 pub mod model;
 pub mod rollout;
 pub mod run_dir;
 pub mod state;
+pub mod step;
 pub mod trainer;
 pub mod vec_rollout;
 

@@ -7,43 +7,16 @@ use gman_core::navigator::{Efficient, Full, Mode, Navigator};
 use gman_core::policy::{PolicyCache, PolicyInput};
 use gman_core::{Action, NUM_ACTIONS};
 
-use super::a3c::{segment_backward, A3cConfig, Objective, SegmentLoss};
+use super::a3c::{A3cConfig, Objective, SegmentLoss};
+use super::bptt::segment_backward;
 use super::meta::{add_adapted, meta_backward, take_adapted, InnerSetup, InnerStep};
 use super::model::NavModel;
+use super::step::StepRec;
 use super::K;
 use crate::sim::spatial::MapGrid;
 use crate::sim::{Env, EpisodeSpec, RewardKind, World};
 use crate::train::params::ParamSet;
 use crate::train::ps::PsBuffers;
-
-/// What back-propagation needs of one step.
-#[derive(Clone, Debug)]
-pub struct StepRec {
-    /// Observation s_t.
-    pub obs: Vec<f32>,
-    /// PS input (empty without PS).
-    pub ps: Vec<f32>,
-    /// Spatial observation map M_t (empty for a model without a map).
-    pub map: Vec<f32>,
-    /// Generated feature x_t.
-    pub x: Vec<f32>,
-    /// Noise z_t.
-    pub z: Vec<f32>,
-    /// LSTM state before the step.
-    pub h_prev: Vec<f32>,
-    /// LSTM cell before the step.
-    pub c_prev: Vec<f32>,
-    /// Previous action probabilities.
-    pub prev_probs: Vec<f32>,
-    /// Action index.
-    pub action: usize,
-    /// Reward received.
-    pub reward: f32,
-    /// Action probabilities.
-    pub probs: [f32; NUM_ACTIONS],
-    /// The oracle's action distribution (imitation objective only; `None` for A3C).
-    pub expert: Option<[f32; NUM_ACTIONS]>,
-}
 
 /// Summary of a training episode.
 #[derive(Clone, Debug, Default)]
@@ -383,15 +356,19 @@ fn train_episode_in<M: Mode>(
     };
     stats.actions = actions;
     stats.final_feature = nav.generated_feature().to_vec();
+    Ok((stats, disc_after_episode(&nav)?))
+}
+
+/// ω after an episode, to carry to the next one (in the order `DiscW1`, `DiscB1`, `DiscW2`,
+/// `DiscB2`); in the Efficient mode D's first layer is `gain ⊙ (W1 s) + b1`, carried to the
+/// next episode (whose gains restart at 1) as `diag(gain) W1`.
+pub(crate) fn disc_after_episode<M: Mode>(nav: &Navigator<'_, M, K>) -> Result<Vec<Vec<f32>>> {
     let d = nav.discriminator()?;
     let (r, cc) = (d.l1.w.rows(), d.l1.w.cols());
-    // ω after the episode; in the Efficient mode D's first layer is `gain ⊙ (W1 s) + b1`,
-    // carried to the next episode (whose gains restart at 1) as `diag(gain) W1`.
     let w1: Vec<f32> = (0..r * cc)
         .map(|i| d.l1.gain.map_or(1.0, |g| g[i / cc]) * d.l1.w.get(i / cc, i % cc))
         .collect();
-    let disc = vec![w1, d.l1.b.to_vec(), d.w2.to_vec(), vec![d.b2]];
-    Ok((stats, disc))
+    Ok(vec![w1, d.l1.b.to_vec(), d.w2.to_vec(), vec![d.b2]])
 }
 
 /// Runs one evaluation episode in `env` with the device's schedule (inner update inside
