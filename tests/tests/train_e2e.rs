@@ -368,7 +368,8 @@ fn blob_carries_the_inner_loop_settings_to_the_device_config() {
 /// a short order-2 run trains to finite parameters and records its order.
 #[test]
 fn meta_order_two_changes_only_the_generator_gradient() {
-    use gman_host_sim::nav::rollout::{train_episode, Worker};
+    use gman_host_sim::nav::rollout::Worker;
+    use gman_host_sim::nav::trainer::train_episode;
     use rand::SeedableRng;
     let world = World::synthetic(7);
     let model = gman_model(1);
@@ -451,7 +452,8 @@ fn meta_order_two_changes_only_the_generator_gradient() {
 /// separate "θ is trained" from "the EMD adapts".
 #[test]
 fn gman_noemd_trains_the_generator_without_adapting() {
-    use gman_host_sim::nav::rollout::{train_episode, Worker};
+    use gman_host_sim::nav::rollout::Worker;
+    use gman_host_sim::nav::trainer::train_episode;
     use rand::SeedableRng;
     let world = World::synthetic(7);
     let mut rng = gman_core::rng::Xoshiro128::seed_from_u64(5);

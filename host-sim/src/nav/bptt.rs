@@ -102,6 +102,28 @@ impl Rows {
         sz(&mut self.cell_prod, w.map);
     }
 
+    /// Row `j`'s step inputs and LSTM state (`h`, `c` before the step).
+    pub(crate) fn put_inputs(
+        &mut self,
+        j: usize,
+        w: &Widths,
+        inp: &PolicyInput<'_>,
+        h: &[f32],
+        c: &[f32],
+    ) {
+        let put = |dst: &mut Vec<f32>, k: usize, src: &[f32]| {
+            dst[j * k..(j + 1) * k].copy_from_slice(src);
+        };
+        put(&mut self.obs, w.f, inp.obs);
+        put(&mut self.feat, w.f, inp.feat);
+        put(&mut self.attr, w.a, inp.attr);
+        put(&mut self.prev, NUM_ACTIONS, inp.prev_probs);
+        put(&mut self.ps, w.ps, inp.ps);
+        put(&mut self.map, w.map, inp.map);
+        put(&mut self.h_prev, w.hd, h);
+        put(&mut self.c_prev, w.hd, c);
+    }
+
     /// The batched forward over the first `n` rows.
     pub(crate) fn forward(&mut self, policy: &Policy<'_>, n: usize, w: &Widths) -> Result<()> {
         self.resize(n, w);
@@ -535,15 +557,16 @@ pub fn segment_backward<M: Mode, const K: usize>(
     let mut rows = Rows::default();
     let mut acts = Vec::with_capacity(seg.len());
     for s in seg {
+        let inp = PolicyInput {
+            obs: &s.obs,
+            feat: &s.x,
+            attr,
+            prev_probs: &s.prev_probs,
+            ps: &s.ps,
+            map: &s.map,
+        };
         rows.resize(1, &w);
-        rows.obs.copy_from_slice(&s.obs);
-        rows.feat.copy_from_slice(&s.x);
-        rows.attr.copy_from_slice(attr);
-        rows.prev.copy_from_slice(&s.prev_probs);
-        rows.ps.copy_from_slice(&s.ps);
-        rows.map.copy_from_slice(&s.map);
-        rows.h_prev.copy_from_slice(&s.h_prev);
-        rows.c_prev.copy_from_slice(&s.c_prev);
+        rows.put_inputs(0, &w, &inp, &s.h_prev, &s.c_prev);
         rows.forward(&policy, 1, &w)?;
         if rows
             .probs

@@ -22,12 +22,12 @@
 //! previous probabilities, x_t, its generator seeded like `Navigator::reset`). Because the
 //! batched kernels give every vector the bits of the batch-1 kernels, **each episode is bit
 //! for bit the episode the navigator runs alone** (same actions, probabilities, rewards);
-//! `tests/vec_rollout.rs` pins this against [`super::rollout::train_episode`].
+//! `tests/vec_rollout.rs` pins this against [`super::trainer::train_episode`].
 //!
 //! **Gradient order.** The segments that complete at the same tick form one backward batch,
 //! ordered by length (longest first, then slot); within it every tensor's gradient is summed
 //! step by step (last step first) and, within a step, over the batch in order. With `B = 1`
-//! this is exactly the order of [`super::rollout::train_episode`] (one segment at a time), so
+//! this is exactly the order of [`super::trainer::train_episode`] (one segment at a time), so
 //! `B = 1` gives the same update bit for bit; with `B > 1` the order is fixed by
 //! `(seed, update, worker, B)`, so runs stay reproducible and resumable bit for bit.
 //!
@@ -41,7 +41,7 @@ use gman_core::activation::all_finite;
 use gman_core::generator::Generator;
 use gman_core::memory::AdaptMode;
 use gman_core::navigator::{Efficient, Full, Mode, Navigator, NoiseMode, Selection};
-use gman_core::policy::Policy;
+use gman_core::policy::{Policy, PolicyInput};
 use gman_core::rng::{fill_gaussian, uniform, Xoshiro128};
 use gman_core::{Action, Dims, NUM_ACTIONS};
 
@@ -443,17 +443,15 @@ fn observe(
 
 /// Copies the slot's step inputs (and LSTM state) into row `j`.
 fn put_inputs(rows: &mut Rows, j: usize, sl: &Slot<'_>, w: &Widths) {
-    let put = |dst: &mut Vec<f32>, k: usize, src: &[f32]| {
-        dst[j * k..(j + 1) * k].copy_from_slice(src);
+    let inp = PolicyInput {
+        obs: &sl.obs,
+        feat: &sl.x,
+        attr: &sl.attr,
+        prev_probs: &sl.prev,
+        ps: &sl.ps,
+        map: &sl.map,
     };
-    put(&mut rows.obs, w.f, &sl.obs);
-    put(&mut rows.feat, w.f, &sl.x);
-    put(&mut rows.attr, w.a, &sl.attr);
-    put(&mut rows.prev, NUM_ACTIONS, &sl.prev);
-    put(&mut rows.ps, w.ps, &sl.ps);
-    put(&mut rows.map, w.map, &sl.map);
-    put(&mut rows.h_prev, w.hd, &sl.h);
-    put(&mut rows.c_prev, w.hd, &sl.c);
+    rows.put_inputs(j, w, &inp, &sl.h, &sl.c);
 }
 
 /// The navigator's sampling draw (`Selection::Sample`).
