@@ -1,5 +1,17 @@
 //! The training loop of the navigation methods: A3C baselines and GMAN's meta-adversarial
-//! training (Algorithm 1), in one place.
+//! training (Algorithm 1), in one place, readable top to bottom:
+//!
+//! 1. [`train`] — the outer loop (lines 1-3, 21-22): the workers' updates in parallel, then
+//!    `outer_step`: Adam on the summed ∇L_nav (Eq. 4), ω carried across episodes;
+//! 2. `worker_update` — a worker's tasks τ_i, seeded by `(seed, update, worker, episode)`;
+//! 3. [`train_episode`] — one task (lines 4-20): `rollout_segment` (lines 5-13, through
+//!    gman-core's navigator), the segment's ∇L_nav ([`super::bptt::segment_backward`] of
+//!    the loss in [`super::a3c`]), `inner_update` (lines 14-20: Eq. 1 ascent, Eq. 3 descent,
+//!    in gman-core) and, for `--meta-order 2`, [`super::meta`]'s reverse recursion;
+//! 4. `Log` — one `metrics.csv` row per update.
+//!
+//! The vectorised rollout ([`super::vec_rollout`]) replaces step 3 for `--batch-envs B > 1`;
+//! the checkpoint ([`super::state`]) and the run directory ([`super::run_dir`]) live beside.
 //!
 //! ```text
 //! for update u = 1, 2, ...                                   (Algorithm 1, line 1)
@@ -160,20 +172,7 @@ fn check_options(run: &RunSettings, model: &NavModel) -> Result<()> {
     if !(1..=2).contains(&run.meta_order) {
         bail!("--meta-order must be 1 or 2");
     }
-    if run.batch_envs == 0 || run.batch_envs > vec_rollout::MAX_BATCH_ENVS {
-        bail!(
-            "--batch-envs must be in 1..={}, got {}",
-            vec_rollout::MAX_BATCH_ENVS,
-            run.batch_envs
-        );
-    }
-    if run.batch_envs > 1 && !vec_rollout::supports(model) {
-        bail!(
-            "--batch-envs {} is implemented for the methods without an inner loop in training (a3c, a3c-fg, a3c-ps, a3c-fg-ps, gman-nometa, gman-noemd); {} runs its inner loop per episode: use --batch-envs 1",
-            run.batch_envs,
-            model.method.name()
-        );
-    }
+    vec_rollout::check_batch_envs(model, run.batch_envs)?;
     if run.meta_order == 2 && model.method.uses_cossim() {
         bail!("--meta-order 2 is implemented for the discriminator EMD only; use --meta-order 1 with gman-cossim");
     }

@@ -144,17 +144,27 @@ struct Bufs<'b> {
     gen: GenBufs,
 }
 
-fn check_settings(model: &NavModel, s: &VecSettings<'_>) -> Result<()> {
-    if !supports(model) {
+/// Refuses a `B` out of `1..=MAX_BATCH_ENVS`, and `B > 1` for a method with an inner loop in
+/// training (its episodes run one at a time through [`super::trainer::train_episode`]).
+pub fn check_batch_envs(model: &NavModel, batch_envs: usize) -> Result<()> {
+    if !(1..=MAX_BATCH_ENVS).contains(&batch_envs) {
+        bail!("--batch-envs must be in 1..={MAX_BATCH_ENVS}, got {batch_envs}");
+    }
+    if batch_envs > 1 && !supports(model) {
         bail!(
-            "--batch-envs > 1 is implemented for the methods without an inner loop in training (a3c, a3c-fg, a3c-ps, a3c-fg-ps, gman-nometa, gman-noemd); {} runs its inner loop per episode: use --batch-envs 1",
+            "--batch-envs {batch_envs} is implemented for the methods without an inner loop in training (a3c, a3c-fg, a3c-ps, a3c-fg-ps, gman-nometa, gman-noemd); {} runs its inner loop per episode: use --batch-envs 1",
             model.method.name()
         );
     }
-    if !(1..=MAX_BATCH_ENVS).contains(&s.batch_envs) {
+    Ok(())
+}
+
+fn check_settings(model: &NavModel, s: &VecSettings<'_>) -> Result<()> {
+    check_batch_envs(model, s.batch_envs)?;
+    if !supports(model) {
         bail!(
-            "--batch-envs must be in 1..={MAX_BATCH_ENVS}, got {}",
-            s.batch_envs
+            "the vectorised rollout runs the methods without an inner loop in training; {} runs its inner loop per episode",
+            model.method.name()
         );
     }
     let cfg = model.nav_config(true);
