@@ -133,7 +133,7 @@ pub const LOCK_FILE: &str = ".lock";
 /// Takes an exclusive advisory lock (`flock`, through `fs4`) on `RUN_DIR/.lock`, so that a
 /// second trainer writing into the same run directory is refused with a clear error instead
 /// of interleaving `metrics.csv` and checkpoints. Taking it again in the same process (the
-/// CLI holds it while pre-training, then [`train`] asks for it) returns a guard that does
+/// CLI holds it while pre-training, then [`train`](super::trainer::train) asks for it) returns a guard that does
 /// nothing. After the lock is taken, stale temporary files of atomic writes
 /// (`.NAME.tmp.PID`, left by a process that was killed) are removed from the directory and
 /// its `fg/` and `ps/` subdirectories, with a note on stderr.
