@@ -15,7 +15,7 @@ use gman_core::navigator::{Efficient, NavWeights, Navigator};
 use gman_core::{Action, Dims, FEATURE_DIM};
 use gman_host_sim::nav::agent::NavAgent;
 use gman_host_sim::nav::model::{load_model, Method, NavModel};
-use gman_host_sim::nav::trainer::{train, TrainOptions, TrainState};
+use gman_host_sim::nav::trainer::{train, RunSettings, TrainOptions, TrainState};
 use gman_host_sim::sim::offline::fixture::{write_fixture, FixtureInfo};
 use gman_host_sim::sim::offline::{self, h5, state_key, MAP_LEN, MAP_SHAPE};
 use gman_host_sim::sim::spatial::MapGrid;
@@ -326,21 +326,23 @@ fn oracle_reaches_sr_100_on_the_graphs_shortest_paths() {
 fn opts(out: PathBuf, updates: u64) -> TrainOptions {
     TrainOptions {
         updates,
-        seed: 3,
-        workers: 2,
-        batch_envs: 1,
-        min_steps: 20,
-        reward: RewardKind::Mixed,
-        max_steps: Some(30),
-        min_start_actions: 1,
-        adam: AdamConfig {
-            lr: 1e-3,
-            ..AdamConfig::default()
+        run: RunSettings {
+            seed: 3,
+            workers: 2,
+            batch_envs: 1,
+            min_steps: 20,
+            reward: RewardKind::Mixed,
+            max_steps: Some(30),
+            min_start_actions: 1,
+            adam: AdamConfig {
+                lr: 1e-3,
+                ..AdamConfig::default()
+            },
+            a3c: Default::default(),
+            objective: Default::default(),
+            meta_order: 1,
         },
-        a3c: Default::default(),
         checkpoint_every: 2,
-        objective: Default::default(),
-        meta_order: 1,
         out,
         progress: false,
     }

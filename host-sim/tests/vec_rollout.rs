@@ -14,8 +14,9 @@ use gman_core::navigator::NoiseMode;
 use gman_core::Dims;
 use gman_host_sim::nav::a3c::{A3cConfig, Objective};
 use gman_host_sim::nav::model::{Method, NavModel};
-use gman_host_sim::nav::rollout::{train_episode, EpisodeStats, Worker};
-use gman_host_sim::nav::trainer::{train, TrainOptions, TrainState};
+use gman_host_sim::nav::rollout::{EpisodeStats, Worker};
+use gman_host_sim::nav::trainer::train_episode;
+use gman_host_sim::nav::trainer::{train, RunSettings, TrainOptions, TrainState};
 use gman_host_sim::nav::vec_rollout::{run_worker, VecSettings};
 use gman_host_sim::sim::{EpisodeLimits, EpisodeSpec, RewardKind, World};
 use gman_host_sim::train::adam::AdamConfig;
@@ -286,21 +287,23 @@ fn batched_episodes_are_the_episodes_run_alone() {
 fn opts(out: std::path::PathBuf, updates: u64, b: usize) -> TrainOptions {
     TrainOptions {
         updates,
-        seed: 3,
-        workers: 2,
-        batch_envs: b,
-        min_steps: 20,
-        reward: RewardKind::Mixed,
-        max_steps: Some(40),
-        min_start_actions: 1,
-        adam: AdamConfig {
-            lr: 1e-3,
-            ..AdamConfig::default()
+        run: RunSettings {
+            seed: 3,
+            workers: 2,
+            batch_envs: b,
+            min_steps: 20,
+            reward: RewardKind::Mixed,
+            max_steps: Some(40),
+            min_start_actions: 1,
+            adam: AdamConfig {
+                lr: 1e-3,
+                ..AdamConfig::default()
+            },
+            a3c: Default::default(),
+            objective: Default::default(),
+            meta_order: 1,
         },
-        a3c: Default::default(),
         checkpoint_every: 2,
-        objective: Default::default(),
-        meta_order: 1,
         out,
         progress: false,
     }
@@ -333,12 +336,8 @@ fn batched_runs_are_reproducible_and_resume_bit_for_bit() {
     let mut sb = state(Method::GmanNoemd);
     train(&world, &opts(b.clone(), 2, 3), &mut sb).unwrap();
     let ck = gman_host_sim::nav::trainer::checkpoint_path(&b);
-    let (mut sb, t) = TrainState::load_with_options(&ck).unwrap();
-    assert_eq!(
-        t["batch_envs"].as_u64(),
-        Some(3),
-        "B is stored in the checkpoint"
-    );
+    let (mut sb, t) = TrainState::load_with_settings(&ck).unwrap();
+    assert_eq!(t.run.batch_envs, 3, "B is stored in the checkpoint");
     train(&world, &opts(b.clone(), 4, 3), &mut sb).unwrap();
     assert_eq!(sa.env_steps, sb.env_steps);
     for (x, y) in sa.model.params.tensors.iter().zip(&sb.model.params.tensors) {

@@ -21,11 +21,12 @@ use gman_core::matrix::MatRef;
 use gman_core::navigator::{Full, NavConfig, NavWeights, Navigator, Schedule, Selection};
 use gman_core::rng::{fill_gaussian, uniform, Xoshiro128};
 use gman_core::{Dims, NUM_ACTIONS};
-use gman_host_sim::nav::a3c::{output_grads, segment_backward, A3cConfig};
+use gman_host_sim::nav::a3c::{output_grads, A3cConfig};
+use gman_host_sim::nav::bptt::segment_backward;
 use gman_host_sim::nav::meta::{
     inner_grads, meta_backward, take_adapted, InnerSetup, InnerStep, PHI, THETA,
 };
-use gman_host_sim::nav::rollout::StepRec;
+use gman_host_sim::nav::step::StepRec;
 use gman_host_sim::train::params::{Param, ParamSet};
 use gman_tests::reference::{
     adapt_loss, finite_diff, lrelu, rel_err, Dense64, Disc64, Gen64, Lstm64,

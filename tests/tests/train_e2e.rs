@@ -10,7 +10,7 @@ use gman_core::navigator::{Efficient, NavConfig, NavWeights, Navigator, NoiseMod
 use gman_core::Dims;
 use gman_host_sim::nav::agent::NavAgent;
 use gman_host_sim::nav::model::{load_model, Method, NavModel};
-use gman_host_sim::nav::trainer::{train, TrainOptions, TrainState};
+use gman_host_sim::nav::trainer::{train, RunSettings, TrainOptions, TrainState};
 use gman_host_sim::sim::{
     evaluate, Env, EpisodeLimits, EvalConfig, EvalReport, RandomAgent, RewardKind, Split, World,
 };
@@ -28,21 +28,23 @@ fn tmp(name: &str) -> PathBuf {
 fn opts(out: PathBuf, updates: u64) -> TrainOptions {
     TrainOptions {
         updates,
-        seed: 3,
-        workers: 2,
-        batch_envs: 1,
-        min_steps: 20,
-        reward: RewardKind::Mixed,
-        max_steps: Some(40),
-        min_start_actions: 1,
-        adam: AdamConfig {
-            lr: 1e-3,
-            ..AdamConfig::default()
+        run: RunSettings {
+            seed: 3,
+            workers: 2,
+            batch_envs: 1,
+            min_steps: 20,
+            reward: RewardKind::Mixed,
+            max_steps: Some(40),
+            min_start_actions: 1,
+            adam: AdamConfig {
+                lr: 1e-3,
+                ..AdamConfig::default()
+            },
+            a3c: Default::default(),
+            objective: Default::default(),
+            meta_order: 1,
         },
-        a3c: Default::default(),
         checkpoint_every: 3,
-        objective: Default::default(),
-        meta_order: 1,
         out,
         progress: false,
     }
@@ -160,11 +162,15 @@ fn short_training_beats_random_agent_on_seen_targets() {
             ..AdamConfig::default()
         },
     );
+    let base = opts(dir.join("run"), 1500);
     let o = TrainOptions {
-        max_steps: None,
-        min_steps: 40,
+        run: RunSettings {
+            max_steps: None,
+            min_steps: 40,
+            ..base.run.clone()
+        },
         checkpoint_every: 1000,
-        ..opts(dir.join("run"), 1500)
+        ..base
     };
     train(&world, &o, &mut st).unwrap();
     let model = Arc::new(st.model);
@@ -362,7 +368,8 @@ fn blob_carries_the_inner_loop_settings_to_the_device_config() {
 /// a short order-2 run trains to finite parameters and records its order.
 #[test]
 fn meta_order_two_changes_only_the_generator_gradient() {
-    use gman_host_sim::nav::rollout::{train_episode, Worker};
+    use gman_host_sim::nav::rollout::Worker;
+    use gman_host_sim::nav::trainer::train_episode;
     use rand::SeedableRng;
     let world = World::synthetic(7);
     let model = gman_model(1);
@@ -425,9 +432,13 @@ fn meta_order_two_changes_only_the_generator_gradient() {
             ..AdamConfig::default()
         },
     );
+    let base = opts(dir.clone(), 2);
     let o = TrainOptions {
-        meta_order: 2,
-        ..opts(dir.clone(), 2)
+        run: RunSettings {
+            meta_order: 2,
+            ..base.run.clone()
+        },
+        ..base
     };
     train(&world, &o, &mut st).unwrap();
     assert!(st.model.params.all_finite());
@@ -441,7 +452,8 @@ fn meta_order_two_changes_only_the_generator_gradient() {
 /// separate "θ is trained" from "the EMD adapts".
 #[test]
 fn gman_noemd_trains_the_generator_without_adapting() {
-    use gman_host_sim::nav::rollout::{train_episode, Worker};
+    use gman_host_sim::nav::rollout::Worker;
+    use gman_host_sim::nav::trainer::train_episode;
     use rand::SeedableRng;
     let world = World::synthetic(7);
     let mut rng = gman_core::rng::Xoshiro128::seed_from_u64(5);

@@ -8,7 +8,7 @@ use anyhow::{Context, Result};
 use clap::Args;
 use gman_host_sim::nav::agent::NavAgent;
 use gman_host_sim::nav::model::{Method, NavModel};
-use gman_host_sim::nav::trainer::{checkpoint_path, train, TrainOptions, TrainState};
+use gman_host_sim::nav::trainer::{checkpoint_path, train, RunSettings, TrainOptions, TrainState};
 use gman_host_sim::sim::RewardKind;
 use gman_host_sim::train::adam::AdamConfig;
 use gman_host_sim::train::fg::{self};
@@ -72,21 +72,23 @@ pub fn cmd_demo(a: DemoArgs) -> Result<()> {
         };
         let opts = TrainOptions {
             updates: a.updates,
-            seed: 1,
-            workers: 2,
-            batch_envs: 1,
-            min_steps: 40,
-            reward: RewardKind::Mixed,
-            max_steps: None,
-            min_start_actions: 1,
-            adam: AdamConfig {
-                lr: 1e-3,
-                ..AdamConfig::default()
+            run: RunSettings {
+                seed: 1,
+                workers: 2,
+                batch_envs: 1,
+                min_steps: 40,
+                reward: RewardKind::Mixed,
+                max_steps: None,
+                min_start_actions: 1,
+                adam: AdamConfig {
+                    lr: 1e-3,
+                    ..AdamConfig::default()
+                },
+                a3c: Default::default(),
+                objective: Default::default(),
+                meta_order: 1,
             },
-            a3c: Default::default(),
             checkpoint_every: 100,
-            objective: Default::default(),
-            meta_order: 1,
             out: dir.clone(),
             progress: true,
         };

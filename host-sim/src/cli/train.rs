@@ -7,7 +7,9 @@ use anyhow::{anyhow, bail, Context, Result};
 use clap::{Args, ValueEnum};
 use gman_host_sim::nav::a3c::Objective;
 use gman_host_sim::nav::model::{Method, NavModel};
-use gman_host_sim::nav::trainer::{checkpoint_path, train, TrainOptions, TrainState};
+use gman_host_sim::nav::trainer::{
+    checkpoint_path, train, RunSettings, TrainOptions, TrainState, WorldId,
+};
 use gman_host_sim::sim::{RewardKind, World};
 use gman_host_sim::train::adam::AdamConfig;
 use gman_host_sim::train::fg::{self, FgCollectConfig, FgTrainConfig};
@@ -256,30 +258,22 @@ fn ensure_ps(world: &World, given: Option<&Path>, dir: &Path, seed: u64) -> Resu
     Ok(path)
 }
 
-/// One trainer setting of a resumed run: the value stored in its checkpoint wins; a flag
-/// given explicitly on the command line must agree with it (otherwise the resumed run would
-/// silently differ from an uninterrupted one). Checkpoints written before the setting was
-/// stored fall back to the command line.
+/// One setting of a resumed run: the value stored in its checkpoint wins; a flag given
+/// explicitly on the command line must agree with it (otherwise the resumed run would
+/// silently differ from an uninterrupted one).
 fn resumed<T: PartialEq + std::fmt::Debug>(
     flag: &str,
     cli: T,
-    stored: Option<T>,
+    stored: T,
     explicit: bool,
 ) -> Result<T> {
-    match stored {
-        Some(v) if explicit && v != cli => bail!(
-            "{flag} {cli:?} conflicts with the resumed run, which was trained with {v:?}; a \
+    if explicit && stored != cli {
+        bail!(
+            "{flag} {cli:?} conflicts with the resumed run, which was trained with {stored:?}; a \
              resumed run keeps its own settings (omit the flag, or start a new run with --out)"
-        ),
-        Some(v) => Ok(v),
-        None => Ok(cli),
+        );
     }
-}
-
-/// An integer trainer setting stored in a checkpoint's metadata; `None` when it is missing or
-/// does not fit `T` (then [`resumed`] falls back to the command line).
-fn stored_int<T: TryFrom<u64>>(trainer: &serde_json::Value, key: &str) -> Option<T> {
-    trainer.get(key)?.as_u64()?.try_into().ok()
+    Ok(stored)
 }
 
 /// The inner rule the flags ask for.
@@ -306,20 +300,20 @@ fn validate_train_settings(
 ) -> Result<()> {
     let _ = max_inner; // every u32 is a valid cap
     let bad = |msg: String| anyhow!("{what}: {msg}");
-    if opts.workers == 0 || opts.workers > MAX_WORKERS {
+    if opts.run.workers == 0 || opts.run.workers > MAX_WORKERS {
         return Err(bad(format!(
             "workers must be in 1..={MAX_WORKERS}, got {}",
-            opts.workers
+            opts.run.workers
         )));
     }
     if opts.checkpoint_every == 0 {
         return Err(bad("checkpoint-every must be at least 1".into()));
     }
     let max_b = gman_host_sim::nav::vec_rollout::MAX_BATCH_ENVS;
-    if opts.batch_envs == 0 || opts.batch_envs > max_b {
+    if opts.run.batch_envs == 0 || opts.run.batch_envs > max_b {
         return Err(bad(format!(
             "batch-envs must be in 1..={max_b}, got {}",
-            opts.batch_envs
+            opts.run.batch_envs
         )));
     }
     if !(inner_lr.is_finite() && inner_lr >= 0.0) {
@@ -327,7 +321,7 @@ fn validate_train_settings(
             "inner-lr must be finite and non-negative, got {inner_lr}"
         )));
     }
-    let c = &opts.a3c;
+    let c = &opts.run.a3c;
     if !(c.entropy.is_finite() && c.entropy >= 0.0) {
         return Err(bad(format!(
             "entropy must be finite and non-negative, got {}",
@@ -346,11 +340,14 @@ fn validate_train_settings(
             c.value_coef
         )));
     }
-    opts.adam.validate().map_err(|e| bad(format!("{e:#}")))?;
-    if !(1..=2).contains(&opts.meta_order) {
+    opts.run
+        .adam
+        .validate()
+        .map_err(|e| bad(format!("{e:#}")))?;
+    if !(1..=2).contains(&opts.run.meta_order) {
         return Err(bad(format!(
             "meta-order must be 1 or 2, got {}",
-            opts.meta_order
+            opts.run.meta_order
         )));
     }
     Ok(())
@@ -358,43 +355,17 @@ fn validate_train_settings(
 
 /// What world `w` selects, as stored in a run's checkpoint: kind, world seed and, for a data
 /// directory, a fingerprint of its contents (the path may change, the data must not).
-fn world_identity(w: &WorldArgs) -> Result<serde_json::Value> {
+fn world_identity(w: &WorldArgs) -> Result<WorldId> {
     Ok(match &w.data {
-        Some(dir) => serde_json::json!({
-            "kind": "data",
-            "world_seed": w.world_seed,
-            "fingerprint": gman_host_sim::sim::data::fingerprint(dir)?,
-            "path": dir.display().to_string(),
-        }),
-        None => serde_json::json!({ "kind": "synthetic", "world_seed": w.world_seed }),
+        Some(dir) => WorldId::Data {
+            world_seed: w.world_seed,
+            fingerprint: gman_host_sim::sim::data::fingerprint(dir)?,
+            path: dir.display().to_string(),
+        },
+        None => WorldId::Synthetic {
+            world_seed: w.world_seed,
+        },
     })
-}
-
-/// Refuses to resume a run on another world than the one it was trained on.
-fn check_same_world(stored: &serde_json::Value, now: &serde_json::Value) -> Result<()> {
-    let describe = |v: &serde_json::Value| match v["kind"].as_str() {
-        Some("data") => format!(
-            "the data directory {} (content fingerprint {}) with --world-seed {}",
-            v["path"].as_str().unwrap_or("?"),
-            v["fingerprint"].as_str().unwrap_or("?"),
-            v["world_seed"]
-        ),
-        _ => format!(
-            "the synthetic world (no --data) with --world-seed {}",
-            v["world_seed"]
-        ),
-    };
-    let same = stored["kind"] == now["kind"]
-        && stored["world_seed"] == now["world_seed"]
-        && stored["fingerprint"] == now["fingerprint"];
-    if !same {
-        bail!(
-            "the run was trained on {}, but this resume selects {}; resume with the same --data and --world-seed",
-            describe(stored),
-            describe(now)
-        );
-    }
-    Ok(())
 }
 
 /// The adaptation mode of a new run: `--adapt-mode`, else Full for the paper preset and
@@ -433,26 +404,11 @@ fn check_train_flags(a: &TrainArgs) -> Result<()> {
     }
     Ok(())
 }
-
 /// `gman train`. `explicit(id)` says whether the flag of field `id` was given on the command
 /// line (on `--resume`, only those are checked against the checkpoint's settings).
 pub fn cmd_train(a: TrainArgs, explicit: &dyn Fn(&str) -> bool) -> Result<()> {
     check_train_flags(&a)?;
-    if a.workers == 0 || a.checkpoint_every == 0 {
-        bail!("--workers and --checkpoint-every must be at least 1");
-    }
-    if a.workers > MAX_WORKERS {
-        bail!("--workers {} is more than {MAX_WORKERS}", a.workers);
-    }
-    if !(a.inner_lr.is_finite() && a.inner_lr >= 0.0 && a.entropy.is_finite() && a.entropy >= 0.0) {
-        bail!("--inner-lr and --entropy must be finite and non-negative");
-    }
-    let tiny = a.config == ConfigArg::Tiny;
-    let updates = a.updates.unwrap_or(if tiny { 300 } else { 4000 });
-    let lr = a.lr.unwrap_or(1e-3);
-    if !(lr.is_finite() && lr > 0.0) {
-        bail!("--lr must be positive");
-    }
+    check_train_numbers(&a)?;
     if a.resume.is_some() {
         // Flags that only shape a new run have no effect here: said so, not silently dropped.
         for (flag, id) in [("--fg", "fg"), ("--ps", "ps"), ("--config", "config")] {
@@ -473,6 +429,65 @@ pub fn cmd_train(a: TrainArgs, explicit: &dyn Fn(&str) -> bool) -> Result<()> {
         Some(d) => Some(gman_host_sim::nav::trainer::lock_run_dir(d)?),
         None => None,
     };
+    let world = load_world(&a)?;
+    let world_id = world_identity(&a.world)?;
+    let mut opts = flag_options(&a);
+    let mut state = match &a.resume {
+        Some(dir) => {
+            let (state, run) = open_resumed(&a, dir, &world_id, explicit)?;
+            opts.out = dir.clone();
+            opts.run = run;
+            state
+        }
+        None => {
+            let out = a
+                .out
+                .clone()
+                .ok_or_else(|| anyhow!("--out RUN_DIR is required"))?;
+            let state = new_run(&a, &world, &out, world_id)?;
+            validate_train_settings("command line", &opts, a.inner_lr, a.max_inner)?;
+            opts.out = out;
+            state
+        }
+    };
+    let t0 = Instant::now();
+    let steps0 = state.env_steps;
+    train(&world, &opts, &mut state)?;
+    report_trained(&state, &opts.out, steps0, t0.elapsed().as_secs_f64());
+    Ok(())
+}
+
+/// The budget preset's update count and the outer learning rate, as the flags select them.
+fn updates_and_lr(a: &TrainArgs) -> (u64, f32) {
+    let tiny = a.config == ConfigArg::Tiny;
+    (
+        a.updates.unwrap_or(if tiny { 300 } else { 4000 }),
+        a.lr.unwrap_or(1e-3),
+    )
+}
+
+/// The numeric flags' ranges, checked before anything is loaded.
+fn check_train_numbers(a: &TrainArgs) -> Result<()> {
+    if a.workers == 0 || a.checkpoint_every == 0 {
+        bail!("--workers and --checkpoint-every must be at least 1");
+    }
+    if a.workers > MAX_WORKERS {
+        bail!("--workers {} is more than {MAX_WORKERS}", a.workers);
+    }
+    if !(a.inner_lr.is_finite() && a.inner_lr >= 0.0 && a.entropy.is_finite() && a.entropy >= 0.0) {
+        bail!("--inner-lr and --entropy must be finite and non-negative");
+    }
+    let (_, lr) = updates_and_lr(a);
+    if !(lr.is_finite() && lr > 0.0) {
+        bail!("--lr must be positive");
+    }
+    Ok(())
+}
+
+/// Loads the world, refusing a map grid offline data cannot serve, and fails now (not after
+/// pre-training) if no training start can satisfy `--min-start-actions` (a separate
+/// generator: the run's own draws are untouched).
+fn load_world(a: &TrainArgs) -> Result<World> {
     let world = a.world.load()?;
     if matches!(world.source, gman_host_sim::sim::WorldSource::Offline(_))
         && (a.map.0 > gman_host_sim::sim::spatial::RESNET_SIDE
@@ -484,289 +499,261 @@ pub fn cmd_train(a: TrainArgs, explicit: &dyn Fn(&str) -> bool) -> Result<()> {
             a.map.1
         );
     }
-    let world_id = world_identity(&a.world)?;
-    // Fail now, not after pre-training, if no training start can satisfy the setting (a
-    // separate generator: the run's own draws are untouched).
-    {
-        use rand::SeedableRng;
-        let mut probe = rand_chacha::ChaCha8Rng::seed_from_u64(0);
-        world.try_sample_train_episode_min(&mut probe, a.min_start_actions)?;
-    }
-    let mut stored = serde_json::Value::Null;
-    let (out, mut state) = match &a.resume {
-        Some(dir) => {
-            let (st, meta) = TrainState::load_with_options(&checkpoint_path(dir))
-                .with_context(|| format!("resuming {}", dir.display()))?;
-            stored = meta;
-            if let Some(w) = &st.world {
-                check_same_world(w, &world_id)
-                    .with_context(|| format!("resuming {}", dir.display()))?;
-            }
-            if explicit("preset") {
-                preset_matches(&st.model, a.preset).with_context(|| {
-                    format!("--preset {} on resuming {}", a.preset.name(), dir.display())
-                })?;
-            }
-            eprintln!(
-                "resuming {} ({}) at update {}",
-                dir.display(),
-                st.model.method.name(),
-                st.update
-            );
-            (dir.clone(), st)
-        }
-        None => {
-            let out = a
-                .out
-                .clone()
-                .ok_or_else(|| anyhow!("--out RUN_DIR is required"))?;
-            std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
-            if checkpoint_path(&out).exists() {
-                bail!(
-                    "{} already holds a run; use --resume {} to continue it, or another --out",
-                    out.display(),
-                    out.display()
-                );
-            }
-            let gen = if a.method.uses_fg() {
-                let p = ensure_fg(
-                    &world,
-                    a.preset,
-                    a.fg.as_deref(),
-                    &out.join("fg"),
-                    tiny,
-                    a.seed,
-                )?;
-                Some(
-                    fg::load_generator(&p, &a.preset.dims())
-                        .with_context(|| format!("loading generator {}", p.display()))?,
-                )
-            } else {
-                None
-            };
-            let psm = if a.method.uses_ps() {
-                let p = ensure_ps(&world, a.ps.as_deref(), &out.join("ps"), a.seed)?;
-                Some(
-                    PsModule::load(&p)
-                        .with_context(|| format!("loading PS module {}", p.display()))?,
-                )
-            } else {
-                None
-            };
-            let (rows, cols) = a.map;
-            let dims = if rows > 0 {
-                a.preset.dims().with_map(rows, cols, a.cell_embed)
-            } else {
-                a.preset.dims()
-            };
-            let mut model = NavModel::init(a.method, dims, a.seed, gen.as_ref(), psm)?;
-            model.adapt_mode = new_run_adapt_mode(&a);
-            model.privileged = a.privileged_feature;
-            model.noise = a.noise.mode();
-            let adam = AdamConfig {
+    use rand::SeedableRng;
+    let mut probe = rand_chacha::ChaCha8Rng::seed_from_u64(0);
+    world.try_sample_train_episode_min(&mut probe, a.min_start_actions)?;
+    Ok(world)
+}
+
+/// The options the flags ask for (a resumed run replaces `run` and `out` by its own).
+fn flag_options(a: &TrainArgs) -> TrainOptions {
+    let (updates, lr) = updates_and_lr(a);
+    TrainOptions {
+        updates,
+        run: RunSettings {
+            seed: a.seed,
+            workers: a.workers,
+            batch_envs: a.batch_envs,
+            min_steps: a.min_steps,
+            reward: a.reward,
+            max_steps: a.max_steps,
+            min_start_actions: a.min_start_actions,
+            adam: AdamConfig {
                 lr,
                 ..AdamConfig::default()
-            };
-            let mut st = TrainState::new(model, adam);
-            st.world = Some(world_id.clone());
-            (out, st)
-        }
-    };
-    let mut opts = TrainOptions {
-        updates,
-        seed: a.seed,
-        workers: a.workers,
-        batch_envs: a.batch_envs,
-        min_steps: a.min_steps,
-        reward: a.reward,
-        max_steps: a.max_steps,
-        min_start_actions: a.min_start_actions,
-        adam: AdamConfig {
-            lr,
-            ..AdamConfig::default()
-        },
-        a3c: gman_host_sim::nav::a3c::A3cConfig {
-            entropy: a.entropy,
-            ..Default::default()
+            },
+            a3c: gman_host_sim::nav::a3c::A3cConfig {
+                entropy: a.entropy,
+                ..Default::default()
+            },
+            objective: a.objective,
+            meta_order: a.meta_order,
         },
         checkpoint_every: a.checkpoint_every,
-        objective: a.objective,
-        meta_order: a.meta_order,
-        out: out.clone(),
+        out: PathBuf::new(),
         progress: !a.quiet,
-    };
-    if a.resume.is_none() {
-        state.model.inner_lr = a.inner_lr;
-        state.model.max_inner = a.max_inner;
-        state.model.inner_rule = inner_rule(&a);
-        validate_train_settings("command line", &opts, a.inner_lr, a.max_inner)?;
+    }
+}
+
+/// A new run in `out`: pre-trains (or loads) G and the PS module as the method needs, and
+/// initialises the model with the flags' settings.
+fn new_run(a: &TrainArgs, world: &World, out: &Path, world_id: WorldId) -> Result<TrainState> {
+    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    if checkpoint_path(out).exists() {
+        bail!(
+            "{} already holds a run; use --resume {} to continue it, or another --out",
+            out.display(),
+            out.display()
+        );
+    }
+    let tiny = a.config == ConfigArg::Tiny;
+    let gen = if a.method.uses_fg() {
+        let p = ensure_fg(
+            world,
+            a.preset,
+            a.fg.as_deref(),
+            &out.join("fg"),
+            tiny,
+            a.seed,
+        )?;
+        Some(
+            fg::load_generator(&p, &a.preset.dims())
+                .with_context(|| format!("loading generator {}", p.display()))?,
+        )
     } else {
-        // Continue with the run's own settings (bit-exact resume); explicit flags must agree.
-        let t = &stored;
-        let m = &state.model;
+        None
+    };
+    let psm = if a.method.uses_ps() {
+        let p = ensure_ps(world, a.ps.as_deref(), &out.join("ps"), a.seed)?;
+        Some(PsModule::load(&p).with_context(|| format!("loading PS module {}", p.display()))?)
+    } else {
+        None
+    };
+    let (rows, cols) = a.map;
+    let dims = if rows > 0 {
+        a.preset.dims().with_map(rows, cols, a.cell_embed)
+    } else {
+        a.preset.dims()
+    };
+    let mut model = NavModel::init(a.method, dims, a.seed, gen.as_ref(), psm)?;
+    model.adapt_mode = new_run_adapt_mode(a);
+    model.privileged = a.privileged_feature;
+    model.noise = a.noise.mode();
+    model.inner_lr = a.inner_lr;
+    model.max_inner = a.max_inner;
+    model.inner_rule = inner_rule(a);
+    let adam = AdamConfig {
+        lr: updates_and_lr(a).1,
+        ..AdamConfig::default()
+    };
+    let mut st = TrainState::new(model, adam);
+    st.world = Some(world_id);
+    Ok(st)
+}
+
+/// Opens the run in `dir` to continue it with its own settings (bit-exact resume): the
+/// checkpoint's model and [`RunSettings`], checked against the world and against the flags
+/// given explicitly.
+fn open_resumed(
+    a: &TrainArgs,
+    dir: &Path,
+    world_id: &WorldId,
+    explicit: &dyn Fn(&str) -> bool,
+) -> Result<(TrainState, RunSettings)> {
+    let ck = checkpoint_path(dir);
+    let (mut st, meta) = TrainState::load_with_settings(&ck)
+        .with_context(|| format!("resuming {}", dir.display()))?;
+    if let Some(w) = &st.world {
+        w.check_same(world_id)
+            .with_context(|| format!("resuming {}", dir.display()))?;
+    }
+    if explicit("preset") {
+        preset_matches(&st.model, a.preset).with_context(|| {
+            format!("--preset {} on resuming {}", a.preset.name(), dir.display())
+        })?;
+    }
+    eprintln!(
+        "resuming {} ({}) at update {}",
+        dir.display(),
+        st.model.method.name(),
+        st.update
+    );
+    check_resumed_model(a, &st.model, explicit)?;
+    let run = resumed_settings(a, &meta.run, explicit)?;
+    let check = TrainOptions {
+        run: run.clone(),
+        ..flag_options(a)
+    };
+    let m = &st.model;
+    validate_train_settings(
+        &format!("{}: stored setting", ck.display()),
+        &check,
+        m.inner_lr,
+        m.max_inner,
+    )?;
+    if !st.model.params.all_finite() {
+        bail!(
+            "{}: the model holds non-finite weights; the run diverged before this checkpoint and cannot be resumed",
+            ck.display()
+        );
+    }
+    if st.world.is_none() {
+        // Checkpoints of older builds did not record it: record it from now on.
+        st.world = Some(world_id.clone());
+    }
+    Ok((st, run))
+}
+
+/// The model settings of a resumed run against the flags given explicitly.
+fn check_resumed_model(a: &TrainArgs, m: &NavModel, explicit: &dyn Fn(&str) -> bool) -> Result<()> {
+    resumed("--inner-lr", a.inner_lr, m.inner_lr, explicit("inner_lr"))?;
+    resumed(
+        "--max-inner",
+        a.max_inner,
+        m.max_inner,
+        explicit("max_inner"),
+    )?;
+    let rule = &m.inner_rule;
+    resumed("--disc-lr", a.disc_lr, rule.disc_lr, explicit("disc_lr"))?;
+    resumed(
+        "--disc-steps",
+        a.disc_steps,
+        rule.disc_steps,
+        explicit("disc_steps"),
+    )?;
+    resumed(
+        "--step-rule",
+        a.step_rule,
+        rule.step_rule,
+        explicit("step_rule"),
+    )?;
+    resumed(
+        "--disc-head-reset",
+        a.disc_head_reset,
+        m.inner_rule.disc_head_reset,
+        explicit("disc_head_reset"),
+    )?;
+    resumed("--method", a.method, m.method, explicit("method"))?;
+    if let Some(mode) = a.adapt_mode {
         resumed(
-            "--inner-lr",
-            a.inner_lr,
-            Some(m.inner_lr),
-            explicit("inner_lr"),
+            "--adapt-mode",
+            mode.mode(),
+            m.adapt_mode,
+            explicit("adapt_mode"),
         )?;
-        resumed(
-            "--max-inner",
-            a.max_inner,
-            Some(m.max_inner),
-            explicit("max_inner"),
-        )?;
-        resumed(
-            "--disc-lr",
-            a.disc_lr,
-            Some(m.inner_rule.disc_lr),
-            explicit("disc_lr"),
-        )?;
-        resumed(
-            "--disc-steps",
-            a.disc_steps,
-            Some(m.inner_rule.disc_steps),
-            explicit("disc_steps"),
-        )?;
-        resumed(
-            "--step-rule",
-            a.step_rule,
-            Some(m.inner_rule.step_rule),
-            explicit("step_rule"),
-        )?;
-        resumed(
-            "--disc-head-reset",
-            a.disc_head_reset,
-            Some(m.inner_rule.disc_head_reset),
-            explicit("disc_head_reset"),
-        )?;
-        resumed("--method", a.method, Some(m.method), explicit("method"))?;
-        if let Some(mode) = a.adapt_mode {
-            resumed(
-                "--adapt-mode",
-                mode.mode(),
-                Some(m.adapt_mode),
-                explicit("adapt_mode"),
-            )?;
-        }
-        resumed(
-            "--map",
-            a.map,
-            Some((m.dims.map_rows, m.dims.map_cols)),
-            explicit("map"),
-        )?;
+    }
+    let d = &m.dims;
+    resumed("--map", a.map, (d.map_rows, d.map_cols), explicit("map"))?;
+    if d.map_cells() > 0 {
         resumed(
             "--cell-embed",
             a.cell_embed,
-            Some(m.dims.cell_embed).filter(|_| m.dims.map_cells() > 0),
+            d.cell_embed,
             explicit("cell_embed"),
         )?;
-        resumed(
-            "--privileged-feature",
-            a.privileged_feature,
-            Some(m.privileged),
-            explicit("privileged_feature"),
-        )?;
-        // Runs from before the objective existed were A3C runs.
-        let objective = match t.get("objective").and_then(|v| v.as_str()) {
-            Some(name) => Some(
-                Objective::from_str(name, true)
-                    .map_err(|e| anyhow!("checkpoint trainer.objective {name:?}: {e}"))?,
-            ),
-            None => Some(Objective::A3c),
-        };
-        opts.objective = resumed("--objective", a.objective, objective, explicit("objective"))?;
-        opts.seed = resumed("--seed", a.seed, stored_int(t, "seed"), explicit("seed"))?;
-        opts.workers = resumed(
-            "--workers",
-            a.workers,
-            stored_int(t, "workers"),
-            explicit("workers"),
-        )?;
-        // Runs from before vectorised episodes stepped one environment per worker.
-        opts.batch_envs = resumed(
-            "--batch-envs",
-            a.batch_envs,
-            Some(match t.get("batch_envs") {
-                None => 1,
-                Some(v) => v
-                    .as_u64()
-                    .and_then(|x| usize::try_from(x).ok())
-                    .ok_or_else(|| anyhow!("checkpoint trainer.batch_envs {v} is not a count"))?,
-            }),
-            explicit("batch_envs"),
-        )?;
-        opts.min_steps = resumed(
-            "--min-steps",
-            a.min_steps,
-            stored_int(t, "min_steps"),
-            explicit("min_steps"),
-        )?;
-        opts.min_start_actions = resumed(
-            "--min-start-actions",
-            a.min_start_actions,
-            stored_int(t, "min_start_actions"),
-            explicit("min_start_actions"),
-        )?;
-        // `null` is stored for "the per-room default", so present-but-null means `None`.
-        opts.max_steps = resumed(
-            "--max-steps",
-            a.max_steps,
-            t.get("max_steps").map(|_| stored_int(t, "max_steps")),
-            explicit("max_steps"),
-        )?;
-        opts.meta_order = resumed(
-            "--meta-order",
-            a.meta_order,
-            stored_int(t, "meta_order"),
-            explicit("meta_order"),
-        )?;
-        // Stored as the variant's Debug name ("Mixed"); the lower-case form is its CLI name.
-        let reward = t
-            .get("reward")
-            .and_then(|v| v.as_str())
-            .and_then(|name| name.to_ascii_lowercase().parse::<RewardKind>().ok());
-        opts.reward = resumed("--reward", a.reward, reward, explicit("reward"))?;
-        if let Some(adam) = t
-            .get("adam")
-            .and_then(|v| serde_json::from_value::<AdamConfig>(v.clone()).ok())
-        {
-            resumed("--lr", lr, Some(adam.lr), explicit("lr"))?;
-            opts.adam = adam;
-        }
-        if let Some(a3c) = t.get("a3c").and_then(|v| {
-            serde_json::from_value::<gman_host_sim::nav::a3c::A3cConfig>(v.clone()).ok()
-        }) {
-            resumed(
-                "--entropy",
-                a.entropy,
-                Some(a3c.entropy),
-                explicit("entropy"),
-            )?;
-            opts.a3c = a3c;
-        }
-        let m = &state.model;
-        validate_train_settings(
-            &format!("{}: stored setting", checkpoint_path(&out).display()),
-            &opts,
-            m.inner_lr,
-            m.max_inner,
-        )?;
-        if !state.model.params.all_finite() {
-            bail!(
-                "{}: the model holds non-finite weights; the run diverged before this checkpoint and cannot be resumed",
-                checkpoint_path(&out).display()
-            );
-        }
-        if state.world.is_none() {
-            // Checkpoints of older builds did not record it: record it from now on.
-            state.world = Some(world_id.clone());
-        }
     }
-    let t0 = Instant::now();
-    let steps0 = state.env_steps;
-    train(&world, &opts, &mut state)?;
-    let secs = t0.elapsed().as_secs_f64();
+    resumed(
+        "--privileged-feature",
+        a.privileged_feature,
+        m.privileged,
+        explicit("privileged_feature"),
+    )?;
+    Ok(())
+}
+
+/// The stored settings of a resumed run, each checked against its flag when given.
+fn resumed_settings(
+    a: &TrainArgs,
+    s: &RunSettings,
+    explicit: &dyn Fn(&str) -> bool,
+) -> Result<RunSettings> {
+    let (_, lr) = updates_and_lr(a);
+    resumed(
+        "--objective",
+        a.objective,
+        s.objective,
+        explicit("objective"),
+    )?;
+    resumed("--seed", a.seed, s.seed, explicit("seed"))?;
+    resumed("--workers", a.workers, s.workers, explicit("workers"))?;
+    resumed(
+        "--batch-envs",
+        a.batch_envs,
+        s.batch_envs,
+        explicit("batch_envs"),
+    )?;
+    resumed(
+        "--min-steps",
+        a.min_steps,
+        s.min_steps,
+        explicit("min_steps"),
+    )?;
+    resumed(
+        "--min-start-actions",
+        a.min_start_actions,
+        s.min_start_actions,
+        explicit("min_start_actions"),
+    )?;
+    resumed(
+        "--max-steps",
+        a.max_steps,
+        s.max_steps,
+        explicit("max_steps"),
+    )?;
+    resumed(
+        "--meta-order",
+        a.meta_order,
+        s.meta_order,
+        explicit("meta_order"),
+    )?;
+    resumed("--reward", a.reward, s.reward, explicit("reward"))?;
+    resumed("--lr", lr, s.adam.lr, explicit("lr"))?;
+    resumed("--entropy", a.entropy, s.a3c.entropy, explicit("entropy"))?;
+    Ok(s.clone())
+}
+
+/// The closing line of a run.
+fn report_trained(state: &TrainState, out: &Path, steps0: u64, secs: f64) {
     let d = state.model.dims;
     let preset_name = [PresetArg::Mcu, PresetArg::Paper]
         .into_iter()
@@ -786,7 +773,6 @@ pub fn cmd_train(a: TrainArgs, explicit: &dyn Fn(&str) -> bool) -> Result<()> {
         (state.env_steps - steps0) as f64 / secs.max(1e-9),
         secs,
         out.join("metrics.csv").display(),
-        checkpoint_path(&out).display()
+        checkpoint_path(out).display()
     );
-    Ok(())
 }

@@ -14,7 +14,7 @@
 //!
 //! where ω_j is D *after* its ascent step (the value the descent step uses). The meta-loss is
 //! `L_total = Σ_j L_nav,j(θ_j, φ_j)` (each segment's A3C surrogate, as in
-//! [`super::a3c::segment_backward`]).
+//! [`super::bptt::segment_backward`]).
 //!
 //! **What is held constant (data).** As in standard MAML-RL and GAN practice, the sampled
 //! trajectories (observations, actions, rewards, advantages, noise z_t), the stored buffer

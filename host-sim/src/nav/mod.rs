@@ -1,5 +1,19 @@
 //! The neural navigator on the host: models (methods, parameters, checkpoints, blobs), the
-//! episode runner shared by training and evaluation, the A3C loss, and the evaluation agent.
+//! episode runner shared by training and evaluation, the training loop, and the evaluation
+//! agent.
+//!
+//! | module | holds |
+//! | --- | --- |
+//! | [`trainer`] | the training loop, top to bottom (Algorithm 1) |
+//! | [`a3c`] | the loss L_nav (Sec. 3.2): returns, GAE, output gradients |
+//! | [`bptt`] | L_nav's gradient through the policy and G (batched kernels; one BPTT) |
+//! | [`meta`] | the second-order meta-gradient (`--meta-order 2`) |
+//! | [`step`] | what a rollout records of a step |
+//! | [`rollout`] | worker buffers, evaluation episodes, pieces shared with training |
+//! | [`vec_rollout`] | `B` training episodes in lockstep (`--batch-envs`) |
+//! | [`state`] | what a checkpoint restores; the typed, versioned trainer settings |
+//! | [`run_dir`] | `metrics.csv` and the run directory's lock |
+//! | [`model`], [`agent`] | methods, parameters, blobs; the evaluation agent |
 //!
 //! Every episode, in training and in evaluation, runs gman-core's [`Navigator`] — the code
 //! the robot runs — over weights held here. Training only adds the outer loop.
@@ -8,9 +22,13 @@
 
 pub mod a3c;
 pub mod agent;
+pub mod bptt;
 pub mod meta;
 pub mod model;
 pub mod rollout;
+pub mod run_dir;
+pub mod state;
+pub mod step;
 pub mod trainer;
 pub mod vec_rollout;
 

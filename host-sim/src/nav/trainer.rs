@@ -1,5 +1,17 @@
 //! The training loop of the navigation methods: A3C baselines and GMAN's meta-adversarial
-//! training (Algorithm 1), in one place.
+//! training (Algorithm 1), in one place, readable top to bottom:
+//!
+//! 1. [`train`] — the outer loop (lines 1-3, 21-22): the workers' updates in parallel, then
+//!    `outer_step`: Adam on the summed ∇L_nav (Eq. 4), ω carried across episodes;
+//! 2. `worker_update` — a worker's tasks τ_i, seeded by `(seed, update, worker, episode)`;
+//! 3. [`train_episode`] — one task (lines 4-20): `rollout_segment` (lines 5-13, through
+//!    gman-core's navigator), the segment's ∇L_nav ([`super::bptt::segment_backward`] of
+//!    the loss in [`super::a3c`]), `inner_update` (lines 14-20: Eq. 1 ascent, Eq. 3 descent,
+//!    in gman-core) and, for `--meta-order 2`, [`super::meta`]'s reverse recursion;
+//! 4. `Log` — one `metrics.csv` row per update.
+//!
+//! The vectorised rollout ([`super::vec_rollout`]) replaces step 3 for `--batch-envs B > 1`;
+//! the checkpoint ([`super::state`]) and the run directory ([`super::run_dir`]) live beside.
 //!
 //! ```text
 //! for update u = 1, 2, ...                                   (Algorithm 1, line 1)
@@ -45,57 +57,47 @@
 //!   the trainer settings stored in the checkpoint, so a resumed run ends bit for bit where
 //!   an uninterrupted one does.
 
-use std::fs::{File, OpenOptions};
 use std::io::Write;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::time::Instant;
 
-use anyhow::{bail, Context, Result};
+use anyhow::{anyhow, bail, Context, Result};
 use gman_core::blob::TensorId;
+use gman_core::memory::AdaptMode;
+use gman_core::navigator::{Efficient, Full, Mode, Navigator};
 use indicatif::{ProgressBar, ProgressStyle};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
 use super::a3c::{A3cConfig, Objective, SegmentLoss};
+use super::bptt::segment_backward;
+use super::meta::{add_adapted, meta_backward, take_adapted, InnerSetup, InnerStep};
 use super::model::NavModel;
-use super::rollout::{train_episode, EpisodeStats, Worker};
+use super::rollout::{
+    begin, bootstrap_value, disc_after_episode, expert_distribution, map_grid, ps_input,
+    EpisodeStats, Worker,
+};
+use super::run_dir::open_csv;
+use super::step::StepRec;
 use super::vec_rollout::{self, VecSettings};
-use crate::sim::{EpisodeLimits, RewardKind, World};
-use crate::train::adam::{Adam, AdamConfig};
-use crate::train::checkpoint::Checkpoint;
+use super::K;
+use crate::sim::spatial::MapGrid;
+use crate::sim::{Env, EpisodeLimits, EpisodeSpec, RewardKind, World};
+use crate::train::params::ParamSet;
 
-/// Settings of a training run.
+pub use super::run_dir::{
+    checkpoint_path, lock_run_dir, repair_csv, CsvRepair, RunLock, LOCK_FILE,
+};
+pub use super::state::{RunSettings, TrainState, TrainerMeta, WorldId, TRAINER_META_VERSION};
+
+/// Options of one training invocation: the run's stored settings and what only this
+/// invocation decides.
 #[derive(Clone, Debug)]
 pub struct TrainOptions {
     /// Updates to reach (counting those of a resumed run).
     pub updates: u64,
-    /// Seed of the run.
-    pub seed: u64,
-    /// Parallel workers.
-    pub workers: usize,
-    /// Environments each worker steps in lockstep (`B`, see [`super::vec_rollout`]); 1 is
-    /// the batch-1 episode runner. Stored in the checkpoint (absent in older ones: 1).
-    pub batch_envs: usize,
-    /// Each worker runs whole episodes (tasks) until it has taken at least this many steps
-    /// in the update (at least one episode).
-    pub min_steps: u32,
-    /// Reward.
-    pub reward: RewardKind,
-    /// Step limit of training episodes (`None`: the evaluation limits, 200/100).
-    pub max_steps: Option<u32>,
-    /// Training starts need at least this many actions to see the target (1: never in view at
-    /// the start).
-    pub min_start_actions: u32,
-    /// Outer optimiser.
-    pub adam: AdamConfig,
-    /// A3C loss.
-    pub a3c: A3cConfig,
-    /// What the policy learns from: the A3C loss or imitation of the oracle (DAgger).
-    pub objective: Objective,
-    /// Meta-gradient order: 1 (first-order MAML, the gradient at the adapted parameters
-    /// applied to the pre-adaptation ones) or 2 (exact through the inner SGD steps, see
-    /// [`super::meta`]).
-    pub meta_order: u8,
+    /// The settings that shape the updates (stored in the checkpoint).
+    pub run: RunSettings,
     /// Write a checkpoint every this many updates (and at the end).
     pub checkpoint_every: u64,
     /// Run directory (`metrics.csv`, `checkpoint.ckpt`).
@@ -104,117 +106,190 @@ pub struct TrainOptions {
     pub progress: bool,
 }
 
-/// Everything a checkpoint restores.
-pub struct TrainState {
-    /// The model (θ, ω, φ and the PS module).
-    pub model: NavModel,
-    /// Adam over the model's parameters.
-    pub adam: Adam,
-    /// Updates done.
-    pub update: u64,
-    /// Episodes run.
-    pub episodes: u64,
-    /// Environment steps taken.
-    pub env_steps: u64,
-    /// What world the run trains on (`{"kind": "synthetic" | "data", "world_seed": .., and
-    /// for data "fingerprint": ..}`, see the CLI), stored in the checkpoint so that a resumed
-    /// run can refuse another world; `None` when unknown (library use, older checkpoints).
-    pub world: Option<serde_json::Value>,
-}
+/// A worker's share of an update: its episodes' statistics and D after each.
+type WorkerOut = Vec<(EpisodeStats, Vec<Vec<f32>>)>;
 
-const CSV_HEADER: &str = "update,episodes,env_steps,success_rate,mean_reward,mean_steps,policy_loss,value_loss,entropy,grad_norm,adaptations,rollbacks,disc_gap,adapt_loss,elapsed_s";
+// ---------------------------------------------------------------------------------------
+// The outer loop (Algorithm 1, lines 1-3 and 21-22)
+// ---------------------------------------------------------------------------------------
 
-/// Path of the run's checkpoint.
-pub fn checkpoint_path(out: &Path) -> PathBuf {
-    out.join("checkpoint.ckpt")
-}
-
-impl TrainState {
-    /// A fresh state.
-    pub fn new(model: NavModel, adam: AdamConfig) -> TrainState {
-        let adam = Adam::new(adam, &model.params);
-        TrainState {
-            model,
-            adam,
-            update: 0,
-            episodes: 0,
-            env_steps: 0,
-            world: None,
-        }
-    }
-
-    /// Writes the checkpoint atomically.
-    pub fn save(&self, path: &Path, opts: &TrainOptions) -> Result<()> {
-        let mut meta = self.model.metadata();
-        meta["trainer"] = serde_json::json!({
-            "update": self.update,
-            "episodes": self.episodes,
-            "env_steps": self.env_steps,
-            "seed": opts.seed,
-            "workers": opts.workers,
-            "batch_envs": opts.batch_envs,
-            "min_steps": opts.min_steps,
-            "reward": format!("{:?}", opts.reward),
-            "max_steps": opts.max_steps,
-            "min_start_actions": opts.min_start_actions,
-            "adam": opts.adam,
-            "a3c": opts.a3c,
-            "meta_order": opts.meta_order,
-            "objective": opts.objective.name(),
-            "method": self.model.method.name(),
+/// Runs (or continues) training until `opts.updates` updates are done.
+pub fn train(world: &World, opts: &TrainOptions, state: &mut TrainState) -> Result<()> {
+    check_options(&opts.run, &state.model)?;
+    let _lock = lock_run_dir(&opts.out)?;
+    let mut csv = open_csv(&opts.out, state.update)?;
+    let ck_path = checkpoint_path(&opts.out);
+    let bar = progress_bar(opts, state);
+    let mut workers: Vec<(Worker, ParamSet)> = (0..opts.run.workers)
+        .map(|_| (Worker::new(&state.model), state.model.params.zeros_like()))
+        .collect();
+    let mut log = Log::new(state.env_steps);
+    // Line 1: while not converged.
+    while state.update < opts.updates {
+        // Lines 2-20: every worker samples its tasks τ_i ~ p(T) and runs them from θ, φ, ω
+        // (each with its own θ_i, φ_i and inner loop), accumulating ∇L_nav into its grads.
+        let u = state.update;
+        let model = &state.model;
+        let results: Vec<Result<WorkerOut>> = std::thread::scope(|s| {
+            let handles: Vec<_> = workers
+                .iter_mut()
+                .enumerate()
+                .map(|(w, (worker, grads))| {
+                    s.spawn(move || worker_update(world, model, &opts.run, u, w, worker, grads))
+                })
+                .collect();
+            handles
+                .into_iter()
+                .map(|h| h.join().unwrap_or_else(|_| Err(anyhow!("worker panicked"))))
+                .collect()
         });
-        if let Some(w) = &self.world {
-            meta["trainer"]["world"] = w.clone();
+        let mut episodes = Vec::new();
+        for r in results {
+            episodes.extend(r?);
         }
-        let mut ck = Checkpoint::new(meta);
-        self.model.add_to_checkpoint(&mut ck)?;
-        ck.add_blob("adam", self.adam.to_bytes());
-        ck.save(path)?;
-        Ok(())
+        // Lines 21-22 (Eq. 4): θ, φ ← Adam(Σ_τ ∇L_nav(ω, θ_i, φ_i)); ω keeps what the
+        // episodes' inner loops taught D.
+        let grads: Vec<&ParamSet> = workers.iter().map(|(_, g)| g).collect();
+        let grad_norm = outer_step(state, &grads, &episodes)?;
+        state.update += 1;
+        state.episodes += episodes.len() as u64;
+        state.env_steps += episodes.iter().map(|(st, _)| st.steps as u64).sum::<u64>();
+        log.row(&mut csv, state, &episodes, grad_norm, &bar)?;
+        if state.update.is_multiple_of(opts.checkpoint_every) || state.update == opts.updates {
+            csv.flush()?;
+            state.save(&ck_path, &opts.run)?;
+        }
     }
+    bar.finish_and_clear();
+    Ok(())
+}
 
-    /// Restores a state saved by [`TrainState::save`].
-    pub fn load(path: &Path) -> Result<TrainState> {
-        Ok(Self::load_with_options(path)?.0)
+/// The settings [`train`] cannot run.
+fn check_options(run: &RunSettings, model: &NavModel) -> Result<()> {
+    if run.workers == 0 {
+        bail!("--workers must be at least 1");
     }
+    if !(1..=2).contains(&run.meta_order) {
+        bail!("--meta-order must be 1 or 2");
+    }
+    vec_rollout::check_batch_envs(model, run.batch_envs)?;
+    if run.meta_order == 2 && model.method.uses_cossim() {
+        bail!("--meta-order 2 is implemented for the discriminator EMD only; use --meta-order 1 with gman-cossim");
+    }
+    Ok(())
+}
 
-    /// Restores a state like [`TrainState::load`] and also returns the trainer options the
-    /// run was last saved with (the `trainer` object of the checkpoint's metadata: seed,
-    /// workers, reward, Adam and A3C settings, meta-gradient order, ...), so that a resumed
-    /// run can continue with exactly the settings it was trained with.
-    pub fn load_with_options(path: &Path) -> Result<(TrainState, serde_json::Value)> {
-        let ck = Checkpoint::load(path)?;
-        let model = NavModel::from_checkpoint(&ck)?;
-        let adam = Adam::from_bytes(ck.blob("adam")?, &model.params)?;
-        let t = &ck.metadata["trainer"];
-        let get = |k: &str| {
-            t.get(k)
-                .and_then(|v| v.as_u64())
-                .with_context(|| format!("checkpoint trainer.{k} missing"))
+/// Worker `w`'s share of update `u` (Algorithm 1, lines 2-3): whole episodes (tasks)
+/// `e = 0, 1, ..`, each sampled from the training scenes with the seed `(seed, u, w, e)`,
+/// until the worker has taken at least `min_steps` steps; their ∇L_nav summed into `grads`
+/// (zeroed first) in episode order. With `B > 1`, `B` episodes in lockstep (see
+/// [`super::vec_rollout`]).
+fn worker_update(
+    world: &World,
+    model: &NavModel,
+    run: &RunSettings,
+    u: u64,
+    w: usize,
+    worker: &mut Worker,
+    grads: &mut ParamSet,
+) -> Result<WorkerOut> {
+    grads.zero();
+    let limits = EpisodeLimits::default();
+    let sample = |e: u32| -> Result<(EpisodeSpec, u32)> {
+        let mut rng = ChaCha8Rng::seed_from_u64(episode_seed(run.seed, u, w, e));
+        let spec = world.try_sample_train_episode_min(&mut rng, run.min_start_actions)?;
+        let max = run.max_steps.unwrap_or_else(|| limits.for_room(spec.room));
+        Ok((spec, max))
+    };
+    if run.batch_envs > 1 {
+        let settings = VecSettings {
+            batch_envs: run.batch_envs,
+            min_steps: run.min_steps,
+            reward: run.reward,
+            a3c: &run.a3c,
+            objective: run.objective,
         };
-        // The method is stored twice (model and trainer metadata): a relabelled one is refused.
-        if let Some(m) = t.get("method").and_then(|v| v.as_str()) {
-            if m != model.method.name() {
-                bail!(
-                    "{}: the model's method is {} but the run was trained as {m}; the metadata was changed",
-                    path.display(),
-                    model.method.name()
-                );
+        let done = vec_rollout::run_worker(world, model, &settings, worker, grads, sample)?;
+        return Ok(done.into_iter().map(|(_, st, d)| (st, d)).collect());
+    }
+    let mut out = Vec::new();
+    let (mut steps, mut e) = (0u32, 0u32);
+    while e == 0 || steps < run.min_steps {
+        let (spec, max) = sample(e)?;
+        let (st, disc) = train_episode(
+            world,
+            &spec,
+            model,
+            run.reward,
+            max,
+            &run.a3c,
+            run.objective,
+            run.meta_order,
+            worker,
+            grads,
+        )?;
+        steps += st.steps;
+        e += 1;
+        out.push((st, disc));
+    }
+    Ok(out)
+}
+
+/// The outer step (Algorithm 1, lines 21-22): the workers' gradients summed in worker order
+/// and averaged over the workers, one Adam step on θ, φ (and the rest of the policy); D's ω
+/// moves by the sum of what each episode's inner loop changed (`ω_e − ω`), in episode order
+/// (not with D's head reset, where D restarts from ω with every episode). Returns the
+/// gradient norm.
+fn outer_step(
+    state: &mut TrainState,
+    worker_grads: &[&ParamSet],
+    episodes: &[(EpisodeStats, Vec<Vec<f32>>)],
+) -> Result<f64> {
+    let mut total = state.model.params.zeros_like();
+    for g in worker_grads {
+        total.add_assign(g)?;
+    }
+    total.scale(1.0 / worker_grads.len() as f32);
+    if !total.all_finite() {
+        bail!("non-finite gradient at update {}", state.update);
+    }
+    let disc_ids = TensorId::DISCRIMINATOR;
+    let mut disc_delta: Vec<Vec<f32>> = disc_ids
+        .iter()
+        .map(|id| {
+            vec![
+                0.0;
+                state
+                    .model
+                    .params
+                    .get(id.name())
+                    .map_or(0, |p| p.data.len())
+            ]
+        })
+        .collect();
+    for (_, disc) in episodes {
+        for ((acc, id), new) in disc_delta.iter_mut().zip(disc_ids).zip(disc) {
+            let old = &state.model.params.tensor(id.name())?.data;
+            for ((a, n), o) in acc.iter_mut().zip(new).zip(old) {
+                *a += n - o;
             }
         }
-        let state = TrainState {
-            model,
-            adam,
-            update: get("update")?,
-            episodes: get("episodes")?,
-            env_steps: get("env_steps")?,
-            world: t.get("world").cloned(),
-        };
-        Ok((state, t.clone()))
     }
+    let info = state.adam.step(&mut state.model.params, &total)?;
+    // With D's head reset, D restarts from ω with every episode (on the device too), so ω
+    // does not learn across episodes: carrying the episodes' layer-1 changes over lets the
+    // gradient penalty grow layer 1 without bound (it diverged after ~6500 updates).
+    let carry_disc = !state.model.inner_rule.disc_head_reset;
+    for (id, delta) in disc_ids.iter().zip(&disc_delta).filter(|_| carry_disc) {
+        let p = state.model.params.get_mut(id.name()).context("D tensor")?;
+        for (v, d) in p.data.iter_mut().zip(delta) {
+            *v += d;
+        }
+    }
+    Ok(info.grad_norm)
 }
 
-/// Seed of worker `w`'s episode at update `u`.
+/// Seed of worker `w`'s episode `e` at update `u`.
 fn episode_seed(seed: u64, u: u64, w: usize, e: u32) -> u64 {
     let mut x = seed
         ^ 0x9E37_79B9_7F4A_7C15u64.wrapping_mul(u.wrapping_add(1))
@@ -225,382 +300,354 @@ fn episode_seed(seed: u64, u: u64, w: usize, e: u32) -> u64 {
     x ^ (x >> 31)
 }
 
-/// Number of columns of `metrics.csv`.
-fn csv_columns() -> usize {
-    CSV_HEADER.split(',').count()
-}
+// ---------------------------------------------------------------------------------------
+// One task τ_i (Algorithm 1, lines 4-20)
+// ---------------------------------------------------------------------------------------
 
-/// What [`repair_csv`] kept and dropped.
-#[derive(Clone, Debug, Default, PartialEq, Eq)]
-pub struct CsvRepair {
-    /// Rows kept (without the header), in order: one per update `1..=update` that had a
-    /// well-formed row.
-    pub rows: Vec<String>,
-    /// 1-based line numbers of malformed rows (wrong column count, a value that is not a
-    /// number) and of duplicate or out-of-order updates, dropped.
-    pub dropped: Vec<usize>,
-    /// Updates `1..=update` that have no well-formed row.
-    pub missing: u64,
-}
-
-/// Keeps the well-formed rows of a `metrics.csv` text for updates `1..=update`, in order,
-/// dropping (and listing) malformed, duplicate and out-of-order rows; rows after `update`
-/// (written after the checkpoint a run resumes from) are dropped silently. The header line
-/// may be absent (its first data row is then kept, not skipped).
-pub fn repair_csv(text: &str, update: u64) -> CsvRepair {
-    let mut r = CsvRepair::default();
-    let mut last = 0u64;
-    for (i, line) in text.lines().enumerate() {
-        if line == CSV_HEADER || line.trim().is_empty() {
-            continue;
-        }
-        let f: Vec<&str> = line.split(',').collect();
-        let u = f[0].parse::<u64>().ok();
-        let numeric = f[1..].iter().all(|v| v.parse::<f64>().is_ok());
-        match u {
-            Some(u) if u > update && f.len() == csv_columns() && numeric => {}
-            Some(u) if f.len() == csv_columns() && numeric && u > last && u <= update => {
-                last = u;
-                r.rows.push(line.to_string());
-            }
-            // A partial last row written when the process was killed is normal when it lies
-            // after the checkpoint; anything else malformed is reported.
-            Some(u) if u > update => {}
-            _ => r.dropped.push(i + 1),
-        }
-    }
-    r.missing = update - r.rows.len() as u64;
-    r
-}
-
-/// Rewrites `metrics.csv` atomically (temporary file, fsync, rename) keeping only the rows up
-/// to `update` (so a resumed run continues the file where its checkpoint was written), with
-/// malformed and duplicate rows dropped and counted in a warning, then opens it for appending.
-fn open_csv(out: &Path, update: u64) -> Result<File> {
-    let path = out.join("metrics.csv");
-    let mut keep = vec![CSV_HEADER.to_string()];
-    if update > 0 && path.exists() {
-        let text = std::fs::read(&path).with_context(|| format!("reading {}", path.display()))?;
-        let r = repair_csv(&String::from_utf8_lossy(&text), update);
-        if !r.dropped.is_empty() {
-            let shown: Vec<String> = r.dropped.iter().take(10).map(|l| l.to_string()).collect();
-            eprintln!(
-                "warning: {}: dropped {} malformed or duplicate row(s) at or before update {update} (line {}{})",
-                path.display(),
-                r.dropped.len(),
-                shown.join(", "),
-                if r.dropped.len() > 10 { ", ..." } else { "" }
-            );
-        }
-        if r.missing > 0 {
-            eprintln!(
-                "warning: {}: {} of the {update} updates before the checkpoint have no row; the learning curve has a gap there",
-                path.display(),
-                r.missing
-            );
-        }
-        keep.extend(r.rows);
-    }
-    crate::train::checkpoint::write_atomic(&path, |f| {
-        let mut w = std::io::BufWriter::new(f);
-        for l in &keep {
-            writeln!(w, "{l}")?;
-        }
-        w.flush()
-    })?;
-    OpenOptions::new()
-        .append(true)
-        .open(&path)
-        .with_context(|| format!("opening {} for appending", path.display()))
-}
-
-/// An exclusive lock on a run directory, held while a trainer writes into it (released when
-/// dropped, or by the OS when the process dies). See [`lock_run_dir`].
-#[derive(Debug)]
-pub struct RunLock {
-    file: Option<File>,
-    key: PathBuf,
-}
-
-impl Drop for RunLock {
-    fn drop(&mut self) {
-        if self.file.take().is_some() {
-            if let Ok(mut held) = held_locks().lock() {
-                held.retain(|k| k != &self.key);
-            }
-        }
-    }
-}
-
-fn held_locks() -> &'static std::sync::Mutex<Vec<PathBuf>> {
-    static HELD: std::sync::OnceLock<std::sync::Mutex<Vec<PathBuf>>> = std::sync::OnceLock::new();
-    HELD.get_or_init(Default::default)
-}
-
-/// Name of the lock file in a run directory.
-pub const LOCK_FILE: &str = ".lock";
-
-/// Takes an exclusive advisory lock (`flock`, through `fs4`) on `RUN_DIR/.lock`, so that a
-/// second trainer writing into the same run directory is refused with a clear error instead
-/// of interleaving `metrics.csv` and checkpoints. Taking it again in the same process (the
-/// CLI holds it while pre-training, then [`train`] asks for it) returns a guard that does
-/// nothing. After the lock is taken, stale temporary files of atomic writes
-/// (`.NAME.tmp.PID`, left by a process that was killed) are removed from the directory and
-/// its `fg/` and `ps/` subdirectories, with a note on stderr.
-pub fn lock_run_dir(out: &Path) -> Result<RunLock> {
-    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
-    let key = out
-        .canonicalize()
-        .with_context(|| format!("resolving {}", out.display()))?;
-    let mut held = held_locks()
-        .lock()
-        .map_err(|_| anyhow::anyhow!("run-directory lock registry poisoned"))?;
-    if held.contains(&key) {
-        return Ok(RunLock { file: None, key });
-    }
-    let path = out.join(LOCK_FILE);
-    let file = OpenOptions::new()
-        .create(true)
-        .truncate(false)
-        .write(true)
-        .open(&path)
-        .with_context(|| format!("creating lock file {}", path.display()))?;
-    let locked = fs4::fs_std::FileExt::try_lock_exclusive(&file)
-        .with_context(|| format!("locking {}", path.display()))?;
-    if !locked {
-        bail!(
-            "{} is in use by another trainer (lock {} is held); wait for it to finish, or use another --out",
-            out.display(),
-            path.display()
-        );
-    }
-    held.push(key.clone());
-    drop(held);
-    remove_stale_temporaries(out);
-    Ok(RunLock {
-        file: Some(file),
-        key,
-    })
-}
-
-/// Removes `.NAME.tmp.PID` files (temporaries of [`crate::train::checkpoint::write_atomic`])
-/// of other processes from `dir`, `dir/fg` and `dir/ps`. Only called with the run
-/// directory's lock held, so no other writer can be using them.
-fn remove_stale_temporaries(dir: &Path) {
-    let me = std::process::id().to_string();
-    let (mut n, mut bytes) = (0usize, 0u64);
-    for d in [dir.to_path_buf(), dir.join("fg"), dir.join("ps")] {
-        let Ok(entries) = std::fs::read_dir(&d) else {
-            continue;
-        };
-        for e in entries.flatten() {
-            let name = e.file_name().to_string_lossy().into_owned();
-            let Some((stem, pid)) = name.rsplit_once(".tmp.") else {
-                continue;
-            };
-            if !stem.starts_with('.')
-                || pid.is_empty()
-                || !pid.bytes().all(|b| b.is_ascii_digit())
-                || pid == me
-            {
-                continue;
-            }
-            let len = e.metadata().map(|m| m.len()).unwrap_or(0);
-            if std::fs::remove_file(e.path()).is_ok() {
-                n += 1;
-                bytes += len;
-            }
-        }
-    }
-    if n > 0 {
-        eprintln!(
-            "note: removed {n} stale temporary file(s) ({bytes} bytes) left in {} by killed runs",
-            dir.display()
-        );
-    }
-}
-
-/// Runs (or continues) training until `opts.updates` updates are done.
-pub fn train(world: &World, opts: &TrainOptions, state: &mut TrainState) -> Result<()> {
-    if opts.workers == 0 {
-        bail!("--workers must be at least 1");
-    }
-    if !(1..=2).contains(&opts.meta_order) {
-        bail!("--meta-order must be 1 or 2");
-    }
-    if opts.batch_envs == 0 || opts.batch_envs > vec_rollout::MAX_BATCH_ENVS {
-        bail!(
-            "--batch-envs must be in 1..={}, got {}",
-            vec_rollout::MAX_BATCH_ENVS,
-            opts.batch_envs
-        );
-    }
-    if opts.batch_envs > 1 && !vec_rollout::supports(&state.model) {
-        bail!(
-            "--batch-envs {} is implemented for the methods without an inner loop in training (a3c, a3c-fg, a3c-ps, a3c-fg-ps, gman-nometa, gman-noemd); {} runs its inner loop per episode: use --batch-envs 1",
-            opts.batch_envs,
-            state.model.method.name()
-        );
-    }
-    if opts.meta_order == 2 && state.model.method.uses_cossim() {
-        bail!("--meta-order 2 is implemented for the discriminator EMD only; use --meta-order 1 with gman-cossim");
-    }
-    let _lock = lock_run_dir(&opts.out)?;
-    let mut csv = open_csv(&opts.out, state.update)?;
-    let ck_path = checkpoint_path(&opts.out);
-    let limits = EpisodeLimits::default();
-    let mut workers: Vec<(Worker, crate::train::params::ParamSet)> = (0..opts.workers)
-        .map(|_| (Worker::new(&state.model), state.model.params.zeros_like()))
-        .collect();
-    let bar = if opts.progress {
-        let b = ProgressBar::new(opts.updates);
-        b.set_style(
-            ProgressStyle::with_template(
-                "{spinner} train {prefix} [{elapsed_precise}] {bar:30} {pos}/{len} {msg}",
-            )
-            .unwrap_or_else(|_| ProgressStyle::default_bar()),
-        );
-        b.set_prefix(state.model.method.name());
-        b.set_position(state.update);
-        b
-    } else {
-        ProgressBar::hidden()
+/// Runs one training episode: every `K` steps (or at the end) the segment's A3C gradient is
+/// accumulated into `grads` at the parameters the segment ran with, then — for the methods
+/// that adapt — the navigator's inner update (Algorithm 1, lines 15-20) runs. Returns the
+/// episode's statistics and D's parameters after the episode (in the order `DiscW1`,
+/// `DiscB1`, `DiscW2`, `DiscB2`), since ω learns across episodes.
+///
+/// `meta_order` 1 sums the segments' gradients at the adapted parameters (first-order MAML);
+/// 2 (for the methods that adapt) back-propagates the θ and φ parts through the inner SGD
+/// steps instead (see [`super::meta`]); the fusion, LSTM and critic gradients are the same
+/// sum in both.
+///
+/// The inner loop runs in the model's adaptation mode ([`NavModel::adapt_mode`]), the mode
+/// its blob will record and the device will run: in `Efficient`, the segment gradients of θ
+/// and of the actor head are taken through the adapted per-unit gains and biases, and D's
+/// adapted gains are folded into its first layer when ω is carried to the next episode.
+#[allow(clippy::too_many_arguments)]
+pub fn train_episode(
+    world: &World,
+    spec: &EpisodeSpec,
+    model: &NavModel,
+    reward: RewardKind,
+    max_steps: u32,
+    a3c: &A3cConfig,
+    objective: Objective,
+    meta_order: u8,
+    worker: &mut Worker,
+    grads: &mut ParamSet,
+) -> Result<(EpisodeStats, Vec<Vec<f32>>)> {
+    let ep = EpisodeSetup {
+        world,
+        spec,
+        model,
+        reward,
+        max_steps,
+        a3c,
+        objective,
+        meta_order,
     };
-    let disc_ids = TensorId::DISCRIMINATOR;
-    let start = Instant::now();
-    let steps_at_start = state.env_steps;
-    let mut recent: std::collections::VecDeque<(bool, f32)> = Default::default();
-    while state.update < opts.updates {
-        let u = state.update;
-        let model = &state.model;
-        type Out = Vec<(EpisodeStats, Vec<Vec<f32>>)>;
-        let results: Vec<Result<Out>> = std::thread::scope(|s| {
-            let handles: Vec<_> = workers
-                .iter_mut()
-                .enumerate()
-                .map(|(w, (worker, grads))| {
-                    s.spawn(move || -> Result<Out> {
-                        grads.zero();
-                        let sample = |e: u32| -> Result<(crate::sim::EpisodeSpec, u32)> {
-                            let mut rng =
-                                ChaCha8Rng::seed_from_u64(episode_seed(opts.seed, u, w, e));
-                            let spec = world
-                                .try_sample_train_episode_min(&mut rng, opts.min_start_actions)?;
-                            let max = opts.max_steps.unwrap_or_else(|| limits.for_room(spec.room));
-                            Ok((spec, max))
-                        };
-                        if opts.batch_envs > 1 {
-                            let settings = VecSettings {
-                                batch_envs: opts.batch_envs,
-                                min_steps: opts.min_steps,
-                                reward: opts.reward,
-                                a3c: &opts.a3c,
-                                objective: opts.objective,
-                            };
-                            let done = vec_rollout::run_worker(
-                                world, model, &settings, worker, grads, sample,
-                            )?;
-                            return Ok(done.into_iter().map(|(_, st, d)| (st, d)).collect());
-                        }
-                        let mut out = Vec::new();
-                        let mut steps = 0u32;
-                        let mut e = 0u32;
-                        while e == 0 || steps < opts.min_steps {
-                            let (spec, max) = sample(e)?;
-                            let (st, disc) = train_episode(
-                                world,
-                                &spec,
-                                model,
-                                opts.reward,
-                                max,
-                                &opts.a3c,
-                                opts.objective,
-                                opts.meta_order,
-                                worker,
-                                grads,
-                            )?;
-                            steps += st.steps;
-                            e += 1;
-                            out.push((st, disc));
-                        }
-                        Ok(out)
-                    })
-                })
-                .collect();
-            handles
-                .into_iter()
-                .map(|h| {
-                    h.join()
-                        .unwrap_or_else(|_| Err(anyhow::anyhow!("worker panicked")))
-                })
-                .collect()
+    match model.adapt_mode {
+        AdaptMode::Full => train_episode_in::<Full>(&ep, worker, grads),
+        AdaptMode::Efficient => train_episode_in::<Efficient>(&ep, worker, grads),
+    }
+}
+
+/// The arguments of [`train_episode`].
+struct EpisodeSetup<'a> {
+    world: &'a World,
+    spec: &'a EpisodeSpec,
+    model: &'a NavModel,
+    reward: RewardKind,
+    max_steps: u32,
+    a3c: &'a A3cConfig,
+    objective: Objective,
+    meta_order: u8,
+}
+
+/// The worker's observation buffers (PS activations, the spatial map), beside its arena.
+struct ObsBufs<'a> {
+    ps: &'a mut Option<crate::train::ps::PsBuffers>,
+    map: &'a mut Vec<f32>,
+}
+
+/// What the inner updates of an episode did: `E[D(s)] − E[D(x)]` and L_ad summed over them.
+#[derive(Default)]
+struct InnerTally {
+    gap: f64,
+    adapt_loss: f64,
+    n: u32,
+}
+
+fn train_episode_in<M: Mode>(
+    ep: &EpisodeSetup<'_>,
+    worker: &mut Worker,
+    grads: &mut ParamSet,
+) -> Result<(EpisodeStats, Vec<Vec<f32>>)> {
+    let model = ep.model;
+    if !(1..=2).contains(&ep.meta_order) {
+        return Err(anyhow!("meta order must be 1 or 2, not {}", ep.meta_order));
+    }
+    if model.privileged && model.method.adapts_in_training() {
+        return Err(anyhow!(
+            "the privileged-feature bound replaces G's output and cannot adapt G; use it with a method without inner loop (a3c-fg)"
+        ));
+    }
+    let train_generator = model.method.trains_generator() && !model.privileged;
+    let second = ep.meta_order == 2 && model.method.adapts_in_training();
+    if second && M::MODE != AdaptMode::Full {
+        return Err(anyhow!(
+            "the second-order meta-gradient is implemented for the Full adaptation mode; use --adapt-mode full or --meta-order 1"
+        ));
+    }
+    // Order 2: each segment's gradient goes to `seg_g` first; its θ, φ parts are kept per
+    // segment (with the inner steps) for the reverse recursion at the end of the episode.
+    let mut seg_g = second.then(|| grads.zeros_like());
+    let mut seg_grads: Vec<(Vec<f32>, Vec<f32>)> = Vec::new();
+    let mut inner_steps: Vec<Option<InnerStep>> = Vec::new();
+    // Line 4: θ_i ← θ, φ_i ← φ (the navigator's arena holds θ_i, φ_i and Ψ).
+    let weights = model.weights()?;
+    let Worker { arena, ps, map } = worker;
+    let mut obs_bufs = ObsBufs { ps, map };
+    let mut nav: Navigator<'_, M, K> = Navigator::new(weights, arena, model.nav_config(true))?;
+    begin(&mut nav, ep.world, ep.spec, model)?;
+    let mut env = Env::new(ep.world, ep.spec, ep.reward, ep.max_steps);
+    let mut stats = EpisodeStats::default();
+    let mut tally = InnerTally::default();
+    let mut seg: Vec<StepRec> = Vec::with_capacity(K);
+    let grid = map_grid(model);
+    // Line 5: until the termination action (or the step limit).
+    loop {
+        // Lines 6-13: k steps with θ_i, φ_i, recorded in Ψ (by the navigator) and in `seg`.
+        rollout_segment(
+            &mut nav,
+            &mut env,
+            model,
+            ep.objective,
+            grid,
+            &mut obs_bufs,
+            &mut seg,
+            &mut stats.actions,
+        )?;
+        // ∇L_nav of the segment at (θ_i, φ_i), for lines 21-22 (A3C loss, Sec. 3.2).
+        let bootstrap = if env.is_done() {
+            0.0
+        } else {
+            next_value(&nav, &env, model, grid, &mut obs_bufs)?
+        };
+        let l = match seg_g.as_mut() {
+            Some(g) => {
+                g.zero();
+                let l = segment_backward(&nav, &seg, bootstrap, ep.a3c, train_generator, g)?;
+                seg_grads.push(take_adapted(g)?);
+                grads.add_assign(g)?;
+                l
+            }
+            None => segment_backward(&nav, &seg, bootstrap, ep.a3c, train_generator, grads)?,
+        };
+        stats.loss.add(&l);
+        if env.is_done() {
+            break;
+        }
+        // Lines 14-20: the inner update on Ψ, then Ψ emptied.
+        let step = inner_update(&mut nav, second, &mut tally)?;
+        if second {
+            inner_steps.push(step);
+        }
+    }
+    if second {
+        let (mt, mp) = meta_backward(&InnerSetup::of(&nav), &inner_steps, &seg_grads)?;
+        add_adapted(grads, &mt, &mp)?;
+    }
+    finish_stats(&mut stats, &env, &nav, &tally);
+    Ok((stats, disc_after_episode(&nav)?))
+}
+
+/// Algorithm 1, lines 6-13: up to `K` steps (fewer when the episode ends), each observed
+/// (s_t, the PS input, the map), stepped by the navigator (x_t = G_θi(SE(y), z_t), the
+/// action from π, the step recorded in Ψ) and recorded in `seg` for the backward pass.
+#[allow(clippy::too_many_arguments)]
+fn rollout_segment<M: Mode>(
+    nav: &mut Navigator<'_, M, K>,
+    env: &mut Env<'_>,
+    model: &NavModel,
+    objective: Objective,
+    grid: MapGrid,
+    worker: &mut ObsBufs<'_>,
+    seg: &mut Vec<StepRec>,
+    actions: &mut Vec<u8>,
+) -> Result<()> {
+    seg.clear();
+    while seg.len() < K && !env.is_done() {
+        let obs = env.observe();
+        let ps = ps_input(model, worker.ps, &obs.features)?;
+        if !grid.is_empty() {
+            env.observe_map(grid, worker.map);
+        }
+        let h_prev = nav.hidden_state().to_vec();
+        let c_prev = nav.cell_state().to_vec();
+        let prev_probs = nav.prev_probs().to_vec();
+        let expert = (objective == Objective::Dagger).then(|| expert_distribution(env));
+        let out = nav.step_map(&obs.features, worker.map, &ps)?;
+        actions.push(out.action.index() as u8);
+        let o = env.step(out.action);
+        seg.push(StepRec {
+            obs: obs.features.to_vec(),
+            ps,
+            map: worker.map.clone(),
+            x: nav.generated_feature().to_vec(),
+            z: nav.noise().to_vec(),
+            h_prev,
+            c_prev,
+            prev_probs,
+            action: out.action.index(),
+            reward: o.reward,
+            probs: out.probs,
+            expert,
         });
-        let mut total = state.model.params.zeros_like();
+    }
+    Ok(())
+}
+
+/// The critic's value of the next observation, bootstrapping a segment that did not end the
+/// episode.
+fn next_value<M: Mode>(
+    nav: &Navigator<'_, M, K>,
+    env: &Env<'_>,
+    model: &NavModel,
+    grid: MapGrid,
+    worker: &mut ObsBufs<'_>,
+) -> Result<f32> {
+    let obs = env.observe();
+    let ps = ps_input(model, worker.ps, &obs.features)?;
+    if !grid.is_empty() {
+        env.observe_map(grid, worker.map);
+    }
+    bootstrap_value(nav, &obs.features, worker.map, &ps)
+}
+
+/// Algorithm 1, lines 14-20, when Ψ holds `K` steps: the navigator's inner update (D's
+/// ascent on L_D, Eq. 1; θ_i, φ_i's descent on L_ad, Eq. 3; rolled back if it fails) while
+/// the per-episode cap allows, else Ψ is emptied. With `second` (meta-order 2) the inner
+/// step is recorded for the reverse recursion.
+fn inner_update<M: Mode>(
+    nav: &mut Navigator<'_, M, K>,
+    second: bool,
+    tally: &mut InnerTally,
+) -> Result<Option<InnerStep>> {
+    if nav.buffered() != K {
+        return Ok(None);
+    }
+    if !nav.can_adapt() {
+        nav.clear_buffer();
+        return Ok(None);
+    }
+    let mut step = if second {
+        Some(InnerStep::before_update(nav)?)
+    } else {
+        None
+    };
+    nav.adapt_now()?;
+    if let Some(st) = step.as_mut() {
+        st.after_update(nav)?;
+    }
+    let r = nav.last_adaptation();
+    tally.gap += (r.ld.mean_real - r.ld.mean_fake) as f64;
+    tally.adapt_loss += r.adapt_loss as f64;
+    tally.n += 1;
+    Ok(step)
+}
+
+/// The episode's outcome and inner-loop summary into `stats`.
+fn finish_stats<M: Mode>(
+    stats: &mut EpisodeStats,
+    env: &Env<'_>,
+    nav: &Navigator<'_, M, K>,
+    tally: &InnerTally,
+) {
+    let m = env.metrics();
+    let c = nav.counters();
+    stats.success = m.success;
+    stats.steps = env.steps();
+    stats.total_reward = m.total_reward;
+    stats.adaptations = c.adaptations;
+    stats.rollbacks = c.rollbacks;
+    let mean = |v: f64| {
+        if tally.n > 0 {
+            (v / tally.n as f64) as f32
+        } else {
+            f32::NAN
+        }
+    };
+    stats.disc_gap = mean(tally.gap);
+    stats.adapt_loss = mean(tally.adapt_loss);
+    stats.final_feature = nav.generated_feature().to_vec();
+}
+
+// ---------------------------------------------------------------------------------------
+// Progress: metrics.csv and the progress bar
+// ---------------------------------------------------------------------------------------
+
+fn progress_bar(opts: &TrainOptions, state: &TrainState) -> ProgressBar {
+    if !opts.progress {
+        return ProgressBar::hidden();
+    }
+    let b = ProgressBar::new(opts.updates);
+    b.set_style(
+        ProgressStyle::with_template(
+            "{spinner} train {prefix} [{elapsed_precise}] {bar:30} {pos}/{len} {msg}",
+        )
+        .unwrap_or_else(|_| ProgressStyle::default_bar()),
+    );
+    b.set_prefix(state.model.method.name());
+    b.set_position(state.update);
+    b
+}
+
+/// The learning curve: one `metrics.csv` row per update, the last 100 episodes on the bar.
+struct Log {
+    start: Instant,
+    steps_at_start: u64,
+    recent: std::collections::VecDeque<(bool, f32)>,
+}
+
+impl Log {
+    fn new(steps_at_start: u64) -> Log {
+        Log {
+            start: Instant::now(),
+            steps_at_start,
+            recent: Default::default(),
+        }
+    }
+
+    /// The row of the update just done (`state` counts it), and the bar's message.
+    fn row(
+        &mut self,
+        csv: &mut impl Write,
+        state: &TrainState,
+        episodes: &[(EpisodeStats, Vec<Vec<f32>>)],
+        grad_norm: f64,
+        bar: &ProgressBar,
+    ) -> Result<()> {
         let mut loss = SegmentLoss::default();
         let (mut succ, mut rew, mut steps, mut adapt, mut roll) = (0u32, 0.0f64, 0u64, 0u32, 0u32);
         let (mut gap, mut lad, mut ngap) = (0.0f64, 0.0f64, 0u32);
-        let mut disc_delta: Vec<Vec<f32>> = disc_ids
-            .iter()
-            .map(|id| {
-                vec![
-                    0.0;
-                    state
-                        .model
-                        .params
-                        .get(id.name())
-                        .map_or(0, |p| p.data.len())
-                ]
-            })
-            .collect();
-        let mut n_ep = 0u64;
-        for (r, (_, grads)) in results.into_iter().zip(&workers) {
-            total.add_assign(grads)?;
-            for (st, disc) in r? {
-                n_ep += 1;
-                loss.add(&st.loss);
-                succ += st.success as u32;
-                rew += st.total_reward as f64;
-                steps += st.steps as u64;
-                adapt += st.adaptations;
-                roll += st.rollbacks;
-                if st.disc_gap.is_finite() {
-                    gap += st.disc_gap as f64;
-                    lad += st.adapt_loss as f64;
-                    ngap += 1;
-                }
-                recent.push_back((st.success, st.total_reward));
-                for ((acc, id), new) in disc_delta.iter_mut().zip(disc_ids).zip(&disc) {
-                    let old = &state.model.params.tensor(id.name())?.data;
-                    for ((a, n), o) in acc.iter_mut().zip(new).zip(old) {
-                        *a += n - o;
-                    }
-                }
+        for (st, _) in episodes {
+            loss.add(&st.loss);
+            succ += st.success as u32;
+            rew += st.total_reward as f64;
+            steps += st.steps as u64;
+            adapt += st.adaptations;
+            roll += st.rollbacks;
+            if st.disc_gap.is_finite() {
+                gap += st.disc_gap as f64;
+                lad += st.adapt_loss as f64;
+                ngap += 1;
             }
+            self.recent.push_back((st.success, st.total_reward));
         }
-        while recent.len() > 100 {
-            recent.pop_front();
+        while self.recent.len() > 100 {
+            self.recent.pop_front();
         }
-        total.scale(1.0 / opts.workers as f32);
-        if !total.all_finite() {
-            bail!("non-finite gradient at update {u}");
-        }
-        let info = state.adam.step(&mut state.model.params, &total)?;
-        // With D's head reset, D restarts from ω with every episode (on the device too), so
-        // ω does not learn across episodes: carrying the episodes' layer-1 changes over lets
-        // the gradient penalty grow layer 1 without bound (it diverged after ~6500 updates).
-        let carry_disc = !state.model.inner_rule.disc_head_reset;
-        for (id, delta) in disc_ids.iter().zip(&disc_delta).filter(|_| carry_disc) {
-            let p = state.model.params.get_mut(id.name()).context("D tensor")?;
-            for (v, d) in p.data.iter_mut().zip(delta) {
-                *v += d;
-            }
-        }
-        state.update += 1;
-        state.episodes += n_ep;
-        state.env_steps += steps;
-        let n = n_ep as f64;
-        let elapsed = start.elapsed().as_secs_f64();
+        let n = episodes.len() as f64;
+        let elapsed = self.start.elapsed().as_secs_f64();
         let nan_or = |v: f64, c: u32| if c > 0 { v / c as f64 } else { f64::NAN };
+        let per_step = |v: f64| v / loss.steps.max(1) as f64;
         writeln!(
             csv,
             "{},{},{},{:.4},{:.4},{:.2},{:.5},{:.5},{:.5},{:.5},{},{},{:.5},{:.5},{:.2}",
@@ -610,30 +657,26 @@ pub fn train(world: &World, opts: &TrainOptions, state: &mut TrainState) -> Resu
             succ as f64 / n,
             rew / n,
             steps as f64 / n,
-            loss.policy / loss.steps.max(1) as f64,
-            loss.value / loss.steps.max(1) as f64,
-            loss.entropy / loss.steps.max(1) as f64,
-            info.grad_norm,
+            per_step(loss.policy),
+            per_step(loss.value),
+            per_step(loss.entropy),
+            grad_norm,
             adapt,
             roll,
             nan_or(gap, ngap),
             nan_or(lad, ngap),
             elapsed
         )?;
-        let sr = recent.iter().filter(|r| r.0).count() as f64 / recent.len().max(1) as f64;
-        let mr = recent.iter().map(|r| r.1 as f64).sum::<f64>() / recent.len().max(1) as f64;
+        let r = &self.recent;
+        let sr = r.iter().filter(|x| x.0).count() as f64 / r.len().max(1) as f64;
+        let mr = r.iter().map(|x| x.1 as f64).sum::<f64>() / r.len().max(1) as f64;
         bar.set_position(state.update);
         bar.set_message(format!(
             "SR(100) {:.1}% R {:.2} {:.0} steps/s",
             100.0 * sr,
             mr,
-            (state.env_steps - steps_at_start) as f64 / elapsed.max(1e-9)
+            (state.env_steps - self.steps_at_start) as f64 / elapsed.max(1e-9)
         ));
-        if state.update.is_multiple_of(opts.checkpoint_every) || state.update == opts.updates {
-            csv.flush()?;
-            state.save(&ck_path, opts)?;
-        }
+        Ok(())
     }
-    bar.finish_and_clear();
-    Ok(())
 }

@@ -22,12 +22,12 @@
 //! previous probabilities, x_t, its generator seeded like `Navigator::reset`). Because the
 //! batched kernels give every vector the bits of the batch-1 kernels, **each episode is bit
 //! for bit the episode the navigator runs alone** (same actions, probabilities, rewards);
-//! `tests/vec_rollout.rs` pins this against [`super::rollout::train_episode`].
+//! `tests/vec_rollout.rs` pins this against [`super::trainer::train_episode`].
 //!
 //! **Gradient order.** The segments that complete at the same tick form one backward batch,
 //! ordered by length (longest first, then slot); within it every tensor's gradient is summed
 //! step by step (last step first) and, within a step, over the batch in order. With `B = 1`
-//! this is exactly the order of [`super::rollout::train_episode`] (one segment at a time), so
+//! this is exactly the order of [`super::trainer::train_episode`] (one segment at a time), so
 //! `B = 1` gives the same update bit for bit; with `B > 1` the order is fixed by
 //! `(seed, update, worker, B)`, so runs stay reproducible and resumable bit for bit.
 //!
@@ -38,21 +38,18 @@
 
 use anyhow::{anyhow, bail, Result};
 use gman_core::activation::all_finite;
-use gman_core::blob::TensorId;
-use gman_core::dense::DenseGrads;
-use gman_core::generator::{Generator, GeneratorCache, GeneratorScratch};
-use gman_core::lstm::LstmGrads;
+use gman_core::generator::Generator;
 use gman_core::memory::AdaptMode;
 use gman_core::navigator::{Efficient, Full, Mode, Navigator, NoiseMode, Selection};
-use gman_core::policy::{
-    Policy, PolicyBatchCache, PolicyGrads, PolicyInput, PolicyInputGrads, PolicyScratch,
-};
+use gman_core::policy::{Policy, PolicyInput};
 use gman_core::rng::{fill_gaussian, uniform, Xoshiro128};
-use gman_core::{Action, NUM_ACTIONS};
+use gman_core::{Action, Dims, NUM_ACTIONS};
 
-use super::a3c::{output_grads, A3cConfig, Objective, SegmentLoss, GRAD_NAMES};
+use super::a3c::{A3cConfig, Objective};
+use super::bptt::{take_act, Backward, GenBufs, Rows, Segment, StepAct, Widths};
 use super::model::NavModel;
-use super::rollout::{expert_distribution, EpisodeStats, StepRec, Worker};
+use super::rollout::{disc_after_episode, expert_distribution, EpisodeStats, Worker};
+use super::step::StepRec;
 use super::K;
 use crate::sim::spatial::MapGrid;
 use crate::sim::{Env, EpisodeSpec, RewardKind, World};
@@ -80,110 +77,6 @@ pub struct VecSettings<'a> {
 /// True when `model`'s method can be trained by [`run_worker`] (no inner loop in training).
 pub fn supports(model: &NavModel) -> bool {
     !model.method.adapts_in_training()
-}
-
-/// The widths of one policy step of `model`.
-#[derive(Clone, Copy, Debug)]
-struct Widths {
-    f: usize,
-    a: usize,
-    ps: usize,
-    map: usize,
-    e: usize,
-    hd: usize,
-    au: usize,
-    cells: usize,
-    ce: usize,
-    z: usize,
-}
-
-/// Batch-major step buffers of `n` rows (inputs, states and activations).
-#[derive(Default)]
-struct Rows {
-    obs: Vec<f32>,
-    feat: Vec<f32>,
-    attr: Vec<f32>,
-    prev: Vec<f32>,
-    ps: Vec<f32>,
-    map: Vec<f32>,
-    h_prev: Vec<f32>,
-    c_prev: Vec<f32>,
-    prod: Vec<f32>,
-    fuse: Vec<f32>,
-    gates: Vec<f32>,
-    c: Vec<f32>,
-    h: Vec<f32>,
-    actor_u: Vec<f32>,
-    logits: Vec<f32>,
-    probs: Vec<f32>,
-    value: Vec<f32>,
-    cell: Vec<f32>,
-    cell_prod: Vec<f32>,
-}
-
-impl Rows {
-    fn resize(&mut self, n: usize, w: &Widths) {
-        let sz = |v: &mut Vec<f32>, k: usize| v.resize(n * k, 0.0);
-        sz(&mut self.obs, w.f);
-        sz(&mut self.feat, w.f);
-        sz(&mut self.attr, w.a);
-        sz(&mut self.prev, NUM_ACTIONS);
-        sz(&mut self.ps, w.ps);
-        sz(&mut self.map, w.map);
-        sz(&mut self.h_prev, w.hd);
-        sz(&mut self.c_prev, w.hd);
-        sz(&mut self.prod, w.f);
-        sz(&mut self.fuse, w.e);
-        sz(&mut self.gates, 4 * w.hd);
-        sz(&mut self.c, w.hd);
-        sz(&mut self.h, w.hd);
-        sz(&mut self.actor_u, w.au);
-        sz(&mut self.logits, NUM_ACTIONS);
-        sz(&mut self.probs, NUM_ACTIONS);
-        sz(&mut self.value, 1);
-        sz(&mut self.cell, w.cells * w.ce);
-        sz(&mut self.cell_prod, w.map);
-    }
-
-    /// The batched forward over the first `n` rows.
-    fn forward(&mut self, policy: &Policy<'_>, n: usize, w: &Widths) -> Result<()> {
-        self.resize(n, w);
-        let inp = PolicyInput {
-            obs: &self.obs,
-            feat: &self.feat,
-            attr: &self.attr,
-            prev_probs: &self.prev,
-            ps: &self.ps,
-            map: &self.map,
-        };
-        let mut cache = PolicyBatchCache {
-            prod: &mut self.prod,
-            fuse: &mut self.fuse,
-            gates: &mut self.gates,
-            c: &mut self.c,
-            h: &mut self.h,
-            actor_u: &mut self.actor_u,
-            logits: &mut self.logits,
-            probs: &mut self.probs,
-            value: &mut self.value,
-            cell: &mut self.cell,
-            cell_prod: &mut self.cell_prod,
-        };
-        policy.forward_batch(n, &inp, &self.h_prev, &self.c_prev, &mut cache)?;
-        Ok(())
-    }
-}
-
-/// The activations of one step the backward pass needs (saved from the rollout's forward).
-struct StepAct {
-    prod: Vec<f32>,
-    fuse: Vec<f32>,
-    gates: Vec<f32>,
-    c: Vec<f32>,
-    h: Vec<f32>,
-    actor_u: Vec<f32>,
-    value: f32,
-    cell: Vec<f32>,
 }
 
 /// One environment slot: a running episode and the navigator state it carries.
@@ -230,6 +123,57 @@ pub fn run_worker(
     }
 }
 
+/// What every tick of a worker's update reads: the model, the settings, the parameter views
+/// (from a navigator over the model, in its adaptation mode) and the widths.
+struct Ctx<'a> {
+    model: &'a NavModel,
+    s: &'a VecSettings<'a>,
+    policy: Policy<'a>,
+    gen: Generator<'a>,
+    w: Widths,
+    d: Dims,
+    grid: MapGrid,
+    train_generator: bool,
+}
+
+/// The buffers a worker's update reuses across ticks.
+struct Bufs<'b> {
+    ps: &'b mut Option<PsBuffers>,
+    rows: Rows,
+    bw: Backward,
+    gen: GenBufs,
+}
+
+/// Refuses a `B` out of `1..=MAX_BATCH_ENVS`, and `B > 1` for a method with an inner loop in
+/// training (its episodes run one at a time through [`super::trainer::train_episode`]).
+pub fn check_batch_envs(model: &NavModel, batch_envs: usize) -> Result<()> {
+    if !(1..=MAX_BATCH_ENVS).contains(&batch_envs) {
+        bail!("--batch-envs must be in 1..={MAX_BATCH_ENVS}, got {batch_envs}");
+    }
+    if batch_envs > 1 && !supports(model) {
+        bail!(
+            "--batch-envs {batch_envs} is implemented for the methods without an inner loop in training (a3c, a3c-fg, a3c-ps, a3c-fg-ps, gman-nometa, gman-noemd); {} runs its inner loop per episode: use --batch-envs 1",
+            model.method.name()
+        );
+    }
+    Ok(())
+}
+
+fn check_settings(model: &NavModel, s: &VecSettings<'_>) -> Result<()> {
+    check_batch_envs(model, s.batch_envs)?;
+    if !supports(model) {
+        bail!(
+            "the vectorised rollout runs the methods without an inner loop in training; {} runs its inner loop per episode",
+            model.method.name()
+        );
+    }
+    let cfg = model.nav_config(true);
+    if cfg.adapt || cfg.selection != Selection::Sample {
+        bail!("vectorised episodes need a sampling navigator without inner loop");
+    }
+    Ok(())
+}
+
 fn run_worker_in<'w, M: Mode>(
     world: &'w World,
     model: &NavModel,
@@ -238,23 +182,7 @@ fn run_worker_in<'w, M: Mode>(
     grads: &mut ParamSet,
     mut sample: impl FnMut(u32) -> Result<(EpisodeSpec, u32)>,
 ) -> Result<Vec<Finished>> {
-    if !supports(model) {
-        bail!(
-            "--batch-envs > 1 is implemented for the methods without an inner loop in training (a3c, a3c-fg, a3c-ps, a3c-fg-ps, gman-nometa, gman-noemd); {} runs its inner loop per episode: use --batch-envs 1",
-            model.method.name()
-        );
-    }
-    if !(1..=MAX_BATCH_ENVS).contains(&s.batch_envs) {
-        bail!(
-            "--batch-envs must be in 1..={MAX_BATCH_ENVS}, got {}",
-            s.batch_envs
-        );
-    }
-    let cfg = model.nav_config(true);
-    if cfg.adapt || cfg.selection != Selection::Sample {
-        bail!("vectorised episodes need a sampling navigator without inner loop");
-    }
-    let train_generator = model.method.trains_generator() && !model.privileged;
+    check_settings(model, s)?;
     // The navigator provides the parameter views (G and the policy, in the model's mode).
     let weights = model.weights()?;
     let Worker {
@@ -262,47 +190,35 @@ fn run_worker_in<'w, M: Mode>(
         ps: ps_buf,
         map: _,
     } = worker;
-    let mut nav: Navigator<'_, M, K> = Navigator::new(weights, arena, cfg)?;
+    let mut nav: Navigator<'_, M, K> = Navigator::new(weights, arena, model.nav_config(true))?;
     let d = *nav.dims();
     nav.reset(&vec![0.0; d.attr], 0)?;
     let policy = nav.policy()?;
-    let gen = nav.generator()?;
-    let w = Widths {
-        f: d.feat,
-        a: d.attr,
-        ps: d.ps,
-        map: d.map_len(),
-        e: policy.fuse.out_dim(),
-        hd: policy.lstm.hidden(),
-        au: if policy.actor.gain.is_some() {
-            NUM_ACTIONS
-        } else {
-            0
+    let w = Widths::of(&policy, &d);
+    // D after an episode: unchanged without an inner loop.
+    let disc = disc_after_episode(&nav)?;
+    let cx = Ctx {
+        model,
+        s,
+        w,
+        d,
+        grid: MapGrid {
+            rows: d.map_rows,
+            cols: d.map_cols,
         },
-        cells: d.map_cells(),
-        ce: if d.map_cells() > 0 { d.cell_embed } else { 0 },
-        z: d.noise,
+        train_generator: model.method.trains_generator() && !model.privileged,
+        gen: nav.generator()?,
+        policy,
     };
-    let grid = MapGrid {
-        rows: d.map_rows,
-        cols: d.map_cols,
+    let mut bufs = Bufs {
+        ps: ps_buf,
+        rows: Rows::default(),
+        bw: Backward::default(),
+        gen: GenBufs::new(&cx.gen, w.f),
     };
-    // D after an episode: unchanged without an inner loop (in the Efficient mode its unit
-    // gains, 1, folded into W1 as the batch-1 trainer does).
-    let disc = {
-        let dd = nav.discriminator()?;
-        let (r, cc) = (dd.l1.w.rows(), dd.l1.w.cols());
-        let w1: Vec<f32> = (0..r * cc)
-            .map(|i| dd.l1.gain.map_or(1.0, |g| g[i / cc]) * dd.l1.w.get(i / cc, i % cc))
-            .collect();
-        vec![w1, dd.l1.b.to_vec(), dd.w2.to_vec(), vec![dd.b2]]
-    };
-    let mut gbuf = GenBufs::new(&gen, w.f);
     let mut slots: Vec<Option<Slot<'w>>> = (0..s.batch_envs).map(|_| None).collect();
     let mut done: Vec<Finished> = Vec::new();
     let (mut next_e, mut taken) = (0u32, 0u64);
-    let mut rows = Rows::default();
-    let mut bw = Backward::default();
     loop {
         // Free slots take new episodes while the step budget lasts.
         for slot in slots.iter_mut().filter(|s| s.is_none()) {
@@ -317,59 +233,7 @@ fn run_worker_in<'w, M: Mode>(
         if active.is_empty() {
             break;
         }
-        // Inputs of this step.
-        let n = active.len();
-        rows.resize(n, &w);
-        for (j, &i) in active.iter().enumerate() {
-            let sl = slots[i].as_mut().ok_or_else(|| anyhow!("empty slot"))?;
-            observe(sl, model, ps_buf, grid, w.map, s.objective)?;
-            if !sl.x_fixed {
-                match model.noise {
-                    NoiseMode::Gaussian => {
-                        fill_gaussian(&mut sl.rng, &mut sl.z);
-                        gbuf.generate(&gen, &sl.z, &sl.attr, &mut sl.x)?;
-                    }
-                    NoiseMode::Zero => {
-                        if !sl.x_valid {
-                            sl.z.fill(0.0);
-                            gbuf.generate(&gen, &sl.z, &sl.attr, &mut sl.x)?;
-                            sl.x_valid = true;
-                        }
-                    }
-                }
-            }
-            put_inputs(&mut rows, j, sl, &w);
-        }
-        rows.forward(&policy, n, &w)?;
-        for (j, &i) in active.iter().enumerate() {
-            let sl = slots[i].as_mut().ok_or_else(|| anyhow!("empty slot"))?;
-            let probs = &rows.probs[j * NUM_ACTIONS..(j + 1) * NUM_ACTIONS];
-            if !all_finite(probs) || !rows.value[j].is_finite() {
-                bail!("navigator: numerical fault in action probabilities");
-            }
-            let mut p = [0.0f32; NUM_ACTIONS];
-            p.copy_from_slice(probs);
-            let action = select(&mut sl.rng, &p);
-            sl.stats.actions.push(action.index() as u8);
-            let o = sl.env.step(action);
-            taken += 1;
-            sl.acts.push(take_act(&rows, j, &w));
-            let rec = StepRec {
-                obs: std::mem::take(&mut sl.obs),
-                ps: std::mem::take(&mut sl.ps),
-                map: std::mem::take(&mut sl.map),
-                x: sl.x.clone(),
-                z: sl.z.clone(),
-                h_prev: std::mem::replace(&mut sl.h, rows.h[j * w.hd..(j + 1) * w.hd].to_vec()),
-                c_prev: std::mem::replace(&mut sl.c, rows.c[j * w.hd..(j + 1) * w.hd].to_vec()),
-                prev_probs: std::mem::replace(&mut sl.prev, probs.to_vec()),
-                action: action.index(),
-                reward: o.reward,
-                probs: p,
-                expert: sl.expert.take(),
-            };
-            sl.seg.push(rec);
-        }
+        taken += step_slots(&cx, &mut bufs, &mut slots, &active)?;
         // Segments complete at this tick: bootstrap, then one batched backward.
         let ready: Vec<usize> = active
             .iter()
@@ -380,53 +244,142 @@ fn run_worker_in<'w, M: Mode>(
                     .is_some_and(|s| s.seg.len() == K || s.env.is_done())
             })
             .collect();
-        if ready.is_empty() {
-            continue;
-        }
-        let boot = bootstrap(
-            &mut slots, &ready, model, ps_buf, grid, &policy, &w, &mut rows,
-        )?;
-        let mut batch: Vec<(usize, f32)> = ready.iter().copied().zip(boot).collect();
-        // Longest segment first (then slot), so the segments running at each backward step
-        // are a prefix of the batch.
-        batch.sort_by_key(|&(i, _)| {
-            (
-                std::cmp::Reverse(slots[i].as_ref().map_or(0, |s| s.seg.len())),
-                i,
-            )
-        });
-        let segs: Vec<&Slot<'_>> = batch
-            .iter()
-            .filter_map(|&(i, _)| slots[i].as_ref())
-            .collect();
-        let boots: Vec<f32> = batch.iter().map(|b| b.1).collect();
-        let losses = bw.run(
-            &policy,
-            &gen,
-            &segs,
-            &boots,
-            s.a3c,
-            train_generator,
-            &w,
-            &d,
-            grads,
-            &mut gbuf,
-        )?;
-        for (&(i, _), l) in batch.iter().zip(&losses) {
-            let slot = &mut slots[i];
-            let sl = slot.as_mut().ok_or_else(|| anyhow!("empty slot"))?;
-            sl.stats.loss.add(l);
-            sl.seg.clear();
-            sl.acts.clear();
-            if sl.env.is_done() {
-                if let Some(sl) = slot.take() {
-                    done.push(finish(sl, disc.clone()));
+        if !ready.is_empty() {
+            backward_ready(&cx, &mut bufs, &mut slots, &ready, grads)?;
+            for slot in slots.iter_mut() {
+                if slot.as_ref().is_some_and(|s| s.env.is_done()) {
+                    if let Some(sl) = slot.take() {
+                        done.push(finish(sl, disc.clone()));
+                    }
                 }
             }
         }
     }
     done.sort_by_key(|f| f.0);
     Ok(done)
+}
+
+/// One tick of the running episodes `active`: their inputs and x_t, one batched policy
+/// forward, each episode's action from its own generator and the environment's step, the
+/// step recorded for the backward. Returns the steps taken.
+fn step_slots(
+    cx: &Ctx<'_>,
+    b: &mut Bufs<'_>,
+    slots: &mut [Option<Slot<'_>>],
+    active: &[usize],
+) -> Result<u64> {
+    let (w, n) = (&cx.w, active.len());
+    let rows = &mut b.rows;
+    rows.resize(n, w);
+    for (j, &i) in active.iter().enumerate() {
+        let sl = slots[i].as_mut().ok_or_else(|| anyhow!("empty slot"))?;
+        observe(sl, cx.model, b.ps, cx.grid, w.map, cx.s.objective)?;
+        if !sl.x_fixed {
+            match cx.model.noise {
+                NoiseMode::Gaussian => {
+                    fill_gaussian(&mut sl.rng, &mut sl.z);
+                    b.gen.generate(&cx.gen, &sl.z, &sl.attr, &mut sl.x)?;
+                }
+                NoiseMode::Zero => {
+                    if !sl.x_valid {
+                        sl.z.fill(0.0);
+                        b.gen.generate(&cx.gen, &sl.z, &sl.attr, &mut sl.x)?;
+                        sl.x_valid = true;
+                    }
+                }
+            }
+        }
+        put_inputs(rows, j, sl, w);
+    }
+    rows.forward(&cx.policy, n, w)?;
+    for (j, &i) in active.iter().enumerate() {
+        let sl = slots[i].as_mut().ok_or_else(|| anyhow!("empty slot"))?;
+        let probs = &rows.probs[j * NUM_ACTIONS..(j + 1) * NUM_ACTIONS];
+        if !all_finite(probs) || !rows.value[j].is_finite() {
+            bail!("navigator: numerical fault in action probabilities");
+        }
+        let mut p = [0.0f32; NUM_ACTIONS];
+        p.copy_from_slice(probs);
+        let action = select(&mut sl.rng, &p);
+        sl.stats.actions.push(action.index() as u8);
+        let o = sl.env.step(action);
+        sl.acts.push(take_act(rows, j, w));
+        let rec = StepRec {
+            obs: std::mem::take(&mut sl.obs),
+            ps: std::mem::take(&mut sl.ps),
+            map: std::mem::take(&mut sl.map),
+            x: sl.x.clone(),
+            z: sl.z.clone(),
+            h_prev: std::mem::replace(&mut sl.h, rows.h[j * w.hd..(j + 1) * w.hd].to_vec()),
+            c_prev: std::mem::replace(&mut sl.c, rows.c[j * w.hd..(j + 1) * w.hd].to_vec()),
+            prev_probs: std::mem::replace(&mut sl.prev, probs.to_vec()),
+            action: action.index(),
+            reward: o.reward,
+            probs: p,
+            expert: sl.expert.take(),
+        };
+        sl.seg.push(rec);
+    }
+    Ok(n as u64)
+}
+
+/// The backward of the segments complete at this tick (`ready`): their bootstrap values,
+/// then one batched BPTT, longest segment first (then slot), so that the segments running at
+/// each backward step are a prefix of the batch. Their losses go to the episodes' statistics
+/// and the segments are cleared.
+fn backward_ready(
+    cx: &Ctx<'_>,
+    b: &mut Bufs<'_>,
+    slots: &mut [Option<Slot<'_>>],
+    ready: &[usize],
+    grads: &mut ParamSet,
+) -> Result<()> {
+    let boot = bootstrap(
+        slots,
+        ready,
+        cx.model,
+        b.ps,
+        cx.grid,
+        &cx.policy,
+        &cx.w,
+        &mut b.rows,
+    )?;
+    let mut batch: Vec<(usize, f32)> = ready.iter().copied().zip(boot).collect();
+    batch.sort_by_key(|&(i, _)| {
+        (
+            std::cmp::Reverse(slots[i].as_ref().map_or(0, |s| s.seg.len())),
+            i,
+        )
+    });
+    let segs: Vec<Segment<'_>> = batch
+        .iter()
+        .filter_map(|&(i, boot)| {
+            slots[i].as_ref().map(|sl| Segment {
+                steps: &sl.seg,
+                acts: &sl.acts,
+                attr: &sl.attr,
+                bootstrap: boot,
+            })
+        })
+        .collect();
+    let losses = b.bw.run(
+        &cx.policy,
+        &cx.gen,
+        &segs,
+        cx.s.a3c,
+        cx.train_generator,
+        &cx.w,
+        &cx.d,
+        grads,
+        &mut b.gen,
+    )?;
+    for (&(i, _), l) in batch.iter().zip(&losses) {
+        let sl = slots[i].as_mut().ok_or_else(|| anyhow!("empty slot"))?;
+        sl.stats.loss.add(l);
+        sl.seg.clear();
+        sl.acts.clear();
+    }
+    Ok(())
 }
 
 fn start_slot<'w>(
@@ -500,32 +453,15 @@ fn observe(
 
 /// Copies the slot's step inputs (and LSTM state) into row `j`.
 fn put_inputs(rows: &mut Rows, j: usize, sl: &Slot<'_>, w: &Widths) {
-    let put = |dst: &mut Vec<f32>, k: usize, src: &[f32]| {
-        dst[j * k..(j + 1) * k].copy_from_slice(src);
+    let inp = PolicyInput {
+        obs: &sl.obs,
+        feat: &sl.x,
+        attr: &sl.attr,
+        prev_probs: &sl.prev,
+        ps: &sl.ps,
+        map: &sl.map,
     };
-    put(&mut rows.obs, w.f, &sl.obs);
-    put(&mut rows.feat, w.f, &sl.x);
-    put(&mut rows.attr, w.a, &sl.attr);
-    put(&mut rows.prev, NUM_ACTIONS, &sl.prev);
-    put(&mut rows.ps, w.ps, &sl.ps);
-    put(&mut rows.map, w.map, &sl.map);
-    put(&mut rows.h_prev, w.hd, &sl.h);
-    put(&mut rows.c_prev, w.hd, &sl.c);
-}
-
-/// Row `j`'s activations (the map products are not kept: the backward pass recomputes them).
-fn take_act(rows: &Rows, j: usize, w: &Widths) -> StepAct {
-    let get = |v: &[f32], k: usize| v[j * k..(j + 1) * k].to_vec();
-    StepAct {
-        prod: get(&rows.prod, w.f),
-        fuse: get(&rows.fuse, w.e),
-        gates: get(&rows.gates, 4 * w.hd),
-        c: get(&rows.c, w.hd),
-        h: get(&rows.h, w.hd),
-        actor_u: get(&rows.actor_u, w.au),
-        value: rows.value[j],
-        cell: get(&rows.cell, w.cells * w.ce),
-    }
+    rows.put_inputs(j, w, &inp, &sl.h, &sl.c);
 }
 
 /// The navigator's sampling draw (`Selection::Sample`).
@@ -594,282 +530,4 @@ fn finish(sl: Slot<'_>, disc: Vec<Vec<f32>>) -> Finished {
     stats.adapt_loss = f32::NAN;
     stats.final_feature = sl.x;
     (sl.e, stats, disc)
-}
-
-/// G's buffers (forward for x_t, and the backward of the segment gradient).
-struct GenBufs {
-    u1: Vec<f32>,
-    h1: Vec<f32>,
-    u2: Vec<f32>,
-    x: Vec<f32>,
-    dpre2: Vec<f32>,
-    dh1: Vec<f32>,
-    dpre1: Vec<f32>,
-    tmp: Vec<f32>,
-}
-
-impl GenBufs {
-    fn new(gen: &Generator<'_>, f: usize) -> GenBufs {
-        let gh = gen.hidden();
-        GenBufs {
-            u1: vec![0.0; if gen.l1.gain.is_some() { gh } else { 0 }],
-            h1: vec![0.0; gh],
-            u2: vec![0.0; if gen.l2.gain.is_some() { f } else { 0 }],
-            x: vec![0.0; f],
-            dpre2: vec![0.0; f],
-            dh1: vec![0.0; gh],
-            dpre1: vec![0.0; gh],
-            tmp: vec![0.0; f.max(gh)],
-        }
-    }
-
-    fn cache(&mut self) -> GeneratorCache<'_> {
-        GeneratorCache {
-            u1: &mut self.u1,
-            h1: &mut self.h1,
-            u2: &mut self.u2,
-            x: &mut self.x,
-        }
-    }
-
-    fn generate(
-        &mut self,
-        gen: &Generator<'_>,
-        z: &[f32],
-        attr: &[f32],
-        x: &mut [f32],
-    ) -> Result<()> {
-        let mut c = self.cache();
-        gen.forward(z, attr, &mut c)?;
-        x.copy_from_slice(&self.x);
-        Ok(())
-    }
-}
-
-/// Buffers of the batched backward pass, reused across ticks.
-#[derive(Default)]
-struct Backward {
-    rows: Rows,
-    dl: Vec<f32>,
-    dv: Vec<f32>,
-    dh_next: Vec<f32>,
-    dc_next: Vec<f32>,
-    dh_prev: Vec<f32>,
-    dc_prev: Vec<f32>,
-    dfeat: Vec<f32>,
-    de: Vec<f32>,
-    dgates: Vec<f32>,
-    dprod: Vec<f32>,
-    tmp: Vec<f32>,
-    dh: Vec<f32>,
-    dcell: Vec<f32>,
-    cell_tmp: Vec<f32>,
-}
-
-impl Backward {
-    /// Accumulates `∇ L_nav` of the segments `segs` (sorted longest first; bootstraps
-    /// `boots`) into `grads`, in the order of the module docs. Returns each segment's loss.
-    #[allow(clippy::too_many_arguments)]
-    fn run(
-        &mut self,
-        policy: &Policy<'_>,
-        gen: &Generator<'_>,
-        segs: &[&Slot<'_>],
-        boots: &[f32],
-        cfg: &A3cConfig,
-        train_generator: bool,
-        w: &Widths,
-        d: &gman_core::Dims,
-        grads: &mut ParamSet,
-        gbuf: &mut GenBufs,
-    ) -> Result<Vec<SegmentLoss>> {
-        let ns = segs.len();
-        // Output gradients per segment (the batch-1 code's `output_grads`).
-        let mut outs = Vec::with_capacity(ns);
-        let mut losses = Vec::with_capacity(ns);
-        for (sl, &b) in segs.iter().zip(boots) {
-            let values: Vec<f32> = sl.acts.iter().map(|a| a.value).collect();
-            let (dl, dv, loss) = output_grads(&sl.seg, &values, b, cfg);
-            outs.push((dl, dv));
-            losses.push(loss);
-        }
-        let size = |id: TensorId| {
-            let (r, c) = id.shape(d);
-            r * c
-        };
-        let has_map = d.map_cells() > 0;
-        let (mut cellw_g, mut cellb_g) = (
-            vec![0.0f32; size(TensorId::CellW)],
-            vec![0.0f32; size(TensorId::CellB)],
-        );
-        let [fw, fb, lwx, lwh, lb, aw, ab, cw, cb, g1w, g1b, g2w, g2b] =
-            grads.slices_mut(GRAD_NAMES)?;
-        let mut pg = PolicyGrads {
-            fuse: DenseGrads::Full { w: fw, b: fb },
-            lstm: Some(LstmGrads {
-                wx: lwx,
-                wh: lwh,
-                b: lb,
-            }),
-            actor: DenseGrads::Full { w: aw, b: ab },
-            critic: DenseGrads::Full { w: cw, b: cb },
-            cell: if has_map {
-                DenseGrads::Full {
-                    w: &mut cellw_g,
-                    b: &mut cellb_g,
-                }
-            } else {
-                DenseGrads::None
-            },
-        };
-        let mut g1 = DenseGrads::Full { w: g1w, b: g1b };
-        let mut g2 = DenseGrads::Full { w: g2w, b: g2b };
-        let sz = |v: &mut Vec<f32>, k: usize| {
-            v.clear();
-            v.resize(ns * k, 0.0);
-        };
-        sz(&mut self.dh_next, w.hd);
-        sz(&mut self.dc_next, w.hd);
-        sz(&mut self.dh_prev, w.hd);
-        sz(&mut self.dc_prev, w.hd);
-        let max_len = segs.first().map_or(0, |s| s.seg.len());
-        for r in 0..max_len {
-            let n = segs.iter().take_while(|s| s.seg.len() > r).count();
-            let rows = &mut self.rows;
-            rows.resize(n, w);
-            let szn = |v: &mut Vec<f32>, k: usize| {
-                v.clear();
-                v.resize(n * k, 0.0);
-            };
-            szn(&mut self.dl, NUM_ACTIONS);
-            szn(&mut self.dv, 1);
-            for (j, sl) in segs[..n].iter().enumerate() {
-                let t = sl.seg.len() - 1 - r;
-                let (st, a) = (&sl.seg[t], &sl.acts[t]);
-                let put = |dst: &mut Vec<f32>, k: usize, src: &[f32]| {
-                    dst[j * k..(j + 1) * k].copy_from_slice(src);
-                };
-                put(&mut rows.obs, w.f, &st.obs);
-                put(&mut rows.feat, w.f, &st.x);
-                put(&mut rows.attr, w.a, &sl.attr);
-                put(&mut rows.prev, NUM_ACTIONS, &st.prev_probs);
-                put(&mut rows.ps, w.ps, &st.ps);
-                put(&mut rows.map, w.map, &st.map);
-                put(&mut rows.h_prev, w.hd, &st.h_prev);
-                put(&mut rows.c_prev, w.hd, &st.c_prev);
-                put(&mut rows.prod, w.f, &a.prod);
-                put(&mut rows.fuse, w.e, &a.fuse);
-                put(&mut rows.gates, 4 * w.hd, &a.gates);
-                put(&mut rows.c, w.hd, &a.c);
-                put(&mut rows.h, w.hd, &a.h);
-                put(&mut rows.actor_u, w.au, &a.actor_u);
-                put(&mut rows.logits, NUM_ACTIONS, &[0.0; NUM_ACTIONS]);
-                put(&mut rows.probs, NUM_ACTIONS, &st.probs);
-                rows.value[j] = a.value;
-                put(&mut rows.cell, w.cells * w.ce, &a.cell);
-                put(&mut self.dl, NUM_ACTIONS, &outs[j].0[t]);
-                self.dv[j] = outs[j].1[t];
-            }
-            szn(&mut self.dfeat, w.f);
-            szn(&mut self.de, w.e);
-            szn(&mut self.dgates, 4 * w.hd);
-            szn(&mut self.dprod, w.f);
-            szn(&mut self.tmp, w.e.max(NUM_ACTIONS));
-            szn(&mut self.dh, w.hd);
-            szn(&mut self.dcell, w.cells * w.ce);
-            szn(&mut self.cell_tmp, w.map);
-            let inp = PolicyInput {
-                obs: &rows.obs,
-                feat: &rows.feat,
-                attr: &rows.attr,
-                prev_probs: &rows.prev,
-                ps: &rows.ps,
-                map: &rows.map,
-            };
-            let cache = PolicyBatchCache {
-                prod: &mut rows.prod,
-                fuse: &mut rows.fuse,
-                gates: &mut rows.gates,
-                c: &mut rows.c,
-                h: &mut rows.h,
-                actor_u: &mut rows.actor_u,
-                logits: &mut rows.logits,
-                probs: &mut rows.probs,
-                value: &mut rows.value,
-                cell: &mut rows.cell,
-                cell_prod: &mut rows.cell_prod,
-            };
-            let nh = n * w.hd;
-            let mut out = PolicyInputGrads {
-                feat: &mut self.dfeat,
-                h_prev: &mut self.dh_prev[..nh],
-                c_prev: &mut self.dc_prev[..nh],
-            };
-            let mut sc = PolicyScratch {
-                de: &mut self.de,
-                dgates: &mut self.dgates,
-                dprod: &mut self.dprod,
-                tmp: &mut self.tmp,
-                dh: &mut self.dh,
-                dcell: &mut self.dcell,
-                cell_tmp: &mut self.cell_tmp,
-            };
-            policy.backward_batch(
-                n,
-                &inp,
-                &rows.h_prev,
-                &rows.c_prev,
-                &cache,
-                &self.dl,
-                &self.dv,
-                &self.dh_next[..nh],
-                &self.dc_next[..nh],
-                &mut pg,
-                &mut out,
-                &mut sc,
-            )?;
-            std::mem::swap(&mut self.dh_next, &mut self.dh_prev);
-            std::mem::swap(&mut self.dc_next, &mut self.dc_prev);
-            if train_generator {
-                for (j, sl) in segs[..n].iter().enumerate() {
-                    let t = sl.seg.len() - 1 - r;
-                    let z = &sl.seg[t].z;
-                    let gb = &mut *gbuf;
-                    let mut gc = GeneratorCache {
-                        u1: &mut gb.u1,
-                        h1: &mut gb.h1,
-                        u2: &mut gb.u2,
-                        x: &mut gb.x,
-                    };
-                    gen.forward(z, &sl.attr, &mut gc)?;
-                    let mut gs = GeneratorScratch {
-                        dpre2: &mut gb.dpre2,
-                        dh1: &mut gb.dh1,
-                        dpre1: &mut gb.dpre1,
-                        tmp: &mut gb.tmp,
-                    };
-                    gen.backward(
-                        z,
-                        &sl.attr,
-                        &gc,
-                        &self.dfeat[j * w.f..(j + 1) * w.f],
-                        &mut g1,
-                        &mut g2,
-                        &mut gs,
-                    )?;
-                }
-            }
-        }
-        if has_map {
-            for (name, g) in [("CellW", &cellw_g), ("CellB", &cellb_g)] {
-                let p = grads
-                    .get_mut(name)
-                    .ok_or_else(|| anyhow!("gradient set has no {name}"))?;
-                for (a, b) in p.data.iter_mut().zip(g) {
-                    *a += b;
-                }
-            }
-        }
-        Ok(losses)
-    }
 }

@@ -14,7 +14,7 @@ use anyhow::{Context, Result};
 use gman_core::rng::Xoshiro128;
 use gman_core::Dims;
 use gman_host_sim::nav::model::{Method, NavModel};
-use gman_host_sim::nav::trainer::{train, TrainOptions, TrainState};
+use gman_host_sim::nav::trainer::{train, RunSettings, TrainOptions, TrainState};
 use gman_host_sim::nav::vec_rollout;
 use gman_host_sim::sim::{RewardKind, World, DEFAULT_WORLD_SEED};
 use gman_host_sim::train::adam::AdamConfig;
@@ -91,18 +91,20 @@ fn row(
     let mut state = TrainState::new(model, adam);
     let opts = TrainOptions {
         updates: 1,
-        seed: 1,
-        workers,
-        batch_envs,
-        min_steps: MIN_STEPS,
-        reward: RewardKind::Mixed,
-        max_steps: None,
-        min_start_actions: 1,
-        adam,
-        a3c: Default::default(),
+        run: RunSettings {
+            seed: 1,
+            workers,
+            batch_envs,
+            min_steps: MIN_STEPS,
+            reward: RewardKind::Mixed,
+            max_steps: None,
+            min_start_actions: 1,
+            adam,
+            a3c: Default::default(),
+            objective: Default::default(),
+            meta_order: 1,
+        },
         checkpoint_every: u64::MAX,
-        objective: Default::default(),
-        meta_order: 1,
         out: out.clone(),
         progress: false,
     };

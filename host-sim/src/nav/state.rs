@@ -1,0 +1,329 @@
+//! What a training run's checkpoint holds besides the model: the counters, Adam's state and
+//! the run's settings, typed and serde-serialised ([`TrainerMeta`], the `trainer` object of
+//! the checkpoint's metadata, beside the model's [`ModelMeta`](super::model::ModelMeta)).
+//!
+//! # Versions of the `trainer` object
+//! * **1** (no `version` key): written by every build before the settings were typed. The
+//!   keys and their encoding are those of version 2, so such a checkpoint loads and resumes
+//!   bit for bit; one that lacks a setting (a build older than that setting) is refused with
+//!   an error naming the file, the version and the missing key.
+//! * **2** ([`TRAINER_META_VERSION`]): the same keys plus `"version": 2`.
+//!
+//! A version this build does not know is refused with [`SettingsError::Version`].
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Result};
+use serde::{Deserialize, Serialize};
+
+use super::a3c::{A3cConfig, Objective};
+use super::model::{Method, NavModel};
+use crate::sim::RewardKind;
+use crate::train::adam::{Adam, AdamConfig};
+use crate::train::checkpoint::Checkpoint;
+
+/// Version of the `trainer` object written by this build (see the module docs).
+pub const TRAINER_META_VERSION: u32 = 2;
+
+/// The settings that shape a run's updates, stored in its checkpoint so that `--resume`
+/// continues with exactly them (the options of one invocation, such as the update count or
+/// the progress bar, are in [`super::trainer::TrainOptions`] only).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct RunSettings {
+    /// Seed of the run.
+    pub seed: u64,
+    /// Parallel workers.
+    pub workers: usize,
+    /// Environments each worker steps in lockstep (`B`, see [`super::vec_rollout`]); 1 is
+    /// one episode at a time. Absent in checkpoints from before vectorised episodes: 1.
+    #[serde(default = "one_usize")]
+    pub batch_envs: usize,
+    /// Each worker runs whole episodes (tasks) until it has taken at least this many steps
+    /// in the update (at least one episode).
+    pub min_steps: u32,
+    /// Reward (stored as the variant's name, `"Mixed"`).
+    #[serde(with = "reward_name")]
+    pub reward: RewardKind,
+    /// Step limit of training episodes (`None`: the evaluation limits, 200/100).
+    pub max_steps: Option<u32>,
+    /// Training starts need at least this many actions to see the target (1: never in view at
+    /// the start).
+    pub min_start_actions: u32,
+    /// Outer optimiser.
+    pub adam: AdamConfig,
+    /// A3C loss.
+    pub a3c: A3cConfig,
+    /// What the policy learns from: the A3C loss or imitation of the oracle (DAgger). Absent
+    /// in checkpoints from before the objective existed: A3C.
+    #[serde(default)]
+    pub objective: Objective,
+    /// Meta-gradient order: 1 (first-order MAML, the gradient at the adapted parameters
+    /// applied to the pre-adaptation ones) or 2 (exact through the inner SGD steps, see
+    /// [`super::meta`]).
+    pub meta_order: u8,
+}
+
+fn one_usize() -> usize {
+    1
+}
+
+/// [`RewardKind`] as its variant's name (`"Mixed"`), the encoding of every checkpoint so far.
+mod reward_name {
+    use crate::sim::RewardKind;
+    use serde::{Deserialize, Deserializer, Serializer};
+
+    pub fn serialize<S: Serializer>(r: &RewardKind, s: S) -> Result<S::Ok, S::Error> {
+        s.serialize_str(&format!("{r:?}"))
+    }
+
+    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<RewardKind, D::Error> {
+        let name = String::deserialize(d)?;
+        name.to_ascii_lowercase()
+            .parse::<RewardKind>()
+            .map_err(|e| serde::de::Error::custom(format!("reward {name:?}: {e}")))
+    }
+}
+
+/// The world a run trains on, stored so that a resumed run can refuse another one.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "lowercase")]
+pub enum WorldId {
+    /// The built-in synthetic world.
+    Synthetic {
+        /// `--world-seed`.
+        world_seed: u64,
+    },
+    /// A data directory.
+    Data {
+        /// `--world-seed`.
+        world_seed: u64,
+        /// Fingerprint of the directory's contents (the path may change, the data must not).
+        fingerprint: String,
+        /// The path it was trained from (for messages).
+        path: String,
+    },
+}
+
+impl WorldId {
+    /// Refuses to resume a run trained on `self` on `now`, in words a user can act on.
+    pub fn check_same(&self, now: &WorldId) -> Result<()> {
+        let same = match (self, now) {
+            (WorldId::Synthetic { world_seed: a }, WorldId::Synthetic { world_seed: b }) => a == b,
+            (
+                WorldId::Data {
+                    world_seed: a,
+                    fingerprint: fa,
+                    ..
+                },
+                WorldId::Data {
+                    world_seed: b,
+                    fingerprint: fb,
+                    ..
+                },
+            ) => a == b && fa == fb,
+            _ => false,
+        };
+        if !same {
+            bail!(
+                "the run was trained on {}, but this resume selects {}; resume with the same --data and --world-seed",
+                self.describe(),
+                now.describe()
+            );
+        }
+        Ok(())
+    }
+
+    fn describe(&self) -> String {
+        match self {
+            WorldId::Data {
+                world_seed,
+                fingerprint,
+                path,
+            } => format!(
+                "the data directory {path} (content fingerprint {fingerprint}) with --world-seed {world_seed}"
+            ),
+            WorldId::Synthetic { world_seed } => {
+                format!("the synthetic world (no --data) with --world-seed {world_seed}")
+            }
+        }
+    }
+}
+
+/// The `trainer` object of a training checkpoint's metadata (see the module docs).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct TrainerMeta {
+    /// Format version of this object (absent: 1).
+    #[serde(default = "version_one")]
+    pub version: u32,
+    /// Updates done.
+    pub update: u64,
+    /// Episodes run.
+    pub episodes: u64,
+    /// Environment steps taken.
+    pub env_steps: u64,
+    /// The run's settings.
+    #[serde(flatten)]
+    pub run: RunSettings,
+    /// The method, also in the model's metadata: a relabelled one is refused. Absent in the
+    /// first checkpoints.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub method: Option<Method>,
+    /// The world trained on; absent when unknown (library use, older checkpoints).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub world: Option<WorldId>,
+}
+
+fn version_one() -> u32 {
+    1
+}
+
+/// Why the `trainer` object of a checkpoint could not be read. Every variant names the file.
+#[derive(Debug, thiserror::Error)]
+pub enum SettingsError {
+    /// The object has a version this build does not read.
+    #[error("{path}: trainer settings format version {found} is not supported (this build reads versions 1 to {TRAINER_META_VERSION}); resume it with the build that wrote it")]
+    Version {
+        /// The file.
+        path: PathBuf,
+        /// Version in the file.
+        found: u64,
+    },
+    /// The object is missing or does not parse as its version says.
+    #[error("{path}: trainer settings (format version {version}) cannot be read: {what}")]
+    Malformed {
+        /// The file.
+        path: PathBuf,
+        /// Version in the file (1 when it has none).
+        version: u64,
+        /// What is wrong.
+        what: String,
+    },
+}
+
+impl TrainerMeta {
+    /// Reads the `trainer` object of `metadata` (of the checkpoint `path`), checking its
+    /// version first.
+    pub fn from_metadata(
+        metadata: &serde_json::Value,
+        path: &Path,
+    ) -> Result<TrainerMeta, SettingsError> {
+        let t = &metadata["trainer"];
+        let version = match t.get("version") {
+            None => 1,
+            Some(v) => v.as_u64().ok_or_else(|| SettingsError::Malformed {
+                path: path.to_path_buf(),
+                version: 0,
+                what: format!("version {v} is not a number"),
+            })?,
+        };
+        if !(1..=TRAINER_META_VERSION as u64).contains(&version) {
+            return Err(SettingsError::Version {
+                path: path.to_path_buf(),
+                found: version,
+            });
+        }
+        let malformed = |what: String| SettingsError::Malformed {
+            path: path.to_path_buf(),
+            version,
+            what,
+        };
+        if !t.is_object() {
+            return Err(malformed(
+                "the metadata has no `trainer` object (not a checkpoint of `gman train`)".into(),
+            ));
+        }
+        serde_json::from_value(t.clone()).map_err(|e| malformed(e.to_string()))
+    }
+}
+
+/// Everything a checkpoint restores.
+pub struct TrainState {
+    /// The model (θ, ω, φ and the PS module).
+    pub model: NavModel,
+    /// Adam over the model's parameters.
+    pub adam: Adam,
+    /// Updates done.
+    pub update: u64,
+    /// Episodes run.
+    pub episodes: u64,
+    /// Environment steps taken.
+    pub env_steps: u64,
+    /// What world the run trains on, stored in the checkpoint so that a resumed run can
+    /// refuse another world; `None` when unknown (library use, older checkpoints).
+    pub world: Option<WorldId>,
+}
+
+impl TrainState {
+    /// A fresh state.
+    pub fn new(model: NavModel, adam: AdamConfig) -> TrainState {
+        let adam = Adam::new(adam, &model.params);
+        TrainState {
+            model,
+            adam,
+            update: 0,
+            episodes: 0,
+            env_steps: 0,
+            world: None,
+        }
+    }
+
+    /// The `trainer` object of this state's checkpoint, for a run with settings `run`.
+    pub fn trainer_meta(&self, run: &RunSettings) -> TrainerMeta {
+        TrainerMeta {
+            version: TRAINER_META_VERSION,
+            update: self.update,
+            episodes: self.episodes,
+            env_steps: self.env_steps,
+            run: run.clone(),
+            method: Some(self.model.method),
+            world: self.world.clone(),
+        }
+    }
+
+    /// Writes the checkpoint atomically.
+    pub fn save(&self, path: &Path, run: &RunSettings) -> Result<()> {
+        let mut meta = self.model.metadata();
+        meta["trainer"] = serde_json::to_value(self.trainer_meta(run))?;
+        let mut ck = Checkpoint::new(meta);
+        self.model.add_to_checkpoint(&mut ck)?;
+        ck.add_blob("adam", self.adam.to_bytes());
+        ck.save(path)?;
+        Ok(())
+    }
+
+    /// Restores a state saved by [`TrainState::save`].
+    pub fn load(path: &Path) -> Result<TrainState> {
+        Ok(Self::load_with_settings(path)?.0)
+    }
+
+    /// Restores a state like [`TrainState::load`] and also returns the `trainer` object the
+    /// run was last saved with (its [`RunSettings`]: seed, workers, reward, Adam and A3C
+    /// settings, meta-gradient order, ...), so that a resumed run can continue with exactly
+    /// the settings it was trained with.
+    pub fn load_with_settings(path: &Path) -> Result<(TrainState, TrainerMeta)> {
+        let ck = Checkpoint::load(path)?;
+        let t = TrainerMeta::from_metadata(&ck.metadata, path)?;
+        let model = NavModel::from_checkpoint(&ck)?;
+        let adam = Adam::from_bytes(ck.blob("adam")?, &model.params)?;
+        // The method is stored twice (model and trainer metadata): a relabelled one is refused.
+        if let Some(m) = t.method {
+            if m != model.method {
+                bail!(
+                    "{}: the model's method is {} but the run was trained as {}; the metadata was changed",
+                    path.display(),
+                    model.method.name(),
+                    m.name()
+                );
+            }
+        }
+        let state = TrainState {
+            model,
+            adam,
+            update: t.update,
+            episodes: t.episodes,
+            env_steps: t.env_steps,
+            world: t.world.clone(),
+        };
+        Ok((state, t))
+    }
+}
