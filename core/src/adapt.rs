@@ -17,83 +17,9 @@ use crate::discriminator::{DiscScratch, Discriminator};
 use crate::error::{check_len, Result};
 use crate::generator::{Generator, GeneratorCache, GeneratorScratch};
 use crate::inner::{self, AdaptInputs, InnerWork};
-use crate::matrix::dot;
 use crate::NUM_ACTIONS;
 
-/// Which form of Eq. 3 to use.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
-pub enum AdaptLossKind {
-    /// `−mean_t D(x_t) ‖a_t‖₂` (the paper's Eq. 3). Default.
-    #[default]
-    Paper,
-    /// `‖ Σ_t a_t (−D(x_t)) ‖₂` (the reference implementation).
-    Reference,
-}
-
-/// L_ad from the discriminator scores `d` (`n`) and action probabilities `probs` (`n x 6`).
-/// Writes `∂L/∂d_t` into `dd` (`n`) and `∂L/∂a_t` into `dprobs` (`n x 6`).
-pub fn adapt_loss(
-    kind: AdaptLossKind,
-    d: &[f32],
-    probs: &[f32],
-    dd: &mut [f32],
-    dprobs: &mut [f32],
-) -> Result<f32> {
-    let n = d.len();
-    check_len("adapt.probs", n * NUM_ACTIONS, probs.len())?;
-    check_len("adapt.dd", n, dd.len())?;
-    check_len("adapt.dprobs", n * NUM_ACTIONS, dprobs.len())?;
-    if n == 0 {
-        return Ok(0.0);
-    }
-    match kind {
-        AdaptLossKind::Paper => {
-            let inv = 1.0 / n as f32;
-            let mut loss = 0.0;
-            for t in 0..n {
-                let a = &probs[t * NUM_ACTIONS..(t + 1) * NUM_ACTIONS];
-                let norm = libm::sqrtf(dot(a, a));
-                loss -= d[t] * norm * inv;
-                dd[t] = -norm * inv;
-                let da = &mut dprobs[t * NUM_ACTIONS..(t + 1) * NUM_ACTIONS];
-                let coef = if norm > 0.0 { -d[t] * inv / norm } else { 0.0 };
-                for (o, &ai) in da.iter_mut().zip(a) {
-                    *o = coef * ai;
-                }
-            }
-            Ok(loss)
-        }
-        AdaptLossKind::Reference => {
-            let mut v = [0.0f32; NUM_ACTIONS];
-            for t in 0..n {
-                for (vi, &ai) in v
-                    .iter_mut()
-                    .zip(&probs[t * NUM_ACTIONS..(t + 1) * NUM_ACTIONS])
-                {
-                    *vi -= ai * d[t];
-                }
-            }
-            let norm = libm::sqrtf(dot(&v, &v));
-            let mut u = [0.0f32; NUM_ACTIONS];
-            if norm > 0.0 {
-                for (ui, &vi) in u.iter_mut().zip(&v) {
-                    *ui = vi / norm;
-                }
-            }
-            for t in 0..n {
-                let a = &probs[t * NUM_ACTIONS..(t + 1) * NUM_ACTIONS];
-                dd[t] = -dot(a, &u);
-                for (o, &ui) in dprobs[t * NUM_ACTIONS..(t + 1) * NUM_ACTIONS]
-                    .iter_mut()
-                    .zip(&u)
-                {
-                    *o = -d[t] * ui;
-                }
-            }
-            Ok(norm)
-        }
-    }
-}
+pub use crate::ad_loss::{adapt_loss, cosine, AdaptLossKind};
 
 /// Everything [`adapt_generator_grad`] writes besides the gradients (its batch-1 buffers:
 /// the functions here are [`crate::inner`]'s batched passes with a batch of one).
@@ -241,30 +167,6 @@ pub fn generator_score_backward(
         obs: &[],
     };
     inner::score_backward(gen, Some(disc), inp, coef, &mut w.inner(), grads1, grads2)
-}
-
-/// `cos(x, s)`; when `dx` is given, writes `∂cos/∂x = s / (‖x‖‖s‖) − cos · x / ‖x‖²` into it.
-/// A zero vector has similarity 0 and gradient 0.
-pub fn cosine(x: &[f32], s: &[f32], dx: Option<&mut [f32]>) -> Result<f32> {
-    check_len("cosine.s", x.len(), s.len())?;
-    let nx = libm::sqrtf(dot(x, x));
-    let ns = libm::sqrtf(dot(s, s));
-    if nx == 0.0 || ns == 0.0 {
-        if let Some(d) = dx {
-            d.fill(0.0);
-        }
-        return Ok(0.0);
-    }
-    let c = dot(x, s) / (nx * ns);
-    if let Some(d) = dx {
-        check_len("cosine.dx", x.len(), d.len())?;
-        let a = 1.0 / (nx * ns);
-        let b = c / (nx * nx);
-        for ((o, &xi), &si) in d.iter_mut().zip(x).zip(s) {
-            *o = a * si - b * xi;
-        }
-    }
-    Ok(c)
 }
 
 /// L_ad with the cosine similarity `cos(x_t, s_t)` between each generated feature and the

@@ -29,7 +29,7 @@ use crate::activation::{
     leaky_relu, leaky_relu_backward, leaky_relu_grad, leaky_relu_inplace, sigmoid_backward,
     sigmoid_inplace,
 };
-use crate::adapt::{adapt_loss, cosine, AdaptLossKind};
+use crate::ad_loss::{adapt_loss, cosine, AdaptLossKind};
 use crate::batch::{matmul_acc, matmul_t_acc, outer_acc_batch_with};
 use crate::dense::DenseGrads;
 use crate::discriminator::{DiscGrads, Discriminator, LdConfig, LdValue};

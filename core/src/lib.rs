@@ -31,6 +31,7 @@
 
 pub mod action;
 pub mod activation;
+pub mod ad_loss;
 pub mod adapt;
 pub mod batch;
 pub mod batch_cols;

@@ -240,6 +240,20 @@ impl Checkpoint {
     /// Decodes file contents; `path` only labels errors.
     pub fn from_bytes(bytes: &[u8], path: Option<&Path>) -> Result<Checkpoint, CheckpointError> {
         let p = label(path);
+        let payload = Self::checked_payload(bytes, &p)?;
+        let (metadata, tensors, blobs) = Self::parse_payload(payload, &p)?;
+        Ok(Checkpoint {
+            metadata,
+            tensors,
+            blobs,
+            path: path.map(Path::to_path_buf),
+        })
+    }
+
+    /// The header's checks (magic, version, flags, length, CRC-32), in this order; returns the
+    /// payload.
+    fn checked_payload<'b>(bytes: &'b [u8], p: &Path) -> Result<&'b [u8], CheckpointError> {
+        let p = p.to_path_buf();
         let trunc = |what, needed: usize, available: usize| CheckpointError::Truncated {
             path: p.clone(),
             what,
@@ -298,10 +312,19 @@ impl Checkpoint {
                 computed,
             });
         }
+        Ok(payload)
+    }
+
+    /// The payload: metadata, tensors, blobs, nothing after them.
+    #[allow(clippy::type_complexity)]
+    fn parse_payload(
+        payload: &[u8],
+        p: &Path,
+    ) -> Result<(serde_json::Value, ParamSet, Vec<(String, Vec<u8>)>), CheckpointError> {
         let mut r = Cursor {
             b: payload,
             pos: 0,
-            path: &p,
+            path: p,
         };
         let mlen = r.u32("metadata length")? as usize;
         let meta_text = std::str::from_utf8(r.take(mlen, "metadata")?)
@@ -350,12 +373,7 @@ impl Checkpoint {
                 payload.len() - r.pos
             )));
         }
-        Ok(Checkpoint {
-            metadata,
-            tensors,
-            blobs,
-            path: path.map(Path::to_path_buf),
-        })
+        Ok((metadata, tensors, blobs))
     }
 
     /// Reads and decodes a checkpoint file.
