@@ -208,8 +208,12 @@ impl NavConfig {
     ///   Efficient), so
     ///   that a navigator of the other mode refuses an adapting model.
     ///
-    /// Everything else keeps its default: [`Schedule::Auto`], [`Selection::Greedy`], the
-    /// default [`LdConfig`], [`AdaptLossKind::Paper`] and the default loss bound. These are
+    /// * the inner rule's levers (`disc_steps`, `step_rule`, `disc_head_reset`), the form of
+    ///   L_ad (`adapt_loss`) and the scale of L_D's critic terms (`ld.critic_scale`, 1 or 10)
+    ///   from [`ModelFlags`].
+    ///
+    /// Everything else keeps its default: [`Schedule::Auto`], [`Selection::Greedy`], L_D's
+    /// λ and the default loss bound. These are
     /// run-time choices of the caller, not properties of the trained weights (the host's
     /// evaluation, for one, samples its actions: it uses this configuration with
     /// `selection: Selection::Sample`). Unknown flag bits are ignored.
@@ -218,6 +222,8 @@ impl NavConfig {
     /// [`Blob::parse`]), so the result is accepted by [`Navigator::new`] as far as the rates
     /// are concerned. See also [`Blob::nav_config`].
     pub fn from_header(header: &Header) -> NavConfig {
+        let flags = header.model_flags();
+        let critic_scale = flags.critic_scale();
         let ModelFlags {
             adapt,
             emd,
@@ -226,7 +232,9 @@ impl NavConfig {
             disc_steps,
             step_rule,
             disc_head_reset,
-        } = header.model_flags();
+            adapt_loss,
+            reference_critic: _,
+        } = flags;
         let settings = header.adapt_settings();
         NavConfig {
             adapt,
@@ -239,6 +247,11 @@ impl NavConfig {
             disc_steps,
             step_rule,
             disc_head_reset,
+            adapt_loss,
+            ld: LdConfig {
+                critic_scale,
+                ..LdConfig::default()
+            },
             ..NavConfig::default()
         }
     }

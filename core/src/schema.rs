@@ -16,6 +16,7 @@
 //! The PS module of the dagger variants (`gman-host-sim`'s `ps`) is a host-side
 //! network: it is not part of this schema and never stored in a blob.
 
+pub use crate::ad_loss::AdaptLossKind;
 use crate::preset::Dims;
 use crate::NUM_ACTIONS;
 
@@ -299,6 +300,14 @@ pub const FLAG_PER_GROUP_STEP: u32 = 1 << 17;
 /// output layer (w2, b2) at zero ([`ModelFlags::disc_head_reset`]).
 pub const FLAG_DISC_HEAD_RESET: u32 = 1 << 18;
 
+/// Bit of the blob header's flags: L_ad takes the reference implementation's form
+/// ([`AdaptLossKind::Reference`], [`ModelFlags::adapt_loss`]); without it the paper's Eq. 3.
+pub const FLAG_REFERENCE_ADAPT_LOSS: u32 = 1 << 19;
+
+/// Bit of the blob header's flags: L_D's critic terms are scaled by 10 as in the reference
+/// implementation ([`ModelFlags::critic_scale`]); without it by 1, the paper's Eq. 1.
+pub const FLAG_REFERENCE_CRITIC_SCALE: u32 = 1 << 20;
+
 /// Bits 8..16 of the blob header's flags: D's ascent steps per inner update minus one
 /// ([`ModelFlags::disc_steps`], 1..=256; 0 in every blob written before the setting, i.e. the
 /// paper's one step).
@@ -344,6 +353,12 @@ pub struct ModelFlags {
     /// layer at zero, so the first ascent step sets the head from the episode's own buffer (D
     /// starts with no opinion and carries nothing from earlier episodes).
     pub disc_head_reset: bool,
+    /// [`FLAG_REFERENCE_ADAPT_LOSS`]: [`AdaptLossKind::Reference`], else
+    /// [`AdaptLossKind::Paper`].
+    pub adapt_loss: AdaptLossKind,
+    /// [`FLAG_REFERENCE_CRITIC_SCALE`]: L_D's critic terms scaled by 10 (the reference), else
+    /// by 1 (the paper); see [`ModelFlags::critic_scale`].
+    pub reference_critic: bool,
 }
 
 impl ModelFlags {
@@ -375,6 +390,21 @@ impl ModelFlags {
                 StepRule::Gradient
             },
             disc_head_reset: bits & FLAG_DISC_HEAD_RESET != 0,
+            adapt_loss: if bits & FLAG_REFERENCE_ADAPT_LOSS != 0 {
+                AdaptLossKind::Reference
+            } else {
+                AdaptLossKind::Paper
+            },
+            reference_critic: bits & FLAG_REFERENCE_CRITIC_SCALE != 0,
+        }
+    }
+
+    /// The scale of L_D's critic terms: 10 with [`ModelFlags::reference_critic`], else 1.
+    pub fn critic_scale(&self) -> f32 {
+        if self.reference_critic {
+            10.0
+        } else {
+            1.0
         }
     }
 
@@ -408,6 +438,12 @@ impl ModelFlags {
         }
         if self.disc_head_reset {
             f |= FLAG_DISC_HEAD_RESET;
+        }
+        if matches!(self.adapt_loss, AdaptLossKind::Reference) {
+            f |= FLAG_REFERENCE_ADAPT_LOSS;
+        }
+        if self.reference_critic {
+            f |= FLAG_REFERENCE_CRITIC_SCALE;
         }
         f
     }
@@ -487,6 +523,17 @@ mod tests {
         let old = ModelFlags::from_bits(FLAG_ADAPT);
         assert_eq!((old.disc_steps, old.step_rule), (1, StepRule::Gradient));
         assert!(!old.disc_head_reset);
+        assert_eq!(
+            (old.adapt_loss, old.critic_scale()),
+            (AdaptLossKind::Paper, 1.0)
+        );
+        let r = FLAG_ADAPT | FLAG_REFERENCE_ADAPT_LOSS | FLAG_REFERENCE_CRITIC_SCALE;
+        let f = ModelFlags::from_bits(r);
+        assert_eq!(
+            (f.adapt_loss, f.critic_scale()),
+            (AdaptLossKind::Reference, 10.0)
+        );
+        assert_eq!(f.bits(), r);
         let mut f = old;
         f.disc_steps = 1000;
         assert_eq!(ModelFlags::from_bits(f.bits()).disc_steps, 256);

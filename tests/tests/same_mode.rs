@@ -7,7 +7,7 @@
 use gman_core::blob::Blob;
 use gman_core::memory::AdaptMode;
 use gman_core::navigator::{Efficient, Full, Mode, Navigator, Selection};
-use gman_host_sim::nav::model::{InnerRule, Method, NavModel, StepRuleName};
+use gman_host_sim::nav::model::{AdaptLossName, InnerRule, Method, NavModel, StepRuleName};
 use gman_host_sim::nav::rollout::Worker;
 use gman_host_sim::nav::trainer::train_episode;
 use gman_host_sim::nav::K;
@@ -156,7 +156,8 @@ fn an_adapting_blob_refuses_the_other_mode() {
 }
 
 /// The issue-14 levers travel in the blob too: the per-group normalised step, D's head reset
-/// with every episode, α1 ≠ α2 and several D steps give the same run on both sides.
+/// with every episode, α1 ≠ α2, several D steps and the reference's L_ad form and critic
+/// scale give the same run on both sides.
 #[test]
 fn trainer_and_device_agree_with_the_levers() {
     let rule = InnerRule {
@@ -164,6 +165,8 @@ fn trainer_and_device_agree_with_the_levers() {
         disc_steps: 2,
         step_rule: StepRuleName::PerGroup,
         disc_head_reset: true,
+        adapt_loss: AdaptLossName::Reference,
+        reference_critic: true,
     };
     check_with(AdaptMode::Efficient, gman_core::Dims::MCU, rule);
 }

@@ -110,6 +110,14 @@ pub struct TrainArgs {
     /// learn across episodes (paper: off, D persists). Recorded in the blob.
     #[arg(long)]
     pub disc_head_reset: bool,
+    /// The form of L_ad: `paper` (Eq. 3) or `reference` (‖Σ_t a_t (−D(x_t))‖₂, the
+    /// reference implementation's). Recorded in the blob.
+    #[arg(long, value_enum, default_value = "paper")]
+    pub adapt_loss: gman_host_sim::nav::model::AdaptLossName,
+    /// Scale L_D's critic terms by 10, as the reference implementation does (the paper: 1).
+    /// Recorded in the blob.
+    #[arg(long)]
+    pub reference_critic: bool,
     /// Minimum steps per worker and update.
     #[arg(long, default_value_t = 40)]
     pub min_steps: u32,
@@ -283,6 +291,8 @@ fn inner_rule(a: &TrainArgs) -> gman_host_sim::nav::model::InnerRule {
         disc_steps: a.disc_steps,
         step_rule: a.step_rule,
         disc_head_reset: a.disc_head_reset,
+        adapt_loss: a.adapt_loss,
+        reference_critic: a.reference_critic,
     }
 }
 
@@ -672,6 +682,18 @@ fn check_resumed_model(a: &TrainArgs, m: &NavModel, explicit: &dyn Fn(&str) -> b
         a.disc_head_reset,
         m.inner_rule.disc_head_reset,
         explicit("disc_head_reset"),
+    )?;
+    resumed(
+        "--adapt-loss",
+        a.adapt_loss,
+        m.inner_rule.adapt_loss,
+        explicit("adapt_loss"),
+    )?;
+    resumed(
+        "--reference-critic",
+        a.reference_critic,
+        m.inner_rule.reference_critic,
+        explicit("reference_critic"),
     )?;
     resumed("--method", a.method, m.method, explicit("method"))?;
     if let Some(mode) = a.adapt_mode {

@@ -11,7 +11,7 @@ use gman_core::matrix::MatRef;
 use gman_core::memory::AdaptMode;
 use gman_core::navigator::{NavConfig, NavWeights, NoiseMode, Selection, StepRule};
 use gman_core::rng::Xoshiro128;
-use gman_core::schema::{Emd, ModelFlags};
+use gman_core::schema::{AdaptLossKind, Emd, ModelFlags};
 use gman_core::Dims;
 use serde::{Deserialize, Serialize};
 
@@ -278,6 +278,47 @@ pub struct InnerRule {
     /// checkpoints of the earlier rules keep their bytes).
     #[serde(default, skip_serializing_if = "is_false")]
     pub disc_head_reset: bool,
+    /// The form of L_ad: `paper` (Eq. 3) or `reference` (‖Σ_t a_t (−D(x_t))‖₂, the reference
+    /// implementation's); not written when the paper's.
+    #[serde(default, skip_serializing_if = "is_paper_loss")]
+    pub adapt_loss: AdaptLossName,
+    /// L_D's critic terms scaled by 10, as the reference implementation does (the paper: 1);
+    /// not written when false.
+    #[serde(default, skip_serializing_if = "is_false")]
+    pub reference_critic: bool,
+}
+
+fn is_paper_loss(l: &AdaptLossName) -> bool {
+    *l == AdaptLossName::Paper
+}
+
+/// [`AdaptLossKind`] as stored in checkpoints and named on the command line.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum AdaptLossName {
+    /// `−mean_t D(x_t) ‖a_t‖₂` (the paper's Eq. 3).
+    #[default]
+    Paper,
+    /// `‖ Σ_t a_t (−D(x_t)) ‖₂` (the reference implementation).
+    Reference,
+}
+
+impl From<AdaptLossName> for AdaptLossKind {
+    fn from(l: AdaptLossName) -> AdaptLossKind {
+        match l {
+            AdaptLossName::Paper => AdaptLossKind::Paper,
+            AdaptLossName::Reference => AdaptLossKind::Reference,
+        }
+    }
+}
+
+impl From<AdaptLossKind> for AdaptLossName {
+    fn from(l: AdaptLossKind) -> AdaptLossName {
+        match l {
+            AdaptLossKind::Paper => AdaptLossName::Paper,
+            AdaptLossKind::Reference => AdaptLossName::Reference,
+        }
+    }
 }
 
 fn one() -> u32 {
@@ -295,6 +336,8 @@ impl Default for InnerRule {
             disc_steps: 1,
             step_rule: StepRuleName::Gradient,
             disc_head_reset: false,
+            adapt_loss: AdaptLossName::Paper,
+            reference_critic: false,
         }
     }
 }
@@ -623,6 +666,15 @@ impl NavModel {
             disc_steps: self.inner_rule.disc_steps,
             step_rule: self.inner_rule.step_rule.into(),
             disc_head_reset: self.inner_rule.disc_head_reset,
+            adapt_loss: self.inner_rule.adapt_loss.into(),
+            ld: gman_core::discriminator::LdConfig {
+                critic_scale: if self.inner_rule.reference_critic {
+                    10.0
+                } else {
+                    1.0
+                },
+                ..Default::default()
+            },
             schedule: if training {
                 gman_core::navigator::Schedule::Manual
             } else {
@@ -744,6 +796,8 @@ impl NavModel {
             disc_steps: self.inner_rule.disc_steps,
             step_rule: self.inner_rule.step_rule.into(),
             disc_head_reset: self.inner_rule.disc_head_reset,
+            adapt_loss: self.inner_rule.adapt_loss.into(),
+            reference_critic: self.inner_rule.reference_critic,
         }
         .bits()
     }
@@ -849,6 +903,8 @@ pub fn model_from_blob(bytes: &[u8], method: Option<Method>) -> Result<NavModel>
         disc_steps: flags.disc_steps,
         step_rule: flags.step_rule.into(),
         disc_head_reset: flags.disc_head_reset,
+        adapt_loss: flags.adapt_loss.into(),
+        reference_critic: flags.reference_critic,
     };
     Ok(NavModel {
         method,
@@ -1033,6 +1089,8 @@ mod inner_rule_tests {
             disc_steps: 5,
             step_rule: StepRuleName::PerGroup,
             disc_head_reset: true,
+            adapt_loss: AdaptLossName::Reference,
+            reference_critic: true,
         };
         let mut ck = Checkpoint::new(m.metadata());
         m.add_to_checkpoint(&mut ck).unwrap();
@@ -1048,6 +1106,9 @@ mod inner_rule_tests {
         assert_eq!((cfg.alpha_disc, cfg.alpha_adapt), (0.05, 0.5));
         assert_eq!((cfg.disc_steps, cfg.step_rule), (5, StepRule::PerGroup));
         assert!(cfg.disc_head_reset && m.nav_config(false).disc_head_reset);
+        assert_eq!(cfg.adapt_loss, AdaptLossKind::Reference);
+        assert_eq!(cfg.ld.critic_scale, 10.0);
+        assert_eq!(m.nav_config(false).ld.critic_scale, 10.0);
         assert_eq!(cfg.disc_steps, m.nav_config(false).disc_steps);
         // Nonsense in a file is refused with the field named.
         let mut bad = m.metadata();
