@@ -292,6 +292,37 @@ impl Default for NavConfig {
 
 pub use crate::schema::StepRule;
 
+/// The action chosen from the policy's probabilities `p` (`NUM_ACTIONS` values): the most
+/// probable (first on ties) with [`Selection::Greedy`], or one draw of `rng` against the
+/// cumulative probabilities with [`Selection::Sample`] (the last action if rounding leaves
+/// the draw above the sum). The navigator's own choice, for hosts that step episodes outside
+/// it (the trainer's vectorised episodes).
+pub fn select_action(selection: Selection, p: &[f32], rng: &mut Xoshiro128) -> Action {
+    let mut best = 0;
+    match selection {
+        Selection::Greedy => {
+            for i in 1..p.len().min(NUM_ACTIONS) {
+                if p[i] > p[best] {
+                    best = i;
+                }
+            }
+        }
+        Selection::Sample => {
+            let u = uniform(rng);
+            let mut acc = 0.0;
+            best = NUM_ACTIONS - 1;
+            for (i, &pi) in p.iter().take(NUM_ACTIONS).enumerate() {
+                acc += pi;
+                if u < acc {
+                    best = i;
+                    break;
+                }
+            }
+        }
+    }
+    Action::from_index(best).unwrap_or(Action::Done)
+}
+
 /// Counters, per episode (reset by [`Navigator::reset`]) and over the navigator's life.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct Counters {
@@ -1128,30 +1159,7 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
     }
 
     fn select(&mut self) -> Action {
-        let p = &*self.r.probs;
-        let mut best = 0;
-        match self.cfg.selection {
-            Selection::Greedy => {
-                for i in 1..NUM_ACTIONS {
-                    if p[i] > p[best] {
-                        best = i;
-                    }
-                }
-            }
-            Selection::Sample => {
-                let u = uniform(&mut self.rng);
-                let mut acc = 0.0;
-                best = NUM_ACTIONS - 1;
-                for (i, &pi) in p.iter().enumerate() {
-                    acc += pi;
-                    if u < acc {
-                        best = i;
-                        break;
-                    }
-                }
-            }
-        }
-        Action::from_index(best).unwrap_or(Action::Done)
+        select_action(self.cfg.selection, &self.r.probs[..], &mut self.rng)
     }
 
     /// Runs the inner update (lines 15-20 of Algorithm 1) now on the steps buffered in Ψ,

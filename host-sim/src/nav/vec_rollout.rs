@@ -40,10 +40,10 @@ use anyhow::{anyhow, bail, Result};
 use gman_core::activation::all_finite;
 use gman_core::generator::Generator;
 use gman_core::memory::AdaptMode;
-use gman_core::navigator::{Efficient, Full, Mode, Navigator, NoiseMode, Selection};
+use gman_core::navigator::{select_action, Efficient, Full, Mode, Navigator, NoiseMode, Selection};
 use gman_core::policy::{Policy, PolicyInput};
-use gman_core::rng::{fill_gaussian, uniform, Xoshiro128};
-use gman_core::{Action, Dims, NUM_ACTIONS};
+use gman_core::rng::{fill_gaussian, Xoshiro128};
+use gman_core::{Dims, NUM_ACTIONS};
 
 use super::a3c::{A3cConfig, Objective};
 use super::bptt::{take_act, Backward, GenBufs, Rows, Segment, StepAct, Widths};
@@ -300,7 +300,7 @@ fn step_slots(
         }
         let mut p = [0.0f32; NUM_ACTIONS];
         p.copy_from_slice(probs);
-        let action = select(&mut sl.rng, &p);
+        let action = select_action(Selection::Sample, &p, &mut sl.rng);
         sl.stats.actions.push(action.index() as u8);
         let o = sl.env.step(action);
         sl.acts.push(take_act(rows, j, w));
@@ -462,21 +462,6 @@ fn put_inputs(rows: &mut Rows, j: usize, sl: &Slot<'_>, w: &Widths) {
         map: &sl.map,
     };
     rows.put_inputs(j, w, &inp, &sl.h, &sl.c);
-}
-
-/// The navigator's sampling draw (`Selection::Sample`).
-fn select(rng: &mut Xoshiro128, p: &[f32; NUM_ACTIONS]) -> Action {
-    let u = uniform(rng);
-    let mut acc = 0.0;
-    let mut best = NUM_ACTIONS - 1;
-    for (i, &pi) in p.iter().enumerate() {
-        acc += pi;
-        if u < acc {
-            best = i;
-            break;
-        }
-    }
-    Action::from_index(best).unwrap_or(Action::Done)
 }
 
 /// The critic's values of the next observations of the ready slots whose episode goes on
