@@ -27,7 +27,7 @@ pub struct DemoArgs {
     #[arg(long, default_value = "runs/demo")]
     pub out: PathBuf,
     /// Training updates per method.
-    #[arg(long, default_value_t = 300)]
+    #[arg(long, default_value_t = 1000)]
     pub updates: u64,
     /// Official episodes per file evaluated (8 files).
     #[arg(long, default_value_t = 50)]
@@ -62,8 +62,13 @@ pub fn cmd_demo(a: DemoArgs) -> Result<()> {
         let mut state = if state_path.exists() {
             TrainState::load(&state_path)?
         } else {
+            // The setting of the README's results: the mcu preset with a 3 x 3 spatial map, the
+            // inner loop in the device's Efficient mode.
+            let dims = gman_core::Dims::MCU.with_map(3, 3, 8);
+            let mut model = NavModel::init(method, dims, 1, Some(&gen), None)?;
+            model.adapt_mode = gman_core::memory::AdaptMode::Efficient;
             TrainState::new(
-                NavModel::init(method, gman_core::Dims::MCU, 1, Some(&gen), None)?,
+                model,
                 AdamConfig {
                     lr: 1e-3,
                     ..AdamConfig::default()
