@@ -935,6 +935,10 @@ mod tests {
         ]
     }
 
+    /// Every kernel form (forward, transposed, outer product) against its batch-1 twin, bit
+    /// for bit, over every weight kind and a table of shapes with tails; long because it is
+    /// one loop over that table with one comparison per form, kept together so a new form
+    /// cannot skip a shape.
     #[test]
     fn blocked_kernels_keep_the_canonical_order_for_every_kind_and_shape() {
         // (rows, segment lengths, batch) with tails, short segments, empty segments.
