@@ -328,19 +328,13 @@ fn opts(out: PathBuf, updates: u64) -> TrainOptions {
         updates,
         run: RunSettings {
             seed: 3,
-            workers: 2,
-            batch_envs: 1,
             min_steps: 20,
-            reward: RewardKind::Mixed,
             max_steps: Some(30),
-            min_start_actions: 1,
             adam: AdamConfig {
                 lr: 1e-3,
                 ..AdamConfig::default()
             },
-            a3c: Default::default(),
-            objective: Default::default(),
-            meta_order: 1,
+            ..RunSettings::default()
         },
         checkpoint_every: 2,
         out,

@@ -52,18 +52,14 @@ fn opts(out: PathBuf, updates: u64) -> TrainOptions {
         run: RunSettings {
             seed: 5,
             workers: 1,
-            batch_envs: 1,
             min_steps: 20,
             reward: RewardKind::Distance,
             max_steps: Some(40),
-            min_start_actions: 1,
             adam: AdamConfig {
                 lr: 1e-3,
                 ..AdamConfig::default()
             },
-            a3c: Default::default(),
-            objective: Default::default(),
-            meta_order: 1,
+            ..RunSettings::default()
         },
         checkpoint_every: 100,
         out,

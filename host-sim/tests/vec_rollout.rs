@@ -289,19 +289,14 @@ fn opts(out: std::path::PathBuf, updates: u64, b: usize) -> TrainOptions {
         updates,
         run: RunSettings {
             seed: 3,
-            workers: 2,
             batch_envs: b,
             min_steps: 20,
-            reward: RewardKind::Mixed,
             max_steps: Some(40),
-            min_start_actions: 1,
             adam: AdamConfig {
                 lr: 1e-3,
                 ..AdamConfig::default()
             },
-            a3c: Default::default(),
-            objective: Default::default(),
-            meta_order: 1,
+            ..RunSettings::default()
         },
         checkpoint_every: 2,
         out,

@@ -30,19 +30,13 @@ fn opts(out: PathBuf, updates: u64) -> TrainOptions {
         updates,
         run: RunSettings {
             seed: 3,
-            workers: 2,
-            batch_envs: 1,
             min_steps: 20,
-            reward: RewardKind::Mixed,
             max_steps: Some(40),
-            min_start_actions: 1,
             adam: AdamConfig {
                 lr: 1e-3,
                 ..AdamConfig::default()
             },
-            a3c: Default::default(),
-            objective: Default::default(),
-            meta_order: 1,
+            ..RunSettings::default()
         },
         checkpoint_every: 3,
         out,
@@ -165,9 +159,7 @@ fn short_training_beats_random_agent_on_seen_targets() {
     let base = opts(dir.join("run"), 1500);
     let o = TrainOptions {
         run: RunSettings {
-            max_steps: None,
-            min_steps: 40,
-            ..base.run.clone()
+            ..RunSettings::default()
         },
         checkpoint_every: 1000,
         ..base
@@ -436,7 +428,7 @@ fn meta_order_two_changes_only_the_generator_gradient() {
     let o = TrainOptions {
         run: RunSettings {
             meta_order: 2,
-            ..base.run.clone()
+            ..RunSettings::default()
         },
         ..base
     };

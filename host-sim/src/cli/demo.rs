@@ -78,20 +78,11 @@ pub fn cmd_demo(a: DemoArgs) -> Result<()> {
         let opts = TrainOptions {
             updates: a.updates,
             run: RunSettings {
-                seed: 1,
-                workers: 2,
-                batch_envs: 1,
-                min_steps: 40,
-                reward: RewardKind::Mixed,
-                max_steps: None,
-                min_start_actions: 1,
                 adam: AdamConfig {
                     lr: 1e-3,
                     ..AdamConfig::default()
                 },
-                a3c: Default::default(),
-                objective: Default::default(),
-                meta_order: 1,
+                ..RunSettings::default()
             },
             checkpoint_every: 100,
             out: dir.clone(),

@@ -67,6 +67,27 @@ fn one_usize() -> usize {
     1
 }
 
+impl Default for RunSettings {
+    /// `gman train`'s defaults: seed 1, 2 workers, one environment each, at least 40 steps per
+    /// worker and update, the mixed reward, the evaluation step limits, any training start,
+    /// the default Adam (lr 1e-4, AMSGrad) and A3C loss, the A3C objective, first order.
+    fn default() -> Self {
+        RunSettings {
+            seed: 1,
+            workers: 2,
+            batch_envs: 1,
+            min_steps: 40,
+            reward: RewardKind::Mixed,
+            max_steps: None,
+            min_start_actions: 1,
+            adam: AdamConfig::default(),
+            a3c: A3cConfig::default(),
+            objective: Objective::default(),
+            meta_order: 1,
+        }
+    }
+}
+
 /// [`RewardKind`] as its variant's name (`"Mixed"`), the encoding of every checkpoint so far.
 mod reward_name {
     use crate::sim::RewardKind;

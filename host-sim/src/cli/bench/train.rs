@@ -16,7 +16,7 @@ use gman_core::Dims;
 use gman_host_sim::nav::model::{Method, NavModel};
 use gman_host_sim::nav::trainer::{train, RunSettings, TrainOptions, TrainState};
 use gman_host_sim::nav::vec_rollout;
-use gman_host_sim::sim::{RewardKind, World, DEFAULT_WORLD_SEED};
+use gman_host_sim::sim::{World, DEFAULT_WORLD_SEED};
 use gman_host_sim::train::adam::AdamConfig;
 use gman_host_sim::train::generator::init_generator;
 use serde_json::{json, Value};
@@ -92,17 +92,11 @@ fn row(
     let opts = TrainOptions {
         updates: 1,
         run: RunSettings {
-            seed: 1,
             workers,
             batch_envs,
             min_steps: MIN_STEPS,
-            reward: RewardKind::Mixed,
-            max_steps: None,
-            min_start_actions: 1,
             adam,
-            a3c: Default::default(),
-            objective: Default::default(),
-            meta_order: 1,
+            ..RunSettings::default()
         },
         checkpoint_every: u64::MAX,
         out: out.clone(),
