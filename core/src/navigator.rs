@@ -222,7 +222,13 @@ impl NavConfig {
     /// [`Blob::parse`]), so the result is accepted by [`Navigator::new`] as far as the rates
     /// are concerned. See also [`Blob::nav_config`].
     pub fn from_header(header: &Header) -> NavConfig {
-        let flags = header.model_flags();
+        NavConfig::from_flags(header.model_flags(), header.adapt_settings())
+    }
+
+    /// [`NavConfig::from_header`] from the settings themselves: the one mapping of a model's
+    /// flags and inner-loop settings onto the navigator's configuration, for a blob's header
+    /// and for a host that holds the model's settings before writing the blob.
+    pub fn from_flags(flags: ModelFlags, settings: AdaptSettings) -> NavConfig {
         let critic_scale = flags.critic_scale();
         let ModelFlags {
             adapt,
@@ -235,7 +241,6 @@ impl NavConfig {
             adapt_loss,
             reference_critic: _,
         } = flags;
-        let settings = header.adapt_settings();
         NavConfig {
             adapt,
             emd,

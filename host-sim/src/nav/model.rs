@@ -655,33 +655,17 @@ impl NavModel {
         } else {
             self.method.adapts_at_eval()
         };
+        // The blob's own mapping (what the device will run), with the host's run-time
+        // choices: the training schedule, sampled actions, adaptation as the method trains.
         NavConfig {
             adapt,
-            noise: self.noise,
             selection: Selection::Sample,
-            emd: self.method.emd(),
-            alpha_disc: self.inner_rule.disc_lr.unwrap_or(self.inner_lr),
-            alpha_adapt: self.inner_lr,
-            max_inner_updates: self.max_inner,
-            disc_steps: self.inner_rule.disc_steps,
-            step_rule: self.inner_rule.step_rule.into(),
-            disc_head_reset: self.inner_rule.disc_head_reset,
-            adapt_loss: self.inner_rule.adapt_loss.into(),
-            ld: gman_core::discriminator::LdConfig {
-                critic_scale: if self.inner_rule.reference_critic {
-                    10.0
-                } else {
-                    1.0
-                },
-                ..Default::default()
-            },
             schedule: if training {
                 gman_core::navigator::Schedule::Manual
             } else {
                 gman_core::navigator::Schedule::Auto
             },
-            mode: Some(self.adapt_mode),
-            ..NavConfig::default()
+            ..NavConfig::from_flags(self.model_flags(), self.adapt_settings())
         }
     }
 
@@ -788,6 +772,11 @@ impl NavModel {
 
     /// Blob flags of this model.
     pub fn blob_flags(&self) -> u32 {
+        self.model_flags().bits()
+    }
+
+    /// The model flags of this model's blobs.
+    pub fn model_flags(&self) -> ModelFlags {
         ModelFlags {
             adapt: self.method.adapts_at_eval(),
             emd: self.method.emd(),
@@ -799,7 +788,6 @@ impl NavModel {
             adapt_loss: self.inner_rule.adapt_loss.into(),
             reference_critic: self.inner_rule.reference_critic,
         }
-        .bits()
     }
 
     /// The inner-loop settings stored in the model's blobs: α1 (`inner_lr` unless the inner
