@@ -253,6 +253,33 @@ fn outer_step(
     if !total.all_finite() {
         bail!("non-finite gradient at update {}", state.update);
     }
+    // With D's head reset, D restarts from ω with every episode (on the device too), so ω
+    // does not learn across episodes: carrying the episodes' layer-1 changes over lets the
+    // gradient penalty grow layer 1 without bound (it diverged after ~6500 updates).
+    let disc_delta = if state.model.inner_rule.disc_head_reset {
+        None
+    } else {
+        Some(disc_deltas(state, episodes)?)
+    };
+    let info = state.adam.step(&mut state.model.params, &total)?;
+    for (id, delta) in TensorId::DISCRIMINATOR
+        .iter()
+        .zip(disc_delta.iter().flatten())
+    {
+        let p = state.model.params.get_mut(id.name()).context("D tensor")?;
+        for (v, d) in p.data.iter_mut().zip(delta) {
+            *v += d;
+        }
+    }
+    Ok(info.grad_norm)
+}
+
+/// `Σ_e (ω_e − ω)` per D tensor, in episode order: what the episodes' inner loops changed in
+/// D, from the model's ω.
+fn disc_deltas(
+    state: &TrainState,
+    episodes: &[(EpisodeStats, Vec<Vec<f32>>)],
+) -> Result<Vec<Vec<f32>>> {
     let disc_ids = TensorId::DISCRIMINATOR;
     let mut disc_delta: Vec<Vec<f32>> = disc_ids
         .iter()
@@ -275,18 +302,7 @@ fn outer_step(
             }
         }
     }
-    let info = state.adam.step(&mut state.model.params, &total)?;
-    // With D's head reset, D restarts from ω with every episode (on the device too), so ω
-    // does not learn across episodes: carrying the episodes' layer-1 changes over lets the
-    // gradient penalty grow layer 1 without bound (it diverged after ~6500 updates).
-    let carry_disc = !state.model.inner_rule.disc_head_reset;
-    for (id, delta) in disc_ids.iter().zip(&disc_delta).filter(|_| carry_disc) {
-        let p = state.model.params.get_mut(id.name()).context("D tensor")?;
-        for (v, d) in p.data.iter_mut().zip(delta) {
-            *v += d;
-        }
-    }
-    Ok(info.grad_norm)
+    Ok(disc_delta)
 }
 
 /// Seed of worker `w`'s episode `e` at update `u`.
