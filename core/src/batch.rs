@@ -9,7 +9,7 @@
 //! # Contract: the same bits as the batch-1 kernels
 //! Every kernel here gives, for every vector `b` of the batch, exactly the bits the
 //! corresponding batch-1 kernel of [`MatRef`] gives for that vector alone, and
-//! [`outer_acc_batch`] gives exactly the bits of calling [`crate::matrix::outer_acc`] for
+//! [`outer_acc_batch`] gives exactly the bits of calling [`outer_acc`] for
 //! `b = 0, 1, .., n - 1` in that order. A batch is therefore a pure speed-up: results,
 //! training runs and the host/device parity do not depend on how work is batched. The unit
 //! tests below pin this contract against a plain transcription of the canonical order
@@ -38,41 +38,170 @@
 //! them on a matrix view with [`MatRef::with_kernels`].
 
 use crate::error::{check_len, Result};
-use crate::matrix::{MatRef, Scales, Weights};
+pub use crate::matrix::Kernels;
+use crate::matrix::{axpy, axpy_i8, dot, dot_i8, dot_le, seg_len, MatRef, Scales, Weights};
 
 /// Most segments a batched input may have (the layers use at most four).
 pub const MAX_SEGS: usize = 8;
 
-/// Dense kernels a host can compile for another instruction set and attach to a matrix view
-/// ([`MatRef::with_kernels`]); every kernel of the view then runs through them. An
-/// implementation must keep the contract of this module (the same bits as the canonical
-/// order): the intended implementation calls the `*_blocked` functions of this module from
-/// code compiled with more vector features (e.g. AVX2), which keeps every operation and only
-/// widens the registers. The argument lists are those of the module's functions; the
-/// shapes are already checked when a kernel is called.
-pub trait Kernels: Sync + core::fmt::Debug {
-    /// [`matmul_acc`] (the matrix `w` carries no kernels, so calling back into this module
-    /// does not recurse).
-    fn matmul_acc(&self, w: &MatRef<'_>, x: &[&[f32]], n: usize, y: &mut [f32]) -> Result<()>;
-    /// [`matmul_t_acc`] on the column block starting at `col0` (the segments of `dx` cover
-    /// columns `col0 ..` in order).
-    fn matmul_t_acc(
-        &self,
-        w: &MatRef<'_>,
-        dy: &[f32],
-        n: usize,
-        dx: &mut [&mut [f32]],
-        col0: usize,
-    ) -> Result<()>;
-    /// [`outer_acc_batch`] for a gradient of `rows = dy.len() / n` rows.
-    fn outer_acc_batch(
-        &self,
-        dw: &mut [f32],
-        dy: &[f32],
-        x: &[&[f32]],
-        n: usize,
-        alpha: f32,
-    ) -> Result<()>;
+/// The batch-1 kernels of a matrix view: [`MatRef::matvec_acc`] and its transposes are the
+/// batched bodies below with `n = 1` (the Cortex-M4F runs a row-at-a-time loop in the same
+/// canonical order).
+impl MatRef<'_> {
+    /// `y += W x`, where the input `x` is given as consecutive segments.
+    pub fn matvec_acc(&self, x: &[&[f32]], y: &mut [f32]) -> Result<()> {
+        check_len("matvec.x", self.cols(), seg_len(x))?;
+        check_len("matvec.y", self.rows(), y.len())?;
+        if self.cols() == 0 {
+            return Ok(());
+        }
+        // The Cortex-M4F (no vector unit) runs the row-at-a-time loop: the same canonical
+        // order, fewer instructions there than the blocked body (measured in QEMU).
+        if x.len() > MAX_SEGS || cfg!(target_arch = "arm") {
+            self.matvec_acc_many(x, y);
+            return Ok(());
+        }
+        match self.kernels() {
+            Some(k) => k.matmul_acc(&self.without_kernels(), x, 1, y),
+            None => matmul_acc_blocked::<MV_R, 1>(self, x, 1, y),
+        }
+    }
+
+    /// [`MatRef::matvec_t_acc_cols`] one row at a time (the Cortex-M4F's loop; the same
+    /// order as the blocked body: every element sums its rows in order).
+    fn matvec_t_rowwise(&self, dy: &[f32], col0: usize, dx: &mut [f32]) {
+        let end = col0 + dx.len();
+        match self.weights() {
+            Weights::F32(d) => {
+                for (row, &g) in d.chunks_exact(self.cols()).zip(dy) {
+                    axpy(g, &row[col0..end], dx);
+                }
+            }
+            Weights::F32Le(d) => {
+                for (row, &g) in d.chunks_exact(4 * self.cols()).zip(dy) {
+                    for (o, b) in dx.iter_mut().zip(row[4 * col0..4 * end].chunks_exact(4)) {
+                        *o += g * f32::from_le_bytes([b[0], b[1], b[2], b[3]]);
+                    }
+                }
+            }
+            Weights::I8 { q, scales } => {
+                for (i, (row, &g)) in q.chunks_exact(self.cols()).zip(dy).enumerate() {
+                    axpy_i8(g * scales.get(i), &row[col0..end], dx);
+                }
+            }
+        }
+    }
+
+    /// [`MatRef::matvec_acc`] one row at a time: for more than [`MAX_SEGS`] segments, and on
+    /// the Cortex-M4F (the same canonical order as the blocked body).
+    fn matvec_acc_many(&self, x: &[&[f32]], y: &mut [f32]) {
+        match self.weights() {
+            Weights::F32(d) => {
+                for (row, yi) in d.chunks_exact(self.cols()).zip(y.iter_mut()) {
+                    let mut acc = 0.0f32;
+                    let mut off = 0;
+                    for seg in x {
+                        acc += dot(&row[off..off + seg.len()], seg);
+                        off += seg.len();
+                    }
+                    *yi += acc;
+                }
+            }
+            Weights::F32Le(d) => {
+                for (row, yi) in d.chunks_exact(4 * self.cols()).zip(y.iter_mut()) {
+                    let mut acc = 0.0f32;
+                    let mut off = 0;
+                    for seg in x {
+                        acc += dot_le(&row[4 * off..4 * (off + seg.len())], seg);
+                        off += seg.len();
+                    }
+                    *yi += acc;
+                }
+            }
+            Weights::I8 { q, scales } => {
+                for (i, (row, yi)) in q.chunks_exact(self.cols()).zip(y.iter_mut()).enumerate() {
+                    let mut acc = 0.0f32;
+                    let mut off = 0;
+                    for seg in x {
+                        acc += dot_i8(&row[off..off + seg.len()], seg);
+                        off += seg.len();
+                    }
+                    *yi += acc * scales.get(i);
+                }
+            }
+        }
+    }
+
+    /// `dx += W^T dy`, where `dx` is given as consecutive segments (the input gradient of a
+    /// layer whose input was segmented the same way). To compute the gradient of only one
+    /// column block, use [`MatRef::matvec_t_acc_cols`].
+    pub fn matvec_t_acc(&self, dy: &[f32], dx: &mut [&mut [f32]]) -> Result<()> {
+        let total: usize = dx.iter().map(|s| s.len()).sum();
+        check_len("matvec_t.dx", self.cols(), total)?;
+        check_len("matvec_t.dy", self.rows(), dy.len())?;
+        let mut off = 0;
+        for seg in dx.iter_mut() {
+            let n = seg.len();
+            self.matvec_t_acc_cols(dy, off, seg)?;
+            off += n;
+        }
+        Ok(())
+    }
+
+    /// `dx += (W[:, col0 .. col0 + dx.len()])^T dy`: the input gradient of one column block.
+    pub fn matvec_t_acc_cols(&self, dy: &[f32], col0: usize, dx: &mut [f32]) -> Result<()> {
+        check_len("matvec_t.dy", self.rows(), dy.len())?;
+        if col0.saturating_add(dx.len()) > self.cols() {
+            return Err(crate::Error::Shape(crate::ShapeError {
+                what: "matvec_t.cols",
+                expected: self.cols(),
+                actual: col0.saturating_add(dx.len()),
+            }));
+        }
+        if self.cols() == 0 {
+            return Ok(());
+        }
+        if cfg!(target_arch = "arm") {
+            self.matvec_t_rowwise(dy, col0, dx);
+            return Ok(());
+        }
+        match self.kernels() {
+            Some(k) => k.matmul_t_acc(&self.without_kernels(), dy, 1, &mut [dx], col0),
+            None => matmul_t_acc_blocked::<MVT_C, 1>(self, dy, 1, &mut [dx], col0),
+        }
+    }
+}
+
+// Block shapes of the batch-1 kernels on hosts (speed only, never the bits): four rows per
+// pass share each input load (16 vector registers on x86-64).
+const MV_R: usize = 4;
+const MVT_C: usize = 4;
+const OUTER_R: usize = 2;
+const OUTER_C: usize = 2;
+
+/// `dW += alpha * dy x^T` for an f32 gradient matrix `dW` (`dy.len() x cols`, row-major), with
+/// `x` given as segments. This is the weight gradient of `y = W x`.
+pub fn outer_acc(dw: &mut [f32], dy: &[f32], x: &[&[f32]], alpha: f32) -> Result<()> {
+    let cols = seg_len(x);
+    check_len("outer.dw", dy.len().saturating_mul(cols), dw.len())?;
+    if cols == 0 {
+        return Ok(());
+    }
+    if x.len() > MAX_SEGS || cfg!(target_arch = "arm") {
+        for (row, &g) in dw.chunks_exact_mut(cols).zip(dy) {
+            let a = alpha * g;
+            if a == 0.0 {
+                continue;
+            }
+            let mut off = 0;
+            for seg in x {
+                axpy(a, seg, &mut row[off..off + seg.len()]);
+                off += seg.len();
+            }
+        }
+        return Ok(());
+    }
+    outer_acc_batch_blocked::<OUTER_R, OUTER_C>(dw, dy, x, 1, alpha)
 }
 
 /// The per-vector segment lengths of one segmented vector (a batch of `n = 1`), to call a
@@ -157,7 +286,7 @@ pub fn matmul_t_acc(
 }
 
 /// `dW += alpha * sum_b dY[b] X[b]^T`, accumulated for `b = 0, 1, .., n - 1` in that order
-/// (bit for bit as [`crate::matrix::outer_acc`] called once per vector): the weight gradient
+/// (bit for bit as [`outer_acc`] called once per vector): the weight gradient
 /// of `Y[b] = W X[b]` summed over the batch. `dy` is `n x rows` batch-major, `x` batch-major
 /// segments with per-vector lengths `lens`.
 pub fn outer_acc_batch(
@@ -193,7 +322,7 @@ pub fn outer_acc_batch_with(
     match kernels {
         Some(k) => k.outer_acc_batch(dw, dy, x, n, alpha),
         // One vector: the batch-1 kernel (the row-at-a-time loop on the device).
-        None if n == 1 => crate::matrix::outer_acc(dw, dy, x, alpha),
+        None if n == 1 => outer_acc(dw, dy, x, alpha),
         None => outer_acc_batch_blocked::<2, 2>(dw, dy, x, n, alpha),
     }
 }
@@ -715,8 +844,9 @@ fn op_tile<const R: usize, const C: usize>(
 
 #[cfg(test)]
 mod tests {
+    use super::outer_acc;
     use super::*;
-    use crate::matrix::{outer_acc, MatRef};
+    use crate::matrix::MatRef;
 
     fn vals(n: usize, seed: u32) -> [f32; 512] {
         let mut out = [0.0f32; 512];

@@ -160,7 +160,7 @@ pub fn add_penalty_grad(
     }
     if let DenseGrads::Full { w, .. } = &mut grads.l1 {
         // c · u gᵀ (the zero columns get c · u · 0)
-        crate::matrix::outer_acc(w, at.u, g_cols, c)?;
+        crate::batch::outer_acc(w, at.u, g_cols, c)?;
     }
     Ok((p, norm))
 }

@@ -1,4 +1,7 @@
-//! Weight matrices: f32 or int8 with a per-output-row f32 scale, and the dense kernels on them.
+//! Weight matrices: f32 or int8 with a per-output-row f32 scale, viewed in place, and the
+//! canonical scalar operations ([`dot`], [`axpy`] and their int8 / little-endian forms) that fix
+//! the order of every floating-point operation. The kernels over these views, batch-1 and
+//! batched, are in [`crate::batch`], which builds on this module (never the other way round).
 //!
 //! A [`MatRef`] is a read-only, row-major view of a `rows x cols` matrix `W`. It never owns
 //! memory: the values live in a caller's RAM buffer (f32, e.g. adapted parameters) or directly
@@ -22,7 +25,6 @@
 //! Cortex-M4F build of the same code produce bit-identical results: no fused multiply-add
 //! is ever introduced because Rust never contracts `a * b + c`.
 
-use crate::batch::{self, Kernels, MAX_SEGS};
 use crate::error::{check_len, Result};
 
 /// Row scales of an int8 matrix.
@@ -78,6 +80,38 @@ pub enum Weights<'a> {
         /// One scale per row.
         scales: Scales<'a>,
     },
+}
+
+/// Dense kernels a host can compile for another instruction set and attach to a matrix view
+/// ([`MatRef::with_kernels`]); every kernel of the view then runs through them. An
+/// implementation must keep the contract of [`crate::batch`] (the same bits as the canonical
+/// order): the intended implementation calls the `*_blocked` functions of [`crate::batch`] from
+/// code compiled with more vector features (e.g. AVX2), which keeps every operation and only
+/// widens the registers. The argument lists are those of [`crate::batch`]'s functions; the
+/// shapes are already checked when a kernel is called.
+pub trait Kernels: Sync + core::fmt::Debug {
+    /// [`crate::batch::matmul_acc`] (the matrix `w` carries no kernels, so calling back into [`crate::batch`]
+    /// does not recurse).
+    fn matmul_acc(&self, w: &MatRef<'_>, x: &[&[f32]], n: usize, y: &mut [f32]) -> Result<()>;
+    /// [`crate::batch::matmul_t_acc`] on the column block starting at `col0` (the segments of `dx` cover
+    /// columns `col0 ..` in order).
+    fn matmul_t_acc(
+        &self,
+        w: &MatRef<'_>,
+        dy: &[f32],
+        n: usize,
+        dx: &mut [&mut [f32]],
+        col0: usize,
+    ) -> Result<()>;
+    /// [`crate::batch::outer_acc_batch`] for a gradient of `rows = dy.len() / n` rows.
+    fn outer_acc_batch(
+        &self,
+        dw: &mut [f32],
+        dy: &[f32],
+        x: &[&[f32]],
+        n: usize,
+        alpha: f32,
+    ) -> Result<()>;
 }
 
 /// A read-only `rows x cols` row-major matrix view. Construct with [`MatRef::f32`] or
@@ -234,167 +268,12 @@ impl<'a> MatRef<'a> {
         }
         Ok(())
     }
-
-    /// `y += W x`, where the input `x` is given as consecutive segments.
-    pub fn matvec_acc(&self, x: &[&[f32]], y: &mut [f32]) -> Result<()> {
-        check_len("matvec.x", self.cols, seg_len(x))?;
-        check_len("matvec.y", self.rows, y.len())?;
-        if self.cols == 0 {
-            return Ok(());
-        }
-        // The Cortex-M4F (no vector unit) runs the row-at-a-time loop: the same canonical
-        // order, fewer instructions there than the blocked body (measured in QEMU).
-        if x.len() > MAX_SEGS || cfg!(target_arch = "arm") {
-            self.matvec_acc_many(x, y);
-            return Ok(());
-        }
-        match self.k {
-            Some(k) => k.matmul_acc(&self.without_kernels(), x, 1, y),
-            None => batch::matmul_acc_blocked::<MV_R, 1>(self, x, 1, y),
-        }
-    }
-
-    /// [`MatRef::matvec_t_acc_cols`] one row at a time (the Cortex-M4F's loop; the same
-    /// order as the blocked body: every element sums its rows in order).
-    fn matvec_t_rowwise(&self, dy: &[f32], col0: usize, dx: &mut [f32]) {
-        let end = col0 + dx.len();
-        match self.w {
-            Weights::F32(d) => {
-                for (row, &g) in d.chunks_exact(self.cols).zip(dy) {
-                    axpy(g, &row[col0..end], dx);
-                }
-            }
-            Weights::F32Le(d) => {
-                for (row, &g) in d.chunks_exact(4 * self.cols).zip(dy) {
-                    for (o, b) in dx.iter_mut().zip(row[4 * col0..4 * end].chunks_exact(4)) {
-                        *o += g * f32::from_le_bytes([b[0], b[1], b[2], b[3]]);
-                    }
-                }
-            }
-            Weights::I8 { q, scales } => {
-                for (i, (row, &g)) in q.chunks_exact(self.cols).zip(dy).enumerate() {
-                    axpy_i8(g * scales.get(i), &row[col0..end], dx);
-                }
-            }
-        }
-    }
-
-    /// [`MatRef::matvec_acc`] one row at a time: for more than [`MAX_SEGS`] segments, and on
-    /// the Cortex-M4F (the same canonical order as the blocked body).
-    fn matvec_acc_many(&self, x: &[&[f32]], y: &mut [f32]) {
-        match self.w {
-            Weights::F32(d) => {
-                for (row, yi) in d.chunks_exact(self.cols).zip(y.iter_mut()) {
-                    let mut acc = 0.0f32;
-                    let mut off = 0;
-                    for seg in x {
-                        acc += dot(&row[off..off + seg.len()], seg);
-                        off += seg.len();
-                    }
-                    *yi += acc;
-                }
-            }
-            Weights::F32Le(d) => {
-                for (row, yi) in d.chunks_exact(4 * self.cols).zip(y.iter_mut()) {
-                    let mut acc = 0.0f32;
-                    let mut off = 0;
-                    for seg in x {
-                        acc += dot_le(&row[4 * off..4 * (off + seg.len())], seg);
-                        off += seg.len();
-                    }
-                    *yi += acc;
-                }
-            }
-            Weights::I8 { q, scales } => {
-                for (i, (row, yi)) in q.chunks_exact(self.cols).zip(y.iter_mut()).enumerate() {
-                    let mut acc = 0.0f32;
-                    let mut off = 0;
-                    for seg in x {
-                        acc += dot_i8(&row[off..off + seg.len()], seg);
-                        off += seg.len();
-                    }
-                    *yi += acc * scales.get(i);
-                }
-            }
-        }
-    }
-
-    /// `dx += W^T dy`, where `dx` is given as consecutive segments (the input gradient of a
-    /// layer whose input was segmented the same way). To compute the gradient of only one
-    /// column block, use [`MatRef::matvec_t_acc_cols`].
-    pub fn matvec_t_acc(&self, dy: &[f32], dx: &mut [&mut [f32]]) -> Result<()> {
-        let total: usize = dx.iter().map(|s| s.len()).sum();
-        check_len("matvec_t.dx", self.cols, total)?;
-        check_len("matvec_t.dy", self.rows, dy.len())?;
-        let mut off = 0;
-        for seg in dx.iter_mut() {
-            let n = seg.len();
-            self.matvec_t_acc_cols(dy, off, seg)?;
-            off += n;
-        }
-        Ok(())
-    }
-
-    /// `dx += (W[:, col0 .. col0 + dx.len()])^T dy`: the input gradient of one column block.
-    pub fn matvec_t_acc_cols(&self, dy: &[f32], col0: usize, dx: &mut [f32]) -> Result<()> {
-        check_len("matvec_t.dy", self.rows, dy.len())?;
-        if col0.saturating_add(dx.len()) > self.cols {
-            return Err(crate::Error::Shape(crate::ShapeError {
-                what: "matvec_t.cols",
-                expected: self.cols,
-                actual: col0.saturating_add(dx.len()),
-            }));
-        }
-        if self.cols == 0 {
-            return Ok(());
-        }
-        if cfg!(target_arch = "arm") {
-            self.matvec_t_rowwise(dy, col0, dx);
-            return Ok(());
-        }
-        match self.k {
-            Some(k) => k.matmul_t_acc(&self.without_kernels(), dy, 1, &mut [dx], col0),
-            None => batch::matmul_t_acc_blocked::<MVT_C, 1>(self, dy, 1, &mut [dx], col0),
-        }
-    }
 }
-
-// Block shapes of the batch-1 kernels on hosts (speed only, never the bits): four rows per
-// pass share each input load (16 vector registers on x86-64).
-const MV_R: usize = 4;
-const MVT_C: usize = 4;
-const OUTER_R: usize = 2;
-const OUTER_C: usize = 2;
 
 /// Total length of a segmented vector.
 #[inline]
 pub fn seg_len(x: &[&[f32]]) -> usize {
     x.iter().map(|s| s.len()).sum()
-}
-
-/// `dW += alpha * dy x^T` for an f32 gradient matrix `dW` (`dy.len() x cols`, row-major), with
-/// `x` given as segments. This is the weight gradient of `y = W x`.
-pub fn outer_acc(dw: &mut [f32], dy: &[f32], x: &[&[f32]], alpha: f32) -> Result<()> {
-    let cols = seg_len(x);
-    check_len("outer.dw", dy.len().saturating_mul(cols), dw.len())?;
-    if cols == 0 {
-        return Ok(());
-    }
-    if x.len() > MAX_SEGS || cfg!(target_arch = "arm") {
-        for (row, &g) in dw.chunks_exact_mut(cols).zip(dy) {
-            let a = alpha * g;
-            if a == 0.0 {
-                continue;
-            }
-            let mut off = 0;
-            for seg in x {
-                axpy(a, seg, &mut row[off..off + seg.len()]);
-                off += seg.len();
-            }
-        }
-        return Ok(());
-    }
-    batch::outer_acc_batch_blocked::<OUTER_R, OUTER_C>(dw, dy, x, 1, alpha)
 }
 
 /// Dot product with eight independent accumulators (deterministic order; see module docs).

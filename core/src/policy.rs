@@ -121,7 +121,7 @@ pub struct PolicyInputGrads<'g> {
 }
 
 /// Scratch of one backward step: `embed + 4 lstm_hidden + feat + max(embed, 6)` floats, plus
-/// `map_cells x cell_embed + feat` with a map.
+/// `map_cells x (cell_embed + feat)` with a map.
 #[derive(Debug)]
 pub struct PolicyScratch<'a> {
     /// `embed`.
@@ -136,7 +136,7 @@ pub struct PolicyScratch<'a> {
     pub dh: &'a mut [f32],
     /// `map_cells x cell_embed` (empty without a map).
     pub dcell: &'a mut [f32],
-    /// `feat` (empty without a map).
+    /// `map_cells x feat` (empty without a map).
     pub cell_tmp: &'a mut [f32],
 }
 
@@ -163,27 +163,9 @@ impl<'a> Policy<'a> {
         Ok(())
     }
 
-    /// Checks the map input against the cell layer and returns `(cells, cell_embed)`.
-    fn check_map(&self, inp: &PolicyInput<'_>, cell_out: usize) -> Result<(usize, usize)> {
-        let f = inp.feat.len();
-        match &self.cell {
-            None => {
-                check_len("policy.map", 0, inp.map.len())?;
-                check_len("policy.cell_out", 0, cell_out)?;
-                Ok((0, 0))
-            }
-            Some(cell) => {
-                check_len("policy.cell.in", 2 * f, cell.in_dim())?;
-                let ce = cell.out_dim();
-                let cells = inp.map.len().checked_div(f).unwrap_or(0);
-                check_len("policy.map", cells * f, inp.map.len())?;
-                check_len("policy.cell_out", cells * ce, cell_out)?;
-                Ok((cells, ce))
-            }
-        }
-    }
-
-    /// One step: writes activations, logits, probabilities and value into `cache`.
+    /// One step: writes activations, logits, probabilities and value into `cache`. The map's
+    /// cells run one at a time through a single cell's scratch (`cache.cell_prod`, the device's
+    /// RAM); everything after the cell layer is [`Policy::forward_batch`]'s with a batch of one.
     pub fn forward(
         &self,
         inp: &PolicyInput<'_>,
@@ -192,15 +174,9 @@ impl<'a> Policy<'a> {
         cache: &mut PolicyCache<'_>,
     ) -> Result<()> {
         self.validate()?;
-        check_len("policy.feat", inp.obs.len(), inp.feat.len())?;
-        check_len("policy.prod", inp.obs.len(), cache.prod.len())?;
-        check_len("policy.prev_probs", NUM_ACTIONS, inp.prev_probs.len())?;
-        for ((p, &s), &x) in cache.prod.iter_mut().zip(inp.obs).zip(inp.feat) {
-            *p = s * x;
-        }
-        let (cells, ce) = self.check_map(inp, cache.cell.len())?;
+        let wd = self.batch_widths(inp, 1, cache.cell.len())?;
+        let (f, cells, ce) = (wd.f, wd.cells, wd.ce);
         if let Some(cell) = &self.cell {
-            let f = inp.feat.len();
             check_len("policy.cell_prod", f, cache.cell_prod.len())?;
             for c in 0..cells {
                 let m = &inp.map[c * f..(c + 1) * f];
@@ -212,26 +188,72 @@ impl<'a> Policy<'a> {
                 leaky_relu_inplace(out);
             }
         }
+        let mut value = [0.0f32];
+        let tail = TailCache {
+            prod: cache.prod,
+            fuse: cache.fuse,
+            gates: cache.gates,
+            c: cache.c,
+            h: cache.h,
+            actor_u: cache.actor_u,
+            logits: cache.logits,
+            probs: cache.probs,
+            value: &mut value,
+        };
+        self.forward_tail(1, wd, inp, cache.cell, h_prev, c_prev, tail)?;
+        cache.value = value[0];
+        Ok(())
+    }
+
+    /// The policy after the cell layer, over a batch of `n` rows: `s_t ⊙ x_t`, the fusion
+    /// layer, the LSTM and both heads (the shared tail of [`Policy::forward`] and
+    /// [`Policy::forward_batch`]; `cell` holds the cell layer's outputs).
+    #[allow(clippy::too_many_arguments)]
+    fn forward_tail(
+        &self,
+        n: usize,
+        wd: BatchWidths,
+        inp: &PolicyInput<'_>,
+        cell: &[f32],
+        h_prev: &[f32],
+        c_prev: &[f32],
+        t: TailCache<'_>,
+    ) -> Result<()> {
+        let f = wd.f;
+        check_len("policy.prod", inp.obs.len(), t.prod.len())?;
+        check_len("policy.value", n, t.value.len())?;
+        check_len("policy.probs", n * NUM_ACTIONS, t.probs.len())?;
+        check_len("policy.logits", n * NUM_ACTIONS, t.logits.len())?;
+        for ((p, &s), &x) in t.prod.iter_mut().zip(inp.obs).zip(inp.feat) {
+            *p = s * x;
+        }
         let segs: [&[f32]; 7] = [
             inp.obs,
             inp.feat,
-            cache.prod,
+            t.prod,
             inp.attr,
             inp.prev_probs,
             inp.ps,
-            cache.cell,
+            cell,
         ];
-        self.fuse.forward(&segs, &mut [], cache.fuse)?;
-        leaky_relu_inplace(cache.fuse);
+        let lens = [f, f, f, wd.a, NUM_ACTIONS, wd.ps, wd.cells * wd.ce];
+        self.fuse.forward_batch(&segs, &lens, n, &mut [], t.fuse)?;
+        leaky_relu_inplace(t.fuse);
+        let e = self.fuse.out_dim();
         self.lstm
-            .forward(&[cache.fuse], h_prev, c_prev, cache.gates, cache.c, cache.h)?;
+            .forward_batch(&[t.fuse], &[e], n, h_prev, c_prev, t.gates, t.c, t.h)?;
+        let hd = self.lstm.hidden();
         self.actor
-            .forward(&[cache.h], cache.actor_u, cache.logits)?;
-        softmax(cache.logits, cache.probs)?;
-        let mut v = [0.0f32];
-        self.critic.forward(&[cache.h], &mut [], &mut v)?;
-        cache.value = v[0];
-        Ok(())
+            .forward_batch(&[t.h], &[hd], n, t.actor_u, t.logits)?;
+        for (l, p) in t
+            .logits
+            .chunks_exact(NUM_ACTIONS)
+            .zip(t.probs.chunks_exact_mut(NUM_ACTIONS))
+        {
+            softmax(l, p)?;
+        }
+        self.critic
+            .forward_batch(&[t.h], &[hd], n, &mut [], t.value)
     }
 
     /// One step of back-propagation through time.
@@ -241,7 +263,8 @@ impl<'a> Policy<'a> {
     /// are accumulated into `grads`, and the gradients with respect to the generated feature,
     /// `h_{t-1}` and `c_{t-1}` are written into `out`. The gradient with respect to the
     /// observation, attributes, previous probabilities and PS input is not needed by any
-    /// trainer and is not computed.
+    /// trainer and is not computed. This is [`Policy::backward_batch`] with a batch of one
+    /// (host-side only: with a map, `s.cell_tmp` is `map_cells x feat`).
     #[allow(clippy::too_many_arguments)]
     pub fn backward(
         &self,
@@ -257,131 +280,43 @@ impl<'a> Policy<'a> {
         out: &mut PolicyInputGrads<'_>,
         s: &mut PolicyScratch<'_>,
     ) -> Result<()> {
-        self.validate()?;
-        let hd = self.lstm.hidden();
-        check_len("policy.dh_next", hd, dh_next.len())?;
-        check_len("policy.dh", hd, s.dh.len())?;
-        check_len("policy.dfeat", inp.obs.len(), out.feat.len())?;
-        check_len("policy.dprod", inp.obs.len(), s.dprod.len())?;
-        // Heads: dh = W_actorᵀ dlogits (+ gain) + W_criticᵀ dvalue + dh_next.
-        s.dh.copy_from_slice(dh_next);
-        self.actor.backward(
-            &[cache.h],
-            cache.actor_u,
-            dlogits,
-            Some(&mut [&mut *s.dh]),
-            &mut grads.actor,
-            &mut s.tmp[..NUM_ACTIONS],
-        )?;
-        self.critic.backward(
-            &[cache.h],
-            &[],
-            &[dvalue],
-            Some(&mut [&mut *s.dh]),
-            &mut grads.critic,
-            &mut s.tmp[..1],
-        )?;
-        // LSTM.
-        let e = self.fuse.out_dim();
-        s.de.fill(0.0);
-        self.lstm.backward(
-            &[cache.fuse],
-            h_prev,
-            c_prev,
-            cache.gates,
-            cache.c,
-            s.dh,
-            dc_next,
-            out.h_prev,
-            out.c_prev,
-            Some(&mut [&mut *s.de]),
-            grads.lstm.as_mut().map(|g| LstmGrads {
-                wx: &mut *g.wx,
-                wh: &mut *g.wh,
-                b: &mut *g.b,
-            }),
-            s.dgates,
-        )?;
-        // Fusion: LeakyReLU then the dense layer; only the x and s⊙x column blocks'
-        // input gradients are needed.
-        let tmp = &mut s.tmp[..e];
-        leaky_relu_backward(cache.fuse, s.de, tmp)?;
-        let segs: [&[f32]; 7] = [
-            inp.obs,
-            inp.feat,
-            cache.prod,
-            inp.attr,
-            inp.prev_probs,
-            inp.ps,
-            cache.cell,
-        ];
-        self.fuse
-            .backward(&segs, &[], tmp, None, &mut grads.fuse, &mut [])?;
-        let f = inp.obs.len();
-        self.fuse.w.matvec_t_acc_cols(tmp, f, out.feat)?;
-        s.dprod.fill(0.0);
-        self.fuse.w.matvec_t_acc_cols(tmp, 2 * f, s.dprod)?;
-        for ((o, &d), &sv) in out.feat.iter_mut().zip(s.dprod.iter()).zip(inp.obs) {
-            *o += d * sv;
-        }
-        // The per-cell layer: its outputs are the last column block of the fusion input.
-        let (cells, ce) = self.check_map(inp, cache.cell.len())?;
-        if let Some(cell) = &self.cell {
-            let bufs = (&mut *s.dcell, &mut *s.cell_tmp, &mut *out.feat);
-            self.cell_backward(
-                cell,
-                inp,
-                cache.cell,
-                tmp,
-                (cells, ce),
-                bufs,
-                &mut grads.cell,
-            )?;
-        }
-        Ok(())
+        let acts = Acts {
+            prod: cache.prod,
+            fuse: cache.fuse,
+            gates: cache.gates,
+            c: cache.c,
+            h: cache.h,
+            actor_u: cache.actor_u,
+            cell: cache.cell,
+        };
+        let d = (dlogits, &[dvalue][..], dh_next, dc_next);
+        self.backward_rows(1, inp, (h_prev, c_prev), acts, d, grads, out, s)
     }
+}
 
-    /// [`Policy::backward`] through the per-cell layer: `dfuse` is the fusion layer's
-    /// pre-activation gradient, `act` the cells' outputs; accumulates into `grads` and adds
-    /// the feature gradient into `dfeat` (`dcell`, `cell_tmp` are scratch).
-    #[allow(clippy::too_many_arguments)]
-    fn cell_backward(
-        &self,
-        cell: &Dense<'_>,
-        inp: &PolicyInput<'_>,
-        act: &[f32],
-        dfuse: &[f32],
-        (cells, ce): (usize, usize),
-        (dcell, cell_tmp, dfeat): (&mut [f32], &mut [f32], &mut [f32]),
-        grads: &mut DenseGrads<'_>,
-    ) -> Result<()> {
-        let f = inp.obs.len();
-        check_len("policy.dcell", cells * ce, dcell.len())?;
-        check_len("policy.cell_tmp", f, cell_tmp.len())?;
-        let col0 = self.fuse.in_dim() - cells * ce;
-        dcell.fill(0.0);
-        self.fuse.w.matvec_t_acc_cols(dfuse, col0, dcell)?;
-        for c in 0..cells {
-            let m = &inp.map[c * f..(c + 1) * f];
-            let dpre = &mut dcell[c * ce..(c + 1) * ce];
-            let act = &act[c * ce..(c + 1) * ce];
-            for (d, &a) in dpre.iter_mut().zip(act) {
-                *d *= leaky_relu_grad(a);
-            }
-            // dW_cell += dpre [m; m ⊙ x]ᵀ (the product is recomputed in cell_tmp).
-            for ((p, &mv), &x) in cell_tmp.iter_mut().zip(m).zip(inp.feat) {
-                *p = mv * x;
-            }
-            cell.backward(&[m, cell_tmp], &[], dpre, None, grads, &mut [])?;
-            // dx_t += (W_cell[:, f..2f]ᵀ dpre) ⊙ m.
-            cell_tmp.fill(0.0);
-            cell.w.matvec_t_acc_cols(dpre, f, cell_tmp)?;
-            for ((o, &d), &mv) in dfeat.iter_mut().zip(cell_tmp.iter()).zip(m) {
-                *o += d * mv;
-            }
-        }
-        Ok(())
-    }
+/// The activations [`Policy::backward_rows`] reads (of [`PolicyCache`] or
+/// [`PolicyBatchCache`]).
+struct Acts<'x> {
+    prod: &'x [f32],
+    fuse: &'x [f32],
+    gates: &'x [f32],
+    c: &'x [f32],
+    h: &'x [f32],
+    actor_u: &'x [f32],
+    cell: &'x [f32],
+}
+
+/// The outputs [`Policy::forward_tail`] writes.
+struct TailCache<'x> {
+    prod: &'x mut [f32],
+    fuse: &'x mut [f32],
+    gates: &'x mut [f32],
+    c: &'x mut [f32],
+    h: &'x mut [f32],
+    actor_u: &'x mut [f32],
+    logits: &'x mut [f32],
+    probs: &'x mut [f32],
+    value: &'x mut [f32],
 }
 
 /// Activations of a batch of `n` policy steps ([`Policy::forward_batch`]): the fields of
@@ -483,13 +418,6 @@ impl<'a> Policy<'a> {
         }
         let wd = self.batch_widths(inp, n, cache.cell.len())?;
         let f = wd.f;
-        check_len("policy.prod", inp.obs.len(), cache.prod.len())?;
-        check_len("policy.value", n, cache.value.len())?;
-        check_len("policy.probs", n * NUM_ACTIONS, cache.probs.len())?;
-        check_len("policy.logits", n * NUM_ACTIONS, cache.logits.len())?;
-        for ((p, &s), &x) in cache.prod.iter_mut().zip(inp.obs).zip(inp.feat) {
-            *p = s * x;
-        }
         if let Some(cell) = &self.cell {
             let nc = n * wd.cells;
             check_len("policy.cell_prod", nc * f, cache.cell_prod.len())?;
@@ -513,42 +441,18 @@ impl<'a> Policy<'a> {
             )?;
             leaky_relu_inplace(cache.cell);
         }
-        let segs: [&[f32]; 7] = [
-            inp.obs,
-            inp.feat,
-            cache.prod,
-            inp.attr,
-            inp.prev_probs,
-            inp.ps,
-            cache.cell,
-        ];
-        let lens = [f, f, f, wd.a, NUM_ACTIONS, wd.ps, wd.cells * wd.ce];
-        self.fuse
-            .forward_batch(&segs, &lens, n, &mut [], cache.fuse)?;
-        leaky_relu_inplace(cache.fuse);
-        let e = self.fuse.out_dim();
-        self.lstm.forward_batch(
-            &[cache.fuse],
-            &[e],
-            n,
-            h_prev,
-            c_prev,
-            cache.gates,
-            cache.c,
-            cache.h,
-        )?;
-        let hd = self.lstm.hidden();
-        self.actor
-            .forward_batch(&[cache.h], &[hd], n, cache.actor_u, cache.logits)?;
-        for (l, p) in cache
-            .logits
-            .chunks_exact(NUM_ACTIONS)
-            .zip(cache.probs.chunks_exact_mut(NUM_ACTIONS))
-        {
-            softmax(l, p)?;
-        }
-        self.critic
-            .forward_batch(&[cache.h], &[hd], n, &mut [], cache.value)
+        let tail = TailCache {
+            prod: cache.prod,
+            fuse: cache.fuse,
+            gates: cache.gates,
+            c: cache.c,
+            h: cache.h,
+            actor_u: cache.actor_u,
+            logits: cache.logits,
+            probs: cache.probs,
+            value: cache.value,
+        };
+        self.forward_tail(n, wd, inp, cache.cell, h_prev, c_prev, tail)
     }
 
     /// [`Policy::backward`] over a batch of `n` steps of independent episodes: every buffer is
@@ -569,6 +473,33 @@ impl<'a> Policy<'a> {
         dvalue: &[f32],
         dh_next: &[f32],
         dc_next: &[f32],
+        grads: &mut PolicyGrads<'_>,
+        out: &mut PolicyInputGrads<'_>,
+        s: &mut PolicyScratch<'_>,
+    ) -> Result<()> {
+        let acts = Acts {
+            prod: cache.prod,
+            fuse: cache.fuse,
+            gates: cache.gates,
+            c: cache.c,
+            h: cache.h,
+            actor_u: cache.actor_u,
+            cell: cache.cell,
+        };
+        let d = (dlogits, dvalue, dh_next, dc_next);
+        self.backward_rows(n, inp, (h_prev, c_prev), acts, d, grads, out, s)
+    }
+
+    /// The backward pass of [`Policy::backward`] and [`Policy::backward_batch`] over `n` rows;
+    /// `d` is `(dlogits, dvalue, dh_next, dc_next)`.
+    #[allow(clippy::too_many_arguments)]
+    fn backward_rows(
+        &self,
+        n: usize,
+        inp: &PolicyInput<'_>,
+        (h_prev, c_prev): (&[f32], &[f32]),
+        cache: Acts<'_>,
+        (dlogits, dvalue, dh_next, dc_next): (&[f32], &[f32], &[f32], &[f32]),
         grads: &mut PolicyGrads<'_>,
         out: &mut PolicyInputGrads<'_>,
         s: &mut PolicyScratch<'_>,

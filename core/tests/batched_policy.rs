@@ -306,7 +306,7 @@ fn check(map: bool, gain: bool, int8: bool, ps: usize) {
             vec![0.0; E.max(NUM_ACTIONS)],
             vec![0.0; H],
             vec![0.0; cells * CE],
-            vec![0.0; if map { F } else { 0 }],
+            vec![0.0; cells * F],
         );
         let mut gv = g_one.view(gain, map);
         let mut out = PolicyInputGrads {
