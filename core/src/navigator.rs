@@ -1146,6 +1146,7 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
             ps: r.ps,
             map,
         };
+        let mut value = [0.0f32];
         let mut cache = PolicyCache {
             prod: r.prod,
             fuse: r.fuse,
@@ -1155,12 +1156,12 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
             actor_u: r.actor_u,
             logits: r.logits,
             probs: r.probs,
-            value: 0.0,
+            value: &mut value,
             cell: r.cell,
             cell_prod: r.cell_prod,
         };
         policy.forward(&inp, r.h_state, r.c_state, &mut cache)?;
-        Ok(cache.value)
+        Ok(value[0])
     }
 
     fn select(&mut self) -> Action {

@@ -67,7 +67,11 @@ pub struct PolicyInput<'a> {
     pub map: &'a [f32],
 }
 
-/// Activations of one policy step (forward output and what backward needs).
+/// Activations of `n` policy steps (the forward outputs and what backward needs), batch-major:
+/// each field is `n` times the size given here, `n = 1` for [`Policy::forward`]. One
+/// exception: `cell_prod` holds a single cell's product (`feat`) for [`Policy::forward`], which
+/// runs the cells one at a time in the device's RAM, and every cell's (`n x map_cells x feat`)
+/// for [`Policy::forward_batch`].
 #[derive(Debug)]
 pub struct PolicyCache<'a> {
     /// `s_t ⊙ x_t` (`feat`).
@@ -86,11 +90,11 @@ pub struct PolicyCache<'a> {
     pub logits: &'a mut [f32],
     /// Action probabilities (6).
     pub probs: &'a mut [f32],
-    /// State value.
-    pub value: f32,
+    /// State value (1 per step).
+    pub value: &'a mut [f32],
     /// Per-cell layer outputs after LeakyReLU, `map_cells x cell_embed` (empty without a map).
     pub cell: &'a mut [f32],
-    /// Scratch for one cell's `M_t,c ⊙ x_t`, `feat` (empty without a map).
+    /// `M_t,c ⊙ x_t`: one cell's (`feat`) or every cell's, see above (empty without a map).
     pub cell_prod: &'a mut [f32],
 }
 
@@ -188,36 +192,20 @@ impl<'a> Policy<'a> {
                 leaky_relu_inplace(out);
             }
         }
-        let mut value = [0.0f32];
-        let tail = TailCache {
-            prod: cache.prod,
-            fuse: cache.fuse,
-            gates: cache.gates,
-            c: cache.c,
-            h: cache.h,
-            actor_u: cache.actor_u,
-            logits: cache.logits,
-            probs: cache.probs,
-            value: &mut value,
-        };
-        self.forward_tail(1, wd, inp, cache.cell, h_prev, c_prev, tail)?;
-        cache.value = value[0];
-        Ok(())
+        self.forward_tail(1, wd, inp, h_prev, c_prev, cache)
     }
 
     /// The policy after the cell layer, over a batch of `n` rows: `s_t ⊙ x_t`, the fusion
     /// layer, the LSTM and both heads (the shared tail of [`Policy::forward`] and
-    /// [`Policy::forward_batch`]; `cell` holds the cell layer's outputs).
-    #[allow(clippy::too_many_arguments)]
+    /// [`Policy::forward_batch`]; `t.cell` already holds the cell layer's outputs).
     fn forward_tail(
         &self,
         n: usize,
         wd: BatchWidths,
         inp: &PolicyInput<'_>,
-        cell: &[f32],
         h_prev: &[f32],
         c_prev: &[f32],
-        t: TailCache<'_>,
+        t: &mut PolicyCache<'_>,
     ) -> Result<()> {
         let f = wd.f;
         check_len("policy.prod", inp.obs.len(), t.prod.len())?;
@@ -234,7 +222,7 @@ impl<'a> Policy<'a> {
             inp.attr,
             inp.prev_probs,
             inp.ps,
-            cell,
+            t.cell,
         ];
         let lens = [f, f, f, wd.a, NUM_ACTIONS, wd.ps, wd.cells * wd.ce];
         self.fuse.forward_batch(&segs, &lens, n, &mut [], t.fuse)?;
@@ -280,72 +268,11 @@ impl<'a> Policy<'a> {
         out: &mut PolicyInputGrads<'_>,
         s: &mut PolicyScratch<'_>,
     ) -> Result<()> {
-        let acts = Acts {
-            prod: cache.prod,
-            fuse: cache.fuse,
-            gates: cache.gates,
-            c: cache.c,
-            h: cache.h,
-            actor_u: cache.actor_u,
-            cell: cache.cell,
-        };
-        let d = (dlogits, &[dvalue][..], dh_next, dc_next);
-        self.backward_rows(1, inp, (h_prev, c_prev), acts, d, grads, out, s)
+        let (dv, (h, c)) = ([dvalue], (h_prev, c_prev));
+        self.backward_batch(
+            1, inp, h, c, cache, dlogits, &dv, dh_next, dc_next, grads, out, s,
+        )
     }
-}
-
-/// The activations [`Policy::backward_rows`] reads (of [`PolicyCache`] or
-/// [`PolicyBatchCache`]).
-struct Acts<'x> {
-    prod: &'x [f32],
-    fuse: &'x [f32],
-    gates: &'x [f32],
-    c: &'x [f32],
-    h: &'x [f32],
-    actor_u: &'x [f32],
-    cell: &'x [f32],
-}
-
-/// The outputs [`Policy::forward_tail`] writes.
-struct TailCache<'x> {
-    prod: &'x mut [f32],
-    fuse: &'x mut [f32],
-    gates: &'x mut [f32],
-    c: &'x mut [f32],
-    h: &'x mut [f32],
-    actor_u: &'x mut [f32],
-    logits: &'x mut [f32],
-    probs: &'x mut [f32],
-    value: &'x mut [f32],
-}
-
-/// Activations of a batch of `n` policy steps ([`Policy::forward_batch`]): the fields of
-/// [`PolicyCache`], batch-major, each `n` times its batch-1 size, except `cell_prod`, which
-/// holds every cell's product: `n x map_cells x feat` (empty without a map).
-#[derive(Debug)]
-pub struct PolicyBatchCache<'a> {
-    /// `n x feat`.
-    pub prod: &'a mut [f32],
-    /// `n x embed`.
-    pub fuse: &'a mut [f32],
-    /// `n x 4 lstm_hidden`.
-    pub gates: &'a mut [f32],
-    /// `n x lstm_hidden`.
-    pub c: &'a mut [f32],
-    /// `n x lstm_hidden`.
-    pub h: &'a mut [f32],
-    /// `n x 6` (empty when the actor has no gain).
-    pub actor_u: &'a mut [f32],
-    /// `n x 6`.
-    pub logits: &'a mut [f32],
-    /// `n x 6`.
-    pub probs: &'a mut [f32],
-    /// `n` state values.
-    pub value: &'a mut [f32],
-    /// `n x map_cells x cell_embed` (empty without a map).
-    pub cell: &'a mut [f32],
-    /// `n x map_cells x feat` (empty without a map).
-    pub cell_prod: &'a mut [f32],
 }
 
 /// Per-vector widths of a batched policy input.
@@ -402,7 +329,7 @@ impl<'a> Policy<'a> {
 
     /// [`Policy::forward`] over a batch of `n` steps of independent episodes that share these
     /// parameters: the fields of `inp` are batch-major (`n` times their batch-1 sizes), and so
-    /// are `h_prev`, `c_prev` and `cache` (see [`PolicyBatchCache`]). Every step of the batch
+    /// are `h_prev`, `c_prev` and `cache` (see [`PolicyCache`]). Every step of the batch
     /// gets exactly the bits [`Policy::forward`] gives it alone.
     pub fn forward_batch(
         &self,
@@ -410,7 +337,7 @@ impl<'a> Policy<'a> {
         inp: &PolicyInput<'_>,
         h_prev: &[f32],
         c_prev: &[f32],
-        cache: &mut PolicyBatchCache<'_>,
+        cache: &mut PolicyCache<'_>,
     ) -> Result<()> {
         self.validate()?;
         if n == 0 {
@@ -441,18 +368,7 @@ impl<'a> Policy<'a> {
             )?;
             leaky_relu_inplace(cache.cell);
         }
-        let tail = TailCache {
-            prod: cache.prod,
-            fuse: cache.fuse,
-            gates: cache.gates,
-            c: cache.c,
-            h: cache.h,
-            actor_u: cache.actor_u,
-            logits: cache.logits,
-            probs: cache.probs,
-            value: cache.value,
-        };
-        self.forward_tail(n, wd, inp, cache.cell, h_prev, c_prev, tail)
+        self.forward_tail(n, wd, inp, h_prev, c_prev, cache)
     }
 
     /// [`Policy::backward`] over a batch of `n` steps of independent episodes: every buffer is
@@ -468,38 +384,11 @@ impl<'a> Policy<'a> {
         inp: &PolicyInput<'_>,
         h_prev: &[f32],
         c_prev: &[f32],
-        cache: &PolicyBatchCache<'_>,
+        cache: &PolicyCache<'_>,
         dlogits: &[f32],
         dvalue: &[f32],
         dh_next: &[f32],
         dc_next: &[f32],
-        grads: &mut PolicyGrads<'_>,
-        out: &mut PolicyInputGrads<'_>,
-        s: &mut PolicyScratch<'_>,
-    ) -> Result<()> {
-        let acts = Acts {
-            prod: cache.prod,
-            fuse: cache.fuse,
-            gates: cache.gates,
-            c: cache.c,
-            h: cache.h,
-            actor_u: cache.actor_u,
-            cell: cache.cell,
-        };
-        let d = (dlogits, dvalue, dh_next, dc_next);
-        self.backward_rows(n, inp, (h_prev, c_prev), acts, d, grads, out, s)
-    }
-
-    /// The backward pass of [`Policy::backward`] and [`Policy::backward_batch`] over `n` rows;
-    /// `d` is `(dlogits, dvalue, dh_next, dc_next)`.
-    #[allow(clippy::too_many_arguments)]
-    fn backward_rows(
-        &self,
-        n: usize,
-        inp: &PolicyInput<'_>,
-        (h_prev, c_prev): (&[f32], &[f32]),
-        cache: Acts<'_>,
-        (dlogits, dvalue, dh_next, dc_next): (&[f32], &[f32], &[f32], &[f32]),
         grads: &mut PolicyGrads<'_>,
         out: &mut PolicyInputGrads<'_>,
         s: &mut PolicyScratch<'_>,

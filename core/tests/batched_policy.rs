@@ -10,8 +10,7 @@ use gman_core::dense::{Dense, DenseGrads};
 use gman_core::lstm::{Lstm, LstmGrads};
 use gman_core::matrix::{MatRef, Scales};
 use gman_core::policy::{
-    Policy, PolicyBatchCache, PolicyCache, PolicyGrads, PolicyInput, PolicyInputGrads,
-    PolicyScratch,
+    Policy, PolicyCache, PolicyGrads, PolicyInput, PolicyInputGrads, PolicyScratch,
 };
 use gman_core::NUM_ACTIONS;
 
@@ -178,7 +177,7 @@ fn check(map: bool, gain: bool, int8: bool, ps: usize) {
         vec![0.0; N * cells * CE],
         vec![0.0; N * cells * F],
     );
-    let mut cache = PolicyBatchCache {
+    let mut cache = PolicyCache {
         prod: &mut bc.0,
         fuse: &mut bc.1,
         gates: &mut bc.2,
@@ -271,6 +270,7 @@ fn check(map: bool, gain: bool, int8: bool, ps: usize) {
             vec![0.0; cells * CE],
             vec![0.0; if map { F } else { 0 }],
         );
+        let mut value = [0.0f32];
         let mut pc = PolicyCache {
             prod: &mut c1.0,
             fuse: &mut c1.1,
@@ -280,7 +280,7 @@ fn check(map: bool, gain: bool, int8: bool, ps: usize) {
             actor_u: &mut c1.5,
             logits: &mut c1.6,
             probs: &mut c1.7,
-            value: 0.0,
+            value: &mut value,
             cell: &mut c1.8,
             cell_prod: &mut c1.9,
         };
@@ -291,7 +291,7 @@ fn check(map: bool, gain: bool, int8: bool, ps: usize) {
             bits(&bc.7[b * 6..b * 6 + 6]),
             "probs row {b}"
         );
-        assert_eq!(pc.value.to_bits(), bc.8[b].to_bits(), "value row {b}");
+        assert_eq!(pc.value[0].to_bits(), bc.8[b].to_bits(), "value row {b}");
         assert_eq!(bits(pc.h), bits(&bc.4[b * H..(b + 1) * H]));
         assert_eq!(
             bits(pc.cell),
@@ -416,7 +416,7 @@ fn batched_policy_rejects_bad_shapes() {
         vec![0.0; N * NUM_ACTIONS],
         vec![0.0; N],
     );
-    let mut cache = PolicyBatchCache {
+    let mut cache = PolicyCache {
         prod: &mut bc.0,
         fuse: &mut bc.1,
         gates: &mut bc.2,

@@ -24,7 +24,7 @@ use gman_core::generator::{Generator, GeneratorCache, GeneratorScratch};
 use gman_core::lstm::LstmGrads;
 use gman_core::navigator::{Mode, Navigator};
 use gman_core::policy::{
-    Policy, PolicyBatchCache, PolicyGrads, PolicyInput, PolicyInputGrads, PolicyScratch,
+    Policy, PolicyCache, PolicyGrads, PolicyInput, PolicyInputGrads, PolicyScratch,
 };
 use gman_core::{Dims, NUM_ACTIONS};
 
@@ -135,7 +135,7 @@ impl Rows {
             ps: &self.ps,
             map: &self.map,
         };
-        let mut cache = PolicyBatchCache {
+        let mut cache = PolicyCache {
             prod: &mut self.prod,
             fuse: &mut self.fuse,
             gates: &mut self.gates,
@@ -485,7 +485,7 @@ impl Backward {
             ps: &rows.ps,
             map: &rows.map,
         };
-        let cache = PolicyBatchCache {
+        let cache = PolicyCache {
             prod: &mut rows.prod,
             fuse: &mut rows.fuse,
             gates: &mut rows.gates,
