@@ -20,19 +20,23 @@
 //!   (gman-core's own build), e.g. to compare speeds; the results are identical either way
 //!   (pinned by this module's tests and `tests/avx2_parity.rs`).
 
-use gman_core::batch::{
-    matmul_acc_blocked, matmul_t_acc_blocked, outer_acc_batch_blocked, Kernels,
+use gman_core::batch::Kernels;
+#[cfg(target_arch = "x86_64")]
+use gman_core::{
+    batch::{matmul_acc_blocked, matmul_t_acc_blocked, outer_acc_batch_blocked},
+    matrix::MatRef,
+    Result,
 };
-use gman_core::matrix::MatRef;
-use gman_core::Result;
 
 /// The AVX2 build of gman-core's kernels. Only reachable through [`avx2`], i.e. on a CPU that
-/// has AVX2.
+/// has AVX2 (x86-64 only: elsewhere the host runs gman-core's portable build).
+#[cfg(target_arch = "x86_64")]
 #[derive(Debug)]
 pub struct Avx2 {
     _private: (),
 }
 
+#[cfg(target_arch = "x86_64")]
 static AVX2: Avx2 = Avx2 { _private: () };
 
 /// The AVX2 kernel table if this CPU supports AVX2 (always `None` off x86-64).
@@ -64,6 +68,7 @@ pub fn host_kernels_name() -> &'static str {
     }
 }
 
+#[cfg(target_arch = "x86_64")]
 impl Kernels for Avx2 {
     fn matmul_acc(&self, w: &MatRef<'_>, x: &[&[f32]], n: usize, y: &mut [f32]) -> Result<()> {
         // SAFETY: an `Avx2` is only handed out by `avx2()` after detecting AVX2.
@@ -140,36 +145,5 @@ mod x86 {
         alpha: f32,
     ) -> Result<()> {
         outer_acc_batch_blocked::<2, 4>(dw, dy, x, n, alpha)
-    }
-}
-
-#[cfg(not(target_arch = "x86_64"))]
-mod x86 {
-    use super::*;
-    pub(super) unsafe fn matmul_acc(
-        w: &MatRef<'_>,
-        x: &[&[f32]],
-        n: usize,
-        y: &mut [f32],
-    ) -> Result<()> {
-        matmul_acc_blocked::<1, 4>(w, x, n, y)
-    }
-    pub(super) unsafe fn matmul_t_acc(
-        w: &MatRef<'_>,
-        dy: &[f32],
-        n: usize,
-        dx: &mut [&mut [f32]],
-        col0: usize,
-    ) -> Result<()> {
-        matmul_t_acc_blocked::<1, 4>(w, dy, n, dx, col0)
-    }
-    pub(super) unsafe fn outer_acc_batch(
-        dw: &mut [f32],
-        dy: &[f32],
-        x: &[&[f32]],
-        n: usize,
-        alpha: f32,
-    ) -> Result<()> {
-        outer_acc_batch_blocked::<2, 2>(dw, dy, x, n, alpha)
     }
 }

@@ -63,11 +63,12 @@ use gman_core::adapt::{
 use gman_core::blob::TensorId;
 use gman_core::dense::{Dense, DenseGrads};
 use gman_core::discriminator::{DiscScratch, Discriminator};
-use gman_core::generator::{Generator, GeneratorCache, GeneratorScratch};
+use gman_core::generator::Generator;
 use gman_core::matrix::MatRef;
 use gman_core::navigator::{Mode, Navigator};
 use gman_core::{Dims, NUM_ACTIONS};
 
+use crate::pretrain::generator::GenBuffers;
 use crate::train::params::ParamSet;
 
 /// The adapted tensors of G (θ), in the order of the flat vectors of this module.
@@ -264,12 +265,7 @@ impl InnerSetup {
 
 /// Host work buffers of one L_ad pass.
 struct Work {
-    h1: Vec<f32>,
-    x: Vec<f32>,
-    dpre2: Vec<f32>,
-    dh1: Vec<f32>,
-    dpre1: Vec<f32>,
-    tmp: Vec<f32>,
+    gen: GenBuffers,
     dh: Vec<f32>,
     dv: Vec<f32>,
     dw1g: Vec<f32>,
@@ -284,12 +280,7 @@ impl Work {
     fn new(d: &Dims, n: usize) -> Work {
         let (h, f, dh) = (d.gen_hidden, d.feat, d.disc_hidden);
         Work {
-            h1: vec![0.0; h],
-            x: vec![0.0; f],
-            dpre2: vec![0.0; f],
-            dh1: vec![0.0; h],
-            dpre1: vec![0.0; h],
-            tmp: vec![0.0; f.max(h)],
+            gen: GenBuffers::new(h, f),
             dh: vec![0.0; dh],
             dv: vec![0.0; dh],
             dw1g: vec![0.0; dh],
@@ -302,19 +293,10 @@ impl Work {
     }
 
     fn view(&mut self) -> AdaptWork<'_> {
+        let (gen, gen_scratch) = self.gen.views();
         AdaptWork {
-            gen: GeneratorCache {
-                u1: &mut [],
-                h1: &mut self.h1,
-                u2: &mut [],
-                x: &mut self.x,
-            },
-            gen_scratch: GeneratorScratch {
-                dpre2: &mut self.dpre2,
-                dh1: &mut self.dh1,
-                dpre1: &mut self.dpre1,
-                tmp: &mut self.tmp,
-            },
+            gen,
+            gen_scratch,
             disc: DiscScratch {
                 u: &mut [],
                 h: &mut self.dh,

@@ -69,15 +69,26 @@ impl GenBuffers {
         }
     }
 
-    /// `x = G(attr, z)` into `self.x` (gman-core's forward).
-    pub fn forward(&mut self, g: &Generator<'_>, z: &[f32], attr: &[f32]) -> Result<()> {
-        let mut cache = GeneratorCache {
+    /// gman-core's activation cache and backward scratch of G over these buffers.
+    pub fn views(&mut self) -> (GeneratorCache<'_>, GeneratorScratch<'_>) {
+        let cache = GeneratorCache {
             u1: &mut [],
             h1: &mut self.h1,
             u2: &mut [],
             x: &mut self.x,
         };
-        g.forward(z, attr, &mut cache)?;
+        let scratch = GeneratorScratch {
+            dpre2: &mut self.dpre2,
+            dh1: &mut self.dh1,
+            dpre1: &mut self.dpre1,
+            tmp: &mut self.tmp,
+        };
+        (cache, scratch)
+    }
+
+    /// `x = G(attr, z)` into `self.x` (gman-core's forward).
+    pub fn forward(&mut self, g: &Generator<'_>, z: &[f32], attr: &[f32]) -> Result<()> {
+        g.forward(z, attr, &mut self.views().0)?;
         Ok(())
     }
 
@@ -93,18 +104,7 @@ impl GenBuffers {
     ) -> Result<()> {
         let [w1, b1, w2, b2] = gen_names();
         let [gw1, gb1, gw2, gb2] = grads.slices_mut([w1, b1, w2, b2])?;
-        let cache = GeneratorCache {
-            u1: &mut [],
-            h1: &mut self.h1,
-            u2: &mut [],
-            x: &mut self.x,
-        };
-        let mut s = GeneratorScratch {
-            dpre2: &mut self.dpre2,
-            dh1: &mut self.dh1,
-            dpre1: &mut self.dpre1,
-            tmp: &mut self.tmp,
-        };
+        let (cache, mut s) = self.views();
         g.backward(
             z,
             attr,
