@@ -1100,6 +1100,33 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
         })
     }
 
+    /// G_θi(SE(y), z) at the current, possibly adapted θ, written into `out` (`feat`
+    /// floats), leaving the step's own x_t and everything else the next step reads
+    /// untouched (it runs in the navigator's G scratch). With the same `z` before and after
+    /// the inner updates it shows how far they moved G (the firmware prints it). Call after
+    /// [`Navigator::reset`].
+    pub fn generator_output(&mut self, z: &[f32], out: &mut [f32]) -> Result<()> {
+        if !self.ready {
+            return Err(Error::Config {
+                what: "call reset() before generator_output()",
+            });
+        }
+        check_len("generator_output.z", self.w.dims.noise, z.len())?;
+        check_len("generator_output.out", self.w.dims.feat, out.len())?;
+        if !all_finite(z) {
+            return Err(Error::NonFiniteInput { what: "z" });
+        }
+        let r = &mut self.r;
+        let gen = gen_view(&r.gen1, &r.gen2, &self.w)?;
+        let mut cache = GeneratorCache {
+            u1: r.u1,
+            h1: r.h1,
+            u2: r.u2,
+            x: out,
+        };
+        gen.forward(z, r.attr, &mut cache)
+    }
+
     fn generate(&mut self) -> Result<()> {
         let r = &mut self.r;
         let gen = gen_view(&r.gen1, &r.gen2, &self.w)?;

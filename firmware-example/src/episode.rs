@@ -214,6 +214,14 @@ pub fn run(
     let mut attr = [0.0f32; DIMS.attr];
     ep.attributes(&mut attr);
     nav.reset(&attr, ep.seed)?;
+    // G's output at z = 0 before any inner update, to show how far the updates move G
+    // (Fig. 3 on the device): ‖G_θi(SE(y), 0) − G_θ(SE(y), 0)‖ after each update.
+    let mut g0 = [0.0f32; DIMS.feat];
+    nav.generator_output(&[0.0; DIMS.noise], &mut g0)?;
+    probe.line(format_args!(
+        "G(SE(y), 0) before adaptation: |x|={}",
+        Fixed6(norm_from(&g0, None))
+    ));
     let mut obs = [0.0f32; DIMS.feat];
     for t in 0..ep.steps() {
         ep.observation(t, &mut obs);
@@ -250,6 +258,10 @@ pub fn run(
                 r.disc_applied,
                 r.adapt_applied,
             ));
+            probe.line(format_args!(
+                "  G(SE(y), 0) moved by {} since the episode began",
+                Fixed6(g_moved(&mut nav, &g0)?)
+            ));
         }
     }
     let c = nav.counters();
@@ -260,4 +272,34 @@ pub fn run(
         c.steps, c.adaptations, c.rollbacks, x_sum
     ));
     Ok(c)
+}
+
+/// ‖G_θi(SE(y), 0) − g0‖ at the navigator's current θ (its own buffer, so the episode's
+/// stack holds only `g0`).
+#[inline(never)]
+fn g_moved(nav: &mut Navigator<'_, Efficient, K>, g0: &[f32]) -> Result<f32, Failure> {
+    let mut x = [0.0f32; DIMS.feat];
+    nav.generator_output(&[0.0; DIMS.noise], &mut x)?;
+    Ok(norm_from(&x, Some(g0)))
+}
+
+/// ‖a − b‖ (‖a‖ without `b`), summed in order: the same bits on every target.
+fn norm_from(a: &[f32], b: Option<&[f32]>) -> f32 {
+    let mut s = 0.0f32;
+    for (i, &v) in a.iter().enumerate() {
+        let d = v - b.map_or(0.0, |b| b[i]);
+        s += d * d;
+    }
+    libm::sqrtf(s)
+}
+
+/// A non-negative value printed with six decimals, rounded down, from integers (no float
+/// formatting code in flash).
+struct Fixed6(f32);
+
+impl fmt::Display for Fixed6 {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let m = (self.0 * 1.0e6) as u64;
+        write!(f, "{}.{:06}", m / 1_000_000, m % 1_000_000)
+    }
 }

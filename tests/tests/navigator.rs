@@ -450,6 +450,97 @@ fn adaptation_moves_generated_feature_towards_observations() {
     // runs at most `max_inner_updates` = 4 steps of rate 1e-4 per episode.)
 }
 
+/// `Navigator::generator_output` is G at the current θ: with z = 0 it equals x_t of the
+/// zero-noise mode before and after inner updates, it moves when they move G, and probing it
+/// changes nothing the navigator does next (the firmware prints it between steps).
+#[test]
+fn generator_output_probes_g_without_changing_the_episode() {
+    let dims = Dims::MCU;
+    let w = weights(&dims, 8, 0.05);
+    let run = |probe: bool, noise: NoiseMode| {
+        let cfg = NavConfig {
+            alpha_disc: 0.05,
+            alpha_adapt: 0.2,
+            max_inner_updates: 3,
+            noise,
+            ..NavConfig::default()
+        };
+        let mut arena = vec![0.0f32; Navigator::<Efficient, 10>::arena_len(&dims)];
+        let mut nav: Navigator<'_, Efficient, 10> =
+            Navigator::new(nav_weights(&dims, &w), &mut arena, cfg).unwrap();
+        nav.reset(&[0.4; 45], 3).unwrap();
+        let z0 = vec![0.0f32; dims.noise];
+        let mut x = vec![0.0f32; dims.feat];
+        let mut rng = Xoshiro128::seed_from_u64(4);
+        let mut trace = Vec::new();
+        let mut probes = Vec::new();
+        for _ in 0..35 {
+            if probe {
+                nav.generator_output(&z0, &mut x).unwrap();
+                probes.push(x.clone());
+            }
+            let obs: Vec<f32> = (0..512).map(|_| uniform(&mut rng)).collect();
+            let out = nav.step(&obs, &[]).unwrap();
+            trace.push((
+                out.action.index(),
+                out.value.to_bits(),
+                out.probs.map(f32::to_bits),
+            ));
+            // (A step that ran an inner update generated its x_t before the update.)
+            if probe && noise == NoiseMode::Zero && !out.adapted {
+                nav.generator_output(&z0, &mut x).unwrap();
+                assert_eq!(
+                    x.iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
+                    nav.generated_feature()
+                        .iter()
+                        .map(|v| v.to_bits())
+                        .collect::<Vec<_>>(),
+                    "G(SE(y), 0) is x_t in the zero-noise mode"
+                );
+            }
+        }
+        assert_eq!(nav.counters().adaptations, 3);
+        let bits = nav
+            .generated_feature()
+            .iter()
+            .map(|v| v.to_bits())
+            .collect::<Vec<_>>();
+        (trace, bits, probes)
+    };
+    for noise in [NoiseMode::Zero, NoiseMode::Gaussian] {
+        let (t0, x0, _) = run(false, noise);
+        let (t1, x1, probes) = run(true, noise);
+        assert_eq!(t0, t1, "probing G must not change the episode ({noise:?})");
+        assert_eq!(x0, x1);
+        let moved = probes.first().zip(probes.last()).map(|(a, b)| {
+            a.iter()
+                .zip(b)
+                .map(|(p, q)| (p - q).powi(2))
+                .sum::<f32>()
+                .sqrt()
+        });
+        assert!(moved.unwrap() > 1e-3, "the inner updates move G: {moved:?}");
+    }
+    let mut arena = vec![0.0f32; Navigator::<Efficient, 10>::arena_len(&dims)];
+    let mut nav: Navigator<'_, Efficient, 10> =
+        Navigator::new(nav_weights(&dims, &w), &mut arena, NavConfig::default()).unwrap();
+    let mut x = vec![0.0f32; dims.feat];
+    assert!(
+        nav.generator_output(&[0.0; 45], &mut x).is_err(),
+        "before reset"
+    );
+    nav.reset(&[0.4; 45], 3).unwrap();
+    assert!(nav.generator_output(&[0.0; 44], &mut x).is_err(), "wrong z");
+    assert!(
+        nav.generator_output(&[f32::NAN; 45], &mut x).is_err(),
+        "NaN z"
+    );
+    assert!(
+        nav.generator_output(&[0.0; 45], &mut x[..511]).is_err(),
+        "wrong out"
+    );
+}
+
 /// The CosSim EMD variant adapts G and the actor head without touching D.
 #[test]
 fn cossim_variant_adapts_without_discriminator() {
