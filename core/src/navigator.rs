@@ -1051,12 +1051,12 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
             _ if self.x_fixed => {}
             NoiseMode::Gaussian => {
                 fill_gaussian(&mut self.rng, self.r.z);
-                self.generate()?;
+                self.run_generator(None)?;
             }
             NoiseMode::Zero => {
                 if !self.x_valid {
                     self.r.z.fill(0.0);
-                    self.generate()?;
+                    self.run_generator(None)?;
                     self.x_valid = true;
                 }
             }
@@ -1116,27 +1116,25 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
         if !all_finite(z) {
             return Err(Error::NonFiniteInput { what: "z" });
         }
-        let r = &mut self.r;
-        let gen = gen_view(&r.gen1, &r.gen2, &self.w)?;
-        let mut cache = GeneratorCache {
-            u1: r.u1,
-            h1: r.h1,
-            u2: r.u2,
-            x: out,
-        };
-        gen.forward(z, r.attr, &mut cache)
+        self.run_generator(Some((z, out)))
     }
 
-    fn generate(&mut self) -> Result<()> {
+    /// Line 7, x_t = G_θi(SE(y), z_t), into the navigator's x_t (`None`) or, for
+    /// [`Navigator::generator_output`], from a caller's noise into a caller's buffer.
+    fn run_generator(&mut self, z_out: Option<(&[f32], &mut [f32])>) -> Result<()> {
         let r = &mut self.r;
         let gen = gen_view(&r.gen1, &r.gen2, &self.w)?;
+        let (z, x) = match z_out {
+            Some((z, x)) => (z, x),
+            None => (&*r.z, &mut *r.x),
+        };
         let mut cache = GeneratorCache {
             u1: r.u1,
             h1: r.h1,
             u2: r.u2,
-            x: r.x,
+            x,
         };
-        gen.forward(r.z, r.attr, &mut cache)
+        gen.forward(z, r.attr, &mut cache)
     }
 
     fn run_policy(&mut self, obs: &[f32], map: &[f32]) -> Result<f32> {
