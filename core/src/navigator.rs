@@ -580,6 +580,31 @@ fn disc_view<'s>(
     })
 }
 
+/// The policy's layers: the trunk's weights from `w` (never adapted), its biases
+/// `[fuse, lstm, critic, cell]` and the actor head (adapted) from the navigator's RAM.
+fn policy_view<'s>(
+    w: &'s NavWeights<'_>,
+    [fuse_b, lstm_b, critic_b, cell_b]: [&'s [f32]; 4],
+    actor: &'s LayerRam<'_>,
+) -> Result<Policy<'s>> {
+    let dense = |id, b| Dense {
+        w: w.get(id),
+        b,
+        gain: None,
+    };
+    Ok(Policy {
+        fuse: dense(TensorId::FuseW, fuse_b),
+        lstm: Lstm {
+            wx: w.get(TensorId::LstmWx),
+            wh: w.get(TensorId::LstmWh),
+            b: lstm_b,
+        },
+        actor: actor.view(w.get(TensorId::ActorW))?,
+        critic: dense(TensorId::CriticW, critic_b),
+        cell: (w.dims.map_cells() > 0).then(|| dense(TensorId::CellW, cell_b)),
+    })
+}
+
 fn ok_update(p: &[f32], g: &[f32], step: f32) -> bool {
     p.iter().zip(g).all(|(a, b)| (a + step * b).is_finite())
 }
@@ -983,30 +1008,12 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
 
     /// The adapted policy φ_i as a view.
     pub fn policy(&self) -> Result<Policy<'_>> {
-        let w = &self.w;
-        Ok(Policy {
-            fuse: Dense {
-                w: w.get(TensorId::FuseW),
-                b: self.r.fuse_b,
-                gain: None,
-            },
-            lstm: Lstm {
-                wx: w.get(TensorId::LstmWx),
-                wh: w.get(TensorId::LstmWh),
-                b: self.r.lstm_b,
-            },
-            actor: self.r.actor.view(w.get(TensorId::ActorW))?,
-            critic: Dense {
-                w: w.get(TensorId::CriticW),
-                b: self.r.critic_b,
-                gain: None,
-            },
-            cell: (w.dims.map_cells() > 0).then(|| Dense {
-                w: w.get(TensorId::CellW),
-                b: self.r.cell_b,
-                gain: None,
-            }),
-        })
+        let r = &self.r;
+        policy_view(
+            &self.w,
+            [r.fuse_b, r.lstm_b, r.critic_b, r.cell_b],
+            &r.actor,
+        )
     }
 
     /// One control step on the observation embedding `obs` (`feat` floats) and, for policies
@@ -1138,31 +1145,9 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
     }
 
     fn run_policy(&mut self, obs: &[f32], map: &[f32]) -> Result<f32> {
-        let w = &self.w;
         let r = &mut self.r;
-        let policy = Policy {
-            fuse: Dense {
-                w: w.get(TensorId::FuseW),
-                b: r.fuse_b,
-                gain: None,
-            },
-            lstm: Lstm {
-                wx: w.get(TensorId::LstmWx),
-                wh: w.get(TensorId::LstmWh),
-                b: r.lstm_b,
-            },
-            actor: r.actor.view(w.get(TensorId::ActorW))?,
-            critic: Dense {
-                w: w.get(TensorId::CriticW),
-                b: r.critic_b,
-                gain: None,
-            },
-            cell: (w.dims.map_cells() > 0).then_some(Dense {
-                w: w.get(TensorId::CellW),
-                b: r.cell_b,
-                gain: None,
-            }),
-        };
+        let biases = [&*r.fuse_b, &*r.lstm_b, &*r.critic_b, &*r.cell_b];
+        let policy = policy_view(&self.w, biases, &r.actor)?;
         let inp = PolicyInput {
             obs,
             feat: r.x,
