@@ -175,6 +175,10 @@ pub struct NavConfig {
     /// layer (w2, b2) at zero (a blob records it, see [`ModelFlags::disc_head_reset`]; the
     /// paper: false, D persists across episodes).
     pub disc_head_reset: bool,
+    /// The descent step on L_ad adapts only the actor head φ; G stays at θ (the reference
+    /// implementation's default; a blob records it, see [`ModelFlags::head_only`]; the paper:
+    /// false, θ and the head).
+    pub head_only: bool,
     /// The adaptation mode the weights were meta-trained in, when known (a blob records it,
     /// see [`Header::adapt_mode`]): [`Navigator::new`] refuses to run such weights in the
     /// other mode, since the inner loop would then not be the one that was meta-learned.
@@ -208,7 +212,7 @@ impl NavConfig {
     ///   Efficient), so
     ///   that a navigator of the other mode refuses an adapting model.
     ///
-    /// * the inner rule's levers (`disc_steps`, `step_rule`, `disc_head_reset`), the form of
+    /// * the inner rule's levers (`disc_steps`, `step_rule`, `disc_head_reset`, `head_only`), the form of
     ///   L_ad (`adapt_loss`) and the scale of L_D's critic terms (`ld.critic_scale`, 1 or 10)
     ///   from [`ModelFlags`].
     ///
@@ -240,6 +244,7 @@ impl NavConfig {
             disc_head_reset,
             adapt_loss,
             reference_critic: _,
+            head_only,
         } = flags;
         NavConfig {
             adapt,
@@ -252,6 +257,7 @@ impl NavConfig {
             disc_steps,
             step_rule,
             disc_head_reset,
+            head_only,
             adapt_loss,
             ld: LdConfig {
                 critic_scale,
@@ -290,6 +296,7 @@ impl Default for NavConfig {
             disc_steps: 1,
             step_rule: StepRule::Gradient,
             disc_head_reset: false,
+            head_only: false,
             mode: None,
         }
     }
@@ -1447,7 +1454,15 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
                 0.0
             }
         };
-        let theta_sq = || g_gen1.sum_sq() + g_gen2.sum_sq();
+        // With `head_only` θ takes no step and has no say in the step's length.
+        let theta = !cfg.head_only;
+        let theta_sq = || {
+            if theta {
+                g_gen1.sum_sq() + g_gen2.sum_sq()
+            } else {
+                0.0
+            }
+        };
         let (a2, a2_phi) = match cfg.step_rule {
             StepRule::Gradient => (-cfg.alpha_adapt, -cfg.alpha_adapt),
             StepRule::Normalized => {
@@ -1456,17 +1471,22 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
             }
             StepRule::PerGroup => (unit(theta_sq()), unit(g_actor.sum_sq())),
         };
+        let theta_ok = || {
+            g_gen1.finite()
+                && g_gen2.finite()
+                && g_gen1.update_ok(gen1, a2)
+                && g_gen2.update_ok(gen2, a2)
+        };
         let adapt_ok = loss.is_finite()
             && libm::fabsf(loss) <= cfg.loss_bound
-            && g_gen1.finite()
-            && g_gen2.finite()
+            && (!theta || theta_ok())
             && g_actor.finite()
-            && g_gen1.update_ok(gen1, a2)
-            && g_gen2.update_ok(gen2, a2)
             && g_actor.update_ok(actor, a2_phi);
         if adapt_ok {
-            g_gen1.apply(gen1, a2);
-            g_gen2.apply(gen2, a2);
+            if theta {
+                g_gen1.apply(gen1, a2);
+                g_gen2.apply(gen2, a2);
+            }
             g_actor.apply(actor, a2_phi);
         }
         adapt_ok

@@ -308,6 +308,11 @@ pub const FLAG_REFERENCE_ADAPT_LOSS: u32 = 1 << 19;
 /// implementation ([`ModelFlags::critic_scale`]); without it by 1, the paper's Eq. 1.
 pub const FLAG_REFERENCE_CRITIC_SCALE: u32 = 1 << 20;
 
+/// Bit of the blob header's flags: the inner loop's descent step on L_ad updates only the
+/// actor head, G stays at θ (the reference implementation's default, whose G parameters get
+/// no inner gradient; [`ModelFlags::head_only`]); without it G and the head, the paper.
+pub const FLAG_HEAD_ONLY: u32 = 1 << 21;
+
 /// Bits 8..16 of the blob header's flags: D's ascent steps per inner update minus one
 /// ([`ModelFlags::disc_steps`], 1..=256; 0 in every blob written before the setting, i.e. the
 /// paper's one step).
@@ -359,6 +364,8 @@ pub struct ModelFlags {
     /// [`FLAG_REFERENCE_CRITIC_SCALE`]: L_D's critic terms scaled by 10 (the reference), else
     /// by 1 (the paper); see [`ModelFlags::critic_scale`].
     pub reference_critic: bool,
+    /// [`FLAG_HEAD_ONLY`]: the descent step on L_ad adapts only the actor head (G stays at θ).
+    pub head_only: bool,
 }
 
 impl ModelFlags {
@@ -396,6 +403,7 @@ impl ModelFlags {
                 AdaptLossKind::Paper
             },
             reference_critic: bits & FLAG_REFERENCE_CRITIC_SCALE != 0,
+            head_only: bits & FLAG_HEAD_ONLY != 0,
         }
     }
 
@@ -444,6 +452,9 @@ impl ModelFlags {
         }
         if self.reference_critic {
             f |= FLAG_REFERENCE_CRITIC_SCALE;
+        }
+        if self.head_only {
+            f |= FLAG_HEAD_ONLY;
         }
         f
     }
@@ -534,6 +545,10 @@ mod tests {
             (AdaptLossKind::Reference, 10.0)
         );
         assert_eq!(f.bits(), r);
+        assert!(!old.head_only && !f.head_only);
+        let h = ModelFlags::from_bits(FLAG_ADAPT | FLAG_HEAD_ONLY);
+        assert!(h.head_only && h.adapt);
+        assert_eq!(h.bits(), FLAG_ADAPT | FLAG_HEAD_ONLY);
         let mut f = old;
         f.disc_steps = 1000;
         assert_eq!(ModelFlags::from_bits(f.bits()).disc_steps, 256);

@@ -541,6 +541,52 @@ fn generator_output_probes_g_without_changing_the_episode() {
     );
 }
 
+/// `head_only` (the reference's default): the inner updates move the actor head and leave G
+/// exactly at θ; without it both move.
+#[test]
+fn head_only_adapts_the_actor_head_and_not_g() {
+    let dims = Dims::MCU;
+    let w = weights(&dims, 8, 0.05);
+    let run = |head_only: bool| {
+        let cfg = NavConfig {
+            alpha_disc: 0.05,
+            alpha_adapt: 0.2,
+            max_inner_updates: 3,
+            head_only,
+            ..NavConfig::default()
+        };
+        let mut arena = vec![0.0f32; Navigator::<Efficient, 10>::arena_len(&dims)];
+        let mut nav: Navigator<'_, Efficient, 10> =
+            Navigator::new(nav_weights(&dims, &w), &mut arena, cfg).unwrap();
+        nav.reset(&[0.4; 45], 3).unwrap();
+        let z0 = vec![0.0f32; dims.noise];
+        let (mut g0, mut g1) = (vec![0.0f32; dims.feat], vec![0.0f32; dims.feat]);
+        nav.generator_output(&z0, &mut g0).unwrap();
+        let head0 = core_layer(&nav.policy().unwrap().actor, true);
+        let mut rng = Xoshiro128::seed_from_u64(4);
+        for _ in 0..35 {
+            let obs: Vec<f32> = (0..512).map(|_| uniform(&mut rng)).collect();
+            nav.step(&obs, &[]).unwrap();
+        }
+        let c = nav.counters();
+        assert_eq!(
+            (c.adaptations, c.rollbacks),
+            (3, 0),
+            "head_only {head_only}"
+        );
+        nav.generator_output(&z0, &mut g1).unwrap();
+        let head1 = core_layer(&nav.policy().unwrap().actor, true);
+        let g_moved = g0.iter().zip(&g1).any(|(a, b)| a.to_bits() != b.to_bits());
+        (g_moved, head0 != head1)
+    };
+    assert_eq!(
+        run(true),
+        (false, true),
+        "head only: G fixed, the head moves"
+    );
+    assert_eq!(run(false), (true, true), "the paper: both move");
+}
+
 /// The CosSim EMD variant adapts G and the actor head without touching D.
 #[test]
 fn cossim_variant_adapts_without_discriminator() {

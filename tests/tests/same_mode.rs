@@ -167,6 +167,15 @@ fn trainer_and_device_agree_with_the_levers() {
         disc_head_reset: true,
         adapt_loss: AdaptLossName::Reference,
         reference_critic: true,
+        head_only: false,
     };
     check_with(AdaptMode::Efficient, gman_core::Dims::MCU, rule);
+    // The reference's default: only the actor head adapts (with the normalised step, whose
+    // length then comes from the head alone).
+    let head_only = InnerRule {
+        head_only: true,
+        step_rule: StepRuleName::Normalized,
+        ..InnerRule::default()
+    };
+    check_with(AdaptMode::Efficient, gman_core::Dims::MCU, head_only);
 }

@@ -50,6 +50,9 @@ pub struct EmdReportArgs {
     /// no opinion and its first ascent step on L_D sets the head from the episode's buffer.
     #[arg(long)]
     pub disc_head_reset: bool,
+    /// The descent step adapts only the actor head (G stays at θ; the reference's default).
+    #[arg(long)]
+    pub adapt_head_only: bool,
     /// Write the Fig. 3 picture (two scenes, PCA) to this PNG.
     #[arg(long, value_name = "OUT.png")]
     pub png: Option<PathBuf>,
@@ -102,6 +105,9 @@ pub fn cmd_emd_report(a: EmdReportArgs) -> Result<()> {
     }
     if a.disc_head_reset {
         model.inner_rule.disc_head_reset = true;
+    }
+    if a.adapt_head_only {
+        model.inner_rule.head_only = true;
     }
     model.inner_rule.validate()?;
     let episodes = world.episodes(split, Some(a.episodes))?;

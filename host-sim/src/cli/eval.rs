@@ -35,6 +35,10 @@ pub struct EvalArgs {
     /// Override the cap on inner updates per episode at evaluation (default: the model's, 4).
     #[arg(long, value_name = "N")]
     pub max_inner: Option<u32>,
+    /// At evaluation, the inner loop's descent step adapts only the actor head; G stays at θ
+    /// (the reference implementation's default).
+    #[arg(long)]
+    pub adapt_head_only: bool,
     /// At most N episodes per episode file (file order).
     #[arg(long, value_name = "N")]
     pub episodes: Option<usize>,
@@ -70,6 +74,7 @@ impl EvalArgs {
             method: self.method,
             inner_lr: self.inner_lr,
             max_inner: self.max_inner,
+            head_only: self.adapt_head_only,
         }
     }
 

@@ -19,6 +19,8 @@ pub struct ModelOverrides {
     pub inner_lr: Option<f32>,
     /// Cap on inner updates per episode.
     pub max_inner: Option<u32>,
+    /// The descent step adapts only the actor head (G stays at θ).
+    pub head_only: bool,
 }
 
 /// Model-file agents for `gman eval`: a checkpoint or a blob.
@@ -32,6 +34,9 @@ pub fn model_factory(path: &Path, ov: &ModelOverrides) -> Result<(AgentFactory, 
     }
     if let Some(n) = ov.max_inner {
         model.max_inner = n;
+    }
+    if ov.head_only {
+        model.inner_rule.head_only = true;
     }
     let model = Arc::new(model);
     let label = format!("{} ({})", model.method.name(), path.display());

@@ -118,6 +118,11 @@ pub struct TrainArgs {
     /// Recorded in the blob.
     #[arg(long)]
     pub reference_critic: bool,
+    /// The inner loop's descent step on L_ad adapts only the actor head; G stays at θ (the
+    /// reference implementation's default, whose G gets no inner gradient; the paper: G and
+    /// the head). Recorded in the blob.
+    #[arg(long)]
+    pub adapt_head_only: bool,
     /// Minimum steps per worker and update.
     #[arg(long, default_value_t = 40)]
     pub min_steps: u32,
@@ -293,6 +298,7 @@ fn inner_rule(a: &TrainArgs) -> gman_host_sim::nav::model::InnerRule {
         disc_head_reset: a.disc_head_reset,
         adapt_loss: a.adapt_loss,
         reference_critic: a.reference_critic,
+        head_only: a.adapt_head_only,
     }
 }
 
@@ -410,7 +416,7 @@ fn check_train_flags(a: &TrainArgs) -> Result<()> {
     }
     inner_rule(a).validate()?;
     if a.meta_order == 2 && a.method.adapts_in_training() && !inner_rule(a).is_paper() {
-        bail!("--meta-order 2 differentiates the paper's inner rule only (one D step, the gradient step, α1 = α2); use --meta-order 1 with --disc-lr, --disc-steps or --step-rule");
+        bail!("--meta-order 2 differentiates the paper's inner rule only (one D step, the gradient step, α1 = α2); use --meta-order 1 with --disc-lr, --disc-steps, --step-rule, --disc-head-reset, --adapt-loss, --reference-critic or --adapt-head-only");
     }
     Ok(())
 }
@@ -694,6 +700,12 @@ fn check_resumed_model(a: &TrainArgs, m: &NavModel, explicit: &dyn Fn(&str) -> b
         a.reference_critic,
         m.inner_rule.reference_critic,
         explicit("reference_critic"),
+    )?;
+    resumed(
+        "--adapt-head-only",
+        a.adapt_head_only,
+        m.inner_rule.head_only,
+        explicit("adapt_head_only"),
     )?;
     resumed("--method", a.method, m.method, explicit("method"))?;
     if let Some(mode) = a.adapt_mode {

@@ -286,6 +286,10 @@ pub struct InnerRule {
     /// not written when false.
     #[serde(default, skip_serializing_if = "is_false")]
     pub reference_critic: bool,
+    /// The descent step on L_ad adapts only the actor head, G stays at θ (the reference
+    /// implementation's default; the paper: G and the head); not written when false.
+    #[serde(default, skip_serializing_if = "is_false")]
+    pub head_only: bool,
 }
 
 fn is_paper_loss(l: &AdaptLossName) -> bool {
@@ -338,6 +342,7 @@ impl Default for InnerRule {
             disc_head_reset: false,
             adapt_loss: AdaptLossName::Paper,
             reference_critic: false,
+            head_only: false,
         }
     }
 }
@@ -787,6 +792,7 @@ impl NavModel {
             disc_head_reset: self.inner_rule.disc_head_reset,
             adapt_loss: self.inner_rule.adapt_loss.into(),
             reference_critic: self.inner_rule.reference_critic,
+            head_only: self.inner_rule.head_only,
         }
     }
 
@@ -893,6 +899,7 @@ pub fn model_from_blob(bytes: &[u8], method: Option<Method>) -> Result<NavModel>
         disc_head_reset: flags.disc_head_reset,
         adapt_loss: flags.adapt_loss.into(),
         reference_critic: flags.reference_critic,
+        head_only: flags.head_only,
     };
     Ok(NavModel {
         method,
@@ -1079,6 +1086,7 @@ mod inner_rule_tests {
             disc_head_reset: true,
             adapt_loss: AdaptLossName::Reference,
             reference_critic: true,
+            head_only: true,
         };
         let mut ck = Checkpoint::new(m.metadata());
         m.add_to_checkpoint(&mut ck).unwrap();
@@ -1094,6 +1102,7 @@ mod inner_rule_tests {
         assert_eq!((cfg.alpha_disc, cfg.alpha_adapt), (0.05, 0.5));
         assert_eq!((cfg.disc_steps, cfg.step_rule), (5, StepRule::PerGroup));
         assert!(cfg.disc_head_reset && m.nav_config(false).disc_head_reset);
+        assert!(cfg.head_only && m.nav_config(false).head_only);
         assert_eq!(cfg.adapt_loss, AdaptLossKind::Reference);
         assert_eq!(cfg.ld.critic_scale, 10.0);
         assert_eq!(m.nav_config(false).ld.critic_scale, 10.0);
