@@ -43,7 +43,23 @@ fn mean_std(v: &[f64]) -> (f64, f64) {
     (m, s)
 }
 
-/// `gman table`: Table 2/3 layout from evaluation JSON files.
+/// Welch's t of `mean(a) − mean(b)` (unequal variances); NaN with fewer than two values on a
+/// side or no spread at all.
+fn welch_t(a: &[f64], b: &[f64]) -> f64 {
+    if a.len() < 2 || b.len() < 2 {
+        return f64::NAN;
+    }
+    let ((ma, sa), (mb, sb)) = (mean_std(a), mean_std(b));
+    let se = (sa * sa / a.len() as f64 + sb * sb / b.len() as f64).sqrt();
+    if se > 0.0 {
+        (ma - mb) / se
+    } else {
+        f64::NAN
+    }
+}
+
+/// `gman table`: Table 2/3 layout from evaluation JSON files, then each row's SR against the
+/// first row's with Welch's t.
 pub fn cmd_table(a: TableArgs) -> Result<()> {
     println!(
         "{:<28} | {:^47} | {:^47}",
@@ -53,6 +69,7 @@ pub fn cmd_table(a: TableArgs) -> Result<()> {
         "{:<28} | {:>11} {:>11} {:>11} {:>11} | {:>11} {:>11} {:>11} {:>11}",
         "", "SR(%)", "SPL(%)", "EPA(%)", "DTS(m)", "SR(%)", "SPL(%)", "EPA(%)", "DTS(m)"
     );
+    let mut rows: Vec<(String, Vec<[f64; 8]>)> = Vec::new();
     for run in &a.runs {
         let files = json_files(run)?;
         let mut vals: Vec<[f64; 8]> = Vec::new();
@@ -99,7 +116,34 @@ pub fn cmd_table(a: TableArgs) -> Result<()> {
             cells[..4].join(" "),
             cells[4..].join(" ")
         );
+        rows.push((name, vals));
     }
     println!("(mean ± sample std over the JSON files of each row)");
+    if let Some(((first, base), rest)) = rows.split_first().filter(|(_, r)| !r.is_empty()) {
+        let col = |v: &[[f64; 8]], i: usize| v.iter().map(|r| r[i]).collect::<Vec<_>>();
+        println!("SR against {first} (difference of the means, Welch's t):");
+        for (name, v) in rest {
+            let d = |i: usize| {
+                let (a, b) = (col(base, i), col(v, i));
+                (mean_std(&a).0 - mean_std(&b).0, welch_t(&a, &b))
+            };
+            let ((du, tu), (ds, ts)) = (d(0), d(4));
+            println!("  − {name:<26} unseen {du:+6.2} (t {tu:5.2})  seen {ds:+6.2} (t {ts:5.2})");
+        }
+    }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::welch_t;
+
+    #[test]
+    fn welch_t_matches_a_hand_computation() {
+        // means 2 and 5, variances 1 and 4, n = 3 each: t = -3 / sqrt(1/3 + 4/3).
+        let t = welch_t(&[1.0, 2.0, 3.0], &[3.0, 5.0, 7.0]);
+        assert!((t - (-3.0 / (5.0f64 / 3.0).sqrt())).abs() < 1e-12, "{t}");
+        assert!(welch_t(&[1.0], &[2.0, 3.0]).is_nan());
+        assert!(welch_t(&[1.0, 1.0], &[1.0, 1.0]).is_nan());
+    }
 }
