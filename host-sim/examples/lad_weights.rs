@@ -107,7 +107,7 @@ fn run<M: Mode>(model: &NavModel, world: &World, per_file: usize) -> Result<(Ste
         let limits = EpisodeLimits::default().for_room(spec.room);
         let mut env = Env::new(world, &spec, RewardKind::Mixed, limits);
         while !env.is_done() {
-            let obs = env.observe().features.clone();
+            let obs = env.observe().features;
             if !map.is_empty() {
                 env.observe_map(grid, &mut map);
             }
