@@ -782,6 +782,8 @@ pub struct Navigator<'w, M: Mode, const K: usize> {
     counters: Counters,
     n_buf: usize,
     ready: bool,
+    /// A step was begun ([`Navigator::begin_step`]) and not yet finished.
+    begun: bool,
     x_valid: bool,
     x_fixed: bool,
     last: AdaptReport,
@@ -829,6 +831,7 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
             counters: Counters::default(),
             n_buf: 0,
             ready: false,
+            begun: false,
             x_valid: false,
             x_fixed: false,
             last: AdaptReport::default(),
@@ -896,6 +899,7 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
         self.x_valid = false;
         self.x_fixed = false;
         self.ready = true;
+        self.begun = false;
         let c = &mut self.counters;
         c.steps = 0;
         c.adaptations = 0;
@@ -1034,7 +1038,24 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
     /// cell-major, see [`Dims::map_len`]; empty for a model without a map) besides the
     /// pooled embedding `obs` (on a real camera: the map's average over cells, as the
     /// reference average-pools the ResNet map for D) and the PS input `ps`.
+    ///
+    /// The same as [`Navigator::begin_step`], the policy's trunk on this navigator's state,
+    /// then [`Navigator::finish_step`].
     pub fn step_map(&mut self, obs: &[f32], map: &[f32], ps: &[f32]) -> Result<StepOutput> {
+        self.begin_step(obs, map, ps)?;
+        // Line 8: the policy (trunk and heads in one pass).
+        let value = self.run_policy(obs, map)?;
+        self.commit_step(obs, value)
+    }
+
+    /// Lines 5-7 of a step, for a host that runs the policies of many navigators as one
+    /// batch: checks the inputs, keeps `ps` and generates x_t = G_θi(SE(y), z_t). The
+    /// policy's inputs are then [`Navigator::generated_feature`], [`Navigator::attr`],
+    /// [`Navigator::prev_probs`], `ps` and the state [`Navigator::hidden_state`] /
+    /// [`Navigator::cell_state`]; run the policy's trunk (fusion and LSTM, whose weights no
+    /// navigator adapts) on them and pass its new `(h, c)` to [`Navigator::finish_step`], with
+    /// the same `obs`. `begin_step` again before `finish_step` draws a new x_t.
+    pub fn begin_step(&mut self, obs: &[f32], map: &[f32], ps: &[f32]) -> Result<()> {
         if !self.ready {
             return Err(Error::Config {
                 what: "call reset() before step()",
@@ -1075,8 +1096,43 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
                 }
             }
         }
-        // Line 8: the policy.
-        let value = self.run_policy(obs, map)?;
+        self.begun = true;
+        Ok(())
+    }
+
+    /// The rest of a step begun with [`Navigator::begin_step`], from the policy trunk's new
+    /// LSTM state `h`, `c` (`lstm_hidden` each) computed by the caller: the actor head (this
+    /// navigator's, adapted) and the critic, the action, Ψ and, every k steps, the inner
+    /// update. Bit for bit [`Navigator::step_map`] when `(h, c)` are the trunk's output on
+    /// this navigator's inputs (the batched trunk gives each row exactly those bits).
+    pub fn finish_step(&mut self, obs: &[f32], h: &[f32], c: &[f32]) -> Result<StepOutput> {
+        let d = self.w.dims;
+        check_len("finish_step.obs", d.feat, obs.len())?;
+        check_len("finish_step.h", d.lstm_hidden, h.len())?;
+        check_len("finish_step.c", d.lstm_hidden, c.len())?;
+        if !all_finite(h) || !all_finite(c) {
+            return Err(Error::NonFiniteInput { what: "h, c" });
+        }
+        let r = &mut self.r;
+        r.h.copy_from_slice(h);
+        r.c.copy_from_slice(c);
+        let biases = [&*r.fuse_b, &*r.lstm_b, &*r.critic_b, &*r.cell_b];
+        let policy = policy_view(&self.w, biases, &r.actor)?;
+        let mut value = [0.0f32];
+        policy.heads(1, r.h, r.actor_u, r.logits, r.probs, &mut value)?;
+        self.commit_step(obs, value[0])
+    }
+
+    /// Lines 8-20 after the policy's outputs are in place: the action, Ψ, the state and, every
+    /// k steps, the inner update.
+    fn commit_step(&mut self, obs: &[f32], value: f32) -> Result<StepOutput> {
+        if !core::mem::take(&mut self.begun) {
+            return Err(Error::Config {
+                what: "call begin_step() before finish_step()",
+            });
+        }
+        let d = self.w.dims;
+        check_len("step.obs", d.feat, obs.len())?;
         if !all_finite(self.r.probs) || !value.is_finite() {
             return Err(Error::NumericalFault {
                 what: "action probabilities",

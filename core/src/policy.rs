@@ -230,18 +230,35 @@ impl<'a> Policy<'a> {
         let e = self.fuse.out_dim();
         self.lstm
             .forward_batch(&[t.fuse], &[e], n, h_prev, c_prev, t.gates, t.c, t.h)?;
+        self.heads(n, t.h, t.actor_u, t.logits, t.probs, t.value)
+    }
+
+    /// The heads on `n` LSTM states `h` (`n x lstm_hidden`): the actor's logits (`actor_u`
+    /// its pre-gain output, empty without a gain), the action probabilities and the critic's
+    /// values (`n`). The last part of [`Policy::forward`]; a host that runs the trunk of many
+    /// navigators as one batch finishes each row with its own (adapted) actor head here.
+    pub fn heads(
+        &self,
+        n: usize,
+        h: &[f32],
+        actor_u: &mut [f32],
+        logits: &mut [f32],
+        probs: &mut [f32],
+        value: &mut [f32],
+    ) -> Result<()> {
         let hd = self.lstm.hidden();
-        self.actor
-            .forward_batch(&[t.h], &[hd], n, t.actor_u, t.logits)?;
-        for (l, p) in t
-            .logits
+        check_len("policy.h", n * hd, h.len())?;
+        check_len("policy.probs", n * NUM_ACTIONS, probs.len())?;
+        check_len("policy.logits", n * NUM_ACTIONS, logits.len())?;
+        check_len("policy.value", n, value.len())?;
+        self.actor.forward_batch(&[h], &[hd], n, actor_u, logits)?;
+        for (l, p) in logits
             .chunks_exact(NUM_ACTIONS)
-            .zip(t.probs.chunks_exact_mut(NUM_ACTIONS))
+            .zip(probs.chunks_exact_mut(NUM_ACTIONS))
         {
             softmax(l, p)?;
         }
-        self.critic
-            .forward_batch(&[t.h], &[hd], n, &mut [], t.value)
+        self.critic.forward_batch(&[h], &[hd], n, &mut [], value)
     }
 
     /// One step of back-propagation through time.

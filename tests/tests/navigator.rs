@@ -9,8 +9,9 @@ use gman_core::matrix::MatRef;
 use gman_core::navigator::{
     Efficient, Full, Mode, NavConfig, NavWeights, Navigator, NoiseMode, Selection,
 };
+use gman_core::policy::{PolicyCache, PolicyInput};
 use gman_core::rng::{fill_gaussian, uniform, Xoshiro128};
-use gman_core::{Dims, Error};
+use gman_core::{Dims, Error, NUM_ACTIONS};
 use gman_tests::reference::nav::NavRef;
 use gman_tests::reference::{Dense64, Disc64, Gen64, Lstm64};
 
@@ -585,6 +586,122 @@ fn head_only_adapts_the_actor_head_and_not_g() {
         "head only: G fixed, the head moves"
     );
     assert_eq!(run(false), (true, true), "the paper: both move");
+}
+
+/// A host may run the policy trunk of many navigators as one batch
+/// (`begin_step` / `Policy::forward_batch` / `finish_step`): every navigator then gives the
+/// bits of its own `step`, inner updates included.
+#[test]
+fn batched_trunk_with_begin_and_finish_step_is_step_bit_for_bit() {
+    let dims = Dims::MCU;
+    let w = weights(&dims, 8, 0.05);
+    let cfg = NavConfig {
+        alpha_disc: 0.05,
+        alpha_adapt: 0.2,
+        max_inner_updates: 3,
+        ..NavConfig::default()
+    };
+    const B: usize = 3;
+    let alen = Navigator::<Efficient, 10>::arena_len(&dims);
+    let mut arenas: Vec<Vec<f32>> = (0..2 * B).map(|_| vec![0.0f32; alen]).collect();
+    let (ref_arenas, bat_arenas) = arenas.split_at_mut(B);
+    fn mk<'a>(
+        w: NavWeights<'a>,
+        a: &'a mut [f32],
+        cfg: NavConfig,
+        b: usize,
+    ) -> Navigator<'a, Efficient, 10> {
+        let mut nav = Navigator::new(w, a, cfg).unwrap();
+        nav.reset(&[0.1 + 0.2 * b as f32; 45], 3 + b as u64)
+            .unwrap();
+        nav
+    }
+    let nw = || nav_weights(&dims, &w);
+    let mut refs: Vec<_> = (ref_arenas.iter_mut().enumerate())
+        .map(|(b, a)| mk(nw(), a, cfg, b))
+        .collect();
+    let mut bats: Vec<_> = (bat_arenas.iter_mut().enumerate())
+        .map(|(b, a)| mk(nw(), a, cfg, b))
+        .collect();
+    let (f, lh) = (dims.feat, dims.lstm_hidden);
+    let mut rng = Xoshiro128::seed_from_u64(4);
+    let mut adapted = 0;
+    for t in 0..35 {
+        let obs: Vec<Vec<f32>> = (0..B)
+            .map(|_| (0..f).map(|_| uniform(&mut rng)).collect())
+            .collect();
+        for (nav, o) in bats.iter_mut().zip(&obs) {
+            nav.begin_step(o, &[], &[]).unwrap();
+        }
+        // The trunk of all B navigators in one batch (the view's actor head is the first
+        // navigator's; only h and c are used).
+        let cat = |g: &dyn Fn(usize) -> Vec<f32>| (0..B).flat_map(g).collect::<Vec<f32>>();
+        let feat = cat(&|b| bats[b].generated_feature().to_vec());
+        let attr = cat(&|b| bats[b].attr().to_vec());
+        let prev = cat(&|b| bats[b].prev_probs().to_vec());
+        let (hp, cp) = (
+            cat(&|b| bats[b].hidden_state().to_vec()),
+            cat(&|b| bats[b].cell_state().to_vec()),
+        );
+        let obs_cat: Vec<f32> = obs.concat();
+        let e = dims.embed;
+        let mut c1 = (
+            vec![0.0; B * f],
+            vec![0.0; B * e],
+            vec![0.0; B * 4 * lh],
+            vec![0.0; B * lh],
+            vec![0.0; B * lh],
+            vec![0.0; B * NUM_ACTIONS],
+            vec![0.0; B * NUM_ACTIONS],
+            vec![0.0; B * NUM_ACTIONS],
+            vec![0.0; B],
+        );
+        {
+            let policy = bats[0].policy().unwrap();
+            let inp = PolicyInput {
+                obs: &obs_cat,
+                feat: &feat,
+                attr: &attr,
+                prev_probs: &prev,
+                ps: &[],
+                map: &[],
+            };
+            let mut cache = PolicyCache {
+                prod: &mut c1.0,
+                fuse: &mut c1.1,
+                gates: &mut c1.2,
+                c: &mut c1.3,
+                h: &mut c1.4,
+                actor_u: &mut c1.5,
+                logits: &mut c1.6,
+                probs: &mut c1.7,
+                value: &mut c1.8,
+                cell: &mut [],
+                cell_prod: &mut [],
+            };
+            policy.forward_batch(B, &inp, &hp, &cp, &mut cache).unwrap();
+        }
+        for b in 0..B {
+            let want = refs[b].step(&obs[b], &[]).unwrap();
+            let (h, c) = (&c1.4[b * lh..(b + 1) * lh], &c1.3[b * lh..(b + 1) * lh]);
+            let got = bats[b].finish_step(&obs[b], h, c).unwrap();
+            assert_eq!(got.action, want.action, "t={t} b={b}");
+            assert_eq!(got.value.to_bits(), want.value.to_bits(), "t={t} b={b}");
+            assert_eq!(got.probs.map(f32::to_bits), want.probs.map(f32::to_bits));
+            assert_eq!(got.adapted, want.adapted);
+            adapted += got.adapted as u32;
+        }
+    }
+    assert_eq!(adapted, 3 * B as u32, "every navigator adapted 3 times");
+    for (a, b) in refs.iter().zip(&bats) {
+        let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        assert_eq!(bits(a.generated_feature()), bits(b.generated_feature()));
+        assert_eq!(bits(a.hidden_state()), bits(b.hidden_state()));
+    }
+    // The order is enforced.
+    assert!(bats[0]
+        .finish_step(&[0.5; 512], &[0.0; 64], &[0.0; 64])
+        .is_err());
 }
 
 /// The CosSim EMD variant adapts G and the actor head without touching D.
