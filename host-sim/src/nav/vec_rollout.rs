@@ -37,7 +37,7 @@
 //! episodes per worker (with `B = 1` exactly the batch-1 rule).
 
 use anyhow::{anyhow, bail, Result};
-use gman_core::activation::all_finite;
+use gman_core::activation::{all_finite, leaky_relu_inplace, sigmoid_inplace};
 use gman_core::generator::Generator;
 use gman_core::memory::AdaptMode;
 use gman_core::navigator::{select_action, Efficient, Full, Mode, Navigator, NoiseMode, Selection};
@@ -45,7 +45,7 @@ use gman_core::policy::{Policy, PolicyInput};
 use gman_core::rng::{fill_gaussian, Xoshiro128};
 use gman_core::{Dims, NUM_ACTIONS};
 
-use super::a3c::{A3cConfig, Objective};
+use super::a3c::{A3cConfig, Objective, SegmentLoss};
 use super::bptt::{take_act, Backward, GenBufs, Rows, Segment, StepAct, Widths};
 use super::model::NavModel;
 use super::rollout::{disc_after_episode, expert_distribution, EpisodeStats, Worker};
@@ -142,7 +142,44 @@ struct Bufs<'b> {
     rows: Rows,
     bw: Backward,
     gen: GenBufs,
+    gb: GenBatch,
+    pending: Pending,
 }
+
+/// G's forward over the episodes of a tick that draw a new x_t, as one batch.
+#[derive(Default)]
+struct GenBatch {
+    /// Slots (indices into `slots`) of the batch, in tick order.
+    who: Vec<usize>,
+    z: Vec<f32>,
+    attr: Vec<f32>,
+    u1: Vec<f32>,
+    h1: Vec<f32>,
+    u2: Vec<f32>,
+    x: Vec<f32>,
+}
+
+/// Segments whose forward is done, waiting for their backward (see the module docs).
+#[derive(Default)]
+struct Pending {
+    segs: Vec<PendingSeg>,
+    steps: usize,
+}
+
+/// A complete segment of episode `e`: its steps, their activations, SE(y), `V_T`; `seq`
+/// numbers the segments of an update in the order they completed.
+struct PendingSeg {
+    e: u32,
+    seq: u32,
+    steps: Vec<StepRec>,
+    acts: Vec<StepAct>,
+    attr: Vec<f32>,
+    bootstrap: f32,
+}
+
+/// With `B > 1`, the backward of the pending segments runs once this many steps wait (and at
+/// the end of the update): the bound on the memory they hold.
+pub const MAX_PENDING_STEPS: usize = 4096;
 
 /// Refuses a `B` out of `1..=MAX_BATCH_ENVS`, and `B > 1` for a method with an inner loop in
 /// training (its episodes run one at a time through [`super::trainer::train_episode`]).
@@ -215,7 +252,11 @@ fn run_worker_in<'w, M: Mode>(
         rows: Rows::default(),
         bw: Backward::default(),
         gen: GenBufs::new(&cx.gen, w.f),
+        gb: GenBatch::default(),
+        pending: Pending::default(),
     };
+    let mut losses: Vec<(u32, u32, SegmentLoss)> = Vec::new();
+    let mut seq = 0u32;
     let mut slots: Vec<Option<Slot<'w>>> = (0..s.batch_envs).map(|_| None).collect();
     let mut done: Vec<Finished> = Vec::new();
     let (mut next_e, mut taken) = (0u32, 0u64);
@@ -245,7 +286,11 @@ fn run_worker_in<'w, M: Mode>(
             })
             .collect();
         if !ready.is_empty() {
-            backward_ready(&cx, &mut bufs, &mut slots, &ready, grads)?;
+            pend_ready(&cx, &mut bufs, &mut slots, &ready, &mut seq)?;
+            // B = 1 runs each segment's backward at once: the batch-1 trainer's order.
+            if s.batch_envs == 1 || bufs.pending.steps >= MAX_PENDING_STEPS {
+                flush(&cx, &mut bufs, grads, &mut losses)?;
+            }
             for slot in slots.iter_mut() {
                 if slot.as_ref().is_some_and(|s| s.env.is_done()) {
                     if let Some(sl) = slot.take() {
@@ -255,7 +300,19 @@ fn run_worker_in<'w, M: Mode>(
             }
         }
     }
+    flush(&cx, &mut bufs, grads, &mut losses)?;
+    // Each episode's losses in the order of its segments.
+    losses.sort_by_key(|&(e, q, _)| (e, q));
     done.sort_by_key(|f| f.0);
+    let mut li = losses.iter().peekable();
+    for f in done.iter_mut() {
+        while let Some((_, _, l)) = li.next_if(|(e, _, _)| *e == f.0) {
+            f.1.loss.add(l);
+        }
+    }
+    if li.next().is_some() {
+        bail!("vectorised rollout: a segment's episode did not finish");
+    }
     Ok(done)
 }
 
@@ -269,26 +326,31 @@ fn step_slots(
     active: &[usize],
 ) -> Result<u64> {
     let (w, n) = (&cx.w, active.len());
-    let rows = &mut b.rows;
-    rows.resize(n, w);
-    for (j, &i) in active.iter().enumerate() {
+    b.gb.who.clear();
+    for &i in active {
         let sl = slots[i].as_mut().ok_or_else(|| anyhow!("empty slot"))?;
         observe(sl, cx.model, b.ps, cx.grid, w.map, cx.s.objective)?;
         if !sl.x_fixed {
             match cx.model.noise {
                 NoiseMode::Gaussian => {
                     fill_gaussian(&mut sl.rng, &mut sl.z);
-                    b.gen.generate(&cx.gen, &sl.z, &sl.attr, &mut sl.x)?;
+                    b.gb.who.push(i);
                 }
                 NoiseMode::Zero => {
                     if !sl.x_valid {
                         sl.z.fill(0.0);
-                        b.gen.generate(&cx.gen, &sl.z, &sl.attr, &mut sl.x)?;
+                        b.gb.who.push(i);
                         sl.x_valid = true;
                     }
                 }
             }
         }
+    }
+    b.gb.generate(&cx.gen, slots, w)?;
+    let rows = &mut b.rows;
+    rows.resize(n, w);
+    for (j, &i) in active.iter().enumerate() {
+        let sl = slots[i].as_ref().ok_or_else(|| anyhow!("empty slot"))?;
         put_inputs(rows, j, sl, w);
     }
     rows.forward(&cx.policy, n, w)?;
@@ -323,16 +385,15 @@ fn step_slots(
     Ok(n as u64)
 }
 
-/// The backward of the segments complete at this tick (`ready`): their bootstrap values,
-/// then one batched BPTT, longest segment first (then slot), so that the segments running at
-/// each backward step are a prefix of the batch. Their losses go to the episodes' statistics
-/// and the segments are cleared.
-fn backward_ready(
+/// The segments complete at this tick (`ready`): their bootstrap values (one batched
+/// forward, at the parameters they ran with), then they join the pending segments, numbered
+/// in `ready`'s (slot) order; the slots' segments are cleared.
+fn pend_ready(
     cx: &Ctx<'_>,
     b: &mut Bufs<'_>,
     slots: &mut [Option<Slot<'_>>],
     ready: &[usize],
-    grads: &mut ParamSet,
+    seq: &mut u32,
 ) -> Result<()> {
     let boot = bootstrap(
         slots,
@@ -344,25 +405,50 @@ fn backward_ready(
         &cx.w,
         &mut b.rows,
     )?;
-    let mut batch: Vec<(usize, f32)> = ready.iter().copied().zip(boot).collect();
-    batch.sort_by_key(|&(i, _)| {
-        (
-            std::cmp::Reverse(slots[i].as_ref().map_or(0, |s| s.seg.len())),
-            i,
-        )
-    });
-    let segs: Vec<Segment<'_>> = batch
+    for (&i, boot) in ready.iter().zip(boot) {
+        let sl = slots[i].as_mut().ok_or_else(|| anyhow!("empty slot"))?;
+        let steps = std::mem::replace(&mut sl.seg, Vec::with_capacity(K));
+        let acts = std::mem::replace(&mut sl.acts, Vec::with_capacity(K));
+        b.pending.steps += steps.len();
+        b.pending.segs.push(PendingSeg {
+            e: sl.e,
+            seq: *seq,
+            steps,
+            acts,
+            attr: sl.attr.clone(),
+            bootstrap: boot,
+        });
+        *seq += 1;
+    }
+    Ok(())
+}
+
+/// The backward of the pending segments as one batched BPTT, longest segment first (then in
+/// the order they completed), so that the segments running at each backward step are a
+/// prefix of the batch. Their losses are collected as `(episode, seq, loss)`; nothing is
+/// pending afterwards.
+fn flush(
+    cx: &Ctx<'_>,
+    b: &mut Bufs<'_>,
+    grads: &mut ParamSet,
+    losses: &mut Vec<(u32, u32, SegmentLoss)>,
+) -> Result<()> {
+    let mut pend = std::mem::take(&mut b.pending.segs);
+    b.pending.steps = 0;
+    if pend.is_empty() {
+        return Ok(());
+    }
+    pend.sort_by_key(|p| (std::cmp::Reverse(p.steps.len()), p.seq));
+    let segs: Vec<Segment<'_>> = pend
         .iter()
-        .filter_map(|&(i, boot)| {
-            slots[i].as_ref().map(|sl| Segment {
-                steps: &sl.seg,
-                acts: &sl.acts,
-                attr: &sl.attr,
-                bootstrap: boot,
-            })
+        .map(|p| Segment {
+            steps: &p.steps,
+            acts: &p.acts,
+            attr: &p.attr,
+            bootstrap: p.bootstrap,
         })
         .collect();
-    let losses = b.bw.run(
+    let ls = b.bw.run(
         &cx.policy,
         &cx.gen,
         &segs,
@@ -373,13 +459,56 @@ fn backward_ready(
         grads,
         &mut b.gen,
     )?;
-    for (&(i, _), l) in batch.iter().zip(&losses) {
-        let sl = slots[i].as_mut().ok_or_else(|| anyhow!("empty slot"))?;
-        sl.stats.loss.add(l);
-        sl.seg.clear();
-        sl.acts.clear();
-    }
+    losses.extend(pend.iter().zip(ls).map(|(p, l)| (p.e, p.seq, l)));
     Ok(())
+}
+
+impl GenBatch {
+    /// x_t = G(SE(y), z_t) for the slots in `who` (their `z` drawn), as one batch through
+    /// the batched dense kernels: every vector gets the bits of `Generator::forward` alone
+    /// (the kernels' contract; the activations are element-wise).
+    fn generate(
+        &mut self,
+        gen: &Generator<'_>,
+        slots: &mut [Option<Slot<'_>>],
+        w: &Widths,
+    ) -> Result<()> {
+        let n = self.who.len();
+        if n == 0 {
+            return Ok(());
+        }
+        gen.validate()?;
+        let (h, a) = (gen.hidden(), w.a);
+        if gen.in_dim() != w.z + a || gen.feat() != w.f {
+            bail!("generator: widths do not match the model");
+        }
+        self.z.clear();
+        self.attr.clear();
+        for &i in &self.who {
+            let sl = slots[i].as_ref().ok_or_else(|| anyhow!("empty slot"))?;
+            self.z.extend_from_slice(&sl.z);
+            self.attr.extend_from_slice(&sl.attr);
+        }
+        let sz = |v: &mut Vec<f32>, k: usize| {
+            v.clear();
+            v.resize(k, 0.0);
+        };
+        sz(&mut self.u1, if gen.l1.gain.is_some() { n * h } else { 0 });
+        sz(&mut self.h1, n * h);
+        sz(&mut self.u2, if gen.l2.gain.is_some() { n * w.f } else { 0 });
+        sz(&mut self.x, n * w.f);
+        gen.l1
+            .forward_batch(&[&self.z, &self.attr], &[w.z, a], n, &mut self.u1, &mut self.h1)?;
+        leaky_relu_inplace(&mut self.h1);
+        gen.l2
+            .forward_batch(&[&self.h1], &[h], n, &mut self.u2, &mut self.x)?;
+        sigmoid_inplace(&mut self.x);
+        for (&i, x) in self.who.iter().zip(self.x.chunks_exact(w.f)) {
+            let sl = slots[i].as_mut().ok_or_else(|| anyhow!("empty slot"))?;
+            sl.x.copy_from_slice(x);
+        }
+        Ok(())
+    }
 }
 
 fn start_slot<'w>(

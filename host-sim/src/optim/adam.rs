@@ -159,24 +159,41 @@ impl Adam {
         let bc2 = 1.0 - (c.beta2 as f64).powi(self.t.min(i32::MAX as u64) as i32);
         let step_size = (c.lr as f64 / bc1) as f32;
         let bc2_sqrt = bc2.sqrt() as f32;
+        let (b1, b2, eps) = (c.beta1, c.beta2, c.eps);
         for (k, (p, g)) in params.tensors.iter_mut().zip(&grads.tensors).enumerate() {
-            let m = &mut self.m[k];
-            let v = &mut self.v[k];
-            for i in 0..p.data.len() {
-                let gi = g.data[i] * scale;
-                m[i] = c.beta1 * m[i] + (1.0 - c.beta1) * gi;
-                v[i] = c.beta2 * v[i] + (1.0 - c.beta2) * gi * gi;
-                let vh = if c.amsgrad {
-                    let vm = &mut self.vmax[k][i];
-                    if v[i] > *vm {
-                        *vm = v[i];
-                    }
-                    *vm
-                } else {
-                    v[i]
-                };
-                let denom = vh.sqrt() / bc2_sqrt + c.eps;
-                p.data[i] -= step_size * m[i] / denom;
+            let (m, v) = (&mut self.m[k][..], &mut self.v[k][..]);
+            // A tensor with a zero gradient and both moments exactly +0 (one the method does
+            // not train, e.g. G and D of the A3C baselines) is left as it is: the update
+            // below would write m = v = +0 again and subtract +0 from every parameter, the
+            // same bits.
+            if g.data.iter().all(|&x| x == 0.0)
+                && m.iter().all(|x| x.to_bits() == 0)
+                && v.iter().all(|x| x.to_bits() == 0)
+            {
+                continue;
+            }
+            // Element-wise, the operations of the formula in the module docs in that order
+            // (written over zipped slices so that the compiler vectorises it; every lane does
+            // what the scalar loop did).
+            let (pd, gd) = (&mut p.data[..], &g.data[..]);
+            if c.amsgrad {
+                let vmax = &mut self.vmax[k][..];
+                for ((((p, &g), m), v), vm) in pd.iter_mut().zip(gd).zip(m).zip(v).zip(vmax) {
+                    let gi = g * scale;
+                    *m = b1 * *m + (1.0 - b1) * gi;
+                    *v = b2 * *v + (1.0 - b2) * gi * gi;
+                    *vm = if *v > *vm { *v } else { *vm };
+                    let denom = vm.sqrt() / bc2_sqrt + eps;
+                    *p -= step_size * *m / denom;
+                }
+            } else {
+                for (((p, &g), m), v) in pd.iter_mut().zip(gd).zip(m).zip(v) {
+                    let gi = g * scale;
+                    *m = b1 * *m + (1.0 - b1) * gi;
+                    *v = b2 * *v + (1.0 - b2) * gi * gi;
+                    let denom = v.sqrt() / bc2_sqrt + eps;
+                    *p -= step_size * *m / denom;
+                }
             }
         }
         Ok(StepInfo { grad_norm, clipped })
