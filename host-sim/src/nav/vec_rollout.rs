@@ -38,6 +38,7 @@
 
 use anyhow::{anyhow, bail, Result};
 use gman_core::activation::{all_finite, leaky_relu_inplace, sigmoid_inplace};
+use gman_core::blob::TensorId;
 use gman_core::generator::Generator;
 use gman_core::memory::AdaptMode;
 use gman_core::navigator::{select_action, Efficient, Full, Mode, Navigator, NoiseMode, Selection};
@@ -102,7 +103,11 @@ struct Slot<'w> {
     expert: Option<[f32; NUM_ACTIONS]>,
 }
 
-/// One finished episode of a worker's update: its index, statistics and D after it.
+/// One finished episode of a worker's update: its index, statistics and D after it. Without
+/// an inner loop D after every episode is the model's ω; when its values are ω's bit for bit
+/// (checked once per update) the list is empty, which the trainer's delta sum
+/// `Σ_e (ω_e − ω)` (a zip over the tensors given) reads as no change — the same bits as the
+/// +0 that `ω_e − ω` gives for every value, without copying D for every episode.
 pub type Finished = (u32, EpisodeStats, Vec<Vec<f32>>);
 
 /// Runs one worker's share of an update with `s.batch_envs` environments in lockstep:
@@ -232,8 +237,13 @@ fn run_worker_in<'w, M: Mode>(
     nav.reset(&vec![0.0; d.attr], 0)?;
     let policy = nav.policy()?;
     let w = Widths::of(&policy, &d);
-    // D after an episode: unchanged without an inner loop.
+    // D after an episode: unchanged without an inner loop (see [`Finished`]).
     let disc = disc_after_episode(&nav)?;
+    let disc = if is_omega(model, &disc)? {
+        Vec::new()
+    } else {
+        disc
+    };
     let cx = Ctx {
         model,
         s,
@@ -630,6 +640,22 @@ fn bootstrap(
         }
     }
     Ok(out)
+}
+
+/// True when `disc` (D after an episode, [`disc_after_episode`]'s order) is the model's ω
+/// bit for bit.
+fn is_omega(model: &NavModel, disc: &[Vec<f32>]) -> Result<bool> {
+    let ids = TensorId::DISCRIMINATOR;
+    if disc.len() != ids.len() {
+        return Ok(false);
+    }
+    for (id, d) in ids.iter().zip(disc) {
+        let p = &model.params.tensor(id.name())?.data;
+        if p.len() != d.len() || p.iter().zip(d).any(|(a, b)| a.to_bits() != b.to_bits()) {
+            return Ok(false);
+        }
+    }
+    Ok(true)
 }
 
 fn finish(sl: Slot<'_>, disc: Vec<Vec<f32>>) -> Finished {
