@@ -5,12 +5,14 @@
 //! ```text
 //! while a slot is free and the worker's step budget is not spent: start episode e in it
 //! every tick:
-//!   each running episode: observation, PS input, map; noise z_t and x_t = G(SE(y), z_t)
+//!   each running episode: observation, PS input, map; noise z_t
+//!   x_t = G(SE(y), z_t) for the running episodes, as one batch
 //!   one batched policy forward over the running episodes          (Algorithm 1, line 8)
 //!   each episode: its action from its own generator, the environment steps
 //!   the episodes whose segment is complete (k = 20 steps, or the episode ended):
-//!     bootstrap values (one batched forward), then one batched BPTT over their segments
+//!     bootstrap values (one batched forward); the segment waits for its backward
 //!   an ended episode frees its slot for the next one (no waiting for the others)
+//! at the end of the update (B > 1): one batched BPTT over all the waiting segments
 //! ```
 //!
 //! **For the methods without an inner loop** (`adapts_in_training()` false: `a3c`,
@@ -24,12 +26,19 @@
 //! for bit the episode the navigator runs alone** (same actions, probabilities, rewards);
 //! `tests/vec_rollout.rs` pins this against [`super::trainer::train_episode`].
 //!
-//! **Gradient order.** The segments that complete at the same tick form one backward batch,
-//! ordered by length (longest first, then slot); within it every tensor's gradient is summed
-//! step by step (last step first) and, within a step, over the batch in order. With `B = 1`
-//! this is exactly the order of [`super::trainer::train_episode`] (one segment at a time), so
-//! `B = 1` gives the same update bit for bit; with `B > 1` the order is fixed by
-//! `(seed, update, worker, B)`, so runs stay reproducible and resumable bit for bit.
+//! **Gradient order.** θ and φ do not change within an update, so a segment's backward can
+//! wait: with `B > 1` every segment of the worker's update joins one batched BPTT at the end
+//! of the update (or earlier, whenever [`MAX_PENDING_STEPS`] steps wait, which bounds the
+//! memory), ordered by length (longest first), then by the order the segments completed (tick,
+//! then slot). Within it every tensor's gradient is summed step by step (last step first)
+//! and, within a step, over the batch in order. This batches the backward over all the
+//! update's episodes (a tick completes only a few segments, the update tens). The order is
+//! fixed by `(seed, update, worker, B)`, so runs stay reproducible and resumable bit for bit;
+//! it is not the order of earlier builds (one batch per tick), so a `B > 1` run differs from
+//! theirs by float rounding (`tests/vec_rollout.rs` checks the gradient against the
+//! per-episode sum within `1e-4` of each tensor's largest value; this module's tests pin
+//! the order). With `B = 1` each segment's backward runs as it completes: exactly the order
+//! of [`super::trainer::train_episode`], so `B = 1` gives the same update bit for bit.
 //!
 //! **Episodes per update.** A worker starts episodes (indices `e = 0, 1, ..`, seeded as in the
 //! batch-1 trainer) while it has taken fewer than `min_steps` steps in the update, and the
@@ -123,8 +132,10 @@ pub fn run_worker(
     sample: impl FnMut(u32) -> Result<(EpisodeSpec, u32)>,
 ) -> Result<Vec<Finished>> {
     match model.adapt_mode {
-        AdaptMode::Full => run_worker_in::<Full>(world, model, s, worker, grads, sample),
-        AdaptMode::Efficient => run_worker_in::<Efficient>(world, model, s, worker, grads, sample),
+        AdaptMode::Full => run_worker_in::<Full>(world, model, s, worker, grads, sample, None),
+        AdaptMode::Efficient => {
+            run_worker_in::<Efficient>(world, model, s, worker, grads, sample, None)
+        }
     }
 }
 
@@ -223,6 +234,7 @@ fn run_worker_in<'w, M: Mode>(
     worker: &mut Worker,
     grads: &mut ParamSet,
     mut sample: impl FnMut(u32) -> Result<(EpisodeSpec, u32)>,
+    keep: Option<&mut Vec<PendingSeg>>,
 ) -> Result<Vec<Finished>> {
     check_settings(model, s)?;
     // The navigator provides the parameter views (G and the policy, in the model's mode).
@@ -310,7 +322,11 @@ fn run_worker_in<'w, M: Mode>(
             }
         }
     }
-    flush(&cx, &mut bufs, grads, &mut losses)?;
+    match keep {
+        // The tests' view of the final batch: its segments, instead of their backward.
+        Some(k) => *k = std::mem::take(&mut bufs.pending.segs),
+        None => flush(&cx, &mut bufs, grads, &mut losses)?,
+    }
     // Each episode's losses in the order of its segments.
     losses.sort_by_key(|&(e, q, _)| (e, q));
     done.sort_by_key(|f| f.0);
@@ -505,10 +521,18 @@ impl GenBatch {
         };
         sz(&mut self.u1, if gen.l1.gain.is_some() { n * h } else { 0 });
         sz(&mut self.h1, n * h);
-        sz(&mut self.u2, if gen.l2.gain.is_some() { n * w.f } else { 0 });
+        sz(
+            &mut self.u2,
+            if gen.l2.gain.is_some() { n * w.f } else { 0 },
+        );
         sz(&mut self.x, n * w.f);
-        gen.l1
-            .forward_batch(&[&self.z, &self.attr], &[w.z, a], n, &mut self.u1, &mut self.h1)?;
+        gen.l1.forward_batch(
+            &[&self.z, &self.attr],
+            &[w.z, a],
+            n,
+            &mut self.u1,
+            &mut self.h1,
+        )?;
         leaky_relu_inplace(&mut self.h1);
         gen.l2
             .forward_batch(&[&self.h1], &[h], n, &mut self.u2, &mut self.x)?;
@@ -670,4 +694,119 @@ fn finish(sl: Slot<'_>, disc: Vec<Vec<f32>>) -> Finished {
     stats.adapt_loss = f32::NAN;
     stats.final_feature = sl.x;
     (sl.e, stats, disc)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::nav::model::Method;
+    use crate::train::generator::init_generator;
+    use gman_core::rng::Xoshiro128;
+    use rand::SeedableRng;
+    use rand_chacha::ChaCha8Rng;
+
+    fn bits(g: &ParamSet) -> Vec<u32> {
+        g.tensors
+            .iter()
+            .flat_map(|t| t.data.iter().map(|v| v.to_bits()))
+            .collect()
+    }
+
+    /// The deferred backward's order, pinned: the gradient of a `B > 1` update is that of
+    /// one batched BPTT over all the update's segments sorted by length (longest first),
+    /// then by the order they completed — and that order matters (the same segments one at
+    /// a time give other bits).
+    #[test]
+    fn the_update_is_one_backward_over_its_segments_longest_first() {
+        let world = World::synthetic(7);
+        let d = Dims::MCU;
+        let g = init_generator(&d, &mut Xoshiro128::seed_from_u64(5)).unwrap();
+        for method in [Method::A3cFg, Method::GmanNoemd] {
+            let model = NavModel::init(method, d, 3, Some(&g), None).unwrap();
+            let a3c = A3cConfig::default();
+            let s = VecSettings {
+                batch_envs: 6,
+                min_steps: 60,
+                reward: RewardKind::Mixed,
+                a3c: &a3c,
+                objective: Objective::A3c,
+            };
+            let sample = |e: u32| -> Result<(EpisodeSpec, u32)> {
+                let mut rng = ChaCha8Rng::seed_from_u64(900 + e as u64);
+                Ok((world.try_sample_train_episode_min(&mut rng, 1)?, 45))
+            };
+            let run = |keep: Option<&mut Vec<PendingSeg>>| {
+                let mut grads = model.params.zeros_like();
+                let mut worker = Worker::new(&model);
+                let done = run_worker_in::<Efficient>(
+                    &world,
+                    &model,
+                    &s,
+                    &mut worker,
+                    &mut grads,
+                    sample,
+                    keep,
+                )
+                .unwrap();
+                (grads, done)
+            };
+            let (got, done) = run(None);
+            let mut segs = Vec::new();
+            let (none, _) = run(Some(&mut segs));
+            assert!(
+                bits(&none).iter().all(|&b| b == 0),
+                "nothing flushed before the end"
+            );
+            assert!(
+                done.len() >= 6 && segs.len() >= done.len(),
+                "{}",
+                segs.len()
+            );
+            let lens: Vec<usize> = segs.iter().map(|p| p.steps.len()).collect();
+            assert!(
+                lens.iter().any(|&l| l != lens[0]),
+                "segments of several lengths"
+            );
+            // The documented order, computed here.
+            segs.sort_by_key(|p| (std::cmp::Reverse(p.steps.len()), p.seq));
+            let weights = model.weights().unwrap();
+            let mut arena = vec![0.0; Navigator::<Full, K>::arena_len(&d)];
+            let mut nav: Navigator<'_, Efficient, K> =
+                Navigator::new(weights, &mut arena, model.nav_config(true)).unwrap();
+            nav.reset(&vec![0.0; d.attr], 0).unwrap();
+            let (policy, gen) = (nav.policy().unwrap(), nav.generator().unwrap());
+            let w = Widths::of(&policy, &d);
+            let train_g = method.trains_generator();
+            fn seg(p: &PendingSeg) -> Segment<'_> {
+                Segment {
+                    steps: &p.steps,
+                    acts: &p.acts,
+                    attr: &p.attr,
+                    bootstrap: p.bootstrap,
+                }
+            }
+            let backward = |segs: &[Segment<'_>], grads: &mut ParamSet| {
+                let mut gb = GenBufs::new(&gen, w.f);
+                Backward::default()
+                    .run(&policy, &gen, segs, &a3c, train_g, &w, &d, grads, &mut gb)
+                    .unwrap();
+            };
+            let mut want = model.params.zeros_like();
+            let all: Vec<Segment<'_>> = segs.iter().map(seg).collect();
+            backward(&all, &mut want);
+            assert_eq!(
+                bits(&got),
+                bits(&want),
+                "{}: the pinned order",
+                method.name()
+            );
+            // One segment at a time (completion order): a different sum of the same terms.
+            segs.sort_by_key(|p| p.seq);
+            let mut one = model.params.zeros_like();
+            for p in &segs {
+                backward(&[seg(p)], &mut one);
+            }
+            assert_ne!(bits(&got), bits(&one), "{}: order-sensitive", method.name());
+        }
+    }
 }
