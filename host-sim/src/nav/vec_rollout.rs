@@ -49,6 +49,7 @@ use anyhow::{anyhow, bail, Result};
 use gman_core::activation::{all_finite, leaky_relu_inplace, sigmoid_inplace};
 use gman_core::blob::TensorId;
 use gman_core::generator::Generator;
+use gman_core::matrix::Weights;
 use gman_core::memory::AdaptMode;
 use gman_core::navigator::{select_action, Efficient, Full, Mode, Navigator, NoiseMode, Selection};
 use gman_core::policy::{Policy, PolicyInput};
@@ -250,11 +251,10 @@ fn run_worker_in<'w, M: Mode>(
     let policy = nav.policy()?;
     let w = Widths::of(&policy, &d);
     // D after an episode: unchanged without an inner loop (see [`Finished`]).
-    let disc = disc_after_episode(&nav)?;
-    let disc = if is_omega(model, &disc)? {
+    let disc = if is_omega(&nav, model)? {
         Vec::new()
     } else {
-        disc
+        disc_after_episode(&nav)?
     };
     let cx = Ctx {
         model,
@@ -666,20 +666,30 @@ fn bootstrap(
     Ok(out)
 }
 
-/// True when `disc` (D after an episode, [`disc_after_episode`]'s order) is the model's ω
-/// bit for bit.
-fn is_omega(model: &NavModel, disc: &[Vec<f32>]) -> Result<bool> {
-    let ids = TensorId::DISCRIMINATOR;
-    if disc.len() != ids.len() {
+/// True when D as the navigator holds it after an episode without an inner loop
+/// ([`disc_after_episode`]: `diag(gain) W1`, `b1`, `w2`, `b2`) is the model's ω bit for
+/// bit: W1 in f32 with no gain or unit gains, and every value the model's.
+fn is_omega<M: Mode>(nav: &Navigator<'_, M, K>, model: &NavModel) -> Result<bool> {
+    let d = nav.discriminator()?;
+    let w1 = match d.l1.w.weights() {
+        Weights::F32(w) => w,
+        _ => return Ok(false),
+    };
+    if d.l1
+        .gain
+        .is_some_and(|g| g.iter().any(|v| v.to_bits() != 1f32.to_bits()))
+    {
         return Ok(false);
     }
-    for (id, d) in ids.iter().zip(disc) {
+    let b2 = [d.b2];
+    let ids = TensorId::DISCRIMINATOR;
+    for (id, v) in ids.iter().zip([w1, d.l1.b, d.w2, &b2[..]]) {
         let p = &model.params.tensor(id.name())?.data;
-        if p.len() != d.len() || p.iter().zip(d).any(|(a, b)| a.to_bits() != b.to_bits()) {
+        if p.len() != v.len() || p.iter().zip(v).any(|(a, b)| a.to_bits() != b.to_bits()) {
             return Ok(false);
         }
     }
-    Ok(true)
+    Ok(ids.len() == 4)
 }
 
 fn finish(sl: Slot<'_>, disc: Vec<Vec<f32>>) -> Finished {
@@ -751,6 +761,8 @@ mod tests {
                 (grads, done)
             };
             let (got, done) = run(None);
+            // D is the model's ω: no copy of it per episode.
+            assert!(done.iter().all(|f| f.2.is_empty()));
             let mut segs = Vec::new();
             let (none, _) = run(Some(&mut segs));
             assert!(
