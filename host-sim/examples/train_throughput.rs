@@ -73,6 +73,20 @@ fn parse() -> Result<Args> {
     Ok(a)
 }
 
+/// CPU seconds (user + system) of this process so far, from `/proc/self/stat` (Linux; 0
+/// elsewhere): unlike the wall clock, not inflated by other processes on a busy machine.
+fn cpu_secs() -> f64 {
+    let Ok(s) = std::fs::read_to_string("/proc/self/stat") else {
+        return 0.0;
+    };
+    // Fields after the command name (which is in parentheses): utime and stime are the
+    // 12th and 13th of them.
+    let rest = s.rsplit_once(')').map_or("", |(_, r)| r);
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let ticks = |i: usize| f.get(i).and_then(|v| v.parse::<f64>().ok()).unwrap_or(0.0);
+    (ticks(11) + ticks(12)) / 100.0
+}
+
 fn main() -> Result<()> {
     let a = parse()?;
     let world = World::synthetic(DEFAULT_WORLD_SEED);
@@ -85,7 +99,7 @@ fn main() -> Result<()> {
         ..AdamConfig::default()
     };
     let out = std::env::temp_dir().join(format!("gman-tp-{}", std::process::id()));
-    let mut sps = Vec::new();
+    let (mut sps, mut cpus) = (Vec::new(), Vec::new());
     for rep in 0..a.reps {
         let model = NavModel::init(a.method, a.dims, 1, Some(&gen), None)?;
         let mut state = TrainState::new(model, adam);
@@ -104,7 +118,7 @@ fn main() -> Result<()> {
         };
         train(&world, &opts, &mut state)?;
         let s0 = state.env_steps;
-        let t0 = Instant::now();
+        let (t0, c0) = (Instant::now(), cpu_secs());
         train(
             &world,
             &TrainOptions {
@@ -114,19 +128,24 @@ fn main() -> Result<()> {
             &mut state,
         )?;
         let secs = t0.elapsed().as_secs_f64();
+        let cpu = cpu_secs() - c0;
         let steps = state.env_steps - s0;
         let r = steps as f64 / secs;
         println!(
-            "rep {rep}: {} updates, {steps} env steps, {secs:.2} s: {r:.0} env steps/s",
-            a.updates
+            "rep {rep}: {} updates, {steps} env steps, {secs:.2} s: {r:.0} env steps/s; {cpu:.2} CPU s: {:.0} env steps per CPU second",
+            a.updates,
+            steps as f64 / cpu
         );
         sps.push(r);
+        cpus.push(steps as f64 / cpu);
     }
     let _ = std::fs::remove_dir_all(&out);
     sps.sort_by(f64::total_cmp);
+    cpus.sort_by(f64::total_cmp);
     println!(
-        "median {:.0} env steps/s (B={}, workers {})",
+        "median {:.0} env steps/s, {:.0} per CPU second (B={}, workers {})",
         sps[sps.len() / 2],
+        cpus[cpus.len() / 2],
         a.batch_envs,
         a.workers
     );
