@@ -228,28 +228,6 @@ impl GenBufs {
             tmp: vec![0.0; f.max(gh)],
         }
     }
-
-    fn cache(&mut self) -> GeneratorCache<'_> {
-        GeneratorCache {
-            u1: &mut self.u1,
-            h1: &mut self.h1,
-            u2: &mut self.u2,
-            x: &mut self.x,
-        }
-    }
-
-    pub(crate) fn generate(
-        &mut self,
-        gen: &Generator<'_>,
-        z: &[f32],
-        attr: &[f32],
-        x: &mut [f32],
-    ) -> Result<()> {
-        let mut c = self.cache();
-        gen.forward(z, attr, &mut c)?;
-        x.copy_from_slice(&self.x);
-        Ok(())
-    }
 }
 
 impl GenBufs {

@@ -5,12 +5,14 @@
 //! ```text
 //! while a slot is free and the worker's step budget is not spent: start episode e in it
 //! every tick:
-//!   each running episode: observation, PS input, map; noise z_t and x_t = G(SE(y), z_t)
+//!   each running episode: observation, PS input, map; noise z_t
+//!   x_t = G(SE(y), z_t) for the running episodes, as one batch
 //!   one batched policy forward over the running episodes          (Algorithm 1, line 8)
 //!   each episode: its action from its own generator, the environment steps
 //!   the episodes whose segment is complete (k = 20 steps, or the episode ended):
-//!     bootstrap values (one batched forward), then one batched BPTT over their segments
+//!     bootstrap values (one batched forward); the segment waits for its backward
 //!   an ended episode frees its slot for the next one (no waiting for the others)
+//! at the end of the update (B > 1): one batched BPTT over all the waiting segments
 //! ```
 //!
 //! **For the methods without an inner loop** (`adapts_in_training()` false: `a3c`,
@@ -24,12 +26,19 @@
 //! for bit the episode the navigator runs alone** (same actions, probabilities, rewards);
 //! `tests/vec_rollout.rs` pins this against [`super::trainer::train_episode`].
 //!
-//! **Gradient order.** The segments that complete at the same tick form one backward batch,
-//! ordered by length (longest first, then slot); within it every tensor's gradient is summed
-//! step by step (last step first) and, within a step, over the batch in order. With `B = 1`
-//! this is exactly the order of [`super::trainer::train_episode`] (one segment at a time), so
-//! `B = 1` gives the same update bit for bit; with `B > 1` the order is fixed by
-//! `(seed, update, worker, B)`, so runs stay reproducible and resumable bit for bit.
+//! **Gradient order.** θ and φ do not change within an update, so a segment's backward can
+//! wait: with `B > 1` every segment of the worker's update joins one batched BPTT at the end
+//! of the update (or earlier, whenever [`MAX_PENDING_STEPS`] steps wait, which bounds the
+//! memory), ordered by length (longest first), then by the order the segments completed (tick,
+//! then slot). Within it every tensor's gradient is summed step by step (last step first)
+//! and, within a step, over the batch in order. This batches the backward over all the
+//! update's episodes (a tick completes only a few segments, the update tens). The order is
+//! fixed by `(seed, update, worker, B)`, so runs stay reproducible and resumable bit for bit;
+//! it is not the order of earlier builds (one batch per tick), so a `B > 1` run differs from
+//! theirs by float rounding (`tests/vec_rollout.rs` checks the gradient against the
+//! per-episode sum within `1e-4` of each tensor's largest value; this module's tests pin
+//! the order). With `B = 1` each segment's backward runs as it completes: exactly the order
+//! of [`super::trainer::train_episode`], so `B = 1` gives the same update bit for bit.
 //!
 //! **Episodes per update.** A worker starts episodes (indices `e = 0, 1, ..`, seeded as in the
 //! batch-1 trainer) while it has taken fewer than `min_steps` steps in the update, and the
@@ -37,15 +46,17 @@
 //! episodes per worker (with `B = 1` exactly the batch-1 rule).
 
 use anyhow::{anyhow, bail, Result};
-use gman_core::activation::all_finite;
+use gman_core::activation::{all_finite, leaky_relu_inplace, sigmoid_inplace};
+use gman_core::blob::TensorId;
 use gman_core::generator::Generator;
+use gman_core::matrix::Weights;
 use gman_core::memory::AdaptMode;
 use gman_core::navigator::{select_action, Efficient, Full, Mode, Navigator, NoiseMode, Selection};
 use gman_core::policy::{Policy, PolicyInput};
 use gman_core::rng::{fill_gaussian, Xoshiro128};
 use gman_core::{Dims, NUM_ACTIONS};
 
-use super::a3c::{A3cConfig, Objective};
+use super::a3c::{A3cConfig, Objective, SegmentLoss};
 use super::bptt::{take_act, Backward, GenBufs, Rows, Segment, StepAct, Widths};
 use super::model::NavModel;
 use super::rollout::{disc_after_episode, expert_distribution, EpisodeStats, Worker};
@@ -102,7 +113,11 @@ struct Slot<'w> {
     expert: Option<[f32; NUM_ACTIONS]>,
 }
 
-/// One finished episode of a worker's update: its index, statistics and D after it.
+/// One finished episode of a worker's update: its index, statistics and D after it. Without
+/// an inner loop D after every episode is the model's ω; when its values are ω's bit for bit
+/// (checked once per update) the list is empty, which the trainer's delta sum
+/// `Σ_e (ω_e − ω)` (a zip over the tensors given) reads as no change — the same bits as the
+/// +0 that `ω_e − ω` gives for every value, without copying D for every episode.
 pub type Finished = (u32, EpisodeStats, Vec<Vec<f32>>);
 
 /// Runs one worker's share of an update with `s.batch_envs` environments in lockstep:
@@ -118,8 +133,10 @@ pub fn run_worker(
     sample: impl FnMut(u32) -> Result<(EpisodeSpec, u32)>,
 ) -> Result<Vec<Finished>> {
     match model.adapt_mode {
-        AdaptMode::Full => run_worker_in::<Full>(world, model, s, worker, grads, sample),
-        AdaptMode::Efficient => run_worker_in::<Efficient>(world, model, s, worker, grads, sample),
+        AdaptMode::Full => run_worker_in::<Full>(world, model, s, worker, grads, sample, None),
+        AdaptMode::Efficient => {
+            run_worker_in::<Efficient>(world, model, s, worker, grads, sample, None)
+        }
     }
 }
 
@@ -142,7 +159,44 @@ struct Bufs<'b> {
     rows: Rows,
     bw: Backward,
     gen: GenBufs,
+    gb: GenBatch,
+    pending: Pending,
 }
+
+/// G's forward over the episodes of a tick that draw a new x_t, as one batch.
+#[derive(Default)]
+struct GenBatch {
+    /// Slots (indices into `slots`) of the batch, in tick order.
+    who: Vec<usize>,
+    z: Vec<f32>,
+    attr: Vec<f32>,
+    u1: Vec<f32>,
+    h1: Vec<f32>,
+    u2: Vec<f32>,
+    x: Vec<f32>,
+}
+
+/// Segments whose forward is done, waiting for their backward (see the module docs).
+#[derive(Default)]
+struct Pending {
+    segs: Vec<PendingSeg>,
+    steps: usize,
+}
+
+/// A complete segment of episode `e`: its steps, their activations, SE(y), `V_T`; `seq`
+/// numbers the segments of an update in the order they completed.
+struct PendingSeg {
+    e: u32,
+    seq: u32,
+    steps: Vec<StepRec>,
+    acts: Vec<StepAct>,
+    attr: Vec<f32>,
+    bootstrap: f32,
+}
+
+/// With `B > 1`, the backward of the pending segments runs once this many steps wait (and at
+/// the end of the update): the bound on the memory they hold.
+pub const MAX_PENDING_STEPS: usize = 4096;
 
 /// Refuses a `B` out of `1..=MAX_BATCH_ENVS`, and `B > 1` for a method with an inner loop in
 /// training (its episodes run one at a time through [`super::trainer::train_episode`]).
@@ -181,6 +235,7 @@ fn run_worker_in<'w, M: Mode>(
     worker: &mut Worker,
     grads: &mut ParamSet,
     mut sample: impl FnMut(u32) -> Result<(EpisodeSpec, u32)>,
+    keep: Option<&mut Vec<PendingSeg>>,
 ) -> Result<Vec<Finished>> {
     check_settings(model, s)?;
     // The navigator provides the parameter views (G and the policy, in the model's mode).
@@ -195,8 +250,12 @@ fn run_worker_in<'w, M: Mode>(
     nav.reset(&vec![0.0; d.attr], 0)?;
     let policy = nav.policy()?;
     let w = Widths::of(&policy, &d);
-    // D after an episode: unchanged without an inner loop.
-    let disc = disc_after_episode(&nav)?;
+    // D after an episode: unchanged without an inner loop (see [`Finished`]).
+    let disc = if is_omega(&nav, model)? {
+        Vec::new()
+    } else {
+        disc_after_episode(&nav)?
+    };
     let cx = Ctx {
         model,
         s,
@@ -215,7 +274,11 @@ fn run_worker_in<'w, M: Mode>(
         rows: Rows::default(),
         bw: Backward::default(),
         gen: GenBufs::new(&cx.gen, w.f),
+        gb: GenBatch::default(),
+        pending: Pending::default(),
     };
+    let mut losses: Vec<(u32, u32, SegmentLoss)> = Vec::new();
+    let mut seq = 0u32;
     let mut slots: Vec<Option<Slot<'w>>> = (0..s.batch_envs).map(|_| None).collect();
     let mut done: Vec<Finished> = Vec::new();
     let (mut next_e, mut taken) = (0u32, 0u64);
@@ -245,7 +308,11 @@ fn run_worker_in<'w, M: Mode>(
             })
             .collect();
         if !ready.is_empty() {
-            backward_ready(&cx, &mut bufs, &mut slots, &ready, grads)?;
+            pend_ready(&cx, &mut bufs, &mut slots, &ready, &mut seq)?;
+            // B = 1 runs each segment's backward at once: the batch-1 trainer's order.
+            if s.batch_envs == 1 || bufs.pending.steps >= MAX_PENDING_STEPS {
+                flush(&cx, &mut bufs, grads, &mut losses)?;
+            }
             for slot in slots.iter_mut() {
                 if slot.as_ref().is_some_and(|s| s.env.is_done()) {
                     if let Some(sl) = slot.take() {
@@ -255,7 +322,23 @@ fn run_worker_in<'w, M: Mode>(
             }
         }
     }
+    match keep {
+        // The tests' view of the final batch: its segments, instead of their backward.
+        Some(k) => *k = std::mem::take(&mut bufs.pending.segs),
+        None => flush(&cx, &mut bufs, grads, &mut losses)?,
+    }
+    // Each episode's losses in the order of its segments.
+    losses.sort_by_key(|&(e, q, _)| (e, q));
     done.sort_by_key(|f| f.0);
+    let mut li = losses.iter().peekable();
+    for f in done.iter_mut() {
+        while let Some((_, _, l)) = li.next_if(|(e, _, _)| *e == f.0) {
+            f.1.loss.add(l);
+        }
+    }
+    if li.next().is_some() {
+        bail!("vectorised rollout: a segment's episode did not finish");
+    }
     Ok(done)
 }
 
@@ -269,26 +352,31 @@ fn step_slots(
     active: &[usize],
 ) -> Result<u64> {
     let (w, n) = (&cx.w, active.len());
-    let rows = &mut b.rows;
-    rows.resize(n, w);
-    for (j, &i) in active.iter().enumerate() {
+    b.gb.who.clear();
+    for &i in active {
         let sl = slots[i].as_mut().ok_or_else(|| anyhow!("empty slot"))?;
         observe(sl, cx.model, b.ps, cx.grid, w.map, cx.s.objective)?;
         if !sl.x_fixed {
             match cx.model.noise {
                 NoiseMode::Gaussian => {
                     fill_gaussian(&mut sl.rng, &mut sl.z);
-                    b.gen.generate(&cx.gen, &sl.z, &sl.attr, &mut sl.x)?;
+                    b.gb.who.push(i);
                 }
                 NoiseMode::Zero => {
                     if !sl.x_valid {
                         sl.z.fill(0.0);
-                        b.gen.generate(&cx.gen, &sl.z, &sl.attr, &mut sl.x)?;
+                        b.gb.who.push(i);
                         sl.x_valid = true;
                     }
                 }
             }
         }
+    }
+    b.gb.generate(&cx.gen, slots, w)?;
+    let rows = &mut b.rows;
+    rows.resize(n, w);
+    for (j, &i) in active.iter().enumerate() {
+        let sl = slots[i].as_ref().ok_or_else(|| anyhow!("empty slot"))?;
         put_inputs(rows, j, sl, w);
     }
     rows.forward(&cx.policy, n, w)?;
@@ -323,16 +411,15 @@ fn step_slots(
     Ok(n as u64)
 }
 
-/// The backward of the segments complete at this tick (`ready`): their bootstrap values,
-/// then one batched BPTT, longest segment first (then slot), so that the segments running at
-/// each backward step are a prefix of the batch. Their losses go to the episodes' statistics
-/// and the segments are cleared.
-fn backward_ready(
+/// The segments complete at this tick (`ready`): their bootstrap values (one batched
+/// forward, at the parameters they ran with), then they join the pending segments, numbered
+/// in `ready`'s (slot) order; the slots' segments are cleared.
+fn pend_ready(
     cx: &Ctx<'_>,
     b: &mut Bufs<'_>,
     slots: &mut [Option<Slot<'_>>],
     ready: &[usize],
-    grads: &mut ParamSet,
+    seq: &mut u32,
 ) -> Result<()> {
     let boot = bootstrap(
         slots,
@@ -344,25 +431,50 @@ fn backward_ready(
         &cx.w,
         &mut b.rows,
     )?;
-    let mut batch: Vec<(usize, f32)> = ready.iter().copied().zip(boot).collect();
-    batch.sort_by_key(|&(i, _)| {
-        (
-            std::cmp::Reverse(slots[i].as_ref().map_or(0, |s| s.seg.len())),
-            i,
-        )
-    });
-    let segs: Vec<Segment<'_>> = batch
+    for (&i, boot) in ready.iter().zip(boot) {
+        let sl = slots[i].as_mut().ok_or_else(|| anyhow!("empty slot"))?;
+        let steps = std::mem::replace(&mut sl.seg, Vec::with_capacity(K));
+        let acts = std::mem::replace(&mut sl.acts, Vec::with_capacity(K));
+        b.pending.steps += steps.len();
+        b.pending.segs.push(PendingSeg {
+            e: sl.e,
+            seq: *seq,
+            steps,
+            acts,
+            attr: sl.attr.clone(),
+            bootstrap: boot,
+        });
+        *seq += 1;
+    }
+    Ok(())
+}
+
+/// The backward of the pending segments as one batched BPTT, longest segment first (then in
+/// the order they completed), so that the segments running at each backward step are a
+/// prefix of the batch. Their losses are collected as `(episode, seq, loss)`; nothing is
+/// pending afterwards.
+fn flush(
+    cx: &Ctx<'_>,
+    b: &mut Bufs<'_>,
+    grads: &mut ParamSet,
+    losses: &mut Vec<(u32, u32, SegmentLoss)>,
+) -> Result<()> {
+    let mut pend = std::mem::take(&mut b.pending.segs);
+    b.pending.steps = 0;
+    if pend.is_empty() {
+        return Ok(());
+    }
+    pend.sort_by_key(|p| (std::cmp::Reverse(p.steps.len()), p.seq));
+    let segs: Vec<Segment<'_>> = pend
         .iter()
-        .filter_map(|&(i, boot)| {
-            slots[i].as_ref().map(|sl| Segment {
-                steps: &sl.seg,
-                acts: &sl.acts,
-                attr: &sl.attr,
-                bootstrap: boot,
-            })
+        .map(|p| Segment {
+            steps: &p.steps,
+            acts: &p.acts,
+            attr: &p.attr,
+            bootstrap: p.bootstrap,
         })
         .collect();
-    let losses = b.bw.run(
+    let ls = b.bw.run(
         &cx.policy,
         &cx.gen,
         &segs,
@@ -373,13 +485,64 @@ fn backward_ready(
         grads,
         &mut b.gen,
     )?;
-    for (&(i, _), l) in batch.iter().zip(&losses) {
-        let sl = slots[i].as_mut().ok_or_else(|| anyhow!("empty slot"))?;
-        sl.stats.loss.add(l);
-        sl.seg.clear();
-        sl.acts.clear();
-    }
+    losses.extend(pend.iter().zip(ls).map(|(p, l)| (p.e, p.seq, l)));
     Ok(())
+}
+
+impl GenBatch {
+    /// x_t = G(SE(y), z_t) for the slots in `who` (their `z` drawn), as one batch through
+    /// the batched dense kernels: every vector gets the bits of `Generator::forward` alone
+    /// (the kernels' contract; the activations are element-wise).
+    fn generate(
+        &mut self,
+        gen: &Generator<'_>,
+        slots: &mut [Option<Slot<'_>>],
+        w: &Widths,
+    ) -> Result<()> {
+        let n = self.who.len();
+        if n == 0 {
+            return Ok(());
+        }
+        gen.validate()?;
+        let (h, a) = (gen.hidden(), w.a);
+        if gen.in_dim() != w.z + a || gen.feat() != w.f {
+            bail!("generator: widths do not match the model");
+        }
+        self.z.clear();
+        self.attr.clear();
+        for &i in &self.who {
+            let sl = slots[i].as_ref().ok_or_else(|| anyhow!("empty slot"))?;
+            self.z.extend_from_slice(&sl.z);
+            self.attr.extend_from_slice(&sl.attr);
+        }
+        let sz = |v: &mut Vec<f32>, k: usize| {
+            v.clear();
+            v.resize(k, 0.0);
+        };
+        sz(&mut self.u1, if gen.l1.gain.is_some() { n * h } else { 0 });
+        sz(&mut self.h1, n * h);
+        sz(
+            &mut self.u2,
+            if gen.l2.gain.is_some() { n * w.f } else { 0 },
+        );
+        sz(&mut self.x, n * w.f);
+        gen.l1.forward_batch(
+            &[&self.z, &self.attr],
+            &[w.z, a],
+            n,
+            &mut self.u1,
+            &mut self.h1,
+        )?;
+        leaky_relu_inplace(&mut self.h1);
+        gen.l2
+            .forward_batch(&[&self.h1], &[h], n, &mut self.u2, &mut self.x)?;
+        sigmoid_inplace(&mut self.x);
+        for (&i, x) in self.who.iter().zip(self.x.chunks_exact(w.f)) {
+            let sl = slots[i].as_mut().ok_or_else(|| anyhow!("empty slot"))?;
+            sl.x.copy_from_slice(x);
+        }
+        Ok(())
+    }
 }
 
 fn start_slot<'w>(
@@ -503,6 +666,32 @@ fn bootstrap(
     Ok(out)
 }
 
+/// True when D as the navigator holds it after an episode without an inner loop
+/// ([`disc_after_episode`]: `diag(gain) W1`, `b1`, `w2`, `b2`) is the model's ω bit for
+/// bit: W1 in f32 with no gain or unit gains, and every value the model's.
+fn is_omega<M: Mode>(nav: &Navigator<'_, M, K>, model: &NavModel) -> Result<bool> {
+    let d = nav.discriminator()?;
+    let w1 = match d.l1.w.weights() {
+        Weights::F32(w) => w,
+        _ => return Ok(false),
+    };
+    if d.l1
+        .gain
+        .is_some_and(|g| g.iter().any(|v| v.to_bits() != 1f32.to_bits()))
+    {
+        return Ok(false);
+    }
+    let b2 = [d.b2];
+    let ids = TensorId::DISCRIMINATOR;
+    for (id, v) in ids.iter().zip([w1, d.l1.b, d.w2, &b2[..]]) {
+        let p = &model.params.tensor(id.name())?.data;
+        if p.len() != v.len() || p.iter().zip(v).any(|(a, b)| a.to_bits() != b.to_bits()) {
+            return Ok(false);
+        }
+    }
+    Ok(ids.len() == 4)
+}
+
 fn finish(sl: Slot<'_>, disc: Vec<Vec<f32>>) -> Finished {
     let m = sl.env.metrics();
     let mut stats = sl.stats;
@@ -515,4 +704,121 @@ fn finish(sl: Slot<'_>, disc: Vec<Vec<f32>>) -> Finished {
     stats.adapt_loss = f32::NAN;
     stats.final_feature = sl.x;
     (sl.e, stats, disc)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::nav::model::Method;
+    use crate::train::generator::init_generator;
+    use gman_core::rng::Xoshiro128;
+    use rand::SeedableRng;
+    use rand_chacha::ChaCha8Rng;
+
+    fn bits(g: &ParamSet) -> Vec<u32> {
+        g.tensors
+            .iter()
+            .flat_map(|t| t.data.iter().map(|v| v.to_bits()))
+            .collect()
+    }
+
+    /// The deferred backward's order, pinned: the gradient of a `B > 1` update is that of
+    /// one batched BPTT over all the update's segments sorted by length (longest first),
+    /// then by the order they completed — and that order matters (the same segments one at
+    /// a time give other bits).
+    #[test]
+    fn the_update_is_one_backward_over_its_segments_longest_first() {
+        let world = World::synthetic(7);
+        let d = Dims::MCU;
+        let g = init_generator(&d, &mut Xoshiro128::seed_from_u64(5)).unwrap();
+        for method in [Method::A3cFg, Method::GmanNoemd] {
+            let model = NavModel::init(method, d, 3, Some(&g), None).unwrap();
+            let a3c = A3cConfig::default();
+            let s = VecSettings {
+                batch_envs: 6,
+                min_steps: 60,
+                reward: RewardKind::Mixed,
+                a3c: &a3c,
+                objective: Objective::A3c,
+            };
+            let sample = |e: u32| -> Result<(EpisodeSpec, u32)> {
+                let mut rng = ChaCha8Rng::seed_from_u64(900 + e as u64);
+                Ok((world.try_sample_train_episode_min(&mut rng, 1)?, 45))
+            };
+            let run = |keep: Option<&mut Vec<PendingSeg>>| {
+                let mut grads = model.params.zeros_like();
+                let mut worker = Worker::new(&model);
+                let done = run_worker_in::<Efficient>(
+                    &world,
+                    &model,
+                    &s,
+                    &mut worker,
+                    &mut grads,
+                    sample,
+                    keep,
+                )
+                .unwrap();
+                (grads, done)
+            };
+            let (got, done) = run(None);
+            // D is the model's ω: no copy of it per episode.
+            assert!(done.iter().all(|f| f.2.is_empty()));
+            let mut segs = Vec::new();
+            let (none, _) = run(Some(&mut segs));
+            assert!(
+                bits(&none).iter().all(|&b| b == 0),
+                "nothing flushed before the end"
+            );
+            assert!(
+                done.len() >= 6 && segs.len() >= done.len(),
+                "{}",
+                segs.len()
+            );
+            let lens: Vec<usize> = segs.iter().map(|p| p.steps.len()).collect();
+            assert!(
+                lens.iter().any(|&l| l != lens[0]),
+                "segments of several lengths"
+            );
+            // The documented order, computed here.
+            segs.sort_by_key(|p| (std::cmp::Reverse(p.steps.len()), p.seq));
+            let weights = model.weights().unwrap();
+            let mut arena = vec![0.0; Navigator::<Full, K>::arena_len(&d)];
+            let mut nav: Navigator<'_, Efficient, K> =
+                Navigator::new(weights, &mut arena, model.nav_config(true)).unwrap();
+            nav.reset(&vec![0.0; d.attr], 0).unwrap();
+            let (policy, gen) = (nav.policy().unwrap(), nav.generator().unwrap());
+            let w = Widths::of(&policy, &d);
+            let train_g = method.trains_generator();
+            fn seg(p: &PendingSeg) -> Segment<'_> {
+                Segment {
+                    steps: &p.steps,
+                    acts: &p.acts,
+                    attr: &p.attr,
+                    bootstrap: p.bootstrap,
+                }
+            }
+            let backward = |segs: &[Segment<'_>], grads: &mut ParamSet| {
+                let mut gb = GenBufs::new(&gen, w.f);
+                Backward::default()
+                    .run(&policy, &gen, segs, &a3c, train_g, &w, &d, grads, &mut gb)
+                    .unwrap();
+            };
+            let mut want = model.params.zeros_like();
+            let all: Vec<Segment<'_>> = segs.iter().map(seg).collect();
+            backward(&all, &mut want);
+            assert_eq!(
+                bits(&got),
+                bits(&want),
+                "{}: the pinned order",
+                method.name()
+            );
+            // One segment at a time (completion order): a different sum of the same terms.
+            segs.sort_by_key(|p| p.seq);
+            let mut one = model.params.zeros_like();
+            for p in &segs {
+                backward(&[seg(p)], &mut one);
+            }
+            assert_ne!(bits(&got), bits(&one), "{}: order-sensitive", method.name());
+        }
+    }
 }

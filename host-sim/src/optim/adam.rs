@@ -14,7 +14,7 @@
 
 use anyhow::{bail, Context, Result};
 
-use super::params::ParamSet;
+use super::params::{all_plus_zero, all_zero, ParamSet};
 
 /// Hyper-parameters of [`Adam`].
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -159,24 +159,38 @@ impl Adam {
         let bc2 = 1.0 - (c.beta2 as f64).powi(self.t.min(i32::MAX as u64) as i32);
         let step_size = (c.lr as f64 / bc1) as f32;
         let bc2_sqrt = bc2.sqrt() as f32;
+        let (b1, b2, eps) = (c.beta1, c.beta2, c.eps);
         for (k, (p, g)) in params.tensors.iter_mut().zip(&grads.tensors).enumerate() {
-            let m = &mut self.m[k];
-            let v = &mut self.v[k];
-            for i in 0..p.data.len() {
-                let gi = g.data[i] * scale;
-                m[i] = c.beta1 * m[i] + (1.0 - c.beta1) * gi;
-                v[i] = c.beta2 * v[i] + (1.0 - c.beta2) * gi * gi;
-                let vh = if c.amsgrad {
-                    let vm = &mut self.vmax[k][i];
-                    if v[i] > *vm {
-                        *vm = v[i];
-                    }
-                    *vm
-                } else {
-                    v[i]
-                };
-                let denom = vh.sqrt() / bc2_sqrt + c.eps;
-                p.data[i] -= step_size * m[i] / denom;
+            let (m, v) = (&mut self.m[k][..], &mut self.v[k][..]);
+            // A tensor with a zero gradient and both moments exactly +0 (one the method does
+            // not train, e.g. G and D of the A3C baselines) is left as it is: the update
+            // below would write m = v = +0 again and subtract +0 from every parameter, the
+            // same bits.
+            if all_zero(&g.data) && all_plus_zero(m) && all_plus_zero(v) {
+                continue;
+            }
+            // Element-wise, the operations of the formula in the module docs in that order
+            // (written over zipped slices so that the compiler vectorises it; every lane does
+            // what the scalar loop did).
+            let (pd, gd) = (&mut p.data[..], &g.data[..]);
+            if c.amsgrad {
+                let vmax = &mut self.vmax[k][..];
+                for ((((p, &g), m), v), vm) in pd.iter_mut().zip(gd).zip(m).zip(v).zip(vmax) {
+                    let gi = g * scale;
+                    *m = b1 * *m + (1.0 - b1) * gi;
+                    *v = b2 * *v + (1.0 - b2) * gi * gi;
+                    *vm = if *v > *vm { *v } else { *vm };
+                    let denom = vm.sqrt() / bc2_sqrt + eps;
+                    *p -= step_size * *m / denom;
+                }
+            } else {
+                for (((p, &g), m), v) in pd.iter_mut().zip(gd).zip(m).zip(v) {
+                    let gi = g * scale;
+                    *m = b1 * *m + (1.0 - b1) * gi;
+                    *v = b2 * *v + (1.0 - b2) * gi * gi;
+                    let denom = v.sqrt() / bc2_sqrt + eps;
+                    *p -= step_size * *m / denom;
+                }
             }
         }
         Ok(StepInfo { grad_norm, clipped })
@@ -351,6 +365,102 @@ mod tests {
         })
         .unwrap();
         p
+    }
+
+    /// The update as it was written before it skipped tensors and was vectorised: one
+    /// element at a time.
+    fn reference_step(a: &mut Adam, p: &mut ParamSet, g: &ParamSet) {
+        let grad_norm = g.global_norm();
+        let scale = match a.cfg.clip_norm {
+            Some(max) if grad_norm > max as f64 => (max as f64 / (grad_norm + 1e-6)) as f32,
+            _ => 1.0,
+        };
+        a.t += 1;
+        let c = a.cfg;
+        let bc1 = 1.0 - (c.beta1 as f64).powi(a.t as i32);
+        let bc2 = 1.0 - (c.beta2 as f64).powi(a.t as i32);
+        let step_size = (c.lr as f64 / bc1) as f32;
+        let bc2_sqrt = bc2.sqrt() as f32;
+        for (k, (p, g)) in p.tensors.iter_mut().zip(&g.tensors).enumerate() {
+            for i in 0..p.data.len() {
+                let gi = g.data[i] * scale;
+                a.m[k][i] = c.beta1 * a.m[k][i] + (1.0 - c.beta1) * gi;
+                a.v[k][i] = c.beta2 * a.v[k][i] + (1.0 - c.beta2) * gi * gi;
+                let vh = if c.amsgrad {
+                    let vm = &mut a.vmax[k][i];
+                    if a.v[k][i] > *vm {
+                        *vm = a.v[k][i];
+                    }
+                    *vm
+                } else {
+                    a.v[k][i]
+                };
+                let denom = vh.sqrt() / bc2_sqrt + c.eps;
+                p.data[i] -= step_size * a.m[k][i] / denom;
+            }
+        }
+    }
+
+    /// Tensors with zero gradients (+0 and −0, before and after others moved), skipped or
+    /// not, AMSGrad or not, clipped or not: the bits of the element-wise reference.
+    #[test]
+    fn skipping_and_vectorising_keep_the_reference_bits() {
+        let mut rng = gman_core::rng::Xoshiro128::seed_from_u64(9);
+        let mut params = ParamSet::new();
+        for (name, n) in [("a", 37), ("frozen", 300), ("b", 1000), ("late", 64)] {
+            params
+                .add(
+                    name,
+                    n,
+                    1,
+                    super::super::params::Init::Normal(0.5),
+                    &mut rng,
+                )
+                .unwrap();
+        }
+        params.tensors[1].data[3] = -0.0;
+        for amsgrad in [true, false] {
+            for clip_norm in [None, Some(0.05)] {
+                let cfg = AdamConfig {
+                    lr: 1e-2,
+                    amsgrad,
+                    clip_norm,
+                    ..AdamConfig::default()
+                };
+                let (mut p1, mut p2) = (params.clone(), params.clone());
+                let (mut a1, mut a2) = (Adam::new(cfg, &p1), Adam::new(cfg, &p2));
+                for step in 0..6 {
+                    let mut g = params.zeros_like();
+                    for (k, t) in g.tensors.iter_mut().enumerate() {
+                        let live = match k {
+                            1 => false,
+                            3 => (2..4).contains(&step),
+                            _ => true,
+                        };
+                        for (i, v) in t.data.iter_mut().enumerate() {
+                            *v = if live {
+                                ((i * 7 + step * 3) % 11) as f32 * 0.01 - 0.05
+                            } else if i % 2 == 0 {
+                                -0.0
+                            } else {
+                                0.0
+                            };
+                        }
+                    }
+                    let info = a1.step(&mut p1, &g).unwrap();
+                    reference_step(&mut a2, &mut p2, &g);
+                    assert_eq!(info.grad_norm.to_bits(), g.global_norm().to_bits());
+                    let bits = |p: &ParamSet| -> Vec<u32> {
+                        p.tensors
+                            .iter()
+                            .flat_map(|t| t.data.iter().map(|v| v.to_bits()))
+                            .collect()
+                    };
+                    assert_eq!(bits(&p1), bits(&p2), "step {step} amsgrad {amsgrad}");
+                    assert_eq!(a1, a2, "state, step {step}");
+                }
+            }
+        }
     }
 
     /// Two steps computed by hand (f64) against the implementation.

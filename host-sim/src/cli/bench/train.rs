@@ -1,7 +1,7 @@
 //! The training-throughput rows of `gman bench`: environment steps per second of
 //! `gman train` on the synthetic world for a3c and gman, the `mcu` and `paper` presets,
-//! one environment per worker (`--batch-envs 1`) and [`BATCH_ENVS`] in lockstep, 1 and 2
-//! workers, all measured in one run.
+//! one environment per worker (`--batch-envs 1`) and each of [`BATCH_ENVS`] in lockstep, 1
+//! and 2 workers, all measured in one run.
 //!
 //! Each row trains a fresh model (seed 1, a random generator) for two warm-up updates (not
 //! timed), then times as many more as take about the same number of environment steps in
@@ -21,8 +21,9 @@ use gman_host_sim::train::adam::AdamConfig;
 use gman_host_sim::train::generator::init_generator;
 use serde_json::{json, Value};
 
-/// The batched setting the bench measures next to `--batch-envs 1`.
-pub const BATCH_ENVS: usize = 16;
+/// The batched settings the bench measures next to `--batch-envs 1` (an update holds at least
+/// `B` episodes per worker, so a larger `B` is also a larger update).
+pub const BATCH_ENVS: [usize; 2] = [16, 64];
 
 /// One measured training configuration.
 pub struct TrainRow {
@@ -52,7 +53,7 @@ pub fn rows(updates: u64) -> Result<Vec<TrainRow>> {
     for (preset, dims, scale) in [("mcu", Dims::MCU, 1), ("paper", Dims::PAPER, 10)] {
         let gen = init_generator(&dims, &mut Xoshiro128::seed_from_u64(7))?;
         for method in [Method::A3c, Method::Gman] {
-            for b in [1, BATCH_ENVS] {
+            for b in std::iter::once(1).chain(BATCH_ENVS) {
                 let model = NavModel::init(method, dims, 1, Some(&gen), None)?;
                 if b > 1 && !vec_rollout::supports(&model) {
                     continue;
