@@ -116,7 +116,8 @@ pub struct PolicyGrads<'g> {
 /// Gradients flowing out of one backward step.
 #[derive(Debug)]
 pub struct PolicyInputGrads<'g> {
-    /// dL/dx_t (`feat`), accumulated; the route from the navigation loss into G.
+    /// dL/dx_t (`feat`), accumulated; the route from the navigation loss into G. Empty: not
+    /// wanted (G is not trained), and not computed (every other gradient keeps its bits).
     pub feat: &'g mut [f32],
     /// dL/dh_{t-1} (`lstm_hidden`), overwritten.
     pub h_prev: &'g mut [f32],
@@ -418,8 +419,11 @@ impl<'a> Policy<'a> {
         let (f, hd, e) = (wd.f, self.lstm.hidden(), self.fuse.out_dim());
         check_len("policy.dh_next", n * hd, dh_next.len())?;
         check_len("policy.dh", n * hd, s.dh.len())?;
-        check_len("policy.dfeat", n * f, out.feat.len())?;
-        check_len("policy.dprod", n * f, s.dprod.len())?;
+        let want_feat = !out.feat.is_empty();
+        if want_feat {
+            check_len("policy.dfeat", n * f, out.feat.len())?;
+            check_len("policy.dprod", n * f, s.dprod.len())?;
+        }
         check_len("policy.de", n * e, s.de.len())?;
         check_len("policy.tmp", n * e.max(NUM_ACTIONS), s.tmp.len())?;
         // Heads: dh = W_actorᵀ dlogits (+ gain) + W_criticᵀ dvalue + dh_next.
@@ -479,11 +483,13 @@ impl<'a> Policy<'a> {
         let lens = [f, f, f, wd.a, NUM_ACTIONS, wd.ps, wd.cells * wd.ce];
         self.fuse
             .backward_batch(&segs, &lens, n, &[], tmp, None, &mut grads.fuse, &mut [])?;
-        matmul_t_acc_cols(&self.fuse.w, tmp, n, f, out.feat, f)?;
-        s.dprod.fill(0.0);
-        matmul_t_acc_cols(&self.fuse.w, tmp, n, 2 * f, s.dprod, f)?;
-        for ((o, &d), &sv) in out.feat.iter_mut().zip(s.dprod.iter()).zip(inp.obs) {
-            *o += d * sv;
+        if want_feat {
+            matmul_t_acc_cols(&self.fuse.w, tmp, n, f, out.feat, f)?;
+            s.dprod.fill(0.0);
+            matmul_t_acc_cols(&self.fuse.w, tmp, n, 2 * f, s.dprod, f)?;
+            for ((o, &d), &sv) in out.feat.iter_mut().zip(s.dprod.iter()).zip(inp.obs) {
+                *o += d * sv;
+            }
         }
         if let Some(cell) = &self.cell {
             let bufs = (&mut *s.dcell, &mut *s.cell_tmp, &mut *out.feat);
@@ -539,6 +545,9 @@ impl<'a> Policy<'a> {
             grads,
             &mut [],
         )?;
+        if dfeat.is_empty() {
+            return Ok(());
+        }
         cell_tmp.fill(0.0);
         matmul_t_acc_cols(&cell.w, dcell, nc, f, cell_tmp, f)?;
         if f > 0 {

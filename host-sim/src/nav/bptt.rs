@@ -373,7 +373,7 @@ impl Backward {
         for r in 0..max_len {
             let n = segs.iter().take_while(|s| s.steps.len() > r).count();
             self.load_rows(segs, &outs, r, n, w);
-            self.policy_step(policy, n, w, &mut pg)?;
+            self.policy_step(policy, n, w, &mut pg, train_generator)?;
             if train_generator {
                 for (j, s) in segs[..n].iter().enumerate() {
                     let z = &s.steps[s.steps.len() - 1 - r].z;
@@ -446,13 +446,15 @@ impl Backward {
         clear_resize(&mut self.cell_tmp, n * w.map);
     }
 
-    /// The policy's backward over the loaded rows; `(∂h, ∂c)` move one step back.
+    /// The policy's backward over the loaded rows; `(∂h, ∂c)` move one step back. Without
+    /// `train_generator` the gradient into x_t is not computed.
     fn policy_step(
         &mut self,
         policy: &Policy<'_>,
         n: usize,
         w: &Widths,
         pg: &mut PolicyGrads<'_>,
+        train_generator: bool,
     ) -> Result<()> {
         let rows = &mut self.rows;
         let inp = PolicyInput {
@@ -478,7 +480,11 @@ impl Backward {
         };
         let nh = n * w.hd;
         let mut out = PolicyInputGrads {
-            feat: &mut self.dfeat,
+            feat: if train_generator {
+                &mut self.dfeat
+            } else {
+                &mut []
+            },
             h_prev: &mut self.dh_prev[..nh],
             c_prev: &mut self.dc_prev[..nh],
         };
