@@ -57,9 +57,12 @@ impl MatRef<'_> {
         }
         // The Cortex-M4F (no vector unit) runs the row-at-a-time loop: the same canonical
         // order, fewer instructions there than the blocked body (measured in QEMU).
-        if x.len() > MAX_SEGS || cfg!(target_arch = "arm") {
+        if x.len() > MAX_SEGS {
             self.matvec_acc_many(x, y);
             return Ok(());
+        }
+        if cfg!(target_arch = "arm") {
+            return matvec_acc_pairs(self, x, y);
         }
         match self.kernels() {
             Some(k) => k.matmul_acc(&self.without_kernels(), x, 1, y),
@@ -913,18 +916,14 @@ pub fn matmul_acc_lanes<const R: usize, const B: usize, const L: usize>(
         }};
     }
     match w.weights() {
-        Weights::F32(d) => body!(M::<F32K> {
-            d,
-            cols,
-            scales: None
-        }),
         Weights::I8 { q, scales } => body!(M::<I8K> {
             d: q,
             cols,
             scales: Some(scales)
         }),
-        // Little-endian f32 (not in the device's blobs): one vector at a time, row by row.
-        Weights::F32Le(_) => {
+        // f32 weights (on the device only the small adapted matrices) and little-endian f32
+        // (not in the device's blobs): one vector at a time, row by row.
+        Weights::F32(_) | Weights::F32Le(_) => {
             for (b, yb) in y.chunks_exact_mut(rows.max(1)).enumerate().take(n) {
                 let mut xb: [&[f32]; MAX_SEGS] = [&[]; MAX_SEGS];
                 for ((o, seg), &l) in xb.iter_mut().zip(x).zip(lens) {
@@ -998,6 +997,93 @@ fn ml_tile<K: Kind, const R: usize, const B: usize, const L: usize>(
                 None => *o += tot[r][b],
                 Some(s) => *o += tot[r][b] * s,
             }
+        }
+    }
+}
+
+/// `y += W x` for one vector, two rows at a time (the Cortex-M4F's batch-1 loop): the two
+/// rows share every input load, and their eight accumulators each run in two passes of four
+/// lanes (see [`matmul_acc_lanes`]), so 8 accumulators, 4 inputs and the converted weights
+/// fit the FPU's registers. The same canonical order; shapes must already be checked.
+pub fn matvec_acc_pairs(w: &MatRef<'_>, x: &[&[f32]], y: &mut [f32]) -> Result<()> {
+    let (rows, cols) = (w.rows(), w.cols());
+    check_len("matvec.x", cols, seg_len(x))?;
+    check_len("matvec.y", rows, y.len())?;
+    if cols == 0 {
+        return Ok(());
+    }
+    macro_rules! body {
+        ($m:expr) => {{
+            let m = $m;
+            let mut r0 = 0;
+            while r0 + 2 <= rows {
+                mv_pair::<_, 2>(&m, x, r0, y);
+                r0 += 2;
+            }
+            if r0 < rows {
+                mv_pair::<_, 1>(&m, x, r0, y);
+            }
+        }};
+    }
+    match w.weights() {
+        Weights::I8 { q, scales } => body!(M::<I8K> {
+            d: q,
+            cols,
+            scales: Some(scales)
+        }),
+        // f32 weights (on the device only the small adapted matrices) and little-endian f32:
+        // one row at a time.
+        Weights::F32(_) | Weights::F32Le(_) => w.matvec_acc_many(x, y),
+    }
+    Ok(())
+}
+
+/// Rows `r0 .. r0 + R` (`R` is 1 or 2) of [`matvec_acc_pairs`].
+#[inline(always)]
+fn mv_pair<K: Kind, const R: usize>(m: &M<'_, K>, x: &[&[f32]], r0: usize, y: &mut [f32]) {
+    let mut tot = [0.0f32; R];
+    let mut off = 0;
+    for seg in x {
+        let l = seg.len();
+        let n8 = l / 8;
+        let ws: [&[K::R]; R] = core::array::from_fn(|r| m.seg(r0 + r, off, l));
+        let w0 = ws[0];
+        let w1 = ws[R - 1];
+        let mut full = [[0.0f32; 8]; R];
+        for g in [0usize, 4] {
+            let mut acc = [[0.0f32; 4]; R];
+            for ((c0, c1), xc) in w0
+                .chunks_exact(8 * K::U)
+                .zip(w1.chunks_exact(8 * K::U))
+                .zip(seg.chunks_exact(8))
+            {
+                let xv = [xc[g], xc[g + 1], xc[g + 2], xc[g + 3]];
+                let wc = [c0, c1];
+                for r in 0..R {
+                    let wv: [f32; 4] = core::array::from_fn(|k| K::w1(wc[r], g + k));
+                    for k in 0..4 {
+                        acc[r][k] += wv[k] * xv[k];
+                    }
+                }
+            }
+            for r in 0..R {
+                full[r][g..g + 4].copy_from_slice(&acc[r]);
+            }
+        }
+        for r in 0..R {
+            let mut s = tree(&full[r]);
+            for (j, &xj) in seg.iter().enumerate().skip(8 * n8) {
+                s += K::w1(ws[r], j) * xj;
+            }
+            tot[r] += s;
+        }
+        off += l;
+    }
+    for r in 0..R {
+        let o = &mut y[r0 + r];
+        match m.scales {
+            None => *o += tot[r],
+            Some(s) => *o += tot[r] * s.get(r0 + r),
         }
     }
 }
@@ -1076,18 +1162,14 @@ pub fn matmul_t_acc_rows<const B: usize>(
         }};
     }
     match w.weights() {
-        Weights::F32(d) => body!(M::<F32K> {
-            d,
-            cols,
-            scales: None
-        }),
         Weights::I8 { q, scales } => body!(M::<I8K> {
             d: q,
             cols,
             scales: Some(scales)
         }),
-        // Little-endian f32 (not in the device's blobs): one vector at a time, row by row.
-        Weights::F32Le(_) => {
+        // f32 weights (on the device only the small adapted matrices) and little-endian f32
+        // (not in the device's blobs): one vector at a time, row by row.
+        Weights::F32(_) | Weights::F32Le(_) => {
             for b in 0..n {
                 let mut off = col0;
                 for seg in dx.iter_mut() {
@@ -1454,6 +1536,9 @@ mod tests {
                     let mut mv = [0.0f32; 128];
                     mv[..r].copy_from_slice(&y0[b * r..(b + 1) * r]);
                     m.matvec_acc(&one[..lens.len()], &mut mv[..r]).unwrap();
+                    let mut mp = [0.0f32; 128];
+                    mp[..r].copy_from_slice(&y0[b * r..(b + 1) * r]);
+                    matvec_acc_pairs(m, &one[..lens.len()], &mut mp[..r]).unwrap();
                     for i in 0..r {
                         let w = want[i].to_bits();
                         assert_eq!(
@@ -1473,6 +1558,7 @@ mod tests {
                             "lanes 3x1x2 case {ci} kind {mi}"
                         );
                         assert_eq!(mv[i].to_bits(), w, "matvec case {ci} kind {mi}");
+                        assert_eq!(mp[i].to_bits(), w, "matvec pairs case {ci} kind {mi}");
                     }
                 }
                 // dx += W^T dy
