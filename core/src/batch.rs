@@ -1049,8 +1049,8 @@ fn mv_pair<K: Kind, const R: usize>(m: &M<'_, K>, x: &[&[f32]], r0: usize, y: &m
         let ws: [&[K::R]; R] = core::array::from_fn(|r| m.seg(r0 + r, off, l));
         let w0 = ws[0];
         let w1 = ws[R - 1];
-        let mut full = [[0.0f32; 8]; R];
-        for g in [0usize, 4] {
+        // Lanes `g .. g + 4` of the two rows' accumulators over all chunks, in order.
+        let pass = |g: usize| {
             let mut acc = [[0.0f32; 4]; R];
             for ((c0, c1), xc) in w0
                 .chunks_exact(8 * K::U)
@@ -1066,12 +1066,12 @@ fn mv_pair<K: Kind, const R: usize>(m: &M<'_, K>, x: &[&[f32]], r0: usize, y: &m
                     }
                 }
             }
-            for r in 0..R {
-                full[r][g..g + 4].copy_from_slice(&acc[r]);
-            }
-        }
+            acc
+        };
+        let (lo, hi) = (pass(0), pass(4));
         for r in 0..R {
-            let mut s = tree(&full[r]);
+            let (a, b) = (&lo[r], &hi[r]);
+            let mut s = tree(&[a[0], a[1], a[2], a[3], b[0], b[1], b[2], b[3]]);
             for (j, &xj) in seg.iter().enumerate().skip(8 * n8) {
                 s += K::w1(ws[r], j) * xj;
             }
