@@ -868,7 +868,8 @@ fn op_tile<const R: usize, const C: usize>(
 /// products in chunk order. That leaves the operations of every dot product as they are (the
 /// same tree over the same eight sums afterwards) and frees registers for more rows and
 /// vectors: each weight is converted once for `B` vectors, each input loaded once for `R`
-/// rows. Shapes must already be checked.
+/// rows. `L` is 8 (one pass) or 4 (two passes; any other `L` is an error). Shapes must
+/// already be checked.
 #[inline(always)]
 pub fn matmul_acc_lanes<const R: usize, const B: usize, const L: usize>(
     w: &MatRef<'_>,
@@ -876,6 +877,9 @@ pub fn matmul_acc_lanes<const R: usize, const B: usize, const L: usize>(
     n: usize,
     y: &mut [f32],
 ) -> Result<()> {
+    if L != 4 && L != 8 {
+        check_len("matmul.lanes", 8, L)?;
+    }
     let (rows, cols) = (w.rows(), w.cols());
     check_len("matmul.y", n.saturating_mul(rows), y.len())?;
     if n == 0 || cols == 0 || x.len() > MAX_SEGS {
@@ -953,7 +957,8 @@ fn ml_tile<K: Kind, const R: usize, const B: usize, const L: usize>(
         let n8 = l / 8;
         let ws: [&[K::R]; R] = core::array::from_fn(|r| m.seg(r0 + r, off, l));
         let xs: [&[f32]; B] = core::array::from_fn(|b| &seg[(b0 + b) * l..(b0 + b + 1) * l]);
-        let mut full = [[[0.0f32; 8]; B]; R];
+        let mut lo = [[[0.0f32; L]; B]; R];
+        let mut hi = lo;
         let mut g = 0;
         while g < 8 && n8 > 0 {
             let mut acc = [[[0.0f32; L]; B]; R];
@@ -971,13 +976,25 @@ fn ml_tile<K: Kind, const R: usize, const B: usize, const L: usize>(
                     }
                 }
             }
-            for r in 0..R {
-                for b in 0..B {
-                    full[r][b][g..g + L].copy_from_slice(&acc[r][b]);
-                }
+            if g == 0 {
+                lo = acc;
+            } else {
+                hi = acc;
             }
             g += L;
         }
+        // `L` is 8 (one pass) or 4 (two passes).
+        let full: [[[f32; 8]; B]; R] = core::array::from_fn(|r| {
+            core::array::from_fn(|b| {
+                core::array::from_fn(|k| {
+                    if k < L {
+                        lo[r][b][k % L]
+                    } else {
+                        hi[r][b][(k - L) % L]
+                    }
+                })
+            })
+        });
         for r in 0..R {
             for b in 0..B {
                 let mut s = tree(&full[r][b]);
@@ -1524,7 +1541,7 @@ mod tests {
                 let mut y3 = y0;
                 matmul_acc_lanes::<2, 2, 4>(m, segs, n, &mut y3[..n * r]).unwrap();
                 let mut y4 = y0;
-                matmul_acc_lanes::<3, 1, 2>(m, segs, n, &mut y4[..n * r]).unwrap();
+                matmul_acc_lanes::<3, 1, 8>(m, segs, n, &mut y4[..n * r]).unwrap();
                 for b in 0..n {
                     let mut want = [0.0f32; 128];
                     want[..r].copy_from_slice(&y0[b * r..(b + 1) * r]);
@@ -1555,7 +1572,7 @@ mod tests {
                         assert_eq!(
                             y4[b * r + i].to_bits(),
                             w,
-                            "lanes 3x1x2 case {ci} kind {mi}"
+                            "lanes 3x1x8 case {ci} kind {mi}"
                         );
                         assert_eq!(mv[i].to_bits(), w, "matvec case {ci} kind {mi}");
                         assert_eq!(mp[i].to_bits(), w, "matvec pairs case {ci} kind {mi}");
