@@ -45,8 +45,8 @@ use crate::matrix::{axpy, axpy_i8, dot, dot_i8, dot_le, seg_len, MatRef, Scales,
 pub const MAX_SEGS: usize = 8;
 
 /// The batch-1 kernels of a matrix view: [`MatRef::matvec_acc`] and its transposes are the
-/// batched bodies below with `n = 1` (the Cortex-M4F runs a row-at-a-time loop in the same
-/// canonical order).
+/// batched bodies below with `n = 1` (the Cortex-M4F runs its own loops in the same
+/// canonical order, see [`matvec_acc_pairs`] and [`matmul_t_acc_rows`]).
 impl MatRef<'_> {
     /// `y += W x`, where the input `x` is given as consecutive segments.
     pub fn matvec_acc(&self, x: &[&[f32]], y: &mut [f32]) -> Result<()> {
@@ -55,12 +55,12 @@ impl MatRef<'_> {
         if self.cols() == 0 {
             return Ok(());
         }
-        // The Cortex-M4F (no vector unit) runs the row-at-a-time loop: the same canonical
-        // order, fewer instructions there than the blocked body (measured in QEMU).
         if x.len() > MAX_SEGS {
             self.matvec_acc_many(x, y);
             return Ok(());
         }
+        // The Cortex-M4F (no vector unit): two rows at a time, the same canonical order,
+        // fewer instructions there than the hosts' blocked body (measured in QEMU).
         if cfg!(target_arch = "arm") {
             return matvec_acc_pairs(self, x, y);
         }
@@ -97,7 +97,7 @@ impl MatRef<'_> {
     }
 
     /// [`MatRef::matvec_acc`] one row at a time: for more than [`MAX_SEGS`] segments, and on
-    /// the Cortex-M4F (the same canonical order as the blocked body).
+    /// the Cortex-M4F for f32 weights (the same canonical order as the blocked body).
     fn matvec_acc_many(&self, x: &[&[f32]], y: &mut [f32]) {
         match self.weights() {
             Weights::F32(d) => {
@@ -266,8 +266,8 @@ pub fn matmul_acc(
         // The Cortex-M4F takes 2 rows x 2 vectors x 4 lanes of accumulators
         // (`matmul_acc_lanes`: 16 accumulators, each weight converted once for 2 vectors and
         // each input loaded once for 2 rows, in its 32 single registers).
-        // A single vector takes the batch-1 kernel (its row blocking on hosts, the
-        // row-at-a-time loop on the device; the same bits).
+        // A single vector takes the batch-1 kernel (its row blocking on hosts, two rows at
+        // a time on the device; the same bits).
         None if n == 1 => w.matvec_acc(x, y),
         None if cfg!(target_arch = "arm") => {
             matmul_acc_lanes::<ARM_MM_R, ARM_MM_B, ARM_MM_L>(w, x, n, y)
@@ -1120,7 +1120,7 @@ const MT_MAXB: usize = 2;
 
 /// `dX[b] += W^T dY[b]` (on the column block of `w` starting at `col0`, as
 /// [`matmul_t_acc_blocked`]) with tiles of 8 columns x `B` vectors (`B <= 2`), rows in order:
-/// the row coefficients (`dy_i`, times the row scale for int8, exactly as [`row_coef`]) are
+/// the row coefficients (`dy_i`, times the row scale for int8, as the blocked body computes them) are
 /// computed once per block of rows instead of once per tile, and the tile's sums are kept in
 /// registers over a block and in `dx` between blocks (an exact store and reload). Shapes
 /// must already be checked.
@@ -1207,6 +1207,8 @@ pub fn matmul_t_acc_rows<const B: usize>(
 /// One segment of [`matmul_t_acc_rows`] for rows `i0 .. i1` and vectors `b0 .. b0 + B`.
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
+// Indexed loops over the rows: the form whose instruction count was measured on the device.
+#[allow(clippy::needless_range_loop)]
 fn mr_seg<K: Kind, const B: usize>(
     m: &M<'_, K>,
     coef: &[[f32; MT_ROWS]; MT_MAXB],
