@@ -531,6 +531,26 @@ pub fn adapt_grad(
     grads1: &mut DenseGrads<'_>,
     grads2: &mut DenseGrads<'_>,
 ) -> Result<f32> {
+    let loss = adapt_scores(kind, gen, disc, inp, probs, (d, dd, dprobs), w)?;
+    // Pass 2.
+    score_backward(gen, disc, inp, dd, w, grads1, grads2)?;
+    Ok(loss)
+}
+
+/// [`adapt_grad`] without its θ gradient: the scores `d`, L_ad, `∂L/∂d_t` (`dd`) and
+/// `∂L/∂a_t` (`dprobs`), every bit as [`adapt_grad`] computes them (its first pass; the θ
+/// gradient is its second). For an inner rule that adapts only the actor head, which needs
+/// `dprobs` and not θ's gradient.
+#[allow(clippy::too_many_arguments)]
+pub fn adapt_scores(
+    kind: AdaptLossKind,
+    gen: &Generator<'_>,
+    disc: Option<&Discriminator<'_>>,
+    inp: AdaptInputs<'_>,
+    probs: &[f32],
+    (d, dd, dprobs): (&mut [f32], &mut [f32], &mut [f32]),
+    w: &mut InnerWork<'_>,
+) -> Result<f32> {
     let AdaptInputs { attr, zs, xs, obs } = inp;
     w.check()?;
     gen.validate()?;
@@ -586,10 +606,7 @@ pub fn adapt_grad(
         r?;
         t0 += nb;
     }
-    let loss = adapt_loss(kind, d, probs, dd, dprobs)?;
-    // Pass 2.
-    score_backward(gen, disc, inp, dd, w, grads1, grads2)?;
-    Ok(loss)
+    adapt_loss(kind, d, probs, dd, dprobs)
 }
 
 /// `∇_θ Σ_t c_t D(G_θ(z_t, attr))` (with `disc`; consecutive entries with bit-identical

@@ -1453,26 +1453,35 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
         g_actor.zero();
         let gen = gen_view(gen1, gen2, &w)?;
         let disc = disc_view(disc1, disc_w2, disc_b2, &w)?;
-        let loss = inner::adapt_grad(
-            cfg.adapt_loss,
-            &gen,
-            use_d.then_some(&disc),
-            inner::AdaptInputs {
-                attr,
-                zs: &psi_z[..n * zd],
-                xs: Some(&psi_x[..n * f]),
-                obs: &psi_s[..n * f],
-            },
-            &psi_p[..n * NUM_ACTIONS],
-            (
-                &mut dvals[..n],
-                &mut dd[..n],
-                &mut dprobs[..n * NUM_ACTIONS],
-            ),
-            iw,
-            &mut g_gen1.grads(),
-            &mut g_gen2.grads(),
-        )?;
+        let inp = inner::AdaptInputs {
+            attr,
+            zs: &psi_z[..n * zd],
+            xs: Some(&psi_x[..n * f]),
+            obs: &psi_s[..n * f],
+        };
+        let outs = (
+            &mut dvals[..n],
+            &mut dd[..n],
+            &mut dprobs[..n * NUM_ACTIONS],
+        );
+        let (disc, probs) = (use_d.then_some(&disc), &psi_p[..n * NUM_ACTIONS]);
+        // With `head_only` θ takes no step (`descend_adapted`): its gradient (G's backward
+        // pass, most of the work) is not computed and stays zero; the head's is the same bits.
+        let loss = if cfg.head_only {
+            inner::adapt_scores(cfg.adapt_loss, &gen, disc, inp, probs, outs, iw)?
+        } else {
+            inner::adapt_grad(
+                cfg.adapt_loss,
+                &gen,
+                disc,
+                inp,
+                probs,
+                outs,
+                iw,
+                &mut g_gen1.grads(),
+                &mut g_gen2.grads(),
+            )?
+        };
         let head = actor.view(w.get(TensorId::ActorW))?;
         actor_head_grad(
             &head,

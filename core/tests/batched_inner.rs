@@ -518,6 +518,30 @@ fn adapt_grad_matches_the_batch1_functions() {
                         assert_eq!(h1g.bits(), g1.bits(), "{what}");
                         assert_eq!(h2g.bits(), g2.bits(), "{what}");
                         assert!(g1.a.iter().any(|v| *v != 0.0), "{what}: a gradient at all");
+                        // Without the θ gradient (the head-only rule): the same scores,
+                        // loss and dL/da bits.
+                        let (mut d3, mut dd3) = (vec![0.0; N], vec![0.0; N]);
+                        let mut dp3 = vec![0.0; N * NUM_ACTIONS];
+                        let mut w = Work::new(b, !eff);
+                        let loss3 = inner::adapt_scores(
+                            kind,
+                            &g,
+                            use_d.then_some(&d),
+                            inner::AdaptInputs {
+                                attr: &attr,
+                                zs: &zs,
+                                xs: with_xs.then_some(&xs[..]),
+                                obs: &obs,
+                            },
+                            &probs,
+                            (&mut d3, &mut dd3, &mut dp3),
+                            &mut w.view(),
+                        )
+                        .unwrap();
+                        assert_eq!(loss3.to_bits(), want.to_bits(), "scores {what}");
+                        assert_eq!(bits(&d3), bits(&dv), "scores {what}");
+                        assert_eq!(bits(&dd3), bits(&ddv), "scores {what}");
+                        assert_eq!(bits(&dp3), bits(&dprobs), "scores {what}");
                     }
                 }
             }
