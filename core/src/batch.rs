@@ -538,6 +538,50 @@ fn mm_all<K: Kind, const R: usize, const B: usize>(
     }
 }
 
+/// The end of one segment of a tile of `y += W x`: each dot product's eight accumulators
+/// through the fixed tree, then the segment's tail (past the chunks of eight) in order, added
+/// to the tile's totals.
+#[inline(always)]
+fn add_tails<K: Kind, const R: usize, const B: usize>(
+    acc: &[[[f32; 8]; B]; R],
+    ws: &[&[K::R]; R],
+    xs: &[&[f32]; B],
+    n8: usize,
+    tot: &mut [[f32; B]; R],
+) {
+    for r in 0..R {
+        for b in 0..B {
+            let mut s = tree(&acc[r][b]);
+            for (j, &xj) in xs[b].iter().enumerate().skip(8 * n8) {
+                s += K::w1(ws[r], j) * xj;
+            }
+            tot[r][b] += s;
+        }
+    }
+}
+
+/// A tile's totals (the segment sums) into `y`, after the int8 row scale.
+#[inline(always)]
+fn store_tile<K: Kind, const R: usize, const B: usize>(
+    m: &M<'_, K>,
+    tot: &[[f32; B]; R],
+    rows: usize,
+    r0: usize,
+    b0: usize,
+    y: &mut [f32],
+) {
+    for r in 0..R {
+        let sc = m.scales.map(|s| s.get(r0 + r));
+        for b in 0..B {
+            let o = &mut y[(b0 + b) * rows + r0 + r];
+            match sc {
+                None => *o += tot[r][b],
+                Some(s) => *o += tot[r][b] * s,
+            }
+        }
+    }
+}
+
 /// Rows `r0 .. r0 + R` x vectors `b0 .. b0 + B` of `y += W x`.
 #[inline(always)]
 fn mm_tile<K: Kind, const R: usize, const B: usize>(
@@ -572,27 +616,10 @@ fn mm_tile<K: Kind, const R: usize, const B: usize>(
         // than the same accumulator of several vectors, which costs shuffles). No effect on
         // the values.
         let acc = core::hint::black_box(acc);
-        for r in 0..R {
-            for b in 0..B {
-                let mut s = tree(&acc[r][b]);
-                for (j, &xj) in xs[b].iter().enumerate().skip(8 * n8) {
-                    s += K::w1(ws[r], j) * xj;
-                }
-                tot[r][b] += s;
-            }
-        }
+        add_tails::<K, R, B>(&acc, &ws, &xs, n8, &mut tot);
         off += l;
     }
-    for r in 0..R {
-        let sc = m.scales.map(|s| s.get(r0 + r));
-        for b in 0..B {
-            let o = &mut y[(b0 + b) * rows + r0 + r];
-            match sc {
-                None => *o += tot[r][b],
-                Some(s) => *o += tot[r][b] * s,
-            }
-        }
-    }
+    store_tile::<K, R, B>(m, &tot, rows, r0, b0, y);
 }
 
 // ---------------------------------------------------------------------------------------
@@ -995,27 +1022,10 @@ fn ml_tile<K: Kind, const R: usize, const B: usize, const L: usize>(
                 })
             })
         });
-        for r in 0..R {
-            for b in 0..B {
-                let mut s = tree(&full[r][b]);
-                for (j, &xj) in xs[b].iter().enumerate().skip(8 * n8) {
-                    s += K::w1(ws[r], j) * xj;
-                }
-                tot[r][b] += s;
-            }
-        }
+        add_tails::<K, R, B>(&full, &ws, &xs, n8, &mut tot);
         off += l;
     }
-    for r in 0..R {
-        let sc = m.scales.map(|s| s.get(r0 + r));
-        for b in 0..B {
-            let o = &mut y[(b0 + b) * rows + r0 + r];
-            match sc {
-                None => *o += tot[r][b],
-                Some(s) => *o += tot[r][b] * s,
-            }
-        }
-    }
+    store_tile::<K, R, B>(m, &tot, rows, r0, b0, y);
 }
 
 /// `y += W x` for one vector, two rows at a time (the Cortex-M4F's batch-1 loop): the two
