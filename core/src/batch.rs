@@ -625,6 +625,33 @@ fn mm_tile<K: Kind, const R: usize, const B: usize>(
 // ---------------------------------------------------------------------------------------
 // dx += W^T dy
 
+/// The shape check of the `dx += W^T dy` bodies: `dy` is `n x rows`, the segments of `dx`
+/// (per-vector lengths `len / n`) fit in the columns from `col0`. `None` when there is
+/// nothing to do (no vector or no column), else the row count.
+#[inline(always)]
+fn check_t(
+    w: &MatRef<'_>,
+    dy: &[f32],
+    n: usize,
+    dx: &[&mut [f32]],
+    col0: usize,
+) -> Result<Option<usize>> {
+    let (rows, cols) = (w.rows(), w.cols());
+    check_len("matmul_t.dy", n.saturating_mul(rows), dy.len())?;
+    if n == 0 || cols == 0 {
+        return Ok(None);
+    }
+    let total: usize = dx.iter().map(|s| s.len() / n).sum();
+    if col0.saturating_add(total) > cols {
+        return Err(crate::Error::Shape(crate::ShapeError {
+            what: "matmul_t.cols",
+            expected: cols,
+            actual: col0.saturating_add(total),
+        }));
+    }
+    Ok(Some(rows))
+}
+
 /// [`matmul_t_acc`] with an explicit block of `8 C` columns x `B` vectors, on the column
 /// block of `w` starting at `col0` (the segments of `dx` cover columns `col0 ..` in order;
 /// per-vector lengths are `dx[s].len() / n`). Speed only: the same bits for every shape.
@@ -637,19 +664,9 @@ pub fn matmul_t_acc_blocked<const C: usize, const B: usize>(
     dx: &mut [&mut [f32]],
     col0: usize,
 ) -> Result<()> {
-    let (rows, cols) = (w.rows(), w.cols());
-    check_len("matmul_t.dy", n.saturating_mul(rows), dy.len())?;
-    if n == 0 || cols == 0 {
+    let Some(rows) = check_t(w, dy, n, dx, col0)? else {
         return Ok(());
-    }
-    let total: usize = dx.iter().map(|s| s.len() / n).sum();
-    if col0.saturating_add(total) > cols {
-        return Err(crate::Error::Shape(crate::ShapeError {
-            what: "matmul_t.cols",
-            expected: cols,
-            actual: col0.saturating_add(total),
-        }));
-    }
+    };
     with_kind!(w, |m| {
         let mut off = col0;
         for seg in dx.iter_mut() {
@@ -1142,19 +1159,10 @@ pub fn matmul_t_acc_rows<const B: usize>(
     dx: &mut [&mut [f32]],
     col0: usize,
 ) -> Result<()> {
-    let (rows, cols) = (w.rows(), w.cols());
-    check_len("matmul_t.dy", n.saturating_mul(rows), dy.len())?;
-    if n == 0 || cols == 0 {
+    let cols = w.cols();
+    let Some(rows) = check_t(w, dy, n, dx, col0)? else {
         return Ok(());
-    }
-    let total: usize = dx.iter().map(|s| s.len() / n).sum();
-    if col0.saturating_add(total) > cols {
-        return Err(crate::Error::Shape(crate::ShapeError {
-            what: "matmul_t.cols",
-            expected: cols,
-            actual: col0.saturating_add(total),
-        }));
-    }
+    };
     macro_rules! body {
         ($m:expr) => {{
             let m = $m;
