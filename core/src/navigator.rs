@@ -1106,6 +1106,11 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
     /// update. Bit for bit [`Navigator::step_map`] when `(h, c)` are the trunk's output on
     /// this navigator's inputs (the batched trunk gives each row exactly those bits).
     pub fn finish_step(&mut self, obs: &[f32], h: &[f32], c: &[f32]) -> Result<StepOutput> {
+        if !self.begun {
+            return Err(Error::Config {
+                what: "call begin_step() before finish_step()",
+            });
+        }
         let d = self.w.dims;
         check_len("finish_step.obs", d.feat, obs.len())?;
         check_len("finish_step.h", d.lstm_hidden, h.len())?;
@@ -1124,15 +1129,10 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
     }
 
     /// Lines 8-20 after the policy's outputs are in place: the action, Ψ, the state and, every
-    /// k steps, the inner update.
+    /// k steps, the inner update. Its callers have checked `obs` (`feat` floats).
     fn commit_step(&mut self, obs: &[f32], value: f32) -> Result<StepOutput> {
-        if !core::mem::take(&mut self.begun) {
-            return Err(Error::Config {
-                what: "call begin_step() before finish_step()",
-            });
-        }
+        self.begun = false;
         let d = self.w.dims;
-        check_len("step.obs", d.feat, obs.len())?;
         if !all_finite(self.r.probs) || !value.is_finite() {
             return Err(Error::NumericalFault {
                 what: "action probabilities",
