@@ -74,8 +74,8 @@ fn main() -> Result<()> {
         };
         println!(
             "  {name:<14} AUC for 'target visible' {:.3} (within episodes {:.3}); mean {:.4} when visible, {:.4} when not",
-            auc(&steps, get),
-            auc(w, |s| s.0),
+            auc(steps.iter().map(|s| (get(s), s.2)).collect()),
+            auc(w.clone()),
             mean(true),
             mean(false)
         );
@@ -133,8 +133,11 @@ fn run<M: Mode>(model: &NavModel, world: &World, per_file: usize) -> Result<(Ste
     Ok((out, ep))
 }
 
-/// Each score minus its episode's mean, as (D, cos) step lists (the score in field 0).
-fn centred(steps: &Steps, episode_of: &[usize]) -> (Steps, Steps) {
+/// (score, target visible) per step.
+type Scored = Vec<(f32, bool)>;
+
+/// Each score minus its episode's mean, for D and for cos.
+fn centred(steps: &Steps, episode_of: &[usize]) -> (Scored, Scored) {
     let n = episode_of.iter().max().map_or(0, |m| m + 1);
     let mut sum = vec![(0.0f64, 0.0f64, 0usize); n];
     for (s, &e) in steps.iter().zip(episode_of) {
@@ -144,16 +147,15 @@ fn centred(steps: &Steps, episode_of: &[usize]) -> (Steps, Steps) {
     let d = steps.iter().zip(episode_of);
     (
         d.clone()
-            .map(|(s, &e)| ((s.0 as f64 - mean(e).0) as f32, 0.0, s.2))
+            .map(|(s, &e)| ((s.0 as f64 - mean(e).0) as f32, s.2))
             .collect(),
-        d.map(|(s, &e)| ((s.1 as f64 - mean(e).1) as f32, 0.0, s.2))
+        d.map(|(s, &e)| ((s.1 as f64 - mean(e).1) as f32, s.2))
             .collect(),
     )
 }
 
-/// Area under the ROC curve of `score` for the visible steps (ties count one half).
-fn auc(steps: &Steps, score: fn(&(f32, f32, bool)) -> f32) -> f64 {
-    let mut v: Vec<(f32, bool)> = steps.iter().map(|s| (score(s), s.2)).collect();
+/// Area under the ROC curve of the scores for the visible steps (ties count one half).
+fn auc(mut v: Scored) -> f64 {
     v.sort_by(|a, b| a.0.total_cmp(&b.0));
     let (np, nn) = (
         v.iter().filter(|s| s.1).count() as f64,
