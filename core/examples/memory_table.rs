@@ -1,7 +1,7 @@
 //! Prints the RAM and flash each preset and adaptation mode needs, from the core's own
 //! `const fn` size accounting: `cargo run -p gman-core --example memory_table`.
 
-use gman_core::memory::{int8_weight_bytes, AdaptMode, NavLayout};
+use gman_core::memory::{int8_weight_bytes, AdaptMode, Footprint, NavLayout};
 use gman_core::Dims;
 
 fn main() {
@@ -13,11 +13,24 @@ fn main() {
         ("mcu", Dims::MCU),
         ("mcu + 3x3 map (8 ch)", Dims::MCU.with_map(3, 3, 8)),
     ] {
-        for mode in [AdaptMode::Full, AdaptMode::Efficient] {
-            let l = NavLayout::new(&d, mode, 20);
+        // Full: one layout (the footprints coincide); Efficient: the microcontroller's
+        // compact layout and the hosts' fast one.
+        for (mode, fp) in [
+            (AdaptMode::Full, Footprint::Fast),
+            (AdaptMode::Efficient, Footprint::Compact),
+            (AdaptMode::Efficient, Footprint::Fast),
+        ] {
+            let l = NavLayout::new_with(&d, mode, 20, fp);
+            let label = match (mode, fp) {
+                (AdaptMode::Efficient, Footprint::Fast) => "Efficient, fast (hosts)",
+                _ => match mode {
+                    AdaptMode::Full => "Full",
+                    AdaptMode::Efficient => "Efficient",
+                },
+            };
             let f32_bytes = 4 * (d.gen_params() + d.disc_params() + d.policy_params());
             println!(
-                "| {name} | {mode:?} | {:.1} | {:.1} | {} | {:.1} | {:.1} |",
+                "| {name} | {label} | {:.1} | {:.1} | {} | {:.1} | {:.1} |",
                 l.total_bytes() as f64 / 1024.0,
                 (4 * l.psi) as f64 / 1024.0,
                 l.gen_params + l.actor_params,

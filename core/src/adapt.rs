@@ -121,6 +121,7 @@ fn adapt_one_by_one(
         attr,
         zs,
         xs: None,
+        u2s: None,
         obs,
     };
     let AdaptWork { d, dd, .. } = w;
@@ -164,6 +165,7 @@ pub fn generator_score_backward(
         attr,
         zs,
         xs: None,
+        u2s: None,
         obs: &[],
     };
     inner::score_backward(gen, Some(disc), inp, coef, &mut w.inner(), grads1, grads2)

@@ -90,6 +90,10 @@ pub struct AdaptInputs<'a> {
     pub zs: &'a [f32],
     /// `n x F` features made by [`generate`], or `None`.
     pub xs: Option<&'a [f32]>,
+    /// `n x F` pre-gain outputs `W2 h1` of G's layer 2 for the same entries (a layer 2 with
+    /// gains, Efficient mode), or `None`: with them and `xs`, L_ad's backward pass runs no
+    /// forward pass of G's layer 2 (the same bits: they are what that pass gives).
+    pub u2s: Option<&'a [f32]>,
     /// `n x F` observations (CosSim).
     pub obs: &'a [f32],
 }
@@ -551,7 +555,9 @@ pub fn adapt_scores(
     (d, dd, dprobs): (&mut [f32], &mut [f32], &mut [f32]),
     w: &mut InnerWork<'_>,
 ) -> Result<f32> {
-    let AdaptInputs { attr, zs, xs, obs } = inp;
+    let AdaptInputs {
+        attr, zs, xs, obs, ..
+    } = inp;
     w.check()?;
     gen.validate()?;
     let (n, f) = (d.len(), gen.feat());
@@ -624,12 +630,26 @@ pub fn score_backward(
     grads1: &mut DenseGrads<'_>,
     grads2: &mut DenseGrads<'_>,
 ) -> Result<()> {
-    let AdaptInputs { attr, zs, xs, obs } = inp;
+    let AdaptInputs {
+        attr,
+        zs,
+        xs,
+        u2s,
+        obs,
+    } = inp;
     w.check()?;
     gen.validate()?;
     let (n, f) = (coef.len(), gen.feat());
     let zd = gen.in_dim().saturating_sub(attr.len());
     check_len("adapt.zs", n * zd, zs.len())?;
+    if let Some(u2s) = u2s {
+        check_len("adapt.u2s", n * f, u2s.len())?;
+        if xs.is_none() {
+            return Err(crate::Error::Config {
+                what: "adapt: G's pre-gain outputs (u2s) need the features (xs)",
+            });
+        }
+    }
     check_len("inner.mix", w.b * f, w.mix.len())?;
     check_len("inner.g", w.b * f, w.g.len())?;
     if w.b > 1 {
@@ -657,7 +677,16 @@ pub fn score_backward(
             grouped,
         };
         with_rows(w, nb, (z1, attr, zd), |w, r| {
-            group_backward(gen, disc, r, (xs, obs), groups, nb, w, (grads1, grads2))
+            group_backward(
+                gen,
+                disc,
+                r,
+                (xs, u2s, obs),
+                groups,
+                nb,
+                w,
+                (grads1, grads2),
+            )
         })?;
     }
     Ok(())
@@ -713,7 +742,7 @@ fn group_backward(
     gen: &Generator<'_>,
     disc: Option<&Discriminator<'_>>,
     rows: (&[f32], &[f32]),
-    (xs, obs): (Option<&[f32]>, &[f32]),
+    (xs, u2s, obs): (Option<&[f32]>, Option<&[f32]>, &[f32]),
     groups: Groups<'_>,
     nb: usize,
     w: &mut InnerWork<'_>,
@@ -721,11 +750,15 @@ fn group_backward(
 ) -> Result<()> {
     let f = gen.feat();
     match xs {
-        // No gain on layer 2: its forward pass is not needed (x is known, u2 is not used).
-        Some(xs) if gen.l2.gain.is_none() => {
+        // Layer 2's forward pass is not needed when x is known and its pre-gain output
+        // `u2` is either not used (no gain) or known too.
+        Some(xs) if gen.l2.gain.is_none() || u2s.is_some() => {
             gen_hidden(gen, rows, nb, w)?;
             for (i, (t, _)) in groups.each().take(nb).enumerate() {
                 w.mix[i * f..(i + 1) * f].copy_from_slice(&xs[t * f..(t + 1) * f]);
+                if let Some(u2s) = u2s.filter(|_| gen.l2.gain.is_some()) {
+                    w.u2[i * f..(i + 1) * f].copy_from_slice(&u2s[t * f..(t + 1) * f]);
+                }
             }
         }
         _ => gen_forward_mix(gen, rows, nb, w)?,

@@ -23,6 +23,26 @@ use crate::NUM_ACTIONS;
 
 pub use crate::schema::AdaptMode;
 
+/// How much RAM the navigator trades for speed. **Never the bits**: every footprint gives
+/// every step, score, gradient and adapted parameter the same bits (the batched kernels'
+/// contract, see [`crate::inner`]); `tests/tests/navigator.rs` checks whole episodes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Default)]
+pub enum Footprint {
+    /// The microcontroller's layout (the default): in [`AdaptMode::Efficient`] the inner
+    /// update processes Ψ [`EFFICIENT_ADAPT_BATCH`] entries at a time and regenerates G's
+    /// pre-gain output for L_ad's backward pass.
+    #[default]
+    Compact,
+    /// For hosts: all `k` entries of Ψ as one batch in both modes, and in
+    /// [`AdaptMode::Efficient`] Ψ also keeps G's pre-gain output `W2 h1` of every entry
+    /// (`k x feat` floats more), so an inner update runs no forward pass of G at all. It
+    /// costs `k x feat` floats of Ψ and the batch buffers of `k` entries instead of 2: for
+    /// `k = 20` in Efficient mode 452 KiB instead of 145 KiB for `mcu`, 2.5 MiB instead of
+    /// 512 KiB for `paper` (`cargo run -p gman-core --example memory_table`). In Full mode
+    /// the two layouts are the same.
+    Fast,
+}
+
 /// Sizes (in f32 elements) of every RAM region of the navigator.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct NavLayout {
@@ -48,7 +68,12 @@ impl NavLayout {
     /// `usize` (absurd dims from a hostile blob, see [`NavLayout::try_new`]) every field is
     /// `usize::MAX`, so the arena asked for can never be provided and nothing wraps.
     pub const fn new(d: &Dims, mode: AdaptMode, k: usize) -> NavLayout {
-        match NavLayout::try_new(d, mode, k) {
+        NavLayout::new_with(d, mode, k, Footprint::Compact)
+    }
+
+    /// [`NavLayout::new`] for a [`Footprint`].
+    pub const fn new_with(d: &Dims, mode: AdaptMode, k: usize, fp: Footprint) -> NavLayout {
+        match NavLayout::try_new_with(d, mode, k, fp) {
             Some(l) => l,
             None => NavLayout {
                 gen_params: usize::MAX,
@@ -66,7 +91,17 @@ impl NavLayout {
     /// the total byte count overflows `usize` (checked arithmetic throughout). Each field is
     /// the sum of its regions of the arena table (`region_lens`, the one statement of the layout).
     pub const fn try_new(d: &Dims, mode: AdaptMode, k: usize) -> Option<NavLayout> {
-        let lens = tri!(region_lens(d, mode, k));
+        NavLayout::try_new_with(d, mode, k, Footprint::Compact)
+    }
+
+    /// [`NavLayout::try_new`] for a [`Footprint`].
+    pub const fn try_new_with(
+        d: &Dims,
+        mode: AdaptMode,
+        k: usize,
+        fp: Footprint,
+    ) -> Option<NavLayout> {
+        let lens = tri!(region_lens(d, mode, k, fp));
         let mut sums = [0usize; 7];
         let mut i = 0;
         while i < NUM_REGIONS {
@@ -124,7 +159,7 @@ pub(crate) enum Part {
 }
 
 macro_rules! arena_regions {
-    (|$d:ident, $full:ident, $g:ident, $k:ident, $b:ident, $map:ident, $gen_in:ident|
+    (|$d:ident, $full:ident, $g:ident, $k:ident, $b:ident, $map:ident, $gen_in:ident, $fast:ident|
      $($(#[$m:meta])* $name:ident in $part:ident = $len:expr;)*) => {
         /// One region of the navigator's arena, in carve order (`Ram::carve` in
         /// `navigator.rs` takes each by name; [`NavLayout`] sums them per field).
@@ -137,21 +172,23 @@ macro_rules! arena_regions {
 
         const REGION_PART: [Part; NUM_REGIONS] = [$(Part::$part),*];
 
-        /// Length in f32 of every region, in carve order, for `d`, `mode` and buffer
-        /// capacity `k` (`None` when one overflows `usize`). The one statement of the arena
-        /// layout.
+        /// Length in f32 of every region, in carve order, for `d`, `mode`, buffer
+        /// capacity `k` and footprint `fp` (`None` when one overflows `usize`). The one
+        /// statement of the arena layout.
         pub(crate) const fn region_lens(
             $d: &Dims,
             mode: AdaptMode,
             $k: usize,
+            fp: Footprint,
         ) -> Option<[usize; NUM_REGIONS]> {
             let $full = matches!(mode, AdaptMode::Full);
+            let $fast = matches!(fp, Footprint::Fast);
             // With gains (Efficient) some buffers exist, otherwise they are empty.
             let $g: usize = if $full { 0 } else { 1 };
             let $map = tri!($d.map_rows.checked_mul($d.map_cols)) > 0;
             let $gen_in = tri!($d.checked_gen_in());
             // Entries of Ψ the batched inner update processes at a time.
-            let $b: usize = adapt_batch(mode, $k);
+            let $b: usize = adapt_batch_with(mode, $k, fp);
             Some([$($len),*])
         }
     };
@@ -175,9 +212,15 @@ pub const EFFICIENT_ADAPT_BATCH: usize = 2;
 /// [`EFFICIENT_ADAPT_BATCH`] in [`AdaptMode::Efficient`]. Only the speed and the RAM
 /// depend on it, never the bits (see `crate::inner`).
 pub const fn adapt_batch(mode: AdaptMode, k: usize) -> usize {
-    match mode {
-        AdaptMode::Full => k,
-        AdaptMode::Efficient => {
+    adapt_batch_with(mode, k, Footprint::Compact)
+}
+
+/// [`adapt_batch`] for a [`Footprint`]: with [`Footprint::Fast`] all `k` entries in both
+/// modes.
+pub const fn adapt_batch_with(mode: AdaptMode, k: usize, fp: Footprint) -> usize {
+    match (mode, fp) {
+        (AdaptMode::Full, _) | (_, Footprint::Fast) => k,
+        (AdaptMode::Efficient, Footprint::Compact) => {
             if k < EFFICIENT_ADAPT_BATCH {
                 k
             } else {
@@ -187,7 +230,7 @@ pub const fn adapt_batch(mode: AdaptMode, k: usize) -> usize {
     }
 }
 
-arena_regions! { |d, full, g, k, b, map, gen_in|
+arena_regions! { |d, full, g, k, b, map, gen_in, fast|
     // Adapted G (θ, or its gains and biases): weights in Full, gains in Efficient, biases.
     Gen1W in GenParams = tri!(if_full(full, d.gen_hidden.checked_mul(gen_in)));
     Gen1Gain in GenParams = g * d.gen_hidden;
@@ -229,6 +272,9 @@ arena_regions! { |d, full, g, k, b, map, gen_in|
     // Ψ_x: the generated feature of every entry, made once per inner update (G is fixed
     // within an adaptation window, so these are the bits each entry's forward pass gives).
     PsiX in Psi = tri!(k.checked_mul(d.feat));
+    // Fast footprint, Efficient mode: G's pre-gain output `W2 h1` of every entry, recorded
+    // at its step, so that L_ad's backward pass needs no forward pass of G (`inner`).
+    PsiU2 in Psi = if fast { g * tri!(k.checked_mul(d.feat)) } else { 0 };
     // G activations of the step.
     U1 in Work = g * d.gen_hidden;
     H1 in Work = d.gen_hidden;
@@ -297,9 +343,24 @@ pub const fn arena_len(d: &Dims, mode: AdaptMode, k: usize) -> usize {
     sat(try_arena_len(d, mode, k))
 }
 
+/// [`arena_len`] for a [`Footprint`].
+pub const fn arena_len_with(d: &Dims, mode: AdaptMode, k: usize, fp: Footprint) -> usize {
+    sat(try_arena_len_with(d, mode, k, fp))
+}
+
 /// [`arena_len`], or `None` when it overflows `usize`.
 pub const fn try_arena_len(d: &Dims, mode: AdaptMode, k: usize) -> Option<usize> {
-    match NavLayout::try_new(d, mode, k) {
+    try_arena_len_with(d, mode, k, Footprint::Compact)
+}
+
+/// [`arena_len_with`], or `None` when it overflows `usize`.
+pub const fn try_arena_len_with(
+    d: &Dims,
+    mode: AdaptMode,
+    k: usize,
+    fp: Footprint,
+) -> Option<usize> {
+    match NavLayout::try_new_with(d, mode, k, fp) {
         Some(l) => l.checked_total_floats(),
         None => None,
     }
@@ -394,6 +455,7 @@ impl Dims {
             && crate::schema::checked_tensor_bytes(self)
             && NavLayout::try_new(self, AdaptMode::Full, 1).is_some()
             && NavLayout::try_new(self, AdaptMode::Efficient, 1).is_some()
+            && NavLayout::try_new_with(self, AdaptMode::Efficient, 1, Footprint::Fast).is_some()
     }
 }
 

@@ -90,7 +90,9 @@ use crate::generator::{Generator, GeneratorCache};
 use crate::inner::{self, InnerWork};
 use crate::lstm::Lstm;
 use crate::matrix::MatRef;
-use crate::memory::{adapt_batch, arena_len, region_lens, AdaptMode, Region, NUM_REGIONS};
+use crate::memory::{
+    adapt_batch_with, arena_len_with, region_lens, AdaptMode, Footprint, Region, NUM_REGIONS,
+};
 use crate::policy::{Policy, PolicyCache, PolicyInput};
 use crate::preset::Dims;
 use crate::rng::{fill_gaussian, uniform, Xoshiro128};
@@ -184,6 +186,11 @@ pub struct NavConfig {
     /// other mode, since the inner loop would then not be the one that was meta-learned.
     /// `None`: any mode.
     pub mode: Option<AdaptMode>,
+    /// How much RAM the navigator trades for speed ([`Footprint::Compact`], the
+    /// microcontroller's layout, by default; hosts use [`Footprint::Fast`]). Never changes
+    /// a bit of what the navigator computes; the arena must hold
+    /// [`Navigator::arena_len_for`] floats for it.
+    pub footprint: Footprint,
 }
 
 impl NavConfig {
@@ -298,6 +305,7 @@ impl Default for NavConfig {
             disc_head_reset: false,
             head_only: false,
             mode: None,
+            footprint: Footprint::Compact,
         }
     }
 }
@@ -645,6 +653,7 @@ struct Ram<'w> {
     psi_p: &'w mut [f32],
     psi_h: &'w mut [f32],
     psi_x: &'w mut [f32],
+    psi_u2: &'w mut [f32],
     // G activations of the step
     u1: &'w mut [f32],
     h1: &'w mut [f32],
@@ -680,9 +689,15 @@ struct Ram<'w> {
 impl<'w> Ram<'w> {
     /// Carves the regions of [`crate::memory`]'s arena table (the one statement of their
     /// order and sizes) from `arena`; returns them and the floats used.
-    fn carve(arena: &'w mut [f32], d: &Dims, mode: AdaptMode, k: usize) -> Result<(Self, usize)> {
+    fn carve(
+        arena: &'w mut [f32],
+        d: &Dims,
+        mode: AdaptMode,
+        k: usize,
+        fp: Footprint,
+    ) -> Result<(Self, usize)> {
         let total = arena.len();
-        let lens = region_lens(d, mode, k).ok_or(ARENA_TOO_SMALL)?;
+        let lens = region_lens(d, mode, k, fp).ok_or(ARENA_TOO_SMALL)?;
         let full = mode == AdaptMode::Full;
         let mut rest = arena;
         let mut short = false;
@@ -723,12 +738,13 @@ impl<'w> Ram<'w> {
             psi_p: t(Region::PsiP),
             psi_h: t(Region::PsiH),
             psi_x: t(Region::PsiX),
+            psi_u2: t(Region::PsiU2),
             u1: t(Region::U1),
             h1: t(Region::H1),
             u2: t(Region::U2),
             x: t(Region::X),
             iw: InnerWork {
-                b: adapt_batch(mode, k).max(1),
+                b: adapt_batch_with(mode, k, fp).max(1),
                 z: t(Region::BZ),
                 attr: t(Region::BAttr),
                 u1: t(Region::BU1),
@@ -786,14 +802,26 @@ pub struct Navigator<'w, M: Mode, const K: usize> {
     begun: bool,
     x_valid: bool,
     x_fixed: bool,
+    /// The step's G activations (`u2` in [`Ram`]) are those of its x_t (a
+    /// [`Navigator::generator_output`] probe reuses them as scratch).
+    u2_valid: bool,
+    /// Every entry of Ψ recorded its x_t (and, where Ψ keeps it, G's pre-gain output) at its
+    /// step, from G at the current θ: the inner update need not regenerate Ψ_x.
+    psi_recorded: bool,
     last: AdaptReport,
     _mode: PhantomData<M>,
 }
 
 impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
-    /// Number of f32 the arena must hold: [`arena_len`] for these dims, `M` and `K`.
+    /// Number of f32 the arena must hold: [`crate::memory::arena_len`] for these dims, `M`
+    /// and `K` (the default [`Footprint::Compact`]).
     pub fn arena_len(dims: &Dims) -> usize {
-        arena_len(dims, M::MODE, K)
+        Self::arena_len_for(dims, Footprint::Compact)
+    }
+
+    /// Number of f32 the arena must hold with footprint `fp` ([`NavConfig::footprint`]).
+    pub fn arena_len_for(dims: &Dims, fp: Footprint) -> usize {
+        arena_len_with(dims, M::MODE, K, fp)
     }
 
     /// A navigator over `weights`, with all mutable state in `arena` (at least
@@ -817,12 +845,12 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
             });
         }
         let dims = weights.dims;
-        if crate::memory::try_arena_len(&dims, M::MODE, K).is_none() {
+        if crate::memory::try_arena_len_with(&dims, M::MODE, K, cfg.footprint).is_none() {
             return Err(Error::Config {
                 what: "dims too large: the arena size for these dims, mode and K overflows",
             });
         }
-        let (r, _used) = Ram::carve(arena, &dims, M::MODE, K)?;
+        let (r, _used) = Ram::carve(arena, &dims, M::MODE, K, cfg.footprint)?;
         let mut nav = Navigator {
             w: weights,
             cfg,
@@ -834,6 +862,8 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
             begun: false,
             x_valid: false,
             x_fixed: false,
+            u2_valid: false,
+            psi_recorded: false,
             last: AdaptReport::default(),
             _mode: PhantomData,
         };
@@ -1145,6 +1175,7 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
         self.r.psi_z[n * z..(n + 1) * z].copy_from_slice(self.r.z);
         self.r.psi_p[n * NUM_ACTIONS..(n + 1) * NUM_ACTIONS].copy_from_slice(self.r.probs);
         self.r.psi_h[n * lh..(n + 1) * lh].copy_from_slice(self.r.h);
+        self.record_psi_features(n);
         self.n_buf += 1;
         self.r.h_state.copy_from_slice(self.r.h);
         self.r.c_state.copy_from_slice(self.r.c);
@@ -1192,6 +1223,8 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
     /// Line 7, x_t = G_θi(SE(y), z_t), into the navigator's x_t (`None`) or, for
     /// [`Navigator::generator_output`], from a caller's noise into a caller's buffer.
     fn run_generator(&mut self, z_out: Option<(&[f32], &mut [f32])>) -> Result<()> {
+        // A probe leaves x_t alone but overwrites the activations of the step's G pass.
+        self.u2_valid = z_out.is_none();
         let r = &mut self.r;
         let gen = gen_view(&r.gen1, &r.gen2, &self.w)?;
         let (z, x) = match z_out {
@@ -1272,8 +1305,11 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
         } else {
             0
         };
-        // Ψ_x once: G is fixed until the descent step of line 20.
-        self.generate_psi_x()?;
+        // Ψ_x once: G is fixed until the descent step of line 20 (recorded by the steps when
+        // they ran G at this θ, which gives the same bits).
+        if !self.psi_recorded {
+            self.generate_psi_x()?;
+        }
         let mut disc_ok = true;
         for _ in 0..disc_steps {
             report.ld = self.disc_gradient()?;
@@ -1297,6 +1333,25 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
         self.x_valid = false;
         self.last = report;
         Ok(())
+    }
+
+    /// Records the step's x_t in Ψ_x (and G's pre-gain output in Ψ_u2, where Ψ keeps it) as
+    /// entry `n`, and whether all of Ψ now holds its entries' features. θ changes only in the
+    /// inner update and in [`Navigator::reset`], and both empty Ψ, so every entry's x_t
+    /// was made by G at the θ of the next inner update: the bits [`Self::generate_psi_x`]
+    /// would give (the batched kernels give every row the batch-1 bits). Not when the caller
+    /// fixed x_t ([`Navigator::fix_generated_feature`]): Ψ_x is then G's output, regenerated.
+    fn record_psi_features(&mut self, n: usize) {
+        let f = self.w.dims.feat;
+        let keep_u2 = !self.r.psi_u2.is_empty();
+        let ok = !self.x_fixed && (!keep_u2 || self.u2_valid);
+        if ok {
+            self.r.psi_x[n * f..(n + 1) * f].copy_from_slice(self.r.x);
+            if keep_u2 {
+                self.r.psi_u2[n * f..(n + 1) * f].copy_from_slice(self.r.u2);
+            }
+        }
+        self.psi_recorded = (n == 0 || self.psi_recorded) && ok;
     }
 
     /// Ψ_x: `x_t = G(z_t, attr)` for the `n_buf` entries of Ψ, once per inner update (G is
@@ -1423,6 +1478,7 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
         let cfg = self.cfg;
         let (f, zd, lh) = (d.feat, d.noise, d.lstm_hidden);
         let w = self.w;
+        let recorded = self.psi_recorded;
         let Ram {
             gen1,
             gen2,
@@ -1438,6 +1494,7 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
             psi_p,
             psi_h,
             psi_x,
+            psi_u2,
             d: dvals,
             dd,
             dprobs,
@@ -1457,6 +1514,8 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
             attr,
             zs: &psi_z[..n * zd],
             xs: Some(&psi_x[..n * f]),
+            // G's pre-gain outputs, when Ψ keeps them and every step recorded its own.
+            u2s: (recorded && !psi_u2.is_empty()).then(|| &psi_u2[..n * f]),
             obs: &psi_s[..n * f],
         };
         let outs = (
@@ -1568,13 +1627,16 @@ mod tests {
     fn carve_uses_exactly_the_documented_layout() {
         for d in [Dims::MCU, Dims::MCU.with_ps(), Dims::PAPER] {
             for mode in [AdaptMode::Full, AdaptMode::Efficient] {
-                for k in [1usize, 20] {
-                    let n = arena_len(&d, mode, k);
+                for (k, fp) in [1usize, 20]
+                    .into_iter()
+                    .flat_map(|k| [(k, Footprint::Compact), (k, Footprint::Fast)])
+                {
+                    let n = arena_len_with(&d, mode, k, fp);
                     let mut arena = vec![0.0f32; n + 7];
-                    let (_, used) = Ram::carve(&mut arena, &d, mode, k).unwrap();
-                    assert_eq!(used, n, "{d:?} {mode:?} k={k}");
+                    let (_, used) = Ram::carve(&mut arena, &d, mode, k, fp).unwrap();
+                    assert_eq!(used, n, "{d:?} {mode:?} k={k} {fp:?}");
                     let mut small = vec![0.0f32; n - 1];
-                    assert!(Ram::carve(&mut small, &d, mode, k).is_err());
+                    assert!(Ram::carve(&mut small, &d, mode, k, fp).is_err());
                 }
             }
         }

@@ -209,8 +209,15 @@ fn noises(repeated: bool) -> Vec<f32> {
 }
 
 fn batch1_features(g: &Generator<'_>, zs: &[f32], attr: &[f32]) -> Vec<f32> {
+    batch1_features_u2(g, zs, attr).0
+}
+
+/// The features and G's pre-gain layer-2 outputs of [`batch1_features`] (what a navigator's
+/// steps record in Ψ with `Footprint::Fast`).
+fn batch1_features_u2(g: &Generator<'_>, zs: &[f32], attr: &[f32]) -> (Vec<f32>, Vec<f32>) {
     let (mut u1, mut h1, mut u2) = (vec![0.0; H], vec![0.0; H], vec![0.0; F]);
     let mut xs = vec![0.0; N * F];
+    let mut u2s = vec![0.0; N * F];
     for t in 0..N {
         let mut x = vec![0.0; F];
         let mut c = GeneratorCache {
@@ -221,8 +228,9 @@ fn batch1_features(g: &Generator<'_>, zs: &[f32], attr: &[f32]) -> Vec<f32> {
         };
         g.forward(&zs[t * Z..(t + 1) * Z], attr, &mut c).unwrap();
         xs[t * F..(t + 1) * F].copy_from_slice(&x);
+        u2s[t * F..(t + 1) * F].copy_from_slice(&u2);
     }
-    xs
+    (xs, u2s)
 }
 
 fn bits(v: &[f32]) -> Vec<u32> {
@@ -382,7 +390,7 @@ fn adapt_grad_matches_the_batch1_functions() {
         let d = disc(&m, eff);
         for repeated in [false, true] {
             let zs = noises(repeated);
-            let xs = batch1_features(&g, &zs, &attr);
+            let (xs, u2s) = batch1_features_u2(&g, &zs, &attr);
             for kind in [AdaptLossKind::Paper, AdaptLossKind::Reference] {
                 for use_d in [true, false] {
                     // The reference (`before`) and the public batch-1 functions (the
@@ -483,9 +491,11 @@ fn adapt_grad_matches_the_batch1_functions() {
                     let (wb, dvb, ddb, dpb, g1b, g2b, g1, g2, dv, ddv, dprobs, want) =
                         runs.pop().unwrap();
                     assert_eq!((wb, dvb, ddb, dpb, g1b, g2b), (pub_run.0, pub_run.1, pub_run.2, pub_run.3, pub_run.4, pub_run.5), "public batch-1 vs reference: eff={eff} repeated={repeated} kind={kind:?} use_d={use_d}");
-                    for (b, with_xs) in [1, 2, 3, N, N + 2]
+                    // Regenerated features, recorded features, and recorded features with G's
+                    // recorded pre-gain outputs (`Footprint::Fast`).
+                    for (b, with_xs, with_u2) in [1, 2, 3, N, N + 2]
                         .into_iter()
-                        .flat_map(|b| [(b, true), (b, false)])
+                        .flat_map(|b| [(b, true, false), (b, false, false), (b, true, true)])
                     {
                         let (mut h1g, mut h2g) = (Grad::new(&m.g1, eff), Grad::new(&m.g2, eff));
                         let (mut d2, mut dd2) = (vec![0.0; N], vec![0.0; N]);
@@ -499,6 +509,7 @@ fn adapt_grad_matches_the_batch1_functions() {
                                 attr: &attr,
                                 zs: &zs,
                                 xs: with_xs.then_some(&xs[..]),
+                                u2s: with_u2.then_some(&u2s[..]),
                                 obs: &obs,
                             },
                             &probs,
@@ -509,7 +520,7 @@ fn adapt_grad_matches_the_batch1_functions() {
                         )
                         .unwrap();
                         let what = format!(
-                            "eff={eff} repeated={repeated} kind={kind:?} use_d={use_d} b={b} xs={with_xs}"
+                            "eff={eff} repeated={repeated} kind={kind:?} use_d={use_d} b={b} xs={with_xs} u2s={with_u2}"
                         );
                         assert_eq!(got.to_bits(), want.to_bits(), "{what}");
                         assert_eq!(bits(&d2), bits(&dv), "{what}");
@@ -531,6 +542,7 @@ fn adapt_grad_matches_the_batch1_functions() {
                                 attr: &attr,
                                 zs: &zs,
                                 xs: with_xs.then_some(&xs[..]),
+                                u2s: with_u2.then_some(&u2s[..]),
                                 obs: &obs,
                             },
                             &probs,

@@ -151,7 +151,7 @@ fn generated<M: Mode>(nav: &Navigator<'_, M, K>, noise: usize, attr: &[f32]) -> 
 
 fn episode<M: Mode>(world: &World, model: &NavModel, spec: &EpisodeSpec) -> Result<Option<Record>> {
     let limits = EpisodeLimits::default();
-    let mut arena = vec![0.0f32; Navigator::<M, K>::arena_len(&model.dims)];
+    let mut arena = vec![0.0f32; model.arena_len()];
     let mut nav: Navigator<'_, M, K> =
         Navigator::new(model.weights()?, &mut arena, model.nav_config(false))?;
     let attr = world.attributes(spec.target).to_vec();

@@ -8,7 +8,7 @@ use gman_core::blob::{
     TensorId,
 };
 use gman_core::matrix::MatRef;
-use gman_core::memory::AdaptMode;
+use gman_core::memory::{AdaptMode, Footprint};
 use gman_core::navigator::{NavConfig, NavWeights, NoiseMode, Selection, StepRule};
 use gman_core::rng::Xoshiro128;
 use gman_core::schema::{AdaptLossKind, Emd, ModelFlags};
@@ -670,8 +670,17 @@ impl NavModel {
             } else {
                 gman_core::navigator::Schedule::Auto
             },
+            // A host has the RAM: Ψ as one batch and G's pre-gain outputs kept (the same
+            // bits as the device's compact layout).
+            footprint: Footprint::Fast,
             ..NavConfig::from_flags(self.model_flags(), self.adapt_settings())
         }
+    }
+
+    /// Floats of a navigator arena that fits this model in either adaptation mode with the
+    /// host's footprint ([`NavModel::nav_config`]).
+    pub fn arena_len(&self) -> usize {
+        host_arena_len(&self.dims)
     }
 
     /// The typed settings stored in checkpoints ([`ModelMeta`]).
@@ -1115,4 +1124,17 @@ mod inner_rule_tests {
         let err = format!("{:#}", NavModel::from_checkpoint(&ck).unwrap_err());
         assert!(err.contains("disc-steps"), "{err}");
     }
+}
+
+/// Floats of a navigator arena (capacity [`super::K`]) that fits `dims` in either adaptation
+/// mode with the host's [`Footprint::Fast`].
+pub fn host_arena_len(dims: &Dims) -> usize {
+    use gman_core::navigator::{Efficient, Full, Navigator};
+    Navigator::<Full, { super::K }>::arena_len_for(dims, Footprint::Fast).max(Navigator::<
+        Efficient,
+        { super::K },
+    >::arena_len_for(
+        dims,
+        Footprint::Fast,
+    ))
 }

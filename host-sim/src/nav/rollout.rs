@@ -94,9 +94,8 @@ pub struct Worker {
 impl Worker {
     /// Buffers for `model`.
     pub fn new(model: &NavModel) -> Worker {
-        // The Full layout is the larger one; an Efficient navigator fits in it too.
         Worker {
-            arena: vec![0.0; Navigator::<Full, K>::arena_len(&model.dims)],
+            arena: vec![0.0; model.arena_len()],
             ps: model.ps.as_ref().map(|p| PsBuffers::new(p.hidden)),
             map: vec![0.0; model.dims.map_len()],
         }

@@ -782,7 +782,7 @@ mod tests {
             // The documented order, computed here.
             segs.sort_by_key(|p| (std::cmp::Reverse(p.steps.len()), p.seq));
             let weights = model.weights().unwrap();
-            let mut arena = vec![0.0; Navigator::<Full, K>::arena_len(&d)];
+            let mut arena = vec![0.0; crate::nav::model::host_arena_len(&d)];
             let mut nav: Navigator<'_, Efficient, K> =
                 Navigator::new(weights, &mut arena, model.nav_config(true)).unwrap();
             nav.reset(&vec![0.0; d.attr], 0).unwrap();

@@ -7,6 +7,7 @@ use std::time::Instant;
 use anyhow::{anyhow, Result};
 use gman_core::blob::{Blob, TensorId};
 use gman_core::matrix::MatRef;
+use gman_core::memory::{AdaptMode, Footprint};
 use gman_core::navigator::{Efficient, Full, Mode, NavConfig, NavWeights, Navigator};
 use gman_core::quant::quantize_rows;
 use gman_core::rng::{fill_gaussian, uniform, Xoshiro128};
@@ -96,11 +97,12 @@ fn obs(d: &Dims) -> Vec<f32> {
 }
 
 /// Median per-step latency: repetitions of `n` steps, `n` chosen so one lasts ≈ 10 ms.
-fn time_steps<M: Mode>(w: NavWeights<'_>, reps: usize) -> Result<(f64, f64)> {
+fn time_steps<M: Mode>(w: NavWeights<'_>, fp: Footprint, reps: usize) -> Result<(f64, f64)> {
     let d = *w.dims();
-    let mut arena = vec![0.0f32; Navigator::<M, K>::arena_len(&d)];
+    let mut arena = vec![0.0f32; Navigator::<M, K>::arena_len_for(&d, fp)];
     let cfg = NavConfig {
         adapt: false,
+        footprint: fp,
         ..NavConfig::default()
     };
     let mut nav: Navigator<'_, M, K> =
@@ -126,11 +128,15 @@ fn time_steps<M: Mode>(w: NavWeights<'_>, reps: usize) -> Result<(f64, f64)> {
 
 /// Median latency of one inner update on exactly K buffered steps (`adapt_now()` on a
 /// navigator of capacity K + 1, as in the criterion bench).
-fn time_adapt<M: Mode>(w: NavWeights<'_>, reps: usize) -> Result<(f64, f64)> {
+fn time_adapt<M: Mode>(w: NavWeights<'_>, fp: Footprint, reps: usize) -> Result<(f64, f64)> {
     let d = *w.dims();
-    let mut arena = vec![0.0f32; Navigator::<M, { K + 1 }>::arena_len(&d)];
+    let mut arena = vec![0.0f32; Navigator::<M, { K + 1 }>::arena_len_for(&d, fp)];
+    let cfg = NavConfig {
+        footprint: fp,
+        ..NavConfig::default()
+    };
     let mut nav: Navigator<'_, M, { K + 1 }> =
-        Navigator::new(w, &mut arena, NavConfig::default()).map_err(|e| anyhow!("{e:?}"))?;
+        Navigator::new(w, &mut arena, cfg).map_err(|e| anyhow!("{e:?}"))?;
     let o = obs(&d);
     let mut per = Vec::with_capacity(reps);
     for i in 0..reps + 1 {
@@ -149,22 +155,25 @@ fn time_adapt<M: Mode>(w: NavWeights<'_>, reps: usize) -> Result<(f64, f64)> {
     Ok((median(per), min))
 }
 
+/// One row: `M` with footprint `fp` (the mode's name, with ", compact" for the
+/// microcontroller's layout in Efficient mode, the only mode where the two differ).
 fn nav_row<M: Mode>(
     preset: &'static str,
     quant: &'static str,
     w: impl Fn() -> Result<NavWeights<'static>>,
-    reps: usize,
-    adapt_reps: usize,
+    fp: Footprint,
+    (reps, adapt_reps): (usize, usize),
 ) -> Result<NavRow> {
     let weights = w()?;
     let d = *weights.dims();
     let weight_bytes = weight_bytes_per_step::<M>(&weights);
-    let (step_s, step_min_s) = time_steps::<M>(weights, reps)?;
-    let (adapt_s, adapt_min_s) = time_adapt::<M>(w()?, adapt_reps)?;
+    let (step_s, step_min_s) = time_steps::<M>(weights, fp, reps)?;
+    let (adapt_s, adapt_min_s) = time_adapt::<M>(w()?, fp, adapt_reps)?;
+    let compact = fp == Footprint::Compact && M::MODE == AdaptMode::Efficient;
     Ok(NavRow {
         preset,
         quant,
-        mode: format!("{:?}", M::MODE),
+        mode: format!("{:?}{}", M::MODE, if compact { ", compact" } else { "" }),
         macs: d.macs_per_step(),
         weight_bytes,
         step_s,
@@ -215,14 +224,11 @@ pub fn nav_rows(a: &BenchArgs) -> Result<Vec<NavRow>> {
                 .map_err(|e| anyhow!("weights: {e:?}"))
             };
             eprintln!("bench: {} {} ...", p.name(), q.name());
-            rows.push(nav_row::<Full>(p.name(), q.name(), w, a.reps, adapt_reps)?);
-            rows.push(nav_row::<Efficient>(
-                p.name(),
-                q.name(),
-                w,
-                a.reps,
-                adapt_reps,
-            )?);
+            let r = (a.reps, adapt_reps);
+            rows.push(nav_row::<Full>(p.name(), q.name(), w, Footprint::Fast, r)?);
+            for fp in [Footprint::Fast, Footprint::Compact] {
+                rows.push(nav_row::<Efficient>(p.name(), q.name(), w, fp, r)?);
+            }
         }
     }
     Ok(rows)
