@@ -691,31 +691,42 @@ fn mt_seg<K: Kind, const C: usize, const B: usize>(
     let n8 = l / 8;
     let cb = n8 / C * C;
     let nb = n / B * B;
-    let mut b0 = 0;
-    while b0 < nb {
-        let mut c = 0;
-        while c < cb {
-            mt_tile::<K, C, B>(m, rows, dy, seg, l, off, b0, c);
-            c += C;
+    // Rows in blocks of `MT_ROWS`, in order, each block's row coefficients computed once per
+    // vector tile (not once per column tile): every output element still receives its
+    // `+= c * w` for rows 0, 1, .. in that order (the accumulators go through `seg` between
+    // blocks).
+    let mut r0 = 0;
+    while r0 < rows && n8 > 0 {
+        let rb = MT_ROWS.min(rows - r0);
+        let mut b0 = 0;
+        while b0 < nb {
+            let coef = mt_coefs::<K, B>(m, rows, dy, b0, r0, rb);
+            let mut c = 0;
+            while c < cb {
+                mt_tile::<K, C, B>(m, (r0, rb), &coef, seg, l, off, b0, c);
+                c += C;
+            }
+            while c < n8 {
+                mt_tile::<K, 1, B>(m, (r0, rb), &coef, seg, l, off, b0, c);
+                c += 1;
+            }
+            b0 += B;
         }
-        while c < n8 {
-            mt_tile::<K, 1, B>(m, rows, dy, seg, l, off, b0, c);
-            c += 1;
+        // The vectors left over: 8 C columns x 1 vector per tile.
+        while b0 < n {
+            let coef = mt_coefs::<K, 1>(m, rows, dy, b0, r0, rb);
+            let mut c = 0;
+            while c < cb {
+                mt_tile::<K, C, 1>(m, (r0, rb), &coef, seg, l, off, b0, c);
+                c += C;
+            }
+            while c < n8 {
+                mt_tile::<K, 1, 1>(m, (r0, rb), &coef, seg, l, off, b0, c);
+                c += 1;
+            }
+            b0 += 1;
         }
-        b0 += B;
-    }
-    // The vectors left over: 8 C columns x 1 vector per tile.
-    while b0 < n {
-        let mut c = 0;
-        while c < cb {
-            mt_tile::<K, C, 1>(m, rows, dy, seg, l, off, b0, c);
-            c += C;
-        }
-        while c < n8 {
-            mt_tile::<K, 1, 1>(m, rows, dy, seg, l, off, b0, c);
-            c += 1;
-        }
-        b0 += 1;
+        r0 += rb;
     }
     // The tail columns, element by element (rows in order).
     for b in 0..n {
@@ -740,13 +751,34 @@ fn row_coef<K: Kind>(m: &M<'_, K>, i: usize, g: f32) -> f32 {
     }
 }
 
-/// Columns `8 c .. 8 (c + C)` of the segment x vectors `b0 .. b0 + B`, over all rows in order.
+/// The row coefficients ([`row_coef`]) of rows `r0 .. r0 + rb` (`rb <= MT_ROWS`) for
+/// vectors `b0 .. b0 + B`.
+#[inline(always)]
+fn mt_coefs<K: Kind, const B: usize>(
+    m: &M<'_, K>,
+    rows: usize,
+    dy: &[f32],
+    b0: usize,
+    r0: usize,
+    rb: usize,
+) -> [[f32; B]; MT_ROWS] {
+    let mut coef = [[0.0f32; B]; MT_ROWS];
+    for (i, cf) in coef.iter_mut().enumerate().take(rb) {
+        for (b, v) in cf.iter_mut().enumerate() {
+            *v = row_coef(m, r0 + i, dy[(b0 + b) * rows + r0 + i]);
+        }
+    }
+    coef
+}
+
+/// Columns `8 c .. 8 (c + C)` of the segment x vectors `b0 .. b0 + B`, over the rows
+/// `r0 .. r0 + rb` in order, with their coefficients `coef` ([`mt_coefs`]).
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
 fn mt_tile<K: Kind, const C: usize, const B: usize>(
     m: &M<'_, K>,
-    rows: usize,
-    dy: &[f32],
+    (r0, rb): (usize, usize),
+    coef: &[[f32; B]; MT_ROWS],
     seg: &mut [f32],
     l: usize,
     off: usize,
@@ -760,14 +792,14 @@ fn mt_tile<K: Kind, const C: usize, const B: usize>(
             *v = ld8(o, c + cc);
         }
     }
-    for i in 0..rows {
-        let ws = m.seg(i, off, l);
+    for (i, cf) in coef.iter().enumerate().take(rb) {
+        let ws = m.seg(r0 + i, off, l);
         let wv: [[f32; 8]; C] = core::array::from_fn(|cc| K::w8(ws, c + cc));
         for b in 0..B {
-            let coef = row_coef(m, i, dy[(b0 + b) * rows + i]);
+            let k_b = cf[b];
             for cc in 0..C {
                 for k in 0..8 {
-                    acc[b][cc][k] += coef * wv[cc][k];
+                    acc[b][cc][k] += k_b * wv[cc][k];
                 }
             }
         }
@@ -1139,8 +1171,8 @@ fn ldl<const L: usize>(s: &[f32], j: usize) -> [f32; L] {
     core::array::from_fn(|k| s[k])
 }
 
-/// Rows per block of [`matmul_t_acc_rows`]: the row coefficients of a block are computed
-/// once into a small buffer on the stack.
+/// Rows per block of [`matmul_t_acc_rows`] and of the hosts' `mt_seg`: the row coefficients
+/// of a block are computed once into a small buffer on the stack.
 const MT_ROWS: usize = 64;
 /// Vectors per pass of [`matmul_t_acc_rows`] (its coefficient buffer holds this many).
 const MT_MAXB: usize = 2;
