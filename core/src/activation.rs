@@ -52,11 +52,85 @@ pub fn leaky_relu_inplace(x: &mut [f32]) {
     }
 }
 
-/// In-place sigmoid over a slice.
+/// In-place sigmoid over a slice: [`sigmoid`] of every element, bit for bit, eight at a
+/// time through [`expf8`] where every lane's argument is on `libm::expf`'s main path (the
+/// others, and the tail, through [`sigmoid`] itself).
 pub fn sigmoid_inplace(x: &mut [f32]) {
-    for v in x {
+    let mut chunks = x.chunks_exact_mut(8);
+    for ch in &mut chunks {
+        let v: [f32; 8] = core::array::from_fn(|l| ch[l]);
+        // The argument `sigmoid` gives `expf`: -x for x >= 0, else x.
+        let arg: [f32; 8] = core::array::from_fn(|l| if v[l] >= 0.0 { -v[l] } else { v[l] });
+        match expf8(arg) {
+            Some(e) => {
+                for l in 0..8 {
+                    ch[l] = if v[l] >= 0.0 {
+                        1.0 / (1.0 + e[l])
+                    } else {
+                        e[l] / (1.0 + e[l])
+                    };
+                }
+            }
+            None => ch.iter_mut().for_each(|v| *v = sigmoid(*v)),
+        }
+    }
+    for v in chunks.into_remainder() {
         *v = sigmoid(*v);
     }
+}
+
+// `libm::expf` (FreeBSD's e_expf.c, as ported by the `libm` crate): its constants.
+const EXP_LN2_HI: f32 = 6.931_457_5e-1; // 0x3f317200
+const EXP_LN2_LO: f32 = 1.428_606_8e-6; // 0x35bfbe8e
+const EXP_INV_LN2: f32 = 1.442_695_0; // 0x3fb8aa3b
+const EXP_P1: f32 = 1.666_662_5e-1; // 0x3e2aaa8f
+const EXP_P2: f32 = -2.766_733_3e-3; // 0xbb355215
+
+/// `libm::expf` of eight values at once, **bit for bit**, when every lane takes that
+/// function's main path (`2^-14 < |x| < 87.33655`, i.e. `0x39000000 < |x|.to_bits() <
+/// 0x42aeac50`); `None` otherwise (the caller then uses `libm::expf` itself). The same f32
+/// operations in the same order, with the branches of the argument reduction as selects
+/// (for `k = 0` the reduction subtracts `0 * ln2` and adds `lo = 0`, which changes no bit of
+/// a non-zero `x`) and `scalbnf(y, k)` as its one multiplication by `2^k` (`|k| <= 126` on
+/// this path), so the compiler can run the lanes as one vector. `tests::expf8_is_libm_expf`
+/// compares it with `libm::expf` on a stride of all 2^32 inputs (and on all of them when run
+/// with `--ignored`).
+#[inline]
+pub fn expf8(x: [f32; 8]) -> Option<[f32; 8]> {
+    if !x.iter().all(|v| {
+        let h = v.to_bits() & 0x7fff_ffff;
+        h > 0x3900_0000 && h < 0x42ae_ac50
+    }) {
+        return None;
+    }
+    Some(core::array::from_fn(|l| {
+        let v = x[l];
+        let bits = v.to_bits();
+        let neg = bits >> 31 != 0;
+        let h = bits & 0x7fff_ffff;
+        let k: i32 = if h > 0x3f85_1592 {
+            // |x| > 1.5 ln2
+            (EXP_INV_LN2 * v + if neg { -0.5 } else { 0.5 }) as i32
+        } else if h > 0x3eb1_7218 {
+            // |x| > 0.5 ln2
+            if neg {
+                -1
+            } else {
+                1
+            }
+        } else {
+            0
+        };
+        let kf = k as f32;
+        let hi = v - kf * EXP_LN2_HI;
+        let lo = kf * EXP_LN2_LO;
+        let r = hi - lo;
+        let rr = r * r;
+        let c = r - rr * (EXP_P1 + rr * EXP_P2);
+        let y = 1.0 + (r * c / (2.0 - c) - lo + hi);
+        // scalbnf(y, k) for |k| <= 126: y * 2^k (exactly y for k = 0).
+        y * f32::from_bits(((0x7f + k) as u32) << 23)
+    }))
 }
 
 /// `dpre = dout * LeakyReLU'(out)` given the activation's *output* `out`
@@ -141,4 +215,95 @@ pub fn softmax_backward(probs: &[f32], dprobs: &[f32], dlogits: &mut [f32]) -> R
 #[inline]
 pub fn all_finite(x: &[f32]) -> bool {
     x.iter().all(|v| v.is_finite())
+}
+
+#[cfg(test)]
+mod tests {
+    extern crate std;
+    use super::*;
+
+    /// Compares [`expf8`] with `libm::expf` on the inputs `bits(i)` for `i in 0..n`, eight
+    /// at a time; returns how many went through the main path.
+    fn compare(n: u64, bits: impl Fn(u64) -> u32) -> u64 {
+        let mut main = 0;
+        let mut i = 0;
+        while i < n {
+            let x: [f32; 8] = core::array::from_fn(|l| f32::from_bits(bits(i + l as u64)));
+            if let Some(e) = expf8(x) {
+                for l in 0..8 {
+                    assert_eq!(
+                        e[l].to_bits(),
+                        libm::expf(x[l]).to_bits(),
+                        "expf8({:e}) (bits {:#010x})",
+                        x[l],
+                        x[l].to_bits()
+                    );
+                }
+                main += 8;
+            } else {
+                // Refused only when a lane is off the main path.
+                assert!(x.iter().any(|v| {
+                    let h = v.to_bits() & 0x7fff_ffff;
+                    !(h > 0x3900_0000 && h < 0x42ae_ac50)
+                }));
+            }
+            i += 8;
+        }
+        main
+    }
+
+    #[test]
+    fn expf8_is_libm_expf() {
+        // Every 1021st bit pattern (all exponents, both signs, NaN, inf) ...
+        let main = compare(1 << 22, |i| (i * 1021) as u32);
+        assert!(main > 100_000, "{main}");
+        // ... and every input within 4096 ulps of each branch boundary, both signs.
+        for b in [0x3900_0000u32, 0x3eb1_7218, 0x3f85_1592, 0x42ae_ac50] {
+            for sign in [0, 0x8000_0000u32] {
+                compare(8192, |i| (b - 4096 + i as u32) | sign);
+            }
+        }
+    }
+
+    /// All 2^32 inputs (about a minute in release: `cargo test --release -p gman-core
+    /// expf8_is_libm_expf_everywhere -- --ignored`).
+    #[test]
+    #[ignore]
+    fn expf8_is_libm_expf_everywhere() {
+        // The main path in aligned groups of eight: 0x39000008 ..= 0x42aeac4f, both signs.
+        assert_eq!(
+            compare(1 << 32, |i| i as u32),
+            2 * (0x42ae_ac50 - 0x3900_0008)
+        );
+    }
+
+    #[test]
+    fn sigmoid_inplace_is_sigmoid_bit_for_bit() {
+        let specials = [
+            0.0f32,
+            -0.0,
+            1e-6,
+            -1e-6,
+            f32::NAN,
+            f32::from_bits(0x7fc0_1234),
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+            88.0,
+            -88.0,
+            200.0,
+            -200.0,
+        ];
+        let mut v: std::vec::Vec<f32> = (0..4099u32)
+            .map(|i| f32::from_bits(i.wrapping_mul(2_654_435_761)))
+            .chain((0..2000).map(|i| (i as f32 - 1000.0) * 0.013))
+            .collect();
+        v.extend_from_slice(&specials);
+        for start in 0..8 {
+            let mut got = v[start..].to_vec();
+            sigmoid_inplace(&mut got);
+            for (g, &x) in got.iter().zip(&v[start..]) {
+                assert_eq!(g.to_bits(), sigmoid(x).to_bits(), "sigmoid({x:e})");
+            }
+        }
+    }
 }

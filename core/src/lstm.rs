@@ -11,7 +11,7 @@
 //! The forward pass keeps the post-activation gates and `c` in caller buffers; they are all
 //! the backward pass (backpropagation through time on the host trainer) needs.
 
-use crate::activation::{sigmoid, tanh};
+use crate::activation::{sigmoid_inplace, tanh};
 
 use crate::batch::{matmul_acc, matmul_t_acc, outer_acc_batch_with, seg_lens};
 use crate::error::{check_len, Result};
@@ -160,15 +160,13 @@ impl<'a> Lstm<'a> {
             let cp = &c_prev[b * hd..(b + 1) * hd];
             let cb = &mut c[b * hd..(b + 1) * hd];
             let hb = &mut h[b * hd..(b + 1) * hd];
+            // The gates' activations in place (element-wise: the same bits as one at a time).
+            sigmoid_inplace(gi);
+            sigmoid_inplace(gf);
+            gg.iter_mut().for_each(|v| *v = tanh(*v));
+            sigmoid_inplace(go);
             for j in 0..hd {
-                let i = sigmoid(gi[j]);
-                let f = sigmoid(gf[j]);
-                let g = tanh(gg[j]);
-                let o = sigmoid(go[j]);
-                gi[j] = i;
-                gf[j] = f;
-                gg[j] = g;
-                go[j] = o;
+                let (i, f, g, o) = (gi[j], gf[j], gg[j], go[j]);
                 let cj = f * cp[j] + i * g;
                 cb[j] = cj;
                 hb[j] = o * tanh(cj);

@@ -392,8 +392,13 @@ fn short_training_run_then_blob_replays_through_gman_core() {
         let blob = Blob::parse(&blob_bytes).unwrap();
         let weights = NavWeights::from_blob(&blob, &dims).unwrap();
         let mut arena = vec![0.0f32; Navigator::<Efficient, 20>::arena_len(&dims)];
+        // The device's compact layout (the host agent ran the fast one): the same bits.
+        let cfg = gman_core::navigator::NavConfig {
+            footprint: gman_core::memory::Footprint::Compact,
+            ..host.nav_config(false)
+        };
         let mut nav: Navigator<'_, Efficient, 20> =
-            Navigator::new(weights, &mut arena, host.nav_config(false)).unwrap();
+            Navigator::new(weights, &mut arena, cfg).unwrap();
         nav.reset(w.attributes(spec.target), spec.seed).unwrap();
         let mut env2 = Env::new(w, spec, RewardKind::Mixed, 40);
         let mut visited = vec![env2.agent_state()];

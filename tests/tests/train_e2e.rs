@@ -6,6 +6,7 @@ use std::path::PathBuf;
 use std::sync::Arc;
 
 use gman_core::blob::Blob;
+use gman_core::memory::Footprint;
 use gman_core::navigator::{Efficient, NavConfig, NavWeights, Navigator, NoiseMode, Selection};
 use gman_core::Dims;
 use gman_host_sim::nav::agent::NavAgent;
@@ -215,7 +216,10 @@ fn exported_int8_blob_host_path_and_core_api_agree() {
     assert_eq!(
         host.nav_config(false),
         NavConfig {
+            // The host's run-time choices: sampled actions, and the RAM-for-speed layout,
+            // which changes no bit (tests/tests/footprint.rs).
             selection: Selection::Sample,
+            footprint: Footprint::Fast,
             ..Blob::parse(&blob_bytes).unwrap().nav_config()
         },
         "host evaluation and the device's NavConfig::from_header disagree"
@@ -236,8 +240,13 @@ fn exported_int8_blob_host_path_and_core_api_agree() {
         let blob = Blob::parse(&blob_bytes).unwrap();
         let w = NavWeights::from_blob(&blob, &Dims::MCU).unwrap();
         let mut arena = vec![0.0f32; Navigator::<Efficient, 20>::arena_len(&Dims::MCU)];
+        // The device's compact layout (the host agent ran the fast one): the same bits.
+        let device_cfg = NavConfig {
+            footprint: Footprint::Compact,
+            ..host.nav_config(false)
+        };
         let mut nav: Navigator<'_, Efficient, 20> =
-            Navigator::new(w, &mut arena, host.nav_config(false)).unwrap();
+            Navigator::new(w, &mut arena, device_cfg).unwrap();
         nav.reset(world.attributes(spec.target), spec.seed).unwrap();
         let mut env2 = Env::new(&world, spec, RewardKind::Mixed, 60);
         let mut visited = vec![env2.agent_state()];
@@ -269,8 +278,9 @@ fn exported_int8_blob_host_path_and_core_api_agree() {
     // bit with the bare navigator (a dequantised f32 copy in Full mode would not).
     assert!(gman_host_sim::nav::rollout::eval_mode_is_efficient(&host));
     let blob = Blob::parse(&blob_bytes).unwrap();
+    // The host's fast layout against the device's compact one.
     let (mut a1, mut a2) = (
-        vec![0.0f32; Navigator::<Efficient, 20>::arena_len(&Dims::MCU)],
+        vec![0.0f32; host.arena_len()],
         vec![0.0f32; Navigator::<Efficient, 20>::arena_len(&Dims::MCU)],
     );
     let mut n1: Navigator<'_, Efficient, 20> =
@@ -278,7 +288,10 @@ fn exported_int8_blob_host_path_and_core_api_agree() {
     let mut n2: Navigator<'_, Efficient, 20> = Navigator::new(
         NavWeights::from_blob(&blob, &Dims::MCU).unwrap(),
         &mut a2,
-        host.nav_config(false),
+        NavConfig {
+            footprint: Footprint::Compact,
+            ..host.nav_config(false)
+        },
     )
     .unwrap();
     let spec = &episodes[0];
@@ -340,6 +353,7 @@ fn blob_carries_the_inner_loop_settings_to_the_device_config() {
             back.nav_config(false),
             NavConfig {
                 selection: Selection::Sample,
+                footprint: Footprint::Fast,
                 ..device
             },
             "{method:?}: host evaluation and device configurations differ"
