@@ -80,11 +80,11 @@ pub fn sigmoid_inplace(x: &mut [f32]) {
 }
 
 // `libm::expf` (FreeBSD's e_expf.c, as ported by the `libm` crate): its constants.
-const EXP_LN2_HI: f32 = 6.931_457_5e-1; // 0x3f317200
-const EXP_LN2_LO: f32 = 1.428_606_8e-6; // 0x35bfbe8e
-const EXP_INV_LN2: f32 = 1.442_695_0; // 0x3fb8aa3b
-const EXP_P1: f32 = 1.666_662_5e-1; // 0x3e2aaa8f
-const EXP_P2: f32 = -2.766_733_3e-3; // 0xbb355215
+const EXP_LN2_HI: f32 = f32::from_bits(0x3f31_7200); // 6.9314575195e-01
+const EXP_LN2_LO: f32 = f32::from_bits(0x35bf_be8e); // 1.4286067653e-06
+const EXP_INV_LN2: f32 = f32::from_bits(0x3fb8_aa3b); // 1.4426950216e+00
+const EXP_P1: f32 = f32::from_bits(0x3e2a_aa8f); // 1.6666625440e-1
+const EXP_P2: f32 = f32::from_bits(0xbb35_5215); // -2.7667332906e-3
 
 /// `libm::expf` of eight values at once, **bit for bit**, when every lane takes that
 /// function's main path (`2^-14 < |x| < 87.33655`, i.e. `0x39000000 < |x|.to_bits() <
