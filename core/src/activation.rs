@@ -63,12 +63,10 @@ pub fn sigmoid_inplace(x: &mut [f32]) {
         let arg: [f32; 8] = core::array::from_fn(|l| if v[l] >= 0.0 { -v[l] } else { v[l] });
         match expf8(arg) {
             Some(e) => {
+                // 1 / (1 + e) for x >= 0, e / (1 + e) otherwise: one division per lane.
                 for l in 0..8 {
-                    ch[l] = if v[l] >= 0.0 {
-                        1.0 / (1.0 + e[l])
-                    } else {
-                        e[l] / (1.0 + e[l])
-                    };
+                    let num = if v[l] >= 0.0 { 1.0 } else { e[l] };
+                    ch[l] = num / (1.0 + e[l]);
                 }
             }
             None => ch.iter_mut().for_each(|v| *v = sigmoid(*v)),
@@ -103,34 +101,37 @@ pub fn expf8(x: [f32; 8]) -> Option<[f32; 8]> {
     }) {
         return None;
     }
-    Some(core::array::from_fn(|l| {
-        let v = x[l];
-        let bits = v.to_bits();
-        let neg = bits >> 31 != 0;
+    // One operation per loop over the lanes (branch-free: the reduction's branches are
+    // selects), so that the compiler runs each loop as one vector operation.
+    let mut k = [0i32; 8];
+    for l in 0..8 {
+        let bits = x[l].to_bits();
         let h = bits & 0x7fff_ffff;
-        let k: i32 = if h > 0x3f85_1592 {
-            // |x| > 1.5 ln2
-            (EXP_INV_LN2 * v + if neg { -0.5 } else { 0.5 }) as i32
+        let half = if bits >> 31 != 0 { -0.5 } else { 0.5 };
+        // |x| > 1.5 ln2: round; |x| > 0.5 ln2: +-1; else 0.
+        let kb = (EXP_INV_LN2 * x[l] + half) as i32;
+        let km = if bits >> 31 != 0 { -1 } else { 1 };
+        k[l] = if h > 0x3f85_1592 {
+            kb
         } else if h > 0x3eb1_7218 {
-            // |x| > 0.5 ln2
-            if neg {
-                -1
-            } else {
-                1
-            }
+            km
         } else {
             0
         };
-        let kf = k as f32;
-        let hi = v - kf * EXP_LN2_HI;
+    }
+    let mut y = [0.0f32; 8];
+    for l in 0..8 {
+        let kf = k[l] as f32;
+        let hi = x[l] - kf * EXP_LN2_HI;
         let lo = kf * EXP_LN2_LO;
         let r = hi - lo;
         let rr = r * r;
         let c = r - rr * (EXP_P1 + rr * EXP_P2);
-        let y = 1.0 + (r * c / (2.0 - c) - lo + hi);
+        let yl = 1.0 + (r * c / (2.0 - c) - lo + hi);
         // scalbnf(y, k) for |k| <= 126: y * 2^k (exactly y for k = 0).
-        y * f32::from_bits(((0x7f + k) as u32) << 23)
-    }))
+        y[l] = yl * f32::from_bits(((0x7f + k[l]) as u32) << 23);
+    }
+    Some(y)
 }
 
 /// `dpre = dout * LeakyReLU'(out)` given the activation's *output* `out`
