@@ -9,7 +9,7 @@
 use std::hint::black_box;
 use std::time::Instant;
 
-use gman_core::blob::{AdaptSettings, Blob, Quant, TensorId};
+use gman_core::blob::{Blob, TensorId};
 use gman_core::matrix::MatRef;
 use gman_core::memory::Footprint;
 use gman_core::navigator::{Efficient, Full, Mode, NavConfig, NavWeights, Navigator};
@@ -78,21 +78,7 @@ fn main() {
             v
         })
         .collect();
-    let mut buf = vec![0u8; gman_core::blob::encoded_model_len_bound(&d, Quant::I8)];
-    let (nf, nb) = gman_core::blob::encode_model_scratch_len(&d);
-    let nbytes = gman_core::seeded::encode_seeded(
-        &d,
-        0,
-        AdaptSettings::PAPER,
-        Quant::I8,
-        1,
-        0.05,
-        &mut buf,
-        &mut vec![0.0; nf],
-        &mut vec![0; nb],
-    )
-    .unwrap();
-    buf.truncate(nbytes);
+    let buf = gman_host_sim::seeded::int8_blob(&d, 1, 0.05).unwrap();
     let blob = Blob::parse(&buf).unwrap();
     let w = if a[2] == "f32" {
         NavWeights::from_fn(&d, |id| {

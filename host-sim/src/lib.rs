@@ -10,6 +10,7 @@ pub mod optim;
 pub mod pretrain;
 pub mod progress;
 pub mod ps;
+pub mod seeded;
 pub mod sim;
 pub mod simd;
 

@@ -6,7 +6,7 @@
 //! [`Navigator::generator_output`] probe between zero-noise steps overwrites the step's G
 //! activations, so the next window regenerates).
 
-use gman_core::blob::{AdaptSettings, Blob, Quant, TensorId};
+use gman_core::blob::{Blob, TensorId};
 use gman_core::matrix::MatRef;
 use gman_core::memory::{AdaptMode, Footprint, NavLayout};
 use gman_core::navigator::{
@@ -27,25 +27,6 @@ fn f32_weights(dims: &Dims, seed: u64) -> Vec<Vec<f32>> {
             v
         })
         .collect()
-}
-
-fn int8_blob(dims: &Dims) -> Vec<u8> {
-    let mut buf = vec![0u8; gman_core::blob::encoded_model_len_bound(dims, Quant::I8)];
-    let (nf, nb) = gman_core::blob::encode_model_scratch_len(dims);
-    let n = gman_core::seeded::encode_seeded(
-        dims,
-        0,
-        AdaptSettings::PAPER,
-        Quant::I8,
-        3,
-        0.05,
-        &mut buf,
-        &mut vec![0.0; nf],
-        &mut vec![0; nb],
-    )
-    .unwrap();
-    buf.truncate(n);
-    buf
 }
 
 /// Everything an episode produces, as bits.
@@ -145,7 +126,7 @@ fn every_footprint_gives_the_same_episode_bit_for_bit() {
     };
     check_mode::<Full>(f32w, "f32");
     check_mode::<Efficient>(f32w, "f32");
-    let bytes: &'static [u8] = Vec::leak(int8_blob(&dims));
+    let bytes: &'static [u8] = Vec::leak(gman_host_sim::seeded::int8_blob(&dims, 3, 0.05).unwrap());
     let blob: &'static Blob<'static> = Box::leak(Box::new(Blob::parse(bytes).unwrap()));
     let i8w = move || NavWeights::from_blob(blob, &dims).unwrap();
     check_mode::<Full>(i8w, "int8");

@@ -28,27 +28,6 @@ fn tensors(d: &Dims) -> Vec<Vec<f32>> {
         .collect()
 }
 
-/// The int8 blob of [`tensors`] (gman-core's one seeded-weights builder).
-fn int8_blob(d: &Dims, _t: &[Vec<f32>]) -> Result<Vec<u8>> {
-    let mut buf =
-        vec![0u8; gman_core::blob::encoded_model_len_bound(d, gman_core::blob::Quant::I8)];
-    let (nf, nb) = gman_core::blob::encode_model_scratch_len(d);
-    let n = gman_core::seeded::encode_seeded(
-        d,
-        0,
-        gman_core::blob::AdaptSettings::PAPER,
-        gman_core::blob::Quant::I8,
-        1,
-        0.05,
-        &mut buf,
-        &mut vec![0.0; nf],
-        &mut vec![0; nb],
-    )
-    .map_err(|e| anyhow!("encoding blob: {e:?}"))?;
-    buf.truncate(n);
-    Ok(buf)
-}
-
 /// Bytes of weight matrices one `step()` reads: G's two layers and the actor head from f32
 /// RAM in `Full` mode (they adapt), from the blob otherwise; fusion, LSTM and critic always
 /// from the blob (values plus int8 row scales). Biases and gains (< 0.1%) are left out.
@@ -200,7 +179,7 @@ pub fn nav_rows(a: &BenchArgs) -> Result<Vec<NavRow>> {
         // Leaked once per preset so the navigators can borrow them for 'static; the process
         // ends after the benchmark.
         let t: &'static [Vec<f32>] = Vec::leak(tensors(&d));
-        let bytes: &'static [u8] = Vec::leak(int8_blob(&d, t)?);
+        let bytes: &'static [u8] = Vec::leak(gman_host_sim::seeded::int8_blob(&d, 1, 0.05)?);
         let blob: &'static Blob<'static> = Box::leak(Box::new(
             Blob::parse(bytes).map_err(|e| anyhow!("parsing blob: {e:?}"))?,
         ));
