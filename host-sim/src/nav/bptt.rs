@@ -19,7 +19,7 @@
 
 use anyhow::{anyhow, bail, Result};
 use gman_core::blob::TensorId;
-use gman_core::dense::DenseGrads;
+use gman_core::dense::{Dense, DenseGrads};
 use gman_core::generator::{Generator, GeneratorCache, GeneratorScratch};
 use gman_core::lstm::LstmGrads;
 use gman_core::navigator::{Mode, Navigator};
@@ -176,6 +176,7 @@ impl Widths {
 }
 
 /// The activations of one step the backward pass needs (saved from the rollout's forward).
+#[derive(Clone)]
 pub(crate) struct StepAct {
     prod: Vec<f32>,
     fuse: Vec<f32>,
@@ -271,6 +272,19 @@ pub(crate) struct Segment<'a> {
     pub(crate) attr: &'a [f32],
     /// `V_T`.
     pub(crate) bootstrap: f32,
+    /// The parameters of this segment's episode that its inner updates adapt (the actor
+    /// head and G, as the segment ran with them), or `None`: those of the `policy` and
+    /// `gen` given to [`Backward::run`].
+    pub(crate) own: Option<Adapted<'a>>,
+}
+
+/// An episode's adapted parameters (θ_i, the actor head of φ_i): views of its navigator.
+#[derive(Clone, Copy)]
+pub(crate) struct Adapted<'a> {
+    /// The actor head.
+    pub(crate) actor: Dense<'a>,
+    /// G.
+    pub(crate) gen: Generator<'a>,
 }
 
 /// Buffers of the batched backward pass, reused across calls.
@@ -373,11 +387,12 @@ impl Backward {
         for r in 0..max_len {
             let n = segs.iter().take_while(|s| s.steps.len() > r).count();
             self.load_rows(segs, &outs, r, n, w);
-            self.policy_step(policy, n, w, &mut pg, train_generator)?;
+            self.policy_step(policy, &segs[..n], w, &mut pg, train_generator)?;
             if train_generator {
                 for (j, s) in segs[..n].iter().enumerate() {
                     let z = &s.steps[s.steps.len() - 1 - r].z;
                     let dx = &self.dfeat[j * w.f..(j + 1) * w.f];
+                    let gen = s.own.as_ref().map_or(gen, |o| &o.gen);
                     gbuf.backward(gen, z, s.attr, dx, &mut g1, &mut g2)?;
                 }
             }
@@ -446,16 +461,20 @@ impl Backward {
         clear_resize(&mut self.cell_tmp, n * w.map);
     }
 
-    /// The policy's backward over the loaded rows; `(∂h, ∂c)` move one step back. Without
-    /// `train_generator` the gradient into x_t is not computed.
+    /// The policy's backward over the loaded rows (those of `segs`); `(∂h, ∂c)` move one
+    /// step back. Without `train_generator` the gradient into x_t is not computed. When a
+    /// segment has its own actor head, the heads run row by row (each row's head, in row
+    /// order: the bits of the batched heads when the rows share one), then the trunk as one
+    /// batch.
     fn policy_step(
         &mut self,
         policy: &Policy<'_>,
-        n: usize,
+        segs: &[Segment<'_>],
         w: &Widths,
         pg: &mut PolicyGrads<'_>,
         train_generator: bool,
     ) -> Result<()> {
+        let n = segs.len();
         let rows = &mut self.rows;
         let inp = PolicyInput {
             obs: &rows.obs,
@@ -497,20 +516,57 @@ impl Backward {
             dcell: &mut self.dcell,
             cell_tmp: &mut self.cell_tmp,
         };
-        policy.backward_batch(
-            n,
-            &inp,
-            &rows.h_prev,
-            &rows.c_prev,
-            &cache,
-            &self.dl,
-            &self.dv,
-            &self.dh_next[..nh],
-            &self.dc_next[..nh],
-            pg,
-            &mut out,
-            &mut sc,
-        )?;
+        if segs.iter().all(|s| s.own.is_none()) {
+            policy.backward_batch(
+                n,
+                &inp,
+                &rows.h_prev,
+                &rows.c_prev,
+                &cache,
+                &self.dl,
+                &self.dv,
+                &self.dh_next[..nh],
+                &self.dc_next[..nh],
+                pg,
+                &mut out,
+                &mut sc,
+            )?;
+        } else {
+            let hd = w.hd;
+            sc.dh.copy_from_slice(&self.dh_next[..nh]);
+            for (j, s) in segs.iter().enumerate() {
+                let p = match &s.own {
+                    Some(o) => Policy {
+                        actor: o.actor,
+                        ..*policy
+                    },
+                    None => *policy,
+                };
+                let au = &cache.actor_u[j * w.au..(j + 1) * w.au];
+                p.heads_backward(
+                    1,
+                    &cache.h[j * hd..(j + 1) * hd],
+                    au,
+                    &self.dl[j * NUM_ACTIONS..(j + 1) * NUM_ACTIONS],
+                    &self.dv[j..j + 1],
+                    &mut pg.actor,
+                    &mut pg.critic,
+                    &mut sc.dh[j * hd..(j + 1) * hd],
+                    &mut sc.tmp[..NUM_ACTIONS],
+                )?;
+            }
+            policy.trunk_backward_batch(
+                n,
+                &inp,
+                &rows.h_prev,
+                &rows.c_prev,
+                &cache,
+                &self.dc_next[..nh],
+                pg,
+                &mut out,
+                &mut sc,
+            )?;
+        }
         std::mem::swap(&mut self.dh_next, &mut self.dh_prev);
         std::mem::swap(&mut self.dc_next, &mut self.dc_prev);
         Ok(())
@@ -567,6 +623,7 @@ pub fn segment_backward<M: Mode, const K: usize>(
         acts: &acts,
         attr,
         bootstrap,
+        own: None,
     }];
     let mut gbuf = GenBufs::new(&gen, w.f);
     let losses = Backward::default().run(

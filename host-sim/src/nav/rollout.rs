@@ -89,6 +89,9 @@ pub struct Worker {
     pub ps: Option<PsBuffers>,
     /// The spatial map of the current step (empty for a model without a map).
     pub map: Vec<f32>,
+    /// One arena per environment slot of the vectorised episodes of a method with an inner
+    /// loop ([`super::vec_adapt`]), grown on first use.
+    pub arenas: Vec<Vec<f32>>,
 }
 
 impl Worker {
@@ -99,6 +102,7 @@ impl Worker {
             arena: vec![0.0; Navigator::<Full, K>::arena_len(&model.dims)],
             ps: model.ps.as_ref().map(|p| PsBuffers::new(p.hidden)),
             map: vec![0.0; model.dims.map_len()],
+            arenas: Vec::new(),
         }
     }
 }

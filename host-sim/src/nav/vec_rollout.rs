@@ -132,6 +132,9 @@ pub fn run_worker(
     grads: &mut ParamSet,
     sample: impl FnMut(u32) -> Result<(EpisodeSpec, u32)>,
 ) -> Result<Vec<Finished>> {
+    if !supports(model) {
+        return super::vec_adapt::run_worker(world, model, s, worker, grads, sample);
+    }
     match model.adapt_mode {
         AdaptMode::Full => run_worker_in::<Full>(world, model, s, worker, grads, sample, None),
         AdaptMode::Efficient => {
@@ -198,15 +201,16 @@ struct PendingSeg {
 /// the end of the update): the bound on the memory they hold.
 pub const MAX_PENDING_STEPS: usize = 4096;
 
-/// Refuses a `B` out of `1..=MAX_BATCH_ENVS`, and `B > 1` for a method with an inner loop in
-/// training (its episodes run one at a time through [`super::trainer::train_episode`]).
-pub fn check_batch_envs(model: &NavModel, batch_envs: usize) -> Result<()> {
+/// Refuses a `B` out of `1..=MAX_BATCH_ENVS`, and `B > 1` for a method with an inner loop
+/// in training with the second-order meta-gradient (its reverse recursion runs per episode
+/// in [`super::trainer::train_episode`]).
+pub fn check_batch_envs(model: &NavModel, batch_envs: usize, meta_order: u8) -> Result<()> {
     if !(1..=MAX_BATCH_ENVS).contains(&batch_envs) {
         bail!("--batch-envs must be in 1..={MAX_BATCH_ENVS}, got {batch_envs}");
     }
-    if batch_envs > 1 && !supports(model) {
+    if batch_envs > 1 && !supports(model) && meta_order != 1 {
         bail!(
-            "--batch-envs {batch_envs} is implemented for the methods without an inner loop in training (a3c, a3c-fg, a3c-ps, a3c-fg-ps, gman-nometa, gman-noemd); {} runs its inner loop per episode: use --batch-envs 1",
+            "--batch-envs {batch_envs} with {} is implemented for the first-order meta-gradient; --meta-order {meta_order} runs its episodes one at a time: use --batch-envs 1",
             model.method.name()
         );
     }
@@ -214,7 +218,7 @@ pub fn check_batch_envs(model: &NavModel, batch_envs: usize) -> Result<()> {
 }
 
 fn check_settings(model: &NavModel, s: &VecSettings<'_>) -> Result<()> {
-    check_batch_envs(model, s.batch_envs)?;
+    check_batch_envs(model, s.batch_envs, 1)?;
     if !supports(model) {
         bail!(
             "the vectorised rollout runs the methods without an inner loop in training; {} runs its inner loop per episode",
@@ -243,7 +247,7 @@ fn run_worker_in<'w, M: Mode>(
     let Worker {
         arena,
         ps: ps_buf,
-        map: _,
+        ..
     } = worker;
     let mut nav: Navigator<'_, M, K> = Navigator::new(weights, arena, model.nav_config(true))?;
     let d = *nav.dims();
@@ -472,6 +476,7 @@ fn flush(
             acts: &p.acts,
             attr: &p.attr,
             bootstrap: p.bootstrap,
+            own: None,
         })
         .collect();
     let ls = b.bw.run(
@@ -795,6 +800,7 @@ mod tests {
                     acts: &p.acts,
                     attr: &p.attr,
                     bootstrap: p.bootstrap,
+                    own: None,
                 }
             }
             let backward = |segs: &[Segment<'_>], grads: &mut ParamSet| {

@@ -1,0 +1,514 @@
+//! Vectorised training episodes of the methods with an inner loop in training (`gman`,
+//! `gman-cossim`, `gman-fixed-g`, `gman-ps`, ...): one worker steps `B` environments in
+//! lockstep, each episode run by **its own gman-core [`Navigator`]** (the device's code, in
+//! the mode the model records), with the policy's trunk of all of them as one batch.
+//!
+//! ```text
+//! while a slot is free and the worker's step budget is not spent: start episode e in it
+//!   (the slot's navigator: D from the model's ω, reset to θ, φ with episode e's seed)
+//! every tick:
+//!   each running episode: observation, PS input, map;
+//!     Navigator::begin_step: x_t = G_θi(SE(y), z_t) from this episode's θ_i   (line 7)
+//!   one batched trunk forward (fusion + LSTM, never adapted) over the running episodes
+//!   each episode: Navigator::finish_step with its row's (h, c): its own adapted actor head,
+//!     the critic, the action, Ψ (lines 8-13); the environment steps
+//!   the episodes whose segment is complete (k = 20 steps, or the episode ended):
+//!     bootstrap values (one batched trunk forward)
+//!     ONE batched BPTT over these segments, each row with its episode's adapted actor
+//!       head φ_i and G θ_i (the parameters the segment ran with)
+//!     then each of them (slot order): the episode ended -> its statistics and D, slot freed;
+//!       else the inner update on its own Ψ (Navigator::adapt_now, lines 14-20)
+//! ```
+//!
+//! **When a segment's backward runs.** Every k = 20 steps an episode's inner update changes
+//! its θ_i and φ_i, and the A3C gradient of the segment before it must be taken at the
+//! parameters it ran with (first-order meta-gradient: the gradient at the adapted parameters
+//! is summed into that of the pre-adaptation ones, as [`super::trainer::train_episode`] does
+//! with [`super::bptt::segment_backward`]). Of the two ways to keep that (keep a copy of
+//! every segment's adapted parameters until the end of the update, or run each segment's
+//! backward when it completes, before its navigator adapts), this module takes the second:
+//! it needs no copies (in the Full mode θ_i is all of G, ~154k floats for `mcu`, per
+//! segment), the views of each episode's parameters are its navigator's own, and with
+//! `B = 1` it is exactly the batch-1 trainer's order. The price is smaller backward batches
+//! (the segments completing at one tick) than the a3c path's one batch per update
+//! ([`super::vec_rollout`]).
+//!
+//! **Gradient order.** Ticks in order; within a tick one batched BPTT
+//! ([`super::bptt::Backward::run`]) over the segments completing at that tick, longest first,
+//! then by slot. Within it every tensor's gradient is summed step by step (last step first)
+//! and, within a step, over the rows in order; the actor head's and the critic's rows run one
+//! at a time in that order (each row its own head), the trunk as one batch, G per row (each
+//! row its own θ_i). The order is fixed by `(seed, update, worker, B)`, so runs are
+//! reproducible and resume bit for bit. With `B = 1` every batch is one segment, completing
+//! before its episode's inner update: [`super::trainer::train_episode`]'s order, bit for bit
+//! (`tests/vec_rollout.rs`); with `B > 1` the sum is the per-episode sum within float
+//! rounding (the same test file, and this module's test pins the order).
+//!
+//! **Each episode is the episode its navigator runs alone**, bit for bit (actions,
+//! probabilities, inner updates, D after it): `begin_step` / `finish_step` are `step` split
+//! around the trunk (`tests/tests/navigator.rs`), and the batched trunk gives every row the
+//! bits of the batch-1 one. A slot's navigator is reused across the slot's episodes: D is
+//! restored from the model's ω and the navigator reset for each, the state a new navigator
+//! has (what [`super::trainer::train_episode`] builds per episode). D's carry-over across
+//! episodes is the batch-1 trainer's: every episode starts from ω, and the outer step adds
+//! `Σ_e (ω_e − ω)` in episode order.
+//!
+//! Not served here: `--meta-order 2` (its reverse recursion runs per episode, refused with
+//! `B > 1`) and the privileged-feature bound (refused with an inner loop, as in batch 1).
+
+use anyhow::{anyhow, bail, Result};
+use gman_core::memory::AdaptMode;
+use gman_core::navigator::{Efficient, Full, Mode, Navigator, Selection};
+use gman_core::policy::PolicyInput;
+use gman_core::NUM_ACTIONS;
+
+use super::a3c::Objective;
+use super::bptt::{take_act, Adapted, Backward, GenBufs, Rows, Segment, StepAct, Widths};
+use super::model::NavModel;
+use super::rollout::{begin, disc_after_episode, expert_distribution, map_grid, EpisodeStats};
+use super::rollout::{ps_input, Worker};
+use super::step::StepRec;
+use super::trainer::{finish_stats, inner_update, InnerTally};
+use super::vec_rollout::{check_batch_envs, Finished, VecSettings};
+use super::K;
+use crate::sim::spatial::MapGrid;
+use crate::sim::{Env, EpisodeSpec, World};
+use crate::train::params::ParamSet;
+use crate::train::ps::PsBuffers;
+
+/// Runs one worker's share of an update of a method with an inner loop with
+/// `s.batch_envs` environments in lockstep (see the module docs); episodes `e = 0, 1, ..`
+/// from `sample(e)`, started while the worker has taken fewer than `s.min_steps` steps, as
+/// in [`super::vec_rollout::run_worker`]. Returns the finished episodes sorted by index, each
+/// with D after it.
+pub fn run_worker(
+    world: &World,
+    model: &NavModel,
+    s: &VecSettings<'_>,
+    worker: &mut Worker,
+    grads: &mut ParamSet,
+    sample: impl FnMut(u32) -> Result<(EpisodeSpec, u32)>,
+) -> Result<Vec<Finished>> {
+    match model.adapt_mode {
+        AdaptMode::Full => run_in::<Full>(world, model, s, worker, grads, sample, None),
+        AdaptMode::Efficient => run_in::<Efficient>(world, model, s, worker, grads, sample, None),
+    }
+}
+
+/// A running episode: its environment, the segment being recorded and its statistics (the
+/// navigator is the slot's).
+struct Ep<'w> {
+    e: u32,
+    env: Env<'w>,
+    seg: Vec<StepRec>,
+    acts: Vec<StepAct>,
+    stats: EpisodeStats,
+    tally: InnerTally,
+    // This step's inputs and the navigator's state before it.
+    obs: Vec<f32>,
+    ps: Vec<f32>,
+    map: Vec<f32>,
+    expert: Option<[f32; NUM_ACTIONS]>,
+    h_prev: Vec<f32>,
+    c_prev: Vec<f32>,
+    prev: Vec<f32>,
+}
+
+/// What the test of the order records of one tick's backward: the segments (in the order
+/// given to the BPTT) with a copy of each row's adapted parameters.
+#[cfg(test)]
+pub(crate) struct TickLog {
+    segs: Vec<(Vec<StepRec>, Vec<StepAct>, Vec<f32>, f32)>,
+    /// Per row: actor (w, b, gain), G layer 1 (w, b, gain), G layer 2 (w, b, gain).
+    params: Vec<[(Vec<f32>, Vec<f32>, Option<Vec<f32>>); 3]>,
+}
+
+#[cfg(not(test))]
+pub(crate) struct TickLog;
+
+fn run_in<'w, M: Mode>(
+    world: &'w World,
+    model: &NavModel,
+    s: &VecSettings<'_>,
+    worker: &mut Worker,
+    grads: &mut ParamSet,
+    mut sample: impl FnMut(u32) -> Result<(EpisodeSpec, u32)>,
+    mut log: Option<&mut Vec<TickLog>>,
+) -> Result<Vec<Finished>> {
+    check_batch_envs(model, s.batch_envs, 1)?;
+    if !model.method.adapts_in_training() {
+        bail!("vec_adapt runs the methods with an inner loop in training");
+    }
+    if model.privileged {
+        bail!("the privileged-feature bound replaces G's output and cannot adapt G; use it with a method without inner loop (a3c-fg)");
+    }
+    let cfg = model.nav_config(true);
+    if cfg.selection != Selection::Sample {
+        bail!("vectorised episodes need a sampling navigator");
+    }
+    let b = s.batch_envs;
+    let weights = model.weights()?;
+    let alen = Navigator::<M, K>::arena_len(&model.dims);
+    let Worker {
+        ps: ps_buf,
+        arenas,
+        ..
+    } = worker;
+    if arenas.len() < b {
+        arenas.resize_with(b, Vec::new);
+    }
+    let mut navs: Vec<Navigator<'_, M, K>> = Vec::with_capacity(b);
+    for a in arenas.iter_mut().take(b) {
+        if a.len() < alen {
+            a.resize(alen, 0.0);
+        }
+        navs.push(Navigator::new(weights, a, cfg)?);
+    }
+    let d = *navs[0].dims();
+    let w = Widths::of(&navs[0].policy()?, &d);
+    let grid = map_grid(model);
+    let train_generator = model.method.trains_generator();
+    let mut rows = Rows::default();
+    let mut bw = Backward::default();
+    let mut gbuf = GenBufs::new(&navs[0].generator()?, w.f);
+    let mut eps: Vec<Option<Ep<'w>>> = (0..b).map(|_| None).collect();
+    let mut done: Vec<Finished> = Vec::new();
+    let (mut next_e, mut taken) = (0u32, 0u64);
+    loop {
+        // Free slots take new episodes while the step budget lasts.
+        for i in 0..b {
+            if eps[i].is_some() {
+                continue;
+            }
+            if next_e > 0 && taken >= s.min_steps as u64 {
+                break;
+            }
+            let (spec, max) = sample(next_e)?;
+            // The state of a new navigator over the model (what the batch-1 trainer builds
+            // for every episode): D from ω, θ_i = θ, φ_i = φ, the episode's seed.
+            navs[i].reset_discriminator()?;
+            begin(&mut navs[i], world, &spec, model)?;
+            eps[i] = Some(Ep {
+                e: next_e,
+                env: Env::new(world, &spec, s.reward, max),
+                seg: Vec::with_capacity(K),
+                acts: Vec::with_capacity(K),
+                stats: EpisodeStats::default(),
+                tally: InnerTally::default(),
+                obs: Vec::new(),
+                ps: Vec::new(),
+                map: Vec::new(),
+                expert: None,
+                h_prev: Vec::new(),
+                c_prev: Vec::new(),
+                prev: Vec::new(),
+            });
+            next_e += 1;
+        }
+        if eps.iter().all(Option::is_none) {
+            break;
+        }
+        let active: Vec<usize> = (0..b)
+            .filter(|&i| eps[i].as_ref().is_some_and(|e| !e.env.is_done()))
+            .collect();
+        taken += tick(
+            model,
+            s.objective,
+            grid,
+            &w,
+            ps_buf,
+            &mut rows,
+            &mut navs,
+            &mut eps,
+            &active,
+        )?;
+        let ready: Vec<usize> = (0..b)
+            .filter(|&i| {
+                eps[i]
+                    .as_ref()
+                    .is_some_and(|e| e.seg.len() == K || e.env.is_done())
+            })
+            .collect();
+        if ready.is_empty() {
+            continue;
+        }
+        let boot = bootstrap(model, grid, &w, ps_buf, &mut rows, &navs, &mut eps, &ready)?;
+        // One batched BPTT over the complete segments, longest first, then by slot; each
+        // row at its episode's adapted parameters (before this segment's inner update).
+        let mut order: Vec<(usize, f32)> = ready.iter().copied().zip(boot).collect();
+        order.sort_by_key(|&(i, _)| {
+            (
+                std::cmp::Reverse(eps[i].as_ref().map_or(0, |e| e.seg.len())),
+                i,
+            )
+        });
+        let mut taken_segs: Vec<(usize, Vec<StepRec>, Vec<StepAct>, f32)> = Vec::new();
+        for &(i, bootv) in &order {
+            let ep = eps[i].as_mut().ok_or_else(|| anyhow!("empty slot"))?;
+            let steps = std::mem::replace(&mut ep.seg, Vec::with_capacity(K));
+            let acts = std::mem::replace(&mut ep.acts, Vec::with_capacity(K));
+            if !steps.is_empty() {
+                taken_segs.push((i, steps, acts, bootv));
+            }
+        }
+        if !taken_segs.is_empty() {
+            let mut segs: Vec<Segment<'_>> = Vec::with_capacity(taken_segs.len());
+            for (i, steps, acts, bootv) in &taken_segs {
+                let nav = &navs[*i];
+                segs.push(Segment {
+                    steps,
+                    acts,
+                    attr: nav.attr(),
+                    bootstrap: *bootv,
+                    own: Some(Adapted {
+                        actor: nav.policy()?.actor,
+                        gen: nav.generator()?,
+                    }),
+                });
+            }
+            if let Some(l) = log.as_deref_mut() {
+                l.push(tick_log(&segs));
+            }
+            let trunk = navs[taken_segs[0].0].policy()?;
+            let gen0 = navs[taken_segs[0].0].generator()?;
+            let losses = bw.run(
+                &trunk,
+                &gen0,
+                &segs,
+                s.a3c,
+                train_generator,
+                &w,
+                &d,
+                grads,
+                &mut gbuf,
+            )?;
+            drop(segs);
+            for ((i, ..), l) in taken_segs.iter().zip(losses) {
+                let ep = eps[*i].as_mut().ok_or_else(|| anyhow!("empty slot"))?;
+                ep.stats.loss.add(&l);
+            }
+        }
+        // Then each of these episodes in slot order: ended, or its inner update on Ψ.
+        for &i in &ready {
+            let nav = &mut navs[i];
+            let ended = eps[i].as_ref().is_some_and(|e| e.env.is_done());
+            if ended {
+                let ep = eps[i].take().ok_or_else(|| anyhow!("empty slot"))?;
+                let mut stats = ep.stats;
+                finish_stats(&mut stats, &ep.env, nav, &ep.tally);
+                done.push((ep.e, stats, disc_after_episode(nav)?));
+            } else {
+                let ep = eps[i].as_mut().ok_or_else(|| anyhow!("empty slot"))?;
+                inner_update(nav, false, &mut ep.tally)?;
+            }
+        }
+    }
+    done.sort_by_key(|f| f.0);
+    Ok(done)
+}
+
+#[cfg(test)]
+fn tick_log(segs: &[Segment<'_>]) -> TickLog {
+    use gman_core::dense::Dense;
+    fn dense(l: &Dense<'_>) -> (Vec<f32>, Vec<f32>, Option<Vec<f32>>) {
+        let (r, c) = (l.w.rows(), l.w.cols());
+        let w = (0..r * c).map(|i| l.w.get(i / c, i % c)).collect();
+        (w, l.b.to_vec(), l.gain.map(|g| g.to_vec()))
+    }
+    TickLog {
+        segs: segs
+            .iter()
+            .map(|s| {
+                (
+                    s.steps.to_vec(),
+                    s.acts.to_vec(),
+                    s.attr.to_vec(),
+                    s.bootstrap,
+                )
+            })
+            .collect(),
+        params: segs
+            .iter()
+            .map(|s| {
+                let o = s.own.as_ref().expect("own parameters");
+                [dense(&o.actor), dense(&o.gen.l1), dense(&o.gen.l2)]
+            })
+            .collect(),
+    }
+}
+
+#[cfg(not(test))]
+fn tick_log(_: &[Segment<'_>]) -> TickLog {
+    TickLog
+}
+
+/// One tick of the running episodes `active`: each navigator's `begin_step` (x_t), one
+/// batched trunk forward, each navigator's `finish_step` (its own actor head, the action,
+/// Ψ), the environment's step; the step and its activations recorded for the backward.
+/// Returns the steps taken.
+#[allow(clippy::too_many_arguments)]
+fn tick<M: Mode>(
+    model: &NavModel,
+    objective: Objective,
+    grid: MapGrid,
+    w: &Widths,
+    ps_buf: &mut Option<PsBuffers>,
+    rows: &mut Rows,
+    navs: &mut [Navigator<'_, M, K>],
+    eps: &mut [Option<Ep<'_>>],
+    active: &[usize],
+) -> Result<u64> {
+    let n = active.len();
+    if n == 0 {
+        return Ok(0);
+    }
+    rows.resize(n, w);
+    for (j, &i) in active.iter().enumerate() {
+        let ep = eps[i].as_mut().ok_or_else(|| anyhow!("empty slot"))?;
+        let nav = &mut navs[i];
+        observe(ep, model, ps_buf, grid, w.map)?;
+        ep.expert = (objective == Objective::Dagger).then(|| expert_distribution(&ep.env));
+        ep.h_prev = nav.hidden_state().to_vec();
+        ep.c_prev = nav.cell_state().to_vec();
+        ep.prev = nav.prev_probs().to_vec();
+        // Line 7: x_t from this episode's θ_i.
+        nav.begin_step(&ep.obs, &ep.map, &ep.ps)?;
+        put_inputs(rows, j, ep, nav, w);
+    }
+    // Line 8: the trunk of every running episode as one batch (the heads computed here are
+    // the first navigator's; each row's own follow).
+    rows.forward(&navs[active[0]].policy()?, n, w)?;
+    let hd = w.hd;
+    for (j, &i) in active.iter().enumerate() {
+        let ep = eps[i].as_mut().ok_or_else(|| anyhow!("empty slot"))?;
+        let nav = &mut navs[i];
+        let (h, c) = (
+            &rows.h[j * hd..(j + 1) * hd],
+            &rows.c[j * hd..(j + 1) * hd],
+        );
+        let out = nav.finish_step(&ep.obs, h, c)?;
+        // This row's heads at the episode's actor head, for the backward's activations
+        // (the bits finish_step computed).
+        {
+            let Rows {
+                h,
+                actor_u,
+                logits,
+                probs,
+                value,
+                ..
+            } = &mut *rows;
+            let (au, na) = (w.au, NUM_ACTIONS);
+            nav.policy()?.heads(
+                1,
+                &h[j * hd..(j + 1) * hd],
+                &mut actor_u[j * au..(j + 1) * au],
+                &mut logits[j * na..(j + 1) * na],
+                &mut probs[j * na..(j + 1) * na],
+                &mut value[j..j + 1],
+            )?;
+            if probs[j * na..(j + 1) * na]
+                .iter()
+                .zip(&out.probs)
+                .any(|(a, b)| a.to_bits() != b.to_bits())
+                || value[j].to_bits() != out.value.to_bits()
+            {
+                bail!("vectorised episode: the row's heads differ from the navigator's step");
+            }
+        }
+        ep.stats.actions.push(out.action.index() as u8);
+        let o = ep.env.step(out.action);
+        ep.acts.push(take_act(rows, j, w));
+        ep.seg.push(StepRec {
+            obs: std::mem::take(&mut ep.obs),
+            ps: std::mem::take(&mut ep.ps),
+            map: std::mem::take(&mut ep.map),
+            x: nav.generated_feature().to_vec(),
+            z: nav.noise().to_vec(),
+            h_prev: std::mem::take(&mut ep.h_prev),
+            c_prev: std::mem::take(&mut ep.c_prev),
+            prev_probs: std::mem::take(&mut ep.prev),
+            action: out.action.index(),
+            reward: o.reward,
+            probs: out.probs,
+            expert: ep.expert.take(),
+        });
+    }
+    Ok(n as u64)
+}
+
+/// The episode's current observation, PS input and map.
+fn observe(
+    ep: &mut Ep<'_>,
+    model: &NavModel,
+    ps_buf: &mut Option<PsBuffers>,
+    grid: MapGrid,
+    map_len: usize,
+) -> Result<()> {
+    let obs = ep.env.observe();
+    ep.obs = obs.features.to_vec();
+    ep.ps = ps_input(model, ps_buf, &ep.obs)?;
+    ep.map = vec![0.0; map_len];
+    if !grid.is_empty() {
+        ep.env.observe_map(grid, &mut ep.map);
+    }
+    Ok(())
+}
+
+/// Row `j`'s policy inputs: the episode's observation, PS input and map, and its
+/// navigator's x_t, SE(y), previous probabilities and LSTM state.
+fn put_inputs<M: Mode>(
+    rows: &mut Rows,
+    j: usize,
+    ep: &Ep<'_>,
+    nav: &Navigator<'_, M, K>,
+    w: &Widths,
+) {
+    let inp = PolicyInput {
+        obs: &ep.obs,
+        feat: nav.generated_feature(),
+        attr: nav.attr(),
+        prev_probs: nav.prev_probs(),
+        ps: &ep.ps,
+        map: &ep.map,
+    };
+    rows.put_inputs(j, w, &inp, nav.hidden_state(), nav.cell_state());
+}
+
+/// The critic's values of the next observations of the `ready` episodes that go on (one
+/// batched trunk forward at their navigators' states; the critic is never adapted), 0 for
+/// the ended ones; in `ready`'s order.
+#[allow(clippy::too_many_arguments)]
+fn bootstrap<M: Mode>(
+    model: &NavModel,
+    grid: MapGrid,
+    w: &Widths,
+    ps_buf: &mut Option<PsBuffers>,
+    rows: &mut Rows,
+    navs: &[Navigator<'_, M, K>],
+    eps: &mut [Option<Ep<'_>>],
+    ready: &[usize],
+) -> Result<Vec<f32>> {
+    let going: Vec<usize> = ready
+        .iter()
+        .copied()
+        .filter(|&i| eps[i].as_ref().is_some_and(|e| !e.env.is_done()))
+        .collect();
+    let mut out = vec![0.0f32; ready.len()];
+    if going.is_empty() {
+        return Ok(out);
+    }
+    rows.resize(going.len(), w);
+    for (j, &i) in going.iter().enumerate() {
+        let ep = eps[i].as_mut().ok_or_else(|| anyhow!("empty slot"))?;
+        observe(ep, model, ps_buf, grid, w.map)?;
+        put_inputs(rows, j, ep, &navs[i], w);
+    }
+    rows.forward(&navs[going[0]].policy()?, going.len(), w)?;
+    for (k, &i) in ready.iter().enumerate() {
+        if let Some(j) = going.iter().position(|&g| g == i) {
+            out[k] = rows.value[j];
+        }
+    }
+    Ok(out)
+}
