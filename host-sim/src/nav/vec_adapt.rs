@@ -512,3 +512,184 @@ fn bootstrap<M: Mode>(
     }
     Ok(out)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::nav::a3c::A3cConfig;
+    use crate::nav::model::Method;
+    use crate::sim::RewardKind;
+    use crate::train::generator::init_generator;
+    use gman_core::dense::Dense;
+    use gman_core::generator::Generator;
+    use gman_core::matrix::MatRef;
+    use gman_core::rng::Xoshiro128;
+    use gman_core::Dims;
+    use rand::SeedableRng;
+    use rand_chacha::ChaCha8Rng;
+
+    fn bits(g: &ParamSet) -> Vec<u32> {
+        g.tensors
+            .iter()
+            .flat_map(|t| t.data.iter().map(|v| v.to_bits()))
+            .collect()
+    }
+
+    type Copy3 = (Vec<f32>, Vec<f32>, Option<Vec<f32>>);
+
+    /// A dense view over a copy, on the kernels of `like`.
+    fn view<'a>(c: &'a Copy3, shape: (usize, usize), like: &MatRef<'_>) -> Dense<'a> {
+        Dense {
+            w: MatRef::f32(shape.0, shape.1, &c.0).unwrap().kernels_from(like),
+            b: &c.1,
+            gain: c.2.as_deref(),
+        }
+    }
+
+    /// The order of a `B > 1` update, pinned: its gradient is, tick by tick, one batched
+    /// BPTT over the segments completing at the tick (longest first, then by slot), each
+    /// row at its own episode's adapted actor head and G (recomputed here from copies of
+    /// them). Both matter: the same segments one at a time, or at the shared (unadapted)
+    /// parameters, give other bits.
+    #[test]
+    fn each_tick_is_one_backward_over_its_segments_at_their_own_parameters() {
+        let world = World::synthetic(7);
+        let d = Dims::MCU;
+        let g = init_generator(&d, &mut Xoshiro128::seed_from_u64(5)).unwrap();
+        for mode in [AdaptMode::Efficient, AdaptMode::Full] {
+            let mut model = NavModel::init(Method::Gman, d, 3, Some(&g), None).unwrap();
+            model.adapt_mode = mode;
+            model.inner_lr = 0.05;
+            model.params.get_mut("ActorB").unwrap().data[gman_core::Action::Done.index()] -= 1.5;
+            let a3c = A3cConfig::default();
+            let s = VecSettings {
+                batch_envs: 8,
+                min_steps: 300,
+                reward: RewardKind::Mixed,
+                a3c: &a3c,
+                objective: Objective::A3c,
+            };
+            let sample = |e: u32| -> Result<(EpisodeSpec, u32)> {
+                let mut rng = ChaCha8Rng::seed_from_u64(900 + e as u64);
+                Ok((world.try_sample_train_episode_min(&mut rng, 1)?, 45))
+            };
+            let mut got = model.params.zeros_like();
+            let mut worker = Worker::new(&model);
+            let mut log = Vec::new();
+            let done = match mode {
+                AdaptMode::Efficient => run_in::<Efficient>(
+                    &world,
+                    &model,
+                    &s,
+                    &mut worker,
+                    &mut got,
+                    sample,
+                    Some(&mut log),
+                ),
+                AdaptMode::Full => run_in::<Full>(
+                    &world,
+                    &model,
+                    &s,
+                    &mut worker,
+                    &mut got,
+                    sample,
+                    Some(&mut log),
+                ),
+            }
+            .unwrap();
+            assert!(done.iter().filter(|f| f.1.adaptations > 0).count() >= 3);
+            assert!(
+                log.iter().any(|t| t.segs.len() >= 2
+                    && t.segs.iter().any(|s| s.0.len() != t.segs[0].0.len())),
+                "a tick completes segments of several lengths"
+            );
+            // The rows' parameters differ (adapted episodes).
+            assert!(log
+                .iter()
+                .flat_map(|t| &t.params)
+                .any(|p| p[0] != log[0].params[0][0]));
+            // The trunk and the shapes from a navigator over the model.
+            let weights = model.weights().unwrap();
+            let nav_cfg = gman_core::navigator::NavConfig {
+                adapt: false,
+                ..model.nav_config(true)
+            };
+            let mut arena = vec![0.0; Navigator::<Full, K>::arena_len(&d)];
+            let mut nav: Navigator<'_, Full, K> =
+                Navigator::new(weights, &mut arena, nav_cfg).unwrap();
+            nav.reset(&vec![0.0; d.attr], 0).unwrap();
+            let (trunk, gen0) = (nav.policy().unwrap(), nav.generator().unwrap());
+            let mut w = Widths::of(&trunk, &d);
+            // The actor's pre-gain output is kept when the episodes' heads have gains.
+            w.au = if log[0].params[0][0].2.is_some() {
+                NUM_ACTIONS
+            } else {
+                0
+            };
+            let shapes = [
+                (trunk.actor.w.rows(), trunk.actor.w.cols()),
+                (gen0.l1.w.rows(), gen0.l1.w.cols()),
+                (gen0.l2.w.rows(), gen0.l2.w.cols()),
+            ];
+            let like = trunk.fuse.w;
+            fn seg<'a>(
+                t: &'a TickLog,
+                k: usize,
+                own: bool,
+                shapes: &[(usize, usize); 3],
+                like: &MatRef<'_>,
+            ) -> Segment<'a> {
+                let (steps, acts, attr, boot) = &t.segs[k];
+                let p = &t.params[k];
+                Segment {
+                    steps,
+                    acts,
+                    attr,
+                    bootstrap: *boot,
+                    own: own.then(|| Adapted {
+                        actor: view(&p[0], shapes[0], like),
+                        gen: Generator {
+                            l1: view(&p[1], shapes[1], like),
+                            l2: view(&p[2], shapes[2], like),
+                        },
+                    }),
+                }
+            }
+            let seg = |t, k, own| seg(t, k, own, &shapes, &like);
+            // G's buffers sized as the episodes' G (with gains in the Efficient mode).
+            let p0 = &log[0].params[0];
+            let gen_rows = Generator {
+                l1: view(&p0[1], shapes[1], &like),
+                l2: view(&p0[2], shapes[2], &like),
+            };
+            let backward = |segs: &[Segment<'_>], grads: &mut ParamSet| {
+                let mut gb = GenBufs::new(&gen_rows, w.f);
+                Backward::default()
+                    .run(&trunk, &gen0, segs, &a3c, true, &w, &d, grads, &mut gb)
+                    .unwrap();
+            };
+            let mut want = model.params.zeros_like();
+            for t in &log {
+                let segs: Vec<Segment<'_>> = (0..t.segs.len()).map(|k| seg(t, k, true)).collect();
+                backward(&segs, &mut want);
+            }
+            assert_eq!(bits(&got), bits(&want), "{mode:?}: the pinned order");
+            // One segment at a time: a different sum of the same terms.
+            let mut one = model.params.zeros_like();
+            for t in &log {
+                for k in 0..t.segs.len() {
+                    backward(&[seg(t, k, true)], &mut one);
+                }
+            }
+            assert_ne!(bits(&got), bits(&one), "{mode:?}: order-sensitive");
+            // At the unadapted parameters: another gradient.
+            let mut shared = model.params.zeros_like();
+            for t in &log {
+                let segs: Vec<Segment<'_>> =
+                    (0..t.segs.len()).map(|k| seg(t, k, false)).collect();
+                backward(&segs, &mut shared);
+            }
+            assert_ne!(bits(&got), bits(&shared), "{mode:?}: per-row parameters");
+        }
+    }
+}
