@@ -152,9 +152,17 @@ pub(crate) fn bootstrap_value<M: Mode>(
 pub(crate) fn disc_after_episode<M: Mode>(nav: &Navigator<'_, M, K>) -> Result<Vec<Vec<f32>>> {
     let d = nav.discriminator()?;
     let (r, cc) = (d.l1.w.rows(), d.l1.w.cols());
-    let w1: Vec<f32> = (0..r * cc)
-        .map(|i| d.l1.gain.map_or(1.0, |g| g[i / cc]) * d.l1.w.get(i / cc, i % cc))
-        .collect();
+    // `gain[row] * W1[row, col]` (1.0 without a gain), row by row over W1's values.
+    let mut w1 = vec![0.0f32; r * cc];
+    d.l1.w.copy_to(&mut w1)?;
+    if cc > 0 {
+        for (i, row) in w1.chunks_exact_mut(cc).enumerate() {
+            let g = d.l1.gain.map_or(1.0, |g| g[i]);
+            for v in row {
+                *v = g * *v;
+            }
+        }
+    }
     Ok(vec![w1, d.l1.b.to_vec(), d.w2.to_vec(), vec![d.b2]])
 }
 
