@@ -58,11 +58,15 @@
 
 use anyhow::{anyhow, bail, Result};
 use gman_core::memory::AdaptMode;
-use gman_core::navigator::{Efficient, Full, Mode, Navigator, Selection};
-use gman_core::policy::PolicyInput;
-use gman_core::NUM_ACTIONS;
+use gman_core::blob::TensorId;
+use gman_core::dense::Dense;
+use gman_core::generator::Generator;
+use gman_core::matrix::{MatRef, Weights};
+use gman_core::navigator::{Efficient, Full, Mode, NavConfig, NavWeights, Navigator, Selection};
+use gman_core::policy::{Policy, PolicyInput};
+use gman_core::{Dims, NUM_ACTIONS};
 
-use super::a3c::Objective;
+use super::a3c::{A3cConfig, Objective, SegmentLoss};
 use super::bptt::{take_act, Adapted, Backward, GenBufs, Rows, Segment, StepAct, Widths};
 use super::model::NavModel;
 use super::rollout::{begin, disc_after_episode, expert_distribution, map_grid, EpisodeStats};
@@ -171,6 +175,32 @@ fn run_in<'w, M: Mode>(
     let mut rows = Rows::default();
     let mut bw = Backward::default();
     let mut gbuf = GenBufs::new(&navs[0].generator()?, w.f);
+    // The trunk (and a G) for the waiting segments' backward: a view of the model's
+    // weights through a navigator that does not adapt.
+    let mut fixed_arena = vec![0.0f32; Navigator::<M, K>::arena_len(&model.dims)];
+    let fixed_nav: Navigator<'_, M, K> = Navigator::new(
+        weights,
+        &mut fixed_arena,
+        NavConfig {
+            adapt: false,
+            ..cfg
+        },
+    )?;
+    let fx = Fixed {
+        weights,
+        trunk: fixed_nav.policy()?,
+        gen: fixed_nav.generator()?,
+        a3c: s.a3c,
+        train_generator,
+        w,
+        d,
+    };
+    // Efficient and B > 1: the segments' backward waits (see the module docs).
+    let defer = M::MODE == AdaptMode::Efficient && b > 1;
+    let mut pending: Vec<PendingSeg> = Vec::new();
+    let mut pending_steps = 0usize;
+    let mut losses: Vec<(u32, u32, SegmentLoss)> = Vec::new();
+    let mut seq = 0u32;
     let mut eps: Vec<Option<Ep<'w>>> = (0..b).map(|_| None).collect();
     let mut done: Vec<Finished> = Vec::new();
     let (mut next_e, mut taken) = (0u32, 0u64);
@@ -233,33 +263,53 @@ fn run_in<'w, M: Mode>(
             continue;
         }
         let boot = bootstrap(model, grid, &w, ps_buf, &mut rows, &navs, &mut eps, &ready)?;
-        // One batched BPTT over the complete segments, longest first, then by slot; each
-        // row at its episode's adapted parameters (before this segment's inner update).
-        let mut order: Vec<(usize, f32)> = ready.iter().copied().zip(boot).collect();
-        order.sort_by_key(|&(i, _)| {
-            (
-                std::cmp::Reverse(eps[i].as_ref().map_or(0, |e| e.seg.len())),
-                i,
-            )
-        });
-        let mut taken_segs: Vec<(usize, Vec<StepRec>, Vec<StepAct>, f32)> = Vec::new();
-        for &(i, bootv) in &order {
+        // The complete segments, numbered in slot order (`seq`: the order they completed).
+        let mut fresh: Vec<PendingSeg> = Vec::new();
+        for (&i, bootv) in ready.iter().zip(boot) {
             let ep = eps[i].as_mut().ok_or_else(|| anyhow!("empty slot"))?;
             let steps = std::mem::replace(&mut ep.seg, Vec::with_capacity(K));
             let acts = std::mem::replace(&mut ep.acts, Vec::with_capacity(K));
-            if !steps.is_empty() {
-                taken_segs.push((i, steps, acts, bootv));
+            if steps.is_empty() {
+                continue;
             }
+            let nav = &navs[i];
+            fresh.push(PendingSeg {
+                slot: i,
+                e: ep.e,
+                seq,
+                steps,
+                acts,
+                attr: nav.attr().to_vec(),
+                bootstrap: bootv,
+                own: if defer {
+                    Some(OwnCopy::of(nav, &weights)?)
+                } else {
+                    None
+                },
+            });
+            seq += 1;
         }
-        if !taken_segs.is_empty() {
-            let mut segs: Vec<Segment<'_>> = Vec::with_capacity(taken_segs.len());
-            for (i, steps, acts, bootv) in &taken_segs {
-                let nav = &navs[*i];
+        if defer {
+            // Efficient, B > 1: the segments wait, with copies of their episodes' gains and
+            // biases, for one batched BPTT over the update.
+            pending_steps += fresh.iter().map(|p| p.steps.len()).sum::<usize>();
+            pending.extend(fresh);
+            if pending_steps >= MAX_PENDING_STEPS {
+                flush_copies(&fx, &mut pending, grads, &mut bw, &mut gbuf, &mut losses, &mut log)?;
+                pending_steps = 0;
+            }
+        } else if !fresh.is_empty() {
+            // One batched BPTT over this tick's segments, longest first, then by slot; each
+            // row at its episode's live adapted parameters (before its inner update).
+            fresh.sort_by_key(|p| (std::cmp::Reverse(p.steps.len()), p.seq));
+            let mut segs: Vec<Segment<'_>> = Vec::with_capacity(fresh.len());
+            for p in &fresh {
+                let nav = &navs[p.slot];
                 segs.push(Segment {
-                    steps,
-                    acts,
-                    attr: nav.attr(),
-                    bootstrap: *bootv,
+                    steps: &p.steps,
+                    acts: &p.acts,
+                    attr: &p.attr,
+                    bootstrap: p.bootstrap,
                     own: Some(Adapted {
                         actor: nav.policy()?.actor,
                         gen: nav.generator()?,
@@ -269,9 +319,9 @@ fn run_in<'w, M: Mode>(
             if let Some(l) = log.as_deref_mut() {
                 l.push(tick_log(&segs));
             }
-            let trunk = navs[taken_segs[0].0].policy()?;
-            let gen0 = navs[taken_segs[0].0].generator()?;
-            let losses = bw.run(
+            let trunk = navs[fresh[0].slot].policy()?;
+            let gen0 = navs[fresh[0].slot].generator()?;
+            let ls = bw.run(
                 &trunk,
                 &gen0,
                 &segs,
@@ -282,11 +332,7 @@ fn run_in<'w, M: Mode>(
                 grads,
                 &mut gbuf,
             )?;
-            drop(segs);
-            for ((i, ..), l) in taken_segs.iter().zip(losses) {
-                let ep = eps[*i].as_mut().ok_or_else(|| anyhow!("empty slot"))?;
-                ep.stats.loss.add(&l);
-            }
+            losses.extend(fresh.iter().zip(ls).map(|(p, l)| (p.e, p.seq, l)));
         }
         // Then each of these episodes in slot order: ended, or its inner update on Ψ.
         for &i in &ready {
@@ -303,8 +349,153 @@ fn run_in<'w, M: Mode>(
             }
         }
     }
+    flush_copies(&fx, &mut pending, grads, &mut bw, &mut gbuf, &mut losses, &mut log)?;
+    // Each episode's losses in the order of its segments.
+    losses.sort_by_key(|&(e, q, _)| (e, q));
     done.sort_by_key(|f| f.0);
+    let mut li = losses.iter().peekable();
+    for f in done.iter_mut() {
+        while let Some((_, _, l)) = li.next_if(|(e, _, _)| *e == f.0) {
+            f.1.loss.add(l);
+        }
+    }
+    if li.next().is_some() {
+        bail!("vectorised rollout: a segment's episode did not finish");
+    }
     Ok(done)
+}
+
+/// A complete segment of episode `e` (run in `slot`, numbered `seq` in completion order):
+/// its steps, activations, SE(y), `V_T` and, when its backward waits, a copy of the
+/// episode's adapted parameters it ran with.
+struct PendingSeg {
+    slot: usize,
+    e: u32,
+    seq: u32,
+    steps: Vec<StepRec>,
+    acts: Vec<StepAct>,
+    attr: Vec<f32>,
+    bootstrap: f32,
+    own: Option<OwnCopy>,
+}
+
+/// With `B > 1` in the Efficient mode, the backward of the pending segments runs once this
+/// many steps wait (and at the end of the update): the bound on the memory they hold.
+pub const MAX_PENDING_STEPS: usize = 4096;
+
+/// A copy of an episode's adapted parameters in the Efficient mode: the per-unit gains and
+/// biases of its actor head and of G's two layers (their matrices are the model's).
+struct OwnCopy {
+    layers: [(Option<Vec<f32>>, Vec<f32>); 3],
+}
+
+impl OwnCopy {
+    /// The copy of `nav`'s adapted parameters; refused unless its views' matrices are the
+    /// model's `weights` (only gains and biases adapted).
+    fn of<M: Mode>(nav: &Navigator<'_, M, K>, weights: &NavWeights<'_>) -> Result<OwnCopy> {
+        let (p, g) = (nav.policy()?, nav.generator()?);
+        let mut layers: [(Option<Vec<f32>>, Vec<f32>); 3] = Default::default();
+        for (k, (l, id)) in [
+            (p.actor, TensorId::ActorW),
+            (g.l1, TensorId::GenW1),
+            (g.l2, TensorId::GenW2),
+        ]
+        .into_iter()
+        .enumerate()
+        {
+            if !same_matrix(&l.w, &weights.get(id)) {
+                bail!("vec_adapt: a waiting segment needs the model's matrices (Efficient mode)");
+            }
+            layers[k] = (l.gain.map(|v| v.to_vec()), l.b.to_vec());
+        }
+        Ok(OwnCopy { layers })
+    }
+
+    /// Views over the copy and the model's matrices.
+    fn views<'a>(&'a self, weights: &NavWeights<'a>) -> Adapted<'a> {
+        let d = |k: usize, id: TensorId| Dense {
+            w: weights.get(id),
+            b: &self.layers[k].1,
+            gain: self.layers[k].0.as_deref(),
+        };
+        Adapted {
+            actor: d(0, TensorId::ActorW),
+            gen: Generator {
+                l1: d(1, TensorId::GenW1),
+                l2: d(2, TensorId::GenW2),
+            },
+        }
+    }
+}
+
+/// True when two views read the same f32 matrix.
+fn same_matrix(a: &MatRef<'_>, b: &MatRef<'_>) -> bool {
+    match (a.weights(), b.weights()) {
+        (Weights::F32(x), Weights::F32(y)) => {
+            x.as_ptr() == y.as_ptr() && x.len() == y.len() && a.rows() == b.rows()
+        }
+        _ => false,
+    }
+}
+
+/// What [`flush_copies`] reads.
+struct Fixed<'a, 'w> {
+    weights: NavWeights<'w>,
+    trunk: Policy<'a>,
+    gen: Generator<'a>,
+    a3c: &'a A3cConfig,
+    train_generator: bool,
+    w: Widths,
+    d: Dims,
+}
+
+/// The backward of the waiting segments as one batched BPTT, longest first (then in the
+/// order they completed), each row at the copy of its episode's adapted parameters; their
+/// losses collected as `(episode, seq, loss)`; nothing waits afterwards.
+fn flush_copies(
+    fx: &Fixed<'_, '_>,
+    pending: &mut Vec<PendingSeg>,
+    grads: &mut ParamSet,
+    bw: &mut Backward,
+    gbuf: &mut GenBufs,
+    losses: &mut Vec<(u32, u32, SegmentLoss)>,
+    log: &mut Option<&mut Vec<TickLog>>,
+) -> Result<()> {
+    let mut pend = std::mem::take(pending);
+    if pend.is_empty() {
+        return Ok(());
+    }
+    pend.sort_by_key(|p| (std::cmp::Reverse(p.steps.len()), p.seq));
+    let mut segs: Vec<Segment<'_>> = Vec::with_capacity(pend.len());
+    for p in &pend {
+        let own = p
+            .own
+            .as_ref()
+            .ok_or_else(|| anyhow!("vec_adapt: a waiting segment without its parameters"))?;
+        segs.push(Segment {
+            steps: &p.steps,
+            acts: &p.acts,
+            attr: &p.attr,
+            bootstrap: p.bootstrap,
+            own: Some(own.views(&fx.weights)),
+        });
+    }
+    if let Some(l) = log.as_deref_mut() {
+        l.push(tick_log(&segs));
+    }
+    let ls = bw.run(
+        &fx.trunk,
+        &fx.gen,
+        &segs,
+        fx.a3c,
+        fx.train_generator,
+        &fx.w,
+        &fx.d,
+        grads,
+        gbuf,
+    )?;
+    losses.extend(pend.iter().zip(ls).map(|(p, l)| (p.e, p.seq, l)));
+    Ok(())
 }
 
 #[cfg(test)]
@@ -598,6 +789,12 @@ mod tests {
             }
             .unwrap();
             assert!(done.iter().filter(|f| f.1.adaptations > 0).count() >= 3);
+            // Efficient: one backward for the update (copies of the gains and biases);
+            // Full: one per tick that completes segments.
+            match mode {
+                AdaptMode::Efficient => assert_eq!(log.len(), 1),
+                AdaptMode::Full => assert!(log.len() > 5, "{}", log.len()),
+            }
             assert!(
                 log.iter().any(|t| t.segs.len() >= 2
                     && t.segs.iter().any(|s| s.0.len() != t.segs[0].0.len())),
