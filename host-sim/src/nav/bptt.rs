@@ -191,6 +191,9 @@ pub(crate) struct StepAct {
     actor_u: Vec<f32>,
     value: f32,
     cell: Vec<f32>,
+    /// G's activations of the step's x_t (`u1`, `h1`, `u2` as in `GeneratorCache`), when
+    /// the rollout kept them (`h1` empty: not kept, the backward runs G again).
+    pub(crate) gen: (Vec<f32>, Vec<f32>, Vec<f32>),
 }
 
 /// Row `j`'s activations (the map products are not kept: the backward pass recomputes them).
@@ -205,6 +208,7 @@ pub(crate) fn take_act(rows: &Rows, j: usize, w: &Widths) -> StepAct {
         actor_u: get(&rows.actor_u, w.au),
         value: rows.value[j],
         cell: get(&rows.cell, w.cells * w.ce),
+        gen: Default::default(),
     }
 }
 
@@ -829,12 +833,38 @@ impl GenRows {
         if self.z.len() != n * zl || self.attr.len() != n * al {
             bail!("generator rows: z or SE(y) of the wrong width");
         }
-        // Forward (the rows' x_t, recomputed with their activations).
+        // Forward: the rows' x_t with their activations, as the rollout kept them, else
+        // recomputed (the same bits: the batched kernels give every row the batch-1 ones).
+        let kept = |s: &Segment<'_>| {
+            let t = s.steps.len() - 1 - r;
+            let Some((u1, h1, u2)) = s.acts.get(t).map(|a| &a.gen) else {
+                return false;
+            };
+            h1.len() == h && s.steps[t].x.len() == f && {
+                let l1 = gens[0].l1.gain.map_or(0, |_| h);
+                let l2 = gens[0].l2.gain.map_or(0, |_| f);
+                u1.len() == l1 && u2.len() == l2
+            }
+        };
         let xin: [&[f32]; 2] = [&self.z, &self.attr];
-        Self::dense_forward(gens, true, &xin, &[zl, al], &mut self.u1, &mut self.h1)?;
-        leaky_relu_inplace(&mut self.h1);
-        Self::dense_forward(gens, false, &[&self.h1], &[h], &mut self.u2, &mut self.x)?;
-        sigmoid_inplace(&mut self.x);
+        if segs[..n].iter().all(kept) {
+            for v in [&mut self.u1, &mut self.h1, &mut self.u2, &mut self.x] {
+                v.clear();
+            }
+            for s in &segs[..n] {
+                let t = s.steps.len() - 1 - r;
+                let (u1, h1, u2) = &s.acts[t].gen;
+                self.u1.extend_from_slice(u1);
+                self.h1.extend_from_slice(h1);
+                self.u2.extend_from_slice(u2);
+                self.x.extend_from_slice(&s.steps[t].x);
+            }
+        } else {
+            Self::dense_forward(gens, true, &xin, &[zl, al], &mut self.u1, &mut self.h1)?;
+            leaky_relu_inplace(&mut self.h1);
+            Self::dense_forward(gens, false, &[&self.h1], &[h], &mut self.u2, &mut self.x)?;
+            sigmoid_inplace(&mut self.x);
+        }
         // Backward.
         clear_resize(&mut self.dpre2, n * f);
         sigmoid_backward(&self.x, &dfeat[..n * f], &mut self.dpre2)?;
@@ -908,7 +938,7 @@ mod tests {
             }
         };
         let (m1, m2) = (m(h, d.noise + d.attr, &w1[..]), m(f, h, &w2[..]));
-        for gains in [false, true] {
+        for (gains, keep) in [(false, false), (true, false), (false, true), (true, true)] {
             let gens: Vec<Generator<'_>> = rows
                 .iter()
                 .map(|rw| Generator {
@@ -924,14 +954,53 @@ mod tests {
                     },
                 })
                 .collect();
+            // The rollout's activations of each row's x_t (`keep`), from G's own forward.
+            let fwd: Vec<[Vec<f32>; 4]> = gens
+                .iter()
+                .zip(&rows)
+                .map(|(g, rw)| {
+                    let mut a = [
+                        vec![0.0; if gains { h } else { 0 }],
+                        vec![0.0; h],
+                        vec![0.0; if gains { f } else { 0 }],
+                        vec![0.0; f],
+                    ];
+                    let [u1, h1, u2, x] = &mut a;
+                    let mut c = GeneratorCache { u1, h1, u2, x };
+                    g.forward(&rw[4], &rw[5], &mut c).unwrap();
+                    a
+                })
+                .collect();
+            let acts: Vec<Vec<StepAct>> = fwd
+                .iter()
+                .map(|a| {
+                    let gen = if keep {
+                        (a[0].clone(), a[1].clone(), a[2].clone())
+                    } else {
+                        Default::default()
+                    };
+                    vec![StepAct {
+                        prod: vec![],
+                        fuse: vec![],
+                        gates: vec![],
+                        c: vec![],
+                        h: vec![],
+                        actor_u: vec![],
+                        value: 0.0,
+                        cell: vec![],
+                        gen,
+                    }]
+                })
+                .collect();
             let steps: Vec<Vec<StepRec>> = rows
                 .iter()
-                .map(|rw| {
+                .zip(&fwd)
+                .map(|(rw, a)| {
                     vec![StepRec {
                         obs: vec![],
                         ps: vec![],
                         map: vec![],
-                        x: vec![],
+                        x: if keep { a[3].clone() } else { vec![] },
                         z: rw[4].clone(),
                         h_prev: vec![],
                         c_prev: vec![],
@@ -946,9 +1015,10 @@ mod tests {
             let segs: Vec<Segment<'_>> = steps
                 .iter()
                 .zip(&rows)
-                .map(|(s, rw)| Segment {
+                .zip(&acts)
+                .map(|((s, rw), a)| Segment {
                     steps: s,
-                    acts: &[],
+                    acts: a,
                     attr: &rw[5],
                     bootstrap: 0.0,
                     own: None,
@@ -1017,7 +1087,7 @@ mod tests {
                 (&a2b, &b2b, "b2"),
             ] {
                 assert!(a.iter().any(|&v| v != 0.0), "{name} gradient");
-                assert_eq!(bits(a), bits(b), "gains {gains}: {name}");
+                assert_eq!(bits(a), bits(b), "gains {gains} kept {keep}: {name}");
             }
         }
         // Per-row weight matrices (the Full mode's θ_i) are not shared.

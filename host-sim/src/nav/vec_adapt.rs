@@ -62,7 +62,9 @@ use gman_core::blob::TensorId;
 use gman_core::dense::Dense;
 use gman_core::generator::Generator;
 use gman_core::matrix::{MatRef, Weights};
-use gman_core::navigator::{Efficient, Full, Mode, NavConfig, NavWeights, Navigator, Selection};
+use gman_core::navigator::{
+    Efficient, Full, Mode, NavConfig, NavWeights, Navigator, NoiseMode, Selection,
+};
 use gman_core::policy::{Policy, PolicyInput};
 use gman_core::{Dims, NUM_ACTIONS};
 
@@ -570,6 +572,8 @@ fn tick<M: Mode>(
     // the first navigator's; each row's own follow).
     rows.forward(&navs[active[0]].policy()?, n, w)?;
     let hd = w.hd;
+    // G ran in every begin_step (a new z_t each step): its activations are this step's.
+    let ran_g = model.noise == NoiseMode::Gaussian && !model.privileged;
     for (j, &i) in active.iter().enumerate() {
         let ep = eps[i].as_mut().ok_or_else(|| anyhow!("empty slot"))?;
         let nav = &mut navs[i];
@@ -609,7 +613,13 @@ fn tick<M: Mode>(
         }
         ep.stats.actions.push(out.action.index() as u8);
         let o = ep.env.step(out.action);
-        ep.acts.push(take_act(rows, j, w));
+        let mut act = take_act(rows, j, w);
+        if ran_g {
+            // G's activations of this x_t, for the backward (instead of running G again).
+            let (u1, h1, u2) = nav.generator_activations();
+            act.gen = (u1.to_vec(), h1.to_vec(), u2.to_vec());
+        }
+        ep.acts.push(act);
         ep.seg.push(StepRec {
             obs: std::mem::take(&mut ep.obs),
             ps: std::mem::take(&mut ep.ps),
