@@ -35,10 +35,12 @@
 //!   Adam step. Every random choice of an update derives from
 //!   `(seed, update, worker)`, so a run is reproducible bit for bit for a given worker count
 //!   and a resumed run continues exactly where the checkpoint left off.
-//! * **Vectorised episodes** (`--batch-envs B`, methods without an inner loop in training):
-//!   each worker steps `B` environments in lockstep with the policy's passes over them as
-//!   matrices, see [`super::vec_rollout`]; `B = 1` (the default) is this loop's batch-1
-//!   runner, and the vectorised runner with `B = 1` gives the same update bit for bit.
+//! * **Vectorised episodes** (`--batch-envs B`): each worker steps `B` environments in
+//!   lockstep with the policy's passes over them as matrices, see [`super::vec_rollout`]
+//!   (and [`super::vec_adapt`] for the methods with an inner loop: one navigator per
+//!   episode, each with its own inner loop; first-order meta-gradient only); `B = 1` (the
+//!   default) is this loop's batch-1 runner, and the vectorised runner with `B = 1` gives the
+//!   same update bit for bit.
 //! * **Baselines** run the same loop with the inner loop off (`a3c`, `a3c-fg`, `gman-nometa`):
 //!   plain synchronous advantage actor-critic, with G's θ frozen at its pre-trained value.
 //! * **The `gman-noemd` control** runs the loop with the inner loop off but lets Adam train θ

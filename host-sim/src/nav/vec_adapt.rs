@@ -14,35 +14,48 @@
 //!     the critic, the action, Ψ (lines 8-13); the environment steps
 //!   the episodes whose segment is complete (k = 20 steps, or the episode ended):
 //!     bootstrap values (one batched trunk forward)
-//!     ONE batched BPTT over these segments, each row with its episode's adapted actor
-//!       head φ_i and G θ_i (the parameters the segment ran with)
+//!     Full mode or B = 1: ONE batched BPTT over these segments now, each row at its
+//!       episode's live adapted actor head φ_i and G θ_i
+//!     Efficient mode, B > 1: the segments wait with a copy of their episode's adapted
+//!       gains and biases
 //!     then each of them (slot order): the episode ended -> its statistics and D, slot freed;
 //!       else the inner update on its own Ψ (Navigator::adapt_now, lines 14-20)
+//! at the end of the update (Efficient, B > 1): ONE batched BPTT over all waiting segments
 //! ```
 //!
 //! **When a segment's backward runs.** Every k = 20 steps an episode's inner update changes
 //! its θ_i and φ_i, and the A3C gradient of the segment before it must be taken at the
 //! parameters it ran with (first-order meta-gradient: the gradient at the adapted parameters
 //! is summed into that of the pre-adaptation ones, as [`super::trainer::train_episode`] does
-//! with [`super::bptt::segment_backward`]). Of the two ways to keep that (keep a copy of
-//! every segment's adapted parameters until the end of the update, or run each segment's
-//! backward when it completes, before its navigator adapts), this module takes the second:
-//! it needs no copies (in the Full mode θ_i is all of G, ~154k floats for `mcu`, per
-//! segment), the views of each episode's parameters are its navigator's own, and with
-//! `B = 1` it is exactly the batch-1 trainer's order. The price is smaller backward batches
-//! (the segments completing at one tick) than the a3c path's one batch per update
-//! ([`super::vec_rollout`]).
+//! with [`super::bptt::segment_backward`]). Two ways keep that, and each mode takes the one
+//! that is cheap for it:
+//! * **Efficient mode** (the `mcu` default): the adapted parameters are the per-unit gains
+//!   and biases of the actor head and of G's two layers (~1.5k floats for `mcu`), the
+//!   matrices are the model's. A complete segment keeps a copy of them and waits, like the
+//!   a3c path's segments ([`super::vec_rollout`]): one batched BPTT over all the update's
+//!   segments (or earlier, whenever [`MAX_PENDING_STEPS`] steps wait), each row through its
+//!   copy. The backward's batches are then as large as the a3c path's, and G's backward
+//!   runs over them as one batch (the rows share G's matrices). G's activations of every
+//!   x_t are kept from the navigator's step (`Navigator::generator_activations`), so the
+//!   backward does not run G again.
+//! * **Full mode** (the `paper` default): θ_i is all of G (~154k floats for `mcu`), too
+//!   large to copy per segment. A complete segment's backward runs at once, batched over
+//!   the segments completing at the same tick, each row through its navigator's live views,
+//!   before that navigator's inner update; G's backward runs row by row (each row its own
+//!   matrices).
 //!
-//! **Gradient order.** Ticks in order; within a tick one batched BPTT
-//! ([`super::bptt::Backward::run`]) over the segments completing at that tick, longest first,
-//! then by slot. Within it every tensor's gradient is summed step by step (last step first)
-//! and, within a step, over the rows in order; the actor head's and the critic's rows run one
-//! at a time in that order (each row its own head), the trunk as one batch, G per row (each
-//! row its own θ_i). The order is fixed by `(seed, update, worker, B)`, so runs are
-//! reproducible and resume bit for bit. With `B = 1` every batch is one segment, completing
-//! before its episode's inner update: [`super::trainer::train_episode`]'s order, bit for bit
-//! (`tests/vec_rollout.rs`); with `B > 1` the sum is the per-episode sum within float
-//! rounding (the same test file, and this module's test pins the order).
+//! **Gradient order.** Efficient, `B > 1`: one batched BPTT over the segments of the update
+//! (or of each [`MAX_PENDING_STEPS`] chunk), longest first, then in the order they completed
+//! (tick, then slot). Full (and `B = 1`): ticks in order, within a tick one batched BPTT over
+//! its complete segments, longest first, then by slot. Within a BPTT
+//! ([`super::bptt::Backward::run`]) every tensor's gradient is summed step by step (last step
+//! first) and, within a step, over the rows in order; the actor head's and the critic's rows
+//! run one at a time in that order (each row its own head), the trunk as one batch. The order
+//! is fixed by `(seed, update, worker, B)`, so runs are reproducible and resume bit for bit.
+//! With `B = 1` every batch is one segment, completing before its episode's inner update:
+//! [`super::trainer::train_episode`]'s order, bit for bit (`tests/vec_rollout.rs`); with
+//! `B > 1` the sum is the per-episode sum within float rounding (the same test file checks
+//! 1e-4 of each tensor's largest value; this module's test pins the order in both modes).
 //!
 //! **Each episode is the episode its navigator runs alone**, bit for bit (actions,
 //! probabilities, inner updates, D after it): `begin_step` / `finish_step` are `step` split

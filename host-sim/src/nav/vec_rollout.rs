@@ -15,6 +15,10 @@
 //! at the end of the update (B > 1): one batched BPTT over all the waiting segments
 //! ```
 //!
+//! The methods with an inner loop in training (`gman`, ...) run through
+//! [`super::vec_adapt`] (one navigator per episode, per-row adapted heads and θ_i); this
+//! module's own path serves the others, below.
+//!
 //! **For the methods without an inner loop** (`adapts_in_training()` false: `a3c`,
 //! `a3c-fg`, `a3c-ps`, `a3c-fg-ps`, `gman-nometa`, `gman-noemd`). There θ and φ stay at the
 //! outer parameters for the whole update, so the episodes share one set of parameters and
@@ -123,7 +127,8 @@ pub type Finished = (u32, EpisodeStats, Vec<Vec<f32>>);
 /// Runs one worker's share of an update with `s.batch_envs` environments in lockstep:
 /// episodes `e = 0, 1, ..` come from `sample(e)` (spec and step limit), the A3C gradient of
 /// every segment is accumulated into `grads` (see the module docs for the order). Returns the
-/// finished episodes sorted by index.
+/// finished episodes sorted by index. A method with an inner loop in training runs through
+/// [`super::vec_adapt::run_worker`].
 pub fn run_worker(
     world: &World,
     model: &NavModel,
