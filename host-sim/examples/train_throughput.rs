@@ -17,8 +17,8 @@
 use std::time::Instant;
 
 use anyhow::{bail, Context, Result};
-use gman_core::rng::Xoshiro128;
 use gman_core::memory::AdaptMode;
+use gman_core::rng::Xoshiro128;
 use gman_core::Dims;
 use gman_host_sim::nav::model::{Method, NavModel};
 use gman_host_sim::nav::trainer::{train, RunSettings, TrainOptions, TrainState};

@@ -491,18 +491,44 @@ fn adapt_cases() -> Vec<(Case, f32)> {
         noise: NoiseMode::Gaussian,
     };
     vec![
-        (c("gman efficient", Method::Gman, Dims::MCU, AdaptMode::Efficient), 0.05),
-        (c("gman full", Method::Gman, Dims::MCU, AdaptMode::Full), 0.01),
         (
-            c("gman-cossim", Method::GmanCossim, Dims::MCU, AdaptMode::Efficient),
+            c(
+                "gman efficient",
+                Method::Gman,
+                Dims::MCU,
+                AdaptMode::Efficient,
+            ),
             0.05,
         ),
         (
-            c("gman-fixed-g", Method::GmanFixedG, Dims::MCU, AdaptMode::Efficient),
+            c("gman full", Method::Gman, Dims::MCU, AdaptMode::Full),
+            0.01,
+        ),
+        (
+            c(
+                "gman-cossim",
+                Method::GmanCossim,
+                Dims::MCU,
+                AdaptMode::Efficient,
+            ),
             0.05,
         ),
         (
-            c("gman map 2x2", Method::Gman, Dims::MCU.with_map(2, 2, 4), AdaptMode::Full),
+            c(
+                "gman-fixed-g",
+                Method::GmanFixedG,
+                Dims::MCU,
+                AdaptMode::Efficient,
+            ),
+            0.05,
+        ),
+        (
+            c(
+                "gman map 2x2",
+                Method::Gman,
+                Dims::MCU.with_map(2, 2, 4),
+                AdaptMode::Full,
+            ),
             0.01,
         ),
         (
@@ -515,7 +541,12 @@ fn adapt_cases() -> Vec<(Case, f32)> {
         (
             Case {
                 noise: NoiseMode::Zero,
-                ..c("gman zero noise", Method::Gman, Dims::MCU, AdaptMode::Efficient)
+                ..c(
+                    "gman zero noise",
+                    Method::Gman,
+                    Dims::MCU,
+                    AdaptMode::Efficient,
+                )
             },
             0.05,
         ),
@@ -628,7 +659,9 @@ fn adapting_batched_runs_are_reproducible_and_resume_bit_for_bit() {
         assert_eq!(sa.env_steps, sb.env_steps);
         let csv = std::fs::read_to_string(a.join("metrics.csv")).unwrap();
         assert!(
-            csv.lines().skip(1).any(|l| l.split(',').nth(10) != Some("0")),
+            csv.lines()
+                .skip(1)
+                .any(|l| l.split(',').nth(10) != Some("0")),
             "inner updates happen: {csv}"
         );
         for (x, y) in sa.model.params.tensors.iter().zip(&sb.model.params.tensors) {

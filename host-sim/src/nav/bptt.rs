@@ -18,19 +18,19 @@
 //! ones, the result is the batch-1 BPTT's bit for bit.
 
 use anyhow::{anyhow, bail, Result};
-use gman_core::blob::TensorId;
-use gman_core::dense::{Dense, DenseGrads};
-use gman_core::generator::{Generator, GeneratorCache, GeneratorScratch};
-use gman_core::lstm::LstmGrads;
-use gman_core::navigator::{Mode, Navigator};
-use gman_core::policy::{
-    Policy, PolicyCache, PolicyGrads, PolicyInput, PolicyInputGrads, PolicyScratch,
-};
 use gman_core::activation::{
     leaky_relu_backward, leaky_relu_inplace, sigmoid_backward, sigmoid_inplace,
 };
 use gman_core::batch::{matmul_acc, matmul_t_acc, outer_acc_batch_with};
+use gman_core::blob::TensorId;
+use gman_core::dense::{Dense, DenseGrads};
+use gman_core::generator::{Generator, GeneratorCache, GeneratorScratch};
+use gman_core::lstm::LstmGrads;
 use gman_core::matrix::Weights;
+use gman_core::navigator::{Mode, Navigator};
+use gman_core::policy::{
+    Policy, PolicyCache, PolicyGrads, PolicyInput, PolicyInputGrads, PolicyScratch,
+};
 use gman_core::{Dims, NUM_ACTIONS};
 
 use super::a3c::{output_grads, A3cConfig, SegmentLoss};
@@ -774,7 +774,11 @@ impl GenRows {
             None => dpre,
             Some(_) => {
                 clear_resize(scaled, n * o);
-                for ((s, d), g) in scaled.chunks_exact_mut(o).zip(dpre.chunks_exact(o)).zip(gens) {
+                for ((s, d), g) in scaled
+                    .chunks_exact_mut(o)
+                    .zip(dpre.chunks_exact(o))
+                    .zip(gens)
+                {
                     let gain = Self::layer(g, first)
                         .gain
                         .ok_or_else(|| anyhow!("generator rows: gain"))?;

@@ -159,7 +159,7 @@ pub(crate) fn disc_after_episode<M: Mode>(nav: &Navigator<'_, M, K>) -> Result<V
         for (i, row) in w1.chunks_exact_mut(cc).enumerate() {
             let g = d.l1.gain.map_or(1.0, |g| g[i]);
             for v in row {
-                *v = g * *v;
+                *v *= g;
             }
         }
     }

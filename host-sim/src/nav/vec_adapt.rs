@@ -48,7 +48,7 @@
 //! (or of each [`MAX_PENDING_STEPS`] chunk), longest first, then in the order they completed
 //! (tick, then slot). Full (and `B = 1`): ticks in order, within a tick one batched BPTT over
 //! its complete segments, longest first, then by slot. Within a BPTT
-//! ([`super::bptt::Backward::run`]) every tensor's gradient is summed step by step (last step
+//! (`bptt::Backward::run`) every tensor's gradient is summed step by step (last step
 //! first) and, within a step, over the rows in order; the actor head's and the critic's rows
 //! run one at a time in that order (each row its own head), the trunk as one batch. The order
 //! is fixed by `(seed, update, worker, B)`, so runs are reproducible and resume bit for bit.
@@ -70,11 +70,11 @@
 //! `B > 1`) and the privileged-feature bound (refused with an inner loop, as in batch 1).
 
 use anyhow::{anyhow, bail, Result};
-use gman_core::memory::AdaptMode;
 use gman_core::blob::TensorId;
 use gman_core::dense::Dense;
 use gman_core::generator::Generator;
 use gman_core::matrix::{MatRef, Weights};
+use gman_core::memory::AdaptMode;
 use gman_core::navigator::{
     Efficient, Full, Mode, NavConfig, NavWeights, Navigator, NoiseMode, Selection,
 };
@@ -133,13 +133,21 @@ struct Ep<'w> {
     prev: Vec<f32>,
 }
 
-/// What the test of the order records of one tick's backward: the segments (in the order
-/// given to the BPTT) with a copy of each row's adapted parameters.
+/// A logged segment: steps, activations, SE(y), `V_T`.
+#[cfg(test)]
+type LoggedSeg = (Vec<StepRec>, Vec<StepAct>, Vec<f32>, f32);
+
+/// A copy of a dense layer: `W` (row-major), `b`, the gain.
+#[cfg(test)]
+type LayerCopy = (Vec<f32>, Vec<f32>, Option<Vec<f32>>);
+
+/// What the test of the order records of one backward: the segments (in the order given to
+/// the BPTT) with a copy of each row's adapted parameters.
 #[cfg(test)]
 pub(crate) struct TickLog {
-    segs: Vec<(Vec<StepRec>, Vec<StepAct>, Vec<f32>, f32)>,
-    /// Per row: actor (w, b, gain), G layer 1 (w, b, gain), G layer 2 (w, b, gain).
-    params: Vec<[(Vec<f32>, Vec<f32>, Option<Vec<f32>>); 3]>,
+    segs: Vec<LoggedSeg>,
+    /// Per row: actor, G layer 1, G layer 2.
+    params: Vec<[LayerCopy; 3]>,
 }
 
 #[cfg(not(test))]
@@ -169,9 +177,7 @@ fn run_in<'w, M: Mode>(
     let weights = model.weights()?;
     let alen = Navigator::<M, K>::arena_len(&model.dims);
     let Worker {
-        ps: ps_buf,
-        arenas,
-        ..
+        ps: ps_buf, arenas, ..
     } = worker;
     if arenas.len() < b {
         arenas.resize_with(b, Vec::new);
@@ -310,7 +316,15 @@ fn run_in<'w, M: Mode>(
             pending_steps += fresh.iter().map(|p| p.steps.len()).sum::<usize>();
             pending.extend(fresh);
             if pending_steps >= MAX_PENDING_STEPS {
-                flush_copies(&fx, &mut pending, grads, &mut bw, &mut gbuf, &mut losses, &mut log)?;
+                flush_copies(
+                    &fx,
+                    &mut pending,
+                    grads,
+                    &mut bw,
+                    &mut gbuf,
+                    &mut losses,
+                    &mut log,
+                )?;
                 pending_steps = 0;
             }
         } else if !fresh.is_empty() {
@@ -364,7 +378,15 @@ fn run_in<'w, M: Mode>(
             }
         }
     }
-    flush_copies(&fx, &mut pending, grads, &mut bw, &mut gbuf, &mut losses, &mut log)?;
+    flush_copies(
+        &fx,
+        &mut pending,
+        grads,
+        &mut bw,
+        &mut gbuf,
+        &mut losses,
+        &mut log,
+    )?;
     // Each episode's losses in the order of its segments.
     losses.sort_by_key(|&(e, q, _)| (e, q));
     done.sort_by_key(|f| f.0);
@@ -516,7 +538,7 @@ fn flush_copies(
 #[cfg(test)]
 fn tick_log(segs: &[Segment<'_>]) -> TickLog {
     use gman_core::dense::Dense;
-    fn dense(l: &Dense<'_>) -> (Vec<f32>, Vec<f32>, Option<Vec<f32>>) {
+    fn dense(l: &Dense<'_>) -> LayerCopy {
         let (r, c) = (l.w.rows(), l.w.cols());
         let w = (0..r * c).map(|i| l.w.get(i / c, i % c)).collect();
         (w, l.b.to_vec(), l.gain.map(|g| g.to_vec()))
@@ -590,10 +612,7 @@ fn tick<M: Mode>(
     for (j, &i) in active.iter().enumerate() {
         let ep = eps[i].as_mut().ok_or_else(|| anyhow!("empty slot"))?;
         let nav = &mut navs[i];
-        let (h, c) = (
-            &rows.h[j * hd..(j + 1) * hd],
-            &rows.c[j * hd..(j + 1) * hd],
-        );
+        let (h, c) = (&rows.h[j * hd..(j + 1) * hd], &rows.c[j * hd..(j + 1) * hd]);
         let out = nav.finish_step(&ep.obs, h, c)?;
         // This row's heads at the episode's actor head, for the backward's activations
         // (the bits finish_step computed).
@@ -754,7 +773,9 @@ mod tests {
     /// A dense view over a copy, on the kernels of `like`.
     fn view<'a>(c: &'a Copy3, shape: (usize, usize), like: &MatRef<'_>) -> Dense<'a> {
         Dense {
-            w: MatRef::f32(shape.0, shape.1, &c.0).unwrap().kernels_from(like),
+            w: MatRef::f32(shape.0, shape.1, &c.0)
+                .unwrap()
+                .kernels_from(like),
             b: &c.1,
             gain: c.2.as_deref(),
         }
@@ -819,8 +840,9 @@ mod tests {
                 AdaptMode::Full => assert!(log.len() > 5, "{}", log.len()),
             }
             assert!(
-                log.iter().any(|t| t.segs.len() >= 2
-                    && t.segs.iter().any(|s| s.0.len() != t.segs[0].0.len())),
+                log.iter()
+                    .any(|t| t.segs.len() >= 2
+                        && t.segs.iter().any(|s| s.0.len() != t.segs[0].0.len())),
                 "a tick completes segments of several lengths"
             );
             // The rows' parameters differ (adapted episodes).
@@ -905,8 +927,7 @@ mod tests {
             // At the unadapted parameters: another gradient.
             let mut shared = model.params.zeros_like();
             for t in &log {
-                let segs: Vec<Segment<'_>> =
-                    (0..t.segs.len()).map(|k| seg(t, k, false)).collect();
+                let segs: Vec<Segment<'_>> = (0..t.segs.len()).map(|k| seg(t, k, false)).collect();
                 backward(&segs, &mut shared);
             }
             assert_ne!(bits(&got), bits(&shared), "{mode:?}: per-row parameters");

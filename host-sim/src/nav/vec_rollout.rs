@@ -250,9 +250,7 @@ fn run_worker_in<'w, M: Mode>(
     // The navigator provides the parameter views (G and the policy, in the model's mode).
     let weights = model.weights()?;
     let Worker {
-        arena,
-        ps: ps_buf,
-        ..
+        arena, ps: ps_buf, ..
     } = worker;
     let mut nav: Navigator<'_, M, K> = Navigator::new(weights, arena, model.nav_config(true))?;
     let d = *nav.dims();
