@@ -821,6 +821,27 @@ mod tests {
                 "{}: the pinned order",
                 method.name()
             );
+            // The rows given their own heads and G, all equal to the shared ones (the per-row
+            // path of methods with an inner loop: heads row by row, then the trunk): the
+            // same bits as the shared batched pass.
+            let mut rows_own = model.params.zeros_like();
+            let own: Vec<Segment<'_>> = segs
+                .iter()
+                .map(|p| Segment {
+                    own: Some(crate::nav::bptt::Adapted {
+                        actor: policy.actor,
+                        gen,
+                    }),
+                    ..seg(p)
+                })
+                .collect();
+            backward(&own, &mut rows_own);
+            assert_eq!(
+                bits(&rows_own),
+                bits(&want),
+                "{}: per-row heads",
+                method.name()
+            );
             // One segment at a time (completion order): a different sum of the same terms.
             segs.sort_by_key(|p| p.seq);
             let mut one = model.params.zeros_like();
