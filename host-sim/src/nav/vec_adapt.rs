@@ -66,6 +66,10 @@
 //! episodes is the batch-1 trainer's: every episode starts from ω, and the outer step adds
 //! `Σ_e (ω_e − ω)` in episode order.
 //!
+//! **Memory.** A worker holds `B` navigator arenas (`Navigator::arena_len`; in the Full mode
+//! each holds a copy of G and D), plus the waiting segments (at most [`MAX_PENDING_STEPS`]
+//! steps).
+//!
 //! Not served here: `--meta-order 2` (its reverse recursion runs per episode, refused with
 //! `B > 1`) and the privileged-feature bound (refused with an inner loop, as in batch 1).
 

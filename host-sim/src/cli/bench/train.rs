@@ -7,7 +7,7 @@
 //! timed), then times as many more as take about the same number of environment steps in
 //! every row of a preset (an update holds at least `B` episodes per worker). Each row runs in
 //! `gman train`'s default adaptation mode for its preset (`efficient` for `mcu`, `full` for
-//! `paper`); `gman`'s `B > 1` rows run one navigator per episode
+//! `paper`); `gman`'s `B > 1` rows (`mcu` only) run one navigator per episode
 //! (`gman_host_sim::nav::vec_adapt`).
 
 use std::time::Instant;
@@ -56,6 +56,11 @@ pub fn rows(updates: u64) -> Result<Vec<TrainRow>> {
         let gen = init_generator(&dims, &mut Xoshiro128::seed_from_u64(7))?;
         for method in [Method::A3c, Method::Gman] {
             for b in std::iter::once(1).chain(BATCH_ENVS) {
+                // gman `paper` (Full mode) with B > 1: one copy of G per slot (its arena)
+                // and no speed-up (README, session 7); not measured.
+                if b > 1 && method == Method::Gman && preset == "paper" {
+                    continue;
+                }
                 let mut model = NavModel::init(method, dims, 1, Some(&gen), None)?;
                 model.adapt_mode = if preset == "paper" {
                     AdaptMode::Full
