@@ -984,6 +984,16 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
         self.r.x
     }
 
+    /// G's activations of its last forward in the step's G scratch (the x_t of the last
+    /// [`Navigator::begin_step`] that ran G, or the last [`Navigator::generator_output`]):
+    /// `(u1, h1, u2)`, layer 1's `W1 [z; SE(y)]` before its gain (`gen_hidden`, empty
+    /// without a gain), the hidden activation after the LeakyReLU (`gen_hidden`) and layer
+    /// 2's `W2 h1` before its gain (`feat`, empty without a gain). A host's backward through
+    /// x_t may reuse them (with [`Navigator::generated_feature`]) instead of running G again.
+    pub fn generator_activations(&self) -> (&[f32], &[f32], &[f32]) {
+        (self.r.u1, self.r.h1, self.r.u2)
+    }
+
     /// The current LSTM hidden state.
     pub fn hidden_state(&self) -> &[f32] {
         self.r.h_state

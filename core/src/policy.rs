@@ -428,26 +428,101 @@ impl<'a> Policy<'a> {
         check_len("policy.tmp", n * e.max(NUM_ACTIONS), s.tmp.len())?;
         // Heads: dh = W_actorᵀ dlogits (+ gain) + W_criticᵀ dvalue + dh_next.
         s.dh.copy_from_slice(dh_next);
-        self.actor.backward_batch(
-            &[cache.h],
-            &[hd],
+        self.heads_backward(
             n,
+            cache.h,
             cache.actor_u,
             dlogits,
-            Some((&mut [&mut *s.dh], &[hd])),
+            dvalue,
             &mut grads.actor,
+            &mut grads.critic,
+            s.dh,
             &mut s.tmp[..n * NUM_ACTIONS],
         )?;
+        self.trunk_backward_batch(n, inp, h_prev, c_prev, cache, dc_next, grads, out, s)
+    }
+
+    /// The heads' part of [`Policy::backward_batch`] over `n` rows: accumulates the actor's
+    /// and the critic's parameter gradients (into `actor`, `critic`) and adds
+    /// `W_actorᵀ dlogits` (through the gain) and `W_criticᵀ dvalue` to `dh` (`n x
+    /// lstm_hidden`, holding `dh_next` on entry); `tmp` is `n x 6`. A host that runs the
+    /// trunk of many navigators as one batch calls it row by row with each row's own
+    /// (adapted) actor head, then [`Policy::trunk_backward_batch`] once: since every kernel
+    /// accumulates over a batch in row order, the result is bit for bit that of
+    /// [`Policy::backward_batch`] when the rows share one head.
+    #[allow(clippy::too_many_arguments)]
+    pub fn heads_backward(
+        &self,
+        n: usize,
+        h: &[f32],
+        actor_u: &[f32],
+        dlogits: &[f32],
+        dvalue: &[f32],
+        actor: &mut DenseGrads<'_>,
+        critic: &mut DenseGrads<'_>,
+        dh: &mut [f32],
+        tmp: &mut [f32],
+    ) -> Result<()> {
+        let hd = self.lstm.hidden();
+        check_len("policy.h", n * hd, h.len())?;
+        check_len("policy.dh", n * hd, dh.len())?;
+        check_len("policy.dlogits", n * NUM_ACTIONS, dlogits.len())?;
+        check_len("policy.dvalue", n, dvalue.len())?;
+        check_len("policy.tmp", n * NUM_ACTIONS, tmp.len())?;
+        self.actor.backward_batch(
+            &[h],
+            &[hd],
+            n,
+            actor_u,
+            dlogits,
+            Some((&mut [&mut *dh], &[hd])),
+            actor,
+            tmp,
+        )?;
         self.critic.backward_batch(
-            &[cache.h],
+            &[h],
             &[hd],
             n,
             &[],
             dvalue,
-            Some((&mut [&mut *s.dh], &[hd])),
-            &mut grads.critic,
-            &mut s.tmp[..n],
-        )?;
+            Some((&mut [&mut *dh], &[hd])),
+            critic,
+            &mut tmp[..n],
+        )
+    }
+
+    /// The trunk's part of [`Policy::backward_batch`] over `n` rows (LSTM, fusion layer and
+    /// the map's cell layer, the parameters no navigator adapts), from `s.dh` = dL/dh_t (`n x
+    /// lstm_hidden`, what [`Policy::heads_backward`] left there) and `dc_next`; the heads'
+    /// gradients in `grads` are not touched. See [`Policy::backward_batch`] for the rest.
+    #[allow(clippy::too_many_arguments)]
+    pub fn trunk_backward_batch(
+        &self,
+        n: usize,
+        inp: &PolicyInput<'_>,
+        h_prev: &[f32],
+        c_prev: &[f32],
+        cache: &PolicyCache<'_>,
+        dc_next: &[f32],
+        grads: &mut PolicyGrads<'_>,
+        out: &mut PolicyInputGrads<'_>,
+        s: &mut PolicyScratch<'_>,
+    ) -> Result<()> {
+        self.validate()?;
+        if n == 0 {
+            return Ok(());
+        }
+        let wd = self.batch_widths(inp, n, cache.cell.len())?;
+        let (f, hd, e) = (wd.f, self.lstm.hidden(), self.fuse.out_dim());
+        check_len("policy.dh", n * hd, s.dh.len())?;
+        check_len("policy.dc_next", n * hd, dc_next.len())?;
+        let want_feat = !out.feat.is_empty();
+        if want_feat {
+            check_len("policy.dfeat", n * f, out.feat.len())?;
+            check_len("policy.dprod", n * f, s.dprod.len())?;
+        }
+        check_len("policy.de", n * e, s.de.len())?;
+        check_len("policy.tmp", n * e.max(NUM_ACTIONS), s.tmp.len())?;
         s.de.fill(0.0);
         self.lstm.backward_batch(
             &[cache.fuse],

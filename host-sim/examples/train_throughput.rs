@@ -5,8 +5,11 @@
 //! ```sh
 //! cargo run --release -p gman-host-sim --example train_throughput -- \
 //!     [--method a3c|gman] [--preset mcu|paper] [--batch-envs B] [--workers W] \
-//!     [--warmup N] [--updates N] [--reps R]
+//!     [--adapt-mode efficient|full] [--warmup N] [--updates N] [--reps R]
 //! ```
+//!
+//! `--adapt-mode`: the navigator's adaptation mode (default `full`, `NavModel::init`'s, what
+//! this example always measured; `gman train`'s default for `mcu` is `efficient`).
 //!
 //! Prints the environment steps per second of each repetition (each a fresh model, seed 1),
 //! and the median.
@@ -14,6 +17,7 @@
 use std::time::Instant;
 
 use anyhow::{bail, Context, Result};
+use gman_core::memory::AdaptMode;
 use gman_core::rng::Xoshiro128;
 use gman_core::Dims;
 use gman_host_sim::nav::model::{Method, NavModel};
@@ -26,6 +30,7 @@ use gman_host_sim::train::generator::init_generator;
 struct Args {
     method: Method,
     dims: Dims,
+    adapt_mode: Option<AdaptMode>,
     batch_envs: usize,
     workers: usize,
     warmup: u64,
@@ -37,6 +42,7 @@ fn parse() -> Result<Args> {
     let mut a = Args {
         method: Method::A3c,
         dims: Dims::MCU,
+        adapt_mode: None,
         batch_envs: 16,
         workers: 1,
         warmup: 5,
@@ -61,6 +67,13 @@ fn parse() -> Result<Args> {
                     "paper" => Dims::PAPER,
                     _ => bail!("--preset mcu|paper, got {v}"),
                 }
+            }
+            "--adapt-mode" => {
+                a.adapt_mode = Some(match v.as_str() {
+                    "efficient" => AdaptMode::Efficient,
+                    "full" => AdaptMode::Full,
+                    _ => bail!("--adapt-mode efficient|full, got {v}"),
+                })
             }
             "--batch-envs" => a.batch_envs = v.parse()?,
             "--workers" => a.workers = v.parse()?,
@@ -98,10 +111,12 @@ fn main() -> Result<()> {
         lr: 1e-3,
         ..AdamConfig::default()
     };
+    let mode = a.adapt_mode.unwrap_or(AdaptMode::Full);
     let out = std::env::temp_dir().join(format!("gman-tp-{}", std::process::id()));
     let (mut sps, mut cpus) = (Vec::new(), Vec::new());
     for rep in 0..a.reps {
-        let model = NavModel::init(a.method, a.dims, 1, Some(&gen), None)?;
+        let mut model = NavModel::init(a.method, a.dims, 1, Some(&gen), None)?;
+        model.adapt_mode = mode;
         let mut state = TrainState::new(model, adam);
         let opts = TrainOptions {
             updates: a.warmup,
@@ -143,7 +158,7 @@ fn main() -> Result<()> {
     sps.sort_by(f64::total_cmp);
     cpus.sort_by(f64::total_cmp);
     println!(
-        "median {:.0} env steps/s, {:.0} per CPU second (B={}, workers {})",
+        "median {:.0} env steps/s, {:.0} per CPU second (B={}, workers {}, {mode:?})",
         sps[sps.len() / 2],
         cpus[cpus.len() / 2],
         a.batch_envs,

@@ -7,7 +7,11 @@
 //!   gradient is the same sum in the new, pinned order (checked against the per-episode
 //!   gradients summed in that order exactly, and within a float tolerance of the batch-1 sum),
 //!   and a run is reproducible and resumes bit for bit;
-//! * methods with an inner loop refuse `B > 1` with a clear error.
+//! * the same for the methods with an inner loop (`gman`, ...: one navigator per episode,
+//!   per-row adapted heads and θ_i, [`gman_host_sim::nav::vec_adapt`]): `B = 1` is the
+//!   batch-1 update bit for bit, with `B > 1` each episode (actions, inner updates, D after
+//!   it) is the episode run alone, the gradient is the per-episode sum within float rounding,
+//!   runs are reproducible and resume bit for bit; `--meta-order 2` refuses `B > 1`.
 
 use gman_core::memory::AdaptMode;
 use gman_core::navigator::NoiseMode;
@@ -84,6 +88,21 @@ fn vectorised(
     seed: u64,
     b: usize,
 ) -> (ParamSet, Vec<EpisodeStats>) {
+    let (g, done) = vectorised_with_disc(world, m, objective, min_steps, seed, b);
+    (g, done.into_iter().map(|f| f.0).collect())
+}
+
+/// Each finished episode's statistics and D after it.
+type Done = Vec<(EpisodeStats, Vec<Vec<f32>>)>;
+
+fn vectorised_with_disc(
+    world: &World,
+    m: &NavModel,
+    objective: Objective,
+    min_steps: u32,
+    seed: u64,
+    b: usize,
+) -> (ParamSet, Done) {
     let mut worker = Worker::new(m);
     let mut grads = m.params.zeros_like();
     let a3c = A3cConfig::default();
@@ -98,7 +117,7 @@ fn vectorised(
     for (k, f) in done.iter().enumerate() {
         assert_eq!(f.0 as usize, k, "episodes are returned in index order");
     }
-    (grads, done.into_iter().map(|f| f.1).collect())
+    (grads, done.into_iter().map(|f| (f.1, f.2)).collect())
 }
 
 fn same_bits(a: &ParamSet, b: &ParamSet, what: &str) {
@@ -128,9 +147,28 @@ fn same_episode(a: &EpisodeStats, b: &EpisodeStats, what: &str) {
         "{what}: reward"
     );
     assert_eq!(a.loss, b.loss, "{what}: loss parts");
-    assert_eq!(a.adaptations, b.adaptations);
+    assert_eq!(a.adaptations, b.adaptations, "{what}: inner updates");
+    assert_eq!(a.rollbacks, b.rollbacks, "{what}: rollbacks");
+    assert_eq!(
+        a.disc_gap.to_bits(),
+        b.disc_gap.to_bits(),
+        "{what}: D's gap over the inner updates"
+    );
+    assert_eq!(
+        a.adapt_loss.to_bits(),
+        b.adapt_loss.to_bits(),
+        "{what}: L_ad over the inner updates"
+    );
     let fb = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
     assert_eq!(fb(&a.final_feature), fb(&b.final_feature), "{what}: x_t");
+}
+
+fn same_disc(a: &[Vec<f32>], b: &[Vec<f32>], what: &str) {
+    assert_eq!(a.len(), b.len(), "{what}: D tensors");
+    for (x, y) in a.iter().zip(b) {
+        let fb = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        assert_eq!(fb(x), fb(y), "{what}: D after the episode");
+    }
 }
 
 struct Case {
@@ -350,14 +388,308 @@ fn batched_runs_are_reproducible_and_resume_bit_for_bit() {
     }
 }
 
+// ---------------------------------------------------------------------------------------
+// The methods with an inner loop (vec_adapt)
+// ---------------------------------------------------------------------------------------
+
+fn sampler_max(
+    world: &World,
+    seed: u64,
+    max: u32,
+) -> impl FnMut(u32) -> anyhow::Result<(EpisodeSpec, u32)> + '_ {
+    move |e| {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed.wrapping_mul(1000).wrapping_add(e as u64));
+        let spec = world.try_sample_train_episode_min(&mut rng, 1)?;
+        let max = max.min(EpisodeLimits::default().for_room(spec.room));
+        Ok((spec, max))
+    }
+}
+
+/// Episode `e` alone through the batch-1 runner, into `grads`; its statistics and D after.
+fn alone(
+    world: &World,
+    m: &NavModel,
+    objective: Objective,
+    spec_max: (EpisodeSpec, u32),
+    grads: &mut ParamSet,
+) -> (EpisodeStats, Vec<Vec<f32>>) {
+    let mut worker = Worker::new(m);
+    train_episode(
+        world,
+        &spec_max.0,
+        m,
+        RewardKind::Mixed,
+        spec_max.1,
+        &A3cConfig::default(),
+        objective,
+        1,
+        &mut worker,
+        grads,
+    )
+    .unwrap()
+}
+
+/// The batch-1 worker loop over `sampler_max(seed, max)`.
+fn batch1_adapt(
+    world: &World,
+    m: &NavModel,
+    objective: Objective,
+    min_steps: u32,
+    seed: u64,
+    max: u32,
+) -> (ParamSet, Done) {
+    let mut grads = m.params.zeros_like();
+    let mut sample = sampler_max(world, seed, max);
+    let (mut out, mut steps, mut e) = (Vec::new(), 0u32, 0u32);
+    while e == 0 || steps < min_steps {
+        let (st, disc) = alone(world, m, objective, sample(e).unwrap(), &mut grads);
+        steps += st.steps;
+        e += 1;
+        out.push((st, disc));
+    }
+    (grads, out)
+}
+
+fn vectorised_adapt(
+    world: &World,
+    m: &NavModel,
+    objective: Objective,
+    min_steps: u32,
+    seed: u64,
+    max: u32,
+    b: usize,
+) -> (ParamSet, Done) {
+    let mut worker = Worker::new(m);
+    let mut grads = m.params.zeros_like();
+    let a3c = A3cConfig::default();
+    let s = VecSettings {
+        batch_envs: b,
+        min_steps,
+        reward: RewardKind::Mixed,
+        a3c: &a3c,
+        objective,
+    };
+    let sample = sampler_max(world, seed, max);
+    let done = run_worker(world, m, &s, &mut worker, &mut grads, sample).unwrap();
+    for (k, f) in done.iter().enumerate() {
+        assert_eq!(f.0 as usize, k, "episodes are returned in index order");
+    }
+    (grads, done.into_iter().map(|f| (f.1, f.2)).collect())
+}
+
+/// The configurations of the methods with an inner loop. The actor's Done bias is lowered so
+/// that episodes run long enough for inner updates (every k = 20 steps), and α is large
+/// enough that each episode's adapted θ_i, φ_i differ visibly from θ, φ.
+fn adapt_cases() -> Vec<(Case, f32)> {
+    let c = |name, method, dims, mode| Case {
+        name,
+        method,
+        dims,
+        mode,
+        objective: Objective::A3c,
+        privileged: false,
+        noise: NoiseMode::Gaussian,
+    };
+    vec![
+        (
+            c(
+                "gman efficient",
+                Method::Gman,
+                Dims::MCU,
+                AdaptMode::Efficient,
+            ),
+            0.05,
+        ),
+        (
+            c("gman full", Method::Gman, Dims::MCU, AdaptMode::Full),
+            0.01,
+        ),
+        (
+            c(
+                "gman-cossim",
+                Method::GmanCossim,
+                Dims::MCU,
+                AdaptMode::Efficient,
+            ),
+            0.05,
+        ),
+        (
+            c(
+                "gman-fixed-g",
+                Method::GmanFixedG,
+                Dims::MCU,
+                AdaptMode::Efficient,
+            ),
+            0.05,
+        ),
+        (
+            c(
+                "gman map 2x2",
+                Method::Gman,
+                Dims::MCU.with_map(2, 2, 4),
+                AdaptMode::Full,
+            ),
+            0.01,
+        ),
+        (
+            Case {
+                objective: Objective::Dagger,
+                ..c("gman dagger", Method::Gman, Dims::MCU, AdaptMode::Efficient)
+            },
+            0.05,
+        ),
+        (
+            Case {
+                noise: NoiseMode::Zero,
+                ..c(
+                    "gman zero noise",
+                    Method::Gman,
+                    Dims::MCU,
+                    AdaptMode::Efficient,
+                )
+            },
+            0.05,
+        ),
+    ]
+}
+
+fn adapt_model(c: &Case, inner_lr: f32) -> NavModel {
+    let mut m = case_model(c);
+    m.inner_lr = inner_lr;
+    let b = m.params.get_mut("ActorB").unwrap();
+    b.data[gman_core::Action::Done.index()] -= 4.0;
+    m
+}
+
 #[test]
-fn methods_with_an_inner_loop_refuse_batched_episodes() {
+fn adapting_batch_of_one_is_the_batch1_update_bit_for_bit() {
+    let world = World::synthetic(7);
+    for (c, lr) in adapt_cases() {
+        let m = adapt_model(&c, lr);
+        let (ga, sa) = batch1_adapt(&world, &m, c.objective, 50, 1, 45);
+        let (gb, sb) = vectorised_adapt(&world, &m, c.objective, 50, 1, 45, 1);
+        assert!(sa.len() >= 2, "{}: several episodes per update", c.name);
+        assert!(
+            sa.iter().map(|e| e.0.adaptations).sum::<u32>() >= 2,
+            "{}: inner updates happen",
+            c.name
+        );
+        assert_eq!(sa.len(), sb.len(), "{}: episodes", c.name);
+        for (k, (a, b)) in sa.iter().zip(&sb).enumerate() {
+            let what = format!("{} episode {k}", c.name);
+            same_episode(&a.0, &b.0, &what);
+            same_disc(&a.1, &b.1, &what);
+        }
+        same_bits(&ga, &gb, c.name);
+    }
+}
+
+#[test]
+fn adapting_batched_episodes_are_the_episodes_run_alone() {
+    let world = World::synthetic(7);
+    for (c, lr) in adapt_cases() {
+        let m = adapt_model(&c, lr);
+        let b = 5;
+        let (g, st) = vectorised_adapt(&world, &m, c.objective, 120, 4, 45, b);
+        assert!(st.len() >= b, "{}: at least B episodes", c.name);
+        assert!(
+            st.iter().filter(|e| e.0.adaptations > 0).count() >= 2,
+            "{}: several episodes adapt",
+            c.name
+        );
+        // Each episode alone, through the batch-1 runner (navigator) into its own gradient.
+        let mut sum = m.params.zeros_like();
+        let mut sample = sampler_max(&world, 4, 45);
+        for (k, s) in st.iter().enumerate() {
+            let mut ge = m.params.zeros_like();
+            let (one, disc) = alone(&world, &m, c.objective, sample(k as u32).unwrap(), &mut ge);
+            let what = format!("{} episode {k}", c.name);
+            same_episode(&s.0, &one, &what);
+            same_disc(&s.1, &disc, &what);
+            sum.add_assign(&ge).unwrap();
+        }
+        // The batched sum adds the same terms in another order: equal within float rounding
+        // (1e-4 of each tensor's largest value).
+        let mut differs = false;
+        for (x, y) in g.tensors.iter().zip(&sum.tensors) {
+            let scale = y.data.iter().fold(0.0f32, |a, v| a.max(v.abs())).max(1e-6);
+            for (u, v) in x.data.iter().zip(&y.data) {
+                assert!(
+                    (u - v).abs() <= 1e-4 * scale,
+                    "{}: {} {u} vs {v} (scale {scale})",
+                    c.name,
+                    x.name
+                );
+                differs |= u.to_bits() != v.to_bits();
+            }
+        }
+        assert!(differs, "{}: B > 1 sums in its own order", c.name);
+        // ... and the order is fixed: the same batch gives the same bits.
+        let (g2, _) = vectorised_adapt(&world, &m, c.objective, 120, 4, 45, b);
+        same_bits(&g, &g2, c.name);
+    }
+}
+
+#[test]
+fn adapting_batched_runs_are_reproducible_and_resume_bit_for_bit() {
+    let world = World::synthetic(7);
+    for mode in [AdaptMode::Efficient, AdaptMode::Full] {
+        let st = || {
+            let mut m = model(Method::Gman, Dims::MCU, mode, 1);
+            m.inner_lr = 0.01;
+            m.params.get_mut("ActorB").unwrap().data[gman_core::Action::Done.index()] -= 3.0;
+            TrainState::new(
+                m,
+                AdamConfig {
+                    lr: 1e-3,
+                    ..AdamConfig::default()
+                },
+            )
+        };
+        let a = tmp("adapt-straight");
+        let mut sa = st();
+        train(&world, &opts(a.clone(), 4, 3), &mut sa).unwrap();
+        let b = tmp("adapt-resumed");
+        let mut sb = st();
+        train(&world, &opts(b.clone(), 2, 3), &mut sb).unwrap();
+        let ck = gman_host_sim::nav::trainer::checkpoint_path(&b);
+        let (mut sb, t) = TrainState::load_with_settings(&ck).unwrap();
+        assert_eq!(t.run.batch_envs, 3, "B is stored in the checkpoint");
+        train(&world, &opts(b.clone(), 4, 3), &mut sb).unwrap();
+        assert_eq!(sa.env_steps, sb.env_steps);
+        let csv = std::fs::read_to_string(a.join("metrics.csv")).unwrap();
+        assert!(
+            csv.lines()
+                .skip(1)
+                .any(|l| l.split(',').nth(10) != Some("0")),
+            "inner updates happen: {csv}"
+        );
+        for (x, y) in sa.model.params.tensors.iter().zip(&sb.model.params.tensors) {
+            let bx: Vec<u32> = x.data.iter().map(|v| v.to_bits()).collect();
+            let by: Vec<u32> = y.data.iter().map(|v| v.to_bits()).collect();
+            assert_eq!(bx, by, "{mode:?} {}", x.name);
+        }
+        for d in [a, b] {
+            let _ = std::fs::remove_dir_all(d);
+        }
+    }
+}
+
+#[test]
+fn the_second_order_meta_gradient_refuses_batched_episodes() {
     let world = World::synthetic(7);
     let d = tmp("gman");
     let mut st = state(Method::Gman);
-    let e = train(&world, &opts(d.clone(), 1, 4), &mut st).unwrap_err();
+    st.model.adapt_mode = AdaptMode::Full;
+    let mut o = opts(d.clone(), 1, 4);
+    o.run.meta_order = 2;
+    let e = train(&world, &o, &mut st).unwrap_err();
     assert!(format!("{e:#}").contains("--batch-envs"), "{e:#}");
     let e = train(&world, &opts(d.clone(), 1, 0), &mut st).unwrap_err();
     assert!(format!("{e:#}").contains("--batch-envs"), "{e:#}");
+    // First order: B > 1 runs.
+    let mut st = state(Method::Gman);
+    train(&world, &opts(d.clone(), 1, 4), &mut st).unwrap();
+    assert_eq!(st.update, 1);
     let _ = std::fs::remove_dir_all(d);
 }

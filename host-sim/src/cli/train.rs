@@ -81,8 +81,9 @@ pub struct TrainArgs {
     #[arg(long, default_value_t = 2)]
     pub workers: usize,
     /// Environments each worker steps in lockstep, with the policy's passes run over them
-    /// as matrices (methods without an inner loop in training; 1: one episode at a time).
-    /// Every update then holds at least this many episodes per worker.
+    /// as matrices (1: one episode at a time; methods with an inner loop: one navigator per
+    /// episode, first-order meta-gradient only). Every update then holds at least this many
+    /// episodes per worker.
     #[arg(long, default_value_t = 1)]
     pub batch_envs: usize,
     /// Outer Adam learning rate β (overrides the config).

@@ -18,10 +18,15 @@
 //! ones, the result is the batch-1 BPTT's bit for bit.
 
 use anyhow::{anyhow, bail, Result};
+use gman_core::activation::{
+    leaky_relu_backward, leaky_relu_inplace, sigmoid_backward, sigmoid_inplace,
+};
+use gman_core::batch::{matmul_acc, matmul_t_acc, outer_acc_batch_with};
 use gman_core::blob::TensorId;
-use gman_core::dense::DenseGrads;
+use gman_core::dense::{Dense, DenseGrads};
 use gman_core::generator::{Generator, GeneratorCache, GeneratorScratch};
 use gman_core::lstm::LstmGrads;
+use gman_core::matrix::Weights;
 use gman_core::navigator::{Mode, Navigator};
 use gman_core::policy::{
     Policy, PolicyCache, PolicyGrads, PolicyInput, PolicyInputGrads, PolicyScratch,
@@ -176,6 +181,7 @@ impl Widths {
 }
 
 /// The activations of one step the backward pass needs (saved from the rollout's forward).
+#[derive(Clone)]
 pub(crate) struct StepAct {
     prod: Vec<f32>,
     fuse: Vec<f32>,
@@ -185,6 +191,9 @@ pub(crate) struct StepAct {
     actor_u: Vec<f32>,
     value: f32,
     cell: Vec<f32>,
+    /// G's activations of the step's x_t (`u1`, `h1`, `u2` as in `GeneratorCache`), when
+    /// the rollout kept them (`h1` empty: not kept, the backward runs G again).
+    pub(crate) gen: (Vec<f32>, Vec<f32>, Vec<f32>),
 }
 
 /// Row `j`'s activations (the map products are not kept: the backward pass recomputes them).
@@ -199,6 +208,7 @@ pub(crate) fn take_act(rows: &Rows, j: usize, w: &Widths) -> StepAct {
         actor_u: get(&rows.actor_u, w.au),
         value: rows.value[j],
         cell: get(&rows.cell, w.cells * w.ce),
+        gen: Default::default(),
     }
 }
 
@@ -271,6 +281,19 @@ pub(crate) struct Segment<'a> {
     pub(crate) attr: &'a [f32],
     /// `V_T`.
     pub(crate) bootstrap: f32,
+    /// The parameters of this segment's episode that its inner updates adapt (the actor
+    /// head and G, as the segment ran with them), or `None`: those of the `policy` and
+    /// `gen` given to [`Backward::run`].
+    pub(crate) own: Option<Adapted<'a>>,
+}
+
+/// An episode's adapted parameters (θ_i, the actor head of φ_i): views of its navigator.
+#[derive(Clone, Copy)]
+pub(crate) struct Adapted<'a> {
+    /// The actor head.
+    pub(crate) actor: Dense<'a>,
+    /// G.
+    pub(crate) gen: Generator<'a>,
 }
 
 /// Buffers of the batched backward pass, reused across calls.
@@ -291,6 +314,7 @@ pub(crate) struct Backward {
     dh: Vec<f32>,
     dcell: Vec<f32>,
     cell_tmp: Vec<f32>,
+    grows: GenRows,
 }
 
 /// The output gradients `(∂L/∂logits, ∂L/∂V)` of a segment's steps.
@@ -373,12 +397,21 @@ impl Backward {
         for r in 0..max_len {
             let n = segs.iter().take_while(|s| s.steps.len() > r).count();
             self.load_rows(segs, &outs, r, n, w);
-            self.policy_step(policy, n, w, &mut pg, train_generator)?;
+            self.policy_step(policy, &segs[..n], w, &mut pg, train_generator)?;
             if train_generator {
-                for (j, s) in segs[..n].iter().enumerate() {
-                    let z = &s.steps[s.steps.len() - 1 - r].z;
-                    let dx = &self.dfeat[j * w.f..(j + 1) * w.f];
-                    gbuf.backward(gen, z, s.attr, dx, &mut g1, &mut g2)?;
+                let gens: Vec<&Generator<'_>> = segs[..n]
+                    .iter()
+                    .map(|s| s.own.as_ref().map_or(gen, |o| &o.gen))
+                    .collect();
+                if n > 1 && shares_weights(&gens) {
+                    self.grows
+                        .backward(&gens, segs, r, &self.dfeat, w, &mut g1, &mut g2)?;
+                } else {
+                    for (j, s) in segs[..n].iter().enumerate() {
+                        let z = &s.steps[s.steps.len() - 1 - r].z;
+                        let dx = &self.dfeat[j * w.f..(j + 1) * w.f];
+                        gbuf.backward(gens[j], z, s.attr, dx, &mut g1, &mut g2)?;
+                    }
                 }
             }
         }
@@ -446,16 +479,20 @@ impl Backward {
         clear_resize(&mut self.cell_tmp, n * w.map);
     }
 
-    /// The policy's backward over the loaded rows; `(∂h, ∂c)` move one step back. Without
-    /// `train_generator` the gradient into x_t is not computed.
+    /// The policy's backward over the loaded rows (those of `segs`); `(∂h, ∂c)` move one
+    /// step back. Without `train_generator` the gradient into x_t is not computed. When a
+    /// segment has its own actor head, the heads run row by row (each row's head, in row
+    /// order: the bits of the batched heads when the rows share one), then the trunk as one
+    /// batch.
     fn policy_step(
         &mut self,
         policy: &Policy<'_>,
-        n: usize,
+        segs: &[Segment<'_>],
         w: &Widths,
         pg: &mut PolicyGrads<'_>,
         train_generator: bool,
     ) -> Result<()> {
+        let n = segs.len();
         let rows = &mut self.rows;
         let inp = PolicyInput {
             obs: &rows.obs,
@@ -497,20 +534,57 @@ impl Backward {
             dcell: &mut self.dcell,
             cell_tmp: &mut self.cell_tmp,
         };
-        policy.backward_batch(
-            n,
-            &inp,
-            &rows.h_prev,
-            &rows.c_prev,
-            &cache,
-            &self.dl,
-            &self.dv,
-            &self.dh_next[..nh],
-            &self.dc_next[..nh],
-            pg,
-            &mut out,
-            &mut sc,
-        )?;
+        if segs.iter().all(|s| s.own.is_none()) {
+            policy.backward_batch(
+                n,
+                &inp,
+                &rows.h_prev,
+                &rows.c_prev,
+                &cache,
+                &self.dl,
+                &self.dv,
+                &self.dh_next[..nh],
+                &self.dc_next[..nh],
+                pg,
+                &mut out,
+                &mut sc,
+            )?;
+        } else {
+            let hd = w.hd;
+            sc.dh.copy_from_slice(&self.dh_next[..nh]);
+            for (j, s) in segs.iter().enumerate() {
+                let p = match &s.own {
+                    Some(o) => Policy {
+                        actor: o.actor,
+                        ..*policy
+                    },
+                    None => *policy,
+                };
+                let au = &cache.actor_u[j * w.au..(j + 1) * w.au];
+                p.heads_backward(
+                    1,
+                    &cache.h[j * hd..(j + 1) * hd],
+                    au,
+                    &self.dl[j * NUM_ACTIONS..(j + 1) * NUM_ACTIONS],
+                    &self.dv[j..j + 1],
+                    &mut pg.actor,
+                    &mut pg.critic,
+                    &mut sc.dh[j * hd..(j + 1) * hd],
+                    &mut sc.tmp[..NUM_ACTIONS],
+                )?;
+            }
+            policy.trunk_backward_batch(
+                n,
+                &inp,
+                &rows.h_prev,
+                &rows.c_prev,
+                &cache,
+                &self.dc_next[..nh],
+                pg,
+                &mut out,
+                &mut sc,
+            )?;
+        }
         std::mem::swap(&mut self.dh_next, &mut self.dh_prev);
         std::mem::swap(&mut self.dc_next, &mut self.dc_prev);
         Ok(())
@@ -567,6 +641,7 @@ pub fn segment_backward<M: Mode, const K: usize>(
         acts: &acts,
         attr,
         bootstrap,
+        own: None,
     }];
     let mut gbuf = GenBufs::new(&gen, w.f);
     let losses = Backward::default().run(
@@ -581,4 +656,466 @@ pub fn segment_backward<M: Mode, const K: usize>(
         &mut gbuf,
     )?;
     Ok(losses[0])
+}
+
+/// The weight data of a dense view when it is f32 (its identity: pointer and length).
+fn f32_id(d: &Dense<'_>) -> Option<(*const f32, usize)> {
+    match d.w.weights() {
+        Weights::F32(v) => Some((v.as_ptr(), v.len())),
+        _ => None,
+    }
+}
+
+/// True when the generators share their weight matrices (f32) and differ at most in their
+/// per-unit gains and biases, with a gain on every row or on none, per layer: one G, or the
+/// episodes' θ_i of the Efficient mode.
+fn shares_weights(gens: &[&Generator<'_>]) -> bool {
+    let Some(first) = gens.first() else {
+        return false;
+    };
+    let same = |a: &Dense<'_>, b: &Dense<'_>| {
+        f32_id(a).is_some()
+            && f32_id(a) == f32_id(b)
+            && a.w.rows() == b.w.rows()
+            && a.w.cols() == b.w.cols()
+            && a.gain.is_some() == b.gain.is_some()
+            && a.b.len() == b.b.len()
+            && a.gain.is_none_or(|g| g.len() == a.b.len())
+            && a.b.len() == a.w.rows()
+    };
+    gens.iter()
+        .all(|g| same(&first.l1, &g.l1) && same(&first.l2, &g.l2))
+}
+
+/// G's forward (recomputed) and backward over the rows of one backward step as one batch,
+/// for generators that share their weight matrices ([`shares_weights`]): each row with its
+/// own gains and biases. Bit for bit [`GenBufs::backward`] row by row in row order: the
+/// matrix products are the batched kernels (every row the bits of the batch-1 kernels, the
+/// weight gradients accumulated over the rows in order), the per-row operations are the
+/// dense layer's own (`gain * u + b`, `dpre * gain`, the bias gradient `+= dpre`), and each
+/// gradient tensor sees the rows in order.
+#[derive(Default)]
+struct GenRows {
+    z: Vec<f32>,
+    attr: Vec<f32>,
+    u1: Vec<f32>,
+    h1: Vec<f32>,
+    u2: Vec<f32>,
+    x: Vec<f32>,
+    dpre2: Vec<f32>,
+    scaled: Vec<f32>,
+    dh1: Vec<f32>,
+    dpre1: Vec<f32>,
+}
+
+impl GenRows {
+    /// The layer `l` of row `j`'s generator (`first`: layer 1).
+    fn layer<'g>(g: &'g Generator<'_>, first: bool) -> &'g Dense<'g> {
+        if first {
+            &g.l1
+        } else {
+            &g.l2
+        }
+    }
+
+    /// `pre = gain ⊙ (W x) + b` (with a gain: `u = W x` kept) or `pre = b + W x` per row, as
+    /// [`Dense::forward_batch`] computes it for one G.
+    fn dense_forward(
+        gens: &[&Generator<'_>],
+        first: bool,
+        x: &[&[f32]],
+        lens: &[usize],
+        u: &mut Vec<f32>,
+        pre: &mut Vec<f32>,
+    ) -> Result<()> {
+        let n = gens.len();
+        let l0 = Self::layer(gens[0], first);
+        let o = l0.out_dim();
+        clear_resize(pre, n * o);
+        match l0.gain {
+            None => {
+                for (p, g) in pre.chunks_exact_mut(o).zip(gens) {
+                    p.copy_from_slice(Self::layer(g, first).b);
+                }
+                matmul_acc(&l0.w, x, lens, n, pre)?;
+            }
+            Some(_) => {
+                clear_resize(u, n * o);
+                matmul_acc(&l0.w, x, lens, n, u)?;
+                for ((p, ur), g) in pre.chunks_exact_mut(o).zip(u.chunks_exact(o)).zip(gens) {
+                    let l = Self::layer(g, first);
+                    let gain = l.gain.ok_or_else(|| anyhow!("generator rows: gain"))?;
+                    for (((p, &ui), &gi), &bi) in p.iter_mut().zip(ur).zip(gain).zip(l.b) {
+                        *p = gi * ui + bi;
+                    }
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// The parameter gradients of layer `first`/2 from `dpre` (`n x out`) and, with `dx`,
+    /// `dx += Wᵀ (gain ⊙ dpre)`, as [`Dense::backward_batch`] computes them for one G.
+    #[allow(clippy::too_many_arguments)]
+    fn dense_backward(
+        gens: &[&Generator<'_>],
+        first: bool,
+        x: &[&[f32]],
+        lens: &[usize],
+        dpre: &[f32],
+        scaled: &mut Vec<f32>,
+        dx: Option<(&mut [f32], usize)>,
+        grads: &mut DenseGrads<'_>,
+    ) -> Result<()> {
+        let n = gens.len();
+        let l0 = Self::layer(gens[0], first);
+        let o = l0.out_dim();
+        let dy: &[f32] = match l0.gain {
+            None => dpre,
+            Some(_) => {
+                clear_resize(scaled, n * o);
+                for ((s, d), g) in scaled
+                    .chunks_exact_mut(o)
+                    .zip(dpre.chunks_exact(o))
+                    .zip(gens)
+                {
+                    let gain = Self::layer(g, first)
+                        .gain
+                        .ok_or_else(|| anyhow!("generator rows: gain"))?;
+                    for ((s, &d), &gi) in s.iter_mut().zip(d).zip(gain) {
+                        *s = d * gi;
+                    }
+                }
+                scaled
+            }
+        };
+        match grads {
+            DenseGrads::Full { w, b } => {
+                outer_acc_batch_with(l0.w.kernels(), w, dy, x, lens, n, 1.0)?;
+                for d in dpre.chunks_exact(o) {
+                    for (bi, &d) in b.iter_mut().zip(d) {
+                        *bi += d;
+                    }
+                }
+            }
+            _ => bail!("generator rows: full gradients expected"),
+        }
+        if let Some((dx, len)) = dx {
+            matmul_t_acc(&l0.w, dy, n, &mut [dx], &[len])?;
+        }
+        Ok(())
+    }
+
+    /// G's backward for backward step `r` of `segs` (row `j` with generator `gens[j]`, its
+    /// step's z and SE(y), `dfeat`'s row `j` as `∂L/∂x_t`).
+    #[allow(clippy::too_many_arguments)]
+    fn backward(
+        &mut self,
+        gens: &[&Generator<'_>],
+        segs: &[Segment<'_>],
+        r: usize,
+        dfeat: &[f32],
+        w: &Widths,
+        g1: &mut DenseGrads<'_>,
+        g2: &mut DenseGrads<'_>,
+    ) -> Result<()> {
+        let n = gens.len();
+        let (h, f) = (gens[0].hidden(), gens[0].feat());
+        for g in gens {
+            g.validate()?;
+        }
+        if f != w.f || gens[0].in_dim() != w.z + w.a {
+            bail!("generator rows: widths do not match the model");
+        }
+        self.z.clear();
+        self.attr.clear();
+        for s in &segs[..n] {
+            self.z.extend_from_slice(&s.steps[s.steps.len() - 1 - r].z);
+            self.attr.extend_from_slice(s.attr);
+        }
+        let (zl, al) = (w.z, w.a);
+        if self.z.len() != n * zl || self.attr.len() != n * al {
+            bail!("generator rows: z or SE(y) of the wrong width");
+        }
+        // Forward: the rows' x_t with their activations, as the rollout kept them, else
+        // recomputed (the same bits: the batched kernels give every row the batch-1 ones).
+        let kept = |s: &Segment<'_>| {
+            let t = s.steps.len() - 1 - r;
+            let Some((u1, h1, u2)) = s.acts.get(t).map(|a| &a.gen) else {
+                return false;
+            };
+            h1.len() == h && s.steps[t].x.len() == f && {
+                let l1 = gens[0].l1.gain.map_or(0, |_| h);
+                let l2 = gens[0].l2.gain.map_or(0, |_| f);
+                u1.len() == l1 && u2.len() == l2
+            }
+        };
+        let xin: [&[f32]; 2] = [&self.z, &self.attr];
+        if segs[..n].iter().all(kept) {
+            for v in [&mut self.u1, &mut self.h1, &mut self.u2, &mut self.x] {
+                v.clear();
+            }
+            for s in &segs[..n] {
+                let t = s.steps.len() - 1 - r;
+                let (u1, h1, u2) = &s.acts[t].gen;
+                self.u1.extend_from_slice(u1);
+                self.h1.extend_from_slice(h1);
+                self.u2.extend_from_slice(u2);
+                self.x.extend_from_slice(&s.steps[t].x);
+            }
+        } else {
+            Self::dense_forward(gens, true, &xin, &[zl, al], &mut self.u1, &mut self.h1)?;
+            leaky_relu_inplace(&mut self.h1);
+            Self::dense_forward(gens, false, &[&self.h1], &[h], &mut self.u2, &mut self.x)?;
+            sigmoid_inplace(&mut self.x);
+        }
+        // Backward.
+        clear_resize(&mut self.dpre2, n * f);
+        sigmoid_backward(&self.x, &dfeat[..n * f], &mut self.dpre2)?;
+        clear_resize(&mut self.dh1, n * h);
+        Self::dense_backward(
+            gens,
+            false,
+            &[&self.h1],
+            &[h],
+            &self.dpre2,
+            &mut self.scaled,
+            Some((&mut self.dh1, h)),
+            g2,
+        )?;
+        clear_resize(&mut self.dpre1, n * h);
+        leaky_relu_backward(&self.h1, &self.dh1, &mut self.dpre1)?;
+        Self::dense_backward(
+            gens,
+            true,
+            &xin,
+            &[zl, al],
+            &self.dpre1,
+            &mut self.scaled,
+            None,
+            g1,
+        )
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::train::generator::init_generator;
+    use gman_core::matrix::MatRef;
+    use gman_core::rng::{uniform, Xoshiro128};
+
+    /// G's backward over the rows of a step as one batch ([`GenRows`]) is bit for bit
+    /// [`GenBufs::backward`] row by row, with one G (no gains) and with per-row gains and
+    /// biases over shared matrices (the Efficient mode's θ_i).
+    #[test]
+    fn generator_rows_as_one_batch_are_the_rows_one_by_one() {
+        let d = Dims::MCU;
+        let mut rng = Xoshiro128::seed_from_u64(11);
+        let p = init_generator(&d, &mut rng).unwrap();
+        let t = |n: &str| p.tensor(n).unwrap().data.clone();
+        let (w1, w2) = (t("GenW1"), t("GenW2"));
+        let (h, f, n) = (d.gen_hidden, d.feat, 5);
+        let mut r = |k: usize, a: f32, c: f32| -> Vec<f32> {
+            (0..k).map(|_| c + a * (uniform(&mut rng) - 0.5)).collect()
+        };
+        // Per row: gains and biases of both layers, z, SE(y), ∂L/∂x.
+        let rows: Vec<[Vec<f32>; 7]> = (0..n)
+            .map(|_| {
+                [
+                    r(h, 0.4, 1.0),
+                    r(h, 0.2, 0.0),
+                    r(f, 0.4, 1.0),
+                    r(f, 0.2, 0.0),
+                    r(d.noise, 2.0, 0.0),
+                    r(d.attr, 1.0, 0.5),
+                    r(f, 0.1, 0.0),
+                ]
+            })
+            .collect();
+        let kern = crate::simd::host_kernels();
+        let m = |r, c, v| {
+            let m = MatRef::f32(r, c, v).unwrap();
+            match kern {
+                Some(k) => m.with_kernels(k),
+                None => m,
+            }
+        };
+        let (m1, m2) = (m(h, d.noise + d.attr, &w1[..]), m(f, h, &w2[..]));
+        for (gains, keep) in [(false, false), (true, false), (false, true), (true, true)] {
+            let gens: Vec<Generator<'_>> = rows
+                .iter()
+                .map(|rw| Generator {
+                    l1: Dense {
+                        w: m1,
+                        b: &rw[1],
+                        gain: gains.then_some(&rw[0][..]),
+                    },
+                    l2: Dense {
+                        w: m2,
+                        b: &rw[3],
+                        gain: gains.then_some(&rw[2][..]),
+                    },
+                })
+                .collect();
+            // The rollout's activations of each row's x_t (`keep`), from G's own forward.
+            let fwd: Vec<[Vec<f32>; 4]> = gens
+                .iter()
+                .zip(&rows)
+                .map(|(g, rw)| {
+                    let mut a = [
+                        vec![0.0; if gains { h } else { 0 }],
+                        vec![0.0; h],
+                        vec![0.0; if gains { f } else { 0 }],
+                        vec![0.0; f],
+                    ];
+                    let [u1, h1, u2, x] = &mut a;
+                    let mut c = GeneratorCache { u1, h1, u2, x };
+                    g.forward(&rw[4], &rw[5], &mut c).unwrap();
+                    a
+                })
+                .collect();
+            let acts: Vec<Vec<StepAct>> = fwd
+                .iter()
+                .map(|a| {
+                    let gen = if keep {
+                        (a[0].clone(), a[1].clone(), a[2].clone())
+                    } else {
+                        Default::default()
+                    };
+                    vec![StepAct {
+                        prod: vec![],
+                        fuse: vec![],
+                        gates: vec![],
+                        c: vec![],
+                        h: vec![],
+                        actor_u: vec![],
+                        value: 0.0,
+                        cell: vec![],
+                        gen,
+                    }]
+                })
+                .collect();
+            let steps: Vec<Vec<StepRec>> = rows
+                .iter()
+                .zip(&fwd)
+                .map(|(rw, a)| {
+                    vec![StepRec {
+                        obs: vec![],
+                        ps: vec![],
+                        map: vec![],
+                        x: if keep { a[3].clone() } else { vec![] },
+                        z: rw[4].clone(),
+                        h_prev: vec![],
+                        c_prev: vec![],
+                        prev_probs: vec![],
+                        action: 0,
+                        reward: 0.0,
+                        probs: [0.0; NUM_ACTIONS],
+                        expert: None,
+                    }]
+                })
+                .collect();
+            let segs: Vec<Segment<'_>> = steps
+                .iter()
+                .zip(&rows)
+                .zip(&acts)
+                .map(|((s, rw), a)| Segment {
+                    steps: s,
+                    acts: a,
+                    attr: &rw[5],
+                    bootstrap: 0.0,
+                    own: None,
+                })
+                .collect();
+            let dfeat: Vec<f32> = rows.iter().flat_map(|rw| rw[6].clone()).collect();
+            let w = Widths {
+                f,
+                a: d.attr,
+                ps: 0,
+                map: 0,
+                e: d.embed,
+                hd: d.lstm_hidden,
+                au: 0,
+                cells: 0,
+                ce: 0,
+                z: d.noise,
+            };
+            let zeros = |k: usize| vec![0.0f32; k];
+            let (mut a1w, mut a1b, mut a2w, mut a2b) =
+                (zeros(w1.len()), zeros(h), zeros(w2.len()), zeros(f));
+            let refs: Vec<&Generator<'_>> = gens.iter().collect();
+            assert!(shares_weights(&refs));
+            GenRows::default()
+                .backward(
+                    &refs,
+                    &segs,
+                    0,
+                    &dfeat,
+                    &w,
+                    &mut DenseGrads::Full {
+                        w: &mut a1w,
+                        b: &mut a1b,
+                    },
+                    &mut DenseGrads::Full {
+                        w: &mut a2w,
+                        b: &mut a2b,
+                    },
+                )
+                .unwrap();
+            let (mut b1w, mut b1b, mut b2w, mut b2b) =
+                (zeros(w1.len()), zeros(h), zeros(w2.len()), zeros(f));
+            let mut gb = GenBufs::new(&gens[0], f);
+            for (j, g) in gens.iter().enumerate() {
+                gb.backward(
+                    g,
+                    &rows[j][4],
+                    &rows[j][5],
+                    &rows[j][6],
+                    &mut DenseGrads::Full {
+                        w: &mut b1w,
+                        b: &mut b1b,
+                    },
+                    &mut DenseGrads::Full {
+                        w: &mut b2w,
+                        b: &mut b2b,
+                    },
+                )
+                .unwrap();
+            }
+            let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            for (a, b, name) in [
+                (&a1w, &b1w, "W1"),
+                (&a1b, &b1b, "b1"),
+                (&a2w, &b2w, "W2"),
+                (&a2b, &b2b, "b2"),
+            ] {
+                assert!(a.iter().any(|&v| v != 0.0), "{name} gradient");
+                assert_eq!(bits(a), bits(b), "gains {gains} kept {keep}: {name}");
+            }
+        }
+        // Per-row weight matrices (the Full mode's θ_i) are not shared.
+        let w1b = w1.iter().map(|v| v * 1.5).collect::<Vec<f32>>();
+        let other = Generator {
+            l1: Dense {
+                w: m(h, d.noise + d.attr, &w1b[..]),
+                b: &rows[0][1],
+                gain: None,
+            },
+            l2: Dense {
+                w: m2,
+                b: &rows[0][3],
+                gain: None,
+            },
+        };
+        let one = Generator {
+            l1: Dense {
+                w: m1,
+                b: &rows[0][1],
+                gain: None,
+            },
+            ..other
+        };
+        assert!(!shares_weights(&[&one, &other]));
+    }
 }

@@ -11,6 +11,7 @@
 //! | [`step`] | what a rollout records of a step |
 //! | [`rollout`] | worker buffers, evaluation episodes, pieces shared with training |
 //! | [`vec_rollout`] | `B` training episodes in lockstep (`--batch-envs`) |
+//! | [`vec_adapt`] | the same for the methods with an inner loop: one navigator per episode |
 //! | [`state`] | what a checkpoint restores; the typed, versioned trainer settings |
 //! | [`run_dir`] | `metrics.csv` and the run directory's lock |
 //! | [`model`], [`agent`] | methods, parameters, blobs; the evaluation agent |
@@ -30,6 +31,7 @@ pub mod run_dir;
 pub mod state;
 pub mod step;
 pub mod trainer;
+pub mod vec_adapt;
 pub mod vec_rollout;
 
 /// Capacity k of the navigation buffer Ψ (the paper's k = 20).

@@ -89,6 +89,9 @@ pub struct Worker {
     pub ps: Option<PsBuffers>,
     /// The spatial map of the current step (empty for a model without a map).
     pub map: Vec<f32>,
+    /// One arena per environment slot of the vectorised episodes of a method with an inner
+    /// loop ([`super::vec_adapt`]), grown on first use.
+    pub arenas: Vec<Vec<f32>>,
 }
 
 impl Worker {
@@ -98,6 +101,7 @@ impl Worker {
             arena: vec![0.0; model.arena_len()],
             ps: model.ps.as_ref().map(|p| PsBuffers::new(p.hidden)),
             map: vec![0.0; model.dims.map_len()],
+            arenas: Vec::new(),
         }
     }
 }
@@ -147,9 +151,17 @@ pub(crate) fn bootstrap_value<M: Mode>(
 pub(crate) fn disc_after_episode<M: Mode>(nav: &Navigator<'_, M, K>) -> Result<Vec<Vec<f32>>> {
     let d = nav.discriminator()?;
     let (r, cc) = (d.l1.w.rows(), d.l1.w.cols());
-    let w1: Vec<f32> = (0..r * cc)
-        .map(|i| d.l1.gain.map_or(1.0, |g| g[i / cc]) * d.l1.w.get(i / cc, i % cc))
-        .collect();
+    // `gain[row] * W1[row, col]` (1.0 without a gain), row by row over W1's values.
+    let mut w1 = vec![0.0f32; r * cc];
+    d.l1.w.copy_to(&mut w1)?;
+    if cc > 0 {
+        for (i, row) in w1.chunks_exact_mut(cc).enumerate() {
+            let g = d.l1.gain.map_or(1.0, |g| g[i]);
+            for v in row {
+                *v *= g;
+            }
+        }
+    }
     Ok(vec![w1, d.l1.b.to_vec(), d.w2.to_vec(), vec![d.b2]])
 }
 

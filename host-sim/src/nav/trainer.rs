@@ -35,10 +35,12 @@
 //!   Adam step. Every random choice of an update derives from
 //!   `(seed, update, worker)`, so a run is reproducible bit for bit for a given worker count
 //!   and a resumed run continues exactly where the checkpoint left off.
-//! * **Vectorised episodes** (`--batch-envs B`, methods without an inner loop in training):
-//!   each worker steps `B` environments in lockstep with the policy's passes over them as
-//!   matrices, see [`super::vec_rollout`]; `B = 1` (the default) is this loop's batch-1
-//!   runner, and the vectorised runner with `B = 1` gives the same update bit for bit.
+//! * **Vectorised episodes** (`--batch-envs B`): each worker steps `B` environments in
+//!   lockstep with the policy's passes over them as matrices, see [`super::vec_rollout`]
+//!   (and [`super::vec_adapt`] for the methods with an inner loop: one navigator per
+//!   episode, each with its own inner loop; first-order meta-gradient only); `B = 1` (the
+//!   default) is this loop's batch-1 runner, and the vectorised runner with `B = 1` gives the
+//!   same update bit for bit.
 //! * **Baselines** run the same loop with the inner loop off (`a3c`, `a3c-fg`, `gman-nometa`):
 //!   plain synchronous advantage actor-critic, with G's θ frozen at its pre-trained value.
 //! * **The `gman-noemd` control** runs the loop with the inner loop off but lets Adam train θ
@@ -172,7 +174,7 @@ fn check_options(run: &RunSettings, model: &NavModel) -> Result<()> {
     if !(1..=2).contains(&run.meta_order) {
         bail!("--meta-order must be 1 or 2");
     }
-    vec_rollout::check_batch_envs(model, run.batch_envs)?;
+    vec_rollout::check_batch_envs(model, run.batch_envs, run.meta_order)?;
     if run.meta_order == 2 && model.method.uses_cossim() {
         bail!("--meta-order 2 is implemented for the discriminator EMD only; use --meta-order 1 with gman-cossim");
     }
@@ -384,7 +386,7 @@ struct ObsBufs<'a> {
 
 /// What the inner updates of an episode did: `E[D(s)] − E[D(x)]` and L_ad summed over them.
 #[derive(Default)]
-struct InnerTally {
+pub(super) struct InnerTally {
     gap: f64,
     adapt_loss: f64,
     n: u32,
@@ -418,7 +420,7 @@ fn train_episode_in<M: Mode>(
     let mut inner_steps: Vec<Option<InnerStep>> = Vec::new();
     // Line 4: θ_i ← θ, φ_i ← φ (the navigator's arena holds θ_i, φ_i and Ψ).
     let weights = model.weights()?;
-    let Worker { arena, ps, map } = worker;
+    let Worker { arena, ps, map, .. } = worker;
     let mut obs_bufs = ObsBufs { ps, map };
     let mut nav: Navigator<'_, M, K> = Navigator::new(weights, arena, model.nav_config(true))?;
     begin(&mut nav, ep.world, ep.spec, model)?;
@@ -541,7 +543,7 @@ fn next_value<M: Mode>(
 /// ascent on L_D, Eq. 1; θ_i, φ_i's descent on L_ad, Eq. 3; rolled back if it fails) while
 /// the per-episode cap allows, else Ψ is emptied. With `second` (meta-order 2) the inner
 /// step is recorded for the reverse recursion.
-fn inner_update<M: Mode>(
+pub(super) fn inner_update<M: Mode>(
     nav: &mut Navigator<'_, M, K>,
     second: bool,
     tally: &mut InnerTally,
@@ -570,7 +572,7 @@ fn inner_update<M: Mode>(
 }
 
 /// The episode's outcome and inner-loop summary into `stats`.
-fn finish_stats<M: Mode>(
+pub(super) fn finish_stats<M: Mode>(
     stats: &mut EpisodeStats,
     env: &Env<'_>,
     nav: &Navigator<'_, M, K>,

@@ -15,6 +15,10 @@
 //! at the end of the update (B > 1): one batched BPTT over all the waiting segments
 //! ```
 //!
+//! The methods with an inner loop in training (`gman`, ...) run through
+//! [`super::vec_adapt`] (one navigator per episode, per-row adapted heads and θ_i); this
+//! module's own path serves the others, below.
+//!
 //! **For the methods without an inner loop** (`adapts_in_training()` false: `a3c`,
 //! `a3c-fg`, `a3c-ps`, `a3c-fg-ps`, `gman-nometa`, `gman-noemd`). There θ and φ stay at the
 //! outer parameters for the whole update, so the episodes share one set of parameters and
@@ -123,7 +127,8 @@ pub type Finished = (u32, EpisodeStats, Vec<Vec<f32>>);
 /// Runs one worker's share of an update with `s.batch_envs` environments in lockstep:
 /// episodes `e = 0, 1, ..` come from `sample(e)` (spec and step limit), the A3C gradient of
 /// every segment is accumulated into `grads` (see the module docs for the order). Returns the
-/// finished episodes sorted by index.
+/// finished episodes sorted by index. A method with an inner loop in training runs through
+/// [`super::vec_adapt::run_worker`].
 pub fn run_worker(
     world: &World,
     model: &NavModel,
@@ -132,6 +137,9 @@ pub fn run_worker(
     grads: &mut ParamSet,
     sample: impl FnMut(u32) -> Result<(EpisodeSpec, u32)>,
 ) -> Result<Vec<Finished>> {
+    if !supports(model) {
+        return super::vec_adapt::run_worker(world, model, s, worker, grads, sample);
+    }
     match model.adapt_mode {
         AdaptMode::Full => run_worker_in::<Full>(world, model, s, worker, grads, sample, None),
         AdaptMode::Efficient => {
@@ -198,15 +206,16 @@ struct PendingSeg {
 /// the end of the update): the bound on the memory they hold.
 pub const MAX_PENDING_STEPS: usize = 4096;
 
-/// Refuses a `B` out of `1..=MAX_BATCH_ENVS`, and `B > 1` for a method with an inner loop in
-/// training (its episodes run one at a time through [`super::trainer::train_episode`]).
-pub fn check_batch_envs(model: &NavModel, batch_envs: usize) -> Result<()> {
+/// Refuses a `B` out of `1..=MAX_BATCH_ENVS`, and `B > 1` for a method with an inner loop
+/// in training with the second-order meta-gradient (its reverse recursion runs per episode
+/// in [`super::trainer::train_episode`]).
+pub fn check_batch_envs(model: &NavModel, batch_envs: usize, meta_order: u8) -> Result<()> {
     if !(1..=MAX_BATCH_ENVS).contains(&batch_envs) {
         bail!("--batch-envs must be in 1..={MAX_BATCH_ENVS}, got {batch_envs}");
     }
-    if batch_envs > 1 && !supports(model) {
+    if batch_envs > 1 && !supports(model) && meta_order != 1 {
         bail!(
-            "--batch-envs {batch_envs} is implemented for the methods without an inner loop in training (a3c, a3c-fg, a3c-ps, a3c-fg-ps, gman-nometa, gman-noemd); {} runs its inner loop per episode: use --batch-envs 1",
+            "--batch-envs {batch_envs} with {} is implemented for the first-order meta-gradient; --meta-order {meta_order} runs its episodes one at a time: use --batch-envs 1",
             model.method.name()
         );
     }
@@ -214,7 +223,7 @@ pub fn check_batch_envs(model: &NavModel, batch_envs: usize) -> Result<()> {
 }
 
 fn check_settings(model: &NavModel, s: &VecSettings<'_>) -> Result<()> {
-    check_batch_envs(model, s.batch_envs)?;
+    check_batch_envs(model, s.batch_envs, 1)?;
     if !supports(model) {
         bail!(
             "the vectorised rollout runs the methods without an inner loop in training; {} runs its inner loop per episode",
@@ -241,9 +250,7 @@ fn run_worker_in<'w, M: Mode>(
     // The navigator provides the parameter views (G and the policy, in the model's mode).
     let weights = model.weights()?;
     let Worker {
-        arena,
-        ps: ps_buf,
-        map: _,
+        arena, ps: ps_buf, ..
     } = worker;
     let mut nav: Navigator<'_, M, K> = Navigator::new(weights, arena, model.nav_config(true))?;
     let d = *nav.dims();
@@ -472,6 +479,7 @@ fn flush(
             acts: &p.acts,
             attr: &p.attr,
             bootstrap: p.bootstrap,
+            own: None,
         })
         .collect();
     let ls = b.bw.run(
@@ -795,6 +803,7 @@ mod tests {
                     acts: &p.acts,
                     attr: &p.attr,
                     bootstrap: p.bootstrap,
+                    own: None,
                 }
             }
             let backward = |segs: &[Segment<'_>], grads: &mut ParamSet| {
@@ -810,6 +819,27 @@ mod tests {
                 bits(&got),
                 bits(&want),
                 "{}: the pinned order",
+                method.name()
+            );
+            // The rows given their own heads and G, all equal to the shared ones (the per-row
+            // path of methods with an inner loop: heads row by row, then the trunk): the
+            // same bits as the shared batched pass.
+            let mut rows_own = model.params.zeros_like();
+            let own: Vec<Segment<'_>> = segs
+                .iter()
+                .map(|p| Segment {
+                    own: Some(crate::nav::bptt::Adapted {
+                        actor: policy.actor,
+                        gen,
+                    }),
+                    ..seg(p)
+                })
+                .collect();
+            backward(&own, &mut rows_own);
+            assert_eq!(
+                bits(&rows_own),
+                bits(&want),
+                "{}: per-row heads",
                 method.name()
             );
             // One segment at a time (completion order): a different sum of the same terms.

@@ -5,17 +5,19 @@
 //!
 //! Each row trains a fresh model (seed 1, a random generator) for two warm-up updates (not
 //! timed), then times as many more as take about the same number of environment steps in
-//! every row of a preset (an update holds at least `B` episodes per worker). `gman` runs its inner
-//! loop per episode, which the vectorised path does not batch: its `B > 1` rows are absent.
+//! every row of a preset (an update holds at least `B` episodes per worker). Each row runs in
+//! `gman train`'s default adaptation mode for its preset (`efficient` for `mcu`, `full` for
+//! `paper`); `gman`'s `B > 1` rows (`mcu` only) run one navigator per episode
+//! (`gman_host_sim::nav::vec_adapt`).
 
 use std::time::Instant;
 
 use anyhow::{Context, Result};
+use gman_core::memory::AdaptMode;
 use gman_core::rng::Xoshiro128;
 use gman_core::Dims;
 use gman_host_sim::nav::model::{Method, NavModel};
 use gman_host_sim::nav::trainer::{train, RunSettings, TrainOptions, TrainState};
-use gman_host_sim::nav::vec_rollout;
 use gman_host_sim::sim::{World, DEFAULT_WORLD_SEED};
 use gman_host_sim::train::adam::AdamConfig;
 use gman_host_sim::train::generator::init_generator;
@@ -54,10 +56,17 @@ pub fn rows(updates: u64) -> Result<Vec<TrainRow>> {
         let gen = init_generator(&dims, &mut Xoshiro128::seed_from_u64(7))?;
         for method in [Method::A3c, Method::Gman] {
             for b in std::iter::once(1).chain(BATCH_ENVS) {
-                let model = NavModel::init(method, dims, 1, Some(&gen), None)?;
-                if b > 1 && !vec_rollout::supports(&model) {
+                // gman `paper` (Full mode) with B > 1: one copy of G per slot (its arena)
+                // and no speed-up (README, session 7); not measured.
+                if b > 1 && method == Method::Gman && preset == "paper" {
                     continue;
                 }
+                let mut model = NavModel::init(method, dims, 1, Some(&gen), None)?;
+                model.adapt_mode = if preset == "paper" {
+                    AdaptMode::Full
+                } else {
+                    AdaptMode::Efficient
+                };
                 for workers in [1usize, 2] {
                     let target = updates / scale * MIN_STEPS as u64 * workers as u64;
                     eprintln!(

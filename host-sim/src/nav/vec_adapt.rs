@@ -1,0 +1,940 @@
+//! Vectorised training episodes of the methods with an inner loop in training (`gman`,
+//! `gman-cossim`, `gman-fixed-g`, `gman-ps`, ...): one worker steps `B` environments in
+//! lockstep, each episode run by **its own gman-core [`Navigator`]** (the device's code, in
+//! the mode the model records), with the policy's trunk of all of them as one batch.
+//!
+//! ```text
+//! while a slot is free and the worker's step budget is not spent: start episode e in it
+//!   (the slot's navigator: D from the model's ω, reset to θ, φ with episode e's seed)
+//! every tick:
+//!   each running episode: observation, PS input, map;
+//!     Navigator::begin_step: x_t = G_θi(SE(y), z_t) from this episode's θ_i   (line 7)
+//!   one batched trunk forward (fusion + LSTM, never adapted) over the running episodes
+//!   each episode: Navigator::finish_step with its row's (h, c): its own adapted actor head,
+//!     the critic, the action, Ψ (lines 8-13); the environment steps
+//!   the episodes whose segment is complete (k = 20 steps, or the episode ended):
+//!     bootstrap values (one batched trunk forward)
+//!     Full mode or B = 1: ONE batched BPTT over these segments now, each row at its
+//!       episode's live adapted actor head φ_i and G θ_i
+//!     Efficient mode, B > 1: the segments wait with a copy of their episode's adapted
+//!       gains and biases
+//!     then each of them (slot order): the episode ended -> its statistics and D, slot freed;
+//!       else the inner update on its own Ψ (Navigator::adapt_now, lines 14-20)
+//! at the end of the update (Efficient, B > 1): ONE batched BPTT over all waiting segments
+//! ```
+//!
+//! **When a segment's backward runs.** Every k = 20 steps an episode's inner update changes
+//! its θ_i and φ_i, and the A3C gradient of the segment before it must be taken at the
+//! parameters it ran with (first-order meta-gradient: the gradient at the adapted parameters
+//! is summed into that of the pre-adaptation ones, as [`super::trainer::train_episode`] does
+//! with [`super::bptt::segment_backward`]). Two ways keep that, and each mode takes the one
+//! that is cheap for it:
+//! * **Efficient mode** (the `mcu` default): the adapted parameters are the per-unit gains
+//!   and biases of the actor head and of G's two layers (~1.5k floats for `mcu`), the
+//!   matrices are the model's. A complete segment keeps a copy of them and waits, like the
+//!   a3c path's segments ([`super::vec_rollout`]): one batched BPTT over all the update's
+//!   segments (or earlier, whenever [`MAX_PENDING_STEPS`] steps wait), each row through its
+//!   copy. The backward's batches are then as large as the a3c path's, and G's backward
+//!   runs over them as one batch (the rows share G's matrices). G's activations of every
+//!   x_t are kept from the navigator's step (`Navigator::generator_activations`), so the
+//!   backward does not run G again.
+//! * **Full mode** (the `paper` default): θ_i is all of G (~154k floats for `mcu`), too
+//!   large to copy per segment. A complete segment's backward runs at once, batched over
+//!   the segments completing at the same tick, each row through its navigator's live views,
+//!   before that navigator's inner update; G's backward runs row by row (each row its own
+//!   matrices).
+//!
+//! **Gradient order.** Efficient, `B > 1`: one batched BPTT over the segments of the update
+//! (or of each [`MAX_PENDING_STEPS`] chunk), longest first, then in the order they completed
+//! (tick, then slot). Full (and `B = 1`): ticks in order, within a tick one batched BPTT over
+//! its complete segments, longest first, then by slot. Within a BPTT
+//! (`bptt::Backward::run`) every tensor's gradient is summed step by step (last step
+//! first) and, within a step, over the rows in order; the actor head's and the critic's rows
+//! run one at a time in that order (each row its own head), the trunk as one batch. The order
+//! is fixed by `(seed, update, worker, B)`, so runs are reproducible and resume bit for bit.
+//! With `B = 1` every batch is one segment, completing before its episode's inner update:
+//! [`super::trainer::train_episode`]'s order, bit for bit (`tests/vec_rollout.rs`); with
+//! `B > 1` the sum is the per-episode sum within float rounding (the same test file checks
+//! 1e-4 of each tensor's largest value; this module's test pins the order in both modes).
+//!
+//! **Each episode is the episode its navigator runs alone**, bit for bit (actions,
+//! probabilities, inner updates, D after it): `begin_step` / `finish_step` are `step` split
+//! around the trunk (`tests/tests/navigator.rs`), and the batched trunk gives every row the
+//! bits of the batch-1 one. A slot's navigator is reused across the slot's episodes: D is
+//! restored from the model's ω and the navigator reset for each, the state a new navigator
+//! has (what [`super::trainer::train_episode`] builds per episode). D's carry-over across
+//! episodes is the batch-1 trainer's: every episode starts from ω, and the outer step adds
+//! `Σ_e (ω_e − ω)` in episode order.
+//!
+//! **Memory.** A worker holds `B` navigator arenas (`Navigator::arena_len`; in the Full mode
+//! each holds a copy of G and D), plus the waiting segments (at most [`MAX_PENDING_STEPS`]
+//! steps).
+//!
+//! Not served here: `--meta-order 2` (its reverse recursion runs per episode, refused with
+//! `B > 1`) and the privileged-feature bound (refused with an inner loop, as in batch 1).
+
+use anyhow::{anyhow, bail, Result};
+use gman_core::blob::TensorId;
+use gman_core::dense::Dense;
+use gman_core::generator::Generator;
+use gman_core::matrix::{MatRef, Weights};
+use gman_core::memory::AdaptMode;
+use gman_core::navigator::{
+    Efficient, Full, Mode, NavConfig, NavWeights, Navigator, NoiseMode, Selection,
+};
+use gman_core::policy::{Policy, PolicyInput};
+use gman_core::{Dims, NUM_ACTIONS};
+
+use super::a3c::{A3cConfig, Objective, SegmentLoss};
+use super::bptt::{take_act, Adapted, Backward, GenBufs, Rows, Segment, StepAct, Widths};
+use super::model::NavModel;
+use super::rollout::{begin, disc_after_episode, expert_distribution, map_grid, EpisodeStats};
+use super::rollout::{ps_input, Worker};
+use super::step::StepRec;
+use super::trainer::{finish_stats, inner_update, InnerTally};
+use super::vec_rollout::{check_batch_envs, Finished, VecSettings};
+use super::K;
+use crate::sim::spatial::MapGrid;
+use crate::sim::{Env, EpisodeSpec, World};
+use crate::train::params::ParamSet;
+use crate::train::ps::PsBuffers;
+
+/// Runs one worker's share of an update of a method with an inner loop with
+/// `s.batch_envs` environments in lockstep (see the module docs); episodes `e = 0, 1, ..`
+/// from `sample(e)`, started while the worker has taken fewer than `s.min_steps` steps, as
+/// in [`super::vec_rollout::run_worker`]. Returns the finished episodes sorted by index, each
+/// with D after it.
+pub fn run_worker(
+    world: &World,
+    model: &NavModel,
+    s: &VecSettings<'_>,
+    worker: &mut Worker,
+    grads: &mut ParamSet,
+    sample: impl FnMut(u32) -> Result<(EpisodeSpec, u32)>,
+) -> Result<Vec<Finished>> {
+    match model.adapt_mode {
+        AdaptMode::Full => run_in::<Full>(world, model, s, worker, grads, sample, None),
+        AdaptMode::Efficient => run_in::<Efficient>(world, model, s, worker, grads, sample, None),
+    }
+}
+
+/// A running episode: its environment, the segment being recorded and its statistics (the
+/// navigator is the slot's).
+struct Ep<'w> {
+    e: u32,
+    env: Env<'w>,
+    seg: Vec<StepRec>,
+    acts: Vec<StepAct>,
+    stats: EpisodeStats,
+    tally: InnerTally,
+    // This step's inputs and the navigator's state before it.
+    obs: Vec<f32>,
+    ps: Vec<f32>,
+    map: Vec<f32>,
+    expert: Option<[f32; NUM_ACTIONS]>,
+    h_prev: Vec<f32>,
+    c_prev: Vec<f32>,
+    prev: Vec<f32>,
+}
+
+/// A logged segment: steps, activations, SE(y), `V_T`.
+#[cfg(test)]
+type LoggedSeg = (Vec<StepRec>, Vec<StepAct>, Vec<f32>, f32);
+
+/// A copy of a dense layer: `W` (row-major), `b`, the gain.
+#[cfg(test)]
+type LayerCopy = (Vec<f32>, Vec<f32>, Option<Vec<f32>>);
+
+/// What the test of the order records of one backward: the segments (in the order given to
+/// the BPTT) with a copy of each row's adapted parameters.
+#[cfg(test)]
+pub(crate) struct TickLog {
+    segs: Vec<LoggedSeg>,
+    /// Per row: actor, G layer 1, G layer 2.
+    params: Vec<[LayerCopy; 3]>,
+}
+
+#[cfg(not(test))]
+pub(crate) struct TickLog;
+
+fn run_in<'w, M: Mode>(
+    world: &'w World,
+    model: &NavModel,
+    s: &VecSettings<'_>,
+    worker: &mut Worker,
+    grads: &mut ParamSet,
+    mut sample: impl FnMut(u32) -> Result<(EpisodeSpec, u32)>,
+    mut log: Option<&mut Vec<TickLog>>,
+) -> Result<Vec<Finished>> {
+    check_batch_envs(model, s.batch_envs, 1)?;
+    if !model.method.adapts_in_training() {
+        bail!("vec_adapt runs the methods with an inner loop in training");
+    }
+    if model.privileged {
+        bail!("the privileged-feature bound replaces G's output and cannot adapt G; use it with a method without inner loop (a3c-fg)");
+    }
+    let cfg = model.nav_config(true);
+    if cfg.selection != Selection::Sample {
+        bail!("vectorised episodes need a sampling navigator");
+    }
+    let b = s.batch_envs;
+    let weights = model.weights()?;
+    let alen = Navigator::<M, K>::arena_len(&model.dims);
+    let Worker {
+        ps: ps_buf, arenas, ..
+    } = worker;
+    if arenas.len() < b {
+        arenas.resize_with(b, Vec::new);
+    }
+    let mut navs: Vec<Navigator<'_, M, K>> = Vec::with_capacity(b);
+    for a in arenas.iter_mut().take(b) {
+        if a.len() < alen {
+            a.resize(alen, 0.0);
+        }
+        navs.push(Navigator::new(weights, a, cfg)?);
+    }
+    let d = *navs[0].dims();
+    let w = Widths::of(&navs[0].policy()?, &d);
+    let grid = map_grid(model);
+    let train_generator = model.method.trains_generator();
+    let mut rows = Rows::default();
+    let mut bw = Backward::default();
+    let mut gbuf = GenBufs::new(&navs[0].generator()?, w.f);
+    // The trunk (and a G) for the waiting segments' backward: a view of the model's
+    // weights through a navigator that does not adapt.
+    let mut fixed_arena = vec![0.0f32; Navigator::<M, K>::arena_len(&model.dims)];
+    let fixed_nav: Navigator<'_, M, K> = Navigator::new(
+        weights,
+        &mut fixed_arena,
+        NavConfig {
+            adapt: false,
+            ..cfg
+        },
+    )?;
+    let fx = Fixed {
+        weights,
+        trunk: fixed_nav.policy()?,
+        gen: fixed_nav.generator()?,
+        a3c: s.a3c,
+        train_generator,
+        w,
+        d,
+    };
+    // Efficient and B > 1: the segments' backward waits (see the module docs).
+    let defer = M::MODE == AdaptMode::Efficient && b > 1;
+    let mut pending: Vec<PendingSeg> = Vec::new();
+    let mut pending_steps = 0usize;
+    let mut losses: Vec<(u32, u32, SegmentLoss)> = Vec::new();
+    let mut seq = 0u32;
+    let mut eps: Vec<Option<Ep<'w>>> = (0..b).map(|_| None).collect();
+    let mut done: Vec<Finished> = Vec::new();
+    let (mut next_e, mut taken) = (0u32, 0u64);
+    loop {
+        // Free slots take new episodes while the step budget lasts.
+        for i in 0..b {
+            if eps[i].is_some() {
+                continue;
+            }
+            if next_e > 0 && taken >= s.min_steps as u64 {
+                break;
+            }
+            let (spec, max) = sample(next_e)?;
+            // The state of a new navigator over the model (what the batch-1 trainer builds
+            // for every episode): D from ω, θ_i = θ, φ_i = φ, the episode's seed.
+            navs[i].reset_discriminator()?;
+            begin(&mut navs[i], world, &spec, model)?;
+            eps[i] = Some(Ep {
+                e: next_e,
+                env: Env::new(world, &spec, s.reward, max),
+                seg: Vec::with_capacity(K),
+                acts: Vec::with_capacity(K),
+                stats: EpisodeStats::default(),
+                tally: InnerTally::default(),
+                obs: Vec::new(),
+                ps: Vec::new(),
+                map: Vec::new(),
+                expert: None,
+                h_prev: Vec::new(),
+                c_prev: Vec::new(),
+                prev: Vec::new(),
+            });
+            next_e += 1;
+        }
+        if eps.iter().all(Option::is_none) {
+            break;
+        }
+        let active: Vec<usize> = (0..b)
+            .filter(|&i| eps[i].as_ref().is_some_and(|e| !e.env.is_done()))
+            .collect();
+        taken += tick(
+            model,
+            s.objective,
+            grid,
+            &w,
+            ps_buf,
+            &mut rows,
+            &mut navs,
+            &mut eps,
+            &active,
+        )?;
+        let ready: Vec<usize> = (0..b)
+            .filter(|&i| {
+                eps[i]
+                    .as_ref()
+                    .is_some_and(|e| e.seg.len() == K || e.env.is_done())
+            })
+            .collect();
+        if ready.is_empty() {
+            continue;
+        }
+        let boot = bootstrap(model, grid, &w, ps_buf, &mut rows, &navs, &mut eps, &ready)?;
+        // The complete segments, numbered in slot order (`seq`: the order they completed).
+        let mut fresh: Vec<PendingSeg> = Vec::new();
+        for (&i, bootv) in ready.iter().zip(boot) {
+            let ep = eps[i].as_mut().ok_or_else(|| anyhow!("empty slot"))?;
+            let steps = std::mem::replace(&mut ep.seg, Vec::with_capacity(K));
+            let acts = std::mem::replace(&mut ep.acts, Vec::with_capacity(K));
+            if steps.is_empty() {
+                continue;
+            }
+            let nav = &navs[i];
+            fresh.push(PendingSeg {
+                slot: i,
+                e: ep.e,
+                seq,
+                steps,
+                acts,
+                attr: nav.attr().to_vec(),
+                bootstrap: bootv,
+                own: if defer {
+                    Some(OwnCopy::of(nav, &weights)?)
+                } else {
+                    None
+                },
+            });
+            seq += 1;
+        }
+        if defer {
+            // Efficient, B > 1: the segments wait, with copies of their episodes' gains and
+            // biases, for one batched BPTT over the update.
+            pending_steps += fresh.iter().map(|p| p.steps.len()).sum::<usize>();
+            pending.extend(fresh);
+            if pending_steps >= MAX_PENDING_STEPS {
+                flush_copies(
+                    &fx,
+                    &mut pending,
+                    grads,
+                    &mut bw,
+                    &mut gbuf,
+                    &mut losses,
+                    &mut log,
+                )?;
+                pending_steps = 0;
+            }
+        } else if !fresh.is_empty() {
+            // One batched BPTT over this tick's segments, longest first, then by slot; each
+            // row at its episode's live adapted parameters (before its inner update).
+            fresh.sort_by_key(|p| (std::cmp::Reverse(p.steps.len()), p.seq));
+            let mut segs: Vec<Segment<'_>> = Vec::with_capacity(fresh.len());
+            for p in &fresh {
+                let nav = &navs[p.slot];
+                segs.push(Segment {
+                    steps: &p.steps,
+                    acts: &p.acts,
+                    attr: &p.attr,
+                    bootstrap: p.bootstrap,
+                    own: Some(Adapted {
+                        actor: nav.policy()?.actor,
+                        gen: nav.generator()?,
+                    }),
+                });
+            }
+            if let Some(l) = log.as_deref_mut() {
+                l.push(tick_log(&segs));
+            }
+            let trunk = navs[fresh[0].slot].policy()?;
+            let gen0 = navs[fresh[0].slot].generator()?;
+            let ls = bw.run(
+                &trunk,
+                &gen0,
+                &segs,
+                s.a3c,
+                train_generator,
+                &w,
+                &d,
+                grads,
+                &mut gbuf,
+            )?;
+            losses.extend(fresh.iter().zip(ls).map(|(p, l)| (p.e, p.seq, l)));
+        }
+        // Then each of these episodes in slot order: ended, or its inner update on Ψ.
+        for &i in &ready {
+            let nav = &mut navs[i];
+            let ended = eps[i].as_ref().is_some_and(|e| e.env.is_done());
+            if ended {
+                let ep = eps[i].take().ok_or_else(|| anyhow!("empty slot"))?;
+                let mut stats = ep.stats;
+                finish_stats(&mut stats, &ep.env, nav, &ep.tally);
+                done.push((ep.e, stats, disc_after_episode(nav)?));
+            } else {
+                let ep = eps[i].as_mut().ok_or_else(|| anyhow!("empty slot"))?;
+                inner_update(nav, false, &mut ep.tally)?;
+            }
+        }
+    }
+    flush_copies(
+        &fx,
+        &mut pending,
+        grads,
+        &mut bw,
+        &mut gbuf,
+        &mut losses,
+        &mut log,
+    )?;
+    // Each episode's losses in the order of its segments.
+    losses.sort_by_key(|&(e, q, _)| (e, q));
+    done.sort_by_key(|f| f.0);
+    let mut li = losses.iter().peekable();
+    for f in done.iter_mut() {
+        while let Some((_, _, l)) = li.next_if(|(e, _, _)| *e == f.0) {
+            f.1.loss.add(l);
+        }
+    }
+    if li.next().is_some() {
+        bail!("vectorised rollout: a segment's episode did not finish");
+    }
+    Ok(done)
+}
+
+/// A complete segment of episode `e` (run in `slot`, numbered `seq` in completion order):
+/// its steps, activations, SE(y), `V_T` and, when its backward waits, a copy of the
+/// episode's adapted parameters it ran with.
+struct PendingSeg {
+    slot: usize,
+    e: u32,
+    seq: u32,
+    steps: Vec<StepRec>,
+    acts: Vec<StepAct>,
+    attr: Vec<f32>,
+    bootstrap: f32,
+    own: Option<OwnCopy>,
+}
+
+/// With `B > 1` in the Efficient mode, the backward of the pending segments runs once this
+/// many steps wait (and at the end of the update): the bound on the memory they hold.
+pub const MAX_PENDING_STEPS: usize = 4096;
+
+/// A copy of an episode's adapted parameters in the Efficient mode: the per-unit gains and
+/// biases of its actor head and of G's two layers (their matrices are the model's).
+struct OwnCopy {
+    layers: [(Option<Vec<f32>>, Vec<f32>); 3],
+}
+
+impl OwnCopy {
+    /// The copy of `nav`'s adapted parameters; refused unless its views' matrices are the
+    /// model's `weights` (only gains and biases adapted).
+    fn of<M: Mode>(nav: &Navigator<'_, M, K>, weights: &NavWeights<'_>) -> Result<OwnCopy> {
+        let (p, g) = (nav.policy()?, nav.generator()?);
+        let mut layers: [(Option<Vec<f32>>, Vec<f32>); 3] = Default::default();
+        for (k, (l, id)) in [
+            (p.actor, TensorId::ActorW),
+            (g.l1, TensorId::GenW1),
+            (g.l2, TensorId::GenW2),
+        ]
+        .into_iter()
+        .enumerate()
+        {
+            if !same_matrix(&l.w, &weights.get(id)) {
+                bail!("vec_adapt: a waiting segment needs the model's matrices (Efficient mode)");
+            }
+            layers[k] = (l.gain.map(|v| v.to_vec()), l.b.to_vec());
+        }
+        Ok(OwnCopy { layers })
+    }
+
+    /// Views over the copy and the model's matrices.
+    fn views<'a>(&'a self, weights: &NavWeights<'a>) -> Adapted<'a> {
+        let d = |k: usize, id: TensorId| Dense {
+            w: weights.get(id),
+            b: &self.layers[k].1,
+            gain: self.layers[k].0.as_deref(),
+        };
+        Adapted {
+            actor: d(0, TensorId::ActorW),
+            gen: Generator {
+                l1: d(1, TensorId::GenW1),
+                l2: d(2, TensorId::GenW2),
+            },
+        }
+    }
+}
+
+/// True when two views read the same f32 matrix.
+fn same_matrix(a: &MatRef<'_>, b: &MatRef<'_>) -> bool {
+    match (a.weights(), b.weights()) {
+        (Weights::F32(x), Weights::F32(y)) => {
+            x.as_ptr() == y.as_ptr() && x.len() == y.len() && a.rows() == b.rows()
+        }
+        _ => false,
+    }
+}
+
+/// What [`flush_copies`] reads.
+struct Fixed<'a, 'w> {
+    weights: NavWeights<'w>,
+    trunk: Policy<'a>,
+    gen: Generator<'a>,
+    a3c: &'a A3cConfig,
+    train_generator: bool,
+    w: Widths,
+    d: Dims,
+}
+
+/// The backward of the waiting segments as one batched BPTT, longest first (then in the
+/// order they completed), each row at the copy of its episode's adapted parameters; their
+/// losses collected as `(episode, seq, loss)`; nothing waits afterwards.
+fn flush_copies(
+    fx: &Fixed<'_, '_>,
+    pending: &mut Vec<PendingSeg>,
+    grads: &mut ParamSet,
+    bw: &mut Backward,
+    gbuf: &mut GenBufs,
+    losses: &mut Vec<(u32, u32, SegmentLoss)>,
+    log: &mut Option<&mut Vec<TickLog>>,
+) -> Result<()> {
+    let mut pend = std::mem::take(pending);
+    if pend.is_empty() {
+        return Ok(());
+    }
+    pend.sort_by_key(|p| (std::cmp::Reverse(p.steps.len()), p.seq));
+    let mut segs: Vec<Segment<'_>> = Vec::with_capacity(pend.len());
+    for p in &pend {
+        let own = p
+            .own
+            .as_ref()
+            .ok_or_else(|| anyhow!("vec_adapt: a waiting segment without its parameters"))?;
+        segs.push(Segment {
+            steps: &p.steps,
+            acts: &p.acts,
+            attr: &p.attr,
+            bootstrap: p.bootstrap,
+            own: Some(own.views(&fx.weights)),
+        });
+    }
+    if let Some(l) = log.as_deref_mut() {
+        l.push(tick_log(&segs));
+    }
+    let ls = bw.run(
+        &fx.trunk,
+        &fx.gen,
+        &segs,
+        fx.a3c,
+        fx.train_generator,
+        &fx.w,
+        &fx.d,
+        grads,
+        gbuf,
+    )?;
+    losses.extend(pend.iter().zip(ls).map(|(p, l)| (p.e, p.seq, l)));
+    Ok(())
+}
+
+#[cfg(test)]
+fn tick_log(segs: &[Segment<'_>]) -> TickLog {
+    use gman_core::dense::Dense;
+    fn dense(l: &Dense<'_>) -> LayerCopy {
+        let (r, c) = (l.w.rows(), l.w.cols());
+        let w = (0..r * c).map(|i| l.w.get(i / c, i % c)).collect();
+        (w, l.b.to_vec(), l.gain.map(|g| g.to_vec()))
+    }
+    TickLog {
+        segs: segs
+            .iter()
+            .map(|s| {
+                (
+                    s.steps.to_vec(),
+                    s.acts.to_vec(),
+                    s.attr.to_vec(),
+                    s.bootstrap,
+                )
+            })
+            .collect(),
+        params: segs
+            .iter()
+            .map(|s| {
+                let o = s.own.as_ref().expect("own parameters");
+                [dense(&o.actor), dense(&o.gen.l1), dense(&o.gen.l2)]
+            })
+            .collect(),
+    }
+}
+
+#[cfg(not(test))]
+fn tick_log(_: &[Segment<'_>]) -> TickLog {
+    TickLog
+}
+
+/// One tick of the running episodes `active`: each navigator's `begin_step` (x_t), one
+/// batched trunk forward, each navigator's `finish_step` (its own actor head, the action,
+/// Ψ), the environment's step; the step and its activations recorded for the backward.
+/// Returns the steps taken.
+#[allow(clippy::too_many_arguments)]
+fn tick<M: Mode>(
+    model: &NavModel,
+    objective: Objective,
+    grid: MapGrid,
+    w: &Widths,
+    ps_buf: &mut Option<PsBuffers>,
+    rows: &mut Rows,
+    navs: &mut [Navigator<'_, M, K>],
+    eps: &mut [Option<Ep<'_>>],
+    active: &[usize],
+) -> Result<u64> {
+    let n = active.len();
+    if n == 0 {
+        return Ok(0);
+    }
+    rows.resize(n, w);
+    for (j, &i) in active.iter().enumerate() {
+        let ep = eps[i].as_mut().ok_or_else(|| anyhow!("empty slot"))?;
+        let nav = &mut navs[i];
+        observe(ep, model, ps_buf, grid, w.map)?;
+        ep.expert = (objective == Objective::Dagger).then(|| expert_distribution(&ep.env));
+        ep.h_prev = nav.hidden_state().to_vec();
+        ep.c_prev = nav.cell_state().to_vec();
+        ep.prev = nav.prev_probs().to_vec();
+        // Line 7: x_t from this episode's θ_i.
+        nav.begin_step(&ep.obs, &ep.map, &ep.ps)?;
+        put_inputs(rows, j, ep, nav, w);
+    }
+    // Line 8: the trunk of every running episode as one batch (the heads computed here are
+    // the first navigator's; each row's own follow).
+    rows.forward(&navs[active[0]].policy()?, n, w)?;
+    let hd = w.hd;
+    // G ran in every begin_step (a new z_t each step): its activations are this step's.
+    let ran_g = model.noise == NoiseMode::Gaussian && !model.privileged;
+    for (j, &i) in active.iter().enumerate() {
+        let ep = eps[i].as_mut().ok_or_else(|| anyhow!("empty slot"))?;
+        let nav = &mut navs[i];
+        let (h, c) = (&rows.h[j * hd..(j + 1) * hd], &rows.c[j * hd..(j + 1) * hd]);
+        let out = nav.finish_step(&ep.obs, h, c)?;
+        // This row's heads at the episode's actor head, for the backward's activations
+        // (the bits finish_step computed).
+        {
+            let Rows {
+                h,
+                actor_u,
+                logits,
+                probs,
+                value,
+                ..
+            } = &mut *rows;
+            let (au, na) = (w.au, NUM_ACTIONS);
+            nav.policy()?.heads(
+                1,
+                &h[j * hd..(j + 1) * hd],
+                &mut actor_u[j * au..(j + 1) * au],
+                &mut logits[j * na..(j + 1) * na],
+                &mut probs[j * na..(j + 1) * na],
+                &mut value[j..j + 1],
+            )?;
+            if probs[j * na..(j + 1) * na]
+                .iter()
+                .zip(&out.probs)
+                .any(|(a, b)| a.to_bits() != b.to_bits())
+                || value[j].to_bits() != out.value.to_bits()
+            {
+                bail!("vectorised episode: the row's heads differ from the navigator's step");
+            }
+        }
+        ep.stats.actions.push(out.action.index() as u8);
+        let o = ep.env.step(out.action);
+        let mut act = take_act(rows, j, w);
+        if ran_g {
+            // G's activations of this x_t, for the backward (instead of running G again).
+            let (u1, h1, u2) = nav.generator_activations();
+            act.gen = (u1.to_vec(), h1.to_vec(), u2.to_vec());
+        }
+        ep.acts.push(act);
+        ep.seg.push(StepRec {
+            obs: std::mem::take(&mut ep.obs),
+            ps: std::mem::take(&mut ep.ps),
+            map: std::mem::take(&mut ep.map),
+            x: nav.generated_feature().to_vec(),
+            z: nav.noise().to_vec(),
+            h_prev: std::mem::take(&mut ep.h_prev),
+            c_prev: std::mem::take(&mut ep.c_prev),
+            prev_probs: std::mem::take(&mut ep.prev),
+            action: out.action.index(),
+            reward: o.reward,
+            probs: out.probs,
+            expert: ep.expert.take(),
+        });
+    }
+    Ok(n as u64)
+}
+
+/// The episode's current observation, PS input and map.
+fn observe(
+    ep: &mut Ep<'_>,
+    model: &NavModel,
+    ps_buf: &mut Option<PsBuffers>,
+    grid: MapGrid,
+    map_len: usize,
+) -> Result<()> {
+    let obs = ep.env.observe();
+    ep.obs = obs.features.to_vec();
+    ep.ps = ps_input(model, ps_buf, &ep.obs)?;
+    ep.map = vec![0.0; map_len];
+    if !grid.is_empty() {
+        ep.env.observe_map(grid, &mut ep.map);
+    }
+    Ok(())
+}
+
+/// Row `j`'s policy inputs: the episode's observation, PS input and map, and its
+/// navigator's x_t, SE(y), previous probabilities and LSTM state.
+fn put_inputs<M: Mode>(
+    rows: &mut Rows,
+    j: usize,
+    ep: &Ep<'_>,
+    nav: &Navigator<'_, M, K>,
+    w: &Widths,
+) {
+    let inp = PolicyInput {
+        obs: &ep.obs,
+        feat: nav.generated_feature(),
+        attr: nav.attr(),
+        prev_probs: nav.prev_probs(),
+        ps: &ep.ps,
+        map: &ep.map,
+    };
+    rows.put_inputs(j, w, &inp, nav.hidden_state(), nav.cell_state());
+}
+
+/// The critic's values of the next observations of the `ready` episodes that go on (one
+/// batched trunk forward at their navigators' states; the critic is never adapted), 0 for
+/// the ended ones; in `ready`'s order.
+#[allow(clippy::too_many_arguments)]
+fn bootstrap<M: Mode>(
+    model: &NavModel,
+    grid: MapGrid,
+    w: &Widths,
+    ps_buf: &mut Option<PsBuffers>,
+    rows: &mut Rows,
+    navs: &[Navigator<'_, M, K>],
+    eps: &mut [Option<Ep<'_>>],
+    ready: &[usize],
+) -> Result<Vec<f32>> {
+    let going: Vec<usize> = ready
+        .iter()
+        .copied()
+        .filter(|&i| eps[i].as_ref().is_some_and(|e| !e.env.is_done()))
+        .collect();
+    let mut out = vec![0.0f32; ready.len()];
+    if going.is_empty() {
+        return Ok(out);
+    }
+    rows.resize(going.len(), w);
+    for (j, &i) in going.iter().enumerate() {
+        let ep = eps[i].as_mut().ok_or_else(|| anyhow!("empty slot"))?;
+        observe(ep, model, ps_buf, grid, w.map)?;
+        put_inputs(rows, j, ep, &navs[i], w);
+    }
+    rows.forward(&navs[going[0]].policy()?, going.len(), w)?;
+    for (k, &i) in ready.iter().enumerate() {
+        if let Some(j) = going.iter().position(|&g| g == i) {
+            out[k] = rows.value[j];
+        }
+    }
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::nav::a3c::A3cConfig;
+    use crate::nav::model::Method;
+    use crate::sim::RewardKind;
+    use crate::train::generator::init_generator;
+    use gman_core::dense::Dense;
+    use gman_core::generator::Generator;
+    use gman_core::matrix::MatRef;
+    use gman_core::rng::Xoshiro128;
+    use gman_core::Dims;
+    use rand::SeedableRng;
+    use rand_chacha::ChaCha8Rng;
+
+    fn bits(g: &ParamSet) -> Vec<u32> {
+        g.tensors
+            .iter()
+            .flat_map(|t| t.data.iter().map(|v| v.to_bits()))
+            .collect()
+    }
+
+    type Copy3 = (Vec<f32>, Vec<f32>, Option<Vec<f32>>);
+
+    /// A dense view over a copy, on the kernels of `like`.
+    fn view<'a>(c: &'a Copy3, shape: (usize, usize), like: &MatRef<'_>) -> Dense<'a> {
+        Dense {
+            w: MatRef::f32(shape.0, shape.1, &c.0)
+                .unwrap()
+                .kernels_from(like),
+            b: &c.1,
+            gain: c.2.as_deref(),
+        }
+    }
+
+    /// The order of a `B > 1` update, pinned: its gradient is, tick by tick, one batched
+    /// BPTT over the segments completing at the tick (longest first, then by slot), each
+    /// row at its own episode's adapted actor head and G (recomputed here from copies of
+    /// them). Both matter: the same segments one at a time, or at the shared (unadapted)
+    /// parameters, give other bits.
+    #[test]
+    fn each_tick_is_one_backward_over_its_segments_at_their_own_parameters() {
+        let world = World::synthetic(7);
+        let d = Dims::MCU;
+        let g = init_generator(&d, &mut Xoshiro128::seed_from_u64(5)).unwrap();
+        for mode in [AdaptMode::Efficient, AdaptMode::Full] {
+            let mut model = NavModel::init(Method::Gman, d, 3, Some(&g), None).unwrap();
+            model.adapt_mode = mode;
+            model.inner_lr = 0.05;
+            model.params.get_mut("ActorB").unwrap().data[gman_core::Action::Done.index()] -= 1.5;
+            let a3c = A3cConfig::default();
+            let s = VecSettings {
+                batch_envs: 8,
+                min_steps: 300,
+                reward: RewardKind::Mixed,
+                a3c: &a3c,
+                objective: Objective::A3c,
+            };
+            let sample = |e: u32| -> Result<(EpisodeSpec, u32)> {
+                let mut rng = ChaCha8Rng::seed_from_u64(900 + e as u64);
+                Ok((world.try_sample_train_episode_min(&mut rng, 1)?, 45))
+            };
+            let mut got = model.params.zeros_like();
+            let mut worker = Worker::new(&model);
+            let mut log = Vec::new();
+            let done = match mode {
+                AdaptMode::Efficient => run_in::<Efficient>(
+                    &world,
+                    &model,
+                    &s,
+                    &mut worker,
+                    &mut got,
+                    sample,
+                    Some(&mut log),
+                ),
+                AdaptMode::Full => run_in::<Full>(
+                    &world,
+                    &model,
+                    &s,
+                    &mut worker,
+                    &mut got,
+                    sample,
+                    Some(&mut log),
+                ),
+            }
+            .unwrap();
+            assert!(done.iter().filter(|f| f.1.adaptations > 0).count() >= 3);
+            // Efficient: one backward for the update (copies of the gains and biases);
+            // Full: one per tick that completes segments.
+            match mode {
+                AdaptMode::Efficient => assert_eq!(log.len(), 1),
+                AdaptMode::Full => assert!(log.len() > 5, "{}", log.len()),
+            }
+            assert!(
+                log.iter()
+                    .any(|t| t.segs.len() >= 2
+                        && t.segs.iter().any(|s| s.0.len() != t.segs[0].0.len())),
+                "a tick completes segments of several lengths"
+            );
+            // The rows' parameters differ (adapted episodes).
+            assert!(log
+                .iter()
+                .flat_map(|t| &t.params)
+                .any(|p| p[0] != log[0].params[0][0]));
+            // The trunk and the shapes from a navigator over the model.
+            let weights = model.weights().unwrap();
+            let nav_cfg = gman_core::navigator::NavConfig {
+                adapt: false,
+                ..model.nav_config(true)
+            };
+            let mut arena = vec![0.0; Navigator::<Full, K>::arena_len(&d)];
+            let mut nav: Navigator<'_, Full, K> =
+                Navigator::new(weights, &mut arena, nav_cfg).unwrap();
+            nav.reset(&vec![0.0; d.attr], 0).unwrap();
+            let (trunk, gen0) = (nav.policy().unwrap(), nav.generator().unwrap());
+            let mut w = Widths::of(&trunk, &d);
+            // The actor's pre-gain output is kept when the episodes' heads have gains.
+            w.au = if log[0].params[0][0].2.is_some() {
+                NUM_ACTIONS
+            } else {
+                0
+            };
+            let shapes = [
+                (trunk.actor.w.rows(), trunk.actor.w.cols()),
+                (gen0.l1.w.rows(), gen0.l1.w.cols()),
+                (gen0.l2.w.rows(), gen0.l2.w.cols()),
+            ];
+            let like = trunk.fuse.w;
+            fn seg<'a>(
+                t: &'a TickLog,
+                k: usize,
+                own: bool,
+                shapes: &[(usize, usize); 3],
+                like: &MatRef<'_>,
+            ) -> Segment<'a> {
+                let (steps, acts, attr, boot) = &t.segs[k];
+                let p = &t.params[k];
+                Segment {
+                    steps,
+                    acts,
+                    attr,
+                    bootstrap: *boot,
+                    own: own.then(|| Adapted {
+                        actor: view(&p[0], shapes[0], like),
+                        gen: Generator {
+                            l1: view(&p[1], shapes[1], like),
+                            l2: view(&p[2], shapes[2], like),
+                        },
+                    }),
+                }
+            }
+            let seg = |t, k, own| seg(t, k, own, &shapes, &like);
+            // G's buffers sized as the episodes' G (with gains in the Efficient mode).
+            let p0 = &log[0].params[0];
+            let gen_rows = Generator {
+                l1: view(&p0[1], shapes[1], &like),
+                l2: view(&p0[2], shapes[2], &like),
+            };
+            let backward = |segs: &[Segment<'_>], grads: &mut ParamSet| {
+                let mut gb = GenBufs::new(&gen_rows, w.f);
+                Backward::default()
+                    .run(&trunk, &gen0, segs, &a3c, true, &w, &d, grads, &mut gb)
+                    .unwrap();
+            };
+            let mut want = model.params.zeros_like();
+            for t in &log {
+                let segs: Vec<Segment<'_>> = (0..t.segs.len()).map(|k| seg(t, k, true)).collect();
+                backward(&segs, &mut want);
+            }
+            assert_eq!(bits(&got), bits(&want), "{mode:?}: the pinned order");
+            // One segment at a time: a different sum of the same terms.
+            let mut one = model.params.zeros_like();
+            for t in &log {
+                for k in 0..t.segs.len() {
+                    backward(&[seg(t, k, true)], &mut one);
+                }
+            }
+            assert_ne!(bits(&got), bits(&one), "{mode:?}: order-sensitive");
+            // At the unadapted parameters: another gradient.
+            let mut shared = model.params.zeros_like();
+            for t in &log {
+                let segs: Vec<Segment<'_>> = (0..t.segs.len()).map(|k| seg(t, k, false)).collect();
+                backward(&segs, &mut shared);
+            }
+            assert_ne!(bits(&got), bits(&shared), "{mode:?}: per-row parameters");
+        }
+    }
+}
