@@ -66,9 +66,10 @@
 //! episodes is the batch-1 trainer's: every episode starts from ω, and the outer step adds
 //! `Σ_e (ω_e − ω)` in episode order.
 //!
-//! **Memory.** A worker holds `B` navigator arenas (`Navigator::arena_len`; in the Full mode
-//! each holds a copy of G and D), plus the waiting segments (at most [`MAX_PENDING_STEPS`]
-//! steps).
+//! **Memory.** A worker holds `B` navigator arenas (`Navigator::arena_len_for` the host's
+//! `Footprint::Fast`: 452 KiB each for `mcu` in the Efficient mode; in the Full mode each
+//! holds a copy of G and D, 1.9 MiB for `mcu`), plus the waiting segments (at most
+//! [`MAX_PENDING_STEPS`] steps).
 //!
 //! Not served here: `--meta-order 2` (its reverse recursion runs per episode, refused with
 //! `B > 1`) and the privileged-feature bound (refused with an inner loop, as in batch 1).
@@ -179,7 +180,7 @@ fn run_in<'w, M: Mode>(
     }
     let b = s.batch_envs;
     let weights = model.weights()?;
-    let alen = Navigator::<M, K>::arena_len(&model.dims);
+    let alen = Navigator::<M, K>::arena_len_for(&model.dims, cfg.footprint);
     let Worker {
         ps: ps_buf, arenas, ..
     } = worker;
@@ -202,7 +203,8 @@ fn run_in<'w, M: Mode>(
     let mut gbuf = GenBufs::new(&navs[0].generator()?, w.f);
     // The trunk (and a G) for the waiting segments' backward: a view of the model's
     // weights through a navigator that does not adapt.
-    let mut fixed_arena = vec![0.0f32; Navigator::<M, K>::arena_len(&model.dims)];
+    let mut fixed_arena =
+        vec![0.0f32; Navigator::<M, K>::arena_len_for(&model.dims, cfg.footprint)];
     let fixed_nav: Navigator<'_, M, K> = Navigator::new(
         weights,
         &mut fixed_arena,
