@@ -1,5 +1,6 @@
-//! Deterministic seeded `Mcu` int8 blob, shared by `build.rs` and the host-side parity test
-//! (`tests/tests/firmware_qemu.rs`) so that both use the very same bytes.
+//! The blob the firmware embeds, shared by `build.rs` and the host-side parity test
+//! (`tests/tests/firmware_qemu.rs`) so that both use the very same bytes: the shipped trained
+//! model, or a deterministic seeded int8 blob of the same shapes.
 
 use gman_core::blob::{encode_model_scratch_len, encoded_model_len_bound, AdaptSettings, Quant};
 use gman_core::schema::FLAG_ADAPT;
@@ -28,14 +29,19 @@ pub fn seeded_blob(dims: &Dims, seed: u64) -> Vec<u8> {
     buf
 }
 
-/// The trained GMAN model shipped in the repository (relative to `firmware-example/`).
-pub const TRAINED: &str = "../host-sim/models/gman-mcu-int8-seed1.gman";
+/// The shapes the firmware runs: `Mcu` with the 3 x 3 spatial map and 8 channels per cell
+/// (the same value as `src/episode.rs`'s `DIMS`, which the parity test checks; a build script
+/// cannot include that file).
+pub const FIRMWARE_DIMS: Dims = Dims::MCU.with_map(3, 3, 8);
 
-/// The blob the firmware embeds by default: the shipped trained GMAN model when it is
+/// The trained GMAN model shipped in the repository (relative to `firmware-example/`).
+pub const TRAINED: &str = "../host-sim/models/gman-map3-b16-mcu-int8-seed1.gman";
+
+/// The blob the firmware embeds by default: the shipped trained GMAN map model when it is
 /// present, else the seeded one. `base` is the `firmware-example/` directory.
 #[allow(dead_code)]
 pub fn default_blob_in(base: &std::path::Path) -> Vec<u8> {
-    std::fs::read(base.join(TRAINED)).unwrap_or_else(|_| seeded_blob(&Dims::MCU, 1))
+    std::fs::read(base.join(TRAINED)).unwrap_or_else(|_| seeded_blob(&FIRMWARE_DIMS, 1))
 }
 
 /// [`default_blob_in`] from the current directory (a build script runs in `firmware-example/`).

@@ -25,11 +25,18 @@ static TABLE: [u32; 256] = make_table();
 
 /// CRC-32 of `data` (the common zlib/PNG CRC; `crc32(b"123456789") == 0xCBF43926`).
 pub fn crc32(data: &[u8]) -> u32 {
-    let mut c = 0xFFFF_FFFFu32;
+    crc32_update(0, data)
+}
+
+/// Continues a CRC-32 over more bytes: `crc32_update(crc32(a), b) == crc32(a ++ b)` (zlib's
+/// `crc32(crc, buf, len)` convention; start from 0). For data read in pieces, e.g. a file
+/// streamed from a host.
+pub fn crc32_update(crc: u32, data: &[u8]) -> u32 {
+    let mut c = !crc;
     for &b in data {
         c = TABLE[((c ^ b as u32) & 0xFF) as usize] ^ (c >> 8);
     }
-    c ^ 0xFFFF_FFFF
+    !c
 }
 
 #[cfg(test)]
@@ -38,5 +45,14 @@ mod tests {
     fn check_value() {
         assert_eq!(super::crc32(b"123456789"), 0xCBF4_3926);
         assert_eq!(super::crc32(b""), 0);
+        let whole = super::crc32(b"123456789");
+        for cut in 0..=9 {
+            let (a, b) = b"123456789".split_at(cut);
+            assert_eq!(
+                super::crc32_update(super::crc32(a), b),
+                whole,
+                "cut at {cut}"
+            );
+        }
     }
 }

@@ -3,58 +3,71 @@
 //! the Cortex-M4F execute the same source on the same blob and the same observations and must
 //! print the same bits.
 //!
-//! The observations are a replay: the feature vectors s_t of a known episode, recorded on the
-//! host by `host-sim/examples/record_episode.rs` and embedded in flash. The navigator's actions
-//! do not change what it sees next (a microcontroller cannot hold the scene), but everything
-//! the navigator computes on the device — G, the policy, Ψ, the inner updates of Algorithm 1,
-//! the rollback checks — runs exactly as it would in a closed loop.
+//! The observations are a replay: the pooled feature vector s_t and the spatial map of a known
+//! episode, recorded on the host by `host-sim/examples/record_episode.rs`. The navigator's
+//! actions do not change what it sees next (a microcontroller cannot hold the scene), but
+//! everything the navigator computes on the device — G, the policy with its per-cell layer over
+//! the map, Ψ, the inner updates of Algorithm 1, the rollback checks — runs exactly as it would
+//! in a closed loop.
+//!
+//! The file is read through a [`Source`]: on the device from the host, step by step, through
+//! semihosting (as a robot reads its camera: 40 steps of a 3 x 3 map are 200 KiB, which the
+//! 512 KiB of flash beside a 337 KiB model cannot hold), on the host from memory.
 //!
 //! # Episode file (`firmware-example/data/episode.gmep`), all integers little-endian
 //! ```text
 //! offset  size        field
 //!      0  4           magic "GMEP"
-//!      4  2           version (1)
+//!      4  2           version (2)
 //!      6  2           n, number of steps
 //!      8  2           feat, width of an observation (512)
 //!     10  2           attr, width of SE(y) (45)
 //!     12  8           seed passed to Navigator::reset
-//!     20  2           L, length of the label
-//!     22  4           CRC-32 (IEEE) of every byte from offset 26 to the end
-//!     26  L           label, UTF-8 (scene, target, kind; for the log only)
+//!     20  2           cells, sectors of the spatial map (rows x cols; 0: none)
+//!     22  2           L, length of the label (at most LABEL_MAX)
+//!     24  4           CRC-32 (IEEE) of every byte from offset 28 to the end
+//!     28  L           label, UTF-8 (scene, target, kind; for the log only)
 //!    ...  4 attr      SE(y) of the target, f32
 //!    ...  n           action the recording script took at each step (Action index; log only)
-//!    ...  n feat      observations, u8: round(s * 255) of features s in [0, 1]
+//!    ...  n (1+cells) feat
+//!                     per step: the pooled observation s_t, then the map (cell-major),
+//!                     u8: round(v * 255) of features v in [0, 1]
 //! ```
-//! Observations are stored as u8 because 40 steps of 512 f32 would be 80 KiB of flash, and
-//! the simulator's features are in [0, 1] with ±0.02 noise, far coarser than 1/255. The
-//! firmware and the host dequantise with the same expression (`b as f32 / 255.0`), so both
-//! feed the navigator identical f32 bits.
+//! Observations are stored as u8 because the simulator's features are in [0, 1] with ±0.02
+//! noise, far coarser than 1/255, and f32 would be four times the bytes. The firmware and the
+//! host dequantise with the same expression (`b as f32 / 255.0`), so both feed the navigator
+//! identical f32 bits.
 
 use core::fmt;
 
 use gman_core::blob::Blob;
-use gman_core::crc32::crc32;
+use gman_core::crc32::crc32_update;
 use gman_core::memory::{arena_len, AdaptMode};
 use gman_core::navigator::{Counters, Efficient, NavConfig, NavWeights, Navigator};
 use gman_core::{Action, Dims};
 
-/// The model size the firmware runs.
-pub const DIMS: Dims = Dims::MCU;
+/// The model size the firmware runs: the `Mcu` preset with the 3 x 3 spatial map and the
+/// 8-channel per-cell layer the map models are trained with (`gman train --map 3x3`).
+pub const DIMS: Dims = Dims::MCU.with_map(3, 3, 8);
 /// Capacity of the buffer Ψ: the paper's k = 20, so an inner update every 20 steps.
 pub const K: usize = 20;
-/// Floats of RAM the navigator needs ([`arena_len`] for `Mcu`, `Efficient`, [`K`]).
+/// Floats of RAM the navigator needs ([`arena_len`] for [`DIMS`], `Efficient`, [`K`]).
 pub const ARENA_LEN: usize = arena_len(&DIMS, AdaptMode::Efficient, K);
 /// Magic bytes of an episode file.
 pub const MAGIC: [u8; 4] = *b"GMEP";
 /// Version of the episode file format.
-pub const VERSION: u16 = 1;
+pub const VERSION: u16 = 2;
 /// Bytes before the label.
-pub const HEADER_LEN: usize = 26;
+pub const HEADER_LEN: usize = 28;
+/// Longest label accepted (bytes).
+pub const LABEL_MAX: usize = 160;
+/// Bytes read from the source at a time (one cell's features).
+const CHUNK: usize = DIMS.feat;
 
 /// Why [`run`] stopped.
 #[derive(Debug)]
 pub enum Failure {
-    /// The episode file is malformed.
+    /// The episode file is malformed or cannot be read.
     Episode(&'static str),
     /// gman-core returned an error.
     Core(gman_core::Error),
@@ -81,83 +94,172 @@ impl fmt::Display for Failure {
     }
 }
 
-/// A parsed episode file, borrowing from its bytes (no copy: the observations stay in flash).
-#[derive(Clone, Copy, Debug)]
-pub struct Episode<'a> {
+/// Random-access reads of an episode file.
+pub trait Source {
+    /// Length of the file in bytes.
+    fn len(&mut self) -> Result<usize, Failure>;
+    /// Fills `buf` with the bytes at `offset..offset + buf.len()` (an error if the file ends
+    /// before).
+    fn read_at(&mut self, offset: usize, buf: &mut [u8]) -> Result<(), Failure>;
+}
+
+/// An episode file in memory (the host parity test; the firmware reads from the host).
+#[allow(dead_code)]
+pub struct Bytes<'a>(pub &'a [u8]);
+
+impl Source for Bytes<'_> {
+    fn len(&mut self) -> Result<usize, Failure> {
+        Ok(self.0.len())
+    }
+    fn read_at(&mut self, offset: usize, buf: &mut [u8]) -> Result<(), Failure> {
+        let end = offset
+            .checked_add(buf.len())
+            .ok_or(Failure::Episode("read past the end"))?;
+        let src = self
+            .0
+            .get(offset..end)
+            .ok_or(Failure::Episode("read past the end"))?;
+        buf.copy_from_slice(src);
+        Ok(())
+    }
+}
+
+/// A parsed and CRC-checked episode header; the observations stay in the [`Source`].
+#[derive(Clone, Debug)]
+pub struct Episode {
     /// Seed for [`Navigator::reset`].
     pub seed: u64,
-    /// Human-readable description.
-    pub label: &'a str,
-    attr: &'a [u8],
-    script: &'a [u8],
-    obs: &'a [u8],
+    steps: usize,
+    label: [u8; LABEL_MAX],
+    label_len: usize,
+    attr: [f32; DIMS.attr],
+    script_at: usize,
+    obs_at: usize,
 }
 
 fn u16_at(b: &[u8], at: usize) -> u16 {
     u16::from_le_bytes([b[at], b[at + 1]])
 }
 
-impl<'a> Episode<'a> {
-    /// Parses and checks an episode file for [`DIMS`].
-    pub fn parse(b: &'a [u8]) -> Result<Self, Failure> {
-        if b.len() < HEADER_LEN || b[..4] != MAGIC {
-            return Err(Failure::Episode("bad magic or truncated header"));
+/// Bytes of one step's observations: the pooled vector and the map.
+const STEP_BYTES: usize = (1 + DIMS.map_cells()) * DIMS.feat;
+
+impl Episode {
+    /// Reads, parses and checks an episode file for [`DIMS`] (header, lengths, CRC).
+    pub fn parse(src: &mut dyn Source) -> Result<Self, Failure> {
+        let len = src.len()?;
+        let mut h = [0u8; HEADER_LEN];
+        if len < HEADER_LEN {
+            return Err(Failure::Episode("truncated header"));
         }
-        if u16_at(b, 4) != VERSION {
+        src.read_at(0, &mut h)?;
+        if h[..4] != MAGIC {
+            return Err(Failure::Episode("bad magic"));
+        }
+        if u16_at(&h, 4) != VERSION {
             return Err(Failure::Episode("unsupported version"));
         }
-        let n = u16_at(b, 6) as usize;
-        if u16_at(b, 8) as usize != DIMS.feat || u16_at(b, 10) as usize != DIMS.attr {
+        let n = u16_at(&h, 6) as usize;
+        if u16_at(&h, 8) as usize != DIMS.feat || u16_at(&h, 10) as usize != DIMS.attr {
             return Err(Failure::Episode(
-                "feature or attribute width differs from Mcu",
+                "feature or attribute width differs from the model's",
+            ));
+        }
+        if u16_at(&h, 20) as usize != DIMS.map_cells() {
+            return Err(Failure::Episode(
+                "map cells differ from the model's (3 x 3 = 9)",
             ));
         }
         let mut seed = [0u8; 8];
-        seed.copy_from_slice(&b[12..20]);
-        let label_len = u16_at(b, 20) as usize;
-        let crc = u32::from_le_bytes([b[22], b[23], b[24], b[25]]);
-        let body = &b[HEADER_LEN..];
-        if body.len() != label_len + 4 * DIMS.attr + n + n * DIMS.feat {
+        seed.copy_from_slice(&h[12..20]);
+        let label_len = u16_at(&h, 22) as usize;
+        if label_len > LABEL_MAX {
+            return Err(Failure::Episode("label longer than LABEL_MAX"));
+        }
+        let crc = u32::from_le_bytes([h[24], h[25], h[26], h[27]]);
+        let body = label_len + 4 * DIMS.attr + n + n * STEP_BYTES;
+        if len - HEADER_LEN != body {
             return Err(Failure::Episode("length does not match the header"));
         }
-        if crc32(body) != crc {
+        // The CRC over the body, read a chunk at a time.
+        let (mut at, mut c) = (HEADER_LEN, 0u32);
+        let mut chunk = [0u8; CHUNK];
+        while at < len {
+            let m = CHUNK.min(len - at);
+            src.read_at(at, &mut chunk[..m])?;
+            c = crc32_update(c, &chunk[..m]);
+            at += m;
+        }
+        if c != crc {
             return Err(Failure::Episode("CRC mismatch"));
         }
-        let (label, rest) = body.split_at(label_len);
-        let (attr, rest) = rest.split_at(4 * DIMS.attr);
-        let (script, obs) = rest.split_at(n);
+        let mut label = [0u8; LABEL_MAX];
+        src.read_at(HEADER_LEN, &mut label[..label_len])?;
+        core::str::from_utf8(&label[..label_len])
+            .map_err(|_| Failure::Episode("label not UTF-8"))?;
+        let attr_at = HEADER_LEN + label_len;
+        let mut raw = [0u8; 4 * DIMS.attr];
+        src.read_at(attr_at, &mut raw)?;
+        let mut attr = [0.0f32; DIMS.attr];
+        for (o, c) in attr.iter_mut().zip(raw.chunks_exact(4)) {
+            *o = f32::from_le_bytes([c[0], c[1], c[2], c[3]]);
+        }
+        let script_at = attr_at + 4 * DIMS.attr;
         Ok(Episode {
             seed: u64::from_le_bytes(seed),
-            label: core::str::from_utf8(label).map_err(|_| Failure::Episode("label not UTF-8"))?,
+            steps: n,
+            label,
+            label_len,
             attr,
-            script,
-            obs,
+            script_at,
+            obs_at: script_at + n,
         })
     }
 
     /// Number of steps.
     pub fn steps(&self) -> usize {
-        self.script.len()
+        self.steps
+    }
+
+    /// Human-readable description.
+    pub fn label(&self) -> &str {
+        core::str::from_utf8(&self.label[..self.label_len]).unwrap_or("?")
     }
 
     /// SE(y) of the target.
-    pub fn attributes(&self, out: &mut [f32]) {
-        for (o, c) in out.iter_mut().zip(self.attr.chunks_exact(4)) {
-            *o = f32::from_le_bytes([c[0], c[1], c[2], c[3]]);
-        }
+    pub fn attributes(&self) -> &[f32; DIMS.attr] {
+        &self.attr
     }
 
-    /// The observation of step `t`, dequantised into `out` (`feat` floats).
-    pub fn observation(&self, t: usize, out: &mut [f32]) {
-        let f = DIMS.feat;
-        for (o, &q) in out.iter_mut().zip(&self.obs[t * f..(t + 1) * f]) {
-            *o = q as f32 / 255.0;
+    /// The observations of step `t` read from `src` and dequantised: the pooled vector into
+    /// `obs` (`feat` floats) and the map into `map` (`map_len` floats).
+    pub fn observation(
+        &self,
+        src: &mut dyn Source,
+        t: usize,
+        obs: &mut [f32],
+        map: &mut [f32],
+    ) -> Result<(), Failure> {
+        if t >= self.steps {
+            return Err(Failure::Episode("step out of range"));
         }
+        let mut chunk = [0u8; CHUNK];
+        let at = self.obs_at + t * STEP_BYTES;
+        let outs = core::iter::once(obs).chain(map.chunks_mut(DIMS.feat));
+        for (i, out) in outs.enumerate() {
+            src.read_at(at + i * DIMS.feat, &mut chunk)?;
+            for (o, &q) in out.iter_mut().zip(&chunk) {
+                *o = q as f32 / 255.0;
+            }
+        }
+        Ok(())
     }
 
     /// The action the recording script took at step `t`.
-    pub fn scripted_action(&self, t: usize) -> Option<Action> {
-        Action::from_index(self.script[t] as usize)
+    pub fn scripted_action(&self, src: &mut dyn Source, t: usize) -> Option<Action> {
+        let mut b = [0u8; 1];
+        src.read_at(self.script_at + t, &mut b).ok()?;
+        Action::from_index(b[0] as usize)
     }
 }
 
@@ -173,17 +275,17 @@ pub trait Probe {
     fn step_end(&mut self, _adapted: bool) {}
 }
 
-/// Runs the episode `episode_bytes` with a `Navigator<Efficient, K>` over the `Mcu` blob
+/// Runs the episode read from `src` with a `Navigator<Efficient, K>` over the [`DIMS`] blob
 /// `blob_bytes`, all mutable state in `arena` (at least [`ARENA_LEN`] floats). Prints every
 /// action, the action probabilities' and the value's bits, the counters after each step and
 /// the diagnostics of each inner update; returns the final counters.
 pub fn run(
     blob_bytes: &[u8],
-    episode_bytes: &[u8],
+    src: &mut dyn Source,
     arena: &mut [f32],
     probe: &mut dyn Probe,
 ) -> Result<Counters, Failure> {
-    let ep = Episode::parse(episode_bytes)?;
+    let ep = Episode::parse(src)?;
     let blob = Blob::parse(blob_bytes)?;
     let weights = NavWeights::from_blob(&blob, &DIMS)?;
     // The configuration the blob asks for (adaptation on or off, EMD, noise, α1, α2 and the
@@ -192,13 +294,13 @@ pub fn run(
     let cfg = NavConfig::from_header(blob.header());
     probe.line(format_args!(
         "episode: {} ({} steps, seed {})",
-        ep.label,
+        ep.label(),
         ep.steps(),
         ep.seed
     ));
     probe.line(format_args!(
-        "navigator: Mcu, Efficient, K={}, max_inner_updates={}, arena {} floats",
-        K, cfg.max_inner_updates, ARENA_LEN
+        "navigator: Mcu, {}x{} map, Efficient, K={}, max_inner_updates={}, arena {} floats",
+        DIMS.map_rows, DIMS.map_cols, K, cfg.max_inner_updates, ARENA_LEN
     ));
     // Rates as f32 bits: exact, and no float formatting code in flash.
     probe.line(format_args!(
@@ -211,9 +313,7 @@ pub fn run(
         cfg.alpha_adapt.to_bits(),
     ));
     let mut nav: Navigator<'_, Efficient, K> = Navigator::new(weights, arena, cfg)?;
-    let mut attr = [0.0f32; DIMS.attr];
-    ep.attributes(&mut attr);
-    nav.reset(&attr, ep.seed)?;
+    nav.reset(ep.attributes(), ep.seed)?;
     // G's output at z = 0 before any inner update, to show how far the updates move G
     // (Fig. 3 on the device): ‖G_θi(SE(y), 0) − G_θ(SE(y), 0)‖ after each update.
     let mut g0 = [0.0f32; DIMS.feat];
@@ -223,10 +323,11 @@ pub fn run(
         Fixed6(norm_from(&g0, None))
     ));
     let mut obs = [0.0f32; DIMS.feat];
+    let mut map = [0.0f32; DIMS.map_len()];
     for t in 0..ep.steps() {
-        ep.observation(t, &mut obs);
+        ep.observation(src, t, &mut obs, &mut map)?;
         probe.step_begin();
-        let out = nav.step(&obs, &[])?;
+        let out = nav.step_map(&obs, &map, &[])?;
         probe.step_end(out.adapted);
         let c = nav.counters();
         let p = out.probs.map(f32::to_bits);
@@ -244,7 +345,7 @@ pub fn run(
             out.adapted as u8,
             c.adaptations,
             c.rollbacks,
-            ep.scripted_action(t).map_or("?", Action::name),
+            ep.scripted_action(src, t).map_or("?", Action::name),
         ));
         if out.adapted {
             let r = nav.last_adaptation();

@@ -7,9 +7,11 @@
 //!    embedded `Mcu` int8 blob.
 //! 3. Runs the navigator ([`episode`]): a `Navigator<Efficient, 20>` over the same blob (read in
 //!    place from flash) and a statically sized arena, `reset` with the recorded target's
-//!    attributes, then `step` on each of the 40 observations of an episode recorded by the host
-//!    simulator (`data/episode.gmep`); two inner updates of Algorithm 1 happen, at steps 20
-//!    and 40. Every action, the probabilities' bits and the counters are printed.
+//!    attributes, then `step_map` on each of the 40 observations (pooled vector and 3 x 3 map)
+//!    of an episode recorded by the host simulator (`data/episode.gmep`, read from the host
+//!    through semihosting step by step, as a robot reads its camera); two inner updates of
+//!    Algorithm 1 happen, at steps 20 and 40. Every action, the probabilities' bits and the
+//!    counters are printed.
 //! 4. Prints the measurements as lines starting with `# ` (instructions per step and per
 //!    inner update, flash, static RAM, peak stack), which differ by target and are therefore
 //!    not compared with the host.
@@ -21,20 +23,71 @@
 #![no_main]
 
 use cortex_m_rt::{entry, exception, ExceptionFrame};
-use cortex_m_semihosting::{debug, hprintln};
+use cortex_m_semihosting::{debug, hprintln, syscall};
 use panic_semihosting as _;
 
 mod episode;
 mod measure;
 mod selftest;
 
-use episode::{Failure, Probe, ARENA_LEN};
+use episode::{Failure, Probe, Source, ARENA_LEN};
 use measure::{Clock, Stats, INSNS_PER_TICK};
 
-/// The `Mcu` int8 weight blob (`build.rs`: seeded, or `GMAN_FIRMWARE_BLOB`).
+/// The int8 weight blob (`build.rs`: the shipped trained model, seeded, or
+/// `GMAN_FIRMWARE_BLOB`).
 static BLOB: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/model.gman"));
-/// The recorded episode (`host-sim/examples/record_episode.rs`).
-static EPISODE: &[u8] = include_bytes!("../data/episode.gmep");
+/// The recorded episode (`host-sim/examples/record_episode.rs`), opened on the host relative
+/// to QEMU's working directory (NUL-terminated for the semihosting call).
+const EPISODE_PATH: &str = "data/episode.gmep\0";
+
+/// The episode file on the host, read through semihosting (`SYS_OPEN`, `SYS_SEEK`,
+/// `SYS_READ`; QEMU needs `-semihosting-config enable=on,target=native`). Closed on drop.
+struct HostFile {
+    fd: usize,
+}
+
+impl HostFile {
+    fn open(path: &str) -> Result<Self, Failure> {
+        // SYS_OPEN: name, mode ("rb"), length without the NUL.
+        let fd = unsafe {
+            syscall!(
+                OPEN,
+                path.as_ptr(),
+                cortex_m_semihosting::nr::open::R_BINARY,
+                path.len() - 1
+            )
+        } as isize;
+        if fd < 0 {
+            return Err(Failure::Episode(
+                "cannot open data/episode.gmep on the host (semihosting; run QEMU in firmware-example/)",
+            ));
+        }
+        Ok(HostFile { fd: fd as usize })
+    }
+}
+
+impl Source for HostFile {
+    fn len(&mut self) -> Result<usize, Failure> {
+        let n = unsafe { syscall!(FLEN, self.fd) } as isize;
+        usize::try_from(n).map_err(|_| Failure::Episode("semihosting FLEN failed"))
+    }
+    fn read_at(&mut self, offset: usize, buf: &mut [u8]) -> Result<(), Failure> {
+        if unsafe { syscall!(SEEK, self.fd, offset) } != 0 {
+            return Err(Failure::Episode("semihosting SEEK failed"));
+        }
+        // SYS_READ returns the number of bytes it did *not* read.
+        if unsafe { syscall!(READ, self.fd, buf.as_mut_ptr(), buf.len()) } != 0 {
+            return Err(Failure::Episode("read past the end (semihosting READ)"));
+        }
+        Ok(())
+    }
+}
+
+impl Drop for HostFile {
+    fn drop(&mut self) {
+        unsafe { syscall!(CLOSE, self.fd) };
+    }
+}
 
 /// Clock rate for the "implied time" lines: an STM32F4-class Cortex-M4F.
 const CPU_HZ: u64 = 168_000_000;
@@ -108,7 +161,8 @@ fn selftest_phase() -> Result<(), Failure> {
 /// The scripted navigator episode (not inlined, for the same reason).
 #[inline(never)]
 fn navigator_phase(dev: &mut Device<'_>) -> Result<(), Failure> {
-    with_arena(|arena| episode::run(BLOB, EPISODE, arena, dev))
+    let mut file = HostFile::open(EPISODE_PATH)?;
+    with_arena(|arena| episode::run(BLOB, &mut file, arena, dev))
         .ok_or(Failure::Episode("arena already taken"))??;
     Ok(())
 }
@@ -178,14 +232,13 @@ fn run() -> Result<(), Failure> {
         stack_navigator
     );
     hprintln!(
-        "# memory: flash_bytes={} static_ram_bytes={} peak_stack_bytes={} ram_bytes={} arena_bytes={} blob_bytes={} episode_bytes={}",
+        "# memory: flash_bytes={} static_ram_bytes={} peak_stack_bytes={} ram_bytes={} arena_bytes={} blob_bytes={}",
         flash,
         stat,
         stack,
         stat + stack,
         ARENA_LEN * 4,
-        BLOB.len(),
-        EPISODE.len()
+        BLOB.len()
     );
     Ok(())
 }

@@ -14,7 +14,8 @@ use gman_core::generator::{Generator, GeneratorCache};
 use gman_core::rng::{fill_gaussian, uniform, Xoshiro128};
 use gman_core::Dims;
 
-const D: Dims = Dims::MCU;
+/// The firmware's model ([`crate::episode::DIMS`]: `Mcu` with the 3 x 3 map).
+const D: Dims = crate::episode::DIMS;
 const K: usize = 4;
 const H: usize = D.gen_hidden;
 const F: usize = D.feat;

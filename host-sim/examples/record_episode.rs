@@ -5,22 +5,25 @@
 //! cargo run --release -p gman-host-sim --example record_episode -- \
 //!     [--data DIR] [--world-seed S] [--episode I] [--steps N] [--out FILE]
 //! ```
-//! Loads the world (`--data DIR`, default the built-in synthetic world), takes val episode
+//! Loads the world (`--data DIR`, default the built-in synthetic world; the checked-in file is
+//! recorded with `--data ../shared/data/gman`, the real floor plans), takes val episode
 //! `I` (default: the first one with an unseen target, since unseen objects are what GMAN is
 //! about), and walks it for `N` steps (default 40 = two inner updates at k = 20): the oracle's
 //! shortest-path action until the target is first visible, then `RotateRight` in place for the
 //! rest (so the replay keeps showing new views instead of ending with `Done`). Each step's
-//! 512-d observation embedding is stored as u8 (`round(v * 255)`, features are in [0, 1]),
+//! 512-d observation embedding and its 3 x 3 spatial map (`Env::observe_map`, what `gman train
+//! --map 3x3` feeds the policy) are stored as u8 (`round(v * 255)`, features are in [0, 1]),
 //! with the target's 45 attribute floats and the episode seed.
 //!
 //! The host parity test includes this file (`#[path]`) and checks that [`record`] with the
-//! defaults reproduces the checked-in file byte for byte, so the file cannot silently drift
+//! defaults on the real floor plans reproduces the checked-in file byte for byte, so the file cannot silently drift
 //! from the simulator. That is also why it parses its few arguments by hand (no clap).
 
 use std::path::PathBuf;
 
 use gman_core::crc32::crc32;
 use gman_core::Action;
+use gman_host_sim::sim::spatial::MapGrid;
 use gman_host_sim::sim::{
     Env, EpisodeLimits, RewardKind, Split, TargetKind, World, DEFAULT_WORLD_SEED,
 };
@@ -32,23 +35,28 @@ type Result<T> = std::result::Result<T, Box<dyn std::error::Error + Send + Sync>
 /// Steps recorded by default: two inner updates with the paper's k = 20.
 pub const DEFAULT_STEPS: usize = 40;
 
-/// Serialises an episode of `n` steps (format: `firmware-example/src/episode.rs`).
+/// The map recorded: the firmware model's 3 x 3 sectors.
+pub const GRID: MapGrid = MapGrid { rows: 3, cols: 3 };
+
+/// Serialises an episode of `n` steps (format: `firmware-example/src/episode.rs`); `obs` holds
+/// each step's pooled vector and map, `(1 + cells) * 512` bytes per step.
 fn encode(label: &str, seed: u64, attr: &[f32; 45], script: &[u8], obs: &[u8]) -> Vec<u8> {
     let n = script.len();
-    assert_eq!(obs.len(), n * 512);
+    assert_eq!(obs.len(), n * (1 + GRID.cells()) * 512);
     let mut body = Vec::with_capacity(label.len() + 4 * 45 + n + obs.len());
     body.extend_from_slice(label.as_bytes());
     attr.iter()
         .for_each(|v| body.extend_from_slice(&v.to_le_bytes()));
     body.extend_from_slice(script);
     body.extend_from_slice(obs);
-    let mut out = Vec::with_capacity(26 + body.len());
+    let mut out = Vec::with_capacity(28 + body.len());
     out.extend_from_slice(b"GMEP");
-    out.extend_from_slice(&1u16.to_le_bytes());
+    out.extend_from_slice(&2u16.to_le_bytes());
     out.extend_from_slice(&(n as u16).to_le_bytes());
     out.extend_from_slice(&512u16.to_le_bytes());
     out.extend_from_slice(&45u16.to_le_bytes());
     out.extend_from_slice(&seed.to_le_bytes());
+    out.extend_from_slice(&(GRID.cells() as u16).to_le_bytes());
     out.extend_from_slice(&(label.len() as u16).to_le_bytes());
     out.extend_from_slice(&crc32(&body).to_le_bytes());
     out.extend_from_slice(&body);
@@ -77,14 +85,17 @@ pub fn record(world: &World, episode: Option<usize>, steps: usize) -> Result<Vec
         .max(steps as u32 + 1);
     let mut env = Env::new(world, spec, RewardKind::default(), limit);
     let mut reached_at = None;
-    let (mut script, mut obs) = (Vec::with_capacity(steps), Vec::with_capacity(steps * 512));
+    let step_bytes = (1 + GRID.cells()) * 512;
+    let (mut script, mut obs) = (
+        Vec::with_capacity(steps),
+        Vec::with_capacity(steps * step_bytes),
+    );
+    let mut map = vec![0.0f32; GRID.len()];
+    let quantise = |v: f32| (v.clamp(0.0, 1.0) * 255.0).round() as u8;
     for t in 0..steps {
-        obs.extend(
-            env.observe()
-                .features
-                .iter()
-                .map(|&v| (v.clamp(0.0, 1.0) * 255.0).round() as u8),
-        );
+        obs.extend(env.observe().features.iter().map(|&v| quantise(v)));
+        env.observe_map(GRID, &mut map);
+        obs.extend(map.iter().map(|&v| quantise(v)));
         let oracle = env.oracle();
         if reached_at.is_none() && oracle.goal_visible() {
             reached_at = Some(t);
@@ -106,6 +117,10 @@ pub fn record(world: &World, episode: Option<usize>, steps: usize) -> Result<Vec
         world.category_name(spec.target),
         reached_at.map_or("never".to_string(), |t| t.to_string()),
     );
+    // The firmware reads the label into a fixed buffer (`episode::LABEL_MAX`).
+    if label.len() > 160 {
+        return Err(format!("label longer than 160 bytes: {label}").into());
+    }
     Ok(encode(
         &label,
         spec.seed,
@@ -149,13 +164,13 @@ fn main() -> Result<()> {
     };
     let bytes = record(&world, episode, steps)?;
     std::fs::write(&out, &bytes).map_err(|e| format!("write {}: {e}", out.display()))?;
-    let label_len = u16::from_le_bytes([bytes[20], bytes[21]]) as usize;
+    let label_len = u16::from_le_bytes([bytes[22], bytes[23]]) as usize;
     println!(
         "{}: {} bytes, {} steps: {}",
         out.display(),
         bytes.len(),
         steps,
-        String::from_utf8_lossy(&bytes[26..26 + label_len])
+        String::from_utf8_lossy(&bytes[28..28 + label_len])
     );
     Ok(())
 }

@@ -61,7 +61,8 @@ fn host_lines(blob: &[u8], ep: &[u8]) -> (Vec<String>, gman_core::navigator::Cou
     let mut out = Lines(Vec::new());
     selftest::run(blob, &mut |a| out.0.push(a.to_string())).expect("host self-test");
     let mut arena = vec![0.0f32; episode::ARENA_LEN];
-    let counters = episode::run(blob, ep, &mut arena, &mut out).expect("host episode");
+    let counters =
+        episode::run(blob, &mut episode::Bytes(ep), &mut arena, &mut out).expect("host episode");
     out.0.push("OK".into());
     (out.0, counters)
 }
@@ -123,7 +124,9 @@ fn firmware_under_qemu_matches_host_bit_for_bit() {
         .expect("run cargo build for the firmware");
     assert!(status.success(), "firmware build failed");
     let elf = target_dir.join("thumbv7em-none-eabihf/release/gman-firmware-example");
+    // In firmware-example/: the firmware opens data/episode.gmep there through semihosting.
     let out = Command::new("timeout")
+        .current_dir(&fw)
         .args(["120", "qemu-system-arm", "-M", "mps2-an386", "-nographic"])
         .args(["-icount", "shift=0"])
         .args(["-semihosting-config", "enable=on,target=native", "-kernel"])
@@ -202,7 +205,7 @@ fn firmware_under_qemu_matches_host_bit_for_bit() {
 #[test]
 fn episode_run_reacts_to_every_input() {
     // The parity test would be vacuous if the printed lines did not depend on the inputs.
-    let blob = blobgen::seeded_blob(&gman_core::Dims::MCU, 1);
+    let blob = blobgen::seeded_blob(&episode::DIMS, 1);
     let ep = checked_in_episode();
     let (base, c) = host_lines(&blob, &ep);
     assert_eq!((c.steps, c.adaptations), (40, 2), "{c:?}");
@@ -213,7 +216,7 @@ fn episode_run_reacts_to_every_input() {
     let last = changed.len() - 1;
     changed[last] ^= 0x10;
     let crc = gman_core::crc32::crc32(&changed[episode::HEADER_LEN..]);
-    changed[22..26].copy_from_slice(&crc.to_le_bytes());
+    changed[24..28].copy_from_slice(&crc.to_le_bytes());
     let (other, _) = host_lines(&blob, &changed);
     let diff: Vec<usize> = (0..base.len()).filter(|&i| base[i] != other[i]).collect();
     assert!(!diff.is_empty(), "a changed observation changed nothing");
@@ -224,42 +227,98 @@ fn episode_run_reacts_to_every_input() {
     );
 
     // Another blob changes everything from the self-test on.
-    let (third, _) = host_lines(&blobgen::seeded_blob(&gman_core::Dims::MCU, 2), &ep);
+    let (third, _) = host_lines(&blobgen::seeded_blob(&episode::DIMS, 2), &ep);
     assert_ne!(base[1], third[1]);
+
+    // The map matters: one byte of the last step's first map cell changed.
+    let mut map_changed = ep.clone();
+    let cell0 = ep.len() - 9 * 512;
+    map_changed[cell0] ^= 0x40;
+    let crc = gman_core::crc32::crc32(&map_changed[episode::HEADER_LEN..]);
+    map_changed[24..28].copy_from_slice(&crc.to_le_bytes());
+    let (fourth, _) = host_lines(&blob, &map_changed);
+    let diff: Vec<usize> = (0..base.len()).filter(|&i| base[i] != fourth[i]).collect();
+    assert!(!diff.is_empty(), "a changed map cell changed nothing");
+    assert!(base[diff[0]].starts_with("t=39"), "{}", base[diff[0]]);
+}
+
+#[test]
+fn build_script_and_firmware_agree_on_the_model_shape() {
+    assert_eq!(blobgen::FIRMWARE_DIMS, episode::DIMS);
+    // The shipped default blob has exactly those shapes.
+    let blob = blobgen::default_blob_in(&fw_dir());
+    gman_core::blob::Blob::parse(&blob)
+        .expect("default blob parses")
+        .check_dims(&episode::DIMS)
+        .expect("default blob has the firmware's shapes");
 }
 
 #[test]
 fn episode_file_is_checked() {
     let ep = checked_in_episode();
-    assert!(
-        ep.len() < 32 * 1024,
-        "episode file too large: {} B",
-        ep.len()
-    );
-    let parsed = episode::Episode::parse(&ep).expect("checked-in episode parses");
+    let parse = |b: &[u8]| episode::Episode::parse(&mut episode::Bytes(b));
+    let parsed = parse(&ep).expect("checked-in episode parses");
     assert_eq!(parsed.steps(), 40);
+    assert_eq!(
+        ep.len(),
+        28 + parsed.label().len() + 4 * 45 + 40 + 40 * 10 * 512
+    );
     let mut bad = ep.clone();
     bad[100] ^= 1;
     assert!(matches!(
-        episode::Episode::parse(&bad),
+        parse(&bad),
         Err(episode::Failure::Episode("CRC mismatch"))
     ));
-    assert!(episode::Episode::parse(&ep[..ep.len() - 1]).is_err());
+    let mut bad = ep.clone();
+    *bad.last_mut().unwrap() ^= 1;
+    assert!(matches!(
+        parse(&bad),
+        Err(episode::Failure::Episode("CRC mismatch"))
+    ));
+    assert!(parse(&ep[..ep.len() - 1]).is_err());
+    assert!(parse(&ep[..10]).is_err());
     let mut wrong_version = ep.clone();
     wrong_version[4] = 9;
-    assert!(episode::Episode::parse(&wrong_version).is_err());
+    assert!(parse(&wrong_version).is_err());
+    let mut no_map = ep.clone();
+    no_map[20] = 0;
+    assert!(matches!(
+        parse(&no_map),
+        Err(episode::Failure::Episode(m)) if m.starts_with("map cells")
+    ));
+    // Reads past the end are errors, not panics.
+    let mut src = episode::Bytes(&ep);
+    let mut obs = [0.0f32; 512];
+    let mut map = vec![0.0f32; episode::DIMS.map_len()];
+    assert!(parsed
+        .observation(&mut src, 40, &mut obs, &mut map)
+        .is_err());
+    parsed
+        .observation(&mut src, 39, &mut obs, &mut map)
+        .expect("last step reads");
 }
 
 #[test]
 fn checked_in_episode_is_what_record_episode_writes() {
-    // The firmware replays a file made by host-sim/examples/record_episode.rs with its
-    // defaults; if the simulator changes, this says so instead of the data silently drifting.
-    let world = gman_host_sim::sim::World::synthetic(gman_host_sim::sim::DEFAULT_WORLD_SEED);
+    // The firmware replays a file made by host-sim/examples/record_episode.rs on the real
+    // floor plans (the shipped model is trained on them); if the simulator changes, this says
+    // so instead of the data silently drifting.
+    let data = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/gman");
+    if !data.join("attributes.json").exists() {
+        eprintln!(
+            "SKIPPED checked_in_episode_is_what_record_episode_writes: no data at {}",
+            data.display()
+        );
+        return;
+    }
+    let world =
+        gman_host_sim::sim::World::load_with_seed(&data, gman_host_sim::sim::DEFAULT_WORLD_SEED)
+            .expect("load the GMAN data");
     let fresh = record_episode::record(&world, None, record_episode::DEFAULT_STEPS)
         .expect("record the default episode");
     assert!(
         fresh == checked_in_episode(),
         "firmware-example/data/episode.gmep is stale: re-run `cargo run --release -p \
-         gman-host-sim --example record_episode` and commit the file"
+         gman-host-sim --example record_episode -- --data ../shared/data/gman` and commit the file"
     );
 }
