@@ -223,6 +223,11 @@ fn run() -> Result<(), Failure> {
         u.mean_insns() * 1_000_000 / CPU_HZ,
         update_alone * 1_000_000 / CPU_HZ
     );
+    hprintln!(
+        "# model: macs_per_step={} map_cells={}",
+        episode::DIMS.macs_per_step(),
+        episode::DIMS.map_cells()
+    );
     let stack_navigator = measure::stack_peak().ok_or(STACK_SATURATED)?;
     let stack = stack_selftest.max(stack_navigator);
     let (flash, stat) = (measure::flash_bytes(), measure::static_ram_bytes());

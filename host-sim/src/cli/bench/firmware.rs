@@ -25,6 +25,9 @@ pub struct Firmware {
     pub adapt_instr: f64,
     /// The clock the firmware assumes (MHz, 1 instruction per cycle).
     pub mhz: f64,
+    /// Multiply-accumulates of one step of the model the firmware ran (its `# model:
+    /// macs_per_step=N` line; older captures without it: the pooled `Mcu` model's).
+    pub macs: f64,
     /// The file the figures were read from.
     pub source: String,
 }
@@ -41,11 +44,14 @@ pub fn parse(text: &str, source: &str) -> Result<Firmware> {
     let mut step = None;
     let mut adapt = None;
     let mut mhz = None;
+    let mut macs = None;
     for line in text.lines().filter_map(|l| l.trim_end().strip_prefix("# ")) {
         if line.starts_with("step without inner update:") {
             step = value(line, "mean_insns");
         } else if line.starts_with("inner update alone") {
             adapt = value(line, "update_insns");
+        } else if line.starts_with("model:") {
+            macs = value(line, "macs_per_step");
         } else if let Some(rest) = line.strip_prefix("at ") {
             mhz = rest.split_whitespace().next().and_then(|v| v.parse().ok());
         }
@@ -63,6 +69,7 @@ pub fn parse(text: &str, source: &str) -> Result<Firmware> {
         step_instr,
         adapt_instr,
         mhz,
+        macs: macs.unwrap_or(gman_core::Dims::MCU.macs_per_step() as f64),
         source: source.to_string(),
     })
 }
@@ -100,6 +107,10 @@ mod tests {
         );
         let other = OUTPUT.replace("mean_insns=1787926", "mean_insns=5");
         assert_eq!(parse(&other, "log").unwrap().step_instr, 5.0);
+        // Without a `# model:` line: the pooled Mcu model's MACs; with it: the line's.
+        assert_eq!(f.macs, gman_core::Dims::MCU.macs_per_step() as f64);
+        let map = format!("{OUTPUT}# model: macs_per_step=367232 map_cells=9\n");
+        assert_eq!(parse(&map, "log").unwrap().macs, 367_232.0);
     }
 
     #[test]

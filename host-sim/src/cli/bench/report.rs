@@ -102,7 +102,6 @@ fn kernel_json(m: &Measured) -> Vec<Value> {
 }
 
 fn firmware_json(m: &Measured) -> Value {
-    let macs = Dims::MCU.macs_per_step() as f64;
     match &m.firmware {
         Some(f) => json!({
             "source": format!("{} (mcu, int8, Efficient; the firmware's own output)", f.source),
@@ -111,7 +110,8 @@ fn firmware_json(m: &Measured) -> Value {
             "mhz": f.mhz,
             "step_ms_at_1ipc": f.step_instr / f.mhz / 1e3,
             "adapt_ms_at_1ipc": f.adapt_instr / f.mhz / 1e3,
-            "instructions_per_mac": f.step_instr / macs,
+            "macs_per_step": f.macs,
+            "instructions_per_mac": f.step_instr / f.macs,
         }),
         None => json!({ "source": m.firmware_log, "measured": false }),
     }
@@ -213,7 +213,6 @@ fn print_navigator(m: &Measured) {
 }
 
 fn print_firmware_row(m: &Measured) {
-    let macs = Dims::MCU.macs_per_step();
     match &m.firmware {
         Some(f) => println!(
             "| firmware M4F (QEMU) | int8 | Efficient | {:.0} instr ≈ {:.1} ms @{:.0} MHz | {:.1} M instr ≈ {:.0} ms | {:.0} | {} | {:.1} instr/MAC | | | | | |",
@@ -223,12 +222,13 @@ fn print_firmware_row(m: &Measured) {
             f.adapt_instr / 1e6,
             f.adapt_instr / f.mhz / 1e3,
             f.adapt_instr / f.step_instr,
-            macs,
-            f.step_instr / macs as f64,
+            f.macs,
+            f.step_instr / f.macs,
         ),
         None => println!(
             "| firmware M4F (QEMU) | int8 | Efficient | not measured: no {} (written by `cargo test --release -p gman-tests --test firmware_qemu`) | | | {} | | | | | | |",
-            m.firmware_log, macs,
+            m.firmware_log,
+            Dims::MCU.macs_per_step(),
         ),
     }
 }
