@@ -17,7 +17,7 @@ mkdir -p "$R"
 [ -f "$R/eval-random.json" ] || $G eval --data "$D" --split val --agent random --json "$R/eval-random.json" --quiet
 run() {
   local name=$1; shift
-  [ -f "$R/$name/checkpoint.ckpt" ] || $G train --data "$D" --preset mcu --fg "$R/fg/fg.ckpt" \
+  [ -f "$R/$name/checkpoint.ckpt" ] || $G train --data "$D" --preset mcu --fg "$R/fg/fg.ckpt" --batch-envs 1 \
     --updates "$U" --out "$R/$name" --quiet "$@"
   [ -f "$R/eval-$name.json" ] || $G eval --data "$D" --split val --agent "$R/$name/checkpoint.ckpt" \
     --json "$R/eval-$name.json" --quiet

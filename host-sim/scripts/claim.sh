@@ -3,16 +3,21 @@
 # α = 1e-2) against its controls — gman-noemd (θ trained by the outer loop, no inner loop),
 # A3C+FG and A3C — over SEEDS at UPDATES each, all 8000 val episodes per run, GMAN also with
 # adaptation off at test time; then the table with Welch's t against GMAN. Re-running skips
-# what is done (an interrupted training resumes exactly).
+# what is done (an interrupted training resumes exactly). EXTRA=1 adds the other methods of
+# the results table (gman-cossim, and a3c-ps / gman-ps with a pre-trained PS module) for the
+# seeds in EXTRA_SEEDS.
 #   DATA=../shared/data/gman SEEDS="1 2 3 4 5" bash host-sim/scripts/claim.sh
+# Session 8 (B = 16, 6000 updates, the defaults); session 6 was
+#   BATCH_ENVS=1 UPDATES=15000 OUT=runs/claim bash host-sim/scripts/claim.sh
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 cargo build --release -p gman-host-sim --bin gman
 G=./target/release/gman
 D=${DATA:-../shared/data/gman}
-R=${OUT:-runs/claim}
-U=${UPDATES:-15000}
-mkdir -p "$R"/{gman,gman-adaptoff,gman-noemd,a3c-fg,a3c}
+R=${OUT:-runs/claim-b16}
+U=${UPDATES:-6000}
+B=${BATCH_ENVS:-16}
+mkdir -p "$R"/{gman,gman-adaptoff,gman-noemd,a3c-fg,a3c,gman-cossim,gman-cossim-adaptoff,a3c-ps,gman-ps}
 [ -f "$R/fg/fg.ckpt" ] || $G pretrain-fg --data "$D" --preset mcu --seed 1 --out "$R/fg" --quiet
 run() {
   local method=$1 s=$2; shift 2
@@ -20,7 +25,7 @@ run() {
   if [ -f "$dir/checkpoint.ckpt" ]; then
     $G train --data "$D" --resume "$dir" --updates "$U" --quiet
   else
-    $G train --data "$D" --preset mcu --fg "$R/fg/fg.ckpt" --map 3x3 --method "$method" \
+    $G train --data "$D" --preset mcu --fg "$R/fg/fg.ckpt" --batch-envs "$B" --map 3x3 --method "$method" \
       --updates "$U" --seed "$s" --out "$dir" --quiet "$@"
   fi
   [ -f "$R/$method/s$s.json" ] || $G eval --data "$D" --split val \
@@ -35,4 +40,17 @@ for s in ${SEEDS:-1 2 3 4 5}; do
   run a3c-fg "$s"
   run a3c "$s"
 done
+if [ "${EXTRA:-0}" = 1 ]; then
+  [ -f "$R/ps/ps.ckpt" ] || $G pretrain-ps --data "$D" --seed 1 --out "$R/ps" --quiet
+  for s in ${EXTRA_SEEDS:-1 2 3}; do
+    run gman-cossim "$s" --inner-lr 0.01
+    [ -f "$R/gman-cossim-adaptoff/s$s.json" ] || $G eval --data "$D" --split val \
+      --agent "$R/runs/gman-cossim-s$s/checkpoint.ckpt" --method gman-noemd \
+      --json "$R/gman-cossim-adaptoff/s$s.json" --quiet
+    run a3c-ps "$s" --ps "$R/ps/ps.ckpt"
+    run gman-ps "$s" --inner-lr 0.01 --ps "$R/ps/ps.ckpt"
+  done
+fi
 $G table --runs "$R"/gman "$R"/gman-adaptoff "$R"/gman-noemd "$R"/a3c-fg "$R"/a3c
+[ "${EXTRA:-0}" = 1 ] && $G table --runs "$R"/gman-cossim "$R"/gman-cossim-adaptoff "$R"/a3c-ps "$R"/gman-ps
+exit 0

@@ -19,7 +19,7 @@ mkdir -p "$R/eval"
 for seed in 1 2 3; do
   for m in $METHODS; do
     out=$R/$m-seed$seed
-    [ -f "$out/checkpoint.ckpt" ] || $G train --data "$D" --method "$m" --preset mcu --updates "$U" --seed "$seed" \
+    [ -f "$out/checkpoint.ckpt" ] || $G train --data "$D" --method "$m" --preset mcu --batch-envs 1 --updates "$U" --seed "$seed" \
       --fg "$R/fg/fg.ckpt" --ps "$R/ps/ps.ckpt" --out "$out" --quiet
     mkdir -p "$R/eval/$m"
     [ -f "$R/eval/$m/seed$seed.json" ] || $G eval --data "$D" --split val --agent "$out/checkpoint.ckpt" \

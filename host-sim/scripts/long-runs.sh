@@ -24,7 +24,7 @@ run() { # NAME METHOD SEED [train args...]
     if [ -f "$out/checkpoint.ckpt" ]; then
       $G train --data "$D" --updates "$U" --seed "$s" --resume "$out" --quiet "$@"
     else
-      $G train --data "$D" --method "$m" --preset mcu --updates "$U" --seed "$s" --fg "$R/fg/fg.ckpt" --out "$out" --quiet "$@"
+      $G train --data "$D" --method "$m" --preset mcu --batch-envs 1 --updates "$U" --seed "$s" --fg "$R/fg/fg.ckpt" --out "$out" --quiet "$@"
     fi
     touch "$out.done"
   fi
