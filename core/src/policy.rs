@@ -415,17 +415,9 @@ impl<'a> Policy<'a> {
         if n == 0 {
             return Ok(());
         }
-        let wd = self.batch_widths(inp, n, cache.cell.len())?;
-        let (f, hd, e) = (wd.f, self.lstm.hidden(), self.fuse.out_dim());
-        check_len("policy.dh_next", n * hd, dh_next.len())?;
-        check_len("policy.dh", n * hd, s.dh.len())?;
-        let want_feat = !out.feat.is_empty();
-        if want_feat {
-            check_len("policy.dfeat", n * f, out.feat.len())?;
-            check_len("policy.dprod", n * f, s.dprod.len())?;
-        }
-        check_len("policy.de", n * e, s.de.len())?;
-        check_len("policy.tmp", n * e.max(NUM_ACTIONS), s.tmp.len())?;
+        // Every shape the trunk needs is checked before the heads write anything.
+        self.check_trunk_backward(n, inp, cache, dc_next, out, s)?;
+        check_len("policy.dh_next", n * self.lstm.hidden(), dh_next.len())?;
         // Heads: dh = W_actorᵀ dlogits (+ gain) + W_criticᵀ dvalue + dh_next.
         s.dh.copy_from_slice(dh_next);
         self.heads_backward(
@@ -440,6 +432,29 @@ impl<'a> Policy<'a> {
             &mut s.tmp[..n * NUM_ACTIONS],
         )?;
         self.trunk_backward_batch(n, inp, h_prev, c_prev, cache, dc_next, grads, out, s)
+    }
+
+    /// The buffer lengths [`Policy::trunk_backward_batch`] reads and writes over `n` rows.
+    fn check_trunk_backward(
+        &self,
+        n: usize,
+        inp: &PolicyInput<'_>,
+        cache: &PolicyCache<'_>,
+        dc_next: &[f32],
+        out: &PolicyInputGrads<'_>,
+        s: &PolicyScratch<'_>,
+    ) -> Result<BatchWidths> {
+        let wd = self.batch_widths(inp, n, cache.cell.len())?;
+        let (f, hd, e) = (wd.f, self.lstm.hidden(), self.fuse.out_dim());
+        check_len("policy.dh", n * hd, s.dh.len())?;
+        check_len("policy.dc_next", n * hd, dc_next.len())?;
+        if !out.feat.is_empty() {
+            check_len("policy.dfeat", n * f, out.feat.len())?;
+            check_len("policy.dprod", n * f, s.dprod.len())?;
+        }
+        check_len("policy.de", n * e, s.de.len())?;
+        check_len("policy.tmp", n * e.max(NUM_ACTIONS), s.tmp.len())?;
+        Ok(wd)
     }
 
     /// The heads' part of [`Policy::backward_batch`] over `n` rows: accumulates the actor's
@@ -512,17 +527,9 @@ impl<'a> Policy<'a> {
         if n == 0 {
             return Ok(());
         }
-        let wd = self.batch_widths(inp, n, cache.cell.len())?;
-        let (f, hd, e) = (wd.f, self.lstm.hidden(), self.fuse.out_dim());
-        check_len("policy.dh", n * hd, s.dh.len())?;
-        check_len("policy.dc_next", n * hd, dc_next.len())?;
+        let wd = self.check_trunk_backward(n, inp, cache, dc_next, out, s)?;
+        let (f, e) = (wd.f, self.fuse.out_dim());
         let want_feat = !out.feat.is_empty();
-        if want_feat {
-            check_len("policy.dfeat", n * f, out.feat.len())?;
-            check_len("policy.dprod", n * f, s.dprod.len())?;
-        }
-        check_len("policy.de", n * e, s.de.len())?;
-        check_len("policy.tmp", n * e.max(NUM_ACTIONS), s.tmp.len())?;
         s.de.fill(0.0);
         self.lstm.backward_batch(
             &[cache.fuse],

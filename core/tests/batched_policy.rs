@@ -237,6 +237,49 @@ fn check(map: bool, gain: bool, int8: bool, ps: usize) {
             .unwrap();
     }
 
+    // A dc_next one row short is refused before anything is written: the heads' gradients
+    // (accumulated first) stay zero.
+    let mut g_short = Grads::new(fuse_in);
+    {
+        let mut gv = g_short.view(gain, map);
+        let (mut dhp, mut dcp) = (vec![0.0; N * H], vec![0.0; N * H]);
+        let mut dfeat = vec![0.0; N * F];
+        let mut out = PolicyInputGrads {
+            feat: &mut dfeat,
+            h_prev: &mut dhp,
+            c_prev: &mut dcp,
+        };
+        let mut s = PolicyScratch {
+            de: &mut sb.0,
+            dgates: &mut sb.1,
+            dprod: &mut sb.2,
+            tmp: &mut sb.3,
+            dh: &mut sb.4,
+            dcell: &mut sb.5,
+            cell_tmp: &mut sb.6,
+        };
+        assert!(policy
+            .backward_batch(
+                N,
+                &inp,
+                &h_prev,
+                &c_prev,
+                &cache,
+                &dlogits,
+                &dvalue,
+                &dh_next,
+                &dc_next[..(N - 1) * H],
+                &mut gv,
+                &mut out,
+                &mut s,
+            )
+            .is_err());
+    }
+    assert!(
+        g_short.0.iter().flatten().all(|&v| v == 0.0),
+        "a refused backward_batch wrote gradients"
+    );
+
     // Without a buffer for ∂L/∂x_t (G not trained) every other gradient keeps its bits.
     let mut g_nofeat = Grads::new(fuse_in);
     {

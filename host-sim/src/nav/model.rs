@@ -940,6 +940,19 @@ pub fn load_model(path: &Path, method: Option<Method>) -> Result<NavModel> {
     Ok(m)
 }
 
+/// Floats of a navigator arena (capacity [`super::K`]) that fits `dims` in either adaptation
+/// mode with the host's [`Footprint::Fast`].
+pub fn host_arena_len(dims: &Dims) -> usize {
+    use gman_core::navigator::{Efficient, Full, Navigator};
+    Navigator::<Full, { super::K }>::arena_len_for(dims, Footprint::Fast).max(Navigator::<
+        Efficient,
+        { super::K },
+    >::arena_len_for(
+        dims,
+        Footprint::Fast,
+    ))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -1124,17 +1137,4 @@ mod inner_rule_tests {
         let err = format!("{:#}", NavModel::from_checkpoint(&ck).unwrap_err());
         assert!(err.contains("disc-steps"), "{err}");
     }
-}
-
-/// Floats of a navigator arena (capacity [`super::K`]) that fits `dims` in either adaptation
-/// mode with the host's [`Footprint::Fast`].
-pub fn host_arena_len(dims: &Dims) -> usize {
-    use gman_core::navigator::{Efficient, Full, Navigator};
-    Navigator::<Full, { super::K }>::arena_len_for(dims, Footprint::Fast).max(Navigator::<
-        Efficient,
-        { super::K },
-    >::arena_len_for(
-        dims,
-        Footprint::Fast,
-    ))
 }
