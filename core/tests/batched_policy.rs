@@ -108,6 +108,30 @@ impl Grads {
     }
 }
 
+/// The seven scratch buffers of a backward pass (`PolicyScratch`'s fields, in order).
+type ScratchBufs = (
+    Vec<f32>,
+    Vec<f32>,
+    Vec<f32>,
+    Vec<f32>,
+    Vec<f32>,
+    Vec<f32>,
+    Vec<f32>,
+);
+
+/// A `PolicyScratch` over `b` (without the x_t-gradient buffer when `dprod` is false).
+fn scratch(b: &mut ScratchBufs, dprod: bool) -> PolicyScratch<'_> {
+    PolicyScratch {
+        de: &mut b.0,
+        dgates: &mut b.1,
+        dprod: if dprod { &mut b.2 } else { &mut [] },
+        tmp: &mut b.3,
+        dh: &mut b.4,
+        dcell: &mut b.5,
+        cell_tmp: &mut b.6,
+    }
+}
+
 fn bits(v: &[f32]) -> Vec<u32> {
     v.iter().map(|x| x.to_bits()).collect()
 }
@@ -220,15 +244,7 @@ fn check(map: bool, gain: bool, int8: bool, ps: usize) {
             h_prev: &mut dhp_b,
             c_prev: &mut dcp_b,
         };
-        let mut s = PolicyScratch {
-            de: &mut sb.0,
-            dgates: &mut sb.1,
-            dprod: &mut sb.2,
-            tmp: &mut sb.3,
-            dh: &mut sb.4,
-            dcell: &mut sb.5,
-            cell_tmp: &mut sb.6,
-        };
+        let mut s = scratch(&mut sb, true);
         policy
             .backward_batch(
                 N, &inp, &h_prev, &c_prev, &cache, &dlogits, &dvalue, &dh_next, &dc_next, &mut gv,
@@ -249,15 +265,7 @@ fn check(map: bool, gain: bool, int8: bool, ps: usize) {
             h_prev: &mut dhp,
             c_prev: &mut dcp,
         };
-        let mut s = PolicyScratch {
-            de: &mut sb.0,
-            dgates: &mut sb.1,
-            dprod: &mut sb.2,
-            tmp: &mut sb.3,
-            dh: &mut sb.4,
-            dcell: &mut sb.5,
-            cell_tmp: &mut sb.6,
-        };
+        let mut s = scratch(&mut sb, true);
         assert!(policy
             .backward_batch(
                 N,
@@ -290,15 +298,7 @@ fn check(map: bool, gain: bool, int8: bool, ps: usize) {
             h_prev: &mut dhp,
             c_prev: &mut dcp,
         };
-        let mut s = PolicyScratch {
-            de: &mut sb.0,
-            dgates: &mut sb.1,
-            dprod: &mut [],
-            tmp: &mut sb.3,
-            dh: &mut sb.4,
-            dcell: &mut sb.5,
-            cell_tmp: &mut sb.6,
-        };
+        let mut s = scratch(&mut sb, false);
         policy
             .backward_batch(
                 N, &inp, &h_prev, &c_prev, &cache, &dlogits, &dvalue, &dh_next, &dc_next, &mut gv,
@@ -392,15 +392,7 @@ fn check(map: bool, gain: bool, int8: bool, ps: usize) {
             h_prev: &mut dhp,
             c_prev: &mut dcp,
         };
-        let mut s = PolicyScratch {
-            de: &mut s1.0,
-            dgates: &mut s1.1,
-            dprod: &mut s1.2,
-            tmp: &mut s1.3,
-            dh: &mut s1.4,
-            dcell: &mut s1.5,
-            cell_tmp: &mut s1.6,
-        };
+        let mut s = scratch(&mut s1, true);
         policy
             .backward(
                 &one,
