@@ -38,12 +38,7 @@ fn model(method: Method, dims: Dims, mode: AdaptMode, seed: u64) -> NavModel {
 }
 
 fn sampler(world: &World, seed: u64) -> impl FnMut(u32) -> anyhow::Result<(EpisodeSpec, u32)> + '_ {
-    move |e| {
-        let mut rng = ChaCha8Rng::seed_from_u64(seed.wrapping_mul(1000).wrapping_add(e as u64));
-        let spec = world.try_sample_train_episode_min(&mut rng, 1)?;
-        let max = 30.min(EpisodeLimits::default().for_room(spec.room));
-        Ok((spec, max))
-    }
+    sampler_max(world, seed, 30)
 }
 
 /// The batch-1 trainer's worker loop (trainer.rs) over the same episodes.
@@ -103,21 +98,7 @@ fn vectorised_with_disc(
     seed: u64,
     b: usize,
 ) -> (ParamSet, Done) {
-    let mut worker = Worker::new(m);
-    let mut grads = m.params.zeros_like();
-    let a3c = A3cConfig::default();
-    let s = VecSettings {
-        batch_envs: b,
-        min_steps,
-        reward: RewardKind::Mixed,
-        a3c: &a3c,
-        objective,
-    };
-    let done = run_worker(world, m, &s, &mut worker, &mut grads, sampler(world, seed)).unwrap();
-    for (k, f) in done.iter().enumerate() {
-        assert_eq!(f.0 as usize, k, "episodes are returned in index order");
-    }
-    (grads, done.into_iter().map(|f| (f.1, f.2)).collect())
+    vectorised_adapt(world, m, objective, min_steps, seed, 30, b)
 }
 
 fn same_bits(a: &ParamSet, b: &ParamSet, what: &str) {

@@ -767,13 +767,6 @@ mod tests {
     use rand::SeedableRng;
     use rand_chacha::ChaCha8Rng;
 
-    fn bits(g: &ParamSet) -> Vec<u32> {
-        g.tensors
-            .iter()
-            .flat_map(|t| t.data.iter().map(|v| v.to_bits()))
-            .collect()
-    }
-
     type Copy3 = (Vec<f32>, Vec<f32>, Option<Vec<f32>>);
 
     /// A dense view over a copy, on the kernels of `like`.
@@ -921,7 +914,7 @@ mod tests {
                 let segs: Vec<Segment<'_>> = (0..t.segs.len()).map(|k| seg(t, k, true)).collect();
                 backward(&segs, &mut want);
             }
-            assert_eq!(bits(&got), bits(&want), "{mode:?}: the pinned order");
+            assert_eq!(got.bits(), want.bits(), "{mode:?}: the pinned order");
             // One segment at a time: a different sum of the same terms.
             let mut one = model.params.zeros_like();
             for t in &log {
@@ -929,14 +922,14 @@ mod tests {
                     backward(&[seg(t, k, true)], &mut one);
                 }
             }
-            assert_ne!(bits(&got), bits(&one), "{mode:?}: order-sensitive");
+            assert_ne!(got.bits(), one.bits(), "{mode:?}: order-sensitive");
             // At the unadapted parameters: another gradient.
             let mut shared = model.params.zeros_like();
             for t in &log {
                 let segs: Vec<Segment<'_>> = (0..t.segs.len()).map(|k| seg(t, k, false)).collect();
                 backward(&segs, &mut shared);
             }
-            assert_ne!(bits(&got), bits(&shared), "{mode:?}: per-row parameters");
+            assert_ne!(got.bits(), shared.bits(), "{mode:?}: per-row parameters");
         }
     }
 }

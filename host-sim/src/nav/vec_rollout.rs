@@ -723,13 +723,6 @@ mod tests {
     use rand::SeedableRng;
     use rand_chacha::ChaCha8Rng;
 
-    fn bits(g: &ParamSet) -> Vec<u32> {
-        g.tensors
-            .iter()
-            .flat_map(|t| t.data.iter().map(|v| v.to_bits()))
-            .collect()
-    }
-
     /// The deferred backward's order, pinned: the gradient of a `B > 1` update is that of
     /// one batched BPTT over all the update's segments sorted by length (longest first),
     /// then by the order they completed — and that order matters (the same segments one at
@@ -774,7 +767,7 @@ mod tests {
             let mut segs = Vec::new();
             let (none, _) = run(Some(&mut segs));
             assert!(
-                bits(&none).iter().all(|&b| b == 0),
+                none.bits().iter().all(|&b| b == 0),
                 "nothing flushed before the end"
             );
             assert!(
@@ -816,8 +809,8 @@ mod tests {
             let all: Vec<Segment<'_>> = segs.iter().map(seg).collect();
             backward(&all, &mut want);
             assert_eq!(
-                bits(&got),
-                bits(&want),
+                got.bits(),
+                want.bits(),
                 "{}: the pinned order",
                 method.name()
             );
@@ -837,8 +830,8 @@ mod tests {
                 .collect();
             backward(&own, &mut rows_own);
             assert_eq!(
-                bits(&rows_own),
-                bits(&want),
+                rows_own.bits(),
+                want.bits(),
                 "{}: per-row heads",
                 method.name()
             );
@@ -848,7 +841,7 @@ mod tests {
             for p in &segs {
                 backward(&[seg(p)], &mut one);
             }
-            assert_ne!(bits(&got), bits(&one), "{}: order-sensitive", method.name());
+            assert_ne!(got.bits(), one.bits(), "{}: order-sensitive", method.name());
         }
     }
 }

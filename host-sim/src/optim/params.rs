@@ -76,6 +76,15 @@ impl ParamSet {
         ParamSet::default()
     }
 
+    /// Every value's bits, tensor after tensor (for tests that compare gradients bit for bit).
+    #[cfg(test)]
+    pub(crate) fn bits(&self) -> Vec<u32> {
+        self.tensors
+            .iter()
+            .flat_map(|t| t.data.iter().map(|v| v.to_bits()))
+            .collect()
+    }
+
     /// Adds a tensor initialised by `init` (drawing from `rng` for [`Init::Normal`]).
     /// Fails if the name is already used.
     pub fn add(
