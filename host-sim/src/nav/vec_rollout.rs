@@ -53,7 +53,7 @@ use anyhow::{anyhow, bail, Result};
 use gman_core::activation::{all_finite, leaky_relu_inplace, sigmoid_inplace};
 use gman_core::blob::TensorId;
 use gman_core::generator::Generator;
-use gman_core::matrix::Weights;
+use gman_core::matrix::{MatRef, Weights};
 use gman_core::memory::AdaptMode;
 use gman_core::navigator::{select_action, Efficient, Full, Mode, Navigator, NoiseMode, Selection};
 use gman_core::policy::{Policy, PolicyInput};
@@ -182,6 +182,10 @@ struct GenBatch {
     h1: Vec<f32>,
     u2: Vec<f32>,
     x: Vec<f32>,
+    /// x_t of every episode when G's weight matrices are all zero (plain A3C: `--method a3c`,
+    /// `a3c-ps`): then x_t depends on neither z_t nor SE(y) (see [`GenBatch::generate`]), so
+    /// it is computed once per update and copied. `None` until the first batch.
+    constant: Option<Option<Vec<f32>>>,
 }
 
 /// Segments whose forward is done, waiting for their backward (see the module docs).
@@ -511,6 +515,13 @@ impl GenBatch {
         if n == 0 {
             return Ok(());
         }
+        if let Some(Some(x)) = &self.constant {
+            for &i in &self.who {
+                let sl = slots[i].as_mut().ok_or_else(|| anyhow!("empty slot"))?;
+                sl.x.copy_from_slice(x);
+            }
+            return Ok(());
+        }
         gen.validate()?;
         let (h, a) = (gen.hidden(), w.a);
         if gen.in_dim() != w.z + a || gen.feat() != w.f {
@@ -545,11 +556,33 @@ impl GenBatch {
         gen.l2
             .forward_batch(&[&self.h1], &[h], n, &mut self.u2, &mut self.x)?;
         sigmoid_inplace(&mut self.x);
+        if self.constant.is_none() {
+            // With W1 = 0 and W2 = 0 every product in G is ±0 (z_t and SE(y) are finite:
+            // drawn, and checked when the episode starts), each layer's dot product is +0
+            // (its sum starts at +0), so the pre-activations are the biases (through the
+            // gain: g · (+0) + b) whatever the inputs, and the sigmoid maps ±0 alike: every
+            // episode's x_t is this batch's first row, bit for bit, as the navigator alone
+            // computes it.
+            let zero = is_zero(&gen.l1.w) && is_zero(&gen.l2.w);
+            self.constant = Some(zero.then(|| self.x[..w.f].to_vec()));
+        }
         for (&i, x) in self.who.iter().zip(self.x.chunks_exact(w.f)) {
             let sl = slots[i].as_mut().ok_or_else(|| anyhow!("empty slot"))?;
             sl.x.copy_from_slice(x);
         }
         Ok(())
+    }
+}
+
+/// True when every weight of `m` is exactly zero (either sign; int8: every code zero, so every
+/// product is a zero before the row scale, whatever the scale).
+fn is_zero(m: &MatRef<'_>) -> bool {
+    match m.weights() {
+        Weights::F32(d) => d.iter().all(|&v| v == 0.0),
+        Weights::F32Le(d) => d
+            .chunks_exact(4)
+            .all(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]) == 0.0),
+        Weights::I8 { q, .. } => q.iter().all(|&b| b == 0),
     }
 }
 
@@ -843,5 +876,28 @@ mod tests {
             }
             assert_ne!(got.bits(), one.bits(), "{}: order-sensitive", method.name());
         }
+    }
+
+    /// The zero-G shortcut of [`GenBatch`] applies to zero matrices only, of any storage.
+    #[test]
+    fn zero_matrices_are_recognised() {
+        let mut d = vec![0.0f32; 12];
+        d[5] = -0.0;
+        assert!(is_zero(&MatRef::f32(3, 4, &d).unwrap()));
+        d[7] = 1e-38;
+        assert!(!is_zero(&MatRef::f32(3, 4, &d).unwrap()));
+        let le: Vec<u8> = [0.0f32, -0.0, 0.0, 0.0]
+            .iter()
+            .flat_map(|v| v.to_le_bytes())
+            .collect();
+        assert!(is_zero(&MatRef::f32_le(2, 2, &le).unwrap()));
+        let le1: Vec<u8> = [0.0f32, 2.0].iter().flat_map(|v| v.to_le_bytes()).collect();
+        assert!(!is_zero(&MatRef::f32_le(1, 2, &le1).unwrap()));
+        let scales = [1.0f32, f32::NAN];
+        let q = [0u8; 4];
+        let sc = gman_core::matrix::Scales::F32(&scales);
+        assert!(is_zero(&MatRef::i8(2, 2, &q, sc).unwrap()));
+        let q1 = [0u8, 0, 0xff, 0];
+        assert!(!is_zero(&MatRef::i8(2, 2, &q1, sc).unwrap()));
     }
 }
