@@ -42,6 +42,13 @@ fn every_kernel_gives_the_same_bits_with_and_without_avx2() {
         (256, &[90], 20),
         (9, &[100, 9], 7),
         (33, &[24], 5),
+        // The AVX2 matmul's tiles (8 x 1, 2 x 4) and their remainders.
+        (5, &[64, 64], 4),
+        (257, &[45, 45], 16),
+        (64, &[512, 512, 512, 45, 6], 9),
+        (3, &[5], 6),
+        (11, &[8, 16], 2),
+        (19, &[3, 64, 1], 1),
     ];
     for &(r, lens, n) in shapes {
         let c: usize = lens.iter().sum();
@@ -91,6 +98,36 @@ fn every_kernel_gives_the_same_bits_with_and_without_avx2() {
         outer_acc_batch_with(None, &mut wa, &dy, &segs, lens, n, 0.3).unwrap();
         outer_acc_batch_with(Some(k), &mut wb, &dy, &segs, lens, n, 0.3).unwrap();
         assert_eq!(bits(&wa), bits(&wb), "outer {r}x{lens:?} n={n}");
+    }
+}
+
+/// Infinities and a NaN reach `y` in the same bits with and without AVX2 (one NaN source,
+/// so that the result does not hang on which NaN operand an addition keeps).
+#[test]
+fn non_finite_values_give_the_same_bits_with_and_without_avx2() {
+    let Some(k) = avx2_or_skip() else { return };
+    let mut rng = Xoshiro128::seed_from_u64(9);
+    for (r, lens, n) in [
+        (6usize, [19usize, 64], 4usize),
+        (9, [45, 45], 1),
+        (4, [8, 3], 5),
+    ] {
+        let c: usize = lens.iter().sum();
+        let mut wv = randv(&mut rng, r * c);
+        wv[5] = f32::INFINITY;
+        wv[c + 30 % c] = f32::NAN;
+        let w = MatRef::f32(r, c, &wv).unwrap();
+        let mut xs: Vec<Vec<f32>> = lens.iter().map(|&l| randv(&mut rng, n * l)).collect();
+        xs[1][(n - 1) * lens[1] + 2] = f32::NEG_INFINITY;
+        xs[0][1] = -0.0;
+        let segs: Vec<&[f32]> = xs.iter().map(|v| v.as_slice()).collect();
+        let y0 = randv(&mut rng, n * r);
+        let (mut ya, mut yb) = (y0.clone(), y0);
+        matmul_acc(&w, &segs, &lens, n, &mut ya).unwrap();
+        matmul_acc(&w.with_kernels(k), &segs, &lens, n, &mut yb).unwrap();
+        assert_eq!(bits(&ya), bits(&yb), "matmul {r}x{lens:?} n={n}");
+        assert!(ya.iter().any(|v| v.is_nan()), "the NaN reaches y");
+        assert!(ya.iter().any(|v| v.is_infinite()), "an infinity reaches y");
     }
 }
 

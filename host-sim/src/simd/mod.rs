@@ -101,6 +101,9 @@ impl Kernels for Avx2 {
 }
 
 #[cfg(target_arch = "x86_64")]
+mod avx2_matmul;
+
+#[cfg(target_arch = "x86_64")]
 mod x86 {
     use super::*;
 
@@ -111,10 +114,10 @@ mod x86 {
         n: usize,
         y: &mut [f32],
     ) -> Result<()> {
-        if n == 1 {
-            matmul_acc_blocked::<8, 1>(w, x, n, y)
-        } else {
-            matmul_acc_blocked::<4, 2>(w, x, n, y)
+        match super::avx2_matmul::matmul_acc(w, x, n, y) {
+            Some(()) => Ok(()),
+            // Shapes it does not take: the portable body names the error.
+            None => matmul_acc_blocked::<2, 4>(w, x, n, y),
         }
     }
 
