@@ -5,7 +5,7 @@
 //! ```sh
 //! cargo run --release -p gman-host-sim --example train_throughput -- \
 //!     [--method a3c|gman] [--preset mcu|paper] [--batch-envs B] [--workers W] \
-//!     [--adapt-mode efficient|full] [--warmup N] [--updates N] [--reps R]
+//!     [--adapt-mode efficient|full] [--warmup N] [--updates N] [--reps R] [--min-steps S]
 //! ```
 //!
 //! `--adapt-mode`: the navigator's adaptation mode (default `full`, `NavModel::init`'s, what
@@ -36,6 +36,7 @@ struct Args {
     warmup: u64,
     updates: u64,
     reps: usize,
+    min_steps: u32,
 }
 
 fn parse() -> Result<Args> {
@@ -48,6 +49,7 @@ fn parse() -> Result<Args> {
         warmup: 5,
         updates: 100,
         reps: 1,
+        min_steps: 40,
     };
     let argv: Vec<String> = std::env::args().skip(1).collect();
     let mut it = argv.iter();
@@ -80,6 +82,7 @@ fn parse() -> Result<Args> {
             "--warmup" => a.warmup = v.parse()?,
             "--updates" => a.updates = v.parse()?,
             "--reps" => a.reps = v.parse()?,
+            "--min-steps" => a.min_steps = v.parse()?,
             _ => bail!("unknown argument {k}"),
         }
     }
@@ -123,7 +126,7 @@ fn main() -> Result<()> {
             run: RunSettings {
                 workers: a.workers,
                 batch_envs: a.batch_envs,
-                min_steps: 40,
+                min_steps: a.min_steps,
                 adam,
                 ..RunSettings::default()
             },
