@@ -6,7 +6,7 @@
 //!
 //! Each row trains a fresh model (seed 1, a random generator) for two warm-up updates (not
 //! timed), then times as many more as take at least the same number of environment steps in
-//! every row of a preset (an update holds at least `B` episodes per worker) and about
+//! every row of a preset (an update holds at least `B` episodes per worker) and at least
 //! [`MIN_TIMED_SECS`] seconds. Each row runs in `gman train`'s default adaptation mode for its preset (`efficient` for `mcu`, `full` for
 //! `paper`); `gman`'s `B > 1` rows (`mcu` only) run one navigator per episode
 //! (`gman_host_sim::nav::vec_adapt`).
@@ -60,7 +60,7 @@ const MIN_STEPS: u32 = 40;
 const MIN_TIMED_SECS: f64 = 2.0;
 
 /// Measures every row: each times at least `updates x 40 x workers` environment steps (the
-/// steps of `updates` batch-1 updates; `paper` a tenth of that) and about
+/// steps of `updates` batch-1 updates; `paper` a tenth of that) and at least
 /// [`MIN_TIMED_SECS`] seconds.
 pub fn rows(updates: u64) -> Result<Vec<TrainRow>> {
     let world = World::synthetic(DEFAULT_WORLD_SEED);
@@ -136,8 +136,7 @@ fn row(
     // `target_steps` steps. `updates` counts from the start of the run, so the timed call
     // continues it.
     let warm = 2;
-    let tw = Instant::now();
-    let r = train(
+    let mut r = train(
         world,
         &TrainOptions {
             updates: warm,
@@ -145,24 +144,28 @@ fn row(
         },
         &mut state,
     );
-    let warm_secs = tw.elapsed().as_secs_f64();
     let (u0, s0) = (state.update, state.env_steps);
     let per_update = (s0 / warm).max(1);
-    // At least `target_steps` steps and about MIN_TIMED_SECS seconds (the warm-up's time
-    // per update overestimates the steady state's, so this errs on the short side).
-    let by_time = (MIN_TIMED_SECS / (warm_secs / warm as f64).max(1e-6)).ceil() as u64;
-    let updates = target_steps.div_ceil(per_update).max(by_time).max(2);
+    // Timed in chunks of updates until the row has at least `target_steps` steps and
+    // MIN_TIMED_SECS seconds (the first chunk takes the steps; each next one the time left,
+    // at the rate measured so far).
+    let mut chunk = target_steps.div_ceil(per_update).max(2);
     let t0 = Instant::now();
-    let r = r.and_then(|_| {
-        train(
+    while r.is_ok() {
+        r = train(
             world,
             &TrainOptions {
-                updates: warm + updates,
-                ..opts
+                updates: state.update + chunk,
+                ..opts.clone()
             },
             &mut state,
-        )
-    });
+        );
+        let (done, secs) = (state.update - u0, t0.elapsed().as_secs_f64());
+        if secs >= MIN_TIMED_SECS {
+            break;
+        }
+        chunk = ((MIN_TIMED_SECS - secs) * done as f64 / secs.max(1e-6)).ceil() as u64 + 1;
+    }
     let secs = t0.elapsed().as_secs_f64();
     let _ = std::fs::remove_dir_all(&out);
     r.with_context(|| format!("training {method} ({preset}, --batch-envs {batch_envs})"))?;
