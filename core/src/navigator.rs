@@ -80,7 +80,7 @@
 
 use core::marker::PhantomData;
 
-use crate::activation::all_finite;
+use crate::activation::{all_finite, leaky_relu_inplace, sigmoid_inplace};
 use crate::adapt::{actor_head_grad, AdaptLossKind};
 use crate::blob::{AdaptSettings, Blob, Header};
 use crate::dense::{Dense, DenseGrads};
@@ -581,6 +581,34 @@ fn gen_view<'s>(
     })
 }
 
+/// `out = g u + b`, element by element ([`Dense::forward`]'s step after `W x` with a gain).
+fn gain_bias(out: &mut [f32], u: &[f32], g: &[f32], b: &[f32]) -> Result<()> {
+    check_len("gain_bias.u", out.len(), u.len())?;
+    check_len("gain_bias.g", out.len(), g.len())?;
+    check_len("gain_bias.b", out.len(), b.len())?;
+    for (((o, &ui), &gi), &bi) in out.iter_mut().zip(u).zip(g).zip(b) {
+        *o = gi * ui + bi;
+    }
+    Ok(())
+}
+
+/// Whether two matrix views read the same stored values (the same slices).
+fn same_storage(a: &MatRef<'_>, b: &MatRef<'_>) -> bool {
+    use crate::matrix::{Scales, Weights};
+    let sc = |s: Scales<'_>| match s {
+        Scales::F32(v) => (v.as_ptr() as usize, v.len()),
+        Scales::Le(v) => (v.as_ptr() as usize, v.len()),
+    };
+    match (a.weights(), b.weights()) {
+        (Weights::F32(x), Weights::F32(y)) => x.as_ptr() == y.as_ptr() && x.len() == y.len(),
+        (Weights::F32Le(x), Weights::F32Le(y)) => x.as_ptr() == y.as_ptr() && x.len() == y.len(),
+        (Weights::I8 { q: x, scales: s }, Weights::I8 { q: y, scales: t }) => {
+            x.as_ptr() == y.as_ptr() && x.len() == y.len() && sc(s) == sc(t)
+        }
+        _ => false,
+    }
+}
+
 /// The view of D over its RAM parameters and the blob's base weights.
 fn disc_view<'s>(
     disc1: &'s LayerRam<'_>,
@@ -800,6 +828,9 @@ pub struct Navigator<'w, M: Mode, const K: usize> {
     ready: bool,
     /// A step was begun ([`Navigator::begin_step`]) and not yet finished.
     begun: bool,
+    /// The step was begun with [`Navigator::begin_step_defer_g`] and its x_t is not yet
+    /// generated ([`Navigator::generate_batch`]).
+    g_pending: bool,
     x_valid: bool,
     x_fixed: bool,
     /// The step's G activations (`u2` in [`Ram`]) are those of its x_t (a
@@ -860,6 +891,7 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
             n_buf: 0,
             ready: false,
             begun: false,
+            g_pending: false,
             x_valid: false,
             x_fixed: false,
             u2_valid: false,
@@ -930,6 +962,7 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
         self.x_fixed = false;
         self.ready = true;
         self.begun = false;
+        self.g_pending = false;
         let c = &mut self.counters;
         c.steps = 0;
         c.adaptations = 0;
@@ -1096,6 +1129,29 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
     /// navigator adapts) on them and pass its new `(h, c)` to [`Navigator::finish_step`], with
     /// the same `obs`. `begin_step` again before `finish_step` draws a new x_t.
     pub fn begin_step(&mut self, obs: &[f32], map: &[f32], ps: &[f32]) -> Result<()> {
+        self.begin_checks(obs, map, ps)?;
+        // Line 7: x_t = G_θi(SE(y), z_t) (unless the caller fixed x_t for this episode).
+        match self.cfg.noise {
+            _ if self.x_fixed => {}
+            NoiseMode::Gaussian => {
+                fill_gaussian(&mut self.rng, self.r.z);
+                self.run_generator(None)?;
+            }
+            NoiseMode::Zero => {
+                if !self.x_valid {
+                    self.r.z.fill(0.0);
+                    self.run_generator(None)?;
+                    self.x_valid = true;
+                }
+            }
+        }
+        self.g_pending = false;
+        self.begun = true;
+        Ok(())
+    }
+
+    /// The checks of a step's inputs, and `ps` into RAM.
+    fn begin_checks(&mut self, obs: &[f32], map: &[f32], ps: &[f32]) -> Result<()> {
         if !self.ready {
             return Err(Error::Config {
                 what: "call reset() before step()",
@@ -1121,22 +1177,125 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
             return Err(Error::NonFiniteInput { what: "ps" });
         }
         self.r.ps.copy_from_slice(ps);
-        // Line 7: x_t = G_θi(SE(y), z_t) (unless the caller fixed x_t for this episode).
-        match self.cfg.noise {
-            _ if self.x_fixed => {}
-            NoiseMode::Gaussian => {
-                fill_gaussian(&mut self.rng, self.r.z);
-                self.run_generator(None)?;
+        Ok(())
+    }
+
+    /// True when this navigator's G shares its weight matrices with every navigator over the
+    /// same blob, so that [`Navigator::generate_batch`] can run it for many of them as one
+    /// batch: the Efficient mode (only G's gains and biases are adapted), Gaussian noise, x_t
+    /// not fixed by the caller.
+    pub fn defers_generator(&self) -> bool {
+        let (g1, g2) = (&self.r.gen1, &self.r.gen2);
+        self.cfg.noise == NoiseMode::Gaussian
+            && !self.x_fixed
+            && g1.w.is_empty()
+            && g2.w.is_empty()
+            && !g1.gain.is_empty()
+            && !g2.gain.is_empty()
+    }
+
+    /// [`Navigator::begin_step`] without line 7 when [`Navigator::defers_generator`]: the
+    /// checks and the draw of z_t, after which x_t is pending until
+    /// [`Navigator::generate_batch`] runs G for this navigator (with others). Returns whether
+    /// G is pending; otherwise this was `begin_step` itself. Either way the step goes on as
+    /// after `begin_step`, with the same bits.
+    pub fn begin_step_defer_g(&mut self, obs: &[f32], map: &[f32], ps: &[f32]) -> Result<bool> {
+        if !self.defers_generator() {
+            self.begin_step(obs, map, ps)?;
+            return Ok(false);
+        }
+        self.begin_checks(obs, map, ps)?;
+        fill_gaussian(&mut self.rng, self.r.z);
+        self.g_pending = true;
+        self.begun = true;
+        Ok(true)
+    }
+
+    /// Floats of the scratch [`Navigator::generate_batch`] needs for `n` navigators.
+    pub fn generate_batch_scratch_len(dims: &Dims, n: usize) -> usize {
+        let per = dims.noise + dims.attr + 2 * dims.gen_hidden + dims.feat;
+        n.saturating_mul(per)
+    }
+
+    /// Line 7 for the navigators `navs[i]`, `i` in `who`, whose steps were begun with
+    /// [`Navigator::begin_step_defer_g`] (G pending): x_t = G_θi(SE(y), z_t) for all of them,
+    /// `W1 [z; a]` and `W2 h1` as one batch each through the batched kernels (the navigators
+    /// share W1 and W2), each navigator's own gains and biases after them. Every navigator
+    /// gets the bits its `begin_step` computes alone: the batched kernels give every vector
+    /// the bits of the batch-1 kernels, and the element-wise steps are those of
+    /// [`Dense::forward`] with a gain. `scratch` holds at least
+    /// [`Navigator::generate_batch_scratch_len`] floats. Errors (nothing changed) when a
+    /// navigator has no pending G, an index repeats or is out of range, or the navigators do
+    /// not share G's weights.
+    pub fn generate_batch(navs: &mut [Self], who: &[usize], scratch: &mut [f32]) -> Result<()> {
+        let Some(&i0) = who.first() else {
+            return Ok(());
+        };
+        let first = navs.get(i0).ok_or(Error::Config {
+            what: "generate_batch: navigator index out of range",
+        })?;
+        let d = first.w.dims;
+        let (nz, na, nh, nf) = (d.noise, d.attr, d.gen_hidden, d.feat);
+        let n = who.len();
+        let need = Self::generate_batch_scratch_len(&d, n);
+        if scratch.len() < need {
+            return Err(Error::Config {
+                what: "generate_batch: scratch too short (generate_batch_scratch_len)",
+            });
+        }
+        let (w1, w2) = (first.w.get(TensorId::GenW1), first.w.get(TensorId::GenW2));
+        for (j, &i) in who.iter().enumerate() {
+            let nav = navs.get(i).ok_or(Error::Config {
+                what: "generate_batch: navigator index out of range",
+            })?;
+            if !nav.g_pending || who[..j].contains(&i) {
+                return Err(Error::Config {
+                    what:
+                        "generate_batch: every navigator once, each begun with begin_step_defer_g",
+                });
             }
-            NoiseMode::Zero => {
-                if !self.x_valid {
-                    self.r.z.fill(0.0);
-                    self.run_generator(None)?;
-                    self.x_valid = true;
-                }
+            let same = |a: MatRef<'_>, b: MatRef<'_>| {
+                a.rows() == b.rows() && a.cols() == b.cols() && same_storage(&a, &b)
+            };
+            if nav.w.dims != d
+                || !same(nav.w.get(TensorId::GenW1), w1)
+                || !same(nav.w.get(TensorId::GenW2), w2)
+            {
+                return Err(Error::Config {
+                    what: "generate_batch: the navigators do not share G's weights",
+                });
             }
         }
-        self.begun = true;
+        let (zs, rest) = scratch[..need].split_at_mut(n * nz);
+        let (attrs, rest) = rest.split_at_mut(n * na);
+        let (u1s, rest) = rest.split_at_mut(n * nh);
+        let (h1s, u2s) = rest.split_at_mut(n * nh);
+        for (j, &i) in who.iter().enumerate() {
+            zs[j * nz..(j + 1) * nz].copy_from_slice(navs[i].r.z);
+            attrs[j * na..(j + 1) * na].copy_from_slice(navs[i].r.attr);
+        }
+        // Layer 1: u1 = W1 [z; a] (Dense::forward with a gain: u from zero, then g u + b).
+        u1s.fill(0.0);
+        crate::batch::matmul_acc(&w1, &[&*zs, &*attrs], &[nz, na], n, u1s)?;
+        for (j, &i) in who.iter().enumerate() {
+            let r = &mut navs[i].r;
+            r.u1.copy_from_slice(&u1s[j * nh..(j + 1) * nh]);
+            gain_bias(r.h1, r.u1, r.gen1.gain, r.gen1.b)?;
+            leaky_relu_inplace(r.h1);
+            h1s[j * nh..(j + 1) * nh].copy_from_slice(r.h1);
+        }
+        // Layer 2: u2 = W2 h1, x = sigmoid(g u2 + b).
+        u2s.fill(0.0);
+        crate::batch::matmul_acc(&w2, &[&*h1s], &[nh], n, u2s)?;
+        for (j, &i) in who.iter().enumerate() {
+            let nav = &mut navs[i];
+            let r = &mut nav.r;
+            r.u2.copy_from_slice(&u2s[j * nf..(j + 1) * nf]);
+            gain_bias(r.x, r.u2, r.gen2.gain, r.gen2.b)?;
+            sigmoid_inplace(r.x);
+            nav.u2_valid = true;
+            nav.g_pending = false;
+        }
         Ok(())
     }
 
@@ -1149,6 +1308,11 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
         if !self.begun {
             return Err(Error::Config {
                 what: "call begin_step() before finish_step()",
+            });
+        }
+        if self.g_pending {
+            return Err(Error::Config {
+                what: "x_t is pending: call generate_batch() after begin_step_defer_g()",
             });
         }
         let d = self.w.dims;

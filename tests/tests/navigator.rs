@@ -593,6 +593,17 @@ fn head_only_adapts_the_actor_head_and_not_g() {
 /// bits of its own `step`, inner updates included.
 #[test]
 fn batched_trunk_with_begin_and_finish_step_is_step_bit_for_bit() {
+    batched_trunk_is_step(false);
+}
+
+/// The same with G of all navigators as one batch (`begin_step_defer_g`, `generate_batch`):
+/// every navigator's own gains (adapted three times), the same bits as `step`.
+#[test]
+fn batched_generator_is_step_bit_for_bit() {
+    batched_trunk_is_step(true);
+}
+
+fn batched_trunk_is_step(defer: bool) {
     let dims = Dims::MCU;
     let w = weights(&dims, 8, 0.05);
     let cfg = NavConfig {
@@ -630,8 +641,31 @@ fn batched_trunk_with_begin_and_finish_step_is_step_bit_for_bit() {
         let obs: Vec<Vec<f32>> = (0..B)
             .map(|_| (0..f).map(|_| uniform(&mut rng)).collect())
             .collect();
-        for (nav, o) in bats.iter_mut().zip(&obs) {
-            nav.begin_step(o, &[], &[]).unwrap();
+        if defer {
+            let mut pending = Vec::new();
+            for (b, (nav, o)) in bats.iter_mut().zip(&obs).enumerate() {
+                if nav.begin_step_defer_g(o, &[], &[]).unwrap() {
+                    pending.push(b);
+                }
+            }
+            assert_eq!(pending, [0, 1, 2], "Efficient, Gaussian noise: G deferred");
+            assert!(bats[0]
+                .finish_step(&obs[0], &[0.0; 64], &[0.0; 64])
+                .is_err());
+            let mut scratch =
+                vec![0.0f32; Navigator::<Efficient, 10>::generate_batch_scratch_len(&dims, B)];
+            // Repeated or out-of-range indices and short scratch are refused.
+            assert!(Navigator::generate_batch(&mut bats, &[0, 0], &mut scratch).is_err());
+            assert!(Navigator::generate_batch(&mut bats, &[0, 7], &mut scratch).is_err());
+            assert!(Navigator::generate_batch(&mut bats, &pending, &mut scratch[1..]).is_err());
+            // In two groups, the second of two navigators: any grouping gives the same bits.
+            Navigator::generate_batch(&mut bats, &pending[..1], &mut scratch).unwrap();
+            assert!(Navigator::generate_batch(&mut bats, &pending[..1], &mut scratch).is_err());
+            Navigator::generate_batch(&mut bats, &pending[1..], &mut scratch).unwrap();
+        } else {
+            for (nav, o) in bats.iter_mut().zip(&obs) {
+                nav.begin_step(o, &[], &[]).unwrap();
+            }
         }
         // The trunk of all B navigators in one batch (the view's actor head is the first
         // navigator's; only h and c are used).

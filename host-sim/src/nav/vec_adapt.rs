@@ -199,6 +199,7 @@ fn run_in<'w, M: Mode>(
     let grid = map_grid(model);
     let train_generator = model.method.trains_generator();
     let mut rows = Rows::default();
+    let mut gen_scratch: Vec<f32> = Vec::new();
     let mut bw = Backward::default();
     let mut gbuf = GenBufs::new(&navs[0].generator()?, w.f);
     // The trunk (and a G) for the waiting segments' backward: a view of the model's
@@ -278,6 +279,7 @@ fn run_in<'w, M: Mode>(
             &mut navs,
             &mut eps,
             &active,
+            &mut gen_scratch,
         )?;
         let ready: Vec<usize> = (0..b)
             .filter(|&i| {
@@ -576,8 +578,9 @@ fn tick_log(_: &[Segment<'_>]) -> TickLog {
     TickLog
 }
 
-/// One tick of the running episodes `active`: each navigator's `begin_step` (x_t), one
-/// batched trunk forward, each navigator's `finish_step` (its own actor head, the action,
+/// One tick of the running episodes `active`: each navigator's `begin_step` (x_t: in the
+/// Efficient mode G of all of them as one batch, `Navigator::generate_batch`, the same bits),
+/// one batched trunk forward, each navigator's `finish_step` (its own actor head, the action,
 /// Ψ), the environment's step; the step and its activations recorded for the backward.
 /// Returns the steps taken.
 #[allow(clippy::too_many_arguments)]
@@ -591,13 +594,15 @@ fn tick<M: Mode>(
     navs: &mut [Navigator<'_, M, K>],
     eps: &mut [Option<Ep<'_>>],
     active: &[usize],
+    gen_scratch: &mut Vec<f32>,
 ) -> Result<u64> {
     let n = active.len();
     if n == 0 {
         return Ok(0);
     }
     rows.resize(n, w);
-    for (j, &i) in active.iter().enumerate() {
+    let mut pending = Vec::with_capacity(n);
+    for &i in active {
         let ep = eps[i].as_mut().ok_or_else(|| anyhow!("empty slot"))?;
         let nav = &mut navs[i];
         observe(ep, model, ps_buf, grid, w.map)?;
@@ -605,9 +610,19 @@ fn tick<M: Mode>(
         ep.h_prev = nav.hidden_state().to_vec();
         ep.c_prev = nav.cell_state().to_vec();
         ep.prev = nav.prev_probs().to_vec();
-        // Line 7: x_t from this episode's θ_i.
-        nav.begin_step(&ep.obs, &ep.map, &ep.ps)?;
-        put_inputs(rows, j, ep, nav, w);
+        // Line 7: x_t from this episode's θ_i (here, or below with the others).
+        if nav.begin_step_defer_g(&ep.obs, &ep.map, &ep.ps)? {
+            pending.push(i);
+        }
+    }
+    let need = Navigator::<M, K>::generate_batch_scratch_len(&model.dims, pending.len());
+    if gen_scratch.len() < need {
+        gen_scratch.resize(need, 0.0);
+    }
+    Navigator::generate_batch(navs, &pending, gen_scratch)?;
+    for (j, &i) in active.iter().enumerate() {
+        let ep = eps[i].as_ref().ok_or_else(|| anyhow!("empty slot"))?;
+        put_inputs(rows, j, ep, &navs[i], w);
     }
     // Line 8: the trunk of every running episode as one batch (the heads computed here are
     // the first navigator's; each row's own follow).
