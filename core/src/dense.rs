@@ -41,6 +41,19 @@ pub enum DenseGrads<'g> {
     },
 }
 
+/// `out = g u + b`, element by element: the step of a layer with a gain after `u = W x`
+/// (also run by `Navigator::generate_batch`, which does `W x` for many navigators at once
+/// and must give each the bits of [`Dense::forward`]).
+pub(crate) fn gain_bias(out: &mut [f32], u: &[f32], g: &[f32], b: &[f32]) -> Result<()> {
+    check_len("dense.gain_bias.u", out.len(), u.len())?;
+    check_len("dense.gain_bias.g", out.len(), g.len())?;
+    check_len("dense.gain_bias.b", out.len(), b.len())?;
+    for (((o, &ui), &gi), &bi) in out.iter_mut().zip(u).zip(g).zip(b) {
+        *o = gi * ui + bi;
+    }
+    Ok(())
+}
+
 impl<'a> Dense<'a> {
     /// Number of outputs.
     #[inline]
@@ -136,9 +149,7 @@ impl<'a> Dense<'a> {
                 u.fill(0.0);
                 matmul_acc(&self.w, x, lens, n, u)?;
                 for (p, ur) in pre.chunks_exact_mut(o).zip(u.chunks_exact(o)) {
-                    for (((p, &ui), &gi), &bi) in p.iter_mut().zip(ur).zip(g).zip(self.b) {
-                        *p = gi * ui + bi;
-                    }
+                    gain_bias(p, ur, g, self.b)?;
                 }
                 Ok(())
             }

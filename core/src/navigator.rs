@@ -83,7 +83,7 @@ use core::marker::PhantomData;
 use crate::activation::{all_finite, leaky_relu_inplace, sigmoid_inplace};
 use crate::adapt::{actor_head_grad, AdaptLossKind};
 use crate::blob::{AdaptSettings, Blob, Header};
-use crate::dense::{Dense, DenseGrads};
+use crate::dense::{gain_bias, Dense, DenseGrads};
 use crate::discriminator::{DiscGrads, Discriminator, LdConfig, LdValue};
 use crate::error::{check_len, Error, Result};
 use crate::generator::{Generator, GeneratorCache};
@@ -579,17 +579,6 @@ fn gen_view<'s>(
         l1: gen1.view(w.get(TensorId::GenW1))?,
         l2: gen2.view(w.get(TensorId::GenW2))?,
     })
-}
-
-/// `out = g u + b`, element by element ([`Dense::forward`]'s step after `W x` with a gain).
-fn gain_bias(out: &mut [f32], u: &[f32], g: &[f32], b: &[f32]) -> Result<()> {
-    check_len("gain_bias.u", out.len(), u.len())?;
-    check_len("gain_bias.g", out.len(), g.len())?;
-    check_len("gain_bias.b", out.len(), b.len())?;
-    for (((o, &ui), &gi), &bi) in out.iter_mut().zip(u).zip(g).zip(b) {
-        *o = gi * ui + bi;
-    }
-    Ok(())
 }
 
 /// Whether two matrix views read the same stored values (the same slices).

@@ -182,10 +182,12 @@ struct GenBatch {
     h1: Vec<f32>,
     u2: Vec<f32>,
     x: Vec<f32>,
-    /// x_t of every episode when G's weight matrices are all zero (plain A3C: `--method a3c`,
-    /// `a3c-ps`): then x_t depends on neither z_t nor SE(y) (see [`GenBatch::generate`]), so
-    /// it is computed once per update and copied. `None` until the first batch.
-    constant: Option<Option<Vec<f32>>>,
+    /// G's weight matrices are all zero (plain A3C: `--method a3c`, `a3c-ps`): then x_t
+    /// depends on neither z_t nor SE(y) (see [`GenBatch::generate`]), so it is computed once
+    /// per update and copied.
+    zero_g: bool,
+    /// With `zero_g`, the x_t of every episode (after the update's first batch).
+    constant: Option<Vec<f32>>,
 }
 
 /// Segments whose forward is done, waiting for their backward (see the module docs).
@@ -285,7 +287,10 @@ fn run_worker_in<'w, M: Mode>(
         rows: Rows::default(),
         bw: Backward::default(),
         gen: GenBufs::new(&cx.gen, w.f),
-        gb: GenBatch::default(),
+        gb: GenBatch {
+            zero_g: is_zero(&cx.gen.l1.w) && is_zero(&cx.gen.l2.w),
+            ..GenBatch::default()
+        },
         pending: Pending::default(),
     };
     let mut losses: Vec<(u32, u32, SegmentLoss)> = Vec::new();
@@ -515,7 +520,7 @@ impl GenBatch {
         if n == 0 {
             return Ok(());
         }
-        if let Some(Some(x)) = &self.constant {
+        if let Some(x) = &self.constant {
             for &i in &self.who {
                 let sl = slots[i].as_mut().ok_or_else(|| anyhow!("empty slot"))?;
                 sl.x.copy_from_slice(x);
@@ -556,15 +561,14 @@ impl GenBatch {
         gen.l2
             .forward_batch(&[&self.h1], &[h], n, &mut self.u2, &mut self.x)?;
         sigmoid_inplace(&mut self.x);
-        if self.constant.is_none() {
+        if self.zero_g {
             // With W1 = 0 and W2 = 0 every product in G is ±0 (z_t and SE(y) are finite:
             // drawn, and checked when the episode starts), each layer's dot product is +0
             // (its sum starts at +0), so the pre-activations are the biases (through the
             // gain: g · (+0) + b) whatever the inputs, and the sigmoid maps ±0 alike: every
             // episode's x_t is this batch's first row, bit for bit, as the navigator alone
             // computes it.
-            let zero = is_zero(&gen.l1.w) && is_zero(&gen.l2.w);
-            self.constant = Some(zero.then(|| self.x[..w.f].to_vec()));
+            self.constant = Some(self.x[..w.f].to_vec());
         }
         for (&i, x) in self.who.iter().zip(self.x.chunks_exact(w.f)) {
             let sl = slots[i].as_mut().ok_or_else(|| anyhow!("empty slot"))?;
