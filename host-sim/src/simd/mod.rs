@@ -72,7 +72,11 @@ pub fn host_kernels_name() -> &'static str {
 impl Kernels for Avx2 {
     fn matmul_acc(&self, w: &MatRef<'_>, x: &[&[f32]], n: usize, y: &mut [f32]) -> Result<()> {
         // SAFETY: an `Avx2` is only handed out by `avx2()` after detecting AVX2.
-        unsafe { x86::matmul_acc(w, x, n, y) }
+        match unsafe { avx2_matmul::matmul_acc(w, x, n, y) } {
+            Some(()) => Ok(()),
+            // Shapes it does not take: the portable body names the error.
+            None => matmul_acc_blocked::<2, 4>(w, x, n, y),
+        }
     }
 
     fn matmul_t_acc(
@@ -106,20 +110,6 @@ mod avx2_matmul;
 #[cfg(target_arch = "x86_64")]
 mod x86 {
     use super::*;
-
-    #[target_feature(enable = "avx2")]
-    pub(super) unsafe fn matmul_acc(
-        w: &MatRef<'_>,
-        x: &[&[f32]],
-        n: usize,
-        y: &mut [f32],
-    ) -> Result<()> {
-        match super::avx2_matmul::matmul_acc(w, x, n, y) {
-            Some(()) => Ok(()),
-            // Shapes it does not take: the portable body names the error.
-            None => matmul_acc_blocked::<2, 4>(w, x, n, y),
-        }
-    }
 
     #[target_feature(enable = "avx2")]
     pub(super) unsafe fn matmul_t_acc(
