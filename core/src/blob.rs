@@ -1,6 +1,7 @@
 //! Weight blobs: the versioned, checksummed `postcard` container the core loads weights from.
 //!
-//! # Layout (format version 2; v3 inserts `map` after `dims`)
+//! # Layout (format version 2; v3 inserts `map` after `dims`; v4 is v3 with a checksum over the
+//! whole blob)
 //! ```text
 //! blob    = header payload
 //! header  = postcard(HeaderV2)        in this order:
@@ -17,6 +18,8 @@
 //!             n_tensors    u16 varint
 //!             payload_len  u32 varint   bytes after the header
 //!             payload_crc  u32 varint   CRC-32 (IEEE) of the payload; always the last field
+//!                                       (v4: of every header byte before it, then the
+//!                                       payload)
 //! payload = postcard(Tensor) * count  id, rows, cols, quantisation, data bytes, scale bytes
 //! ```
 //! Tensor data are little-endian f32 (`quant = 0`, `4 * rows * cols` bytes, no scales) or int8
@@ -24,13 +27,18 @@
 //! Vectors (biases) are f32 with `cols = 1`.
 //!
 //! # Versions
-//! * **v3** (what the encoders write for a model with a spatial observation map) adds the
+//! * **v4** (what the encoders write) has the v3 header, but its last field is the CRC-32
+//!   of the whole blob without that field: the header's bytes before it (magic, version,
+//!   dims, map, flags, rates, cap, counts) followed by the payload. In v1-v3 the CRC covered
+//!   the payload only, so a changed flag, rate or map size went unnoticed; in v4 every byte
+//!   the device interprets is covered, and a v4 blob with any header bit flipped is refused
+//!   ([`BlobError::HeaderChecksumMismatch`], or a decoding error). Older blobs are still
+//!   read and verified by their own rule ([`Header::checksum_scope`] says which one).
+//! * **v3** (what the encoders wrote for a model with a spatial observation map) adds the
 //!   map's dims (`map_rows`, `map_cols`, `cell_embed`) after `dims`, and the per-cell layer's
-//!   tensors [`TensorId::CellW`] and [`TensorId::CellB`]. A model without a map is still
-//!   written as v2, byte for byte as before; a v1/v2 blob has no map and may not carry the
-//!   per-cell tensors.
-//! * **v2** (what [`encode`], [`encode_with_flags`] and [`encode_with_settings`] write for a
-//!   model without a map) adds
+//!   tensors [`TensorId::CellW`] and [`TensorId::CellB`]. A v1/v2 blob has no map and may not
+//!   carry the per-cell tensors.
+//! * **v2** (what the encoders wrote for a model without a map) adds
 //!   the inner-loop settings of Algorithm 1 the model was trained with, `alpha_disc`,
 //!   `alpha_adapt` and `max_inner` (see [`AdaptSettings`]), between `flags` and `n_tensors`.
 //!   A model meta-trained with other rates or another cap than the paper's would silently
@@ -57,10 +65,13 @@
 //!
 //! # Validation
 //! Parsing checks, in order: decoding of the `{magic, version}` prefix, magic, version,
-//! decoding of that version's header, the inner-loop rates (v2: finite and non-negative, else
-//! [`BlobError::BadInnerRate`]), the dims (every size derived from them, parameter counts,
-//! tensor bytes, RAM layout, must fit in `usize`, else [`BlobError::DimsTooLarge`]; see
-//! [`Dims::checked_sizes`]), payload length, CRC-32, then every record (known id, no
+//! decoding of that version's header, (v4: payload length and the CRC-32 over header and
+//! payload,) the inner-loop rates (v2 and later: finite, non-negative and at most
+//! [`MAX_INNER_RATE`], else [`BlobError::BadInnerRate`]), the dims (no zero width and a
+//! consistent map, else [`BlobError::DegenerateDims`], see [`Dims::degenerate_field`]; every
+//! size derived from them, parameter counts, tensor bytes, RAM layout, must fit in `usize`,
+//! else [`BlobError::DimsTooLarge`]; see [`Dims::checked_sizes`]), (v1-v3:) payload length,
+//! CRC-32 of the payload, then every record (known id, no
 //! duplicates, shape implied by the dims, byte lengths, allowed quantisation, finite f32
 //! weights, finite non-negative scales). Any failure is a typed [`BlobError`]; nothing panics,
 //! whatever the bytes (a property test and a fuzz target check this).
@@ -68,7 +79,7 @@
 use serde::ser::SerializeSeq;
 use serde::{Deserialize, Serialize, Serializer};
 
-use crate::crc32::crc32;
+use crate::crc32::{crc32, crc32_update};
 use crate::error::BlobError;
 use crate::matrix::{MatRef, Scales};
 use crate::preset::Dims;
@@ -79,9 +90,13 @@ pub use crate::schema::{
 
 /// The four magic bytes at the start of every blob.
 pub const MAGIC: [u8; 4] = *b"GMAN";
-/// The newest format version this build writes (v3, for models with a spatial map; a model
-/// without one is still written as v2, byte for byte as before).
-pub const FORMAT_VERSION: u16 = 3;
+/// The format version this build writes (v4: the CRC covers the header and the payload).
+pub const FORMAT_VERSION: u16 = 4;
+/// Largest inner-loop rate (α1, α2) a blob, an encoder or
+/// [`Navigator::new`](crate::navigator::Navigator::new) accepts. The paper's rates are 1e-4;
+/// a rate above this makes every adaptation step diverge (and is what a flipped exponent bit
+/// turns 0.01 into).
+pub const MAX_INNER_RATE: f32 = 1.0;
 /// The oldest format version this build still reads (v1: no inner-loop settings in the
 /// header; they default to [`AdaptSettings::PAPER`]).
 pub const MIN_FORMAT_VERSION: u16 = 1;
@@ -173,8 +188,10 @@ impl MapRecord {
 /// The inner-loop settings of Algorithm 1 a model was trained with, stored in the header of
 /// a v2 blob (see the module docs) so that the device adapts exactly as the trainer did.
 ///
-/// Both rates must be finite and non-negative: the encoder refuses other values and the
-/// parser rejects them with [`BlobError::BadInnerRate`]. Any `max_inner` is valid (0 turns
+/// Both rates must be finite, non-negative and at most [`MAX_INNER_RATE`]: the encoder
+/// refuses other values, the parser rejects them with [`BlobError::BadInnerRate`], and
+/// [`Navigator::new`](crate::navigator::Navigator::new) refuses them in a
+/// [`NavConfig`](crate::navigator::NavConfig). Any `max_inner` is valid (0 turns
 /// the inner loop off even for a blob with [`FLAG_ADAPT`]).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct AdaptSettings {
@@ -199,14 +216,14 @@ impl AdaptSettings {
         max_inner: 4,
     };
 
-    /// Checks that both rates are finite and non-negative; otherwise returns
-    /// [`BlobError::BadInnerRate`] naming the first bad one.
+    /// Checks that both rates are finite, non-negative and at most [`MAX_INNER_RATE`];
+    /// otherwise returns [`BlobError::BadInnerRate`] naming the first bad one.
     pub fn validate(&self) -> Result<(), BlobError> {
         for (field, v) in [
             ("alpha_disc", self.alpha_disc),
             ("alpha_adapt", self.alpha_adapt),
         ] {
-            if !v.is_finite() || v < 0.0 {
+            if !(v.is_finite() && (0.0..=MAX_INNER_RATE).contains(&v)) {
                 return Err(BlobError::BadInnerRate {
                     field,
                     bits: v.to_bits(),
@@ -261,6 +278,59 @@ struct HeaderV3 {
     payload_crc: u32,
 }
 
+/// The header of a format-v4 blob without its last field, the checksum (a varint after
+/// these fields): CRC-32 of these bytes followed by the payload.
+#[derive(Serialize, Deserialize)]
+struct HeaderV4Body {
+    magic: [u8; 4],
+    version: u16,
+    dims: DimsRecord,
+    map: MapRecord,
+    flags: u32,
+    alpha_disc: f32,
+    alpha_adapt: f32,
+    max_inner: u32,
+    n_tensors: u16,
+    payload_len: u32,
+}
+
+impl HeaderV4Body {
+    fn with_crc(self, payload_crc: u32) -> HeaderV3 {
+        HeaderV3 {
+            magic: self.magic,
+            version: self.version,
+            dims: self.dims,
+            map: self.map,
+            flags: self.flags,
+            alpha_disc: self.alpha_disc,
+            alpha_adapt: self.alpha_adapt,
+            max_inner: self.max_inner,
+            n_tensors: self.n_tensors,
+            payload_len: self.payload_len,
+            payload_crc,
+        }
+    }
+}
+
+/// What a blob's CRC-32 covers, by format version.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ChecksumScope {
+    /// v1-v3: the payload (tensor records) only; the header is not covered.
+    Payload,
+    /// v4: every header byte before the checksum, then the payload: the whole blob.
+    HeaderAndPayload,
+}
+
+impl ChecksumScope {
+    /// A short description (`"header and payload"`, `"payload only"`), e.g. for `inspect`.
+    pub fn describe(self) -> &'static str {
+        match self {
+            ChecksumScope::Payload => "payload only (format v1-v3 rule)",
+            ChecksumScope::HeaderAndPayload => "header and payload (format v4 rule)",
+        }
+    }
+}
+
 impl HeaderV3 {
     /// The checked [`Header`] (inner-loop rates first, then the sizes the dims imply).
     fn into_header(self, version: u16) -> Result<Header, BlobError> {
@@ -273,6 +343,11 @@ impl HeaderV3 {
         check_dims_fit(&self.dims, self.map)?;
         Ok(Header {
             version,
+            scope: if version >= 4 {
+                ChecksumScope::HeaderAndPayload
+            } else {
+                ChecksumScope::Payload
+            },
             dims: self.dims,
             map: self.map,
             flags: self.flags,
@@ -324,6 +399,7 @@ struct HeaderV2 {
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Header {
     version: u16,
+    scope: ChecksumScope,
     dims: DimsRecord,
     map: MapRecord,
     flags: u32,
@@ -353,9 +429,14 @@ impl Header {
     pub fn model_flags(&self) -> ModelFlags {
         ModelFlags::from_bits(self.flags)
     }
-    /// Format version of the parsed blob (1, 2 or 3).
+    /// Format version of the parsed blob (1 to 4).
     pub fn version(&self) -> u16 {
         self.version
+    }
+    /// What the blob's CRC-32 covers, the rule it was verified by: the payload only (v1-v3)
+    /// or the header and the payload (v4).
+    pub fn checksum_scope(&self) -> ChecksumScope {
+        self.scope
     }
     /// True when the header stored the inner-loop settings (format v2 and later); false for
     /// a v1 blob, whose [`Header::adapt_settings`] are [`AdaptSettings::PAPER`].
@@ -386,16 +467,29 @@ impl Header {
     pub fn payload_len(&self) -> u32 {
         self.payload_len
     }
-    /// CRC-32 of the payload.
+    /// The stored CRC-32: of the payload (v1-v3), or of the header's other bytes and the
+    /// payload (v4); see [`Header::checksum_scope`].
     pub fn payload_crc(&self) -> u32 {
         self.payload_crc
     }
 }
 
-/// [`BlobError::DimsTooLarge`] unless every size derived from the header's dims fits in
-/// `usize` ([`Dims::checked_sizes`]).
+/// [`BlobError::DegenerateDims`] for a zero width or an inconsistent map
+/// ([`Dims::degenerate_field`]), [`BlobError::DimsTooLarge`] unless every size derived from
+/// the header's dims fits in `usize` ([`Dims::checked_sizes`]).
 fn check_dims_fit(d: &DimsRecord, map: MapRecord) -> Result<(), BlobError> {
-    if d.to_dims(map).checked_sizes() {
+    check_model_dims(&d.to_dims(map))
+}
+
+/// The one check of a model's dims, shared by the parser, the encoder and
+/// [`Navigator::new`](crate::navigator::Navigator::new): no zero width and a consistent map
+/// ([`BlobError::DegenerateDims`]), every derived size fits in `usize`
+/// ([`BlobError::DimsTooLarge`]).
+pub fn check_model_dims(d: &Dims) -> Result<(), BlobError> {
+    if let Some(field) = d.degenerate_field() {
+        return Err(BlobError::DegenerateDims { field });
+    }
+    if d.checked_sizes() {
         Ok(())
     } else {
         Err(BlobError::DimsTooLarge)
@@ -431,6 +525,7 @@ fn parse_header(bytes: &[u8]) -> Result<(Header, &[u8]), BlobError> {
             Ok((
                 Header {
                     version: 1,
+                    scope: ChecksumScope::Payload,
                     dims: h.dims,
                     map: MapRecord::default(),
                     flags: h.flags,
@@ -449,6 +544,31 @@ fn parse_header(bytes: &[u8]) -> Result<(Header, &[u8]), BlobError> {
         3 => {
             let (h, rest) = postcard::take_from_bytes::<HeaderV3>(bytes).map_err(map_err)?;
             Ok((h.into_header(3)?, rest))
+        }
+        4 => {
+            let (body, rest) = postcard::take_from_bytes::<HeaderV4Body>(bytes).map_err(map_err)?;
+            let covered = &bytes[..bytes.len() - rest.len()];
+            let (crc, payload) = postcard::take_from_bytes::<u32>(rest).map_err(map_err)?;
+            // Length and checksum before anything in the header is interpreted: a tampered
+            // header is reported as such, not as the odd setting it now holds.
+            let plen = body.payload_len as usize;
+            if payload.len() < plen {
+                return Err(BlobError::Truncated);
+            }
+            if payload.len() != plen {
+                return Err(BlobError::PayloadLength {
+                    expected: body.payload_len,
+                    actual: payload.len(),
+                });
+            }
+            let actual = crc32_update(crc32(covered), payload);
+            if actual != crc {
+                return Err(BlobError::HeaderChecksumMismatch {
+                    expected: crc,
+                    actual,
+                });
+            }
+            Ok((body.with_crc(crc).into_header(4)?, payload))
         }
         found => Err(BlobError::UnsupportedVersion { found }),
     }
@@ -534,7 +654,7 @@ impl<'a> Blob<'a> {
             });
         }
         let crc = crc32(payload);
-        if crc != header.payload_crc {
+        if header.scope == ChecksumScope::Payload && crc != header.payload_crc {
             return Err(BlobError::ChecksumMismatch {
                 expected: header.payload_crc,
                 actual: crc,
@@ -779,13 +899,13 @@ pub fn encoded_len_bound(tensors: &[TensorSpec<'_>]) -> usize {
     n
 }
 
-/// Encodes a (v2) blob for `dims` holding `tensors` into `out` with no flags and the paper's
+/// Encodes a blob (format v4) for `dims` holding `tensors` into `out` with no flags and the paper's
 /// inner-loop settings; see [`encode_with_settings`].
 pub fn encode(dims: &Dims, tensors: &[TensorSpec<'_>], out: &mut [u8]) -> Result<usize, BlobError> {
     encode_with_settings(dims, 0, AdaptSettings::PAPER, tensors, out)
 }
 
-/// Encodes a (v2) blob for `dims` and model `flags` holding `tensors` into `out` with the
+/// Encodes a blob (format v4) for `dims` and model `flags` holding `tensors` into `out` with the
 /// paper's inner-loop settings ([`AdaptSettings::PAPER`]); see [`encode_with_settings`].
 pub fn encode_with_flags(
     dims: &Dims,
@@ -796,11 +916,11 @@ pub fn encode_with_flags(
     encode_with_settings(dims, flags, AdaptSettings::PAPER, tensors, out)
 }
 
-/// Encodes a format-v2 blob for `dims`, model `flags` and the inner-loop `settings` the model
-/// was trained with, holding `tensors`, into `out`; returns the number of bytes written.
-/// Checks the settings ([`AdaptSettings::validate`]), shapes, finiteness and quantisation
-/// like the parser does, so what it writes always parses. (A v3 blob when `dims` has a
-/// spatial map.) See [`Encoder`] for writing tensor by tensor.
+/// Encodes a blob (format v4, see [`FORMAT_VERSION`]) for `dims`, model `flags` and the
+/// inner-loop `settings` the model was trained with, holding `tensors`, into `out`; returns
+/// the number of bytes written. Checks the settings ([`AdaptSettings::validate`]), the dims
+/// ([`check_model_dims`]), shapes, finiteness and quantisation like the parser does, so what
+/// it writes always parses. See [`Encoder`] for writing tensor by tensor.
 pub fn encode_with_settings(
     dims: &Dims,
     flags: u32,
@@ -839,6 +959,7 @@ impl<'o> Encoder<'o> {
         out: &'o mut [u8],
     ) -> Result<Self, BlobError> {
         settings.validate()?;
+        check_model_dims(dims)?;
         if out.len() < HEADER_RESERVE {
             return Err(BlobError::BufferTooSmall);
         }
@@ -916,44 +1037,25 @@ impl<'o> Encoder<'o> {
         } = self;
         let dims = &dims;
         let payload_len = pos - HEADER_RESERVE;
-        let payload_crc = crc32(&out[HEADER_RESERVE..pos]);
         let mut hbuf = [0u8; HEADER_RESERVE];
-        // The oldest version that can describe the model: v2 without a map, v3 with one.
-        let written = if dims.map_cells() == 0 && dims.map_rows == 0 && dims.map_cols == 0 {
-            postcard::to_slice(
-                &HeaderV2 {
-                    magic: MAGIC,
-                    version: 2,
-                    dims: DimsRecord::from_dims(dims),
-                    flags,
-                    alpha_disc: settings.alpha_disc,
-                    alpha_adapt: settings.alpha_adapt,
-                    max_inner: settings.max_inner,
-                    n_tensors,
-                    payload_len: payload_len as u32,
-                    payload_crc,
-                },
-                &mut hbuf,
-            )
-        } else {
-            postcard::to_slice(
-                &HeaderV3 {
-                    magic: MAGIC,
-                    version: FORMAT_VERSION,
-                    dims: DimsRecord::from_dims(dims),
-                    map: MapRecord::from_dims(dims),
-                    flags,
-                    alpha_disc: settings.alpha_disc,
-                    alpha_adapt: settings.alpha_adapt,
-                    max_inner: settings.max_inner,
-                    n_tensors,
-                    payload_len: payload_len as u32,
-                    payload_crc,
-                },
-                &mut hbuf,
-            )
+        let body = HeaderV4Body {
+            magic: MAGIC,
+            version: FORMAT_VERSION,
+            dims: DimsRecord::from_dims(dims),
+            map: MapRecord::from_dims(dims),
+            flags,
+            alpha_disc: settings.alpha_disc,
+            alpha_adapt: settings.alpha_adapt,
+            max_inner: settings.max_inner,
+            n_tensors,
+            payload_len: payload_len as u32,
         };
-        let hlen = written.map_err(|_| BlobError::BufferTooSmall)?.len();
+        let blen = postcard::to_slice(&body, &mut hbuf)
+            .map_err(|_| BlobError::BufferTooSmall)?
+            .len();
+        let crc = crc32_update(crc32(&hbuf[..blen]), &out[HEADER_RESERVE..pos]);
+        let written = postcard::to_slice(&crc, &mut hbuf[blen..]).map(|w| blen + w.len());
+        let hlen = written.map_err(|_| BlobError::BufferTooSmall)?;
         out.copy_within(HEADER_RESERVE..pos, hlen);
         out[..hlen].copy_from_slice(&hbuf[..hlen]);
         Ok(hlen + payload_len)

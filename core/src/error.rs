@@ -128,6 +128,20 @@ pub enum BlobError {
     /// tensor's bytes, the navigator's RAM) does not fit in `usize`; see
     /// [`Dims::checked_sizes`](crate::Dims::checked_sizes).
     DimsTooLarge,
+    /// A width the networks need is zero, or the map's dims are inconsistent (see
+    /// [`Dims::degenerate_field`](crate::Dims::degenerate_field)).
+    DegenerateDims {
+        /// The first degenerate field (`"disc_hidden"`, `"map_cols"`, ...).
+        field: &'static str,
+    },
+    /// The header's checksum (format v4: CRC-32 of the header's other bytes and the
+    /// payload) does not match: some byte of the header or the payload changed.
+    HeaderChecksumMismatch {
+        /// Checksum announced by the header.
+        expected: u32,
+        /// Checksum of the bytes as found.
+        actual: u32,
+    },
     /// The postcard encoding itself is malformed (bad varint, trailing bytes, ...).
     Malformed,
     /// The output buffer given to the encoder is too small.
@@ -195,12 +209,21 @@ impl fmt::Display for BlobError {
             }
             BlobError::BadInnerRate { field, bits } => write!(
                 f,
-                "inner-loop rate `{field}` is {}; it must be finite and non-negative",
-                f32::from_bits(*bits)
+                "inner-loop rate `{field}` is {}; it must be finite, non-negative and at most {}",
+                f32::from_bits(*bits),
+                crate::blob::MAX_INNER_RATE
             ),
             BlobError::DimsTooLarge => write!(
                 f,
                 "dimensions too large: a parameter count, tensor size or RAM size derived from them overflows"
+            ),
+            BlobError::DegenerateDims { field } => write!(
+                f,
+                "degenerate dims: `{field}` is zero or inconsistent with the other map dims"
+            ),
+            BlobError::HeaderChecksumMismatch { expected, actual } => write!(
+                f,
+                "checksum mismatch over header and payload (header says {expected:#010x}, bytes give {actual:#010x}): the blob was altered"
             ),
             BlobError::Malformed => write!(f, "malformed postcard encoding"),
             BlobError::BufferTooSmall => write!(f, "output buffer too small"),

@@ -83,6 +83,7 @@ use core::marker::PhantomData;
 use crate::activation::{all_finite, leaky_relu_inplace, sigmoid_inplace};
 use crate::adapt::{actor_head_grad, AdaptLossKind};
 use crate::blob::{AdaptSettings, Blob, Header};
+use crate::error::BlobError;
 use crate::dense::{gain_bias, Dense, DenseGrads};
 use crate::discriminator::{DiscGrads, Discriminator, LdConfig, LdValue};
 use crate::error::{check_len, Error, Result};
@@ -853,10 +854,34 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
                 what: "buffer capacity K must be at least 1",
             });
         }
-        if !(cfg.alpha_disc.is_finite() && cfg.alpha_adapt.is_finite() && cfg.loss_bound > 0.0) {
+        // The blob parser's checks, for weights and settings from any source.
+        let rates = AdaptSettings {
+            alpha_disc: cfg.alpha_disc,
+            alpha_adapt: cfg.alpha_adapt,
+            max_inner: cfg.max_inner_updates,
+        };
+        if rates.validate().is_err() {
             return Err(Error::Config {
-                what: "learning rates must be finite and loss_bound > 0",
+                what: "alpha_disc and alpha_adapt must be finite, non-negative and at most blob::MAX_INNER_RATE",
             });
+        }
+        if !(cfg.loss_bound > 0.0) {
+            return Err(Error::Config {
+                what: "loss_bound must be > 0",
+            });
+        }
+        match crate::blob::check_model_dims(&weights.dims) {
+            Ok(()) => {}
+            Err(BlobError::DegenerateDims { .. }) => {
+                return Err(Error::Config {
+                    what: "degenerate dims: a width is zero or the map's dims are inconsistent (see Dims::degenerate_field)",
+                })
+            }
+            Err(_) => {
+                return Err(Error::Config {
+                    what: "dims too large: a size derived from them overflows usize",
+                })
+            }
         }
         // (A model that does not adapt runs identically in both modes.)
         if cfg.adapt && cfg.mode.is_some_and(|m| m != M::MODE) {
@@ -1440,7 +1465,8 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
     /// Runs the inner update (lines 15-20 of Algorithm 1) now on the steps buffered in Ψ,
     /// then empties Ψ, whatever the step count and the per-episode cap (which it still
     /// counts towards). Useful at the end of an episode, and for benchmarks. Returns whether
-    /// anything was buffered.
+    /// an update ran: false with nothing buffered, and false with the inner loop off
+    /// ([`NavConfig::adapt`] false), which only empties Ψ.
     pub fn adapt_now(&mut self) -> Result<bool> {
         if !self.ready {
             return Err(Error::Config {
@@ -1448,6 +1474,12 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
             });
         }
         if self.n_buf == 0 {
+            return Ok(false);
+        }
+        if !self.cfg.adapt {
+            // The inner loop is off (`NavConfig::adapt == false`): nothing adapts, Ψ is
+            // emptied like after an update.
+            self.n_buf = 0;
             return Ok(false);
         }
         self.inner_update()?;

@@ -111,6 +111,47 @@ impl Dims {
         }
     }
 
+    /// The first degenerate size, by field name, or `None` when every width a network needs
+    /// is non-zero and the map is consistent: `attr`, `noise`, `gen_hidden`, `feat`,
+    /// `disc_hidden`, `lstm_hidden` and `embed` must be at least 1; `map_rows` and
+    /// `map_cols` are both 0 (no map) or both non-zero, and `cell_embed` is non-zero exactly
+    /// when there is a map. Blobs, encoders and [`Navigator::new`](crate::navigator::Navigator::new)
+    /// refuse dims for which this is `Some` (a zero width would make a layer empty and
+    /// its kernels divide work into empty chunks).
+    pub const fn degenerate_field(&self) -> Option<&'static str> {
+        if self.attr == 0 {
+            return Some("attr");
+        }
+        if self.noise == 0 {
+            return Some("noise");
+        }
+        if self.gen_hidden == 0 {
+            return Some("gen_hidden");
+        }
+        if self.feat == 0 {
+            return Some("feat");
+        }
+        if self.disc_hidden == 0 {
+            return Some("disc_hidden");
+        }
+        if self.lstm_hidden == 0 {
+            return Some("lstm_hidden");
+        }
+        if self.embed == 0 {
+            return Some("embed");
+        }
+        if self.map_rows == 0 && self.map_cols != 0 {
+            return Some("map_rows");
+        }
+        if self.map_cols == 0 && self.map_rows != 0 {
+            return Some("map_cols");
+        }
+        if (self.map_rows != 0) != (self.cell_embed != 0) {
+            return Some("cell_embed");
+        }
+        None
+    }
+
     /// Number of map cells `map_rows * map_cols` (0: no map; saturating).
     pub const fn map_cells(&self) -> usize {
         sat(self.map_rows.checked_mul(self.map_cols))

@@ -4,7 +4,8 @@ mod common;
 use common::*;
 use gman_core::blob::{
     encode_with_settings, encoded_len_bound, AdaptSettings, Blob, Quant, TensorData, TensorId,
-    TensorSpec, FLAG_ADAPT, FLAG_COSSIM, FLAG_FULL_ADAPT, FLAG_ZERO_NOISE, FORMAT_VERSION, MAGIC,
+    ChecksumScope, TensorSpec, FLAG_ADAPT, FLAG_COSSIM, FLAG_FULL_ADAPT, FLAG_ZERO_NOISE,
+    FORMAT_VERSION, MAGIC, MAX_INNER_RATE,
 };
 use gman_core::memory::AdaptMode;
 use gman_core::navigator::{Emd, NavConfig, NoiseMode, StepRule};
@@ -91,8 +92,8 @@ fn bad_magic_version_checksum_and_dims_are_typed() {
     let mut m = bytes.clone();
     m[0] = b'X';
     assert_eq!(Blob::parse(&m).unwrap_err(), BlobError::BadMagic);
-    assert_eq!(bytes[4], 2, "the encoder writes format v2");
-    for bad in [0u8, 4, 9, 0x7f] {
+    assert_eq!(bytes[4], 4, "the encoder writes format v4");
+    for bad in [0u8, 5, 9, 0x7f] {
         let mut v = bytes.clone();
         v[4] = bad; // version varint follows the 4 magic bytes
         assert_eq!(
@@ -101,6 +102,13 @@ fn bad_magic_version_checksum_and_dims_are_typed() {
         );
     }
     let mut c = bytes.clone();
+    let last = c.len() - 1;
+    c[last] ^= 0x55;
+    assert!(matches!(
+        Blob::parse(&c),
+        Err(BlobError::HeaderChecksumMismatch { .. })
+    ));
+    let mut c = legacy(&bytes);
     let last = c.len() - 1;
     c[last] ^= 0x55;
     assert!(matches!(
@@ -223,14 +231,19 @@ fn f32_specs(tensors: &[(TensorId, Vec<f32>)]) -> Vec<TensorSpec<'_>> {
         .collect()
 }
 
-/// A v2 blob of `SMALL` f32 tensors with the given flags and settings.
-fn blob_with(flags: u32, settings: AdaptSettings, seed: u64) -> Vec<u8> {
+/// A v4 blob of `SMALL` f32 tensors with the given flags and settings.
+fn blob_v4_with(flags: u32, settings: AdaptSettings, seed: u64) -> Vec<u8> {
     let t = random_tensors(&SMALL, seed);
     let specs = f32_specs(&t);
     let mut out = vec![0u8; encoded_len_bound(&specs)];
     let n = encode_with_settings(&SMALL, flags, settings, &specs, &mut out).unwrap();
     out.truncate(n);
     out
+}
+
+/// The same blob in format v2 (what the encoders wrote before v4; CRC over the payload).
+fn blob_with(flags: u32, settings: AdaptSettings, seed: u64) -> Vec<u8> {
+    legacy(&blob_v4_with(flags, settings, seed))
 }
 
 /// Reads a postcard (LEB128) varint at `*at`.
@@ -296,9 +309,10 @@ fn v2_round_trips_the_inner_loop_settings() {
     let bytes = blob_with(FLAG_ADAPT | FLAG_COSSIM, settings, 11);
     let blob = Blob::parse(&bytes).unwrap();
     let h = blob.header();
-    // A model without a spatial map is still written as v2 (FORMAT_VERSION, v3, is for maps).
+    // The v2 rewrite of a blob keeps its settings (the encoders write FORMAT_VERSION, v4).
     assert_eq!(h.version(), 2);
     assert!(h.version() < FORMAT_VERSION);
+    assert_eq!(h.checksum_scope(), ChecksumScope::Payload);
     assert!(h.has_adapt_settings());
     assert_eq!(h.adapt_settings(), settings);
     assert_eq!(h.alpha_disc().to_bits(), 0.25f32.to_bits());
@@ -308,15 +322,16 @@ fn v2_round_trips_the_inner_loop_settings() {
     // A large cap and a zero rate are valid too.
     let other = AdaptSettings {
         alpha_disc: 0.0,
-        alpha_adapt: 1.5,
+        alpha_adapt: MAX_INNER_RATE,
         max_inner: u32::MAX,
     };
     let b2 = blob_with(0, other, 11);
     assert_eq!(Blob::parse(&b2).unwrap().header().adapt_settings(), other);
-    // The plain encoders write v2 with the paper's settings.
+    // The plain encoders write v4 with the paper's settings.
     let plain = make_blob(&SMALL, &random_tensors(&SMALL, 11), true);
     let pb = Blob::parse(&plain).unwrap();
-    assert_eq!(pb.header().version(), 2);
+    assert_eq!(pb.header().version(), FORMAT_VERSION);
+    assert_eq!(pb.header().checksum_scope(), ChecksumScope::HeaderAndPayload);
     assert_eq!(pb.header().adapt_settings(), AdaptSettings::PAPER);
     assert_eq!(AdaptSettings::default(), AdaptSettings::PAPER);
 }
@@ -433,7 +448,15 @@ fn bad_inner_rates_are_typed_errors() {
     let bytes = blob_with(FLAG_ADAPT, AdaptSettings::PAPER, 14);
     let at = alpha_offset(&bytes);
     for (off, field) in [(0, "alpha_disc"), (4, "alpha_adapt")] {
-        for bad in [f32::NAN, f32::INFINITY, f32::NEG_INFINITY, -1.0, -1e-30] {
+        for bad in [
+            f32::NAN,
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+            -1.0,
+            -1e-30,
+            MAX_INNER_RATE * 1.0001,
+            3.4e36,
+        ] {
             let mut m = bytes.clone();
             m[at + off..at + off + 4].copy_from_slice(&bad.to_le_bytes());
             let e = Blob::parse(&m).unwrap_err();
@@ -447,7 +470,7 @@ fn bad_inner_rates_are_typed_errors() {
             );
             let msg = e.to_string();
             assert!(
-                msg.contains(field) && msg.contains("finite and non-negative"),
+                msg.contains(field) && msg.contains("finite, non-negative and at most 1"),
                 "{msg}"
             );
         }
@@ -601,7 +624,7 @@ proptest! {
         let mut m = bytes.clone();
         m[at..at + 4].copy_from_slice(&a.to_le_bytes());
         m[at + 4..at + 8].copy_from_slice(&b.to_le_bytes());
-        let ok = |bits: u32| { let v = f32::from_bits(bits); v.is_finite() && v >= 0.0 };
+        let ok = |bits: u32| { let v = f32::from_bits(bits); v.is_finite() && (0.0..=MAX_INNER_RATE).contains(&v) };
         match Blob::parse(&m) {
             Ok(blob) => {
                 prop_assert!(ok(a) && ok(b));
@@ -631,7 +654,10 @@ fn v3_blobs_carry_the_spatial_map() {
     for int8 in [false, true] {
         let bytes = make_blob(&dims, &tensors, int8);
         let blob = Blob::parse(&bytes).unwrap();
-        assert_eq!(blob.header().version(), 3);
+        assert_eq!(blob.header().version(), 4);
+        let old = legacy(&bytes);
+        let ob = Blob::parse(&old).unwrap();
+        assert_eq!((ob.header().version(), ob.dims()), (3, dims));
         assert_eq!(blob.dims(), dims);
         assert_eq!(blob.dims().map_cells(), 6);
         let m = blob.matrix(TensorId::CellW).unwrap();
@@ -688,6 +714,9 @@ fn seeded_builder_bytes_are_pinned() {
         )
         .unwrap();
         out.truncate(n);
+        // Pinned in format v2/v3 (the layout they were written in): the v4 blob differs only
+        // in its header, so its legacy rewrite must give the same bytes.
+        let out = legacy(&out);
         assert_eq!(
             (out.len(), gman_core::crc32::crc32(&out)),
             (len, crc),
@@ -706,4 +735,72 @@ fn seeded_builder_equals_the_spec_list_encoder() {
             assert_eq!(seeded_blob(&d, 9, int8, 0), by_hand, "{d:?} int8={int8}");
         }
     }
+}
+
+/// Format v4: the CRC covers the header. Every single-bit flip anywhere in the header of a
+/// v4 blob (flags, rates, the inner cap, the map's rows and cols, ...) is refused; in a v3
+/// blob the same flip of α2's exponent went unnoticed (the CRC covered the payload only).
+#[test]
+fn v4_checksum_covers_every_header_bit() {
+    let dims = SMALL.with_map(3, 3, 2);
+    let bytes = make_blob(&dims, &random_tensors(&dims, 31), true);
+    let blob = Blob::parse(&bytes).unwrap();
+    assert_eq!(blob.header().version(), 4);
+    assert_eq!(
+        blob.header().checksum_scope(),
+        ChecksumScope::HeaderAndPayload
+    );
+    let hlen = bytes.len() - blob.header().payload_len() as usize;
+    for byte in 0..hlen {
+        for bit in 0..8 {
+            let mut m = bytes.clone();
+            m[byte] ^= 1 << bit;
+            assert!(
+                Blob::parse(&m).is_err(),
+                "header byte {byte} bit {bit} flipped and the blob still parsed"
+            );
+        }
+    }
+    // The v3 rule: a flipped exponent bit of α2 (0.01 -> huge) is caught only by the rate
+    // bound; a flipped flag bit is not caught at all (documented: v1-v3 cover the payload).
+    let old = legacy(&bytes);
+    let ob = Blob::parse(&old).unwrap();
+    assert_eq!(ob.header().checksum_scope(), ChecksumScope::Payload);
+    let mut at = 4;
+    for _ in 0..(1 + 8 + 3) {
+        read_varint(&old, &mut at);
+    }
+    let mut flag = old.clone();
+    flag[at] ^= 1; // FLAG_ADAPT
+    assert!(Blob::parse(&flag).is_ok());
+    read_varint(&old, &mut at);
+    let mut a2 = old.clone();
+    a2[at + 4..at + 8].copy_from_slice(&0.01f32.to_le_bytes());
+    a2[at + 7] ^= 0x40;
+    assert!(matches!(
+        Blob::parse(&a2),
+        Err(BlobError::BadInnerRate {
+            field: "alpha_adapt",
+            ..
+        })
+    ));
+}
+
+/// Every model shipped in `host-sim/models/` (format v2/v3, written before v4) still
+/// parses, by the payload-only rule.
+#[test]
+fn shipped_models_still_parse_by_their_own_rule() {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../host-sim/models");
+    let mut n = 0;
+    for e in std::fs::read_dir(&dir).unwrap() {
+        let p = e.unwrap().path();
+        if p.extension().is_some_and(|x| x == "gman") {
+            let bytes = std::fs::read(&p).unwrap();
+            let b = Blob::parse(&bytes).unwrap_or_else(|e| panic!("{}: {e}", p.display()));
+            assert!(b.header().version() <= 3);
+            assert_eq!(b.header().checksum_scope(), ChecksumScope::Payload);
+            n += 1;
+        }
+    }
+    assert!(n >= 40, "{n} shipped models");
 }

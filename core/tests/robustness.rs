@@ -337,7 +337,198 @@ proptest! {
                 // No tensors: every loader gets a typed error, never an allocation.
                 prop_assert!(NavWeights::from_blob(&blob, &d).is_err());
             }
-            Err(e) => prop_assert_eq!(e, BlobError::DimsTooLarge),
+            Err(BlobError::DegenerateDims { field }) => {
+                prop_assert_eq!(d.degenerate_field(), Some(field));
+            }
+            Err(e) => {
+                prop_assert_eq!(e, BlobError::DimsTooLarge);
+                prop_assert!(d.degenerate_field().is_none() && !d.checked_sizes());
+            }
         }
     }
+
+    /// Small and degenerate dims (zero widths, half a map, a map without channels) in
+    /// complete blobs with a valid checksum: the parser refuses exactly the degenerate ones
+    /// (`DegenerateDims`, naming the field), and navigators over the others run steps and
+    /// inner updates in both modes without a panic.
+    #[test]
+    fn degenerate_dims_are_refused_and_small_ones_run(
+        raw in prop::array::uniform8(0u32..4),
+        map in prop::array::uniform3(0u32..3),
+        flags in prop_oneof![Just(0u32), Just(gman_core::blob::FLAG_ADAPT)],
+        ops in prop::collection::vec(op_for(), 0..24),
+    ) {
+        let mut d = dims_of(raw);
+        d.ps = if raw[7] % 2 == 0 { 0 } else { d.attr };
+        let d = d.with_map(map[0] as usize, map[1] as usize, map[2] as usize);
+        let bytes = raw_blob(&d, flags);
+        match Blob::parse(&bytes) {
+            Ok(blob) => {
+                prop_assert_eq!(d.degenerate_field(), None);
+                let cfg = blob.nav_config();
+                drive_dims::<Full, 3>(&blob, &d, cfg, &ops);
+                drive_dims::<Efficient, 3>(&blob, &d, cfg, &ops);
+            }
+            Err(e) => {
+                let field = d.degenerate_field();
+                prop_assert!(field.is_some(), "{d:?} refused with {e:?}");
+                prop_assert_eq!(e, BlobError::DegenerateDims { field: field.unwrap() });
+            }
+        }
+    }
+}
+
+/// Ops whose vectors have the widths of whatever dims they are run on (scaled in
+/// [`drive_dims`]): steps, updates, clears and resets.
+fn op_for() -> impl Strategy<Value = u8> {
+    0u8..4
+}
+
+/// Runs `ops` (0 step, 1 adapt_now, 2 clear, 3 reset) on a navigator of `dims` over `blob`.
+fn drive_dims<M: Mode, const K: usize>(blob: &Blob<'_>, d: &Dims, cfg: NavConfig, ops: &[u8]) {
+    let Ok(w) = NavWeights::from_blob(blob, d) else {
+        return;
+    };
+    let mut arena = vec![0.0f32; Navigator::<M, K>::arena_len(d)];
+    let cfg = NavConfig {
+        schedule: Schedule::Manual,
+        ..cfg
+    };
+    let Ok(mut nav) = Navigator::<M, K>::new(w, &mut arena, cfg) else {
+        return;
+    };
+    let attr = vec![0.5f32; d.attr];
+    let obs = vec![0.25f32; d.feat];
+    let map = vec![0.1f32; d.map_len()];
+    let ps = vec![0.1f32; d.ps];
+    nav.reset(&attr, 3).unwrap();
+    for op in ops {
+        match op {
+            0 => {
+                let _ = if d.map_cells() > 0 {
+                    nav.step_map(&obs, &map, &ps).map(|_| ())
+                } else {
+                    nav.step(&obs, &ps).map(|_| ())
+                };
+            }
+            1 => {
+                let _ = nav.adapt_now();
+            }
+            2 => nav.clear_buffer(),
+            _ => nav.reset(&attr, 5).unwrap(),
+        }
+    }
+    // K steps and an update always complete.
+    nav.clear_buffer();
+    for _ in 0..K {
+        if d.map_cells() > 0 {
+            nav.step_map(&obs, &map, &ps).unwrap();
+        } else {
+            nav.step(&obs, &ps).unwrap();
+        }
+    }
+    nav.adapt_now().unwrap();
+}
+
+/// A blob with `disc_hidden = 0` (a zero-width D) parsed, and the first inner update
+/// panicked ("chunk size must be non-zero"); it is refused when parsed, and
+/// `Navigator::new` refuses such dims from any source.
+#[test]
+fn zero_width_dims_are_refused_by_parse_and_navigator() {
+    for field in ["disc_hidden", "gen_hidden", "lstm_hidden", "embed"] {
+        let mut d = SMALL;
+        match field {
+            "disc_hidden" => d.disc_hidden = 0,
+            "gen_hidden" => d.gen_hidden = 0,
+            "lstm_hidden" => d.lstm_hidden = 0,
+            _ => d.embed = 0,
+        }
+        let bytes = raw_blob(&d, gman_core::blob::FLAG_ADAPT);
+        assert_eq!(
+            Blob::parse(&bytes).unwrap_err(),
+            BlobError::DegenerateDims { field }
+        );
+        // The same weights handed to the navigator directly.
+        let store: Vec<(gman_core::blob::TensorId, Vec<f32>)> =
+            gman_core::blob::TensorId::all_for(&d)
+                .map(|id| {
+                    let (r, c) = id.shape(&d);
+                    (id, vec![0.01f32; r * c])
+                })
+                .collect();
+        let w = NavWeights::from_fn(&d, |id| {
+            let (r, c) = id.shape(&d);
+            let v = &store.iter().find(|(i, _)| *i == id).unwrap().1;
+            gman_core::matrix::MatRef::f32(r, c, v).unwrap()
+        })
+        .unwrap();
+        let mut arena = vec![0.0f32; Navigator::<Full, 4>::arena_len(&d).max(1)];
+        let Err(e) = Navigator::<Full, 4>::new(w, &mut arena, NavConfig::default()) else {
+            panic!("{field}: accepted")
+        };
+        assert!(
+            matches!(e, Error::Config { what } if what.contains("degenerate dims")),
+            "{field}: {e:?}"
+        );
+    }
+    // Half a map, and a map without channels.
+    for (d, field) in [
+        (SMALL.with_map(2, 0, 4), "map_cols"),
+        (SMALL.with_map(0, 2, 4), "map_rows"),
+        (SMALL.with_map(2, 2, 0), "cell_embed"),
+    ] {
+        assert_eq!(d.degenerate_field(), Some(field));
+    }
+}
+
+/// `Navigator::new` accepted negative and absurd rates the blob parser refused, and
+/// `adapt_now()` ran an inner update with `adapt == false`.
+#[test]
+fn navigator_settings_are_checked_like_a_blob_and_adapt_false_never_adapts() {
+    let bytes = small_blob(4, false);
+    let blob = Blob::parse(&bytes).unwrap();
+    for (a1, a2) in [
+        (-1e-4f32, 1e-4f32),
+        (1e-4, -1e-4),
+        (1e-4, 3.4e36),
+        (f32::NAN, 1e-4),
+        (1e-4, gman_core::blob::MAX_INNER_RATE * 2.0),
+    ] {
+        let w = NavWeights::from_blob(&blob, &SMALL).unwrap();
+        let mut arena = vec![0.0f32; Navigator::<Full, 4>::arena_len(&SMALL)];
+        let cfg = NavConfig {
+            alpha_disc: a1,
+            alpha_adapt: a2,
+            ..NavConfig::default()
+        };
+        let Err(e) = Navigator::<Full, 4>::new(w, &mut arena, cfg) else {
+            panic!("({a1}, {a2}) accepted")
+        };
+        assert!(
+            matches!(e, Error::Config { what } if what.contains("MAX_INNER_RATE")),
+            "({a1}, {a2}): {e:?}"
+        );
+    }
+    let w = NavWeights::from_blob(&blob, &SMALL).unwrap();
+    let mut arena = vec![0.0f32; Navigator::<Full, 4>::arena_len(&SMALL)];
+    let cfg = NavConfig {
+        adapt: false,
+        schedule: Schedule::Manual,
+        alpha_adapt: 0.5,
+        alpha_disc: 0.5,
+        ..NavConfig::default()
+    };
+    let mut nav = Navigator::<Full, 4>::new(w, &mut arena, cfg).unwrap();
+    nav.reset(&[0.5; 5], 1).unwrap();
+    let obs = [0.1f32; 6];
+    let before = nav.step(&obs, &[0.0; 5]).unwrap().probs.to_vec();
+    for _ in 1..4 {
+        nav.step(&obs, &[0.0; 5]).unwrap();
+    }
+    assert!(!nav.adapt_now().unwrap(), "adapt == false must not adapt");
+    assert_eq!(nav.buffered(), 0);
+    assert_eq!(nav.counters().adaptations, 0);
+    nav.reset(&[0.5; 5], 1).unwrap();
+    let after = nav.step(&obs, &[0.0; 5]).unwrap().probs.to_vec();
+    assert_eq!(before, after, "the weights are unchanged");
 }

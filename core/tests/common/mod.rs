@@ -113,7 +113,13 @@ pub fn reseal(blob: &[u8], payload_len: usize, old_crc: u32) -> Vec<u8> {
     let prefix = &blob[..hlen - old.len()];
     let payload = &blob[hlen..];
     let mut out = prefix.to_vec();
-    out.extend(varint(gman_core::crc32::crc32(payload).into()));
+    // v4: the CRC covers the header bytes before it and the payload; v1-v3: the payload.
+    let crc = if blob.get(4) == Some(&4) {
+        gman_core::crc32::crc32_update(gman_core::crc32::crc32(prefix), payload)
+    } else {
+        gman_core::crc32::crc32(payload)
+    };
+    out.extend(varint(crc.into()));
     out.extend_from_slice(payload);
     out
 }
@@ -147,4 +153,93 @@ pub fn vals(n: usize, seed: u32) -> Vec<f32> {
             (s % 2001) as f32 / 1000.0 - 1.0
         })
         .collect()
+}
+
+/// The blob `v4` rewritten in the format the encoders wrote before v4 (test fixture): v2
+/// without a map, v3 with one; the same fields, the CRC over the payload only, the same
+/// payload bytes.
+pub fn legacy(v4: &[u8]) -> Vec<u8> {
+    let blob = gman_core::blob::Blob::parse(v4).unwrap();
+    let h = *blob.header();
+    let d = h.dims();
+    let map = d.map_rows != 0;
+    let mut out = gman_core::blob::MAGIC.to_vec();
+    out.extend(varint(if map { 3 } else { 2 }));
+    for v in [
+        d.attr,
+        d.noise,
+        d.gen_hidden,
+        d.feat,
+        d.disc_hidden,
+        d.lstm_hidden,
+        d.embed,
+        d.ps,
+    ] {
+        out.extend(varint(v as u64));
+    }
+    if map {
+        for v in [d.map_rows, d.map_cols, d.cell_embed] {
+            out.extend(varint(v as u64));
+        }
+    }
+    out.extend(varint(h.flags().into()));
+    out.extend(h.alpha_disc().to_le_bytes());
+    out.extend(h.alpha_adapt().to_le_bytes());
+    out.extend(varint(h.max_inner().into()));
+    out.extend(varint(h.n_tensors().into()));
+    out.extend(varint(h.payload_len().into()));
+    let payload = &v4[v4.len() - h.payload_len() as usize..];
+    out.extend(varint(gman_core::crc32::crc32(payload).into()));
+    out.extend_from_slice(payload);
+    out
+}
+
+/// A format-v2 blob (v3 with a map) with every tensor of `dims` (small f32 values), the
+/// header and the records written by hand, not by the encoder: it can carry dims the
+/// encoder refuses (zero widths, an inconsistent map), with a valid CRC.
+pub fn raw_blob(dims: &Dims, flags: u32) -> Vec<u8> {
+    let mut payload = Vec::new();
+    let mut n = 0u64;
+    for id in TensorId::all_for(dims) {
+        let (r, c) = id.shape(dims);
+        payload.extend(varint(id as u64));
+        payload.extend(varint(r as u64));
+        payload.extend(varint(c as u64));
+        payload.push(0); // f32
+        payload.extend(varint((4 * r * c) as u64));
+        for i in 0..r * c {
+            payload.extend((((i % 7) as f32 - 3.0) * 0.01).to_le_bytes());
+        }
+        payload.extend(varint(0)); // no scales
+        n += 1;
+    }
+    let map = dims.map_rows != 0 || dims.map_cols != 0 || dims.cell_embed != 0;
+    let mut b = gman_core::blob::MAGIC.to_vec();
+    b.extend(varint(if map { 3 } else { 2 }));
+    for v in [
+        dims.attr,
+        dims.noise,
+        dims.gen_hidden,
+        dims.feat,
+        dims.disc_hidden,
+        dims.lstm_hidden,
+        dims.embed,
+        dims.ps,
+    ] {
+        b.extend(varint(v as u64));
+    }
+    if map {
+        for v in [dims.map_rows, dims.map_cols, dims.cell_embed] {
+            b.extend(varint(v as u64));
+        }
+    }
+    b.extend(varint(flags.into()));
+    b.extend(1e-4f32.to_le_bytes());
+    b.extend(1e-4f32.to_le_bytes());
+    b.extend(varint(4));
+    b.extend(varint(n));
+    b.extend(varint(payload.len() as u64));
+    b.extend(varint(gman_core::crc32::crc32(&payload).into()));
+    b.extend(payload);
+    b
 }
