@@ -3,8 +3,8 @@
 mod common;
 use common::*;
 use gman_core::blob::{
-    encode_with_settings, encoded_len_bound, AdaptSettings, Blob, Quant, TensorData, TensorId,
-    ChecksumScope, TensorSpec, FLAG_ADAPT, FLAG_COSSIM, FLAG_FULL_ADAPT, FLAG_ZERO_NOISE,
+    encode_with_settings, encoded_len_bound, AdaptSettings, Blob, ChecksumScope, Quant, TensorData,
+    TensorId, TensorSpec, FLAG_ADAPT, FLAG_COSSIM, FLAG_FULL_ADAPT, FLAG_ZERO_NOISE,
     FORMAT_VERSION, MAGIC, MAX_INNER_RATE,
 };
 use gman_core::memory::AdaptMode;
@@ -331,7 +331,10 @@ fn v2_round_trips_the_inner_loop_settings() {
     let plain = make_blob(&SMALL, &random_tensors(&SMALL, 11), true);
     let pb = Blob::parse(&plain).unwrap();
     assert_eq!(pb.header().version(), FORMAT_VERSION);
-    assert_eq!(pb.header().checksum_scope(), ChecksumScope::HeaderAndPayload);
+    assert_eq!(
+        pb.header().checksum_scope(),
+        ChecksumScope::HeaderAndPayload
+    );
     assert_eq!(pb.header().adapt_settings(), AdaptSettings::PAPER);
     assert_eq!(AdaptSettings::default(), AdaptSettings::PAPER);
 }
