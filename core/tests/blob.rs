@@ -805,5 +805,5 @@ fn shipped_models_still_parse_by_their_own_rule() {
             n += 1;
         }
     }
-    assert!(n >= 40, "{n} shipped models");
+    assert!(n > 0, "no shipped model found in {}", dir.display());
 }

@@ -672,3 +672,174 @@ fn eval_results_do_not_depend_on_the_thread_count() {
     assert_eq!(one, run(2));
     assert_eq!(one, run(2));
 }
+
+// ---- Second pass: panics, data loss, silent wrong results, resource bounds. ----
+
+/// Outputs may not overwrite inputs: `export --ckpt X --out X` replaced a training
+/// checkpoint by a blob, `eval --agent m.gman --json m.gman` the model by its report (also
+/// through a symlink to the input).
+#[test]
+fn outputs_never_overwrite_inputs() {
+    let d = tmp("overwrite");
+    let run = d.join("run");
+    train_run(&run, 1);
+    let ck = run.join("checkpoint.ckpt");
+    let before = std::fs::read(&ck).unwrap();
+    let (ok, _, e) = gman(&["export", "--ckpt", s(&ck), "--out", s(&ck)]);
+    assert!(!ok && e.contains("same file"), "{e}");
+    let link = d.join("link.gman");
+    std::os::unix::fs::symlink(&ck, &link).unwrap();
+    let (ok, _, e) = gman(&["export", "--ckpt", s(&ck), "--out", s(&link)]);
+    assert!(!ok && e.contains("same file"), "{e}");
+    assert_eq!(std::fs::read(&ck).unwrap(), before, "checkpoint changed");
+    let m = d.join("m.gman");
+    let (ok, _, e) = gman(&["export", "--ckpt", s(&ck), "--out", s(&m)]);
+    assert!(ok, "{e}");
+    let blob = std::fs::read(&m).unwrap();
+    let (ok, _, e) = gman(&[
+        "eval", "--agent", s(&m), "--json", s(&m), "--episodes", "1", "--quiet",
+    ]);
+    assert!(!ok && e.contains("same file"), "{e}");
+    assert_eq!(std::fs::read(&m).unwrap(), blob, "model changed");
+    // `inspect` names the rule that verified the blob: v4 covers the header.
+    let (ok, out, e) = gman(&["inspect", s(&m)]);
+    assert!(ok && out.contains("format v4") && out.contains("header and payload"), "{out}{e}");
+    let shipped = Path::new(env!("CARGO_MANIFEST_DIR")).join("models/gman-mcu-int8-seed1.gman");
+    let (ok, out, e) = gman(&["inspect", s(&shipped)]);
+    assert!(ok && out.contains("payload only"), "{out}{e}");
+    // A flipped header bit of an exported blob (α2's exponent) is refused.
+    let mut bad = blob.clone();
+    let h = gman_core::blob::Blob::parse(&blob).unwrap();
+    let hlen = blob.len() - h.header().payload_len() as usize;
+    bad[hlen / 2] ^= 0x40;
+    let badp = d.join("bad.gman");
+    std::fs::write(&badp, &bad).unwrap();
+    let (ok, _, e) = gman(&["inspect", s(&badp)]);
+    assert!(!ok, "a tampered header was accepted: {e}");
+    let (ok, _, e) = gman(&["eval", "--agent", s(&badp), "--episodes", "1", "--quiet"]);
+    assert!(!ok && !e.contains("panicked"), "{e}");
+}
+
+/// Resume forgot the run's target: a run asked for N updates and stopped early was resumed
+/// to the config default; `--updates` below the checkpoint's update did nothing, with
+/// success.
+#[test]
+fn resume_continues_to_the_stored_target() {
+    let d = tmp("target");
+    let run = d.join("run");
+    train_run(&run, 2);
+    let ck = run.join("checkpoint.ckpt");
+    let v = Checkpoint::load(&ck).unwrap().metadata;
+    assert_eq!(v["trainer"]["target_updates"], 2);
+    // As if the run had been asked for 4 and killed after update 2.
+    edit_checkpoint(&run, |c| c.metadata["trainer"]["target_updates"] = 4.into());
+    let (ok, _, e) = gman(&["train", "--resume", s(&run), "--quiet"]);
+    assert!(ok && e.contains("target: update 4"), "{e}");
+    let v = Checkpoint::load(&ck).unwrap().metadata;
+    assert_eq!(v["trainer"]["update"], 4, "{e}");
+    let (ok, e) = resume(&run, 3, &[]);
+    assert!(
+        !ok && e.contains("already at update 4") && e.contains("--updates 3"),
+        "{e}"
+    );
+    let (ok, e) = resume(&run, 5, &[]);
+    assert!(ok && e.contains("target: update 5"), "{e}");
+    let v = Checkpoint::load(&ck).unwrap().metadata;
+    assert_eq!(v["trainer"]["update"], 5);
+}
+
+/// Nonsense and unbounded numbers are refused with the range in the message, before
+/// anything runs (`--min-steps 4294967295` grew memory until the allocator aborted;
+/// `--cell-embed 100000` took 11.5 GB).
+#[test]
+fn nonsense_and_unbounded_flags_are_refused() {
+    let d = tmp("bounds");
+    let out = d.join("run");
+    for (flags, needle) in [
+        (&["--max-steps", "0"][..], "1..=10000"),
+        (&["--max-steps", "4294967295"][..], "1..=10000"),
+        (&["--min-steps", "4294967295"][..], "1..=10000"),
+        (&["--min-steps", "0"][..], "1..=10000"),
+        (&["--inner-lr", "1e30"][..], "0..=1"),
+        (&["--lr", "1e30"][..], "(0, 1]"),
+        (&["--map", "3x3", "--cell-embed", "100000"][..], "1024"),
+        (&["--map", "20x20"][..], "1..=16"),
+        (&["--updates", "18446744073709551615"][..], "at most"),
+    ] {
+        let mut args = vec!["train", "--method", "a3c", "--config", "tiny", "--quiet", "--out"];
+        args.push(s(&out));
+        args.extend_from_slice(flags);
+        let (ok, e) = gman_within(60, &args);
+        assert!(!ok && e.contains(needle), "{flags:?}: {e}");
+        assert!(!e.contains("panicked"), "{e}");
+    }
+    for flag in ["--max-steps-other", "--max-steps-living-room"] {
+        let (ok, _, e) = gman(&["eval", "--agent", "random", flag, "0", "--episodes", "1"]);
+        assert!(!ok && e.contains(flag) && e.contains("1..="), "{e}");
+    }
+}
+
+/// A model whose map is finer than 7 x 7, evaluated on offline data, panicked in the
+/// pooling of the stored 7 x 7 feature maps; eval and emd-report refuse it like train does.
+#[cfg(feature = "offline")]
+#[test]
+fn offline_eval_refuses_a_map_finer_than_7x7() {
+    let d = tmp("map8");
+    let data = d.join("data");
+    let (ok, _, e) = gman(&["make-offline-fixture", "--out", s(&data)]);
+    assert!(ok, "{e}");
+    let run = d.join("run");
+    let (ok, _, e) = gman(&[
+        "train", "--method", "a3c", "--config", "tiny", "--map", "8x8", "--cell-embed", "2",
+        "--min-steps", "8", "--workers", "1", "--updates", "1", "--quiet", "--out", s(&run),
+    ]);
+    assert!(ok, "{e}");
+    let ck = run.join("checkpoint.ckpt");
+    let (ok, _, e) = gman(&[
+        "eval", "--data", s(&data), "--split", "val", "--agent", s(&ck), "--episodes", "1",
+        "--quiet",
+    ]);
+    assert!(!ok && e.contains("at most 7 rows") && !e.contains("panicked"), "{e}");
+    let (ok, _, e) = gman(&[
+        "emd-report", "--data", s(&data), "--split", "val", "--agent", s(&ck), "--episodes", "1",
+    ]);
+    assert!(!ok && e.contains("at most 7 rows") && !e.contains("panicked"), "{e}");
+}
+
+/// `make-offline-fixture --out DIR` wrote into an existing data directory, through the
+/// symlinks of the README's layout, over the user's real feature maps and graphs.
+#[cfg(feature = "offline")]
+#[test]
+fn offline_fixture_never_writes_into_user_data() {
+    let d = tmp("fixture-out");
+    let real = d.join("real-FloorPlan22");
+    std::fs::create_dir_all(&real).unwrap();
+    std::fs::write(real.join("graph.json"), "mine").unwrap();
+    std::fs::write(real.join("resnet18_featuremap.hdf5"), "mine").unwrap();
+    let data = d.join("data");
+    std::fs::create_dir_all(&data).unwrap();
+    std::fs::write(data.join("attributes.json"), "mine").unwrap();
+    std::os::unix::fs::symlink(&real, data.join("FloorPlan22")).unwrap();
+    for extra in [&[][..], &["--force"][..]] {
+        let mut args = vec!["make-offline-fixture", "--out", s(&data)];
+        args.extend_from_slice(extra);
+        let (ok, _, e) = gman(&args);
+        assert!(!ok && e.contains("not empty"), "{extra:?}: {e}");
+    }
+    for f in ["graph.json", "resnet18_featuremap.hdf5"] {
+        assert_eq!(std::fs::read_to_string(real.join(f)).unwrap(), "mine");
+    }
+    assert_eq!(std::fs::read_to_string(data.join("attributes.json")).unwrap(), "mine");
+    // A new directory is written; writing it again needs --force, which clears it without
+    // following a link placed inside it.
+    let fx = d.join("fx");
+    let (ok, _, e) = gman(&["make-offline-fixture", "--out", s(&fx)]);
+    assert!(ok, "{e}");
+    let (ok, _, e) = gman(&["make-offline-fixture", "--out", s(&fx)]);
+    assert!(!ok && e.contains("--force"), "{e}");
+    std::os::unix::fs::symlink(&real, fx.join("mine")).unwrap();
+    let (ok, _, e) = gman(&["make-offline-fixture", "--out", s(&fx), "--force"]);
+    assert!(ok, "{e}");
+    assert_eq!(std::fs::read_to_string(real.join("graph.json")).unwrap(), "mine");
+    assert!(!fx.join("mine").exists());
+}

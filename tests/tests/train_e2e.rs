@@ -328,7 +328,7 @@ fn blob_carries_the_inner_loop_settings_to_the_device_config() {
         let bytes = m.to_blob(int8).unwrap();
         let blob = Blob::parse(&bytes).unwrap();
         let h = blob.header();
-        assert_eq!(h.version(), 2);
+        assert_eq!(h.version(), gman_core::blob::FORMAT_VERSION);
         assert_eq!(
             (h.alpha_disc(), h.alpha_adapt(), h.max_inner()),
             (lr, lr, cap),

@@ -114,3 +114,32 @@ pub fn report_written(out: &Path, files: &[&str], t0: Instant) {
         t0.elapsed().as_secs_f64()
     );
 }
+
+/// True when `a` and `b` name the same existing file (after resolving links: same device
+/// and inode, so symlinks and hard links count).
+pub fn same_file(a: &Path, b: &Path) -> bool {
+    use std::os::unix::fs::MetadataExt;
+    match (std::fs::metadata(a), std::fs::metadata(b)) {
+        (Ok(x), Ok(y)) => x.dev() == y.dev() && x.ino() == y.ino(),
+        _ => false,
+    }
+}
+
+/// Refuses an output path (`out_flag`) that is one of the command's inputs: writing it
+/// would destroy the input (a checkpoint replaced by a blob, a model by its report).
+pub fn refuse_output_over_inputs(
+    out_flag: &str,
+    out: &Path,
+    inputs: &[(&str, &Path)],
+) -> Result<()> {
+    for (flag, input) in inputs {
+        if same_file(out, input) {
+            bail!(
+                "{out_flag} {} is the same file as {flag} {}: refusing to overwrite an input; choose another output path",
+                out.display(),
+                input.display()
+            );
+        }
+    }
+    Ok(())
+}

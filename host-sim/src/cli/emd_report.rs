@@ -83,11 +83,25 @@ pub fn cmd_emd_report(a: EmdReportArgs) -> Result<()> {
     if split == Split::Train {
         bail!("split train has no official episodes; use --split val or --split test");
     }
+    for (flag, out) in [("--png", &a.png), ("--dump", &a.dump), ("--json", &a.json)] {
+        if let Some(out) = out {
+            super::args::refuse_output_over_inputs(flag, out, &[("--agent", &a.agent)])?;
+        }
+    }
     let world = a.world.load()?;
     let mut model = load_model(&a.agent, a.method)?;
+    gman_host_sim::sim::spatial::check_grid_for_world(
+        &world,
+        model.dims.map_rows,
+        model.dims.map_cols,
+        &format!("model {}", a.agent.display()),
+    )?;
     if let Some(lr) = a.inner_lr {
-        if !(lr.is_finite() && lr >= 0.0) {
-            bail!("--inner-lr {lr} must be finite and non-negative");
+        if !(lr.is_finite() && (0.0..=gman_core::blob::MAX_INNER_RATE).contains(&lr)) {
+            bail!(
+                "--inner-lr {lr} must be in 0..={}",
+                gman_core::blob::MAX_INNER_RATE
+            );
         }
         model.inner_lr = lr;
     }

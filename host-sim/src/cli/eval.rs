@@ -1,7 +1,7 @@
 //! `gman eval`: evaluate an agent on the episodes of a split (SR, SPL, EPA, DTS), one run or
 //! the mean ± std over training seeds.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{bail, Context, Result};
@@ -95,6 +95,17 @@ impl EvalArgs {
 /// a seed repeated in `--seeds`); flags without effect (the model overrides with a built-in
 /// agent) are named in a warning, never silently dropped.
 fn check_eval_flags(a: &EvalArgs) -> Result<()> {
+    for (flag, v) in [
+        ("--max-steps-living-room", a.max_steps_living_room),
+        ("--max-steps-other", a.max_steps_other),
+    ] {
+        if v == 0 || v > super::train::MAX_EPISODE_STEPS {
+            bail!(
+                "{flag} {v} must be in 1..={} (an episode needs at least one step)",
+                super::train::MAX_EPISODE_STEPS
+            );
+        }
+    }
     if a.episodes == Some(0) {
         bail!("--episodes 0 evaluates nothing; give at least 1 (or omit it for every episode)");
     }
@@ -146,12 +157,26 @@ pub fn cmd_eval(a: EvalArgs) -> Result<()> {
         bail!("split train has no official episodes; use --split val or --split test");
     }
     check_eval_flags(&a)?;
+    if let Some(json) = &a.json {
+        let agents: Vec<String> = if a.seeds.is_empty() {
+            vec![a.agent.clone()]
+        } else {
+            a.seeds
+                .iter()
+                .map(|s| a.agent.replace("{seed}", &s.to_string()))
+                .collect()
+        };
+        for p in &agents {
+            super::args::refuse_output_over_inputs("--json", json, &[("--agent", Path::new(p))])?;
+        }
+    }
     if !a.seeds.is_empty() {
         return eval_seeds(a, split);
     }
     let factory = agent_factory(&a.agent, a.seed, &a.overrides())?;
     let t0 = Instant::now();
     let world = a.world.load()?;
+    models::check_agent_for_world(&a.agent, &world)?;
     let episodes = world.episodes(split, a.episodes)?;
     let cfg = a.eval_config();
     let results = evaluate(&world, &episodes, |w| factory(w), &cfg);
@@ -183,6 +208,7 @@ fn eval_seeds(a: EvalArgs, split: Split) -> Result<()> {
     for s in &a.seeds {
         let path = a.agent.replace("{seed}", &s.to_string());
         let factory = agent_factory(&path, a.seed, &a.overrides())?;
+        models::check_agent_for_world(&path, &world)?;
         let results = evaluate(&world, &episodes, |w| factory(w), &cfg);
         let report = EvalReport::new(split.name(), &path, &results);
         print!("{}", report.table());

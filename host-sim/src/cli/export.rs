@@ -38,6 +38,7 @@ pub enum QuantArg {
 
 /// `gman export`.
 pub fn cmd_export(a: ExportArgs) -> Result<()> {
+    super::args::refuse_output_over_inputs("--out", &a.out, &[("--ckpt", &a.ckpt)])?;
     let model = load_model(&a.ckpt, None)?;
     preset_matches(&model, a.preset)?;
     if model.method.uses_ps() {

@@ -28,11 +28,12 @@ fn print_header(path: &Path, blob: &Blob<'_>) {
     let h = blob.header();
     let d = blob.dims();
     println!(
-        "{}: GMAN weight blob, format v{}, {} bytes, checksum OK (CRC-32 {:#010x})",
+        "{}: GMAN weight blob, format v{}, {} bytes, checksum OK (CRC-32 {:#010x} over the {})",
         path.display(),
         h.version(),
         blob.len(),
-        h.payload_crc()
+        h.payload_crc(),
+        h.checksum_scope().describe()
     );
     println!(
         "dims: attr {} noise {} gen_hidden {} feat {} disc_hidden {} lstm_hidden {} embed {} ps {}",

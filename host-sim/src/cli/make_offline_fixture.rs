@@ -9,17 +9,21 @@ use clap::Args;
 /// `gman make-offline-fixture`.
 #[derive(Debug, Args)]
 pub struct MakeOfflineFixtureArgs {
-    /// Output directory (created if missing).
+    /// Output directory: new, or empty (see `--force`).
     #[arg(long, value_name = "DIR")]
     pub out: PathBuf,
     /// Seed of the attribute vectors and feature values.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
+    /// Replace `--out` when it is a fixture this command wrote earlier (any other
+    /// non-empty directory is always refused; links inside are removed, never followed).
+    #[arg(long)]
+    pub force: bool,
 }
 
 /// Runs `gman make-offline-fixture`.
 pub fn cmd_make_offline_fixture(a: MakeOfflineFixtureArgs) -> Result<()> {
-    let info = gman_host_sim::sim::offline::fixture::write_fixture(&a.out, a.seed)?;
+    let info = gman_host_sim::sim::offline::fixture::write_fixture_with(&a.out, a.seed, a.force)?;
     println!(
         "wrote {}: scenes {}, {} val episodes",
         a.out.display(),

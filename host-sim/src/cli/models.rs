@@ -27,8 +27,11 @@ pub struct ModelOverrides {
 pub fn model_factory(path: &Path, ov: &ModelOverrides) -> Result<(AgentFactory, String)> {
     let mut model = load_model(path, ov.method)?;
     if let Some(lr) = ov.inner_lr {
-        if !(lr.is_finite() && lr >= 0.0) {
-            bail!("--inner-lr must be finite and non-negative, got {lr}");
+        if !(lr.is_finite() && (0.0..=gman_core::blob::MAX_INNER_RATE).contains(&lr)) {
+            bail!(
+                "--inner-lr must be in 0..={}, got {lr}",
+                gman_core::blob::MAX_INNER_RATE
+            );
         }
         model.inner_lr = lr;
     }
@@ -42,6 +45,21 @@ pub fn model_factory(path: &Path, ov: &ModelOverrides) -> Result<(AgentFactory, 
     let label = format!("{} ({})", model.method.name(), path.display());
     let factory: AgentFactory = Box::new(move |_| Box::new(NavAgent::new(model.clone())));
     Ok((factory, label))
+}
+
+/// Refuses a model agent (a checkpoint or a blob) whose map grid `world` cannot serve
+/// ([`gman_host_sim::sim::spatial::check_grid_for_world`]); built-in agents pass.
+pub fn check_agent_for_world(name: &str, world: &gman_host_sim::sim::World) -> Result<()> {
+    if matches!(name, "random" | "oracle") || !Path::new(name).exists() {
+        return Ok(());
+    }
+    let d = gman_host_sim::nav::model::load_model(Path::new(name), None)?.dims;
+    gman_host_sim::sim::spatial::check_grid_for_world(
+        world,
+        d.map_rows,
+        d.map_cols,
+        &format!("agent {name}"),
+    )
 }
 
 /// A built-in agent factory by name, or a model file's (a clear error when it is neither).

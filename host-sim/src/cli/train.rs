@@ -452,9 +452,11 @@ pub fn cmd_train(a: TrainArgs, explicit: &dyn Fn(&str) -> bool) -> Result<()> {
     let mut opts = flag_options(&a);
     let mut state = match &a.resume {
         Some(dir) => {
-            let (state, run) = open_resumed(&a, dir, &world_id, explicit)?;
+            let (mut state, run) = open_resumed(&a, dir, &world_id, explicit)?;
             opts.out = dir.clone();
             opts.run = run;
+            opts.updates = resumed_target(&a, &state, dir)?;
+            state.target_updates = Some(opts.updates);
             state
         }
         None => {
@@ -462,8 +464,9 @@ pub fn cmd_train(a: TrainArgs, explicit: &dyn Fn(&str) -> bool) -> Result<()> {
                 .out
                 .clone()
                 .ok_or_else(|| anyhow!("--out RUN_DIR is required"))?;
-            let state = new_run(&a, &world, &out, world_id)?;
+            let mut state = new_run(&a, &world, &out, world_id)?;
             validate_train_settings("command line", &opts, a.inner_lr, a.max_inner)?;
+            state.target_updates = Some(opts.updates);
             opts.out = out;
             state
         }
@@ -472,7 +475,46 @@ pub fn cmd_train(a: TrainArgs, explicit: &dyn Fn(&str) -> bool) -> Result<()> {
     let steps0 = state.env_steps;
     train(&world, &opts, &mut state)?;
     report_trained(&state, &opts.out, steps0, t0.elapsed().as_secs_f64());
-    Ok(())
+    check_finite_run(&state, &opts.out)
+}
+
+/// The update count a resumed run trains to: `--updates` when given (refused below the
+/// checkpoint's update), else the target stored in the checkpoint (older checkpoints
+/// without one: the preset's count, with a warning). Printed either way.
+fn resumed_target(a: &TrainArgs, st: &TrainState, dir: &Path) -> Result<u64> {
+    let target = match (a.updates, st.target_updates) {
+        (Some(n), _) => {
+            if n < st.update {
+                bail!(
+                    "--updates {n} on resuming {}: the checkpoint is already at update {}; give a target of at least {} (or omit --updates to continue to the stored target{})",
+                    dir.display(),
+                    st.update,
+                    st.update,
+                    st.target_updates.map_or(String::new(), |t| format!(", {t}"))
+                );
+            }
+            n
+        }
+        (None, Some(t)) => t,
+        (None, None) => {
+            let (n, _) = updates_and_lr(a);
+            eprintln!(
+                "warning: {} records no target update count (an older checkpoint); training to {n} (give --updates to choose)",
+                dir.display()
+            );
+            n
+        }
+    };
+    eprintln!(
+        "target: update {target} ({} to go){}",
+        target.saturating_sub(st.update),
+        if a.updates.is_some() {
+            " (--updates)"
+        } else {
+            " (stored in the checkpoint)"
+        }
+    );
+    Ok(target)
 }
 
 /// The budget preset's update count and the outer learning rate, as the flags select them.
@@ -495,28 +537,73 @@ fn check_train_numbers(a: &TrainArgs) -> Result<()> {
     if !(a.inner_lr.is_finite() && a.inner_lr >= 0.0 && a.entropy.is_finite() && a.entropy >= 0.0) {
         bail!("--inner-lr and --entropy must be finite and non-negative");
     }
+    let max_rate = gman_core::blob::MAX_INNER_RATE;
+    if a.inner_lr > max_rate || a.disc_lr.is_some_and(|r| !(r.is_finite() && (0.0..=max_rate).contains(&r))) {
+        bail!(
+            "--inner-lr {} / --disc-lr {:?}: inner-loop rates must be in 0..={max_rate} (a larger step diverges at every adaptation; the paper's is 1e-4)",
+            a.inner_lr,
+            a.disc_lr
+        );
+    }
     let (_, lr) = updates_and_lr(a);
-    if !(lr.is_finite() && lr > 0.0) {
-        bail!("--lr must be positive");
+    if !(lr.is_finite() && lr > 0.0 && lr <= MAX_LR) {
+        bail!("--lr {lr} must be in (0, {MAX_LR}] (the paper's is 1e-3)");
+    }
+    if a.max_steps == Some(0) || a.max_steps.is_some_and(|n| n > MAX_EPISODE_STEPS) {
+        bail!(
+            "--max-steps {} must be in 1..={MAX_EPISODE_STEPS} (default: 200 in living rooms, 100 elsewhere)",
+            a.max_steps.unwrap_or(0)
+        );
+    }
+    if a.min_steps == 0 || a.min_steps > MAX_MIN_STEPS {
+        bail!(
+            "--min-steps {} must be in 1..={MAX_MIN_STEPS} (steps per worker and update are buffered in memory)",
+            a.min_steps
+        );
+    }
+    if a.map.0 > MAX_MAP_SIDE || a.map.1 > MAX_MAP_SIDE {
+        bail!(
+            "--map {}x{}: a map grid has at most {MAX_MAP_SIDE} rows and {MAX_MAP_SIDE} columns",
+            a.map.0,
+            a.map.1
+        );
+    }
+    if a.cell_embed > MAX_CELL_EMBED {
+        bail!(
+            "--cell-embed {} is more than {MAX_CELL_EMBED} (the reference's is 64; every map cell adds that many fusion inputs)",
+            a.cell_embed
+        );
+    }
+    if a.updates.is_some_and(|n| n > MAX_UPDATES) || a.checkpoint_every > MAX_UPDATES {
+        bail!("--updates and --checkpoint-every must be at most {MAX_UPDATES}");
     }
     Ok(())
 }
+
+/// Largest outer (Adam) learning rate `--lr` accepts.
+const MAX_LR: f32 = 1.0;
+/// Largest `--max-steps` (episode step limit).
+pub(crate) const MAX_EPISODE_STEPS: u32 = 10_000;
+/// Largest `--min-steps` (steps per worker and update, all held in memory for BPTT).
+const MAX_MIN_STEPS: u32 = 10_000;
+/// Largest map side (`--map RxC`, rows and columns each).
+const MAX_MAP_SIDE: usize = 16;
+/// Largest `--cell-embed`.
+const MAX_CELL_EMBED: usize = 1024;
+/// Largest `--updates` (and `--checkpoint-every`): counters stay far from `u64::MAX`.
+const MAX_UPDATES: u64 = 1 << 40;
 
 /// Loads the world, refusing a map grid offline data cannot serve, and fails now (not after
 /// pre-training) if no training start can satisfy `--min-start-actions` (a separate
 /// generator: the run's own draws are untouched).
 fn load_world(a: &TrainArgs) -> Result<World> {
     let world = a.world.load()?;
-    if matches!(world.source, gman_host_sim::sim::WorldSource::Offline(_))
-        && (a.map.0 > gman_host_sim::sim::spatial::RESNET_SIDE
-            || a.map.1 > gman_host_sim::sim::spatial::RESNET_SIDE)
-    {
-        bail!(
-            "--map {}x{}: offline data stores 7 x 7 feature maps, so a map grid has at most 7 rows and 7 columns",
-            a.map.0,
-            a.map.1
-        );
-    }
+    gman_host_sim::sim::spatial::check_grid_for_world(
+        &world,
+        a.map.0,
+        a.map.1,
+        &format!("--map {}x{}", a.map.0, a.map.1),
+    )?;
     use rand::SeedableRng;
     let mut probe = rand_chacha::ChaCha8Rng::seed_from_u64(0);
     world.try_sample_train_episode_min(&mut probe, a.min_start_actions)?;
@@ -804,6 +891,43 @@ fn resumed_settings(
 }
 
 /// The closing line of a run.
+/// Training that produced non-finite weights or NaN/inf metrics fails (exit non-zero),
+/// naming what and where: its checkpoint and curve are not a valid result.
+fn check_finite_run(state: &TrainState, out: &Path) -> Result<()> {
+    if !state.model.params.all_finite() {
+        bail!(
+            "training produced non-finite weights (update {}); {} is not a valid model",
+            state.update,
+            checkpoint_path(out).display()
+        );
+    }
+    let csv = out.join("metrics.csv");
+    if let Ok(text) = std::fs::read_to_string(&csv) {
+        let bad: Vec<usize> = text
+            .lines()
+            .enumerate()
+            .skip(1)
+            .filter(|(_, l)| {
+                // success_rate ..= grad_norm are always numbers (disc_gap and adapt_loss are
+                // NaN by design in updates without an inner update).
+                l.split(',').skip(3).take(7).any(|f| {
+                    let f = f.trim().to_ascii_lowercase();
+                    f.contains("nan") || f.contains("inf")
+                })
+            })
+            .map(|(i, _)| i + 1)
+            .collect();
+        if let Some(first) = bad.first() {
+            bail!(
+                "training produced NaN or infinite metrics: {} row(s) of {} (first: line {first}); the run diverged",
+                bad.len(),
+                csv.display()
+            );
+        }
+    }
+    Ok(())
+}
+
 fn report_trained(state: &TrainState, out: &Path, steps0: u64, secs: f64) {
     let d = state.model.dims;
     let preset_name = [PresetArg::Mcu, PresetArg::Paper]

@@ -815,7 +815,7 @@ impl NavModel {
         }
     }
 
-    /// Encodes the model as a gman-core weight blob (format v2), int8 (per-row scales) or
+    /// Encodes the model as a gman-core weight blob (format v4, see `gman_core::blob`), int8 (per-row scales) or
     /// f32. The header carries the model's flags ([`NavModel::blob_flags`]) and its
     /// inner-loop settings ([`NavModel::adapt_settings`]), so a device running
     /// `NavConfig::from_header` adapts exactly as this model was trained and evaluated.

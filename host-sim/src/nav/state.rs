@@ -192,6 +192,10 @@ pub struct TrainerMeta {
     /// The world trained on; absent when unknown (library use, older checkpoints).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub world: Option<WorldId>,
+    /// The number of updates the run was asked for (`--updates`), so that a resumed run
+    /// continues to it; absent in checkpoints of older builds.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub target_updates: Option<u64>,
 }
 
 fn version_one() -> u32 {
@@ -272,6 +276,9 @@ pub struct TrainState {
     /// What world the run trains on, stored in the checkpoint so that a resumed run can
     /// refuse another world; `None` when unknown (library use, older checkpoints).
     pub world: Option<WorldId>,
+    /// The run's target update count, stored in the checkpoint ([`TrainerMeta::target_updates`]);
+    /// `None` when unknown (library use, older checkpoints).
+    pub target_updates: Option<u64>,
 }
 
 impl TrainState {
@@ -285,6 +292,7 @@ impl TrainState {
             episodes: 0,
             env_steps: 0,
             world: None,
+            target_updates: None,
         }
     }
 
@@ -298,6 +306,7 @@ impl TrainState {
             run: run.clone(),
             method: Some(self.model.method),
             world: self.world.clone(),
+            target_updates: self.target_updates,
         }
     }
 
@@ -344,6 +353,7 @@ impl TrainState {
             episodes: t.episodes,
             env_steps: t.env_steps,
             world: t.world.clone(),
+            target_updates: t.target_updates,
         };
         Ok((state, t))
     }

@@ -187,6 +187,20 @@ pub fn view_map(world: &World, scene: SceneId, state: usize, grid: MapGrid, out:
 /// Side of the reference's ResNet18 feature map (7 x 7 cells).
 pub const RESNET_SIDE: usize = 7;
 
+/// Refuses a model's `rows x cols` map grid that `world` cannot serve: offline data stores
+/// 7 x 7 feature maps, so a grid there has at most 7 rows and 7 columns (the simulator's
+/// own worlds render any grid). `what` names the model or flag in the error.
+pub fn check_grid_for_world(world: &World, rows: usize, cols: usize, what: &str) -> anyhow::Result<()> {
+    if matches!(world.source, super::WorldSource::Offline(_))
+        && (rows > RESNET_SIDE || cols > RESNET_SIDE)
+    {
+        anyhow::bail!(
+            "{what}: a {rows}x{cols} map grid, but offline data stores 7 x 7 feature maps, so a map grid has at most 7 rows and 7 columns"
+        );
+    }
+    Ok(())
+}
+
 /// Average-pools a stored 512 x 7 x 7 feature map (`512 * 49` floats, channel-major as in
 /// the offline data's `(1, 512, 7, 7)` datasets) to `grid` and writes it cell-major into
 /// `out`. Cell `(r, c)` of an `R x C` grid averages the 7 x 7 cells `i` with

@@ -30,7 +30,7 @@ use std::collections::{BTreeMap, HashMap, HashSet, VecDeque};
 use std::fs;
 use std::path::Path;
 
-use anyhow::{Context, Result};
+use anyhow::{bail, Context, Result};
 use gman_core::{Action, ATTR_DIM, FEATURE_DIM};
 use serde_json::{json, Value};
 
@@ -510,7 +510,56 @@ fn val_episodes(
 /// Writes the fixture into `out` (created; existing fixture files are replaced). `seed`
 /// changes attribute vectors and feature values, not the layout.
 pub fn write_fixture(out: &Path, seed: u64) -> Result<FixtureInfo> {
+    write_fixture_with(out, seed, false)
+}
+
+/// The file [`write_fixture`] leaves in every directory it made: only such a directory may
+/// be cleared with `force`.
+pub const FIXTURE_MARKER: &str = ".gman-offline-fixture";
+
+/// [`write_fixture`], refusing an `out` that exists and is not an empty directory: with
+/// the README's layout (real `FloorPlan*` folders symlinked into a data directory), writing
+/// into it would overwrite the user's feature maps through the links. With `force`, a
+/// directory this tool made (it holds [`FIXTURE_MARKER`]) is cleared first (links inside it
+/// are removed, never followed); any other non-empty directory is still refused.
+pub fn write_fixture_with(out: &Path, seed: u64, force: bool) -> Result<FixtureInfo> {
+    match fs::symlink_metadata(out) {
+        Ok(m) if m.file_type().is_symlink() => bail!(
+            "--out {} is a symbolic link; give a new or empty directory (the fixture never writes through links)",
+            out.display()
+        ),
+        Ok(m) if !m.is_dir() => bail!("--out {} exists and is not a directory", out.display()),
+        Ok(_) => {
+            let non_empty = fs::read_dir(out)
+                .with_context(|| format!("cannot read {}", out.display()))?
+                .next()
+                .is_some();
+            if non_empty {
+                let ours = fs::symlink_metadata(out.join(FIXTURE_MARKER)).is_ok_and(|m| m.is_file());
+                if !(force && ours) {
+                    bail!(
+                        "--out {} is not empty; refusing to write a fixture into it (it could overwrite real data, also through symlinks){}",
+                        out.display(),
+                        if ours {
+                            "; it is a fixture this tool wrote: add --force to replace it"
+                        } else {
+                            "; give a new or empty directory"
+                        }
+                    );
+                }
+                // remove_dir_all removes symlinks themselves, never what they point to.
+                fs::remove_dir_all(out)
+                    .with_context(|| format!("cannot clear {}", out.display()))?;
+            }
+        }
+        Err(_) => {}
+    }
     fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
+    fs::write(
+        out.join(FIXTURE_MARKER),
+        "made by `gman make-offline-fixture`; `--force` may replace this directory\n",
+    )
+    .with_context(|| format!("cannot write {}", out.join(FIXTURE_MARKER).display()))?;
     let attrs = attributes(seed);
     let targets = Targets::new();
     write_attributes(out, &attrs, &targets)?;
