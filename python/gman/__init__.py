@@ -336,7 +336,9 @@ class ObjectNavEnv(gymnasium.Env):
 
 
 def _unbatch(d: Dict[str, np.ndarray]) -> Dict[str, Any]:
-    return {k: (v[0] if v.ndim > 1 else v[0].item()) for k, v in d.items()}
+    # Numpy scalars keep their dtype (episode seeds are uint64), also when gymnasium's
+    # SyncVectorEnv batches the infos again.
+    return {k: v[0] for k, v in d.items()}
 
 
 def make_vec_env(
@@ -407,8 +409,10 @@ def evaluate(
     * a path to a model file (training checkpoint or ``*.gman`` blob), or a blob's ``bytes``:
       evaluated by ``gman eval``'s evaluator (gman-core's navigator, the device's bits);
     * a callable ``policy(obs, info) -> actions`` over batches of a :class:`VecEnv` of
-      ``num_envs`` environments (``info["episode_start"]`` marks each new episode; the
-      callable also gets ``info["oracle_action"]``).
+      ``num_envs`` environments: ``info["episode_start"]`` marks each new episode,
+      ``info["ended"]`` the environments whose episode ended at the last step (they reset at
+      this step and their action is ignored), ``info["oracle_action"]`` is a shortest-path
+      action.
 
     Returns the report dict (``results.seen`` / ``results.unseen`` with ``sr``, ``spl``,
     ``epa`` in percent and ``dts`` in metres, ``by_room``, ``episodes``), the same numbers
@@ -436,10 +440,12 @@ def evaluate(
             max_steps=(living, other), reward=reward, episodes=episodes, oracle=True,
         )
         obs, info = env.reset()
+        info["ended"] = np.zeros(num_envs, bool)
         core = env._core
         total = core.num_episodes
         while core.completed < total:
-            obs, _, _, _, info = env.step(policy(obs, info))
+            obs, _, term, trunc, info = env.step(policy(obs, info))
+            info["ended"] = term | trunc
         r, e = core.report(agent_name or getattr(policy, "__name__", "python"))
         env.close()
     else:

@@ -621,7 +621,8 @@ fn host_evaluate(
     let reward = parse_reward(reward)?;
     let factory: AgentFactory = match (agent, blob) {
         (_, Some(bytes)) => {
-            let m = Arc::new(model_from_blob(&bytes, None).map_err(chain_err)?);
+            let m = model_from_blob(&bytes, None).map_err(|e| chain_err(e.context("blob")))?;
+            let m = Arc::new(m);
             Box::new(move |_| Box::new(NavAgent::new(m.clone())))
         }
         ("random", None) => Box::new(move |_| Box::new(RandomAgent::new(seed))),
