@@ -76,7 +76,7 @@ fn world_of(py: Python<'_>, data: Option<&str>, seed: u64) -> PyResult<&'static 
             }
             let dir = dir.clone();
             py.detach(move || World::load_with_seed(&dir, seed))
-                .map_err(|e| chain_err(e.context(format!("loading data {}", data.unwrap_or(""))) ))?
+                .map_err(|e| chain_err(e.context(format!("loading data {}", data.unwrap_or("")))))?
         }
         None => py.detach(move || World::synthetic(seed)),
     };
@@ -263,7 +263,7 @@ impl Sim {
     }
 
     fn step_all(&mut self, actions: &[i64], out: &mut Out<'_>) -> anyhow::Result<()> {
-        for i in 0..self.slots.len() {
+        for (i, &action) in actions.iter().enumerate() {
             out.episode_start[i] = false;
             if self.slots[i].needs_reset {
                 self.start(i, out)?;
@@ -272,7 +272,7 @@ impl Sim {
                 out.truncated[i] = false;
                 out.success[i] = false;
             } else {
-                let a = Action::ALL[actions[i] as usize];
+                let a = Action::ALL[action as usize];
                 let o = self.slots[i].env.step(a);
                 out.reward[i] = o.reward;
                 out.success[i] = o.success;
@@ -323,14 +323,38 @@ macro_rules! with_out {
         let mut terminated = b.terminated.bind($py).try_readwrite().map_err(borrow_err)?;
         let mut truncated = b.truncated.bind($py).try_readwrite().map_err(borrow_err)?;
         let mut success = b.success.bind($py).try_readwrite().map_err(borrow_err)?;
-        let mut episode_start = b.episode_start.bind($py).try_readwrite().map_err(borrow_err)?;
-        let mut shortest_path = b.shortest_path.bind($py).try_readwrite().map_err(borrow_err)?;
-        let mut target_category = b.target_category.bind($py).try_readwrite().map_err(borrow_err)?;
+        let mut episode_start = b
+            .episode_start
+            .bind($py)
+            .try_readwrite()
+            .map_err(borrow_err)?;
+        let mut shortest_path = b
+            .shortest_path
+            .bind($py)
+            .try_readwrite()
+            .map_err(borrow_err)?;
+        let mut target_category = b
+            .target_category
+            .bind($py)
+            .try_readwrite()
+            .map_err(borrow_err)?;
         let mut scene = b.scene.bind($py).try_readwrite().map_err(borrow_err)?;
-        let mut episode_index = b.episode_index.bind($py).try_readwrite().map_err(borrow_err)?;
-        let mut episode_seed = b.episode_seed.bind($py).try_readwrite().map_err(borrow_err)?;
+        let mut episode_index = b
+            .episode_index
+            .bind($py)
+            .try_readwrite()
+            .map_err(borrow_err)?;
+        let mut episode_seed = b
+            .episode_seed
+            .bind($py)
+            .try_readwrite()
+            .map_err(borrow_err)?;
         let mut steps = b.steps.bind($py).try_readwrite().map_err(borrow_err)?;
-        let mut oracle_action = b.oracle_action.bind($py).try_readwrite().map_err(borrow_err)?;
+        let mut oracle_action = b
+            .oracle_action
+            .bind($py)
+            .try_readwrite()
+            .map_err(borrow_err)?;
         let mut $out = Out {
             features: features.as_slice_mut()?,
             target: target.as_slice_mut()?,
@@ -394,7 +418,9 @@ impl VecCore {
         let episodes = if split == Split::Train {
             Vec::new()
         } else {
-            world.episodes(split, episodes_per_file).map_err(chain_err)?
+            world
+                .episodes(split, episodes_per_file)
+                .map_err(chain_err)?
         };
         if split != Split::Train && episodes.is_empty() {
             return Err(value_err(format!(
@@ -524,6 +550,53 @@ impl VecCore {
         with_out!(py, &self.bufs, |out| sim.step_all(a, &mut out))
     }
 
+    /// Builds the world's lazily cached tables a long run would touch (every scene of the
+    /// split, the goal tables of `samples` sampled training tasks or of every official
+    /// episode), so that a measurement does not time their construction.
+    #[pyo3(signature = (samples=20000))]
+    fn warm_up(&self, py: Python<'_>, samples: usize) -> PyResult<()> {
+        let sim = &self.sim;
+        py.detach(|| -> anyhow::Result<()> {
+            let w = sim.world;
+            for &s in w.split_scenes(sim.split)? {
+                w.tables(s);
+            }
+            if sim.split == Split::Train {
+                let mut rng = ChaCha8Rng::seed_from_u64(u64::MAX);
+                for _ in 0..samples {
+                    let e = w.try_sample_train_episode_min(&mut rng, 0)?;
+                    w.goal_table(e.scene, e.target);
+                }
+            } else {
+                for e in &sim.episodes {
+                    w.goal_table(e.scene, e.target);
+                }
+            }
+            Ok(())
+        })
+        .map_err(chain_err)
+    }
+
+    /// Benchmark of the engine alone: `calls` batched steps with uniformly random actions
+    /// (drawn before timing, seeded by `seed`), the same work as `step` (outputs written into
+    /// the same arrays) but no Python between the calls. Returns the seconds taken.
+    fn bench_steps(&mut self, py: Python<'_>, calls: usize, seed: u64) -> PyResult<f64> {
+        use rand::Rng;
+        let b = self.sim.slots.len();
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let actions: Vec<i64> = (0..calls * b)
+            .map(|_| rng.random_range(0..NUM_ACTIONS as i64))
+            .collect();
+        let sim = &mut self.sim;
+        with_out!(py, &self.bufs, |out| {
+            let t0 = std::time::Instant::now();
+            for c in actions.chunks_exact(b) {
+                sim.step_all(c, &mut out)?;
+            }
+            Ok::<f64, anyhow::Error>(t0.elapsed().as_secs_f64())
+        })
+    }
+
     /// Number of environments.
     #[getter]
     fn num_envs(&self) -> usize {
@@ -550,7 +623,12 @@ impl VecCore {
 
     /// Scene names by scene id.
     fn scene_names(&self) -> Vec<String> {
-        self.sim.world.scenes.iter().map(|s| s.name.clone()).collect()
+        self.sim
+            .world
+            .scenes
+            .iter()
+            .map(|s| s.name.clone())
+            .collect()
     }
 
     /// Category names by category id.
@@ -564,7 +642,9 @@ impl VecCore {
     /// official episodes; an error unless every episode finished.
     fn report(&self, agent: &str) -> PyResult<(String, String)> {
         if self.sim.split == Split::Train {
-            return Err(value_err("the train split has no official episodes to report"));
+            return Err(value_err(
+                "the train split has no official episodes to report",
+            ));
         }
         if self.sim.recorded < self.sim.results.len() {
             return Err(PyRuntimeError::new_err(format!(
@@ -573,8 +653,7 @@ impl VecCore {
                 self.sim.results.len()
             )));
         }
-        let results: Vec<EpisodeResult> =
-            self.sim.results.iter().flatten().cloned().collect();
+        let results: Vec<EpisodeResult> = self.sim.results.iter().flatten().cloned().collect();
         report_json(self.sim.split, agent, &results)
     }
 }
@@ -639,7 +718,9 @@ fn host_evaluate(
         }
     };
     let world = world_of(py, data.as_deref(), world_seed)?;
-    let episodes = world.episodes(split, episodes_per_file).map_err(chain_err)?;
+    let episodes = world
+        .episodes(split, episodes_per_file)
+        .map_err(chain_err)?;
     let cfg = EvalConfig {
         reward,
         limits: EpisodeLimits {
@@ -691,9 +772,10 @@ impl PyNavigator {
     /// Parses `blob` and builds the navigator (the blob's method, inner-loop settings and
     /// adaptation mode, sampled actions: what `gman eval --agent BLOB` runs).
     #[staticmethod]
+    #[allow(clippy::borrowed_box)] // the builder's signature (ouroboros) takes the owner's Box
     fn from_blob(blob: &Bound<'_, PyBytes>) -> PyResult<PyNavigator> {
-        let model = model_from_blob(blob.as_bytes(), None)
-            .map_err(|e| chain_err(e.context("blob")))?;
+        let model =
+            model_from_blob(blob.as_bytes(), None).map_err(|e| chain_err(e.context("blob")))?;
         let efficient = gman_host_sim::nav::rollout::eval_mode_is_efficient(&model);
         let method = model.method.name();
         let dims = model.dims;
@@ -726,11 +808,12 @@ impl PyNavigator {
     /// Starts an episode: target attribute vector `attr` (float32, 45) and the episode seed.
     fn reset(&mut self, attr: PyReadonlyArray1<'_, f32>, seed: u64) -> PyResult<()> {
         let a = attr.as_slice()?;
-        self.cell.with_nav_mut(|nav| match nav {
-            AnyNav::Full(n) => n.reset(a, seed),
-            AnyNav::Efficient(n) => n.reset(a, seed),
-        })
-        .map_err(core_err)
+        self.cell
+            .with_nav_mut(|nav| match nav {
+                AnyNav::Full(n) => n.reset(a, seed),
+                AnyNav::Efficient(n) => n.reset(a, seed),
+            })
+            .map_err(core_err)
     }
 
     /// One control step: returns (action, probabilities, value, adapted).
