@@ -33,10 +33,12 @@ def need_data() -> Path:
 
 
 def gman_cli() -> str:
-    """The `gman` binary of this checkout (GMAN_BIN, else target/release, else target/debug)."""
-    for c in [os.environ.get("GMAN_BIN"), REPO / "target/release/gman", REPO / "target/debug/gman"]:
-        if c and Path(c).is_file():
-            return str(c)
+    """The `gman` binary of this checkout: GMAN_BIN, else the newer of target/{release,debug}."""
+    if os.environ.get("GMAN_BIN"):
+        return os.environ["GMAN_BIN"]
+    built = [p for p in (REPO / "target/release/gman", REPO / "target/debug/gman") if p.is_file()]
+    if built:
+        return str(max(built, key=lambda p: p.stat().st_mtime))
     if IN_CI:
         pytest.fail("CI is set but no gman binary was built (cargo build -p gman-host-sim)")
     pytest.skip("no gman binary (cargo build -p gman-host-sim, or set GMAN_BIN)")
