@@ -153,19 +153,89 @@ struct Out<'a> {
     oracle_action: &'a mut [i64],
 }
 
-impl Sim {
-    fn next_spec(&mut self, slot: usize) -> anyhow::Result<EpisodeSpec> {
-        if self.split == Split::Train {
-            self.world
-                .try_sample_train_episode_min(&mut self.slots[slot].rng, 0)
-        } else {
-            let n = self.episodes.len();
-            let spec = self.episodes[self.next_episode % n].clone();
-            self.next_episode += 1;
-            Ok(spec)
-        }
-    }
+/// Slots per rayon task when a training batch is stepped in parallel (below twice this, a
+/// batch steps on the calling thread).
+const PAR_CHUNK: usize = 64;
 
+/// The read-only part of a batch, shared by the threads that step it.
+#[derive(Clone, Copy)]
+struct Ctx {
+    world: &'static World,
+    split: Split,
+    reward: RewardKind,
+    limits: EpisodeLimits,
+    grid: MapGrid,
+    oracle: bool,
+}
+
+/// Splits every array of an [`Out`] after `mid` slots (a map of `map_len` floats per slot).
+macro_rules! split_out {
+    ($o:expr, $mid:expr, $map_len:expr) => {{
+        let o = $o;
+        let m = $mid;
+        let (features1, features2) = o.features.split_at_mut(m * FEATURE_DIM);
+        let (target1, target2) = o.target.split_at_mut(m * ATTR_DIM);
+        let (ps1, ps2) = o.ps_target.split_at_mut(m * ATTR_DIM);
+        let (map1, map2) = o.map.split_at_mut(m * $map_len);
+        macro_rules! one {
+            ($f:ident) => {
+                o.$f.split_at_mut(m)
+            };
+        }
+        let (reward1, reward2) = one!(reward);
+        let (te1, te2) = one!(terminated);
+        let (tr1, tr2) = one!(truncated);
+        let (su1, su2) = one!(success);
+        let (es1, es2) = one!(episode_start);
+        let (sp1, sp2) = one!(shortest_path);
+        let (tc1, tc2) = one!(target_category);
+        let (sc1, sc2) = one!(scene);
+        let (ei1, ei2) = one!(episode_index);
+        let (sd1, sd2) = one!(episode_seed);
+        let (st1, st2) = one!(steps);
+        let (oa1, oa2) = one!(oracle_action);
+        (
+            Out {
+                features: features1,
+                target: target1,
+                ps_target: ps1,
+                map: map1,
+                reward: reward1,
+                terminated: te1,
+                truncated: tr1,
+                success: su1,
+                episode_start: es1,
+                shortest_path: sp1,
+                target_category: tc1,
+                scene: sc1,
+                episode_index: ei1,
+                episode_seed: sd1,
+                steps: st1,
+                oracle_action: oa1,
+            },
+            Out {
+                features: features2,
+                target: target2,
+                ps_target: ps2,
+                map: map2,
+                reward: reward2,
+                terminated: te2,
+                truncated: tr2,
+                success: su2,
+                episode_start: es2,
+                shortest_path: sp2,
+                target_category: tc2,
+                scene: sc2,
+                episode_index: ei2,
+                episode_seed: sd2,
+                steps: st2,
+                oracle_action: oa2,
+            },
+        )
+    }};
+}
+
+impl Ctx {
     fn new_env(&self, spec: &EpisodeSpec) -> Env<'static> {
         Env::new(
             self.world,
@@ -175,9 +245,9 @@ impl Sim {
         )
     }
 
-    /// Starts a new episode in `i` and writes its per-episode outputs.
-    fn start(&mut self, i: usize, out: &mut Out<'_>) -> anyhow::Result<()> {
-        let spec = self.next_spec(i)?;
+    /// Starts `spec` in slot `s` (index `i` of `out`) and writes its per-episode outputs and
+    /// the zero reward and flags of a reset.
+    fn begin(&self, s: &mut Slot, spec: EpisodeSpec, i: usize, out: &mut Out<'_>) {
         let env = self.new_env(&spec);
         let m = env.metrics();
         out.target[i * ATTR_DIM..(i + 1) * ATTR_DIM]
@@ -192,16 +262,41 @@ impl Sim {
         };
         out.episode_seed[i] = spec.seed;
         out.episode_start[i] = true;
-        let s = &mut self.slots[i];
+        out.reward[i] = 0.0;
+        out.terminated[i] = false;
+        out.truncated[i] = false;
+        out.success[i] = false;
         s.env = env;
         s.spec = spec;
         s.needs_reset = false;
-        Ok(())
     }
 
-    /// Writes the observation of slot `i`'s current state.
-    fn observe(&self, i: usize, out: &mut Out<'_>) {
-        let env = &self.slots[i].env;
+    /// Takes `action` in slot `s`; the episode's metrics when it ended.
+    fn act(
+        &self,
+        s: &mut Slot,
+        action: i64,
+        i: usize,
+        out: &mut Out<'_>,
+    ) -> Option<EpisodeMetrics> {
+        let a = Action::ALL[action as usize];
+        let o = s.env.step(a);
+        out.reward[i] = o.reward;
+        out.success[i] = o.success;
+        let term = o.done && a == Action::Done;
+        out.terminated[i] = term;
+        out.truncated[i] = o.done && !term;
+        if o.done {
+            s.needs_reset = true;
+            Some(s.env.metrics())
+        } else {
+            None
+        }
+    }
+
+    /// Writes the observation of slot `s`'s current state.
+    fn observe(&self, s: &Slot, i: usize, out: &mut Out<'_>) {
+        let env = &s.env;
         let obs = env.observe();
         out.features[i * FEATURE_DIM..(i + 1) * FEATURE_DIM].copy_from_slice(&obs.features);
         out.ps_target[i * ATTR_DIM..(i + 1) * ATTR_DIM].copy_from_slice(&obs.ps_target);
@@ -213,6 +308,71 @@ impl Sim {
         if self.oracle {
             out.oracle_action[i] = env.oracle().optimal_action().index() as i64;
         }
+    }
+
+    /// One step of training slots (each samples its own next task from its own generator,
+    /// so the result does not depend on how the slots are split between threads).
+    fn step_train(
+        &self,
+        slots: &mut [Slot],
+        actions: &[i64],
+        mut out: Out<'_>,
+    ) -> anyhow::Result<()> {
+        if slots.len() >= 2 * PAR_CHUNK {
+            let mid = slots.len() / 2;
+            let (s1, s2) = slots.split_at_mut(mid);
+            let (a1, a2) = actions.split_at(mid);
+            let (o1, o2) = split_out!(out, mid, self.grid.len());
+            let (r1, r2) = rayon::join(
+                || self.step_train(s1, a1, o1),
+                || self.step_train(s2, a2, o2),
+            );
+            return r1.and(r2);
+        }
+        for (i, (s, &action)) in slots.iter_mut().zip(actions).enumerate() {
+            out.episode_start[i] = false;
+            if s.needs_reset {
+                let spec = self.world.try_sample_train_episode_min(&mut s.rng, 0)?;
+                self.begin(s, spec, i, &mut out);
+            } else {
+                self.act(s, action, i, &mut out);
+            }
+            self.observe(s, i, &mut out);
+        }
+        Ok(())
+    }
+}
+
+impl Sim {
+    fn ctx(&self) -> Ctx {
+        Ctx {
+            world: self.world,
+            split: self.split,
+            reward: self.reward,
+            limits: self.limits,
+            grid: self.grid,
+            oracle: self.oracle,
+        }
+    }
+
+    fn next_spec(&mut self, slot: usize) -> anyhow::Result<EpisodeSpec> {
+        if self.split == Split::Train {
+            self.world
+                .try_sample_train_episode_min(&mut self.slots[slot].rng, 0)
+        } else {
+            let n = self.episodes.len();
+            let spec = self.episodes[self.next_episode % n].clone();
+            self.next_episode += 1;
+            Ok(spec)
+        }
+    }
+
+    /// Starts a new episode in slot `i` (the next official one, or a sampled task).
+    fn start(&mut self, i: usize, out: &mut Out<'_>) -> anyhow::Result<()> {
+        let spec = self.next_spec(i)?;
+        let ctx = self.ctx();
+        ctx.begin(&mut self.slots[i], spec, i, out);
+        Ok(())
     }
 
     fn record(&mut self, i: usize, metrics: EpisodeMetrics) {
@@ -251,41 +411,47 @@ impl Sim {
             self.results = vec![None; self.episodes.len()];
             self.recorded = 0;
         }
+        let ctx = self.ctx();
         for i in 0..self.slots.len() {
             self.start(i, out)?;
-            self.observe(i, out);
-            out.reward[i] = 0.0;
-            out.terminated[i] = false;
-            out.truncated[i] = false;
-            out.success[i] = false;
+            ctx.observe(&self.slots[i], i, out);
         }
         Ok(())
     }
 
+    /// One step of every slot: training batches in parallel chunks, evaluation batches in
+    /// slot order (the official episodes are handed out in that order).
     fn step_all(&mut self, actions: &[i64], out: &mut Out<'_>) -> anyhow::Result<()> {
+        let ctx = self.ctx();
+        if self.split == Split::Train {
+            let o = Out {
+                features: &mut *out.features,
+                target: &mut *out.target,
+                ps_target: &mut *out.ps_target,
+                map: &mut *out.map,
+                reward: &mut *out.reward,
+                terminated: &mut *out.terminated,
+                truncated: &mut *out.truncated,
+                success: &mut *out.success,
+                episode_start: &mut *out.episode_start,
+                shortest_path: &mut *out.shortest_path,
+                target_category: &mut *out.target_category,
+                scene: &mut *out.scene,
+                episode_index: &mut *out.episode_index,
+                episode_seed: &mut *out.episode_seed,
+                steps: &mut *out.steps,
+                oracle_action: &mut *out.oracle_action,
+            };
+            return ctx.step_train(&mut self.slots, actions, o);
+        }
         for (i, &action) in actions.iter().enumerate() {
             out.episode_start[i] = false;
             if self.slots[i].needs_reset {
                 self.start(i, out)?;
-                out.reward[i] = 0.0;
-                out.terminated[i] = false;
-                out.truncated[i] = false;
-                out.success[i] = false;
-            } else {
-                let a = Action::ALL[action as usize];
-                let o = self.slots[i].env.step(a);
-                out.reward[i] = o.reward;
-                out.success[i] = o.success;
-                let term = o.done && a == Action::Done;
-                out.terminated[i] = term;
-                out.truncated[i] = o.done && !term;
-                if o.done {
-                    self.slots[i].needs_reset = true;
-                    let m = self.slots[i].env.metrics();
-                    self.record(i, m);
-                }
+            } else if let Some(m) = ctx.act(&mut self.slots[i], action, i, out) {
+                self.record(i, m);
             }
-            self.observe(i, out);
+            ctx.observe(&self.slots[i], i, out);
         }
         Ok(())
     }

@@ -68,8 +68,8 @@ def _random_actions(n_steps: int, b: int, seed: int) -> np.ndarray:
     return np.random.default_rng(seed).integers(0, 6, size=(n_steps, b))
 
 
-def test_vec_env_equals_sync_vector_env_of_single_envs():
-    b, steps = 4, 400
+@pytest.mark.parametrize("b,steps", [(4, 400), (160, 60)])  # 160: stepped on several threads
+def test_vec_env_equals_sync_vector_env_of_single_envs(b, steps):
     vec = gman.make_vec_env(num_envs=b, map=(2, 3), max_steps=30, copy=True)
     sync = SyncVectorEnv([lambda: gman.ObjectNavEnv(map=(2, 3), max_steps=30) for _ in range(b)])
     o1, i1 = vec.reset(seed=7)
