@@ -697,13 +697,23 @@ fn outputs_never_overwrite_inputs() {
     assert!(ok, "{e}");
     let blob = std::fs::read(&m).unwrap();
     let (ok, _, e) = gman(&[
-        "eval", "--agent", s(&m), "--json", s(&m), "--episodes", "1", "--quiet",
+        "eval",
+        "--agent",
+        s(&m),
+        "--json",
+        s(&m),
+        "--episodes",
+        "1",
+        "--quiet",
     ]);
     assert!(!ok && e.contains("same file"), "{e}");
     assert_eq!(std::fs::read(&m).unwrap(), blob, "model changed");
     // `inspect` names the rule that verified the blob: v4 covers the header.
     let (ok, out, e) = gman(&["inspect", s(&m)]);
-    assert!(ok && out.contains("format v4") && out.contains("header and payload"), "{out}{e}");
+    assert!(
+        ok && out.contains("format v4") && out.contains("header and payload"),
+        "{out}{e}"
+    );
     let shipped = Path::new(env!("CARGO_MANIFEST_DIR")).join("models/gman-mcu-int8-seed1.gman");
     let (ok, out, e) = gman(&["inspect", s(&shipped)]);
     assert!(ok && out.contains("payload only"), "{out}{e}");
@@ -766,7 +776,9 @@ fn nonsense_and_unbounded_flags_are_refused() {
         (&["--map", "20x20"][..], "1..=16"),
         (&["--updates", "18446744073709551615"][..], "at most"),
     ] {
-        let mut args = vec!["train", "--method", "a3c", "--config", "tiny", "--quiet", "--out"];
+        let mut args = vec![
+            "train", "--method", "a3c", "--config", "tiny", "--quiet", "--out",
+        ];
         args.push(s(&out));
         args.extend_from_slice(flags);
         let (ok, e) = gman_within(60, &args);
@@ -790,20 +802,58 @@ fn offline_eval_refuses_a_map_finer_than_7x7() {
     assert!(ok, "{e}");
     let run = d.join("run");
     let (ok, _, e) = gman(&[
-        "train", "--method", "a3c", "--config", "tiny", "--map", "8x8", "--cell-embed", "2",
-        "--min-steps", "8", "--workers", "1", "--updates", "1", "--quiet", "--out", s(&run),
+        "train",
+        "--method",
+        "a3c",
+        "--config",
+        "tiny",
+        "--map",
+        "8x8",
+        "--cell-embed",
+        "2",
+        "--min-steps",
+        "8",
+        "--workers",
+        "1",
+        "--updates",
+        "1",
+        "--quiet",
+        "--out",
+        s(&run),
     ]);
     assert!(ok, "{e}");
     let ck = run.join("checkpoint.ckpt");
     let (ok, _, e) = gman(&[
-        "eval", "--data", s(&data), "--split", "val", "--agent", s(&ck), "--episodes", "1",
+        "eval",
+        "--data",
+        s(&data),
+        "--split",
+        "val",
+        "--agent",
+        s(&ck),
+        "--episodes",
+        "1",
         "--quiet",
     ]);
-    assert!(!ok && e.contains("at most 7 rows") && !e.contains("panicked"), "{e}");
+    assert!(
+        !ok && e.contains("at most 7 rows") && !e.contains("panicked"),
+        "{e}"
+    );
     let (ok, _, e) = gman(&[
-        "emd-report", "--data", s(&data), "--split", "val", "--agent", s(&ck), "--episodes", "1",
+        "emd-report",
+        "--data",
+        s(&data),
+        "--split",
+        "val",
+        "--agent",
+        s(&ck),
+        "--episodes",
+        "1",
     ]);
-    assert!(!ok && e.contains("at most 7 rows") && !e.contains("panicked"), "{e}");
+    assert!(
+        !ok && e.contains("at most 7 rows") && !e.contains("panicked"),
+        "{e}"
+    );
 }
 
 /// `make-offline-fixture --out DIR` wrote into an existing data directory, through the
@@ -829,7 +879,10 @@ fn offline_fixture_never_writes_into_user_data() {
     for f in ["graph.json", "resnet18_featuremap.hdf5"] {
         assert_eq!(std::fs::read_to_string(real.join(f)).unwrap(), "mine");
     }
-    assert_eq!(std::fs::read_to_string(data.join("attributes.json")).unwrap(), "mine");
+    assert_eq!(
+        std::fs::read_to_string(data.join("attributes.json")).unwrap(),
+        "mine"
+    );
     // A new directory is written; writing it again needs --force, which clears it without
     // following a link placed inside it.
     let fx = d.join("fx");
@@ -840,6 +893,9 @@ fn offline_fixture_never_writes_into_user_data() {
     std::os::unix::fs::symlink(&real, fx.join("mine")).unwrap();
     let (ok, _, e) = gman(&["make-offline-fixture", "--out", s(&fx), "--force"]);
     assert!(ok, "{e}");
-    assert_eq!(std::fs::read_to_string(real.join("graph.json")).unwrap(), "mine");
+    assert_eq!(
+        std::fs::read_to_string(real.join("graph.json")).unwrap(),
+        "mine"
+    );
     assert!(!fx.join("mine").exists());
 }

@@ -538,7 +538,10 @@ fn check_train_numbers(a: &TrainArgs) -> Result<()> {
         bail!("--inner-lr and --entropy must be finite and non-negative");
     }
     let max_rate = gman_core::blob::MAX_INNER_RATE;
-    if a.inner_lr > max_rate || a.disc_lr.is_some_and(|r| !(r.is_finite() && (0.0..=max_rate).contains(&r))) {
+    if a.inner_lr > max_rate
+        || a.disc_lr
+            .is_some_and(|r| !(r.is_finite() && (0.0..=max_rate).contains(&r)))
+    {
         bail!(
             "--inner-lr {} / --disc-lr {:?}: inner-loop rates must be in 0..={max_rate} (a larger step diverges at every adaptation; the paper's is 1e-4)",
             a.inner_lr,

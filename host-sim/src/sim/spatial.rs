@@ -190,7 +190,12 @@ pub const RESNET_SIDE: usize = 7;
 /// Refuses a model's `rows x cols` map grid that `world` cannot serve: offline data stores
 /// 7 x 7 feature maps, so a grid there has at most 7 rows and 7 columns (the simulator's
 /// own worlds render any grid). `what` names the model or flag in the error.
-pub fn check_grid_for_world(world: &World, rows: usize, cols: usize, what: &str) -> anyhow::Result<()> {
+pub fn check_grid_for_world(
+    world: &World,
+    rows: usize,
+    cols: usize,
+    what: &str,
+) -> anyhow::Result<()> {
     if matches!(world.source, super::WorldSource::Offline(_))
         && (rows > RESNET_SIDE || cols > RESNET_SIDE)
     {
