@@ -867,7 +867,7 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
                 what: "alpha_disc and alpha_adapt must be finite, non-negative and at most blob::MAX_INNER_RATE",
             });
         }
-        if !(cfg.loss_bound > 0.0) {
+        if cfg.loss_bound.is_nan() || cfg.loss_bound <= 0.0 {
             return Err(Error::Config {
                 what: "loss_bound must be > 0",
             });
