@@ -95,6 +95,23 @@ fn arena_constants_match_the_library() {
     );
     assert_eq!(n, GMAN_ARENA_BYTES_MCU_MAP3X3);
     assert_eq!(info(&blob).arena_bytes as usize, n);
+    // The table in docs/integrate.md.
+    use gman_core::{arena_len, AdaptMode, Dims};
+    for (d, floats, bytes) in [
+        (Dims::MCU, 37_111, GMAN_ARENA_BYTES_MCU),
+        (
+            Dims::MCU.with_map(3, 3, 8),
+            37_703,
+            GMAN_ARENA_BYTES_MCU_MAP3X3,
+        ),
+        (Dims::PAPER, 131_063, GMAN_ARENA_BYTES_PAPER),
+    ] {
+        assert_eq!(
+            arena_len(&d, AdaptMode::Efficient, GMAN_BUFFER_CAPACITY),
+            floats
+        );
+        assert_eq!(GMAN_ARENA_ALIGN + GMAN_HANDLE_BYTES + 4 * floats, bytes);
+    }
 }
 
 #[test]

@@ -91,7 +91,12 @@ fn c_firmware_under_qemu_matches_the_rust_firmware_bit_for_bit() {
             .arg(c.join("device.c"))
             .arg(c.join("episode.c"))
             .arg(c.join("blob.S"))
-            .args(["-nostdlib", "-nostartfiles", "-Wl,--gc-sections,-z,noexecstack", "-T"])
+            .args([
+                "-nostdlib",
+                "-nostartfiles",
+                "-Wl,--gc-sections,-z,noexecstack",
+                "-T",
+            ])
             .arg(c.join("link.ld"))
             .arg(&lib)
             .args(["-lgcc", "-o"])

@@ -25,7 +25,10 @@ pub fn staticlib(target: Option<&str>) -> PathBuf {
         cmd.args(["--target", t, "--no-default-features"]);
     }
     let status = cmd.status().expect("run cargo rustc -p gman-ffi");
-    assert!(status.success(), "cargo rustc -p gman-ffi (staticlib) failed");
+    assert!(
+        status.success(),
+        "cargo rustc -p gman-ffi (staticlib) failed"
+    );
     let dir = match target {
         Some(t) => build_dir().join(t).join("release"),
         None => build_dir().join("release"),
