@@ -300,7 +300,7 @@ struct Handle {
 
 const _: () = assert!(size_of::<Handle>() <= GMAN_HANDLE_BYTES);
 const _: () = assert!(align_of::<Handle>() <= GMAN_ARENA_ALIGN);
-const _: () = assert!(GMAN_HANDLE_BYTES % GMAN_ARENA_ALIGN == 0);
+const _: () = assert!(GMAN_HANDLE_BYTES.is_multiple_of(GMAN_ARENA_ALIGN));
 
 /// A message buffer written with `core::fmt`, truncated at `MSG_LEN - 1` bytes, always
 /// NUL-terminated.
@@ -382,7 +382,7 @@ unsafe fn slice_in<'a, T>(p: *const T, len: usize) -> Result<&'a [T], gman_statu
     if p.is_null() {
         return Err(GMAN_ERR_NULL);
     }
-    if (p as usize) % align_of::<T>() != 0 {
+    if !p.is_aligned() {
         return Err(GMAN_ERR_ALIGNMENT);
     }
     if len
@@ -407,7 +407,7 @@ unsafe fn slice_out<'a, T>(p: *mut T, len: usize) -> Result<&'a mut [T], gman_st
     if p.is_null() {
         return Err(GMAN_ERR_NULL);
     }
-    if (p as usize) % align_of::<T>() != 0 {
+    if !p.is_aligned() {
         return Err(GMAN_ERR_ALIGNMENT);
     }
     if len
@@ -428,7 +428,7 @@ unsafe fn out_ref<'a, T>(p: *mut T) -> Result<&'a mut T, gman_status> {
     if p.is_null() {
         return Err(GMAN_ERR_NULL);
     }
-    if (p as usize) % align_of::<T>() != 0 {
+    if !p.is_aligned() {
         return Err(GMAN_ERR_ALIGNMENT);
     }
     // SAFETY: non-null and aligned; the caller guarantees it is writable. Every `T` used here
@@ -509,7 +509,7 @@ unsafe fn handle<'a>(nav: *mut gman_nav) -> Result<&'a mut Handle, gman_status> 
     if h.is_null() {
         return Err(GMAN_ERR_NULL);
     }
-    if (h as usize) % align_of::<Handle>() != 0 {
+    if !h.is_aligned() {
         return Err(GMAN_ERR_BAD_HANDLE);
     }
     // SAFETY: aligned and, per the caller, readable; `magic` is the first field of the
@@ -709,7 +709,7 @@ unsafe fn init(
     *out = ptr::null_mut();
     let opts = if opts.is_null() {
         gman_options::default()
-    } else if (opts as usize) % align_of::<gman_options>() != 0 {
+    } else if !opts.is_aligned() {
         return Err(GMAN_ERR_ALIGNMENT);
     } else {
         // SAFETY: non-null, aligned, readable per the caller; plain integers.
