@@ -109,8 +109,13 @@ typedef struct gman_options {
   uint32_t selection;
   // When the inner update runs: 0 inside [`gman_step`] every k steps; 1 only when the
   // caller calls [`gman_adapt_now`] (a step with a full buffer then fails with
-  // [`GMAN_ERR_CONFIG`]), e.g. from a lower-priority task.
+  // [`GMAN_ERR_CONFIG`]), e.g. from a lower-priority task. Other values are refused.
   uint32_t schedule;
+  // Steps between the start of an inner update and its commit: 0, the update completes
+  // in the step that starts it (the only value this library version accepts; others are
+  // refused with [`GMAN_ERR_CONFIG`]). Reserved for an update computed in slices over
+  // the following steps.
+  uint32_t commit_delay;
 } gman_options;
 
 // What one step returns ([`gman_step`]).

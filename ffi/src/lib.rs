@@ -205,8 +205,13 @@ pub struct gman_options {
     pub selection: u32,
     /// When the inner update runs: 0 inside [`gman_step`] every k steps; 1 only when the
     /// caller calls [`gman_adapt_now`] (a step with a full buffer then fails with
-    /// [`GMAN_ERR_CONFIG`]), e.g. from a lower-priority task.
+    /// [`GMAN_ERR_CONFIG`]), e.g. from a lower-priority task. Other values are refused.
     pub schedule: u32,
+    /// Steps between the start of an inner update and its commit: 0, the update completes
+    /// in the step that starts it (the only value this library version accepts; others are
+    /// refused with [`GMAN_ERR_CONFIG`]). Reserved for an update computed in slices over
+    /// the following steps.
+    pub commit_delay: u32,
 }
 
 /// What one step returns ([`gman_step`]).
@@ -338,12 +343,15 @@ fn status_of_blob(e: &BlobError) -> gman_status {
 }
 
 fn status_of(e: &Error) -> gman_status {
+    // Errors a newer core adds map to GMAN_ERR_CONFIG until they get their own code.
+    #[allow(unreachable_patterns)]
     match e {
         Error::Shape(_) => GMAN_ERR_SHAPE,
         Error::NonFiniteInput { .. } => GMAN_ERR_NON_FINITE,
         Error::Blob(b) => status_of_blob(b),
         Error::NumericalFault { .. } => GMAN_ERR_NUMERICAL,
         Error::Config { .. } => GMAN_ERR_CONFIG,
+        _ => GMAN_ERR_CONFIG,
     }
 }
 
@@ -737,6 +745,9 @@ unsafe fn init(
         1 => Schedule::Manual,
         _ => return Err(GMAN_ERR_CONFIG),
     };
+    if opts.commit_delay != 0 {
+        return Err(GMAN_ERR_CONFIG);
+    }
     let dims = blob.dims();
     let weights = NavWeights::from_blob(&blob, &dims).map_err(|e| status_of(&e))?;
     let pad = (GMAN_ARENA_ALIGN - (arena as usize) % GMAN_ARENA_ALIGN) % GMAN_ARENA_ALIGN;

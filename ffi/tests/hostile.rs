@@ -265,6 +265,7 @@ fn order_shape_nan_alignment_and_dead_handles() {
     let opts = gman_options {
         selection: 7,
         schedule: 0,
+        commit_delay: 0,
     };
     let s = unsafe {
         gman_init(
@@ -278,6 +279,22 @@ fn order_shape_nan_alignment_and_dead_handles() {
     };
     assert_eq!(s, GMAN_ERR_CONFIG);
     assert!(h.is_null());
+    let delayed = gman_options {
+        selection: 0,
+        schedule: 0,
+        commit_delay: 20,
+    };
+    let s = unsafe {
+        gman_init(
+            blob.as_ptr(),
+            blob.len(),
+            arena.as_mut_ptr().cast(),
+            arena.len(),
+            &delayed,
+            &mut h,
+        )
+    };
+    assert_eq!(s, GMAN_ERR_CONFIG);
     // A short arena.
     let s = unsafe {
         gman_init(
@@ -357,6 +374,7 @@ fn manual_schedule_runs_the_update_only_on_request() {
     let opts = gman_options {
         selection: 0,
         schedule: 1,
+        commit_delay: 0,
     };
     let s = unsafe {
         gman_init(

@@ -57,6 +57,7 @@ impl Agent for CApiAgent {
         let opts = gman_options {
             selection: 1, // sampled, as `gman eval` runs
             schedule: 0,
+            commit_delay: 0,
         };
         let mut nav = null_mut();
         // SAFETY: the blob and the arena outlive the handle (both owned by self, unmoved
