@@ -507,12 +507,12 @@ unsafe fn parse_blob<'a>(
     Ok((b, info))
 }
 
-/// The handle behind `nav`, checked (non-null, aligned, magic).
+/// The handle behind `nav`, checked (non-null, aligned, magic), as a raw pointer.
 ///
 /// # Safety
 /// A non-null `nav` must point to readable memory of at least [`GMAN_HANDLE_BYTES`] (an
 /// arena given to [`gman_init`]) that nobody else accesses during the call.
-unsafe fn handle<'a>(nav: *mut gman_nav) -> Result<&'a mut Handle, gman_status> {
+unsafe fn handle_ptr(nav: *mut gman_nav) -> Result<*mut Handle, gman_status> {
     let h = nav as *mut Handle;
     if h.is_null() {
         return Err(GMAN_ERR_NULL);
@@ -526,38 +526,43 @@ unsafe fn handle<'a>(nav: *mut gman_nav) -> Result<&'a mut Handle, gman_status> 
     if magic != MAGIC {
         return Err(GMAN_ERR_BAD_HANDLE);
     }
-    // SAFETY: the magic is only ever written by `gman_init` after a complete `Handle` was
-    // written at this address, so the memory holds an initialised `Handle`.
-    Ok(unsafe { &mut *h })
+    Ok(h)
 }
 
 /// Runs `f` on the handle; a failure's message goes to the handle's last error, a panic
 /// poisons it.
 ///
 /// # Safety
-/// See [`handle`].
+/// See [`handle_ptr`].
 unsafe fn with_handle(
     nav: *mut gman_nav,
     f: impl FnOnce(&mut Handle) -> Result<(), (gman_status, Option<Error>)>,
 ) -> gman_status {
     // SAFETY: forwarded from the caller.
-    let h = match unsafe { handle(nav) } {
+    let hp = match unsafe { handle_ptr(nav) } {
         Ok(h) => h,
         Err(s) => return s,
     };
-    let hp: *mut Handle = h;
-    let status = guard(|| match f(h) {
-        Ok(()) => GMAN_OK,
-        Err((s, e)) => {
-            match e {
-                Some(e) => set_msg(&mut h.msg, format_args!("{e}")),
-                None => set_msg(&mut h.msg, format_args!("{}", status_text(s))),
+    let status = guard(|| {
+        // SAFETY: the magic is only ever written by `gman_init` after a complete `Handle`
+        // was written at this address, so the memory holds an initialised `Handle`; the
+        // caller guarantees exclusive access for the call. The reference ends with the
+        // closure.
+        let h = unsafe { &mut *hp };
+        match f(h) {
+            Ok(()) => GMAN_OK,
+            Err((s, e)) => {
+                match e {
+                    Some(e) => set_msg(&mut h.msg, format_args!("{e}")),
+                    None => set_msg(&mut h.msg, format_args!("{}", status_text(s))),
+                }
+                s
             }
-            s
         }
     });
     if status == GMAN_ERR_PANIC {
-        // SAFETY: `hp` is the handle checked above; only its first field is written.
+        // SAFETY: `hp` is the handle checked above (no reference to it is live any more);
+        // only its first field is written.
         unsafe { ptr::write(ptr::addr_of_mut!((*hp).magic), POISONED) };
     }
     status
@@ -1020,8 +1025,9 @@ pub unsafe extern "C" fn gman_generator_output(
 #[no_mangle]
 pub unsafe extern "C" fn gman_last_error(nav: *mut gman_nav) -> *const c_char {
     // SAFETY: forwarded from the caller.
-    match unsafe { handle(nav) } {
-        Ok(h) => h.msg.as_ptr() as *const c_char,
+    match unsafe { handle_ptr(nav) } {
+        // SAFETY: a checked handle; only the address of its message is taken.
+        Ok(h) => unsafe { ptr::addr_of!((*h).msg) as *const c_char },
         Err(s) => gman_status_str(s),
     }
 }
