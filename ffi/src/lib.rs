@@ -1031,3 +1031,45 @@ pub unsafe extern "C" fn gman_last_error(nav: *mut gman_nav) -> *const c_char {
         Err(s) => gman_status_str(s),
     }
 }
+
+#[cfg(all(test, feature = "std"))]
+mod tests {
+    use super::*;
+
+    /// A panic inside a call is caught at the boundary, reported as GMAN_ERR_PANIC, and the
+    /// handle is poisoned (every later call: GMAN_ERR_BAD_HANDLE).
+    #[test]
+    fn a_panic_is_caught_and_poisons_the_handle() {
+        let blob = std::fs::read(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../host-sim/models/gman-map3-b16-mcu-int8-seed5.gman"
+        ))
+        .unwrap();
+        let mut arena = vec![0u8; GMAN_ARENA_BYTES_MCU_MAP3X3];
+        let mut nav = ptr::null_mut();
+        // SAFETY: valid buffers that outlive the handle.
+        let s = unsafe {
+            gman_init(
+                blob.as_ptr(),
+                blob.len(),
+                arena.as_mut_ptr().cast(),
+                arena.len(),
+                ptr::null(),
+                &mut nav,
+            )
+        };
+        assert_eq!(s, GMAN_OK);
+        let prev = std::panic::take_hook();
+        std::panic::set_hook(Box::new(|_| {}));
+        // SAFETY: a live handle.
+        let s = unsafe { with_handle(nav, |_| panic!("injected")) };
+        std::panic::set_hook(prev);
+        assert_eq!(s, GMAN_ERR_PANIC);
+        let mut c = gman_counters::default();
+        // SAFETY: the handle's memory is still the arena.
+        assert_eq!(
+            unsafe { gman_get_counters(nav, &mut c) },
+            GMAN_ERR_BAD_HANDLE
+        );
+    }
+}
