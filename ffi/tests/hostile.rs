@@ -476,3 +476,26 @@ proptest! {
         }
     }
 }
+
+/// The blob needs no alignment: one byte off gives the same bits.
+#[test]
+fn a_misaligned_blob_gives_the_same_bits() {
+    let blob = model();
+    let mut shifted = vec![0u8; blob.len() + 1];
+    shifted[1..].copy_from_slice(&blob);
+    let off = &shifted[1..];
+    let i = info(&blob);
+    let (a, b) = (nav(&blob, 0), nav(off, 0));
+    let attr = vec![0.5f32; i.attr as usize];
+    unsafe {
+        assert_eq!(gman_reset(a.h, attr.as_ptr(), attr.len(), 11), GMAN_OK);
+        assert_eq!(gman_reset(b.h, attr.as_ptr(), attr.len(), 11), GMAN_OK);
+    }
+    for t in 0..22 {
+        let (obs, map) = obs_for(&i, (t % 5) as f32 / 5.0);
+        let (sa, oa) = step(&a, &i, &obs, &map);
+        let (sb, ob) = step(&b, &i, &obs, &map);
+        assert_eq!((sa, sb), (GMAN_OK, GMAN_OK));
+        assert_eq!(oa.probs.map(f32::to_bits), ob.probs.map(f32::to_bits));
+    }
+}
