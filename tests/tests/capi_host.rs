@@ -1,7 +1,8 @@
 //! The C API on the host: a C program (`firmware-example/c/host.c` + `episode.c`, built with
 //! the system's `cc` against `libgman_ffi.a`) loads the shipped blob, replays the recorded
 //! episode through the C API in two navigators (two arenas, both misaligned on purpose) and
-//! must print bit for bit the lines the Rust navigator prints for it
+//! must print bit for bit the lines the Rust navigator prints for it, linked with the static
+//! library and with the shared one
 //! (`firmware-example/src/episode.rs`, what the Rust firmware runs).
 
 use std::process::Command;
@@ -31,26 +32,47 @@ fn rust_lines(blob: &[u8], ep: &[u8]) -> Vec<String> {
     out.0
 }
 
+/// Builds the host program against the static library, or the shared one (`shared`).
+fn build(shared: bool) -> std::path::PathBuf {
+    let c = capi::c_dir();
+    let exe = capi::build_dir().join(if shared { "capi-host-so" } else { "capi-host" });
+    let mut cmd = Command::new("cc");
+    cmd.args(["-std=c11", "-O2", "-Wall", "-Wextra", "-Werror"])
+        .args(["-ffp-contract=off", "-fno-math-errno", "-I"])
+        .arg(capi::include_dir())
+        .arg(c.join("host.c"))
+        .arg(c.join("episode.c"));
+    if shared {
+        let so = capi::cdylib();
+        let dir = so.parent().unwrap();
+        cmd.arg("-L")
+            .arg(dir)
+            .arg(format!("-Wl,-rpath,{}", dir.display()))
+            .arg("-lgman_ffi");
+    } else {
+        cmd.arg(capi::staticlib(None))
+            .args(["-lpthread", "-ldl", "-lm"]);
+    }
+    capi::run(cmd.arg("-o").arg(&exe));
+    exe
+}
+
 #[test]
 fn c_host_program_matches_the_rust_navigator_bit_for_bit() {
-    let lib = capi::staticlib(None);
-    let exe = capi::build_dir().join("capi-host");
-    let c = capi::c_dir();
-    capi::run(
-        Command::new("cc")
-            .args(["-std=c11", "-O2", "-Wall", "-Wextra", "-Werror"])
-            .args(["-ffp-contract=off", "-fno-math-errno", "-I"])
-            .arg(capi::include_dir())
-            .arg(c.join("host.c"))
-            .arg(c.join("episode.c"))
-            .arg(&lib)
-            .args(["-lpthread", "-ldl", "-lm", "-o"])
-            .arg(&exe),
-    );
     let blob = blobgen::default_blob_in(&capi::root().join("firmware-example"));
     let model = capi::write_blob(&blob);
-    let out = Command::new(&exe)
-        .arg(&model)
+    // The static library, then the shared one: the same lines.
+    for shared in [false, true] {
+        check(&build(shared), &model, &blob, shared);
+    }
+}
+
+fn check(exe: &std::path::Path, model: &std::path::Path, blob: &[u8], shared: bool) {
+    // Without cargo's library path, whose deps/ may hold another build of the shared
+    // library: the program loads the one it was linked with (its rpath).
+    let out = Command::new(exe)
+        .env_remove("LD_LIBRARY_PATH")
+        .arg(model)
         .arg(capi::root().join("firmware-example/data/episode.gmep"))
         .output()
         .expect("run the C host program");
@@ -61,7 +83,12 @@ fn c_host_program_matches_the_rust_navigator_bit_for_bit() {
         String::from_utf8_lossy(&out.stderr)
     );
     let got: Vec<&str> = stdout.lines().collect();
-    let want = capi::rust_episode_lines(rust_lines, &blob);
+    let want = capi::rust_episode_lines(rust_lines, blob);
     assert!(want.iter().any(|l| l.starts_with("  inner update")));
-    capi::assert_same_lines(&got, &want, "C on the host");
+    let what = if shared {
+        "C on the host, libgman_ffi.so"
+    } else {
+        "C on the host, libgman_ffi.a"
+    };
+    capi::assert_same_lines(&got, &want, what);
 }

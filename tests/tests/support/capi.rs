@@ -16,10 +16,19 @@ pub fn build_dir() -> PathBuf {
 
 /// Builds `libgman_ffi.a` (release) for `target` (None: the host) and returns its path.
 pub fn staticlib(target: Option<&str>) -> PathBuf {
+    library(target, "staticlib", "libgman_ffi.a")
+}
+
+/// Builds the host's `libgman_ffi.so` (release) and returns its path.
+pub fn cdylib() -> PathBuf {
+    library(None, "cdylib", "libgman_ffi.so")
+}
+
+fn library(target: Option<&str>, kind: &str, file: &str) -> PathBuf {
     let mut cmd = Command::new(env!("CARGO"));
     cmd.current_dir(root())
         .args(["rustc", "--release", "--quiet", "-p", "gman-ffi", "--lib"])
-        .args(["--crate-type", "staticlib", "--target-dir"])
+        .args(["--crate-type", kind, "--target-dir"])
         .arg(build_dir());
     if let Some(t) = target {
         cmd.args(["--target", t, "--no-default-features"]);
@@ -27,13 +36,13 @@ pub fn staticlib(target: Option<&str>) -> PathBuf {
     let status = cmd.status().expect("run cargo rustc -p gman-ffi");
     assert!(
         status.success(),
-        "cargo rustc -p gman-ffi (staticlib) failed"
+        "cargo rustc -p gman-ffi --crate-type {kind} failed"
     );
     let dir = match target {
         Some(t) => build_dir().join(t).join("release"),
         None => build_dir().join("release"),
     };
-    dir.join("libgman_ffi.a")
+    dir.join(file)
 }
 
 /// Runs a compiler command, failing with its output.
