@@ -336,7 +336,9 @@ fn set_msg(buf: &mut [u8; MSG_LEN], args: fmt::Arguments<'_>) {
 
 fn status_of_blob(e: &BlobError) -> gman_status {
     match e {
-        BlobError::ChecksumMismatch { .. } => GMAN_ERR_BLOB_CRC,
+        BlobError::ChecksumMismatch { .. } | BlobError::HeaderChecksumMismatch { .. } => {
+            GMAN_ERR_BLOB_CRC
+        }
         BlobError::UnsupportedVersion { .. } => GMAN_ERR_BLOB_VERSION,
         _ => GMAN_ERR_BLOB,
     }
