@@ -406,9 +406,12 @@ fn check(delay: u32) {
         assert!(e2t < 1e-2, "{kind:?}: order-2 θ block off by {e2t:.2e}");
         assert!(e2p < 1e-2, "{kind:?}: order-2 φ block off by {e2p:.2e}");
         // v_φ passes through the inner steps unchanged, so both orders share the φ block;
-        // they differ in θ, where order 1 must be clearly off (so this test can fail).
+        // they differ in θ, where order 1 must be clearly off (so this test can fail): outside
+        // the tolerance order 2 meets (with a delay the longer segments' first-order terms
+        // weigh more, so the gap is smaller: θ 3.05e-2 vs 1.00e-5, Paper, d = 2).
+        let off = if delay == 0 { 1e-1 } else { 1e-2 };
         assert!(
-            e1t > 1e-1,
+            e1t > off,
             "{kind:?}: order 1's θ block is within {e1t:.2e} of the exact meta-gradient; \
              the test would not discriminate"
         );
