@@ -314,7 +314,17 @@ pub fn ld_grad_sum(
     w: &mut InnerWork<'_>,
     grads: &mut DiscGrads<'_>,
 ) -> Result<LdValue> {
-    ld_grad_sum_from(disc, real, fake, eps, cfg, inv, w, grads, LdValue::default())
+    ld_grad_sum_from(
+        disc,
+        real,
+        fake,
+        eps,
+        cfg,
+        inv,
+        w,
+        grads,
+        LdValue::default(),
+    )
 }
 
 /// [`ld_grad_sum`] continuing the sums `ld0` of earlier entries: called on consecutive

@@ -1143,8 +1143,7 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
     /// Ψ filled that run before the update takes effect ([`NavConfig::commit_delay`]). A
     /// trainer's segment ends when Ψ is full and this is false.
     pub fn in_commit_window(&self) -> bool {
-        self.upd
-            .is_some_and(|u| u.window < self.cfg.commit_delay)
+        self.upd.is_some_and(|u| u.window < self.cfg.commit_delay)
     }
 
     /// Slices of the pending update still to run (0: none pending, or complete).
@@ -1288,7 +1287,10 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
                     what: "commit window over: call adapt_now() before step() (Schedule::Manual)",
                 });
             }
-            if self.cfg.schedule == Schedule::Background && u.window + 1 == d && u.phase != Phase::Done {
+            if self.cfg.schedule == Schedule::Background
+                && u.window + 1 == d
+                && u.phase != Phase::Done
+            {
                 return Err(Error::UpdateNotReady {
                     slices_left: self.slices_left(),
                 });
@@ -1511,7 +1513,10 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
                 } else {
                     u.total / delay as u64 * u.window as u64
                 };
-                while self.upd.is_some_and(|u| u.phase != Phase::Done && u.done < target) {
+                while self
+                    .upd
+                    .is_some_and(|u| u.phase != Phase::Done && u.done < target)
+                {
                     self.run_slice()?;
                 }
             }
@@ -1887,7 +1892,13 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
     /// ∇_ω L_D (Eq. 1, WGAN-GP) over the entries `t0 .. t1` of Ψ added into D's gradient
     /// buffers (zeroed, with fresh interpolation weights ε for all of Ψ, at `t0 = 0`),
     /// continuing the sums `ld`; returns them. Ψ_x must be current.
-    fn disc_gradient(&mut self, t0: usize, t1: usize, ld: LdValue, forked: bool) -> Result<LdValue> {
+    fn disc_gradient(
+        &mut self,
+        t0: usize,
+        t1: usize,
+        ld: LdValue,
+        forked: bool,
+    ) -> Result<LdValue> {
         let n = self.n_buf;
         let d = self.w.dims;
         let cfg = self.cfg;

@@ -584,6 +584,9 @@ mod tests {
         }
         let mut f = old;
         f.commit_delay = 1000;
-        assert_eq!(ModelFlags::from_bits(f.bits()).commit_delay, MAX_COMMIT_DELAY);
+        assert_eq!(
+            ModelFlags::from_bits(f.bits()).commit_delay,
+            MAX_COMMIT_DELAY
+        );
     }
 }

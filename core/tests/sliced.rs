@@ -45,16 +45,17 @@ fn run<M: Mode>(bytes: &[u8], schedule: Schedule, delay: u32) -> Run {
     for t in 0..STEPS {
         match schedule {
             // One slice per period in the idle time, before the step.
-            Schedule::Background => {
-                if nav.adapt_slice().unwrap() {
-                    background_slices += 1;
-                }
+            Schedule::Background if nav.update_pending() => {
+                nav.adapt_slice().unwrap();
+                background_slices += 1;
             }
-            // The trainer's order: a full Ψ whose window is over commits (or empties).
-            Schedule::Manual if nav.buffered() == K && !nav.in_commit_window() => {
-                if nav.update_pending() || delay == 0 {
-                    assert!(nav.adapt_now().unwrap());
-                }
+            // The trainer's order: a full Ψ whose window is over commits.
+            Schedule::Manual
+                if nav.buffered() == K
+                    && !nav.in_commit_window()
+                    && (nav.update_pending() || delay == 0) =>
+            {
+                assert!(nav.adapt_now().unwrap());
             }
             _ => {}
         }
@@ -73,7 +74,11 @@ fn run<M: Mode>(bytes: &[u8], schedule: Schedule, delay: u32) -> Run {
     if schedule == Schedule::Background {
         assert!(background_slices > 0);
     }
-    let x = nav.generated_feature().iter().map(|v| v.to_bits()).collect();
+    let x = nav
+        .generated_feature()
+        .iter()
+        .map(|v| v.to_bits())
+        .collect();
     (out, x, nav.counters().adaptations)
 }
 
@@ -85,7 +90,11 @@ fn check<M: Mode>() {
         assert!(auto.2 >= 2, "too few updates: {}", auto.2);
         // The commit points: k + d, 2 (k + d), ...
         for (t, (_, adapted)) in auto.0.iter().enumerate() {
-            assert_eq!(*adapted, (t + 1) % (K + delay as usize) == 0, "t={t} d={delay}");
+            assert_eq!(
+                *adapted,
+                (t + 1) % (K + delay as usize) == 0,
+                "t={t} d={delay}"
+            );
         }
         // The delay changes what runs (the test can tell the schedules apart) ...
         assert_ne!(auto.0, at_once.0, "d={delay}");
@@ -130,7 +139,10 @@ fn background_update_not_ready_at_its_commit_point_changes_nothing() {
     assert!(nav.update_pending());
     let (h, steps) = (nav.hidden_state().to_vec(), nav.counters().steps);
     let e = nav.step(&obs(K + 2), &ps).unwrap_err();
-    assert!(matches!(e, Error::UpdateNotReady { slices_left } if slices_left > 0), "{e:?}");
+    assert!(
+        matches!(e, Error::UpdateNotReady { slices_left } if slices_left > 0),
+        "{e:?}"
+    );
     assert_eq!(nav.hidden_state(), &h[..]);
     assert_eq!(nav.counters().steps, steps);
     let mut slices = 0;

@@ -353,7 +353,9 @@ pub fn run(
         if out.adapted {
             let after = filled_at.take().map_or(1, |f| (t - f) as u32);
             probe.update_committed(after);
-            probe.line(format_args!("  update committed {after} steps after Ψ filled"));
+            probe.line(format_args!(
+                "  update committed {after} steps after Ψ filled"
+            ));
         } else if nav.update_pending() && filled_at.is_none() {
             filled_at = Some(t);
         }

@@ -199,10 +199,20 @@ fn firmware_under_qemu_matches_host_bit_for_bit() {
     // The control loop's budget: no step over twice the mean step of the episode, every
     // update committed within 20 steps of its buffer filling, no missed release.
     let (mean, max) = (get("step_mean_insns"), get("step_max_insns"));
-    assert!(max <= 2 * mean, "step_max_insns {max} over 2 x step_mean_insns {mean}");
+    assert!(
+        max <= 2 * mean,
+        "step_max_insns {max} over 2 x step_mean_insns {mean}"
+    );
     let c = get("update_commit_steps");
-    assert!((1..=20).contains(&c), "update_commit_steps {c} not in 1..=20");
-    assert_eq!(get("deadline_misses"), 0, "a step missed its release period");
+    assert!(
+        (1..=20).contains(&c),
+        "update_commit_steps {c} not in 1..=20"
+    );
+    assert_eq!(
+        get("deadline_misses"),
+        0,
+        "a step missed its release period"
+    );
     // `gman bench` reads its firmware row from here (written whole, then renamed).
     let log = target_dir.join("qemu-measurements.txt");
     let tmp = target_dir.join("qemu-measurements.txt.tmp");

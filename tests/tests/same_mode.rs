@@ -194,7 +194,11 @@ fn trainer_and_device_agree_with_a_commit_delay() {
         };
         check_with(AdaptMode::Efficient, gman_core::Dims::MCU, rule);
         check_with(AdaptMode::Full, gman_core::Dims::MCU, rule);
-        check_with(AdaptMode::Efficient, gman_core::Dims::MCU.with_map(2, 3, 4), rule);
+        check_with(
+            AdaptMode::Efficient,
+            gman_core::Dims::MCU.with_map(2, 3, 4),
+            rule,
+        );
     }
     // With the levers too (several D steps draw ε from the update's own generator).
     let rule = InnerRule {

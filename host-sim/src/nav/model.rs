@@ -1128,6 +1128,7 @@ mod inner_rule_tests {
             adapt_loss: AdaptLossName::Reference,
             reference_critic: true,
             head_only: true,
+            commit_delay: 17,
         };
         let mut ck = Checkpoint::new(m.metadata());
         m.add_to_checkpoint(&mut ck).unwrap();
@@ -1148,6 +1149,8 @@ mod inner_rule_tests {
         assert_eq!(cfg.ld.critic_scale, 10.0);
         assert_eq!(m.nav_config(false).ld.critic_scale, 10.0);
         assert_eq!(cfg.disc_steps, m.nav_config(false).disc_steps);
+        assert_eq!(cfg.commit_delay, 17);
+        assert_eq!(m.nav_config(true).commit_delay, 17);
         // Nonsense in a file is refused with the field named.
         let mut bad = m.metadata();
         bad["inner_rule"]["disc_steps"] = serde_json::json!(0);
