@@ -6,8 +6,8 @@ use std::time::Instant;
 use anyhow::{anyhow, bail, Context, Result};
 use clap::{Args, ValueEnum};
 use gman_host_sim::nav::a3c::Objective;
-use gman_host_sim::nav::model::{Method, NavModel};
 use gman_host_sim::nav::dist::{Group, Single};
+use gman_host_sim::nav::model::{Method, NavModel};
 use gman_host_sim::nav::trainer::{
     checkpoint_path, train_in, Distributed, RunSettings, TrainOptions, TrainState, WorldId,
 };
@@ -460,7 +460,11 @@ pub fn cmd_train(a: TrainArgs, explicit: &dyn Fn(&str) -> bool) -> Result<()> {
 }
 
 /// [`cmd_train`] on the ranks of `group`.
-fn train_on(mut a: TrainArgs, explicit: &dyn Fn(&str) -> bool, group: &mut dyn Group) -> Result<()> {
+fn train_on(
+    mut a: TrainArgs,
+    explicit: &dyn Fn(&str) -> bool,
+    group: &mut dyn Group,
+) -> Result<()> {
     check_train_flags(&a)?;
     check_train_numbers(&a)?;
     let (rank, ranks) = (group.rank(), group.size());

@@ -146,7 +146,11 @@ pub fn decode_shares(
     omega: &[&[f32]],
     rank: usize,
 ) -> Result<Vec<WorkerShare>> {
-    let mut r = Reader { b: bytes, at: 0, rank };
+    let mut r = Reader {
+        b: bytes,
+        at: 0,
+        rank,
+    };
     let n = r.u64()? as usize;
     let mut out = Vec::with_capacity(n.min(4096));
     for _ in 0..n {
@@ -188,7 +192,9 @@ pub fn decode_shares(
                 if r.peek_u64()? == SAME_AS_MODEL {
                     r.u64()?;
                     let Some(o) = omega.get(i) else {
-                        bail!("rank {rank} marked D tensor {i} unchanged, which has no model value");
+                        bail!(
+                            "rank {rank} marked D tensor {i} unchanged, which has no model value"
+                        );
                     };
                     disc.push(o.to_vec());
                 } else {

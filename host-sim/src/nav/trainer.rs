@@ -72,10 +72,10 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
 use super::a3c::{A3cConfig, Objective, SegmentLoss};
+use super::bptt::segment_backward;
 use super::dist::{
     decode_shares, encode_shares, fnv1a, params_hash, CommStats, Group, Single, WorkerShare,
 };
-use super::bptt::segment_backward;
 use super::meta::{add_adapted, meta_backward, take_adapted, InnerSetup, InnerStep};
 use super::model::NavModel;
 use super::rollout::{
@@ -235,8 +235,7 @@ pub fn train_in(
         }
         if let Some(csv) = csv.as_mut() {
             log.row(csv, state, &episodes, grad_norm, &bar)?;
-            if state.update.is_multiple_of(opts.checkpoint_every) || state.update == opts.updates
-            {
+            if state.update.is_multiple_of(opts.checkpoint_every) || state.update == opts.updates {
                 csv.flush()?;
                 state.save(&ck_path, &opts.run)?;
             }
@@ -263,7 +262,13 @@ fn exchange(
         .collect();
     let omega: Vec<&[f32]> = TensorId::DISCRIMINATOR
         .iter()
-        .map(|id| state.model.params.get(id.name()).map_or(&[][..], |p| &p.data[..]))
+        .map(|id| {
+            state
+                .model
+                .params
+                .get(id.name())
+                .map_or(&[][..], |p| &p.data[..])
+        })
         .collect();
     let bytes = encode_shares(&mine, &omega);
     let t1 = Instant::now();
