@@ -16,7 +16,7 @@ for m in a3c gman; do
   echo "== $m: 1 process x 2 workers"
   $G train --method "$m" "${common[@]}" --workers 2 --out "$R/$m-1x2" 2>&1 | grep '^trained'
   echo "== $m: 2 ranks x 1 worker"
-  mpirun -n 2 --oversubscribe --allow-run-as-root --bind-to none \
+  mpirun -n 2 --oversubscribe --allow-run-as-root ${BIND:---bind-to none} \
     $G train --method "$m" "${common[@]}" --workers 1 --out "$R/$m-2x1" 2>&1 | grep -E '^(trained|mpi:)'
   cmp "$R/$m-1x2/checkpoint.ckpt" "$R/$m-2x1/checkpoint.ckpt" && echo "checkpoints identical"
 done

@@ -78,7 +78,7 @@ pub struct TrainArgs {
     /// Pre-trained PS module (ps.ckpt) for the PS variants; pre-trained here if absent.
     #[arg(long, value_name = "PS_CKPT")]
     pub ps: Option<PathBuf>,
-    /// Parallel workers (one thread each).
+    /// Parallel workers (one thread each); under MPI, per rank (the run has ranks x this).
     #[arg(long, default_value_t = 2)]
     pub workers: usize,
     /// Environments each worker steps in lockstep, with the policy's passes run over them
