@@ -91,7 +91,10 @@ impl CommStats {
 
 /// A worker's share of an update as exchanged: its gradient and its episodes (their
 /// statistics and D after each).
-pub type WorkerShare = (ParamSet, Vec<(EpisodeStats, Vec<Vec<f32>>)>);
+pub type WorkerShare = (ParamSet, Vec<Episode>);
+
+/// An episode's statistics and D after it.
+pub type Episode = (EpisodeStats, Vec<Vec<f32>>);
 
 /// Marks a D tensor equal, bit for bit, to the model's (every rank holds the same ω).
 const SAME_AS_MODEL: u64 = u64::MAX;
@@ -101,10 +104,7 @@ const SAME_AS_MODEL: u64 = u64::MAX;
 /// feature, which the outer step and `metrics.csv` do not use; D after an episode as a marker
 /// where it equals the model's `omega`, tensor by tensor, as in the methods without an inner
 /// loop).
-pub fn encode_shares(
-    shares: &[(&ParamSet, &[(EpisodeStats, Vec<Vec<f32>>)])],
-    omega: &[&[f32]],
-) -> Vec<u8> {
+pub fn encode_shares(shares: &[(&ParamSet, &[Episode])], omega: &[&[f32]]) -> Vec<u8> {
     let mut b = Vec::new();
     put_u64(&mut b, shares.len() as u64);
     for (g, eps) in shares {
@@ -295,7 +295,7 @@ impl Reader<'_> {
     }
     fn f32s(&mut self) -> Result<Vec<f32>> {
         let n = self.u64()? as usize;
-        let s = self.take(n.checked_mul(4).unwrap_or(usize::MAX))?;
+        let s = self.take(n.saturating_mul(4))?;
         Ok(s.chunks_exact(4)
             .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
             .collect())
@@ -323,7 +323,7 @@ mod tests {
             disc_gap: f32::NAN,
             ..EpisodeStats::default()
         };
-        let eps = vec![(st, vec![vec![1.0f32, 2.0], vec![3.0]])];
+        let eps = [(st, vec![vec![1.0f32, 2.0], vec![3.0]])];
         let omega: [&[f32]; 2] = [&[9.0, 9.0], &[3.0]];
         let bytes = encode_shares(&[(&g, &eps[..])], &omega);
         let back = decode_shares(&bytes, &g, &omega, 1).unwrap();
