@@ -102,6 +102,11 @@ impl Kernels for Avx2 {
         // SAFETY: as above.
         unsafe { x86::outer_acc_batch(dw, dy, x, n, alpha) }
     }
+
+    fn dots_i8(&self, q: &[u8], cols: usize, col0: usize, xq: &[i8], out: &mut [i32]) {
+        // SAFETY: as above.
+        unsafe { x86::dots_i8(q, cols, col0, xq, out) }
+    }
 }
 
 #[cfg(target_arch = "x86_64")]
@@ -127,6 +132,13 @@ mod x86 {
             // Small batches (the Efficient inner update's pairs): 32 columns x 2 vectors.
             matmul_t_acc_blocked::<4, 2>(w, dy, n, dx, col0)
         }
+    }
+
+    /// gman-core's integer kernel with 256-bit registers (the integers are exact, so LLVM's
+    /// vectorised sums give the portable kernel's values).
+    #[target_feature(enable = "avx2")]
+    pub(super) unsafe fn dots_i8(q: &[u8], cols: usize, col0: usize, xq: &[i8], out: &mut [i32]) {
+        gman_core::qkernel::dots_i8(q, cols, col0, xq, out)
     }
 
     #[target_feature(enable = "avx2")]
