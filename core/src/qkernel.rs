@@ -64,9 +64,14 @@ pub fn quantize_act(x: &[f32], inv: f32, out: &mut [i8]) {
 /// `out[r] = sum_j (q[r * cols + col0 + j] as i8) * xq[j]` for `r in 0..out.len()`: the
 /// portable integer kernel (one row at a time). `q` holds at least `out.len()` rows of
 /// `cols` bytes and `col0 + xq.len() <= cols` (the driver checks; shorter rows are cut).
-/// Inlined, so a host can compile it for a wider instruction set.
-#[inline(always)]
 pub fn dots_i8(q: &[u8], cols: usize, col0: usize, xq: &[i8], out: &mut [i32]) {
+    dots_i8_body(q, cols, col0, xq, out)
+}
+
+/// The body of [`dots_i8`], inlined into its caller so that a host can compile it for a
+/// wider instruction set (the integers are exact: any vectorisation gives the same values).
+#[inline(always)]
+pub fn dots_i8_body(q: &[u8], cols: usize, col0: usize, xq: &[i8], out: &mut [i32]) {
     let end = col0 + xq.len();
     if cols == 0 || end > cols {
         out.fill(0);
@@ -169,6 +174,8 @@ pub fn matvec_acc_int8_portable(w: &MatRef<'_>, x: &[&[f32]], y: &mut [f32]) -> 
     matvec_int8_with(w, x, y, Dots::Portable)
 }
 
+// Not inlined: one copy of the driver in a firmware image, whatever the call sites.
+#[inline(never)]
 fn matvec_int8_with(w: &MatRef<'_>, x: &[&[f32]], y: &mut [f32], dots: Dots) -> Result<()> {
     let (rows, cols) = (w.rows(), w.cols());
     check_len("matvec_int8.x", cols, seg_len(x))?;
