@@ -64,6 +64,8 @@ pub fn quantize_act(x: &[f32], inv: f32, out: &mut [i8]) {
 /// `out[r] = sum_j (q[r * cols + col0 + j] as i8) * xq[j]` for `r in 0..out.len()`: the
 /// portable integer kernel (one row at a time). `q` holds at least `out.len()` rows of
 /// `cols` bytes and `col0 + xq.len() <= cols` (the driver checks; shorter rows are cut).
+// Out of line: one copy in a firmware image.
+#[inline(never)]
 pub fn dots_i8(q: &[u8], cols: usize, col0: usize, xq: &[i8], out: &mut [i32]) {
     dots_i8_body(q, cols, col0, xq, out)
 }
@@ -88,6 +90,7 @@ pub fn dots_i8_body(q: &[u8], cols: usize, col0: usize, xq: &[i8], out: &mut [i3
 
 /// [`dots_i8`] four rows at a time (each input byte loaded once for four rows, columns in
 /// steps of four): the Cortex-M4F's kernel. The same integers as [`dots_i8`].
+#[inline(never)]
 pub fn dots_i8_rows(q: &[u8], cols: usize, col0: usize, xq: &[i8], out: &mut [i32]) {
     let end = col0 + xq.len();
     if cols == 0 || end > cols {
