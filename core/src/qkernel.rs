@@ -64,8 +64,6 @@ pub fn quantize_act(x: &[f32], inv: f32, out: &mut [i8]) {
 /// `out[r] = sum_j (q[r * cols + col0 + j] as i8) * xq[j]` for `r in 0..out.len()`: the
 /// portable integer kernel (one row at a time). `q` holds at least `out.len()` rows of
 /// `cols` bytes and `col0 + xq.len() <= cols` (the driver checks; shorter rows are cut).
-// Out of line: one copy in a firmware image.
-#[inline(never)]
 pub fn dots_i8(q: &[u8], cols: usize, col0: usize, xq: &[i8], out: &mut [i32]) {
     dots_i8_body(q, cols, col0, xq, out)
 }
@@ -90,7 +88,6 @@ pub fn dots_i8_body(q: &[u8], cols: usize, col0: usize, xq: &[i8], out: &mut [i3
 
 /// [`dots_i8`] four rows at a time (each input byte loaded once for four rows, columns in
 /// steps of four): the Cortex-M4F's kernel. The same integers as [`dots_i8`].
-#[inline(never)]
 pub fn dots_i8_rows(q: &[u8], cols: usize, col0: usize, xq: &[i8], out: &mut [i32]) {
     let end = col0 + xq.len();
     if cols == 0 || end > cols {
@@ -108,12 +105,7 @@ pub fn dots_i8_rows(q: &[u8], cols: usize, col0: usize, xq: &[i8], out: &mut [i3
             o.fill(0);
             continue;
         };
-        let (a, b, c, d) = (
-            &a[col0..end],
-            &b[col0..end],
-            &c[col0..end],
-            &d[col0..end],
-        );
+        let (a, b, c, d) = (&a[col0..end], &b[col0..end], &c[col0..end], &d[col0..end]);
         let mut acc = [0i32; 4];
         for ((((xc, ac), bc), cc), dc) in xq[..n4]
             .chunks_exact(4)
@@ -224,11 +216,7 @@ fn block(
     y: &mut [f32],
     dots: Dots,
 ) {
-    for (r0, (qr, yr)) in q
-        .chunks(QROWS * cols)
-        .zip(y.chunks_mut(QROWS))
-        .enumerate()
-    {
+    for (r0, (qr, yr)) in q.chunks(QROWS * cols).zip(y.chunks_mut(QROWS)).enumerate() {
         let acc = &mut acc[..yr.len()];
         match dots {
             Dots::Portable => dots_i8(qr, cols, c0, xq, acc),
@@ -286,7 +274,15 @@ mod tests {
 
     #[test]
     fn quantisation_rounds_half_away_and_saturates() {
-        let x = [1.0f32, -1.0, 0.5 / 127.0, -0.5 / 127.0, f32::NAN, f32::INFINITY, 0.25];
+        let x = [
+            1.0f32,
+            -1.0,
+            0.5 / 127.0,
+            -0.5 / 127.0,
+            f32::NAN,
+            f32::INFINITY,
+            0.25,
+        ];
         let (sx, inv) = act_scale(&x);
         assert_eq!(sx, 1.0 / 127.0);
         let mut p = [0i8; 7];
@@ -322,7 +318,10 @@ mod tests {
                     (q[i * cols + j] as i8 as f32).abs() * sc[i] * sx / 2.0
                 })
                 .sum();
-            assert!((a - b).abs() <= bound * 1.01 + 1e-4, "{a} vs {b} (bound {bound})");
+            assert!(
+                (a - b).abs() <= bound * 1.01 + 1e-4,
+                "{a} vs {b} (bound {bound})"
+            );
         }
         // The canonical formula, written out.
         let mut want = [0.5f32; 70];

@@ -264,7 +264,11 @@ fn int8_activations_change_the_episode() {
     assert_eq!(f.len(), q.len());
     assert!(c.adaptations >= 2, "{c:?}");
     let differ = f.iter().zip(&q).filter(|(a, b)| a != b).count();
-    assert!(differ > f.len() / 2, "only {differ} of {} lines differ", f.len());
+    assert!(
+        differ > f.len() / 2,
+        "only {differ} of {} lines differ",
+        f.len()
+    );
 }
 
 #[test]

@@ -3,8 +3,8 @@
 use std::path::PathBuf;
 
 use anyhow::{bail, Context, Result};
-use gman_host_sim::blob_edit::reencode_with_activations;
 use clap::{Args, ValueEnum};
+use gman_host_sim::blob_edit::reencode_with_activations;
 use gman_host_sim::nav::model::load_model;
 
 use super::args::PresetArg;
@@ -15,7 +15,12 @@ use super::train::preset_matches;
 #[derive(Debug, Args)]
 pub struct ExportArgs {
     /// Trained checkpoint.
-    #[arg(long, value_name = "CKPT", required_unless_present = "blob", conflicts_with = "blob")]
+    #[arg(
+        long,
+        value_name = "CKPT",
+        required_unless_present = "blob",
+        conflicts_with = "blob"
+    )]
     pub ckpt: Option<PathBuf>,
     /// An existing weight blob to re-emit with other activations (`--activations`), weights,
     /// flags and settings otherwise unchanged; instead of `--ckpt`.
