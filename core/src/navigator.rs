@@ -5,7 +5,7 @@
 //! reset(SE(y), seed)      θ_i ← θ, φ_i ← φ (line 4); clear LSTM state and Ψ
 //! step(s_t) -> a_t        x_t = G_θi(SE(y), z_t)            (line 7)
 //!                         a_t ~ π_{θi,φi}(· | s_t, x_t, ...)  (line 8)
-//!                         Ψ ← Ψ ∪ {(s_t, z_t, a_t, h_t)}      (lines 11-13)
+//!                         Ψ ← Ψ ∪ {(s_t, x_t, a_t, h_t)}      (lines 11-13)
 //!                         every k steps, while fewer than `max_inner_updates` were made:
 //!                           ω  ← ω  + α1 ∇_ω L_D             (lines 15-16, Eq. 1)
 //!                           θi ← θi − α2 ∇_θi L_ad            (lines 17-18, Eq. 3)
@@ -28,8 +28,10 @@
 //! it). The dependence of a_t on θ through the policy's input x_t is not followed (a
 //! stop-gradient): L_ad adapts G through D only, and the policy through its head only.
 //!
-//! Ψ stores the noise z_t instead of x_t: inside one adaptation window θ does not change, so
-//! x_t is regenerated exactly and Ψ_x costs `Z` instead of `F` floats per step.
+//! Ψ stores each step's generated x_t (Ψ_x, `F` floats per step) with its noise z_t: inside
+//! one adaptation window θ does not change (it changes only in the inner update and in
+//! `reset`, which both empty Ψ), so the update uses the recorded x_t and runs no forward
+//! pass of G over Ψ (unless the caller fixed x_t, `Navigator::fix_generated_feature`).
 //!
 //! Algorithm 1 as printed records a step only when `t` is not a multiple of `k` (lines
 //! 10-13), so its buffer would hold `k − 1` samples at each update. Here every step is

@@ -155,7 +155,7 @@ fn an_adapting_blob_refuses_the_other_mode() {
     assert!(Navigator::<Efficient, K>::new(w, &mut arena, b.nav_config()).is_err());
 }
 
-/// The issue-14 levers travel in the blob too: the per-group normalised step, D's head reset
+/// The inner rule's levers travel in the blob too: the per-group normalised step, D's head reset
 /// with every episode, α1 ≠ α2, several D steps and the reference's L_ad form and critic
 /// scale give the same run on both sides.
 #[test]

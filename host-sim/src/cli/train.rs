@@ -84,7 +84,7 @@ pub struct TrainArgs {
     /// as matrices (1: one episode at a time; methods with an inner loop: one navigator per
     /// episode, first-order meta-gradient only). Every update then holds at least this many
     /// episodes per worker. Default: 16 (measured: README, "Batched training, B = 16"), 1 with
-    /// `--meta-order 2`; runs before session 8 used 1.
+    /// `--meta-order 2`; pass 1 to reproduce the one-episode-at-a-time results.
     #[arg(long)]
     pub batch_envs: Option<usize>,
     /// Outer Adam learning rate β (overrides the config).

@@ -259,7 +259,7 @@ fn default_max_inner() -> u32 {
     DEFAULT_MAX_INNER
 }
 
-/// The inner loop's rule where it departs from the paper's (issue 14's levers), recorded in
+/// The inner loop's rule where it departs from the paper's (the levers of docs/emd-analysis.md), recorded in
 /// checkpoints and blobs so that evaluation and the device run the rule that was meta-learned.
 /// [`InnerRule::default`] is the paper's: α1 = α2, one D step, the plain gradient step.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
