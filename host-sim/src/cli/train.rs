@@ -125,6 +125,12 @@ pub struct TrainArgs {
     /// the head). Recorded in the blob.
     #[arg(long)]
     pub adapt_head_only: bool,
+    /// The inner update's commit delay D in steps (0..=63): the update that starts when Ψ
+    /// fills takes effect D steps later, the steps between acting on the current parameters
+    /// and not recorded in Ψ; what a device that computes the update in slices, or at a lower
+    /// priority, runs (see docs/device.md). 0: at once (the paper). Recorded in the blob.
+    #[arg(long, default_value_t = 0, value_name = "D")]
+    pub commit_delay: u32,
     /// Minimum steps per worker and update.
     #[arg(long, default_value_t = 40)]
     pub min_steps: u32,
@@ -301,6 +307,7 @@ fn inner_rule(a: &TrainArgs) -> gman_host_sim::nav::model::InnerRule {
         adapt_loss: a.adapt_loss,
         reference_critic: a.reference_critic,
         head_only: a.adapt_head_only,
+        commit_delay: a.commit_delay,
     }
 }
 
@@ -417,7 +424,12 @@ fn check_train_flags(a: &TrainArgs) -> Result<()> {
         bail!("--meta-order 2 is implemented for the Full adaptation mode; add --adapt-mode full");
     }
     inner_rule(a).validate()?;
-    if a.meta_order == 2 && a.method.adapts_in_training() && !inner_rule(a).is_paper() {
+    // The commit delay only moves the update in time: the meta-gradient is the same recursion.
+    let rule = gman_host_sim::nav::model::InnerRule {
+        commit_delay: 0,
+        ..inner_rule(a)
+    };
+    if a.meta_order == 2 && a.method.adapts_in_training() && !rule.is_paper() {
         bail!("--meta-order 2 differentiates the paper's inner rule only (one D step, the gradient step, α1 = α2); use --meta-order 1 with --disc-lr, --disc-steps, --step-rule, --disc-head-reset, --adapt-loss, --reference-critic or --adapt-head-only");
     }
     Ok(())
@@ -723,6 +735,12 @@ fn check_resumed_model(a: &TrainArgs, m: &NavModel, explicit: &dyn Fn(&str) -> b
         a.adapt_head_only,
         m.inner_rule.head_only,
         explicit("adapt_head_only"),
+    )?;
+    resumed(
+        "--commit-delay",
+        a.commit_delay,
+        m.inner_rule.commit_delay,
+        explicit("commit_delay"),
     )?;
     resumed("--method", a.method, m.method, explicit("method"))?;
     if let Some(mode) = a.adapt_mode {
