@@ -6,9 +6,10 @@ use std::time::Instant;
 use anyhow::{anyhow, bail, Context, Result};
 use clap::{Args, ValueEnum};
 use gman_host_sim::nav::a3c::Objective;
+use gman_host_sim::nav::dist::{Group, Single};
 use gman_host_sim::nav::model::{Method, NavModel};
 use gman_host_sim::nav::trainer::{
-    checkpoint_path, train, RunSettings, TrainOptions, TrainState, WorldId,
+    checkpoint_path, train_in, Distributed, RunSettings, TrainOptions, TrainState, WorldId,
 };
 use gman_host_sim::sim::{RewardKind, World};
 use gman_host_sim::train::adam::AdamConfig;
@@ -77,7 +78,7 @@ pub struct TrainArgs {
     /// Pre-trained PS module (ps.ckpt) for the PS variants; pre-trained here if absent.
     #[arg(long, value_name = "PS_CKPT")]
     pub ps: Option<PathBuf>,
-    /// Parallel workers (one thread each).
+    /// Parallel workers (one thread each); under MPI, per rank (the run has ranks x this).
     #[arg(long, default_value_t = 2)]
     pub workers: usize,
     /// Environments each worker steps in lockstep, with the policy's passes run over them
@@ -181,6 +182,14 @@ pub struct TrainArgs {
     /// No progress bar.
     #[arg(long)]
     pub quiet: bool,
+    /// On --resume, continue with another total worker count (ranks x --workers) than the
+    /// run was trained with; the run then no longer matches an uninterrupted one bit for bit.
+    #[arg(long)]
+    pub change_workers: bool,
+    /// Under MPI: every N updates (and at the last) the ranks compare a hash of their
+    /// parameters and Adam state and stop with an error if they differ (0: never).
+    #[arg(long, value_name = "N", default_value_t = 10)]
+    pub rank_check_every: u64,
 }
 
 /// Parses `--map`: `none` or `RxC` with 1 <= R, C <= 16.
@@ -435,11 +444,44 @@ fn check_train_flags(a: &TrainArgs) -> Result<()> {
     Ok(())
 }
 /// `gman train`. `explicit(id)` says whether the flag of field `id` was given on the command
-/// line (on `--resume`, only those are checked against the checkpoint's settings).
+/// line (on `--resume`, only those are checked against the checkpoint's settings). Started by
+/// an MPI launcher (`mpirun`, `srun`; build with `--features mpi`), the run spans its ranks,
+/// `--workers` per rank (see `docs/distributed.md`).
 pub fn cmd_train(a: TrainArgs, explicit: &dyn Fn(&str) -> bool) -> Result<()> {
+    #[cfg(feature = "mpi")]
+    if gman_host_sim::nav::mpi::launched_by_mpi() {
+        let mut g = gman_host_sim::nav::mpi::MpiGroup::init()?;
+        let r = train_on(a, explicit, &mut g);
+        if let Err(e) = &r {
+            if g.size() > 1 {
+                // The other ranks may wait in a collective: end the whole job.
+                eprintln!("error (rank {}): {e:#}", g.rank());
+                g.abort(1);
+            }
+        }
+        return r;
+    }
+    #[cfg(not(feature = "mpi"))]
+    if ["OMPI_COMM_WORLD_SIZE", "PMI_SIZE"]
+        .iter()
+        .any(|v| std::env::var(v).is_ok_and(|n| n != "1"))
+    {
+        bail!("this gman was built without MPI, so each of the launcher's processes would train alone; build it with `cargo build --release --features mpi`");
+    }
+    train_on(a, explicit, &mut Single)
+}
+
+/// [`cmd_train`] on the ranks of `group`.
+fn train_on(
+    mut a: TrainArgs,
+    explicit: &dyn Fn(&str) -> bool,
+    group: &mut dyn Group,
+) -> Result<()> {
     check_train_flags(&a)?;
     check_train_numbers(&a)?;
-    if a.resume.is_some() {
+    let (rank, ranks) = (group.rank(), group.size());
+    let lead = rank == 0;
+    if a.resume.is_some() && lead {
         // Flags that only shape a new run have no effect here: said so, not silently dropped.
         for (flag, id) in [("--fg", "fg"), ("--ps", "ps"), ("--config", "config")] {
             if explicit(id) && !(id == "config" && a.updates.is_none()) {
@@ -448,16 +490,21 @@ pub fn cmd_train(a: TrainArgs, explicit: &dyn Fn(&str) -> bool) -> Result<()> {
         }
     }
     let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
-    if a.workers > cores {
+    if a.workers > cores && lead {
         eprintln!(
             "warning: --workers {} runs {} threads on {cores} core(s); the run is reproducible for its worker count but slower than with --workers {cores}",
             a.workers, a.workers
         );
     }
+    // From here on `workers` counts the workers of all ranks, the number the run stores.
+    a.workers *= ranks;
+    if !lead {
+        a.quiet = true;
+    }
     let run_dir = a.resume.clone().or_else(|| a.out.clone());
-    let _lock = match &run_dir {
-        Some(d) => Some(gman_host_sim::nav::trainer::lock_run_dir(d)?),
-        None => None,
+    let _lock = match (&run_dir, lead) {
+        (Some(d), true) => Some(gman_host_sim::nav::trainer::lock_run_dir(d)?),
+        _ => None,
     };
     let world = load_world(&a)?;
     let world_id = world_identity(&a.world)?;
@@ -474,7 +521,17 @@ pub fn cmd_train(a: TrainArgs, explicit: &dyn Fn(&str) -> bool) -> Result<()> {
                 .out
                 .clone()
                 .ok_or_else(|| anyhow!("--out RUN_DIR is required"))?;
-            let state = new_run(&a, &world, &out, world_id)?;
+            // Rank 0 pre-trains G and the PS module into the run directory; the others
+            // then load what it wrote.
+            let mut state = None;
+            if lead {
+                state = Some(new_run(&a, &world, &out, world_id.clone())?);
+            }
+            group.barrier();
+            let state = match state {
+                Some(s) => s,
+                None => new_run(&a, &world, &out, world_id)?,
+            };
             validate_train_settings("command line", &opts, a.inner_lr, a.max_inner)?;
             opts.out = out;
             state
@@ -482,8 +539,17 @@ pub fn cmd_train(a: TrainArgs, explicit: &dyn Fn(&str) -> bool) -> Result<()> {
     };
     let t0 = Instant::now();
     let steps0 = state.env_steps;
-    train(&world, &opts, &mut state)?;
-    report_trained(&state, &opts.out, steps0, t0.elapsed().as_secs_f64());
+    let mut dist = Distributed {
+        group,
+        check_every: a.rank_check_every,
+    };
+    let comm = train_in(&world, &opts, &mut state, &mut dist)?;
+    if lead {
+        report_trained(&state, &opts.out, steps0, t0.elapsed().as_secs_f64());
+        if ranks > 1 {
+            eprintln!("mpi: {}", comm.summary(ranks));
+        }
+    }
     Ok(())
 }
 
@@ -784,7 +850,14 @@ fn resumed_settings(
         explicit("objective"),
     )?;
     resumed("--seed", a.seed, s.seed, explicit("seed"))?;
-    resumed("--workers", a.workers, s.workers, explicit("workers"))?;
+    if !a.change_workers {
+        resumed(
+            "--workers (x ranks)",
+            a.workers,
+            s.workers,
+            explicit("workers"),
+        )?;
+    }
     resumed(
         "--batch-envs",
         batch_envs(a),
@@ -818,7 +891,11 @@ fn resumed_settings(
     resumed("--reward", a.reward, s.reward, explicit("reward"))?;
     resumed("--lr", lr, s.adam.lr, explicit("lr"))?;
     resumed("--entropy", a.entropy, s.a3c.entropy, explicit("entropy"))?;
-    Ok(s.clone())
+    let mut s = s.clone();
+    if a.change_workers {
+        s.workers = a.workers;
+    }
+    Ok(s)
 }
 
 /// The closing line of a run.

@@ -5,6 +5,7 @@
 //! | module | holds |
 //! | --- | --- |
 //! | [`trainer`] | the training loop, top to bottom (Algorithm 1) |
+//! | [`dist`] | a run over several processes (ranks; MPI with `--features mpi`) |
 //! | [`a3c`] | the loss L_nav (Sec. 3.2): returns, GAE, output gradients |
 //! | [`bptt`] | L_nav's gradient through the policy and G (batched kernels; one BPTT) |
 //! | [`meta`] | the second-order meta-gradient (`--meta-order 2`) |
@@ -24,8 +25,11 @@
 pub mod a3c;
 pub mod agent;
 pub mod bptt;
+pub mod dist;
 pub mod meta;
 pub mod model;
+#[cfg(feature = "mpi")]
+pub mod mpi;
 pub mod rollout;
 pub mod run_dir;
 pub mod state;

@@ -73,6 +73,9 @@ use rand_chacha::ChaCha8Rng;
 
 use super::a3c::{A3cConfig, Objective, SegmentLoss};
 use super::bptt::segment_backward;
+use super::dist::{
+    decode_shares, encode_shares, fnv1a, params_hash, CommStats, Group, Single, WorkerShare,
+};
 use super::meta::{add_adapted, meta_backward, take_adapted, InnerSetup, InnerStep};
 use super::model::NavModel;
 use super::rollout::{
@@ -117,27 +120,86 @@ type WorkerOut = Vec<(EpisodeStats, Vec<Vec<f32>>)>;
 
 /// Runs (or continues) training until `opts.updates` updates are done.
 pub fn train(world: &World, opts: &TrainOptions, state: &mut TrainState) -> Result<()> {
+    let mut one = Single;
+    let mut dist = Distributed {
+        group: &mut one,
+        check_every: 0,
+    };
+    train_in(world, opts, state, &mut dist).map(|_| ())
+}
+
+/// How a run is spread over processes (see [`super::dist`]).
+pub struct Distributed<'g> {
+    /// The ranks; `opts.run.workers` counts the workers of all of them.
+    pub group: &'g mut dyn Group,
+    /// Every this many updates (and at the last) the ranks compare a hash of their
+    /// parameters and Adam state, and stop with an error if they differ (0: never).
+    pub check_every: u64,
+}
+
+/// [`train`] over the ranks of `dist`: rank `r` of `N` runs the global workers
+/// `r·W .. r·W + W` (`W = opts.run.workers / N`), the ranks exchange their workers'
+/// gradients and episodes, and every rank runs the same outer step on all of them, in global
+/// worker order, so the run has the bits of one process with `opts.run.workers` workers.
+/// Rank 0 alone locks the run directory and writes `metrics.csv` and the checkpoints.
+/// Returns what the exchanges cost.
+pub fn train_in(
+    world: &World,
+    opts: &TrainOptions,
+    state: &mut TrainState,
+    dist: &mut Distributed<'_>,
+) -> Result<CommStats> {
     check_options(&opts.run, &state.model)?;
-    let _lock = lock_run_dir(&opts.out)?;
-    let mut csv = open_csv(&opts.out, state.update)?;
+    let (rank, ranks) = (dist.group.rank(), dist.group.size());
+    if ranks == 0 || !opts.run.workers.is_multiple_of(ranks) {
+        bail!(
+            "the run has {} workers, which {ranks} ranks cannot share equally; use a rank count that divides it",
+            opts.run.workers
+        );
+    }
+    let local = opts.run.workers / ranks;
+    let lead = rank == 0;
+    let _lock = if lead {
+        Some(lock_run_dir(&opts.out)?)
+    } else {
+        None
+    };
+    let mut csv = if lead {
+        Some(open_csv(&opts.out, state.update)?)
+    } else {
+        None
+    };
     let ck_path = checkpoint_path(&opts.out);
-    let bar = progress_bar(opts, state);
-    let mut workers: Vec<(Worker, ParamSet)> = (0..opts.run.workers)
+    let bar = if lead {
+        progress_bar(opts, state)
+    } else {
+        ProgressBar::hidden()
+    };
+    let mut workers: Vec<(Worker, ParamSet)> = (0..local)
         .map(|_| (Worker::new(&state.model), state.model.params.zeros_like()))
         .collect();
     let mut log = Log::new(state.env_steps);
+    let mut comm = CommStats::default();
+    let fault = test_fault();
+    if ranks > 1 && dist.check_every > 0 {
+        check_ranks_agree(dist.group, state)?;
+    }
     // Line 1: while not converged.
     while state.update < opts.updates {
+        let t_update = Instant::now();
         // Lines 2-20: every worker samples its tasks τ_i ~ p(T) and runs them from θ, φ, ω
         // (each with its own θ_i, φ_i and inner loop), accumulating ∇L_nav into its grads.
         let u = state.update;
         let model = &state.model;
+        let first = rank * local;
         let results: Vec<Result<WorkerOut>> = std::thread::scope(|s| {
             let handles: Vec<_> = workers
                 .iter_mut()
                 .enumerate()
                 .map(|(w, (worker, grads))| {
-                    s.spawn(move || worker_update(world, model, &opts.run, u, w, worker, grads))
+                    s.spawn(move || {
+                        worker_update(world, model, &opts.run, u, first + w, worker, grads)
+                    })
                 })
                 .collect();
             handles
@@ -145,25 +207,161 @@ pub fn train(world: &World, opts: &TrainOptions, state: &mut TrainState) -> Resu
                 .map(|h| h.join().unwrap_or_else(|_| Err(anyhow!("worker panicked"))))
                 .collect()
         });
-        let mut episodes = Vec::new();
+        let mut per_worker = Vec::with_capacity(results.len());
         for r in results {
-            episodes.extend(r?);
+            per_worker.push(r?);
         }
         // Lines 21-22 (Eq. 4): θ, φ ← Adam(Σ_τ ∇L_nav(ω, θ_i, φ_i)); ω keeps what the
         // episodes' inner loops taught D.
-        let grads: Vec<&ParamSet> = workers.iter().map(|(_, g)| g).collect();
-        let grad_norm = outer_step(state, &grads, &episodes)?;
+        let (grad_norm, episodes) = if ranks == 1 {
+            let episodes: Vec<_> = per_worker.into_iter().flatten().collect();
+            let grads: Vec<&ParamSet> = workers.iter().map(|(_, g)| g).collect();
+            (outer_step(state, &grads, &episodes)?, episodes)
+        } else {
+            let shares = exchange(dist.group, &workers, &per_worker, state, &mut comm)?;
+            let grads: Vec<&ParamSet> = shares.iter().map(|(g, _)| g).collect();
+            let episodes: Vec<_> = shares.iter().flat_map(|(_, e)| e.iter().cloned()).collect();
+            (outer_step(state, &grads, &episodes)?, episodes)
+        };
         state.update += 1;
         state.episodes += episodes.len() as u64;
         state.env_steps += episodes.iter().map(|(st, _)| st.steps as u64).sum::<u64>();
-        log.row(&mut csv, state, &episodes, grad_norm, &bar)?;
-        if state.update.is_multiple_of(opts.checkpoint_every) || state.update == opts.updates {
-            csv.flush()?;
-            state.save(&ck_path, &opts.run)?;
+        fault.apply(rank, state);
+        if ranks > 1
+            && dist.check_every > 0
+            && (state.update.is_multiple_of(dist.check_every) || state.update == opts.updates)
+        {
+            check_ranks_agree(dist.group, state)?;
         }
+        if let Some(csv) = csv.as_mut() {
+            log.row(csv, state, &episodes, grad_norm, &bar)?;
+            if state.update.is_multiple_of(opts.checkpoint_every) || state.update == opts.updates {
+                csv.flush()?;
+                state.save(&ck_path, &opts.run)?;
+            }
+        }
+        comm.update_secs += t_update.elapsed().as_secs_f64();
     }
     bar.finish_and_clear();
+    Ok(comm)
+}
+
+/// Every rank's workers' gradients and episodes, in global worker order, on every rank.
+fn exchange(
+    group: &mut dyn Group,
+    workers: &[(Worker, ParamSet)],
+    per_worker: &[WorkerOut],
+    state: &TrainState,
+    comm: &mut CommStats,
+) -> Result<Vec<WorkerShare>> {
+    let t0 = Instant::now();
+    let mine: Vec<_> = workers
+        .iter()
+        .zip(per_worker)
+        .map(|((_, g), e)| (g, &e[..]))
+        .collect();
+    let omega: Vec<&[f32]> = TensorId::DISCRIMINATOR
+        .iter()
+        .map(|id| {
+            state
+                .model
+                .params
+                .get(id.name())
+                .map_or(&[][..], |p| &p.data[..])
+        })
+        .collect();
+    let bytes = encode_shares(&mine, &omega);
+    let t1 = Instant::now();
+    group.barrier();
+    let t2 = Instant::now();
+    let all = group.all_gather(&bytes)?;
+    let t3 = Instant::now();
+    let mut shares = Vec::new();
+    for (r, b) in all.iter().enumerate() {
+        shares.extend(decode_shares(b, &state.model.params, &omega, r)?);
+    }
+    let t4 = Instant::now();
+    comm.updates += 1;
+    comm.bytes_sent += bytes.len() as u64;
+    comm.bytes_received += all.iter().map(|b| b.len() as u64).sum::<u64>() - bytes.len() as u64;
+    comm.codec_secs += (t1 - t0).as_secs_f64() + (t4 - t3).as_secs_f64();
+    comm.wait_secs += (t2 - t1).as_secs_f64();
+    comm.transfer_secs += (t3 - t2).as_secs_f64();
+    Ok(shares)
+}
+
+/// Stops the run if the ranks hold different parameters or Adam states.
+fn check_ranks_agree(group: &mut dyn Group, state: &TrainState) -> Result<()> {
+    let mut b = params_hash(&state.model.params).to_le_bytes().to_vec();
+    b.extend_from_slice(&fnv1a(&state.adam.to_bytes()).to_le_bytes());
+    let all = group.all_gather(&b)?;
+    if all.iter().any(|h| h != &all[0]) {
+        let list: Vec<String> = all
+            .iter()
+            .enumerate()
+            .map(|(r, h)| {
+                format!(
+                    "rank {r}: {}",
+                    h.iter().map(|x| format!("{x:02x}")).collect::<String>()
+                )
+            })
+            .collect();
+        bail!(
+            "the ranks diverged at update {}: their parameter/Adam hashes differ ({}); the last checkpoint is intact, resume from it",
+            state.update,
+            list.join(", ")
+        );
+    }
     Ok(())
+}
+
+/// A fault injected by the environment variable `GMAN_DIST_FAULT=KIND:RANK:UPDATE` (test
+/// hook of the distributed checks): after update `UPDATE`, rank `RANK` either perturbs one
+/// parameter (`perturb`) or exits at once with code 3 without a word to the others (`exit`).
+#[derive(Clone, Copy, Debug, Default)]
+struct TestFault {
+    kind: u8,
+    rank: usize,
+    update: u64,
+}
+
+fn test_fault() -> TestFault {
+    let Ok(v) = std::env::var("GMAN_DIST_FAULT") else {
+        return TestFault::default();
+    };
+    let parts: Vec<&str> = v.split(':').collect();
+    match (parts.first(), parts.get(1), parts.get(2)) {
+        (Some(k), Some(r), Some(u)) => TestFault {
+            kind: match *k {
+                "perturb" => 1,
+                "exit" => 2,
+                _ => 0,
+            },
+            rank: r.parse().unwrap_or(usize::MAX),
+            update: u.parse().unwrap_or(u64::MAX),
+        },
+        _ => TestFault::default(),
+    }
+}
+
+impl TestFault {
+    fn apply(self, rank: usize, state: &mut TrainState) {
+        if self.kind == 0 || rank != self.rank || state.update != self.update {
+            return;
+        }
+        if self.kind == 2 {
+            std::process::exit(3);
+        }
+        if let Some(v) = state
+            .model
+            .params
+            .tensors
+            .iter_mut()
+            .find_map(|t| t.data.first_mut())
+        {
+            *v = f32::from_bits(v.to_bits() ^ 1);
+        }
+    }
 }
 
 /// The settings [`train`] cannot run.
