@@ -55,6 +55,9 @@ impl MatRef<'_> {
         if self.cols() == 0 {
             return Ok(());
         }
+        if self.int8_activations() {
+            return crate::qkernel::matvec_acc_int8(self, x, y);
+        }
         if x.len() > MAX_SEGS {
             self.matvec_acc_many(x, y);
             return Ok(());
@@ -259,6 +262,18 @@ pub fn matmul_acc(
     check_batch("matmul.x", x.iter().map(|s| s.len()), lens, n, w.cols())?;
     check_len("matmul.y", n.saturating_mul(w.rows()), y.len())?;
     if n == 0 {
+        return Ok(());
+    }
+    if w.int8_activations() {
+        // One vector at a time: the batch-1 integer kernel's bits for every vector.
+        let rows = w.rows();
+        let mut xs: [&[f32]; MAX_SEGS] = [&[]; MAX_SEGS];
+        for (b, yb) in y.chunks_exact_mut(rows.max(1)).enumerate().take(n) {
+            for ((s, seg), &l) in xs.iter_mut().zip(x).zip(lens) {
+                *s = &seg[b * l..(b + 1) * l];
+            }
+            crate::qkernel::matvec_acc_int8(w, &xs[..x.len()], yb)?;
+        }
         return Ok(());
     }
     match w.kernels() {

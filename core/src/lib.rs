@@ -81,6 +81,7 @@ pub mod memory;
 pub mod navigator;
 pub mod policy;
 pub mod preset;
+pub mod qkernel;
 pub mod quant;
 pub mod rng;
 pub mod schema;

@@ -112,6 +112,13 @@ pub trait Kernels: Sync + core::fmt::Debug {
         n: usize,
         alpha: f32,
     ) -> Result<()>;
+
+    /// [`crate::qkernel::dots_i8`]: the integer dot products of `out.len()` int8 rows with an
+    /// int8 input block. Integers are exact, so any order of additions gives the same
+    /// result; the default is the portable kernel.
+    fn dots_i8(&self, q: &[u8], cols: usize, col0: usize, xq: &[i8], out: &mut [i32]) {
+        crate::qkernel::dots_i8(q, cols, col0, xq, out)
+    }
 }
 
 /// A read-only `rows x cols` row-major matrix view. Construct with [`MatRef::f32`] or
@@ -125,6 +132,7 @@ pub struct MatRef<'a> {
     cols: usize,
     w: Weights<'a>,
     k: Option<&'static dyn Kernels>,
+    act8: bool,
 }
 
 impl<'a> MatRef<'a> {
@@ -136,6 +144,7 @@ impl<'a> MatRef<'a> {
             cols,
             w: Weights::F32(data),
             k: None,
+            act8: false,
         })
     }
 
@@ -151,6 +160,7 @@ impl<'a> MatRef<'a> {
             cols,
             w: Weights::F32Le(data),
             k: None,
+            act8: false,
         })
     }
 
@@ -163,6 +173,7 @@ impl<'a> MatRef<'a> {
             cols,
             w: Weights::I8 { q, scales },
             k: None,
+            act8: false,
         })
     }
 
@@ -171,6 +182,25 @@ impl<'a> MatRef<'a> {
     #[inline]
     pub fn with_kernels(self, k: &'static dyn Kernels) -> Self {
         MatRef { k: Some(k), ..self }
+    }
+
+    /// The same view computing `W x` on int8 activations ([`crate::qkernel`]): every input
+    /// segment is quantised to int8 with its own scale, multiplied by the int8 weights into
+    /// i32 accumulators and requantised with the row scale. Only int8 views change (an f32
+    /// view ignores the setting); the transposed kernels (gradients) stay f32.
+    #[inline]
+    pub fn with_int8_activations(self) -> Self {
+        MatRef {
+            act8: self.is_int8(),
+            ..self
+        }
+    }
+
+    /// True when [`MatRef::matvec_acc`] and [`crate::batch::matmul_acc`] run the integer
+    /// kernel of [`crate::qkernel`] ([`MatRef::with_int8_activations`]).
+    #[inline]
+    pub fn int8_activations(&self) -> bool {
+        self.act8
     }
 
     /// The same view with the crate's own (portable) kernels.
@@ -189,7 +219,11 @@ impl<'a> MatRef<'a> {
     /// weights in RAM standing in for the blob's).
     #[inline]
     pub fn kernels_from(self, other: &MatRef<'_>) -> Self {
-        MatRef { k: other.k, ..self }
+        MatRef {
+            k: other.k,
+            act8: self.is_int8() && other.act8,
+            ..self
+        }
     }
 
     /// Number of rows (outputs).

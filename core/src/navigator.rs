@@ -431,14 +431,29 @@ pub struct NavWeights<'w> {
 }
 
 impl<'w> NavWeights<'w> {
-    /// Views into a parsed blob (no copy); checks the blob's dims against `dims`.
+    /// Views into a parsed blob (no copy); checks the blob's dims against `dims`. A blob with
+    /// [`crate::schema::FLAG_INT8_ACTIVATIONS`] gets int8 activations on its int8 views
+    /// ([`NavWeights::with_int8_activations`]).
     pub fn from_blob(blob: &Blob<'w>, dims: &Dims) -> Result<Self> {
         blob.check_dims(dims)?;
         let mut t = [empty(); NUM_TENSORS];
         for id in TensorId::all_for(dims) {
             t[id as usize] = blob.matrix(id)?;
         }
-        Ok(NavWeights { dims: *dims, t })
+        let w = NavWeights { dims: *dims, t };
+        if blob.header().flags() & crate::schema::FLAG_INT8_ACTIVATIONS != 0 {
+            return Ok(w.with_int8_activations());
+        }
+        Ok(w)
+    }
+
+    /// The same views with int8 activations on every int8 weight matrix
+    /// ([`MatRef::with_int8_activations`]; f32 views are unchanged).
+    pub fn with_int8_activations(mut self) -> Self {
+        for m in self.t.iter_mut() {
+            *m = m.with_int8_activations();
+        }
+        self
     }
 
     /// Views built by `f` for each tensor of `dims` ([`TensorId::all_for`]; a trainer passes

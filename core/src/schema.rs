@@ -313,6 +313,14 @@ pub const FLAG_REFERENCE_CRITIC_SCALE: u32 = 1 << 20;
 /// no inner gradient; [`ModelFlags::head_only`]); without it G and the head, the paper.
 pub const FLAG_HEAD_ONLY: u32 = 1 << 21;
 
+/// Bit of the blob header's flags: the int8 weight matrices multiply int8 activations
+/// (quantised per input segment at run time) into i32 accumulators, the integer path of
+/// [`crate::qkernel`]; without it int8 weights are widened to f32 and multiply f32
+/// activations. A loader applies it to every int8 view
+/// ([`crate::matrix::MatRef::with_int8_activations`]; [`crate::navigator::NavWeights::from_blob`]
+/// does). It changes no other setting, so it is not part of [`ModelFlags`].
+pub const FLAG_INT8_ACTIVATIONS: u32 = 1 << 24;
+
 /// Bits 8..16 of the blob header's flags: D's ascent steps per inner update minus one
 /// ([`ModelFlags::disc_steps`], 1..=256; 0 in every blob written before the setting, i.e. the
 /// paper's one step).

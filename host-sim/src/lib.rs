@@ -4,6 +4,7 @@
 //! `gman` binary's commands are in `src/cli/`, one file each. `ARCHITECTURE.md` at the
 //! repository root maps the paper's equations to functions.
 #![warn(missing_docs)]
+pub mod blob_edit;
 pub mod emd_report;
 pub mod nav;
 pub mod optim;

@@ -95,10 +95,11 @@ fn measurements(lines: &[&str]) -> HashMap<String, u64> {
         .collect()
 }
 
-#[test]
-fn firmware_under_qemu_matches_host_bit_for_bit() {
+/// True when QEMU and the Cortex-M4F target are there (else skipped, or failed in CI).
+fn qemu_available() -> bool {
     if !have("qemu-system-arm", "--version") {
-        return skip_or_fail("qemu-system-arm not found (apt-get install qemu-system-arm)");
+        skip_or_fail("qemu-system-arm not found (apt-get install qemu-system-arm)");
+        return false;
     }
     let targets = Command::new("rustup")
         .args(["target", "list", "--installed"])
@@ -107,21 +108,35 @@ fn firmware_under_qemu_matches_host_bit_for_bit() {
         .map(|o| String::from_utf8_lossy(&o.stdout).contains("thumbv7em-none-eabihf"))
         .unwrap_or(false)
     {
-        return skip_or_fail(
+        skip_or_fail(
             "target thumbv7em-none-eabihf not installed (rustup target add thumbv7em-none-eabihf)",
         );
+        return false;
     }
+    true
+}
+
+/// Builds the firmware in `target_dir` embedding `blob_file` (`GMAN_FIRMWARE_BLOB`; `None`:
+/// the default blob), runs it under QEMU, checks that it prints bit for bit what the host
+/// prints for `blob`, checks the budgets and writes the `# ` lines to `log_name` in
+/// `target_dir`. Returns the measurements.
+fn run_and_compare(
+    target_dir: &std::path::Path,
+    blob_file: Option<&std::path::Path>,
+    blob: &[u8],
+    log_name: &str,
+) -> HashMap<String, u64> {
     let fw = fw_dir();
-    // An explicit target dir: a CARGO_TARGET_DIR inherited from the outer cargo would put the
-    // ELF elsewhere.
-    let target_dir = fw.join("target");
-    let status = Command::new(env!("CARGO"))
+    let mut build = Command::new(env!("CARGO"));
+    build
         .current_dir(&fw)
         .args(["build", "--release", "--quiet", "--target-dir"])
-        .arg(&target_dir)
-        .env_remove("GMAN_FIRMWARE_BLOB")
-        .status()
-        .expect("run cargo build for the firmware");
+        .arg(target_dir);
+    match blob_file {
+        Some(p) => build.env("GMAN_FIRMWARE_BLOB", p),
+        None => build.env_remove("GMAN_FIRMWARE_BLOB"),
+    };
+    let status = build.status().expect("run cargo build for the firmware");
     assert!(status.success(), "firmware build failed");
     let elf = target_dir.join("thumbv7em-none-eabihf/release/gman-firmware-example");
     // In firmware-example/: the firmware opens data/episode.gmep there through semihosting.
@@ -148,11 +163,7 @@ fn firmware_under_qemu_matches_host_bit_for_bit() {
         .filter(|l| !l.starts_with("# "))
         .collect();
 
-    // The firmware embeds the shipped trained GMAN model (or the seeded blob without it).
-    let blob = blobgen::default_blob_in(
-        &PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../firmware-example"),
-    );
-    let (host, counters) = host_lines(&blob, &checked_in_episode());
+    let (host, counters) = host_lines(blob, &checked_in_episode());
     // At the firmware's commit delay (20) the 40-step episode fills Ψ at step 20 and commits
     // its update at step 40, computed in slices inside the 20 steps between.
     assert!(
@@ -213,12 +224,70 @@ fn firmware_under_qemu_matches_host_bit_for_bit() {
         0,
         "a step missed its release period"
     );
-    // `gman bench` reads its firmware row from here (written whole, then renamed).
-    let log = target_dir.join("qemu-measurements.txt");
-    let tmp = target_dir.join("qemu-measurements.txt.tmp");
+    // Written whole, then renamed.
+    let log = target_dir.join(log_name);
+    let tmp = target_dir.join(format!("{log_name}.tmp"));
     std::fs::write(&tmp, lines.join("\n") + "\n")
         .unwrap_or_else(|e| panic!("{}: {e}", tmp.display()));
     std::fs::rename(&tmp, &log).unwrap_or_else(|e| panic!("{}: {e}", log.display()));
+    m
+}
+
+#[test]
+fn firmware_under_qemu_matches_host_bit_for_bit() {
+    if !qemu_available() {
+        return;
+    }
+    // An explicit target dir: a CARGO_TARGET_DIR inherited from the outer cargo would put the
+    // ELF elsewhere.
+    let target_dir = fw_dir().join("target");
+    // The firmware embeds the shipped trained GMAN model (or the seeded blob without it).
+    let blob = blobgen::default_blob_in(&fw_dir());
+    // `gman bench` reads its firmware row from `qemu-measurements.txt`.
+    run_and_compare(&target_dir, None, &blob, "qemu-measurements.txt");
+}
+
+/// The default blob re-emitted with int8 activations (`gman export --activations int8`).
+fn int8_activation_blob() -> Vec<u8> {
+    let blob = blobgen::default_blob_in(&fw_dir());
+    gman_host_sim::blob_edit::reencode_with_activations(&blob, true).expect("int8 activations")
+}
+
+#[test]
+fn int8_activation_firmware_under_qemu_matches_host_bit_for_bit() {
+    if !qemu_available() {
+        return;
+    }
+    // Its own target dir (the embedded blob differs; the two tests may run at once).
+    let target_dir = fw_dir().join("target/int8-activations");
+    std::fs::create_dir_all(&target_dir).expect("target dir");
+    let blob = int8_activation_blob();
+    let file = target_dir.join("model-int8-activations.gman");
+    std::fs::write(&file, &blob).unwrap_or_else(|e| panic!("{}: {e}", file.display()));
+    let m = run_and_compare(
+        &target_dir,
+        Some(&file),
+        &blob,
+        "qemu-measurements-int8-activations.txt",
+    );
+    assert!(m.contains_key("mean_insns"));
+}
+
+#[test]
+fn int8_activations_change_the_episode() {
+    // The integer path is really taken: its probabilities differ from the f32 path's, and
+    // its actions mostly agree.
+    let ep = checked_in_episode();
+    let (f, _) = host_lines(&blobgen::default_blob_in(&fw_dir()), &ep);
+    let (q, c) = host_lines(&int8_activation_blob(), &ep);
+    assert_eq!(f.len(), q.len());
+    assert!(c.adaptations >= 1, "{c:?}");
+    let differ = f.iter().zip(&q).filter(|(a, b)| a != b).count();
+    assert!(
+        differ > f.len() / 2,
+        "only {differ} of {} lines differ",
+        f.len()
+    );
 }
 
 #[test]

@@ -2,8 +2,9 @@
 
 use std::path::PathBuf;
 
-use anyhow::Result;
+use anyhow::{bail, Context, Result};
 use clap::{Args, ValueEnum};
+use gman_host_sim::blob_edit::reencode_with_activations;
 use gman_host_sim::nav::model::load_model;
 
 use super::args::PresetArg;
@@ -14,17 +15,40 @@ use super::train::preset_matches;
 #[derive(Debug, Args)]
 pub struct ExportArgs {
     /// Trained checkpoint.
-    #[arg(long, value_name = "CKPT")]
-    pub ckpt: PathBuf,
+    #[arg(
+        long,
+        value_name = "CKPT",
+        required_unless_present = "blob",
+        conflicts_with = "blob"
+    )]
+    pub ckpt: Option<PathBuf>,
+    /// An existing weight blob to re-emit with other activations (`--activations`), weights,
+    /// flags and settings otherwise unchanged; instead of `--ckpt`.
+    #[arg(long, value_name = "MODEL.gman")]
+    pub blob: Option<PathBuf>,
     /// Preset the checkpoint must have (checked).
     #[arg(long, value_enum, default_value = "mcu")]
     pub preset: PresetArg,
     /// Weight format.
     #[arg(long, value_enum, default_value = "int8")]
     pub quant: QuantArg,
+    /// Activations of the int8 weight matrices: `f32` (int8 weights widened to f32), or
+    /// `int8` (int8 activations into i32 accumulators, gman-core's integer kernels; needs
+    /// `--quant int8`).
+    #[arg(long, value_enum, default_value = "f32")]
+    pub activations: ActArg,
     /// Output blob.
     #[arg(long, value_name = "MODEL.gman")]
     pub out: PathBuf,
+}
+
+/// Activations of an exported blob's int8 matrices.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum ActArg {
+    /// f32 activations.
+    F32,
+    /// int8 activations, i32 accumulators (`FLAG_INT8_ACTIVATIONS`).
+    Int8,
 }
 
 /// Weight format of an exported blob.
@@ -38,24 +62,51 @@ pub enum QuantArg {
 
 /// `gman export`.
 pub fn cmd_export(a: ExportArgs) -> Result<()> {
-    super::args::refuse_output_over_inputs("--out", &a.out, &[("--ckpt", &a.ckpt)])?;
-    let model = load_model(&a.ckpt, None)?;
-    preset_matches(&model, a.preset)?;
-    if model.method.uses_ps() {
-        eprintln!(
-            "note: the PS module is not part of the blob; the device must supply the PS input"
-        );
+    for (flag, input) in [("--ckpt", &a.ckpt), ("--blob", &a.blob)] {
+        if let Some(input) = input {
+            super::args::refuse_output_over_inputs("--out", &a.out, &[(flag, input)])?;
+        }
     }
-    let bytes = model.to_blob(a.quant == QuantArg::Int8)?;
+    let int8_act = a.activations == ActArg::Int8;
+    let (bytes, method) = match (&a.ckpt, &a.blob) {
+        (_, Some(path)) => {
+            let bytes = std::fs::read(path)
+                .with_context(|| format!("reading the blob {}", path.display()))?;
+            let out = reencode_with_activations(&bytes, int8_act)
+                .with_context(|| format!("re-emitting the blob {}", path.display()))?;
+            (out, "(from blob)".to_string())
+        }
+        (Some(ckpt), None) => {
+            if int8_act && a.quant != QuantArg::Int8 {
+                bail!("--activations int8 needs --quant int8 (the integer kernels multiply int8 weights)");
+            }
+            let model = load_model(ckpt, None)?;
+            preset_matches(&model, a.preset)?;
+            if model.method.uses_ps() {
+                eprintln!(
+                    "note: the PS module is not part of the blob; the device must supply the PS input"
+                );
+            }
+            let bytes = model.to_blob(a.quant == QuantArg::Int8)?;
+            let bytes = if int8_act {
+                reencode_with_activations(&bytes, true)?
+            } else {
+                bytes
+            };
+            (bytes, model.method.name().to_string())
+        }
+        (None, None) => bail!("give --ckpt or --blob"),
+    };
     gman_host_sim::train::checkpoint::write_atomic(&a.out, |f| {
         std::io::Write::write_all(f, &bytes)
     })?;
     eprintln!(
-        "wrote {} ({} bytes, {:?}, method {})",
+        "wrote {} ({} bytes, {:?} weights, {:?} activations, method {})",
         a.out.display(),
         bytes.len(),
         a.quant,
-        model.method.name()
+        a.activations,
+        method
     );
     Ok(())
 }

@@ -102,6 +102,11 @@ impl Kernels for Avx2 {
         // SAFETY: as above.
         unsafe { x86::outer_acc_batch(dw, dy, x, n, alpha) }
     }
+
+    fn dots_i8(&self, q: &[u8], cols: usize, col0: usize, xq: &[i8], out: &mut [i32]) {
+        // SAFETY: as above.
+        unsafe { x86::dots_i8(q, cols, col0, xq, out) }
+    }
 }
 
 #[cfg(target_arch = "x86_64")]
@@ -129,6 +134,50 @@ mod x86 {
         }
     }
 
+    /// gman-core's integer kernel (`gman_core::qkernel::dots_i8`) with AVX2: the input block
+    /// widened once to i16, then per row 16 weights at a time sign-extended to i16
+    /// (`vpmovsxbw`) and multiplied pairwise into i32 (`vpmaddwd`, at most 2 * 127 * 127
+    /// per lane), summed in i32. Integers are exact, so every value equals the portable
+    /// kernel's (pinned by `tests::avx2_int8_dots_equal_the_portable_kernel`).
+    #[target_feature(enable = "avx2")]
+    pub(super) unsafe fn dots_i8(q: &[u8], cols: usize, col0: usize, xq: &[i8], out: &mut [i32]) {
+        use core::arch::x86_64::*;
+        use gman_core::qkernel::{dots_i8_body, QCOLS};
+        let n = xq.len();
+        let end = col0 + n;
+        if cols == 0 || end > cols || n > QCOLS {
+            return dots_i8_body(q, cols, col0, xq, out);
+        }
+        let mut xw = [0i16; QCOLS];
+        for (d, &s) in xw.iter_mut().zip(xq) {
+            *d = s as i16;
+        }
+        let n16 = n - n % 16;
+        for (row, o) in q.chunks_exact(cols).zip(out.iter_mut()) {
+            let r = &row[col0..end];
+            let mut acc = _mm256_setzero_si256();
+            let mut j = 0;
+            while j < n16 {
+                // SAFETY: j + 16 <= n16 <= r.len() and <= xw.len(); unaligned loads.
+                let w = _mm256_cvtepi8_epi16(_mm_loadu_si128(r.as_ptr().add(j) as *const __m128i));
+                let x = _mm256_loadu_si256(xw.as_ptr().add(j) as *const __m256i);
+                acc = _mm256_add_epi32(acc, _mm256_madd_epi16(w, x));
+                j += 16;
+            }
+            let s = _mm_add_epi32(
+                _mm256_castsi256_si128(acc),
+                _mm256_extracti128_si256(acc, 1),
+            );
+            let s = _mm_add_epi32(s, _mm_shuffle_epi32(s, 0b01_00_11_10));
+            let s = _mm_add_epi32(s, _mm_shuffle_epi32(s, 0b10_11_00_01));
+            let mut t = _mm_cvtsi128_si32(s);
+            for k in n16..n {
+                t += (r[k] as i8 as i32) * (xq[k] as i32);
+            }
+            *o = t;
+        }
+    }
+
     #[target_feature(enable = "avx2")]
     pub(super) unsafe fn outer_acc_batch(
         dw: &mut [f32],
@@ -138,5 +187,54 @@ mod x86 {
         alpha: f32,
     ) -> Result<()> {
         outer_acc_batch_blocked::<2, 4>(dw, dy, x, n, alpha)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use gman_core::qkernel::{dots_i8, QCOLS};
+
+    #[test]
+    fn avx2_int8_dots_equal_the_portable_kernel() {
+        let Some(k) = super::avx2() else {
+            eprintln!("SKIPPED: no AVX2 on this CPU");
+            return;
+        };
+        let mut state = 12345u32;
+        let mut next = || {
+            state ^= state << 13;
+            state ^= state >> 17;
+            state ^= state << 5;
+            state
+        };
+        for &(rows, cols, col0, len) in &[
+            (1, 1, 0, 1),
+            (3, 17, 1, 16),
+            (5, 40, 3, 33),
+            (64, 256, 0, 256),
+            (7, 600, 100, QCOLS),
+            (2, 300, 290, 10),
+        ] {
+            // Extremes included: -127 and 127 in every position class.
+            let q: Vec<u8> = (0..rows * cols)
+                .map(|i| match i % 7 {
+                    0 => 127u8,
+                    1 => (-127i8) as u8,
+                    _ => ((next() % 255) as i32 - 127) as i8 as u8,
+                })
+                .collect();
+            let xq: Vec<i8> = (0..len)
+                .map(|j| match j % 5 {
+                    0 => 127,
+                    1 => -127,
+                    _ => ((next() % 255) as i32 - 127) as i8,
+                })
+                .collect();
+            let mut a = vec![0i32; rows];
+            let mut b = vec![7i32; rows];
+            dots_i8(&q, cols, col0, &xq, &mut a);
+            k.dots_i8(&q, cols, col0, &xq, &mut b);
+            assert_eq!(a, b, "rows {rows} cols {cols} col0 {col0} len {len}");
+        }
     }
 }

@@ -32,7 +32,7 @@ pub struct BenchArgs {
     /// Presets to measure (repeat the flag; default: mcu and paper).
     #[arg(long, value_enum)]
     pub preset: Vec<PresetArg>,
-    /// Weight storage to measure (repeat; default: f32 and int8).
+    /// Weight storage to measure (repeat; default: f32, int8 and int8-act).
     #[arg(long, value_enum)]
     pub quant: Vec<QuantArg>,
     /// Repetitions per timing (the median is reported).
@@ -60,6 +60,9 @@ pub enum QuantArg {
     F32,
     /// int8 weights with per-row scales.
     Int8,
+    /// int8 weights times int8 activations into i32 accumulators (gman-core's integer
+    /// kernels, a blob exported with `--activations int8`).
+    Int8Act,
 }
 
 impl QuantArg {
@@ -67,6 +70,7 @@ impl QuantArg {
         match self {
             QuantArg::F32 => "f32",
             QuantArg::Int8 => "int8",
+            QuantArg::Int8Act => "int8-act",
         }
     }
 }

@@ -169,7 +169,7 @@ pub fn nav_rows(a: &BenchArgs) -> Result<Vec<NavRow>> {
         a.preset.clone()
     };
     let quants = if a.quant.is_empty() {
-        vec![QuantArg::F32, QuantArg::Int8]
+        vec![QuantArg::F32, QuantArg::Int8, QuantArg::Int8Act]
     } else {
         a.quant.clone()
     };
@@ -195,6 +195,9 @@ pub fn nav_rows(a: &BenchArgs) -> Result<Vec<NavRow>> {
                         MatRef::f32(r, c, &t[id as usize]).unwrap_or_else(|_| unreachable!())
                     }),
                     QuantArg::Int8 => NavWeights::from_blob(blob, &d),
+                    QuantArg::Int8Act => {
+                        NavWeights::from_blob(blob, &d).map(|w| w.with_int8_activations())
+                    }
                 }
                 .map(|w| match gman_host_sim::simd::host_kernels() {
                     Some(k) => w.with_kernels(k),
@@ -274,7 +277,8 @@ pub fn kernel_rows(reps: usize) -> Result<Vec<KernelRow>> {
         let ss: &'static [f32] = Vec::leak(sc.clone());
         let mf = with(MatRef::f32(r, c, wf).map_err(|e| anyhow!("{e:?}"))?);
         let mq = with(MatRef::i8(r, c, qs, Scales::F32(ss)).map_err(|e| anyhow!("{e:?}"))?);
-        for (quant, m) in [("f32", mf), ("int8", mq)] {
+        let mqa = mq.with_int8_activations();
+        for (quant, m) in [("f32", mf), ("int8", mq), ("int8-act", mqa)] {
             let t = time(&mut || m.matvec_acc(&[&x[..c]], &mut y[..r]))?;
             rows.push(KernelRow {
                 what: "matvec (batch 1)",

@@ -1,0 +1,353 @@
+//! Integer kernels: `y += W x` with int8 activations times int8 weights into i32
+//! accumulators (the opt-in path of a blob with [`crate::schema::FLAG_INT8_ACTIVATIONS`]).
+//!
+//! # The canonical computation
+//! For an int8 matrix (`W[i][j] ~= s_i q_ij`, see [`crate::quant`]) and an input given as
+//! segments (see [`crate::matrix`]), every segment `x` is quantised on its own:
+//!
+//! * `a = max_j |x_j|` over its finite values; `a == 0` (or an empty segment) adds nothing;
+//! * `s_x = a / 127`, `inv = 127 / a`, `p_j = clamp(round_half_away(x_j * inv), -127, 127)`
+//!   (NaN quantises to 0, ±inf to ±127);
+//! * the segment is cut into blocks of [`QCOLS`] columns; for every block and row `i` the
+//!   integer `acc_i = sum_j q_ij p_j` is exact in an `i32` (`|acc| <= 127 * 127 * QCOLS`),
+//!   and `y_i += (acc_i as f32) * (s_x * s_i)`, blocks in order.
+//!
+//! The integers do not depend on the order of the additions, so the portable kernel
+//! ([`dots_i8`]), the Cortex-M4F's row-blocked one ([`dots_i8_rows`]) and a host's
+//! SIMD build (the `dots_i8` method of [`Kernels`]) give the same `acc_i`, and the few f32
+//! operations around them run in one fixed order in this module: host and device compute
+//! the same bits by construction.
+//!
+//! The scale of each activation segment is computed at run time from the values
+//! themselves (dynamic quantisation, as ONNX Runtime's dynamically quantised int8): one pass
+//! of `cols` comparisons per matrix-vector product, next to `rows x cols` MACs, and no
+//! calibration data whose range a new scene could exceed.
+
+use crate::error::{check_len, Result};
+use crate::matrix::{seg_len, Kernels, MatRef, Scales, Weights};
+
+/// Columns of one quantised input block (a stack buffer of this many `i8`).
+pub const QCOLS: usize = 256;
+/// Rows whose accumulators one kernel call fills (a stack buffer of this many `i32`).
+pub const QROWS: usize = 64;
+
+/// The activation scale of a segment: `(s_x, inv) = (a / 127, 127 / a)` with `a` the largest
+/// finite `|x_j|`; `(0, 0)` when `a == 0`.
+#[inline]
+pub fn act_scale(x: &[f32]) -> (f32, f32) {
+    let mut a = 0.0f32;
+    for &v in x {
+        let m = libm::fabsf(v);
+        // `m > a` is false for NaN; infinities are skipped.
+        if m > a && m != f32::INFINITY {
+            a = m;
+        }
+    }
+    if a > 0.0 {
+        (a / 127.0, 127.0 / a)
+    } else {
+        (0.0, 0.0)
+    }
+}
+
+/// Quantises `x` with `inv` (from [`act_scale`]) into `out` (truncated to the shorter).
+#[inline]
+pub fn quantize_act(x: &[f32], inv: f32, out: &mut [i8]) {
+    for (o, &v) in out.iter_mut().zip(x) {
+        let t = v * inv;
+        let r = if t >= 0.0 { t + 0.5 } else { t - 0.5 };
+        // `as` saturates and maps NaN to 0.
+        *o = (r as i32).clamp(-127, 127) as i8;
+    }
+}
+
+/// `out[r] = sum_j (q[r * cols + col0 + j] as i8) * xq[j]` for `r in 0..out.len()`: the
+/// portable integer kernel (one row at a time). `q` holds at least `out.len()` rows of
+/// `cols` bytes and `col0 + xq.len() <= cols` (the driver checks; shorter rows are cut).
+pub fn dots_i8(q: &[u8], cols: usize, col0: usize, xq: &[i8], out: &mut [i32]) {
+    dots_i8_body(q, cols, col0, xq, out)
+}
+
+/// The body of [`dots_i8`], inlined into its caller so that a host can compile it for a
+/// wider instruction set (the integers are exact: any vectorisation gives the same values).
+#[inline(always)]
+pub fn dots_i8_body(q: &[u8], cols: usize, col0: usize, xq: &[i8], out: &mut [i32]) {
+    let end = col0 + xq.len();
+    if cols == 0 || end > cols {
+        out.fill(0);
+        return;
+    }
+    for (row, o) in q.chunks_exact(cols).zip(out.iter_mut()) {
+        let mut acc = 0i32;
+        for (&w, &x) in row[col0..end].iter().zip(xq) {
+            acc += (w as i8 as i32) * (x as i32);
+        }
+        *o = acc;
+    }
+}
+
+/// [`dots_i8`] four rows at a time (each input byte loaded once for four rows, columns in
+/// steps of four): the Cortex-M4F's kernel. The same integers as [`dots_i8`].
+pub fn dots_i8_rows(q: &[u8], cols: usize, col0: usize, xq: &[i8], out: &mut [i32]) {
+    let end = col0 + xq.len();
+    if cols == 0 || end > cols {
+        out.fill(0);
+        return;
+    }
+    let n = xq.len();
+    let n4 = n - n % 4;
+    let mut rows = q.chunks_exact(cols);
+    let mut outs = out.chunks_exact_mut(4);
+    for o in &mut outs {
+        let (Some(a), Some(b), Some(c), Some(d)) =
+            (rows.next(), rows.next(), rows.next(), rows.next())
+        else {
+            o.fill(0);
+            continue;
+        };
+        let (a, b, c, d) = (&a[col0..end], &b[col0..end], &c[col0..end], &d[col0..end]);
+        let mut acc = [0i32; 4];
+        for ((((xc, ac), bc), cc), dc) in xq[..n4]
+            .chunks_exact(4)
+            .zip(a.chunks_exact(4))
+            .zip(b.chunks_exact(4))
+            .zip(c.chunks_exact(4))
+            .zip(d.chunks_exact(4))
+        {
+            for k in 0..4 {
+                let x = xc[k] as i32;
+                acc[0] += (ac[k] as i8 as i32) * x;
+                acc[1] += (bc[k] as i8 as i32) * x;
+                acc[2] += (cc[k] as i8 as i32) * x;
+                acc[3] += (dc[k] as i8 as i32) * x;
+            }
+        }
+        for j in n4..n {
+            let x = xq[j] as i32;
+            acc[0] += (a[j] as i8 as i32) * x;
+            acc[1] += (b[j] as i8 as i32) * x;
+            acc[2] += (c[j] as i8 as i32) * x;
+            acc[3] += (d[j] as i8 as i32) * x;
+        }
+        o.copy_from_slice(&acc);
+    }
+    let rest = outs.into_remainder();
+    let done = out_len_done(q, cols, rest.len());
+    dots_i8(&q[done..], cols, col0, xq, rest);
+}
+
+/// Byte offset of the rows [`dots_i8_rows`] leaves to [`dots_i8`].
+#[inline]
+fn out_len_done(q: &[u8], cols: usize, rest: usize) -> usize {
+    let rows = q.len() / cols;
+    rows.saturating_sub(rest) * cols
+}
+
+/// Which integer kernel fills the accumulators.
+#[derive(Clone, Copy)]
+enum Dots {
+    Portable,
+    Rows,
+    Table(&'static dyn Kernels),
+}
+
+/// `y += W x` on int8 activations, the canonical computation of the module docs. `w` must be
+/// int8 (else the call is an error naming it); `x` are segments adding up to `w.cols()`.
+/// A kernel table attached to `w` fills the accumulators (same integers).
+pub fn matvec_acc_int8(w: &MatRef<'_>, x: &[&[f32]], y: &mut [f32]) -> Result<()> {
+    let dots = match w.kernels() {
+        Some(k) => Dots::Table(k),
+        None if cfg!(target_arch = "arm") => Dots::Rows,
+        None => Dots::Portable,
+    };
+    matvec_int8_with(w, x, y, dots)
+}
+
+/// [`matvec_acc_int8`] with gman-core's portable kernel whatever the target or the view's
+/// kernel table (the reference a test compares the optimised kernels with).
+pub fn matvec_acc_int8_portable(w: &MatRef<'_>, x: &[&[f32]], y: &mut [f32]) -> Result<()> {
+    matvec_int8_with(w, x, y, Dots::Portable)
+}
+
+// Not inlined: one copy of the driver in a firmware image, whatever the call sites.
+#[inline(never)]
+fn matvec_int8_with(w: &MatRef<'_>, x: &[&[f32]], y: &mut [f32], dots: Dots) -> Result<()> {
+    let (rows, cols) = (w.rows(), w.cols());
+    check_len("matvec_int8.x", cols, seg_len(x))?;
+    check_len("matvec_int8.y", rows, y.len())?;
+    let Weights::I8 { q, scales } = w.weights() else {
+        return Err(crate::Error::Config {
+            what: "matvec_int8: the matrix is not int8",
+        });
+    };
+    if cols == 0 {
+        return Ok(());
+    }
+    let mut xq = [0i8; QCOLS];
+    let mut acc = [0i32; QROWS];
+    let mut off = 0;
+    for seg in x {
+        let (sx, inv) = act_scale(seg);
+        if sx > 0.0 {
+            for (b, xs) in seg.chunks(QCOLS).enumerate() {
+                let xq = &mut xq[..xs.len()];
+                quantize_act(xs, inv, xq);
+                let c0 = off + b * QCOLS;
+                block(q, &scales, cols, c0, xq, sx, &mut acc, y, dots);
+            }
+        }
+        off += seg.len();
+    }
+    Ok(())
+}
+
+/// One quantised input block against every row: accumulators [`QROWS`] rows at a time, then
+/// `y_i += (acc_i as f32) * (s_x * s_i)`.
+#[allow(clippy::too_many_arguments)]
+#[inline]
+fn block(
+    q: &[u8],
+    scales: &Scales<'_>,
+    cols: usize,
+    c0: usize,
+    xq: &[i8],
+    sx: f32,
+    acc: &mut [i32; QROWS],
+    y: &mut [f32],
+    dots: Dots,
+) {
+    for (r0, (qr, yr)) in q.chunks(QROWS * cols).zip(y.chunks_mut(QROWS)).enumerate() {
+        let acc = &mut acc[..yr.len()];
+        match dots {
+            Dots::Portable => dots_i8(qr, cols, c0, xq, acc),
+            Dots::Rows => dots_i8_rows(qr, cols, c0, xq, acc),
+            Dots::Table(k) => k.dots_i8(qr, cols, c0, xq, acc),
+        }
+        for (i, (yi, &a)) in yr.iter_mut().zip(acc.iter()).enumerate() {
+            *yi += (a as f32) * (sx * scales.get(r0 * QROWS + i));
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::rng::Xoshiro128 as Rng;
+    use rand_core::RngCore;
+
+    fn rand_i8(rng: &mut Rng, n: usize) -> [u8; 32768] {
+        let mut v = [0u8; 32768];
+        for b in v.iter_mut().take(n) {
+            *b = ((rng.next_u32() % 255) as i32 - 127) as i8 as u8;
+        }
+        v
+    }
+
+    #[test]
+    fn row_blocked_kernel_gives_the_portable_integers() {
+        let mut rng = Rng::seed_from_u64(7);
+        for &(rows, cols, col0, len) in &[
+            (1, 1, 0, 1),
+            (3, 7, 2, 5),
+            (4, 8, 0, 8),
+            (9, 33, 1, 31),
+            (13, 64, 0, 64),
+            (6, 300, 44, 256),
+        ] {
+            let q = rand_i8(&mut rng, rows * cols);
+            let xb = rand_i8(&mut rng, len);
+            let xq: [i8; 256] = core::array::from_fn(|j| xb[j] as i8);
+            let mut a = [0i32; 16];
+            let mut b = [1i32; 16];
+            dots_i8(&q[..rows * cols], cols, col0, &xq[..len], &mut a[..rows]);
+            dots_i8_rows(&q[..rows * cols], cols, col0, &xq[..len], &mut b[..rows]);
+            assert_eq!(a[..rows], b[..rows], "rows {rows} cols {cols}");
+            // Against a plain double loop.
+            for r in 0..rows {
+                let want: i32 = (0..len)
+                    .map(|j| (q[r * cols + col0 + j] as i8 as i32) * (xq[j] as i32))
+                    .sum();
+                assert_eq!(a[r], want);
+            }
+        }
+    }
+
+    #[test]
+    fn quantisation_rounds_half_away_and_saturates() {
+        let x = [
+            1.0f32,
+            -1.0,
+            0.5 / 127.0,
+            -0.5 / 127.0,
+            f32::NAN,
+            f32::INFINITY,
+            0.25,
+        ];
+        let (sx, inv) = act_scale(&x);
+        assert_eq!(sx, 1.0 / 127.0);
+        let mut p = [0i8; 7];
+        quantize_act(&x, inv, &mut p);
+        assert_eq!(p, [127, -127, 1, -1, 0, 127, 32]);
+        assert_eq!(act_scale(&[0.0, -0.0]), (0.0, 0.0));
+    }
+
+    #[test]
+    fn int8_matvec_is_close_to_f32_and_blocks_add_in_order() {
+        let mut rng = Rng::seed_from_u64(3);
+        let (rows, cols) = (70, 300);
+        let qb = rand_i8(&mut rng, rows * cols);
+        let q = &qb[..rows * cols];
+        let sc: [f32; 70] = core::array::from_fn(|i| 0.01 + i as f32 * 1e-4);
+        let w = MatRef::i8(rows, cols, q, Scales::F32(&sc)).unwrap();
+        let x: [f32; 300] = core::array::from_fn(|j| libm::sinf(j as f32 * 0.37) * 2.0);
+        let (x1, x2) = x.split_at(40);
+        let mut y = [0.5f32; 70];
+        matvec_acc_int8_portable(&w, &[x1, x2], &mut y).unwrap();
+        let mut yr = [0.5f32; 70];
+        matvec_acc_int8(&w, &[x1, x2], &mut yr).unwrap();
+        assert_eq!(y.map(f32::to_bits), yr.map(f32::to_bits));
+        // Close to the f32 product.
+        let mut yf = [0.5f32; 70];
+        w.matvec_acc(&[x1, x2], &mut yf).unwrap();
+        // Within the rounding bound: |x_j - p_j s_x| <= s_x / 2 for every input.
+        let (s1, s2) = (act_scale(x1).0, act_scale(x2).0);
+        for (i, (a, b)) in y.iter().zip(&yf).enumerate() {
+            let bound: f32 = (0..cols)
+                .map(|j| {
+                    let sx = if j < 40 { s1 } else { s2 };
+                    (q[i * cols + j] as i8 as f32).abs() * sc[i] * sx / 2.0
+                })
+                .sum();
+            assert!(
+                (a - b).abs() <= bound * 1.01 + 1e-4,
+                "{a} vs {b} (bound {bound})"
+            );
+        }
+        // The canonical formula, written out.
+        let mut want = [0.5f32; 70];
+        for (seg, off) in [(x1, 0usize), (x2, 40)] {
+            let (sx, inv) = act_scale(seg);
+            let mut p = [0i8; 300];
+            quantize_act(seg, inv, &mut p[..seg.len()]);
+            for (b, c0) in (0..seg.len()).step_by(QCOLS).enumerate() {
+                let len = (seg.len() - c0).min(QCOLS);
+                for (i, wi) in want.iter_mut().enumerate() {
+                    let acc: i32 = (0..len)
+                        .map(|j| {
+                            (q[i * cols + off + b * QCOLS + j] as i8 as i32) * (p[c0 + j] as i32)
+                        })
+                        .sum();
+                    *wi += (acc as f32) * (sx * sc[i]);
+                }
+            }
+        }
+        assert_eq!(y.map(f32::to_bits), want.map(f32::to_bits));
+    }
+
+    #[test]
+    fn f32_views_are_refused() {
+        let w = MatRef::f32(1, 1, &[1.0]).unwrap();
+        let mut y = [0.0];
+        assert!(matvec_acc_int8(&w, &[&[1.0]], &mut y).is_err());
+    }
+}

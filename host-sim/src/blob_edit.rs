@@ -1,0 +1,87 @@
+//! Edits of an existing weight blob that keep every tensor's bits (re-emitted through
+//! gman-core's one encoder).
+
+use anyhow::{anyhow, bail, Result};
+use gman_core::blob::{
+    encode_with_settings, encoded_len_bound, Blob, Quant, TensorData, TensorSpec, TensorView,
+};
+use gman_core::schema::FLAG_INT8_ACTIVATIONS;
+
+/// `bytes` (a weight blob) emitted again with [`FLAG_INT8_ACTIVATIONS`] set (`int8`) or
+/// cleared; every tensor, the other flags and the inner-loop settings are kept. int8
+/// activations need at least one int8 weight matrix.
+pub fn reencode_with_activations(bytes: &[u8], int8: bool) -> Result<Vec<u8>> {
+    let blob = Blob::parse(bytes).map_err(|e| anyhow!("{e}"))?;
+    let h = blob.header();
+    let mut flags = h.flags() & !FLAG_INT8_ACTIVATIONS;
+    if int8 {
+        if !blob.tensors().any(|t| t.quant == Quant::I8) {
+            bail!("the blob has no int8 weights; int8 activations need int8 weights (export with --quant int8)");
+        }
+        flags |= FLAG_INT8_ACTIVATIONS;
+    }
+    // Owned copies of every tensor (f32 data and int8 scales are little-endian bytes).
+    let le = |b: &[u8]| -> Vec<f32> {
+        b.chunks_exact(4)
+            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+            .collect()
+    };
+    let owned: Vec<(TensorView<'_>, Vec<f32>)> = blob
+        .tensors()
+        .map(|t| {
+            let v = match t.quant {
+                Quant::F32 => le(t.data),
+                Quant::I8 => le(t.scales),
+            };
+            (t, v)
+        })
+        .collect();
+    let specs: Vec<TensorSpec<'_>> = owned
+        .iter()
+        .map(|(t, v)| TensorSpec {
+            id: t.id,
+            data: match t.quant {
+                Quant::F32 => TensorData::F32(v),
+                Quant::I8 => TensorData::I8 {
+                    q: t.data,
+                    scales: v,
+                },
+            },
+        })
+        .collect();
+    let mut out = vec![0u8; encoded_len_bound(&specs)];
+    let n = encode_with_settings(&h.dims(), flags, h.adapt_settings(), &specs, &mut out)
+        .map_err(|e| anyhow!("encoding the blob: {e}"))?;
+    out.truncate(n);
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn shipped() -> Vec<u8> {
+        let p = concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/models/gman-map3-b16-mcu-int8-seed5.gman"
+        );
+        std::fs::read(p).expect("shipped model")
+    }
+
+    #[test]
+    fn int8_activations_set_one_flag_and_keep_every_tensor() {
+        let orig = shipped();
+        let q = reencode_with_activations(&orig, true).unwrap();
+        let (a, b) = (Blob::parse(&orig).unwrap(), Blob::parse(&q).unwrap());
+        assert_eq!(
+            b.header().flags(),
+            a.header().flags() | FLAG_INT8_ACTIVATIONS
+        );
+        assert_eq!(a.header().adapt_settings(), b.header().adapt_settings());
+        let ta: Vec<_> = a.tensors().map(|t| (t.id, t.data, t.scales)).collect();
+        let tb: Vec<_> = b.tensors().map(|t| (t.id, t.data, t.scales)).collect();
+        assert_eq!(ta, tb);
+        // And back: byte for byte the original.
+        assert_eq!(reencode_with_activations(&q, false).unwrap(), orig);
+    }
+}
