@@ -301,22 +301,29 @@ impl EvalReport {
         }
     }
 
-    /// The table in the paper's layout (Tab. 4): unseen then seen, SR/SPL/EPA/DTS.
+    /// The table in the paper's layout (Tab. 4): unseen then seen, SR/SPL/EPA/DTS. The first
+    /// column widens to the agent's name (a model file's path keeps the columns aligned).
     pub fn table(&self) -> String {
         let mut s = String::new();
+        let head = format!("{} ({})", "Method", self.split);
+        let w = self
+            .by_room
+            .keys()
+            .map(|r| r.len() + 2)
+            .chain([22, self.agent.chars().count(), head.len()])
+            .max()
+            .unwrap_or(22);
         s.push_str(&format!(
-            "{:<22} | {:^31} | {:^31}\n",
-            format!("{} ({})", "Method", self.split),
-            "Unseen Objects",
-            "Seen Objects"
+            "{:<w$} | {:^31} | {:^31}\n",
+            head, "Unseen Objects", "Seen Objects"
         ));
         s.push_str(&format!(
-            "{:<22} | {:>6} {:>7} {:>7} {:>7} | {:>6} {:>7} {:>7} {:>7}\n",
+            "{:<w$} | {:>6} {:>7} {:>7} {:>7} | {:>6} {:>7} {:>7} {:>7}\n",
             "", "SR(%)", "SPL(%)", "EPA(%)", "DTS(m)", "SR(%)", "SPL(%)", "EPA(%)", "DTS(m)"
         ));
         let row = |name: &str, k: &KindSummaries| {
             format!(
-                "{:<22} | {:>6.2} {:>7.2} {:>7.2} {:>7.2} | {:>6.2} {:>7.2} {:>7.2} {:>7.2}\n",
+                "{:<w$} | {:>6.2} {:>7.2} {:>7.2} {:>7.2} | {:>6.2} {:>7.2} {:>7.2} {:>7.2}\n",
                 name,
                 k.unseen.sr,
                 k.unseen.spl,
