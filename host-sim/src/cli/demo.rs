@@ -198,7 +198,16 @@ fn draw_episode(
     let spec = &episodes[pick];
     let mut agent = NavAgent::new(model.clone());
     let (success, path) = walk(world, spec, &mut agent);
-    draw_scene(world, spec.scene, Some(spec.target), &path, png)?;
+    let title = format!(
+        "{}: {}, target {} ({}), {} actions, {}",
+        world.scenes[spec.scene].name,
+        model.method.name(),
+        world.category_name(spec.target),
+        spec.kind.name(),
+        path.len().saturating_sub(1),
+        if success { "success" } else { "failure" }
+    );
+    draw_scene(world, spec.scene, Some(spec.target), &path, png, Some(&title))?;
     Ok(format!(
         "{}: {} episode {} in {}, target {} ({}), {} actions, {}",
         png.display(),
