@@ -384,12 +384,14 @@ fn demo_writes_summary_pictures_and_intervals() {
     assert!(stdout.contains("[95% CI]"), "{stdout}");
     assert!(stdout.contains("80 val episodes per agent"), "{stdout}");
     let v: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap())
-            .unwrap();
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
     assert_eq!(v["split"], "val");
     assert_eq!(v["updates"], 20);
     let agents = v["agents"].as_array().unwrap();
-    let names: Vec<&str> = agents.iter().map(|a| a["agent"].as_str().unwrap()).collect();
+    let names: Vec<&str> = agents
+        .iter()
+        .map(|a| a["agent"].as_str().unwrap())
+        .collect();
     assert_eq!(names, ["random", "a3c-fg", "gman"]);
     for a in agents {
         assert_eq!(a["episodes"], 80);
@@ -399,7 +401,10 @@ fn demo_writes_summary_pictures_and_intervals() {
             let n = r["successes"].as_f64().unwrap();
             let sr = r["sr"]["value"].as_f64().unwrap();
             assert!((sr - 100.0 * n / 40.0).abs() < 1e-9, "{r}");
-            let (lo, hi) = (r["sr"]["lo"].as_f64().unwrap(), r["sr"]["hi"].as_f64().unwrap());
+            let (lo, hi) = (
+                r["sr"]["lo"].as_f64().unwrap(),
+                r["sr"]["hi"].as_f64().unwrap(),
+            );
             // A Wilson interval of 40 trials is never narrower than a few percent and always
             // holds the rate.
             assert!(lo <= sr && sr <= hi && hi - lo > 5.0, "{r}");

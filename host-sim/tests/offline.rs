@@ -754,7 +754,9 @@ fn savn_folder_names_load_every_scene_and_the_oracle_scores_100() {
     assert_eq!(names, want, "scenes keep their FloorPlanN names");
     let results = oracle_results(&w);
     assert_eq!(results.len(), info.episodes);
-    assert!(results.iter().all(|r| r.metrics.success && r.metrics.spl == 1.0));
+    assert!(results
+        .iter()
+        .all(|r| r.metrics.success && r.metrics.spl == 1.0));
     // The same results as the GMAN-named fixture.
     let gman_sr: Vec<_> = oracle_results(world())
         .iter()

@@ -90,7 +90,11 @@ impl KindResult {
             episodes: n,
             successes: k,
             sr: Rate {
-                value: if n == 0 { 0.0 } else { 100.0 * k as f64 / n as f64 },
+                value: if n == 0 {
+                    0.0
+                } else {
+                    100.0 * k as f64 / n as f64
+                },
                 lo,
                 hi,
             },
@@ -146,10 +150,7 @@ pub struct DemoSummary {
 fn table(rows: &[AgentResult], split: &str) -> String {
     let mut s = format!(
         "{:<8} | {:^32} | {:^32} | {:>8}\n",
-        split,
-        "Unseen SR / SPL (%)",
-        "Seen SR / SPL (%)",
-        "episodes"
+        split, "Unseen SR / SPL (%)", "Seen SR / SPL (%)", "episodes"
     );
     s.push_str(&format!(
         "{:<8} | {:^18} {:>13} | {:^18} {:>13} | {:>8}\n",
@@ -170,9 +171,14 @@ fn table(rows: &[AgentResult], split: &str) -> String {
 }
 
 /// Runs one episode with `agent`, recording the path.
-fn walk(world: &World, spec: &EpisodeSpec, agent: &mut dyn Agent) -> (bool, Vec<gman_host_sim::sim::AgentState>) {
+fn walk(
+    world: &World,
+    spec: &EpisodeSpec,
+    agent: &mut dyn Agent,
+) -> (bool, Vec<gman_host_sim::sim::AgentState>) {
     let cfg = gman_host_sim::sim::EvalConfig::default();
-    let mut env = gman_host_sim::sim::Env::new(world, spec, cfg.reward, cfg.limits.for_room(spec.room));
+    let mut env =
+        gman_host_sim::sim::Env::new(world, spec, cfg.reward, cfg.limits.for_room(spec.room));
     env.record_trajectory(true);
     drive(&mut env, spec, agent);
     (env.metrics().success, env.trajectory().to_vec())
@@ -192,7 +198,11 @@ fn draw_episode(
         .position(|r| {
             r.metrics.success && r.kind == TargetKind::Unseen && r.metrics.path_length >= 6
         })
-        .or_else(|| results.iter().position(|r| r.metrics.success && r.metrics.path_length >= 6))
+        .or_else(|| {
+            results
+                .iter()
+                .position(|r| r.metrics.success && r.metrics.path_length >= 6)
+        })
         .or_else(|| results.iter().position(|r| r.metrics.success))
         .unwrap_or(0);
     let spec = &episodes[pick];
@@ -207,7 +217,14 @@ fn draw_episode(
         path.len().saturating_sub(1),
         if success { "success" } else { "failure" }
     );
-    draw_scene(world, spec.scene, Some(spec.target), &path, png, Some(&title))?;
+    draw_scene(
+        world,
+        spec.scene,
+        Some(spec.target),
+        &path,
+        png,
+        Some(&title),
+    )?;
     Ok(format!(
         "{}: {} episode {} in {}, target {} ({}), {} actions, {}",
         png.display(),
@@ -282,7 +299,11 @@ pub fn cmd_demo(a: DemoArgs) -> Result<()> {
         };
         train(&world, &opts, &mut state)?;
         let model = Arc::new(state.model);
-        eprintln!("evaluating {} on {} val episodes", method.name(), episodes.len());
+        eprintln!(
+            "evaluating {} on {} val episodes",
+            method.name(),
+            episodes.len()
+        );
         let res = gman_host_sim::sim::evaluate(
             &world,
             &episodes,
@@ -329,7 +350,8 @@ pub fn cmd_demo(a: DemoArgs) -> Result<()> {
         });
     }
     let (fg, gm) = (&agents[1], &agents[2]);
-    let distinguishable = !fg.unseen.sr.overlaps(&gm.unseen.sr) || !fg.seen.sr.overlaps(&gm.seen.sr);
+    let distinguishable =
+        !fg.unseen.sr.overlaps(&gm.unseen.sr) || !fg.seen.sr.overlaps(&gm.seen.sr);
     verdict.push(if distinguishable {
         let better = |x: &Rate, y: &Rate| if x.value > y.value { "gman" } else { "a3c-fg" };
         format!(
@@ -348,7 +370,10 @@ pub fn cmd_demo(a: DemoArgs) -> Result<()> {
     let mut pictures = Vec::new();
     let curve = a.out.join("curve.png");
     cmd_plot(PlotArgs {
-        runs: vec![a.out.join(Method::A3cFg.name()), a.out.join(Method::Gman.name())],
+        runs: vec![
+            a.out.join(Method::A3cFg.name()),
+            a.out.join(Method::Gman.name()),
+        ],
         png: curve.clone(),
         smooth: 50,
     })?;
@@ -394,7 +419,11 @@ pub fn cmd_demo(a: DemoArgs) -> Result<()> {
         println!("{v}");
     }
     println!();
-    println!("wrote {} (per room: {})", sp.display(), a.out.join("table.txt").display());
+    println!(
+        "wrote {} (per room: {})",
+        sp.display(),
+        a.out.join("table.txt").display()
+    );
     for p in &pictures {
         println!("wrote {p}");
     }

@@ -356,3 +356,44 @@ impl EvalReport {
         s
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::sim::metrics::EpisodeMetrics;
+
+    #[test]
+    fn table_columns_stay_aligned_with_a_long_agent_name() {
+        let r = |room, kind| EpisodeResult {
+            index: 0,
+            scene: "FloorPlan22".into(),
+            room,
+            kind,
+            target: "Mug".into(),
+            metrics: EpisodeMetrics {
+                success: true,
+                path_length: 4,
+                shortest_path_length: Some(2),
+                spl: 0.5,
+                epa: 10.0,
+                dts: 0.0,
+                total_reward: 0.0,
+            },
+            error: None,
+        };
+        let results = [
+            r(RoomType::Kitchen, TargetKind::Seen),
+            r(RoomType::LivingRoom, TargetKind::Unseen),
+        ];
+        let agent = "runs/some/long/path/to/a/model/checkpoint.ckpt";
+        let t = EvalReport::new("val", agent, &results).table();
+        let bars: Vec<Vec<usize>> = t
+            .lines()
+            .filter(|l| l.contains('|'))
+            .map(|l| l.match_indices('|').map(|(i, _)| i).collect())
+            .collect();
+        assert!(bars.len() >= 4, "{t}");
+        assert!(bars.iter().all(|b| *b == bars[0]), "{t}");
+        assert!(t.contains(agent));
+    }
+}

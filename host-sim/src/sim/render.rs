@@ -100,8 +100,12 @@ pub fn draw_scene(
             let name = title.unwrap_or(sc.name.as_str());
             root.draw(&Text::new(name.to_string(), (10, 8), font.clone()))
                 .map_err(|e| err(&e))?;
-            root.draw(&Text::new("1 m".to_string(), (bx + bar / 2 - 10, by + 8), font))
-                .map_err(|e| err(&e))?;
+            root.draw(&Text::new(
+                "1 m".to_string(),
+                (bx + bar / 2 - 10, by + 8),
+                font,
+            ))
+            .map_err(|e| err(&e))?;
             let small = ("sans-serif", 12).into_font();
             for (i, (_, l)) in swatches.iter().enumerate() {
                 let x = 10 + 92 * i as i32;
