@@ -4,6 +4,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{anyhow, bail, Context, Result};
+use clap::builder::TypedValueParser;
 use clap::{Args, ValueEnum};
 use gman_host_sim::nav::a3c::Objective;
 use gman_host_sim::nav::model::{Method, NavModel};

@@ -113,17 +113,7 @@ pub fn scene_of_folder(folder: &str) -> Option<&str> {
 /// Scene folders of `dir` (`FloorPlanN/` or `FloorPlanN_physics/`), as (scene name, folder),
 /// sorted by scene name. Both namings of one scene in one directory is an error.
 fn scene_folders(dir: &Path) -> Result<Vec<(String, PathBuf)>> {
-    let mut out: Vec<(String, PathBuf)> = Vec::new();
-    for e in fs::read_dir(dir).with_context(|| format!("cannot list {}", dir.display()))? {
-        let e = e.with_context(|| format!("cannot list {}", dir.display()))?;
-        let folder = e.file_name().to_string_lossy().into_owned();
-        if let Some(name) = scene_of_folder(&folder) {
-            if e.path().is_dir() {
-                out.push((name.to_string(), e.path()));
-            }
-        }
-    }
-    out.sort();
+    let out = scene_folders_unchecked(dir)?;
     if let Some(w) = out.windows(2).find(|w| w[0].0 == w[1].0) {
         bail!(
             "{}: scene {} is there twice, as {} and {} (keep one of the two namings)",
@@ -136,10 +126,26 @@ fn scene_folders(dir: &Path) -> Result<Vec<(String, PathBuf)>> {
     Ok(out)
 }
 
+/// [`scene_folders`] without the check for a scene in both namings.
+fn scene_folders_unchecked(dir: &Path) -> Result<Vec<(String, PathBuf)>> {
+    let mut out: Vec<(String, PathBuf)> = Vec::new();
+    for e in fs::read_dir(dir).with_context(|| format!("cannot list {}", dir.display()))? {
+        let e = e.with_context(|| format!("cannot list {}", dir.display()))?;
+        let folder = e.file_name().to_string_lossy().into_owned();
+        if let Some(name) = scene_of_folder(&folder) {
+            if e.path().is_dir() {
+                out.push((name.to_string(), e.path()));
+            }
+        }
+    }
+    out.sort();
+    Ok(out)
+}
+
 /// True when `dir` holds offline scene folders (`FloorPlanN/` or `FloorPlanN_physics/`) and
 /// no `scenes/` folder.
 pub fn is_offline_dir(dir: &Path) -> bool {
-    !dir.join("scenes").exists() && scene_folders(dir).is_ok_and(|v| !v.is_empty())
+    !dir.join("scenes").exists() && scene_folders_unchecked(dir).is_ok_and(|v| !v.is_empty())
 }
 
 /// Choices of how an offline directory is read.
