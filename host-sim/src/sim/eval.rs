@@ -314,7 +314,7 @@ impl EvalReport {
             .max()
             .unwrap_or(22);
         s.push_str(&format!(
-            "{:<w$} | {:^31} | {:^31}\n",
+            "{:<w$} | {:^30} | {:^30}\n",
             head, "Unseen Objects", "Seen Objects"
         ));
         s.push_str(&format!(
