@@ -41,6 +41,17 @@ pub enum Error {
         /// What is wrong, in a few words.
         what: &'static str,
     },
+    /// The step would reach the commit point of a pending inner update
+    /// ([`NavConfig::commit_delay`](crate::navigator::NavConfig::commit_delay) steps after Ψ
+    /// filled) before the update is complete: with
+    /// [`Schedule::Background`](crate::navigator::Schedule::Background) the caller's
+    /// lower-priority context has not yet run all of
+    /// [`Navigator::adapt_slice`](crate::navigator::Navigator::adapt_slice). Nothing was
+    /// changed: run the remaining slices, then the same step again.
+    UpdateNotReady {
+        /// Slices of the update still to run.
+        slices_left: u32,
+    },
 }
 
 /// Why a weight blob was rejected.
@@ -216,6 +227,10 @@ impl fmt::Display for Error {
             Error::Blob(e) => write!(f, "weight blob error: {e}"),
             Error::NumericalFault { what } => write!(f, "numerical fault: `{what}` is not finite"),
             Error::Config { what } => write!(f, "configuration error: {what}"),
+            Error::UpdateNotReady { slices_left } => write!(
+                f,
+                "inner update not ready at its commit point: {slices_left} slices left (run Navigator::adapt_slice)"
+            ),
         }
     }
 }

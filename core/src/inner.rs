@@ -314,13 +314,42 @@ pub fn ld_grad_sum(
     w: &mut InnerWork<'_>,
     grads: &mut DiscGrads<'_>,
 ) -> Result<LdValue> {
+    ld_grad_sum_from(
+        disc,
+        real,
+        fake,
+        eps,
+        cfg,
+        inv,
+        w,
+        grads,
+        LdValue::default(),
+    )
+}
+
+/// [`ld_grad_sum`] continuing the sums `ld0` of earlier entries: called on consecutive
+/// ranges of Ψ's entries (each range's `real`, `fake`, `eps`) with the previous call's
+/// result, it gives the bits of one call over all of them (every `+=` in entry order; the
+/// batch split never changes a bit). The sliced inner update runs it a few entries at a time.
+#[allow(clippy::too_many_arguments)]
+pub fn ld_grad_sum_from(
+    disc: &Discriminator<'_>,
+    real: &[f32],
+    fake: &[f32],
+    eps: &[f32],
+    cfg: LdConfig,
+    inv: f32,
+    w: &mut InnerWork<'_>,
+    grads: &mut DiscGrads<'_>,
+    ld0: LdValue,
+) -> Result<LdValue> {
     w.check()?;
     disc.validate()?;
     let (f, dh) = (disc.in_dim(), disc.hidden());
     let n = eps.len();
     check_len("ld.real", n * f, real.len())?;
     check_len("ld.fake", n * f, fake.len())?;
-    let mut ld = LdValue::default();
+    let mut ld = ld0;
     if n == 0 || f == 0 {
         return Ok(ld);
     }
@@ -555,6 +584,27 @@ pub fn adapt_scores(
     (d, dd, dprobs): (&mut [f32], &mut [f32], &mut [f32]),
     w: &mut InnerWork<'_>,
 ) -> Result<f32> {
+    let n = d.len();
+    let loss = adapt_scores_part(kind, gen, disc, inp, probs, (d, dd, dprobs), w, (0, n))?;
+    loss.ok_or(crate::Error::Config {
+        what: "adapt: no scores",
+    })
+}
+
+/// Pass 1 of [`adapt_scores`] for the entries `t0 .. t1` only (the scores `d[t0..t1]`), and
+/// once `t1` reaches the end L_ad with `dd` and `dprobs` (`Some(loss)`; before: `None`). Over
+/// consecutive ranges it gives the bits of [`adapt_scores`] (each score is its own entry's).
+#[allow(clippy::too_many_arguments)]
+pub fn adapt_scores_part(
+    kind: AdaptLossKind,
+    gen: &Generator<'_>,
+    disc: Option<&Discriminator<'_>>,
+    inp: AdaptInputs<'_>,
+    probs: &[f32],
+    (d, dd, dprobs): (&mut [f32], &mut [f32], &mut [f32]),
+    w: &mut InnerWork<'_>,
+    (t_begin, t_end): (usize, usize),
+) -> Result<Option<f32>> {
     let AdaptInputs {
         attr, zs, xs, obs, ..
     } = inp;
@@ -575,9 +625,10 @@ pub fn adapt_scores(
         w.fill_attr(attr)?;
     }
     // Pass 1: the scores D(x_t) (or cos(x_t, s_t)).
-    let mut t0 = 0;
-    while t0 < n {
-        let nb = w.b.min(n - t0);
+    let t_end = t_end.min(n);
+    let mut t0 = t_begin;
+    while t0 < t_end {
+        let nb = w.b.min(t_end - t0);
         if xs.is_none() {
             let z = rows(zs, zd, t0, nb)?;
             with_rows(w, nb, (Some(z), attr, zd), |w, r| {
@@ -612,7 +663,10 @@ pub fn adapt_scores(
         r?;
         t0 += nb;
     }
-    adapt_loss(kind, d, probs, dd, dprobs)
+    if t_end < n {
+        return Ok(None);
+    }
+    adapt_loss(kind, d, probs, dd, dprobs).map(Some)
 }
 
 /// `∇_θ Σ_t c_t D(G_θ(z_t, attr))` (with `disc`; consecutive entries with bit-identical
@@ -630,6 +684,22 @@ pub fn score_backward(
     grads1: &mut DenseGrads<'_>,
     grads2: &mut DenseGrads<'_>,
 ) -> Result<()> {
+    score_backward_part(gen, disc, inp, coef, w, (grads1, grads2), (0, usize::MAX)).map(|_| ())
+}
+
+/// [`score_backward`] from entry `t` (the first entry of a group, 0 at first) for at most
+/// `batches` batches; returns the entry to continue from (`coef.len()` when done). Resumed
+/// until done, it gives the bits of [`score_backward`] (the gradients receive every `+=` in
+/// entry order; a batch never changes a bit).
+pub fn score_backward_part(
+    gen: &Generator<'_>,
+    disc: Option<&Discriminator<'_>>,
+    inp: AdaptInputs<'_>,
+    coef: &[f32],
+    w: &mut InnerWork<'_>,
+    (grads1, grads2): (&mut DenseGrads<'_>, &mut DenseGrads<'_>),
+    (t_start, batches): (usize, usize),
+) -> Result<usize> {
     let AdaptInputs {
         attr,
         zs,
@@ -657,8 +727,10 @@ pub fn score_backward(
         w.fill_attr(attr)?;
     }
     let grouped = disc.is_some();
-    let mut t = 0;
-    while t < n {
+    let mut t = t_start;
+    let mut done = 0;
+    while t < n && done < batches {
+        done += 1;
         // A batch of up to `b` groups (their first entries' noise rows).
         let (t_first, mut nb) = (t, 0);
         while nb < w.b && t < n {
@@ -685,11 +757,11 @@ pub fn score_backward(
                 groups,
                 nb,
                 w,
-                (grads1, grads2),
+                (&mut *grads1, &mut *grads2),
             )
         })?;
     }
-    Ok(())
+    Ok(t.min(n))
 }
 
 /// The end of the group starting at entry `t`: with `grouped`, the run of entries whose

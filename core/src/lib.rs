@@ -7,6 +7,39 @@
 //! `k` steps the on-device adaptation of Algorithm 1. The host trainer (`gman-host-sim`) calls
 //! the very same code for its inner loop, so what was meta-learned is exactly what runs.
 //!
+//! ## The device loop
+//! Everything a controller needs is at the crate root: a [`Blob`] read in place (e.g. from
+//! flash), [`NavWeights`] viewing it, a [`Navigator`] whose whole state lives in a
+//! caller-owned arena of [`arena_len`] floats (a compile-time constant), and one
+//! [`Navigator::step_map`] per camera frame; every `K`-th step also runs the inner update.
+//! The integration guide (`docs/integrate.md`) covers the C API, static sizing, scheduling
+//! the inner update and model updates in the field.
+//!
+//! ```
+//! use gman_core::{arena_len, Action, AdaptMode, Blob, Dims, Efficient, NavWeights, Navigator};
+//!
+//! const DIMS: Dims = Dims::MCU.with_map(3, 3, 8); // the shipped map models' sizes
+//! const K: usize = 20; // an inner update every 20 steps
+//! const ARENA: usize = arena_len(&DIMS, AdaptMode::Efficient, K);
+//! static BLOB: &[u8] = include_bytes!("../../host-sim/models/gman-map3-b16-mcu-int8-seed5.gman");
+//!
+//! # fn main() -> gman_core::Result<()> {
+//! # let mut arena = vec![0.0f32; ARENA]; // a `static` array on a microcontroller
+//! let blob = Blob::parse(BLOB)?; // header, format version, CRC, every tensor
+//! let weights = NavWeights::from_blob(&blob, &DIMS)?; // views into the blob, no copy
+//! let mut nav: Navigator<'_, Efficient, K> = Navigator::new(weights, &mut arena, blob.nav_config())?;
+//! nav.reset(&[0.5; DIMS.attr], 7)?; // the target's attribute vector SE(y), a seed
+//! let (mut obs, mut map) = ([0.0f32; DIMS.feat], [0.0f32; DIMS.map_len()]);
+//! for t in 0..25 {
+//!     obs.fill(0.4); // the camera's pooled embedding s_t ...
+//!     map.fill(0.4); // ... and its 3 x 3 map, features in [0, 1]
+//!     let out = nav.step_map(&obs, &map, &[])?;
+//!     assert_eq!(out.adapted, t == K - 1); // the inner update ends every K-th step
+//!     if out.action == Action::Done { break; }
+//! }
+//! # Ok(()) }
+//! ```
+//!
 //! ## Map from the paper to the code
 //! | paper | here |
 //! |---|---|
@@ -53,9 +86,17 @@ pub mod rng;
 pub mod schema;
 pub mod seeded;
 
+// What an integrator needs, at the root (the device loop above uses only these).
 pub use action::{Action, NUM_ACTIONS};
+pub use blob::{Blob, Header};
 pub use error::{BlobError, Error, Result, ShapeError};
+pub use memory::{arena_len, try_arena_len, Footprint};
+pub use navigator::{
+    AdaptReport, Counters, Efficient, Full, Mode, NavConfig, NavWeights, Navigator, Schedule,
+    Selection, StepOutput,
+};
 pub use preset::{Dims, Mcu, Paper, Preset};
+pub use schema::AdaptMode;
 
 /// Width of the semantic embedding SE(y) (the attribute vector), fixed by the data.
 pub const ATTR_DIM: usize = 45;

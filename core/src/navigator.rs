@@ -5,7 +5,7 @@
 //! reset(SE(y), seed)      θ_i ← θ, φ_i ← φ (line 4); clear LSTM state and Ψ
 //! step(s_t) -> a_t        x_t = G_θi(SE(y), z_t)            (line 7)
 //!                         a_t ~ π_{θi,φi}(· | s_t, x_t, ...)  (line 8)
-//!                         Ψ ← Ψ ∪ {(s_t, z_t, a_t, h_t)}      (lines 11-13)
+//!                         Ψ ← Ψ ∪ {(s_t, x_t, a_t, h_t)}      (lines 11-13)
 //!                         every k steps, while fewer than `max_inner_updates` were made:
 //!                           ω  ← ω  + α1 ∇_ω L_D             (lines 15-16, Eq. 1)
 //!                           θi ← θi − α2 ∇_θi L_ad            (lines 17-18, Eq. 3)
@@ -28,8 +28,10 @@
 //! it). The dependence of a_t on θ through the policy's input x_t is not followed (a
 //! stop-gradient): L_ad adapts G through D only, and the policy through its head only.
 //!
-//! Ψ stores the noise z_t instead of x_t: inside one adaptation window θ does not change, so
-//! x_t is regenerated exactly and Ψ_x costs `Z` instead of `F` floats per step.
+//! Ψ stores each step's generated x_t (Ψ_x, `F` floats per step) with its noise z_t: inside
+//! one adaptation window θ does not change (it changes only in the inner update and in
+//! `reset`, which both empty Ψ), so the update uses the recorded x_t and runs no forward
+//! pass of G over Ψ (unless the caller fixed x_t, `Navigator::fix_generated_feature`).
 //!
 //! Algorithm 1 as printed records a step only when `t` is not a multiple of `k` (lines
 //! 10-13), so its buffer would hold `k − 1` samples at each update. Here every step is
@@ -139,8 +141,16 @@ pub enum Schedule {
     /// Only when the caller asks ([`Navigator::adapt_now`] or [`Navigator::clear_buffer`]);
     /// `step()` refuses to run while Ψ is full. A trainer uses this to take the navigation
     /// loss's gradient at the parameters a segment was run with, before they adapt. The
-    /// update itself is the same code.
+    /// update itself is the same code. With a [`NavConfig::commit_delay`] `d > 0` the `d`
+    /// steps after Ψ fills run (unrecorded) before `step()` asks for `adapt_now()`.
     Manual,
+    /// With a [`NavConfig::commit_delay`] `d >= 1` (required): `step()` never computes the
+    /// update; the caller runs it in slices with [`Navigator::adapt_slice`] from a context of
+    /// lower priority than the control loop (an RTIC task, a lower interrupt priority, the
+    /// main loop between timer ticks). The update commits at the end of the `d`-th step
+    /// after Ψ filled, as with `Auto`; a step that would reach that point before every slice
+    /// ran returns [`Error::UpdateNotReady`] and changes nothing.
+    Background,
 }
 
 /// Run-time settings of the navigator.
@@ -191,6 +201,14 @@ pub struct NavConfig {
     /// a bit of what the navigator computes; the arena must hold
     /// [`Navigator::arena_len_for`] floats for it.
     pub footprint: Footprint,
+    /// The commit delay d (a blob records it, see [`ModelFlags::commit_delay`]): the inner
+    /// update that starts when Ψ fills at step t takes effect at the end of step t + d. The
+    /// `d` steps between act on the current parameters and are not recorded in Ψ; with
+    /// [`Schedule::Auto`] each of them computes a bounded slice of the update, with
+    /// [`Schedule::Background`] the caller does ([`Navigator::adapt_slice`]). 0 (the
+    /// default): the update runs inside the step that fills Ψ. At most
+    /// [`MAX_COMMIT_DELAY`](crate::schema::MAX_COMMIT_DELAY).
+    pub commit_delay: u32,
 }
 
 impl NavConfig {
@@ -252,6 +270,7 @@ impl NavConfig {
             adapt_loss,
             reference_critic: _,
             head_only,
+            commit_delay,
         } = flags;
         NavConfig {
             adapt,
@@ -266,6 +285,7 @@ impl NavConfig {
             disc_head_reset,
             head_only,
             adapt_loss,
+            commit_delay,
             ld: LdConfig {
                 critic_scale,
                 ..LdConfig::default()
@@ -306,6 +326,7 @@ impl Default for NavConfig {
             head_only: false,
             mode: None,
             footprint: Footprint::Compact,
+            commit_delay: 0,
         }
     }
 }
@@ -829,7 +850,55 @@ pub struct Navigator<'w, M: Mode, const K: usize> {
     /// step, from G at the current θ: the inner update need not regenerate Ψ_x.
     psi_recorded: bool,
     last: AdaptReport,
+    /// The inner update in progress (between Ψ filling and its commit when
+    /// [`NavConfig::commit_delay`] > 0).
+    upd: Option<Update>,
+    /// The update's own generator (ε of L_D), forked from the navigator's when Ψ filled, so
+    /// that the steps of the commit window draw what they would draw without the update.
+    upd_rng: Xoshiro128,
     _mode: PhantomData<M>,
+}
+
+/// Where an inner update is: the phases of [`Navigator::inner_update`] in order, each over
+/// Ψ's entries a batch ([`InnerWork::b`](crate::inner::InnerWork::b) entries) per slice.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Phase {
+    /// Ψ_x regenerated (only when the steps did not record it).
+    Generate,
+    /// ∇_ω L_D over Ψ, then D's ascent (`disc_steps` times).
+    Disc,
+    /// Pass 1 of L_ad: the scores, then L_ad and its output gradients.
+    Scores,
+    /// Pass 2 of L_ad: θ's gradient through D (or the cosine) and G.
+    Backward,
+    /// The actor head's gradient.
+    Head,
+    /// Complete: the descent step of θ_i, φ_i is all that is left (the commit).
+    Done,
+}
+
+/// The state of an inner update computed in slices (every bit the same as computing it at
+/// once: the slices are the batches of the one computation, in its order).
+#[derive(Clone, Copy, Debug)]
+struct Update {
+    phase: Phase,
+    /// The next entry of Ψ in this phase.
+    t: usize,
+    /// D's ascent steps taken, and to take.
+    disc_done: u32,
+    disc_steps: u32,
+    disc_ok: bool,
+    use_d: bool,
+    /// ε comes from the update's own generator (a delayed update) instead of the navigator's.
+    forked: bool,
+    /// Steps of the commit window taken.
+    window: u32,
+    /// Estimated multiply-adds done and in all (the in-step schedule spreads them evenly).
+    done: u64,
+    total: u64,
+    /// Slices run and upper bound of the slices in all.
+    slices: u32,
+    report: AdaptReport,
 }
 
 impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
@@ -864,6 +933,16 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
                 what: "these weights were meta-trained in the other adaptation mode (see NavConfig::mode): run them with that Navigator mode",
             });
         }
+        if cfg.commit_delay > crate::schema::MAX_COMMIT_DELAY {
+            return Err(Error::Config {
+                what: "commit_delay above MAX_COMMIT_DELAY (63)",
+            });
+        }
+        if cfg.schedule == Schedule::Background && cfg.commit_delay == 0 {
+            return Err(Error::Config {
+                what: "Schedule::Background needs a commit_delay of at least 1 step",
+            });
+        }
         let dims = weights.dims;
         if crate::memory::try_arena_len_with(&dims, M::MODE, K, cfg.footprint).is_none() {
             return Err(Error::Config {
@@ -886,6 +965,8 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
             u2_valid: false,
             psi_recorded: false,
             last: AdaptReport::default(),
+            upd: None,
+            upd_rng: Xoshiro128::seed_from_u64(0),
             _mode: PhantomData,
         };
         // Validate every shape once by building the views.
@@ -934,6 +1015,7 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
         if !all_finite(attr) {
             return Err(Error::NonFiniteInput { what: "attr" });
         }
+        self.settle()?;
         self.restore_adapted()?;
         if self.cfg.disc_head_reset {
             // D restarts with the episode: layer 1 from ω, the head at zero.
@@ -1050,6 +1132,59 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
     /// Empties Ψ without adapting (line 20 alone).
     pub fn clear_buffer(&mut self) {
         self.n_buf = 0;
+        self.upd = None;
+    }
+
+    /// True from the step that fills Ψ to the commit of its inner update when
+    /// [`NavConfig::commit_delay`] > 0 (the commit window: steps are not recorded in Ψ).
+    pub fn update_pending(&self) -> bool {
+        self.upd.is_some()
+    }
+
+    /// True while a pending update's commit window has steps left to take: the steps after
+    /// Ψ filled that run before the update takes effect ([`NavConfig::commit_delay`]). A
+    /// trainer's segment ends when Ψ is full and this is false.
+    pub fn in_commit_window(&self) -> bool {
+        self.upd.is_some_and(|u| u.window < self.cfg.commit_delay)
+    }
+
+    /// Slices of the pending update still to run (0: none pending, or complete).
+    pub fn slices_left(&self) -> u32 {
+        match self.upd {
+            Some(u) if u.phase != Phase::Done => self.slice_bound().saturating_sub(u.slices).max(1),
+            _ => 0,
+        }
+    }
+
+    /// Runs one bounded slice of the pending inner update (one batch of
+    /// [`crate::memory::adapt_batch`] entries of one of its passes) — the call of
+    /// [`Schedule::Background`]'s lower-priority context. Returns whether slices remain
+    /// (false also when no update is pending). The slices never change what the steps
+    /// read (the adapted θ_i, φ_i change only at the commit, D is not read by a step), and
+    /// the update they compute is bit for bit the update computed at once.
+    pub fn adapt_slice(&mut self) -> Result<bool> {
+        match self.upd {
+            Some(u) if u.phase != Phase::Done => {
+                self.run_slice()?;
+                Ok(self.upd.is_some_and(|u| u.phase != Phase::Done))
+            }
+            _ => Ok(false),
+        }
+    }
+
+    /// Completes D's ascent of a pending inner update and drops the rest (θ_i, φ_i keep
+    /// their values; [`Navigator::reset`] restores them anyway). [`Navigator::reset`] calls
+    /// it, so that D, which persists across episodes, learns from every buffer that filled,
+    /// whenever the episode ended; a host that reads D after an episode calls it first.
+    pub fn settle(&mut self) -> Result<()> {
+        while self
+            .upd
+            .is_some_and(|u| matches!(u.phase, Phase::Generate | Phase::Disc))
+        {
+            self.run_slice()?;
+        }
+        self.upd = None;
+        Ok(())
     }
 
     /// Number of steps recorded in Ψ since it was last emptied.
@@ -1146,7 +1281,23 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
                 what: "call reset() before step()",
             });
         }
-        if self.n_buf >= K {
+        if let Some(u) = self.upd {
+            let d = self.cfg.commit_delay;
+            if u.window >= d {
+                // Only reachable with `Schedule::Manual`: the others commit at the window's end.
+                return Err(Error::Config {
+                    what: "commit window over: call adapt_now() before step() (Schedule::Manual)",
+                });
+            }
+            if self.cfg.schedule == Schedule::Background
+                && u.window + 1 == d
+                && u.phase != Phase::Done
+            {
+                return Err(Error::UpdateNotReady {
+                    slices_left: self.slices_left(),
+                });
+            }
+        } else if self.n_buf >= K {
             // Only reachable with `Schedule::Manual` (`Auto` empties Ψ when it fills).
             return Err(Error::Config {
                 what: "buffer full: call adapt_now() or clear_buffer() before step() (Schedule::Manual)",
@@ -1332,14 +1483,17 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
             });
         }
         let action = self.select();
-        // Lines 11-13: record in Ψ.
-        let (f, z, lh, n) = (d.feat, d.noise, d.lstm_hidden, self.n_buf);
-        self.r.psi_s[n * f..(n + 1) * f].copy_from_slice(obs);
-        self.r.psi_z[n * z..(n + 1) * z].copy_from_slice(self.r.z);
-        self.r.psi_p[n * NUM_ACTIONS..(n + 1) * NUM_ACTIONS].copy_from_slice(self.r.probs);
-        self.r.psi_h[n * lh..(n + 1) * lh].copy_from_slice(self.r.h);
-        self.record_psi_features(n);
-        self.n_buf += 1;
+        // Lines 11-13: record in Ψ (not in the commit window of a delayed update).
+        let window = self.upd.is_some();
+        if !window {
+            let (f, z, lh, n) = (d.feat, d.noise, d.lstm_hidden, self.n_buf);
+            self.r.psi_s[n * f..(n + 1) * f].copy_from_slice(obs);
+            self.r.psi_z[n * z..(n + 1) * z].copy_from_slice(self.r.z);
+            self.r.psi_p[n * NUM_ACTIONS..(n + 1) * NUM_ACTIONS].copy_from_slice(self.r.probs);
+            self.r.psi_h[n * lh..(n + 1) * lh].copy_from_slice(self.r.h);
+            self.record_psi_features(n);
+            self.n_buf += 1;
+        }
         self.r.h_state.copy_from_slice(self.r.h);
         self.r.c_state.copy_from_slice(self.r.c);
         self.r.prev_probs.copy_from_slice(self.r.probs);
@@ -1347,14 +1501,47 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
         probs.copy_from_slice(self.r.probs);
         self.counters.steps = self.counters.steps.saturating_add(1);
         self.counters.total_steps = self.counters.total_steps.saturating_add(1);
-        // Lines 14-20: every k steps, the inner update; then empty Ψ.
+        // Lines 14-20: every k steps, the inner update; then empty Ψ. With a commit delay d
+        // it starts here and commits at the end of the d-th step from now.
         let mut adapted = false;
-        if self.n_buf == K && self.cfg.schedule == Schedule::Auto {
-            if self.cfg.adapt && self.counters.adaptations < self.cfg.max_inner_updates {
-                self.inner_update()?;
+        let (delay, sched) = (self.cfg.commit_delay, self.cfg.schedule);
+        if let Some(mut u) = self.upd.filter(|_| window) {
+            u.window += 1;
+            self.upd = Some(u);
+            if sched == Schedule::Auto {
+                // This step's share of the work (all that is left at the last one).
+                let target = if u.window >= delay {
+                    u64::MAX
+                } else {
+                    u.total / delay as u64 * u.window as u64
+                };
+                while self
+                    .upd
+                    .is_some_and(|u| u.phase != Phase::Done && u.done < target)
+                {
+                    self.run_slice()?;
+                }
+            }
+            if u.window >= delay && sched != Schedule::Manual {
+                self.commit_update()?;
                 adapted = true;
             }
-            self.n_buf = 0;
+        } else if self.n_buf == K {
+            let can = self.can_adapt();
+            match sched {
+                Schedule::Manual => {
+                    if can && delay > 0 {
+                        self.start_update(true);
+                    }
+                }
+                _ if can && delay == 0 => {
+                    self.inner_update()?;
+                    adapted = true;
+                    self.n_buf = 0;
+                }
+                _ if can => self.start_update(true),
+                _ => self.n_buf = 0,
+            }
         }
         Ok(StepOutput {
             action,
@@ -1439,13 +1626,22 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
 
     /// Runs the inner update (lines 15-20 of Algorithm 1) now on the steps buffered in Ψ,
     /// then empties Ψ, whatever the step count and the per-episode cap (which it still
-    /// counts towards). Useful at the end of an episode, and for benchmarks. Returns whether
-    /// anything was buffered.
+    /// counts towards). Useful at the end of an episode, and for benchmarks; with
+    /// [`Schedule::Manual`] and a [`NavConfig::commit_delay`], the commit of the update that
+    /// started when Ψ filled (its remaining slices first). Returns whether anything was
+    /// buffered.
     pub fn adapt_now(&mut self) -> Result<bool> {
         if !self.ready {
             return Err(Error::Config {
                 what: "call reset() before adapt_now()",
             });
+        }
+        if self.upd.is_some() {
+            while self.upd.is_some_and(|u| u.phase != Phase::Done) {
+                self.run_slice()?;
+            }
+            self.commit_update()?;
+            return Ok(true);
         }
         if self.n_buf == 0 {
             return Ok(false);
@@ -1457,9 +1653,19 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
 
     /// Lines 15-20 of Algorithm 1 on the `n_buf` (normally `K`) samples in Ψ: D ascends L_D
     /// (Eq. 1), then θ and the actor head φ descend L_ad (Eq. 3); a step whose loss or result
-    /// is not finite or exceeds the loss bound is not applied (rolled back).
+    /// is not finite or exceeds the loss bound is not applied (rolled back). All at once:
+    /// the slices of [`Navigator::run_slice`] back to back, then the commit.
     fn inner_update(&mut self) -> Result<()> {
-        let mut report = AdaptReport::default();
+        self.start_update(false);
+        while self.upd.is_some_and(|u| u.phase != Phase::Done) {
+            self.run_slice()?;
+        }
+        self.commit_update()
+    }
+
+    /// Starts the inner update on the `n_buf` entries of Ψ (`forked`: with the update's own
+    /// generator, forked from the navigator's by one draw).
+    fn start_update(&mut self, forked: bool) {
         // Lines 15-16: D ascends L_D over Ψ_s and Ψ_x, `disc_steps` times (the paper: once;
         // not with the CosSim variant, which has no D).
         let use_d = self.cfg.emd == Emd::Discriminator;
@@ -1468,26 +1674,170 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
         } else {
             0
         };
+        if forked {
+            self.upd_rng = Xoshiro128::seed_from_u64(rand_core::RngCore::next_u64(&mut self.rng));
+        }
         // Ψ_x once: G is fixed until the descent step of line 20 (recorded by the steps when
         // they ran G at this θ, which gives the same bits).
-        if !self.psi_recorded {
-            self.generate_psi_x()?;
-        }
-        let mut disc_ok = true;
-        for _ in 0..disc_steps {
-            report.ld = self.disc_gradient()?;
-            disc_ok = self.ascend_disc(report.ld.loss);
-            if !disc_ok {
-                break;
+        let phase = if !self.psi_recorded {
+            Phase::Generate
+        } else if disc_steps > 0 {
+            Phase::Disc
+        } else {
+            Phase::Scores
+        };
+        let mut u = Update {
+            phase,
+            t: 0,
+            disc_done: 0,
+            disc_steps,
+            disc_ok: true,
+            use_d,
+            forked,
+            window: 0,
+            done: 0,
+            total: 0,
+            slices: 0,
+            report: AdaptReport::default(),
+        };
+        u.total = self.cost_bound(&u);
+        self.upd = Some(u);
+    }
+
+    /// Estimated multiply-adds of one slice (a batch of `nb` entries) of `phase`: what the
+    /// in-step schedule spreads evenly over the commit window.
+    fn slice_cost(&self, phase: Phase, nb: usize) -> u64 {
+        let d = self.w.dims;
+        let (f, dh, h, zin) = (d.feat, d.disc_hidden, d.gen_hidden, d.noise + d.attr);
+        let full = (M::MODE == AdaptMode::Full) as usize;
+        let keep_u2 = !self.r.psi_u2.is_empty() && self.psi_recorded;
+        let per = match phase {
+            Phase::Generate => h * zin + f * h,
+            // D on real, fake, interpolate; its input gradient, W1 g; W1's outer products.
+            Phase::Disc => f * dh * (5 + 3 * full),
+            Phase::Scores => f * dh,
+            Phase::Backward => {
+                h * zin + 2 * f * dh + f * h * (1 + full + !keep_u2 as usize) + full * h * zin
             }
+            Phase::Head => d.lstm_hidden * NUM_ACTIONS * 2,
+            Phase::Done => 0,
+        };
+        (per * nb) as u64
+    }
+
+    /// Upper bound of the update's estimated work, from the phase `u` starts in.
+    fn cost_bound(&self, u: &Update) -> u64 {
+        let n = self.n_buf;
+        let mut c = 0;
+        if u.phase == Phase::Generate {
+            c += self.slice_cost(Phase::Generate, n);
         }
-        report.disc_applied = use_d && disc_ok;
-        // Lines 17-19: L_ad and its gradients for θ_i and φ_i.
-        report.adapt_loss = self.adapt_gradient(use_d)?;
+        c += u.disc_steps as u64 * self.slice_cost(Phase::Disc, n);
+        c += self.slice_cost(Phase::Scores, n);
+        if !self.cfg.head_only {
+            c += self.slice_cost(Phase::Backward, n);
+        }
+        c + self.slice_cost(Phase::Head, n)
+    }
+
+    /// Upper bound of the slices of the pending update, in all.
+    fn slice_bound(&self) -> u32 {
+        let Some(u) = self.upd else { return 0 };
+        let per = self.n_buf.div_ceil(self.r.iw.b.max(1)) as u32;
+        let gen = if self.psi_recorded { 0 } else { per };
+        let back = if self.cfg.head_only { 0 } else { per };
+        gen + u.disc_steps * per + per + back + 1
+    }
+
+    /// One slice of the pending update: one batch of entries of its current phase (and the
+    /// phase's step when the batch is its last).
+    fn run_slice(&mut self) -> Result<()> {
+        let Some(mut u) = self.upd else {
+            return Ok(());
+        };
+        let n = self.n_buf;
+        let b = self.r.iw.b.max(1);
+        let (t0, t1) = (u.t, (u.t + b).min(n));
+        let phase = u.phase;
+        u.done = u.done.saturating_add(self.slice_cost(phase, t1 - t0));
+        u.slices += 1;
+        match phase {
+            Phase::Generate => {
+                self.generate_psi_x(t0, t1)?;
+                u.t = t1;
+                if t1 >= n {
+                    u.t = 0;
+                    u.phase = if u.disc_steps > 0 {
+                        Phase::Disc
+                    } else {
+                        Phase::Scores
+                    };
+                }
+            }
+            Phase::Disc => {
+                if t0 == 0 {
+                    u.report.ld = LdValue::default();
+                }
+                u.report.ld = self.disc_gradient(t0, t1, u.report.ld, u.forked)?;
+                u.t = t1;
+                if t1 >= n {
+                    self.finish_disc_gradient();
+                    u.disc_ok = self.ascend_disc(u.report.ld.loss);
+                    u.disc_done += 1;
+                    u.t = 0;
+                    if !u.disc_ok || u.disc_done >= u.disc_steps {
+                        u.phase = Phase::Scores;
+                    }
+                }
+            }
+            Phase::Scores => {
+                if let Some(loss) = self.adapt_scores(t0, t1, u.use_d)? {
+                    u.report.adapt_loss = loss;
+                    u.t = 0;
+                    u.phase = if self.cfg.head_only {
+                        Phase::Head
+                    } else {
+                        Phase::Backward
+                    };
+                } else {
+                    u.t = t1;
+                }
+            }
+            Phase::Backward => {
+                u.t = self.score_backward(t0, u.use_d)?;
+                if u.t >= n {
+                    u.t = 0;
+                    u.phase = Phase::Head;
+                }
+            }
+            Phase::Head => {
+                self.head_gradient()?;
+                u.phase = Phase::Done;
+            }
+            Phase::Done => {}
+        }
+        self.upd = Some(u);
+        Ok(())
+    }
+
+    /// Line 20 and the end of the update: the descent step of θ_i and φ_i (or its
+    /// rollback), the counters, Ψ emptied. The update must be complete.
+    fn commit_update(&mut self) -> Result<()> {
+        let Some(u) = self.upd.take() else {
+            return Ok(());
+        };
+        if u.phase != Phase::Done {
+            self.upd = Some(u);
+            return Err(Error::UpdateNotReady {
+                slices_left: self.slices_left(),
+            });
+        }
+        let mut report = u.report;
+        report.disc_applied = u.use_d && u.disc_ok;
         // Line 20: the descent step of θ_i and φ_i.
         let adapt_ok = self.descend_adapted(report.adapt_loss);
         report.adapt_applied = adapt_ok;
-        let rolled = (!disc_ok) as u32 + (!adapt_ok) as u32;
+        let rolled = (!u.disc_ok) as u32 + (!adapt_ok) as u32;
         let c = &mut self.counters;
         c.rollbacks = c.rollbacks.saturating_add(rolled);
         c.total_rollbacks = c.total_rollbacks.saturating_add(rolled as u64);
@@ -1495,9 +1845,9 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
         c.total_adaptations = c.total_adaptations.saturating_add(1);
         self.x_valid = false;
         self.last = report;
+        self.n_buf = 0;
         Ok(())
     }
-
     /// Records the step's x_t in Ψ_x (and G's pre-gain output in Ψ_u2, where Ψ keeps it) as
     /// entry `n`, and whether all of Ψ now holds its entries' features. θ changes only in the
     /// inner update and in [`Navigator::reset`], and both empty Ψ, so every entry's x_t
@@ -1517,10 +1867,9 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
         self.psi_recorded = (n == 0 || self.psi_recorded) && ok;
     }
 
-    /// Ψ_x: `x_t = G(z_t, attr)` for the `n_buf` entries of Ψ, once per inner update (G is
-    /// not changed before the descent step, so every pass reads these bits).
-    fn generate_psi_x(&mut self) -> Result<()> {
-        let n = self.n_buf;
+    /// Ψ_x: `x_t = G(z_t, attr)` for the entries `t0 .. t1` of Ψ, once per inner update (G
+    /// is not changed before the descent step, so every pass reads these bits).
+    fn generate_psi_x(&mut self, t0: usize, t1: usize) -> Result<()> {
         let d = self.w.dims;
         let w = self.w;
         let Ram {
@@ -1535,17 +1884,23 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
         let gen = gen_view(gen1, gen2, &w)?;
         inner::generate(
             &gen,
-            &psi_z[..n * d.noise],
+            &psi_z[t0 * d.noise..t1 * d.noise],
             attr,
-            &mut psi_x[..n * d.feat],
+            &mut psi_x[t0 * d.feat..t1 * d.feat],
             iw,
         )
     }
 
-    /// ∇_ω L_D (Eq. 1, WGAN-GP) over the `n_buf` entries of Ψ into D's gradient buffers,
-    /// with fresh interpolation weights ε; returns L_D and its parts. Ψ_x must be current
-    /// ([`Navigator::generate_psi_x`]).
-    fn disc_gradient(&mut self) -> Result<LdValue> {
+    /// ∇_ω L_D (Eq. 1, WGAN-GP) over the entries `t0 .. t1` of Ψ added into D's gradient
+    /// buffers (zeroed, with fresh interpolation weights ε for all of Ψ, at `t0 = 0`),
+    /// continuing the sums `ld`; returns them. Ψ_x must be current.
+    fn disc_gradient(
+        &mut self,
+        t0: usize,
+        t1: usize,
+        ld: LdValue,
+        forked: bool,
+    ) -> Result<LdValue> {
         let n = self.n_buf;
         let d = self.w.dims;
         let cfg = self.cfg;
@@ -1564,43 +1919,54 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
             iw,
             ..
         } = &mut self.r;
-
-        g_disc1.zero();
-        g_disc_w2.fill(0.0);
-        g_disc_b2.fill(0.0);
-        let ld = {
-            let disc = disc_view(disc1, disc_w2, disc_b2, &w)?;
-            let mut db2 = 0.0f32;
-            let mut grads = DiscGrads {
-                l1: g_disc1.grads(),
-                w2: g_disc_w2,
-                b2: &mut db2,
+        if t0 == 0 {
+            g_disc1.zero();
+            g_disc_w2.fill(0.0);
+            g_disc_b2.fill(0.0);
+            let rng = if forked {
+                &mut self.upd_rng
+            } else {
+                &mut self.rng
             };
-            let inv = 1.0 / n as f32;
             for e in eps[..n].iter_mut() {
-                *e = uniform(&mut self.rng);
+                *e = uniform(rng);
             }
-            let ld = inner::ld_grad_sum(
-                &disc,
-                &psi_s[..n * f],
-                &psi_x[..n * f],
-                &eps[..n],
-                cfg.ld,
-                inv,
-                iw,
-                &mut grads,
-            )?;
-            g_disc_b2[0] = db2;
-            g_disc1.scale(inv);
-            g_disc_w2
-                .iter_mut()
-                .chain(g_disc_b2.iter_mut())
-                .for_each(|v| *v *= inv);
-            ld
+        }
+        let disc = disc_view(disc1, disc_w2, disc_b2, &w)?;
+        let mut grads = DiscGrads {
+            l1: g_disc1.grads(),
+            w2: g_disc_w2,
+            b2: &mut g_disc_b2[0],
         };
-        Ok(ld)
+        let inv = 1.0 / n as f32;
+        inner::ld_grad_sum_from(
+            &disc,
+            &psi_s[t0 * f..t1 * f],
+            &psi_x[t0 * f..t1 * f],
+            &eps[t0..t1],
+            cfg.ld,
+            inv,
+            iw,
+            &mut grads,
+            ld,
+        )
     }
 
+    /// The mean over Ψ of D's gradient (after its last entry).
+    fn finish_disc_gradient(&mut self) {
+        let inv = 1.0 / self.n_buf as f32;
+        let Ram {
+            g_disc1,
+            g_disc_w2,
+            g_disc_b2,
+            ..
+        } = &mut self.r;
+        g_disc1.scale(inv);
+        g_disc_w2
+            .iter_mut()
+            .chain(g_disc_b2.iter_mut())
+            .for_each(|v| *v *= inv);
+    }
     /// Ascent ω ← ω + α1 ∇_ω L_D, only if everything stays finite and `|L_D|` within the
     /// loss bound; returns whether it was applied.
     fn ascend_disc(&mut self, loss: f32) -> bool {
@@ -1632,14 +1998,15 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
         disc_ok
     }
 
-    /// L_ad (Eq. 3) over Ψ and its gradients for θ (G) and φ (the actor head) into their
-    /// gradient buffers; D scores the generated features (`use_d`), else their cosine
+    /// Pass 1 of L_ad (Eq. 3) for the entries `t0 .. t1` of Ψ (the gradient buffers of θ and
+    /// φ zeroed at `t0 = 0`); after the last entry L_ad with its output gradients
+    /// (`Some(loss)`). D scores the generated features (`use_d`), else their cosine
     /// similarity to the observations does (CosSim). Ψ_x must be current.
-    fn adapt_gradient(&mut self, use_d: bool) -> Result<f32> {
+    fn adapt_scores(&mut self, t0: usize, t1: usize, use_d: bool) -> Result<Option<f32>> {
         let n = self.n_buf;
         let d = self.w.dims;
         let cfg = self.cfg;
-        let (f, zd, lh) = (d.feat, d.noise, d.lstm_hidden);
+        let (f, zd) = (d.feat, d.noise);
         let w = self.w;
         let recorded = self.psi_recorded;
         let Ram {
@@ -1648,36 +2015,32 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
             disc1,
             disc_w2,
             disc_b2,
-            actor,
             g_gen1,
             g_gen2,
             g_actor,
             psi_s,
             psi_z,
             psi_p,
-            psi_h,
             psi_x,
             psi_u2,
             d: dvals,
             dd,
             dprobs,
-            dlogits,
-            actor_u,
             attr,
             iw,
             ..
         } = &mut self.r;
-
-        g_gen1.zero();
-        g_gen2.zero();
-        g_actor.zero();
+        if t0 == 0 {
+            g_gen1.zero();
+            g_gen2.zero();
+            g_actor.zero();
+        }
         let gen = gen_view(gen1, gen2, &w)?;
         let disc = disc_view(disc1, disc_w2, disc_b2, &w)?;
         let inp = inner::AdaptInputs {
             attr,
             zs: &psi_z[..n * zd],
             xs: Some(&psi_x[..n * f]),
-            // G's pre-gain outputs, when Ψ keeps them and every step recorded its own.
             u2s: (recorded && !psi_u2.is_empty()).then(|| &psi_u2[..n * f]),
             obs: &psi_s[..n * f],
         };
@@ -1687,23 +2050,71 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
             &mut dprobs[..n * NUM_ACTIONS],
         );
         let (disc, probs) = (use_d.then_some(&disc), &psi_p[..n * NUM_ACTIONS]);
-        // With `head_only` θ takes no step (`descend_adapted`): its gradient (G's backward
-        // pass, most of the work) is not computed and stays zero; the head's is the same bits.
-        let loss = if cfg.head_only {
-            inner::adapt_scores(cfg.adapt_loss, &gen, disc, inp, probs, outs, iw)?
-        } else {
-            inner::adapt_grad(
-                cfg.adapt_loss,
-                &gen,
-                disc,
-                inp,
-                probs,
-                outs,
-                iw,
-                &mut g_gen1.grads(),
-                &mut g_gen2.grads(),
-            )?
+        inner::adapt_scores_part(cfg.adapt_loss, &gen, disc, inp, probs, outs, iw, (t0, t1))
+    }
+
+    /// Pass 2 of L_ad from entry `t` for one batch: θ's gradient (G's backward pass through D
+    /// or the cosine) added into its buffers; returns the entry to continue from. With
+    /// `head_only` θ takes no step (`descend_adapted`) and this pass is skipped: its gradient
+    /// stays zero, the head's is the same bits.
+    fn score_backward(&mut self, t: usize, use_d: bool) -> Result<usize> {
+        let n = self.n_buf;
+        let d = self.w.dims;
+        let (f, zd) = (d.feat, d.noise);
+        let w = self.w;
+        let recorded = self.psi_recorded;
+        let Ram {
+            gen1,
+            gen2,
+            disc1,
+            disc_w2,
+            disc_b2,
+            g_gen1,
+            g_gen2,
+            psi_s,
+            psi_z,
+            psi_x,
+            psi_u2,
+            dd,
+            attr,
+            iw,
+            ..
+        } = &mut self.r;
+        let gen = gen_view(gen1, gen2, &w)?;
+        let disc = disc_view(disc1, disc_w2, disc_b2, &w)?;
+        let inp = inner::AdaptInputs {
+            attr,
+            zs: &psi_z[..n * zd],
+            xs: Some(&psi_x[..n * f]),
+            u2s: (recorded && !psi_u2.is_empty()).then(|| &psi_u2[..n * f]),
+            obs: &psi_s[..n * f],
         };
+        inner::score_backward_part(
+            &gen,
+            use_d.then_some(&disc),
+            inp,
+            &dd[..n],
+            iw,
+            (&mut g_gen1.grads(), &mut g_gen2.grads()),
+            (t, 1),
+        )
+    }
+
+    /// The actor head's gradient of L_ad (line 19) from the output gradients of pass 1.
+    fn head_gradient(&mut self) -> Result<()> {
+        let n = self.n_buf;
+        let lh = self.w.dims.lstm_hidden;
+        let w = self.w;
+        let Ram {
+            actor,
+            g_actor,
+            psi_p,
+            psi_h,
+            dprobs,
+            dlogits,
+            actor_u,
+            ..
+        } = &mut self.r;
         let head = actor.view(w.get(TensorId::ActorW))?;
         actor_head_grad(
             &head,
@@ -1714,10 +2125,8 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
             dlogits,
             actor_u,
             &mut g_actor.grads(),
-        )?;
-        Ok(loss)
+        )
     }
-
     /// Line 20: θ_i, φ_i ← θ_i, φ_i − α2 ∇ (or the normalised step of [`StepRule`]), only if
     /// everything stays finite and `|L_ad|` within the loss bound; returns whether it was
     /// applied.

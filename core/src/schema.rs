@@ -320,6 +320,15 @@ pub const DISC_STEPS_SHIFT: u32 = 8;
 /// Mask of [`DISC_STEPS_SHIFT`]'s field.
 pub const DISC_STEPS_MASK: u32 = 0xFF << DISC_STEPS_SHIFT;
 
+/// Bits 25..31 of the blob header's flags: the inner update's commit delay d
+/// ([`ModelFlags::commit_delay`], 0..=[`MAX_COMMIT_DELAY`]; 0 in every blob written before
+/// the setting: the update takes effect in the step that fills Ψ).
+pub const COMMIT_DELAY_SHIFT: u32 = 25;
+/// Mask of [`COMMIT_DELAY_SHIFT`]'s field.
+pub const COMMIT_DELAY_MASK: u32 = 0x3F << COMMIT_DELAY_SHIFT;
+/// The largest commit delay a blob can record.
+pub const MAX_COMMIT_DELAY: u32 = 63;
+
 /// How the inner loop's descent step on L_ad (Eq. 3) is sized.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
 pub enum StepRule {
@@ -366,6 +375,11 @@ pub struct ModelFlags {
     pub reference_critic: bool,
     /// [`FLAG_HEAD_ONLY`]: the descent step on L_ad adapts only the actor head (G stays at θ).
     pub head_only: bool,
+    /// [`COMMIT_DELAY_MASK`]: the inner update that starts when Ψ fills takes effect `d`
+    /// steps later (0: in the step that fills Ψ); see
+    /// [`NavConfig::commit_delay`](crate::navigator::NavConfig::commit_delay). Values above
+    /// [`MAX_COMMIT_DELAY`] are written as it.
+    pub commit_delay: u32,
 }
 
 impl ModelFlags {
@@ -404,6 +418,7 @@ impl ModelFlags {
             },
             reference_critic: bits & FLAG_REFERENCE_CRITIC_SCALE != 0,
             head_only: bits & FLAG_HEAD_ONLY != 0,
+            commit_delay: (bits & COMMIT_DELAY_MASK) >> COMMIT_DELAY_SHIFT,
         }
     }
 
@@ -456,6 +471,12 @@ impl ModelFlags {
         if self.head_only {
             f |= FLAG_HEAD_ONLY;
         }
+        let d = if self.commit_delay > MAX_COMMIT_DELAY {
+            MAX_COMMIT_DELAY
+        } else {
+            self.commit_delay
+        };
+        f |= d << COMMIT_DELAY_SHIFT;
         f
     }
 }
@@ -552,5 +573,20 @@ mod tests {
         let mut f = old;
         f.disc_steps = 1000;
         assert_eq!(ModelFlags::from_bits(f.bits()).disc_steps, 256);
+        // the commit delay: 0 in older blobs, round trips, saturates, leaves the rest alone
+        assert_eq!(old.commit_delay, 0);
+        for d in [1u32, 7, 20, MAX_COMMIT_DELAY] {
+            let mut f = ModelFlags::from_bits(r | FLAG_HEAD_ONLY);
+            f.commit_delay = d;
+            let g = ModelFlags::from_bits(f.bits());
+            assert_eq!(g, f);
+            assert_eq!(f.bits() & !COMMIT_DELAY_MASK, r | FLAG_HEAD_ONLY);
+        }
+        let mut f = old;
+        f.commit_delay = 1000;
+        assert_eq!(
+            ModelFlags::from_bits(f.bits()).commit_delay,
+            MAX_COMMIT_DELAY
+        );
     }
 }

@@ -96,7 +96,7 @@ fn sizes_consistent_one(d: &Dims) -> Result<(), TestCaseError> {
 
 #[test]
 fn huge_dims_are_rejected_by_parse_and_sizes_never_wrap() {
-    // Case 2 of issue 17: a valid v2 header with every dim u32::MAX and no tensors parsed,
+    // A blob header of huge dims: a valid v2 header with every dim u32::MAX and no tensors parsed,
     // and the sizes computed from its dims overflowed (wrapped without overflow checks).
     let bytes = header_only_blob([u32::MAX; 8]);
     assert_eq!(Blob::parse(&bytes).unwrap_err(), BlobError::DimsTooLarge);
@@ -128,7 +128,7 @@ fn small_blob(seed: u64, int8: bool) -> Vec<u8> {
 
 #[test]
 fn manual_schedule_refuses_a_step_with_a_full_buffer() {
-    // Case 1 of issue 17: the (K+1)-th step() without adapt_now()/clear_buffer() indexed past
+    // A full buffer under the manual schedule: the (K+1)-th step() without adapt_now()/clear_buffer() indexed past
     // Ψ ("range end index 10752 out of range for slice of length 10240" with MCU dims).
     const K: usize = 20;
     let bytes = small_blob(3, false);

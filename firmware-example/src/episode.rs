@@ -51,6 +51,12 @@ use gman_core::{Action, Dims};
 pub const DIMS: Dims = Dims::MCU.with_map(3, 3, 8);
 /// Capacity of the buffer Ψ: the paper's k = 20, so an inner update every 20 steps.
 pub const K: usize = 20;
+/// The commit delay the firmware runs a blob with that records none
+/// ([`NavConfig::commit_delay`]; a blob's own non-zero delay wins): the inner update that
+/// starts when Ψ fills is computed in slices inside the next 20 steps and takes effect at the
+/// end of the 20th, so no step carries more than about a twentieth of it (see
+/// `docs/device.md`; `gman eval --commit-delay 20` runs the same schedule on the host).
+pub const COMMIT_DELAY: u32 = 20;
 /// Floats of RAM the navigator needs ([`arena_len`] for [`DIMS`], `Efficient`, [`K`]).
 pub const ARENA_LEN: usize = arena_len(&DIMS, AdaptMode::Efficient, K);
 /// Magic bytes of an episode file.
@@ -270,9 +276,12 @@ pub trait Probe {
     fn line(&mut self, args: fmt::Arguments<'_>);
     /// Called right before [`Navigator::step`].
     fn step_begin(&mut self) {}
-    /// Called right after [`Navigator::step`] returned; `adapted` is true when that step ran
-    /// an inner update.
-    fn step_end(&mut self, _adapted: bool) {}
+    /// Called right after [`Navigator::step`] returned; `adapted` is true when that step
+    /// committed an inner update, `working` when it computed (part of) one.
+    fn step_end(&mut self, _adapted: bool, _working: bool) {}
+    /// An inner update took effect `steps` steps after the step that filled Ψ (1: in that
+    /// step itself, a commit delay of 0).
+    fn update_committed(&mut self, _steps: u32) {}
 }
 
 /// Runs the episode read from `src` with a `Navigator<Efficient, K>` over the [`DIMS`] blob
@@ -291,7 +300,10 @@ pub fn run(
     // The configuration the blob asks for (adaptation on or off, EMD, noise, α1, α2 and the
     // cap on inner updates; v1 blobs: the paper's rates and cap), never this program's own
     // defaults: the host evaluated the model with exactly these settings.
-    let cfg = NavConfig::from_header(blob.header());
+    let mut cfg = NavConfig::from_header(blob.header());
+    if cfg.commit_delay == 0 {
+        cfg.commit_delay = COMMIT_DELAY;
+    }
     probe.line(format_args!(
         "episode: {} ({} steps, seed {})",
         ep.label(),
@@ -312,6 +324,12 @@ pub fn run(
         cfg.alpha_disc.to_bits(),
         cfg.alpha_adapt.to_bits(),
     ));
+    probe.line(format_args!(
+        "schedule: {:?}, commit_delay={} (blob: {})",
+        cfg.schedule,
+        cfg.commit_delay,
+        blob.header().model_flags().commit_delay
+    ));
     let mut nav: Navigator<'_, Efficient, K> = Navigator::new(weights, arena, cfg)?;
     nav.reset(ep.attributes(), ep.seed)?;
     // G's output at z = 0 before any inner update, to show how far the updates move G
@@ -324,11 +342,23 @@ pub fn run(
     ));
     let mut obs = [0.0f32; DIMS.feat];
     let mut map = [0.0f32; DIMS.map_len()];
+    // The step whose Ψ filled, while its update is pending.
+    let mut filled_at: Option<usize> = None;
     for t in 0..ep.steps() {
         ep.observation(src, t, &mut obs, &mut map)?;
+        let working = nav.update_pending();
         probe.step_begin();
         let out = nav.step_map(&obs, &map, &[])?;
-        probe.step_end(out.adapted);
+        probe.step_end(out.adapted, working || out.adapted);
+        if out.adapted {
+            let after = filled_at.take().map_or(1, |f| (t - f) as u32);
+            probe.update_committed(after);
+            probe.line(format_args!(
+                "  update committed {after} steps after Ψ filled"
+            ));
+        } else if nav.update_pending() && filled_at.is_none() {
+            filled_at = Some(t);
+        }
         let c = nav.counters();
         let p = out.probs.map(f32::to_bits);
         probe.line(format_args!(

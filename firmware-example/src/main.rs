@@ -111,12 +111,26 @@ fn main() -> ! {
     }
 }
 
-/// The firmware's [`Probe`]: prints result lines, times each `step()` with SysTick.
+/// The control loop's rate: a step is released every `CPU_HZ / RATE_HZ` cycles.
+const RATE_HZ: u64 = 25;
+/// The period in SysTick ticks (at 1 instruction per cycle).
+const PERIOD_TICKS: u32 = (CPU_HZ / RATE_HZ / INSNS_PER_TICK as u64) as u32;
+
+/// The firmware's [`Probe`]: prints result lines, releases each `step()` at a fixed rate
+/// ([`RATE_HZ`], a busy-waiting main-loop cadence on SysTick: one task, so no locking, and the
+/// inner update's slices run inside the steps, each bounded) and times it.
 struct Device<'c> {
     clock: &'c Clock,
+    /// SysTick at the current step's release (`None` before the first step).
+    release: Option<u32>,
     t0: u32,
     plain: Stats,
     update: Stats,
+    all: Stats,
+    /// Smallest slack before the next release, in ticks, and the steps that missed it.
+    min_slack: u32,
+    misses: u32,
+    commit_steps: u32,
 }
 
 impl Probe for Device<'_> {
@@ -124,15 +138,37 @@ impl Probe for Device<'_> {
         hprintln!("{}", args);
     }
     fn step_begin(&mut self) {
+        // Wait for the release time: one period after the previous release.
+        let r = match self.release {
+            Some(prev) => {
+                while self.clock.ticks_since(prev) < PERIOD_TICKS {}
+                prev.wrapping_sub(PERIOD_TICKS) & 0x00FF_FFFF
+            }
+            None => self.clock.now(),
+        };
+        self.release = Some(r);
         self.t0 = self.clock.now();
     }
-    fn step_end(&mut self, adapted: bool) {
+    fn step_end(&mut self, _adapted: bool, working: bool) {
         let dt = self.clock.ticks_since(self.t0);
-        if adapted {
+        self.all.add(dt);
+        if working {
             self.update.add(dt)
         } else {
             self.plain.add(dt)
         }
+        // Time left before the next release (a late step counts as a miss).
+        let used = self.release.map_or(dt, |r| self.clock.ticks_since(r));
+        match PERIOD_TICKS.checked_sub(used) {
+            Some(slack) => self.min_slack = self.min_slack.min(slack),
+            None => {
+                self.misses += 1;
+                self.min_slack = 0;
+            }
+        }
+    }
+    fn update_committed(&mut self, steps: u32) {
+        self.commit_steps = self.commit_steps.max(steps);
     }
 }
 
@@ -160,11 +196,11 @@ fn selftest_phase() -> Result<(), Failure> {
 
 /// The scripted navigator episode (not inlined, for the same reason).
 #[inline(never)]
-fn navigator_phase(dev: &mut Device<'_>) -> Result<(), Failure> {
+fn navigator_phase(dev: &mut Device<'_>) -> Result<u32, Failure> {
     let mut file = HostFile::open(EPISODE_PATH)?;
-    with_arena(|arena| episode::run(BLOB, &mut file, arena, dev))
+    let c = with_arena(|arena| episode::run(BLOB, &mut file, arena, dev))
         .ok_or(Failure::Episode("arena already taken"))??;
-    Ok(())
+    Ok(c.adaptations)
 }
 
 const STACK_SATURATED: Failure =
@@ -189,13 +225,18 @@ fn run() -> Result<(), Failure> {
 
     let mut dev = Device {
         clock: &clock,
+        release: None,
         t0: 0,
         plain: Stats::EMPTY,
         update: Stats::EMPTY,
+        all: Stats::EMPTY,
+        min_slack: u32::MAX,
+        misses: 0,
+        commit_steps: 0,
     };
-    navigator_phase(&mut dev)?;
+    let updates = navigator_phase(&mut dev)?;
 
-    let (p, u) = (dev.plain, dev.update);
+    let (p, u, all) = (dev.plain, dev.update, dev.all);
     let tick = INSNS_PER_TICK as u64;
     hprintln!(
         "# step without inner update: steps={} min_insns={} mean_insns={} max_insns={}",
@@ -211,9 +252,11 @@ fn run() -> Result<(), Failure> {
         u.mean_insns(),
         u.max as u64 * tick
     );
-    let update_alone = u.mean_insns().saturating_sub(p.mean_insns());
+    // What the steps that computed an update took beyond plain steps, per update.
+    let update_alone = (u.sum * tick).saturating_sub(u.n as u64 * p.mean_insns())
+        / updates.max(1) as u64;
     hprintln!(
-        "# inner update alone (update step - plain step): update_insns={}",
+        "# inner update alone (update steps - plain steps, per update): update_insns={}",
         update_alone
     );
     hprintln!(
@@ -231,6 +274,21 @@ fn run() -> Result<(), Failure> {
     let stack_navigator = measure::stack_peak().ok_or(STACK_SATURATED)?;
     let stack = stack_selftest.max(stack_navigator);
     let (flash, stat) = (measure::flash_bytes(), measure::static_ram_bytes());
+    hprintln!(
+        "# cadence: rate_hz={} period_insns={} min_slack_insns={} deadline_misses={}",
+        RATE_HZ,
+        PERIOD_TICKS as u64 * tick,
+        dev.min_slack as u64 * tick,
+        dev.misses
+    );
+    hprintln!(
+        "# budget: step_mean_insns={} step_max_insns={} update_commit_steps={} flash_bytes={} ram_bytes={}",
+        all.mean_insns(),
+        all.max as u64 * tick,
+        dev.commit_steps,
+        flash,
+        stat + stack
+    );
     hprintln!(
         "# stack: selftest_stack_bytes={} navigator_stack_bytes={}",
         stack_selftest,

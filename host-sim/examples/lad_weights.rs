@@ -1,4 +1,4 @@
-//! Issue 14, item 5: what the per-step weight of L_ad says about the scene. Eq. 3 sharpens the
+//! What the per-step weight of L_ad says about the scene. Eq. 3 sharpens the
 //! actor head's action distribution at step t in proportion to a per-step score: D(x_t) for
 //! GMAN (x_t = G(SE(y), z_t), whatever the agent sees) and cos(x_t, s_t) for gman-cossim (the
 //! generated feature against the current observation). This runs a model's val episodes with

@@ -1,4 +1,4 @@
-//! Recognition probe (issue 13, ceiling 3): can "is the target visible now?" be read off the
+//! Recognition probe (the third ceiling of docs/ceilings.md): can "is the target visible now?" be read off the
 //! observation and the target feature x_t at all, and how much does it matter whether x_t
 //! comes from the pre-trained generator G or is the target's true feature in the scene?
 //!

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# Issue 13's ceiling diagnostics on the real floor plans and the official val episodes (README
-# "Ceilings"): A3C+FG with the pooled observation and with a 3x3 spatial map, each trained
+# Ceiling diagnostics on the real floor plans and the official val episodes (docs/ceilings.md):
+# A3C+FG with the pooled observation and with a 3x3 spatial map, each trained
 # (a) with the A3C loss, (b) with 30-step training episodes, (c) by DAgger imitation of the
 # shortest-path oracle, (d) with the target's true feature in place of G's output; GMAN in the
 # device's mode with adaptation on and off; then the recognition probe. Runs land in runs/ceilings/ (existing outputs are reused).

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Issue 14's claim on the 3x3 map (README "The claim, measured"): GMAN (Efficient mode,
+# The claim on the 3x3 map (docs/results.md): GMAN (Efficient mode,
 # α = 1e-2) against its controls — gman-noemd (θ trained by the outer loop, no inner loop),
 # A3C+FG and A3C — over SEEDS at UPDATES each, all 8000 val episodes per run, GMAN also with
 # adaptation off at test time; then the table with Welch's t against GMAN. Re-running skips
@@ -7,7 +7,7 @@
 # the results table (gman-cossim, and a3c-ps / gman-ps with a pre-trained PS module) for the
 # seeds in EXTRA_SEEDS.
 #   DATA=../shared/data/gman SEEDS="1 2 3 4 5" bash host-sim/scripts/claim.sh
-# Session 8 (B = 16, 6000 updates, the defaults); session 6 was
+# The defaults are B = 16 and 6000 updates; the one-episode-at-a-time runs are
 #   BATCH_ENVS=1 UPDATES=15000 OUT=runs/claim bash host-sim/scripts/claim.sh
 set -euo pipefail
 cd "$(dirname "$0")/../.."

@@ -5,7 +5,7 @@
 //! inner rate α and cap), this records G(SE(y), 0) before the episode and after its inner
 //! updates, and its distance to the target's true feature in that scene
 //! ([`World::object_feature`]). [`Summary`] averages over episodes with at least one inner
-//! update; the goal is that adaptation closes at least 25% of the distance.
+//! update; the target is that adaptation closes at least 25% of the distance.
 //! [`plot`] draws the picture of Fig. 3: environment features (the views the agent saw),
 //! initial, adapted and true target features of two scenes, projected on their first two
 //! principal components.
@@ -339,7 +339,7 @@ impl Plane {
     }
 }
 
-/// The drawing range of `all` (a unit square around 0 when empty), padded by 5%.
+/// The drawing range of `all` (a unit square centred on 0 when empty), padded by 5%.
 fn plot_range(all: &[(f64, f64)]) -> (std::ops::Range<f64>, std::ops::Range<f64>) {
     let (mut x0, mut x1, mut y0, mut y1) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
     for &(x, y) in all {

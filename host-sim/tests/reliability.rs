@@ -1,4 +1,4 @@
-//! Issue 17 ("no panic, no hang, no silent wrong result, no lost run data"): each case as a
+//! Reliability ("no panic, no hang, no silent wrong result, no lost run data"): each case as a
 //! reproduction through the built `gman` binary or the library, with crafted blobs,
 //! checkpoints, data files and run directories in temporary directories.
 

@@ -768,7 +768,7 @@ fn cossim_variant_adapts_without_discriminator() {
     assert_ne!(before[4], after[4], "actor head adapted");
 }
 
-/// The inner rule's levers (issue 14): the normalised step moves the adapted parameters
+/// The inner rule's levers: the normalised step moves the adapted parameters
 /// (θ and the actor head) by exactly α2 in L2, the per-group step moves θ and the head by α2
 /// each, more D steps move ω further, and D's head restarts at zero when asked.
 #[test]

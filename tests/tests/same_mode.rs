@@ -85,6 +85,7 @@ fn check_with(mode: AdaptMode, dims: gman_core::Dims, rule: InnerRule) {
     let world = World::synthetic(11);
     let mut m = model(mode, dims);
     m.inner_rule = rule;
+    let cycle = K + rule.commit_delay as usize;
     let blob = m.to_blob(false).unwrap();
     assert_eq!(Blob::parse(&blob).unwrap().header().adapt_mode(), mode);
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(2);
@@ -118,9 +119,9 @@ fn check_with(mode: AdaptMode, dims: gman_core::Dims, rule: InnerRule) {
             bits(&x),
             "adapted x_t differs ({mode:?})"
         );
-        // The device also adapts at the very last step when an episode ends on a multiple
-        // of k; the trainer has no later segment to use it for.
-        if actions.len() % K != 0 {
+        // The device also adapts at the very last step when an episode ends on a commit
+        // step (k + d, 2 (k + d), ...); the trainer has no later segment to use it for.
+        if actions.len() % cycle != 0 {
             assert_eq!(st.adaptations, n);
         }
         adapted += st.adaptations;
@@ -155,7 +156,7 @@ fn an_adapting_blob_refuses_the_other_mode() {
     assert!(Navigator::<Efficient, K>::new(w, &mut arena, b.nav_config()).is_err());
 }
 
-/// The issue-14 levers travel in the blob too: the per-group normalised step, D's head reset
+/// The inner rule's levers travel in the blob too: the per-group normalised step, D's head reset
 /// with every episode, α1 ≠ α2, several D steps and the reference's L_ad form and critic
 /// scale give the same run on both sides.
 #[test]
@@ -168,6 +169,7 @@ fn trainer_and_device_agree_with_the_levers() {
         adapt_loss: AdaptLossName::Reference,
         reference_critic: true,
         head_only: false,
+        commit_delay: 0,
     };
     check_with(AdaptMode::Efficient, gman_core::Dims::MCU, rule);
     // The reference's default: only the actor head adapts (with the normalised step, whose
@@ -178,4 +180,36 @@ fn trainer_and_device_agree_with_the_levers() {
         ..InnerRule::default()
     };
     check_with(AdaptMode::Efficient, gman_core::Dims::MCU, head_only);
+}
+
+/// The inner update committed `d` steps after Ψ fills (computed in slices inside the steps
+/// of the commit window on the device, at once at the end of the trainer's longer segment):
+/// the same run on both sides, in both modes and with the map model.
+#[test]
+fn trainer_and_device_agree_with_a_commit_delay() {
+    for d in [1u32, 13] {
+        let rule = InnerRule {
+            commit_delay: d,
+            ..InnerRule::default()
+        };
+        check_with(AdaptMode::Efficient, gman_core::Dims::MCU, rule);
+        check_with(AdaptMode::Full, gman_core::Dims::MCU, rule);
+        check_with(
+            AdaptMode::Efficient,
+            gman_core::Dims::MCU.with_map(2, 3, 4),
+            rule,
+        );
+    }
+    // With the levers too (several D steps draw ε from the update's own generator).
+    let rule = InnerRule {
+        disc_lr: Some(0.1),
+        disc_steps: 2,
+        step_rule: StepRuleName::PerGroup,
+        disc_head_reset: true,
+        adapt_loss: AdaptLossName::Reference,
+        reference_critic: true,
+        head_only: false,
+        commit_delay: 7,
+    };
+    check_with(AdaptMode::Efficient, gman_core::Dims::MCU, rule);
 }

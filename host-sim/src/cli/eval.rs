@@ -39,6 +39,11 @@ pub struct EvalArgs {
     /// (the reference implementation's default).
     #[arg(long)]
     pub adapt_head_only: bool,
+    /// Override the inner update's commit delay D (steps from Ψ filling to the update taking
+    /// effect, 0..=63; default: the model's, 0 for models trained without it), e.g. to
+    /// measure what a device's delay costs a model.
+    #[arg(long, value_name = "D")]
+    pub commit_delay: Option<u32>,
     /// At most N episodes per episode file (file order).
     #[arg(long, value_name = "N")]
     pub episodes: Option<usize>,
@@ -75,6 +80,7 @@ impl EvalArgs {
             inner_lr: self.inner_lr,
             max_inner: self.max_inner,
             head_only: self.adapt_head_only,
+            commit_delay: self.commit_delay,
         }
     }
 

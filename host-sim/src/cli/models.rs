@@ -21,6 +21,8 @@ pub struct ModelOverrides {
     pub max_inner: Option<u32>,
     /// The descent step adapts only the actor head (G stays at θ).
     pub head_only: bool,
+    /// The inner update's commit delay in steps.
+    pub commit_delay: Option<u32>,
 }
 
 /// Model-file agents for `gman eval`: a checkpoint or a blob.
@@ -37,6 +39,10 @@ pub fn model_factory(path: &Path, ov: &ModelOverrides) -> Result<(AgentFactory, 
     }
     if ov.head_only {
         model.inner_rule.head_only = true;
+    }
+    if let Some(d) = ov.commit_delay {
+        model.inner_rule.commit_delay = d;
+        model.inner_rule.validate()?;
     }
     let model = Arc::new(model);
     let label = format!("{} ({})", model.method.name(), path.display());

@@ -95,7 +95,7 @@ pub struct TrainArgs {
     /// as matrices (1: one episode at a time; methods with an inner loop: one navigator per
     /// episode, first-order meta-gradient only). Every update then holds at least this many
     /// episodes per worker. Default: 16 (measured: README, "Batched training, B = 16"), 1 with
-    /// `--meta-order 2`; runs before session 8 used 1.
+    /// `--meta-order 2`; pass 1 to reproduce the one-episode-at-a-time results.
     #[arg(help_heading = "Optimisation", long)]
     pub batch_envs: Option<usize>,
     /// Outer Adam learning rate β (overrides the config).
@@ -151,6 +151,12 @@ pub struct TrainArgs {
     /// the head). Recorded in the blob.
     #[arg(help_heading = "Inner loop (adaptation)", long)]
     pub adapt_head_only: bool,
+    /// The inner update's commit delay D in steps (0..=63): the update that starts when Ψ
+    /// fills takes effect D steps later, the steps between acting on the current parameters
+    /// and not recorded in Ψ; what a device that computes the update in slices, or at a lower
+    /// priority, runs (see docs/device.md). 0: at once (the paper). Recorded in the blob.
+    #[arg(long, default_value_t = 0, value_name = "D")]
+    pub commit_delay: u32,
     /// Minimum steps per worker and update.
     #[arg(help_heading = "Episodes and reward", long, default_value_t = 40)]
     pub min_steps: u32,
@@ -332,6 +338,7 @@ fn inner_rule(a: &TrainArgs) -> gman_host_sim::nav::model::InnerRule {
         adapt_loss: a.adapt_loss,
         reference_critic: a.reference_critic,
         head_only: a.adapt_head_only,
+        commit_delay: a.commit_delay,
     }
 }
 
@@ -448,7 +455,12 @@ fn check_train_flags(a: &TrainArgs) -> Result<()> {
         bail!("--meta-order 2 is implemented for the Full adaptation mode; add --adapt-mode full");
     }
     inner_rule(a).validate()?;
-    if a.meta_order == 2 && a.method.adapts_in_training() && !inner_rule(a).is_paper() {
+    // The commit delay only moves the update in time: the meta-gradient is the same recursion.
+    let rule = gman_host_sim::nav::model::InnerRule {
+        commit_delay: 0,
+        ..inner_rule(a)
+    };
+    if a.meta_order == 2 && a.method.adapts_in_training() && !rule.is_paper() {
         bail!("--meta-order 2 differentiates the paper's inner rule only (one D step, the gradient step, α1 = α2); use --meta-order 1 with --disc-lr, --disc-steps, --step-rule, --disc-head-reset, --adapt-loss, --reference-critic or --adapt-head-only");
     }
     Ok(())
@@ -754,6 +766,12 @@ fn check_resumed_model(a: &TrainArgs, m: &NavModel, explicit: &dyn Fn(&str) -> b
         a.adapt_head_only,
         m.inner_rule.head_only,
         explicit("adapt_head_only"),
+    )?;
+    resumed(
+        "--commit-delay",
+        a.commit_delay,
+        m.inner_rule.commit_delay,
+        explicit("commit_delay"),
     )?;
     resumed("--method", a.method, m.method, explicit("method"))?;
     if let Some(mode) = a.adapt_mode {

@@ -259,7 +259,7 @@ fn default_max_inner() -> u32 {
     DEFAULT_MAX_INNER
 }
 
-/// The inner loop's rule where it departs from the paper's (issue 14's levers), recorded in
+/// The inner loop's rule where it departs from the paper's (the levers of docs/emd-analysis.md), recorded in
 /// checkpoints and blobs so that evaluation and the device run the rule that was meta-learned.
 /// [`InnerRule::default`] is the paper's: α1 = α2, one D step, the plain gradient step.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -290,6 +290,15 @@ pub struct InnerRule {
     /// implementation's default; the paper: G and the head); not written when false.
     #[serde(default, skip_serializing_if = "is_false")]
     pub head_only: bool,
+    /// The inner update's commit delay d in steps (gman-core's `NavConfig::commit_delay`):
+    /// it takes effect d steps after Ψ fills, the steps between not recorded (0, the
+    /// default: at once; not written when 0).
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub commit_delay: u32,
+}
+
+fn is_zero(v: &u32) -> bool {
+    *v == 0
 }
 
 fn is_paper_loss(l: &AdaptLossName) -> bool {
@@ -343,6 +352,7 @@ impl Default for InnerRule {
             adapt_loss: AdaptLossName::Paper,
             reference_critic: false,
             head_only: false,
+            commit_delay: 0,
         }
     }
 }
@@ -362,6 +372,13 @@ impl InnerRule {
         }
         if !(1..=256).contains(&self.disc_steps) {
             bail!("disc-steps must be in 1..=256, got {}", self.disc_steps);
+        }
+        if self.commit_delay > gman_core::schema::MAX_COMMIT_DELAY {
+            bail!(
+                "commit-delay must be in 0..={}, got {}",
+                gman_core::schema::MAX_COMMIT_DELAY,
+                self.commit_delay
+            );
         }
         Ok(())
     }
@@ -802,6 +819,7 @@ impl NavModel {
             adapt_loss: self.inner_rule.adapt_loss.into(),
             reference_critic: self.inner_rule.reference_critic,
             head_only: self.inner_rule.head_only,
+            commit_delay: self.inner_rule.commit_delay,
         }
     }
 
@@ -909,6 +927,7 @@ pub fn model_from_blob(bytes: &[u8], method: Option<Method>) -> Result<NavModel>
         adapt_loss: flags.adapt_loss.into(),
         reference_critic: flags.reference_critic,
         head_only: flags.head_only,
+        commit_delay: flags.commit_delay,
     };
     Ok(NavModel {
         method,
@@ -1109,6 +1128,7 @@ mod inner_rule_tests {
             adapt_loss: AdaptLossName::Reference,
             reference_critic: true,
             head_only: true,
+            commit_delay: 17,
         };
         let mut ck = Checkpoint::new(m.metadata());
         m.add_to_checkpoint(&mut ck).unwrap();
@@ -1129,6 +1149,8 @@ mod inner_rule_tests {
         assert_eq!(cfg.ld.critic_scale, 10.0);
         assert_eq!(m.nav_config(false).ld.critic_scale, 10.0);
         assert_eq!(cfg.disc_steps, m.nav_config(false).disc_steps);
+        assert_eq!(cfg.commit_delay, 17);
+        assert_eq!(m.nav_config(true).commit_delay, 17);
         // Nonsense in a file is refused with the field named.
         let mut bad = m.metadata();
         bad["inner_rule"]["disc_steps"] = serde_json::json!(0);

@@ -473,10 +473,13 @@ fn train_episode_in<M: Mode>(
         add_adapted(grads, &mt, &mp)?;
     }
     finish_stats(&mut stats, &env, &nav, &tally);
+    // D learns from a buffer whose delayed update had not committed yet.
+    nav.settle()?;
     Ok((stats, disc_after_episode(&nav)?))
 }
 
-/// Algorithm 1, lines 6-13: up to `K` steps (fewer when the episode ends), each observed
+/// Algorithm 1, lines 6-13: up to `K` steps (fewer when the episode ends; `K + d` with a
+/// commit delay `d`, whose last `d` steps run before the update and are not in Ψ), each observed
 /// (s_t, the PS input, the map), stepped by the navigator (x_t = G_θi(SE(y), z_t), the
 /// action from π, the step recorded in Ψ) and recorded in `seg` for the backward pass.
 #[allow(clippy::too_many_arguments)]
@@ -491,7 +494,8 @@ fn rollout_segment<M: Mode>(
     actions: &mut Vec<u8>,
 ) -> Result<()> {
     seg.clear();
-    while seg.len() < K && !env.is_done() {
+    // k steps recorded in Ψ, then the steps of a delayed update's commit window.
+    while (seg.len() < K || nav.in_commit_window()) && !env.is_done() {
         let obs = env.observe();
         let ps = ps_input(model, worker.ps, &obs.features)?;
         if !grid.is_empty() {

@@ -283,9 +283,10 @@ fn run_in<'w, M: Mode>(
         )?;
         let ready: Vec<usize> = (0..b)
             .filter(|&i| {
-                eps[i]
-                    .as_ref()
-                    .is_some_and(|e| e.seg.len() == K || e.env.is_done())
+                // k recorded steps, then the commit window of a delayed update (if any).
+                eps[i].as_ref().is_some_and(|e| {
+                    (e.seg.len() >= K && !navs[i].in_commit_window()) || e.env.is_done()
+                })
             })
             .collect();
         if ready.is_empty() {
@@ -379,6 +380,8 @@ fn run_in<'w, M: Mode>(
                 let ep = eps[i].take().ok_or_else(|| anyhow!("empty slot"))?;
                 let mut stats = ep.stats;
                 finish_stats(&mut stats, &ep.env, nav, &ep.tally);
+                // D learns from a buffer whose delayed update had not committed yet.
+                nav.settle()?;
                 done.push((ep.e, stats, disc_after_episode(nav)?));
             } else {
                 let ep = eps[i].as_mut().ok_or_else(|| anyhow!("empty slot"))?;

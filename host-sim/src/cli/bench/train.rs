@@ -75,7 +75,7 @@ pub fn rows(updates: u64) -> Result<Vec<TrainRow>> {
                 .chain(full);
             for (b, min_steps) in configs {
                 // gman `paper` (Full mode) with B > 1: one copy of G per slot (its arena)
-                // and no speed-up (README, session 7); not measured.
+                // and no speed-up (docs/training.md); not measured.
                 if b > 1 && method == Method::Gman && preset == "paper" {
                     continue;
                 }
