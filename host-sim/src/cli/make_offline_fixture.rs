@@ -15,11 +15,24 @@ pub struct MakeOfflineFixtureArgs {
     /// Seed of the attribute vectors and feature values.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
+    /// Name the kitchen and living-room folders `FloorPlanN_physics`, as SAVN's download does
+    /// (default: `FloorPlanN`, GMAN's).
+    #[arg(long)]
+    pub savn_names: bool,
+    /// Name of each folder's visibility file, e.g. `visible_object_map_1.5.json` (VTNet, HOZ);
+    /// read it back with `--visible-file`.
+    #[arg(long, value_name = "FILE", default_value = gman_host_sim::sim::offline::VISIBLE_FILE)]
+    pub visible_file: String,
 }
 
 /// Runs `gman make-offline-fixture`.
 pub fn cmd_make_offline_fixture(a: MakeOfflineFixtureArgs) -> Result<()> {
-    let info = gman_host_sim::sim::offline::fixture::write_fixture(&a.out, a.seed)?;
+    let info = gman_host_sim::sim::offline::fixture::write_fixture_named(
+        &a.out,
+        a.seed,
+        a.savn_names,
+        &a.visible_file,
+    )?;
     println!(
         "wrote {}: scenes {}, {} val episodes",
         a.out.display(),
