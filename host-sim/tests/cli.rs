@@ -366,3 +366,58 @@ fn train_noise_flag_reaches_the_blob() {
     let (ok, _, err) = gman(&["train", "--noise", "none", "--out", run.to_str().unwrap()]);
     assert!(!ok && err.contains("--noise"), "{err}");
 }
+
+#[test]
+fn demo_writes_summary_pictures_and_intervals() {
+    let d = tmp("demo");
+    let out = d.join("demo");
+    let (ok, stdout, stderr) = gman(&[
+        "demo",
+        "--updates",
+        "20",
+        "--episodes",
+        "10",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(ok, "{stderr}");
+    assert!(stdout.contains("[95% CI]"), "{stdout}");
+    assert!(stdout.contains("80 val episodes per agent"), "{stdout}");
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    assert_eq!(v["split"], "val");
+    assert_eq!(v["updates"], 20);
+    let agents = v["agents"].as_array().unwrap();
+    let names: Vec<&str> = agents
+        .iter()
+        .map(|a| a["agent"].as_str().unwrap())
+        .collect();
+    assert_eq!(names, ["random", "a3c-fg", "gman"]);
+    for a in agents {
+        assert_eq!(a["episodes"], 80);
+        for k in ["unseen", "seen"] {
+            let r = &a[k];
+            assert_eq!(r["episodes"], 40);
+            let n = r["successes"].as_f64().unwrap();
+            let sr = r["sr"]["value"].as_f64().unwrap();
+            assert!((sr - 100.0 * n / 40.0).abs() < 1e-9, "{r}");
+            let (lo, hi) = (
+                r["sr"]["lo"].as_f64().unwrap(),
+                r["sr"]["hi"].as_f64().unwrap(),
+            );
+            // A Wilson interval of 40 trials is never narrower than a few percent and always
+            // holds the rate.
+            assert!(lo <= sr && sr <= hi && hi - lo > 5.0, "{r}");
+            let spl = &r["spl"];
+            assert!(spl["lo"].as_f64().unwrap() <= spl["value"].as_f64().unwrap());
+            assert!(spl["value"].as_f64().unwrap() <= spl["hi"].as_f64().unwrap());
+        }
+    }
+    assert!(v["gman_vs_a3c_fg_distinguishable"].is_boolean());
+    assert_eq!(v["verdict"].as_array().unwrap().len(), 3);
+    for png in ["curve.png", "episode.png"] {
+        let bytes = std::fs::read(out.join(png)).unwrap();
+        assert_eq!(&bytes[1..4], b"PNG", "{png}");
+    }
+    assert!(stdout.contains("target/release/gman"), "{stdout}");
+}

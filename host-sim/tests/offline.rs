@@ -16,7 +16,7 @@ use gman_core::{Action, Dims, FEATURE_DIM};
 use gman_host_sim::nav::agent::NavAgent;
 use gman_host_sim::nav::model::{load_model, Method, NavModel};
 use gman_host_sim::nav::trainer::{train, RunSettings, TrainOptions, TrainState};
-use gman_host_sim::sim::offline::fixture::{write_fixture, FixtureInfo};
+use gman_host_sim::sim::offline::fixture::{write_fixture, write_fixture_named, FixtureInfo};
 use gman_host_sim::sim::offline::{self, h5, state_key, MAP_LEN, MAP_SHAPE};
 use gman_host_sim::sim::spatial::MapGrid;
 use gman_host_sim::sim::{
@@ -723,4 +723,102 @@ fn hand_made_scene_loads_and_bad_files_are_named() {
         e.contains("0.00|0.25|90|0") && e.contains("is not a node") && e.contains("graph.json"),
         "{e}"
     );
+}
+
+/// The oracle's results on every val episode of `w`.
+fn oracle_results(w: &World) -> Vec<gman_host_sim::sim::EpisodeResult> {
+    let episodes = w.episodes(Split::Val, None).unwrap();
+    let cfg = EvalConfig {
+        reward: RewardKind::Mixed,
+        limits: EpisodeLimits::default(),
+        progress: false,
+    };
+    evaluate(w, &episodes, |_| Box::new(OracleAgent), &cfg)
+}
+
+#[test]
+fn savn_folder_names_load_every_scene_and_the_oracle_scores_100() {
+    let _serial = serial();
+    let d = tmp("savn-names");
+    let info = write_fixture_named(&d, 3, true, offline::VISIBLE_FILE).unwrap();
+    // Every fixture scene is a kitchen: all folders are in SAVN's naming.
+    for s in &info.scenes {
+        assert!(d.join(format!("{s}_physics")).is_dir(), "{s}");
+        assert!(!d.join(s).exists(), "{s}");
+    }
+    let w = World::load(&d).unwrap();
+    let mut names: Vec<&str> = w.scenes.iter().map(|s| s.name.as_str()).collect();
+    names.sort_unstable();
+    let mut want: Vec<&str> = info.scenes.iter().map(String::as_str).collect();
+    want.sort_unstable();
+    assert_eq!(names, want, "scenes keep their FloorPlanN names");
+    let results = oracle_results(&w);
+    assert_eq!(results.len(), info.episodes);
+    assert!(results
+        .iter()
+        .all(|r| r.metrics.success && r.metrics.spl == 1.0));
+    // The same results as the GMAN-named fixture.
+    let gman_sr: Vec<_> = oracle_results(world())
+        .iter()
+        .map(|r| (r.metrics.path_length, r.metrics.shortest_path_length))
+        .collect();
+    let savn_sr: Vec<_> = results
+        .iter()
+        .map(|r| (r.metrics.path_length, r.metrics.shortest_path_length))
+        .collect();
+    assert_eq!(gman_sr, savn_sr);
+
+    // Mixed namings in one directory load too; one scene in both namings is refused.
+    std::fs::rename(d.join("FloorPlan2_physics"), d.join("FloorPlan2")).unwrap();
+    assert_eq!(World::load(&d).unwrap().scenes.len(), info.scenes.len());
+    copy_dir(&d.join("FloorPlan2"), &d.join("FloorPlan2_physics"));
+    let err = format!("{:#}", World::load(&d).unwrap_err());
+    assert!(
+        err.contains("FloorPlan2 is there twice") && err.contains("FloorPlan2_physics"),
+        "{err}"
+    );
+}
+
+fn copy_dir(from: &Path, to: &Path) {
+    std::fs::create_dir_all(to).unwrap();
+    for e in std::fs::read_dir(from).unwrap() {
+        let e = e.unwrap();
+        std::fs::copy(e.path(), to.join(e.file_name())).unwrap();
+    }
+}
+
+#[test]
+fn visibility_file_variant_is_chosen_by_a_flag() {
+    let _serial = serial();
+    let d = tmp("vis-1.5");
+    let variant = "visible_object_map_1.5.json";
+    let info = write_fixture_named(&d, 3, false, variant).unwrap();
+    // The default file is missing: the error names the file and the flag.
+    let err = format!("{:#}", World::load(&d).unwrap_err());
+    assert!(
+        err.contains("visible_object_map.json") && err.contains("--visible-file"),
+        "{err}"
+    );
+    let opts = offline::OfflineOptions {
+        visible_file: variant.to_string(),
+    };
+    let w = World::load_with_options(&d, gman_host_sim::sim::DEFAULT_WORLD_SEED, &opts).unwrap();
+    let results = oracle_results(&w);
+    assert_eq!(results.len(), info.episodes);
+    assert!(results.iter().all(|r| r.metrics.success));
+    // The command line: `--visible-file` reaches the loader.
+    let (ok, out, err) = gman(&[
+        "eval",
+        "--data",
+        d.to_str().unwrap(),
+        "--visible-file",
+        variant,
+        "--agent",
+        "oracle",
+        "--quiet",
+    ]);
+    assert!(ok, "{err}");
+    assert!(out.contains("100.00"), "{out}");
+    let (ok, _, err) = gman(&["eval", "--data", d.to_str().unwrap(), "--quiet"]);
+    assert!(!ok && err.contains("--visible-file"), "{err}");
 }

@@ -68,13 +68,31 @@ pub struct WorldArgs {
     /// whole synthetic world).
     #[arg(long, default_value_t = DEFAULT_WORLD_SEED)]
     pub world_seed: u64,
+    /// Visibility file read in each offline scene folder: `visible_object_map.json` (SAVN,
+    /// GMAN) or a variant such as `visible_object_map_1.5.json` (VTNet, HOZ).
+    #[arg(long, value_name = "FILE", default_value = gman_host_sim::sim::offline::VISIBLE_FILE)]
+    pub visible_file: String,
 }
 
 impl WorldArgs {
     /// Loads the chosen world.
     pub fn load(&self) -> Result<World> {
         match &self.data {
-            Some(dir) => World::load_with_seed(dir, self.world_seed),
+            Some(dir) => {
+                if self.visible_file.contains(['/', '\\']) {
+                    bail!(
+                        "--visible-file {:?} must be a file name inside each scene folder, not a path",
+                        self.visible_file
+                    );
+                }
+                World::load_with_options(
+                    dir,
+                    self.world_seed,
+                    &gman_host_sim::sim::offline::OfflineOptions {
+                        visible_file: self.visible_file.clone(),
+                    },
+                )
+            }
             None => {
                 eprintln!(
                     "note: no --data given, using the built-in synthetic demo world (seed {})",

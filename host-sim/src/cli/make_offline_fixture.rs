@@ -19,11 +19,25 @@ pub struct MakeOfflineFixtureArgs {
     /// non-empty directory is always refused; links inside are removed, never followed).
     #[arg(long)]
     pub force: bool,
+    /// Name the kitchen and living-room folders `FloorPlanN_physics`, as SAVN's download does
+    /// (default: `FloorPlanN`, GMAN's).
+    #[arg(long)]
+    pub savn_names: bool,
+    /// Name of each folder's visibility file, e.g. `visible_object_map_1.5.json` (VTNet, HOZ);
+    /// read it back with `--visible-file`.
+    #[arg(long, value_name = "FILE", default_value = gman_host_sim::sim::offline::VISIBLE_FILE)]
+    pub visible_file: String,
 }
 
 /// Runs `gman make-offline-fixture`.
 pub fn cmd_make_offline_fixture(a: MakeOfflineFixtureArgs) -> Result<()> {
-    let info = gman_host_sim::sim::offline::fixture::write_fixture_with(&a.out, a.seed, a.force)?;
+    let info = gman_host_sim::sim::offline::fixture::write_fixture_named_with(
+        &a.out,
+        a.seed,
+        a.savn_names,
+        &a.visible_file,
+        a.force,
+    )?;
     println!(
         "wrote {}: scenes {}, {} val episodes",
         a.out.display(),

@@ -85,7 +85,7 @@ pub fn cmd_scene(a: SceneArgs) -> Result<()> {
             (Some(spec.target), env.trajectory().to_vec())
         }
     };
-    draw_scene(&world, scene, goal, &path, &a.png)?;
+    draw_scene(&world, scene, goal, &path, &a.png, None)?;
     eprintln!("wrote {}", a.png.display());
     Ok(())
 }

@@ -4,6 +4,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{anyhow, bail, Context, Result};
+use clap::builder::TypedValueParser;
 use clap::{Args, ValueEnum};
 use gman_host_sim::nav::a3c::Objective;
 use gman_host_sim::nav::dist::{Group, Single};
@@ -49,146 +50,181 @@ pub enum ConfigArg {
 #[derive(Debug, Args)]
 pub struct TrainArgs {
     /// World selection (training episodes come from the training scenes).
-    #[command(flatten)]
+    #[command(flatten, next_help_heading = "World")]
     pub world: WorldArgs,
     /// Method (the rows of the paper's Tables 2 and 3).
-    #[arg(long, value_enum, default_value = "gman")]
+    #[arg(help_heading = "Basics", long, value_enum, default_value = "gman")]
     pub method: Method,
     /// Network sizes.
-    #[arg(long, value_enum, default_value = "mcu")]
+    #[arg(help_heading = "Basics", long, value_enum, default_value = "mcu")]
     pub preset: PresetArg,
     /// Budget preset: `tiny` (minutes) or `default`.
-    #[arg(long, value_enum, default_value = "default")]
+    #[arg(help_heading = "Basics", long, value_enum, default_value = "default")]
     pub config: ConfigArg,
     /// Updates to reach (overrides the config).
-    #[arg(long, value_name = "N")]
+    #[arg(help_heading = "Basics", long, value_name = "N")]
     pub updates: Option<u64>,
     /// Seed of the run.
-    #[arg(long, default_value_t = 1)]
+    #[arg(help_heading = "Basics", long, default_value_t = 1)]
     pub seed: u64,
     /// Run directory: metrics.csv, checkpoint.ckpt (and fg/, ps/ when pre-trained here).
-    #[arg(long, value_name = "RUN_DIR", required_unless_present = "resume")]
+    #[arg(
+        help_heading = "Basics",
+        long,
+        value_name = "RUN_DIR",
+        required_unless_present = "resume"
+    )]
     pub out: Option<PathBuf>,
     /// Continue the run in RUN_DIR from its checkpoint (bit for bit).
-    #[arg(long, value_name = "RUN_DIR", conflicts_with = "out")]
+    #[arg(
+        help_heading = "Basics",
+        long,
+        value_name = "RUN_DIR",
+        conflicts_with = "out"
+    )]
     pub resume: Option<PathBuf>,
     /// Pre-trained generator (`gman pretrain-fg` output, fg.ckpt); pre-trained here if absent.
-    #[arg(long, value_name = "FG_CKPT")]
+    #[arg(help_heading = "Basics", long, value_name = "FG_CKPT")]
     pub fg: Option<PathBuf>,
     /// Pre-trained PS module (ps.ckpt) for the PS variants; pre-trained here if absent.
-    #[arg(long, value_name = "PS_CKPT")]
+    #[arg(help_heading = "Basics", long, value_name = "PS_CKPT")]
     pub ps: Option<PathBuf>,
     /// Parallel workers (one thread each); under MPI, per rank (the run has ranks x this).
-    #[arg(long, default_value_t = 2)]
+    #[arg(help_heading = "Basics", long, default_value_t = 2)]
     pub workers: usize,
     /// Environments each worker steps in lockstep, with the policy's passes run over them
     /// as matrices (1: one episode at a time; methods with an inner loop: one navigator per
     /// episode, first-order meta-gradient only). Every update then holds at least this many
     /// episodes per worker. Default: 16 (measured: README, "Batched training, B = 16"), 1 with
     /// `--meta-order 2`; pass 1 to reproduce the one-episode-at-a-time results.
-    #[arg(long)]
+    #[arg(help_heading = "Optimisation", long)]
     pub batch_envs: Option<usize>,
     /// Outer Adam learning rate β (overrides the config).
-    #[arg(long)]
+    #[arg(help_heading = "Optimisation", long)]
     pub lr: Option<f32>,
     /// Inner learning rates α1 (D) and α2 (θ, φ) (paper: 1e-4).
-    #[arg(long, default_value_t = 1e-4)]
+    #[arg(help_heading = "Inner loop (adaptation)", long, default_value_t = 1e-4)]
     pub inner_lr: f32,
     /// At most this many inner updates per episode (GMAN variants).
-    #[arg(long, default_value_t = gman_host_sim::nav::model::DEFAULT_MAX_INNER)]
+    #[arg(help_heading = "Inner loop (adaptation)", long, default_value_t = gman_host_sim::nav::model::DEFAULT_MAX_INNER)]
     pub max_inner: u32,
     /// α1 alone, D's ascent rate on L_D (default: --inner-lr, the paper's α1 = α2).
-    #[arg(long, value_name = "ALPHA1")]
+    #[arg(help_heading = "Inner loop (adaptation)", long, value_name = "ALPHA1")]
     pub disc_lr: Option<f32>,
     /// D's ascent steps on L_D per inner update (paper: 1).
-    #[arg(long, value_name = "N", default_value_t = 1)]
+    #[arg(
+        help_heading = "Inner loop (adaptation)",
+        long,
+        value_name = "N",
+        default_value_t = 1
+    )]
     pub disc_steps: u32,
     /// The descent step of θ and φ on L_ad: `gradient` (α2 ∇, the paper), `normalized`
     /// (α2 ∇/‖∇‖: --inner-lr is then the step's length) or `per-group` (θ and φ each
     /// normalised to that length). Recorded in the blob.
-    #[arg(long, value_enum, default_value = "gradient")]
+    #[arg(
+        help_heading = "Inner loop (adaptation)",
+        long,
+        value_enum,
+        default_value = "gradient"
+    )]
     pub step_rule: gman_host_sim::nav::model::StepRuleName,
     /// D restarts with every episode: layer 1 from ω, the output layer (w2, b2) at zero, so
     /// D's first ascent step sets the head from the episode's own buffer; ω then does not
     /// learn across episodes (paper: off, D persists). Recorded in the blob.
-    #[arg(long)]
+    #[arg(help_heading = "Inner loop (adaptation)", long)]
     pub disc_head_reset: bool,
     /// The form of L_ad: `paper` (Eq. 3) or `reference` (‖Σ_t a_t (−D(x_t))‖₂, the
     /// reference implementation's). Recorded in the blob.
-    #[arg(long, value_enum, default_value = "paper")]
+    #[arg(
+        help_heading = "Inner loop (adaptation)",
+        long,
+        value_enum,
+        default_value = "paper"
+    )]
     pub adapt_loss: gman_host_sim::nav::model::AdaptLossName,
     /// Scale L_D's critic terms by 10, as the reference implementation does (the paper: 1).
     /// Recorded in the blob.
-    #[arg(long)]
+    #[arg(help_heading = "Inner loop (adaptation)", long)]
     pub reference_critic: bool,
     /// The inner loop's descent step on L_ad adapts only the actor head; G stays at θ (the
     /// reference implementation's default, whose G gets no inner gradient; the paper: G and
     /// the head). Recorded in the blob.
-    #[arg(long)]
+    #[arg(help_heading = "Inner loop (adaptation)", long)]
     pub adapt_head_only: bool,
     /// The inner update's commit delay D in steps (0..=63): the update that starts when Ψ
     /// fills takes effect D steps later, the steps between acting on the current parameters
     /// and not recorded in Ψ; what a device that computes the update in slices, or at a lower
     /// priority, runs (see docs/device.md). 0: at once (the paper). Recorded in the blob.
-    #[arg(long, default_value_t = 0, value_name = "D")]
+    #[arg(
+        help_heading = "Inner loop (adaptation)",
+        long,
+        default_value_t = 0,
+        value_name = "D"
+    )]
     pub commit_delay: u32,
     /// Minimum steps per worker and update.
-    #[arg(long, default_value_t = 40)]
+    #[arg(help_heading = "Episodes and reward", long, default_value_t = 40)]
     pub min_steps: u32,
     /// Step limit of training episodes (default: 200 in living rooms, 100 elsewhere).
-    #[arg(long)]
+    #[arg(help_heading = "Episodes and reward", long)]
     pub max_steps: Option<u32>,
     /// Training starts need at least this many actions to see the target (0: any start).
-    #[arg(long, default_value_t = 1)]
+    #[arg(help_heading = "Episodes and reward", long, default_value_t = 1)]
     pub min_start_actions: u32,
     /// Entropy bonus β of the A3C loss.
-    #[arg(long, default_value_t = 0.01)]
+    #[arg(help_heading = "Optimisation", long, default_value_t = 0.01)]
     pub entropy: f32,
-    /// Reward.
-    #[arg(long, default_value = "mixed")]
+    /// Reward: navigation (R_n), distance (R_{n+d}), similarity (R_{n+s}) or mixed (R_{n+d+s}, the paper's).
+    #[arg(long, default_value = "mixed", help_heading = "Episodes and reward", value_parser = clap::builder::PossibleValuesParser::new(["navigation", "distance", "similarity", "mixed"]).map(|s| s.parse::<RewardKind>().expect("a listed value")))]
     pub reward: RewardKind,
     /// Checkpoint every N updates.
-    #[arg(long, default_value_t = 100)]
+    #[arg(help_heading = "Basics", long, default_value_t = 100)]
     pub checkpoint_every: u64,
     /// Spatial observation map fed to the policy: `RxC` sectors of the view (e.g. `3x3`,
     /// `1x3`, `7x7` as the reference's ResNet map), or `none` (the pooled embedding only).
-    #[arg(long, default_value = "none", value_parser = parse_map_grid)]
+    #[arg(help_heading = "Model", long, default_value = "none", value_parser = parse_map_grid)]
     pub map: (usize, usize),
     /// Channels of the shared per-cell layer over the map (the reference's 1x1 conv: 64).
-    #[arg(long, default_value_t = 8)]
+    #[arg(help_heading = "Model", long, default_value_t = 8)]
     pub cell_embed: usize,
     /// Adaptation mode of the inner loop (in training and on the device; blobs record it):
     /// `efficient` (per-unit gains and biases, what the microcontroller runs) or `full`
     /// (every parameter). Default: efficient for the mcu preset, full for paper.
-    #[arg(long, value_enum)]
+    #[arg(help_heading = "Inner loop (adaptation)", long, value_enum)]
     pub adapt_mode: Option<AdaptModeArg>,
     /// Training objective: `a3c` (the paper's actor-critic loss) or `dagger` (imitation of
     /// the shortest-path oracle on the learner's own states: the imitation ceiling).
-    #[arg(long, value_enum, default_value = "a3c")]
+    #[arg(help_heading = "Optimisation", long, value_enum, default_value = "a3c")]
     pub objective: Objective,
     /// The privileged-feature ceiling: the policy sees the target's true feature in the
     /// current scene in place of G's output (not exportable; methods without inner loop).
-    #[arg(long)]
+    #[arg(help_heading = "Model", long)]
     pub privileged_feature: bool,
     /// Noise z of G at navigation time, in training and wherever the model runs (recorded in
     /// the checkpoint and the blob; a resumed run keeps its own).
-    #[arg(long, value_enum, default_value = "gaussian")]
+    #[arg(
+        help_heading = "Inner loop (adaptation)",
+        long,
+        value_enum,
+        default_value = "gaussian"
+    )]
     pub noise: super::args::NoiseArg,
     /// Meta-gradient order: 1 = first-order MAML (the gradient at the adapted parameters),
     /// 2 = exact through the inner SGD steps (Hessian-vector products by central finite
     /// differences of gradients).
-    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u8).range(1..=2))]
+    #[arg(help_heading = "Optimisation", long, default_value_t = 1, value_parser = clap::value_parser!(u8).range(1..=2))]
     pub meta_order: u8,
     /// No progress bar.
-    #[arg(long)]
+    #[arg(help_heading = "Basics", long)]
     pub quiet: bool,
     /// On --resume, continue with another total worker count (ranks x --workers) than the
     /// run was trained with; the run then no longer matches an uninterrupted one bit for bit.
-    #[arg(long)]
+    #[arg(help_heading = "Basics", long)]
     pub change_workers: bool,
     /// Under MPI: every N updates (and at the last) the ranks compare a hash of their
     /// parameters and Adam state and stop with an error if they differ (0: never).
-    #[arg(long, value_name = "N", default_value_t = 10)]
+    #[arg(help_heading = "Basics", long, value_name = "N", default_value_t = 10)]
     pub rank_check_every: u64,
 }
 

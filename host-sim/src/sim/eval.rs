@@ -301,22 +301,29 @@ impl EvalReport {
         }
     }
 
-    /// The table in the paper's layout (Tab. 4): unseen then seen, SR/SPL/EPA/DTS.
+    /// The table in the paper's layout (Tab. 4): unseen then seen, SR/SPL/EPA/DTS. The first
+    /// column widens to the agent's name (a model file's path keeps the columns aligned).
     pub fn table(&self) -> String {
         let mut s = String::new();
+        let head = format!("{} ({})", "Method", self.split);
+        let w = self
+            .by_room
+            .keys()
+            .map(|r| r.len() + 2)
+            .chain([22, self.agent.chars().count(), head.len()])
+            .max()
+            .unwrap_or(22);
         s.push_str(&format!(
-            "{:<22} | {:^31} | {:^31}\n",
-            format!("{} ({})", "Method", self.split),
-            "Unseen Objects",
-            "Seen Objects"
+            "{:<w$} | {:^30} | {:^30}\n",
+            head, "Unseen Objects", "Seen Objects"
         ));
         s.push_str(&format!(
-            "{:<22} | {:>6} {:>7} {:>7} {:>7} | {:>6} {:>7} {:>7} {:>7}\n",
+            "{:<w$} | {:>6} {:>7} {:>7} {:>7} | {:>6} {:>7} {:>7} {:>7}\n",
             "", "SR(%)", "SPL(%)", "EPA(%)", "DTS(m)", "SR(%)", "SPL(%)", "EPA(%)", "DTS(m)"
         ));
         let row = |name: &str, k: &KindSummaries| {
             format!(
-                "{:<22} | {:>6.2} {:>7.2} {:>7.2} {:>7.2} | {:>6.2} {:>7.2} {:>7.2} {:>7.2}\n",
+                "{:<w$} | {:>6.2} {:>7.2} {:>7.2} {:>7.2} | {:>6.2} {:>7.2} {:>7.2} {:>7.2}\n",
                 name,
                 k.unseen.sr,
                 k.unseen.spl,
@@ -347,5 +354,46 @@ impl EvalReport {
             ));
         }
         s
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::sim::metrics::EpisodeMetrics;
+
+    #[test]
+    fn table_columns_stay_aligned_with_a_long_agent_name() {
+        let r = |room, kind| EpisodeResult {
+            index: 0,
+            scene: "FloorPlan22".into(),
+            room,
+            kind,
+            target: "Mug".into(),
+            metrics: EpisodeMetrics {
+                success: true,
+                path_length: 4,
+                shortest_path_length: Some(2),
+                spl: 0.5,
+                epa: 10.0,
+                dts: 0.0,
+                total_reward: 0.0,
+            },
+            error: None,
+        };
+        let results = [
+            r(RoomType::Kitchen, TargetKind::Seen),
+            r(RoomType::LivingRoom, TargetKind::Unseen),
+        ];
+        let agent = "runs/some/long/path/to/a/model/checkpoint.ckpt";
+        let t = EvalReport::new("val", agent, &results).table();
+        let bars: Vec<Vec<usize>> = t
+            .lines()
+            .filter(|l| l.contains('|'))
+            .map(|l| l.match_indices('|').map(|(i, _)| i).collect())
+            .collect();
+        assert!(bars.len() >= 4, "{t}");
+        assert!(bars.iter().all(|b| *b == bars[0]), "{t}");
+        assert!(t.contains(agent));
     }
 }

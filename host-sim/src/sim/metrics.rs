@@ -78,6 +78,42 @@ impl Summary {
     }
 }
 
+/// The Wilson score interval (95%, z = 1.96) of a success rate: `successes` of `n` trials, in
+/// percent. Unlike the normal approximation it stays inside [0, 100] and is not empty at 0 or
+/// `n` successes; `(0, 100)` for `n = 0`.
+pub fn wilson_interval(successes: usize, n: usize) -> (f64, f64) {
+    if n == 0 {
+        return (0.0, 100.0);
+    }
+    const Z: f64 = 1.959_963_984_540_054;
+    let (k, n) = (successes as f64, n as f64);
+    let p = k / n;
+    let z2 = Z * Z;
+    let centre = (p + z2 / (2.0 * n)) / (1.0 + z2 / n);
+    let half = Z / (1.0 + z2 / n) * (p * (1.0 - p) / n + z2 / (4.0 * n * n)).sqrt();
+    (
+        (100.0 * (centre - half)).max(0.0),
+        (100.0 * (centre + half)).min(100.0),
+    )
+}
+
+/// The normal-approximation 95% interval of a mean (e.g. of per-episode SPL in [0, 1]), in
+/// percent: mean ± 1.96 standard errors, clipped to [0, 100]; `(0, 100)` for fewer than two
+/// values.
+pub fn mean_interval(values: &[f64]) -> (f64, f64) {
+    if values.len() < 2 {
+        return (0.0, 100.0);
+    }
+    let n = values.len() as f64;
+    let mean = values.iter().sum::<f64>() / n;
+    let var = values.iter().map(|v| (v - mean) * (v - mean)).sum::<f64>() / (n - 1.0);
+    let half = 1.959_963_984_540_054 * (var / n).sqrt();
+    (
+        (100.0 * (mean - half)).max(0.0),
+        (100.0 * (mean + half)).min(100.0),
+    )
+}
+
 /// One evaluated episode: what it was and how it went.
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct EpisodeResult {
@@ -111,6 +147,32 @@ mod tests {
         assert_eq!(spl(true, 3, Some(5)), 1.0);
         assert_eq!(spl(false, 5, Some(5)), 0.0);
         assert_eq!(spl(true, 5, None), 0.0);
+    }
+
+    #[test]
+    fn wilson_known_values() {
+        // 8 of 100: the Wilson interval is [4.109 %, 14.998 %] (closed form, z = 1.96).
+        let (lo, hi) = wilson_interval(8, 100);
+        assert!((lo - 4.109).abs() < 0.01, "{lo}");
+        assert!((hi - 14.998).abs() < 0.01, "{hi}");
+        // 0 successes: lower bound 0, upper bound z^2 / (n + z^2).
+        let (lo, hi) = wilson_interval(0, 50);
+        assert_eq!(lo, 0.0);
+        assert!((hi - 7.135).abs() < 0.01, "{hi}");
+        let (lo, hi) = wilson_interval(50, 50);
+        assert!((lo - 92.865).abs() < 0.01, "{lo}");
+        assert_eq!(hi, 100.0);
+        assert_eq!(wilson_interval(0, 0), (0.0, 100.0));
+    }
+
+    #[test]
+    fn mean_interval_of_constant_and_spread() {
+        assert_eq!(mean_interval(&[0.5, 0.5, 0.5]), (50.0, 50.0));
+        // mean 0.5, sample sd 0.5345 over 8 values: half width 1.96 * 0.5345 / sqrt(8) = 0.3704.
+        let v = [0.0, 1.0, 0.0, 1.0, 0.0, 1.0, 0.0, 1.0];
+        let (lo, hi) = mean_interval(&v);
+        assert!((lo - 12.96).abs() < 0.05, "{lo}");
+        assert!((hi - 87.04).abs() < 0.05, "{hi}");
     }
 
     #[test]

@@ -40,7 +40,7 @@ pub mod world;
 
 pub use env::{Env, EpisodeLimits, OracleView, StepOutcome};
 pub use eval::{evaluate, Agent, EvalConfig, EvalReport, OracleAgent, RandomAgent, TargetInfo};
-pub use metrics::{EpisodeMetrics, EpisodeResult, Summary};
+pub use metrics::{mean_interval, wilson_interval, EpisodeMetrics, EpisodeResult, Summary};
 pub use reward::RewardKind;
 pub use tables::{InView, Observation};
 pub use types::{AgentState, Category, CategoryId, RoomType, SceneId, Split, TargetKind};

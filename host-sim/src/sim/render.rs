@@ -1,4 +1,6 @@
-//! Top-down PNG map of a scene (plotters bitmap backend, no text so no fonts are needed).
+//! Top-down PNG map of a scene (plotters bitmap backend). A band above the map holds the
+//! title, the legend and a 1 m scale bar; the text needs a system font
+//! ([`register_plot_font`]), the scale bar and the colour swatches do not.
 //!
 //! Legend: light grey squares are reachable cells from the data, light blue squares cells added
 //! by gap filling; filled discs are objects with known positions, rings objects placed by the
@@ -19,6 +21,8 @@ use super::SceneId;
 
 const CELL_PX: f32 = 28.0;
 const MARGIN_M: f32 = 0.6;
+/// Height of the band above the map (title, legend, scale bar), pixels.
+const HEADER_PX: i32 = 78;
 
 fn category_color(name: &str) -> RGBColor {
     let h = hash_str(7, name);
@@ -28,13 +32,15 @@ fn category_color(name: &str) -> RGBColor {
     RGBColor(r, g, b)
 }
 
-/// Draws `scene` (and optionally a path of states and the goal category) to `png`.
+/// Draws `scene` (and optionally a path of states and the goal category) to `png`, with
+/// `title` (the scene's name when `None`), a legend and a scale bar above the map.
 pub fn draw_scene(
     world: &World,
     scene: SceneId,
     goal: Option<CategoryId>,
     path: &[AgentState],
     png: &Path,
+    title: Option<&str>,
 ) -> Result<()> {
     let sc = &world.scenes[scene];
     let mut min = (f32::INFINITY, f32::INFINITY);
@@ -52,13 +58,67 @@ pub fn draw_scene(
     let (x0, z0) = (min.0 - MARGIN_M, min.1 - MARGIN_M);
     let (x1, z1) = (max.0 + MARGIN_M, max.1 + MARGIN_M);
     let scale = CELL_PX / GRID;
-    let w = ((x1 - x0) * scale).ceil().max(1.0) as u32;
-    let h = ((z1 - z0) * scale).ceil().max(1.0) as u32;
-    let px = |x: f32, z: f32| (((x - x0) * scale) as i32, ((z1 - z) * scale) as i32);
+    let w = ((x1 - x0) * scale).ceil().max(560.0) as u32;
+    let h = ((z1 - z0) * scale).ceil().max(1.0) as u32 + HEADER_PX as u32;
+    let px = |x: f32, z: f32| {
+        (
+            ((x - x0) * scale) as i32,
+            ((z1 - z) * scale) as i32 + HEADER_PX,
+        )
+    };
     let err = |e: &dyn std::fmt::Display| anyhow!("drawing {}: {e}", png.display());
+    let labels = register_plot_font();
     {
         let root = BitMapBackend::new(png, (w, h)).into_drawing_area();
         root.fill(&WHITE).map_err(|e| err(&e))?;
+        // Scale bar: 1 m, with end ticks, at the top right of the band.
+        let bar = (1.0 / GRID * CELL_PX) as i32;
+        let (bx, by) = (w as i32 - bar - 14, 22);
+        for seg in [
+            vec![(bx, by), (bx + bar, by)],
+            vec![(bx, by - 5), (bx, by + 5)],
+            vec![(bx + bar, by - 5), (bx + bar, by + 5)],
+        ] {
+            root.draw(&PathElement::new(seg, BLACK.stroke_width(2)))
+                .map_err(|e| err(&e))?;
+        }
+        let swatches: [(RGBColor, &str); 6] = [
+            (RGBColor(215, 215, 215), "reachable"),
+            (RGBColor(170, 205, 240), "gap-filled"),
+            (GREEN, "start"),
+            (RED, "path"),
+            (BLUE, "end"),
+            (BLACK, "goal (black ring)"),
+        ];
+        for (i, (c, _)) in swatches.iter().enumerate() {
+            let x = 10 + 92 * i as i32;
+            root.draw(&Rectangle::new([(x, 50), (x + 12, 62)], c.filled()))
+                .map_err(|e| err(&e))?;
+        }
+        if labels {
+            let font = ("sans-serif", 15).into_font();
+            let name = title.unwrap_or(sc.name.as_str());
+            root.draw(&Text::new(name.to_string(), (10, 8), font.clone()))
+                .map_err(|e| err(&e))?;
+            root.draw(&Text::new(
+                "1 m".to_string(),
+                (bx + bar / 2 - 10, by + 8),
+                font,
+            ))
+            .map_err(|e| err(&e))?;
+            let small = ("sans-serif", 12).into_font();
+            for (i, (_, l)) in swatches.iter().enumerate() {
+                let x = 10 + 92 * i as i32;
+                root.draw(&Text::new(l.to_string(), (x + 16, 49), small.clone()))
+                    .map_err(|e| err(&e))?;
+            }
+            root.draw(&Text::new(
+                "objects: filled = known position, ring = placed by rule".to_string(),
+                (10, 30),
+                small,
+            ))
+            .map_err(|e| err(&e))?;
+        }
         let half = GRID * 0.48;
         for (i, &(x, z)) in sc.positions.iter().enumerate() {
             let (cx, cz) = (x as f32 * GRID, z as f32 * GRID);

@@ -311,6 +311,16 @@ impl World {
 
     /// [`World::load`] with an explicit world seed.
     pub fn load_with_seed(dir: &Path, seed: u64) -> Result<World> {
+        World::load_with_options(dir, seed, &offline::OfflineOptions::default())
+    }
+
+    /// [`World::load_with_seed`] with the choices of how an offline directory is read
+    /// (ignored for a directory of `scenes/`).
+    pub fn load_with_options(
+        dir: &Path,
+        seed: u64,
+        offline_opts: &offline::OfflineOptions,
+    ) -> Result<World> {
         let raw = data::load_attributes(dir)?;
         let attr_path = dir.join("attributes.json");
         let categories = categories_of(&raw);
@@ -322,7 +332,7 @@ impl World {
         let targets = SplitTargets::resolve(&raw.split, &by_name, &attr_path)?;
         let is_offline = offline::is_offline_dir(dir);
         let offline_raw = if is_offline {
-            offline::load_scenes(dir, &by_name)?
+            offline::load_scenes(dir, &by_name, offline_opts)?
         } else {
             Vec::new()
         };

@@ -595,3 +595,47 @@ pub fn write_fixture_with(out: &Path, seed: u64, force: bool) -> Result<FixtureI
     }
     Ok(info)
 }
+
+/// Writes the fixture as [`write_fixture`] does, then renames it to another published naming:
+/// with `savn_names` the kitchen and living-room folders become `FloorPlanN_physics` (SAVN's
+/// download), and with `visible_file` other than [`VISIBLE_FILE`] each folder's visibility
+/// file gets that name (e.g. `visible_object_map_1.5.json`, VTNet's and HOZ's). `out` must not
+/// hold a fixture in another naming already.
+pub fn write_fixture_named(
+    out: &Path,
+    seed: u64,
+    savn_names: bool,
+    visible_file: &str,
+) -> Result<FixtureInfo> {
+    write_fixture_named_with(out, seed, savn_names, visible_file, false)
+}
+
+/// [`write_fixture_named`] with [`write_fixture_with`]'s `force` (replace a fixture this
+/// tool wrote; any other non-empty `out` is refused).
+pub fn write_fixture_named_with(
+    out: &Path,
+    seed: u64,
+    savn_names: bool,
+    visible_file: &str,
+    force: bool,
+) -> Result<FixtureInfo> {
+    let info = write_fixture_with(out, seed, force)?;
+    for name in &info.scenes {
+        let dir = out.join(name);
+        if visible_file != VISIBLE_FILE {
+            let (from, to) = (dir.join(VISIBLE_FILE), dir.join(visible_file));
+            fs::rename(&from, &to)
+                .with_context(|| format!("cannot rename {} to {}", from.display(), to.display()))?;
+        }
+        let n: u32 = name
+            .strip_prefix("FloorPlan")
+            .and_then(|n| n.parse().ok())
+            .unwrap_or(0);
+        if savn_names && n < 300 {
+            let to = out.join(format!("{name}_physics"));
+            fs::rename(&dir, &to)
+                .with_context(|| format!("cannot rename {} to {}", dir.display(), to.display()))?;
+        }
+    }
+    Ok(info)
+}

@@ -6,11 +6,15 @@
 //! ```text
 //! DIR/attributes.json                  our attribute vectors and category split (required)
 //! DIR/episodes/<split>/*.jsonl         our official episodes (needed for val/test evaluation)
-//! DIR/FloorPlanN/                      one folder per scene, as in the SAVN/GMAN download:
+//! DIR/FloorPlanN/                      one folder per scene, as in the GMAN download (SAVN's
+//!                                      names kitchens and living rooms FloorPlanN_physics/;
+//!                                      both are read, the scene is FloorPlanN either way):
 //!     resnet18_featuremap.hdf5         one (1, 512, 7, 7) f32 dataset per state key
 //!     graph.json                       networkx node-link data of the directed state graph
 //!     grid.json                        the reachable points [{"x", "y", "z"}, ...]
 //!     visible_object_map.json          object id "Type|x|y|z" -> state keys where visible
+//!                                      (or a variant chosen by --visible-file, e.g. VTNet's
+//!                                      and HOZ's visible_object_map_1.5.json)
 //!     att_in_view_v2.hdf5              optional: one 45-d vector per state key (PS target)
 //! ```
 //!
@@ -97,26 +101,68 @@ pub const MAP_SHAPE: [usize; 4] = [1, FEATURE_DIM, 7, 7];
 /// Accepted shapes of a PS-target dataset.
 pub const ATT_SHAPES: [&[usize]; 2] = [&[ATTR_DIM], &[1, ATTR_DIM]];
 
-/// Scene folders (`FloorPlanN/`) of `dir`, sorted by name.
+/// The scene name of a scene folder: `FloorPlanN` for a folder `FloorPlanN` (GMAN's naming)
+/// or `FloorPlanN_physics` (SAVN's naming of kitchens and living rooms), `None` otherwise.
+pub fn scene_of_folder(folder: &str) -> Option<&str> {
+    let name = folder.strip_suffix("_physics").unwrap_or(folder);
+    name.strip_prefix("FloorPlan")
+        .is_some_and(|n| !n.is_empty() && n.bytes().all(|b| b.is_ascii_digit()))
+        .then_some(name)
+}
+
+/// Scene folders of `dir` (`FloorPlanN/` or `FloorPlanN_physics/`), as (scene name, folder),
+/// sorted by scene name. Both namings of one scene in one directory is an error.
 fn scene_folders(dir: &Path) -> Result<Vec<(String, PathBuf)>> {
-    let mut out = Vec::new();
+    let out = scene_folders_unchecked(dir)?;
+    if let Some(w) = out.windows(2).find(|w| w[0].0 == w[1].0) {
+        bail!(
+            "{}: scene {} is there twice, as {} and {} (keep one of the two namings)",
+            dir.display(),
+            w[0].0,
+            w[0].1.display(),
+            w[1].1.display()
+        );
+    }
+    Ok(out)
+}
+
+/// [`scene_folders`] without the check for a scene in both namings.
+fn scene_folders_unchecked(dir: &Path) -> Result<Vec<(String, PathBuf)>> {
+    let mut out: Vec<(String, PathBuf)> = Vec::new();
     for e in fs::read_dir(dir).with_context(|| format!("cannot list {}", dir.display()))? {
         let e = e.with_context(|| format!("cannot list {}", dir.display()))?;
-        let name = e.file_name().to_string_lossy().into_owned();
-        let numbered = name
-            .strip_prefix("FloorPlan")
-            .is_some_and(|n| !n.is_empty() && n.bytes().all(|b| b.is_ascii_digit()));
-        if numbered && e.path().is_dir() {
-            out.push((name, e.path()));
+        let folder = e.file_name().to_string_lossy().into_owned();
+        if let Some(name) = scene_of_folder(&folder) {
+            if e.path().is_dir() {
+                out.push((name.to_string(), e.path()));
+            }
         }
     }
     out.sort();
     Ok(out)
 }
 
-/// True when `dir` holds offline scene folders (`FloorPlanN/`) and no `scenes/` folder.
+/// True when `dir` holds offline scene folders (`FloorPlanN/` or `FloorPlanN_physics/`) and
+/// no `scenes/` folder.
 pub fn is_offline_dir(dir: &Path) -> bool {
-    !dir.join("scenes").exists() && scene_folders(dir).is_ok_and(|v| !v.is_empty())
+    !dir.join("scenes").exists() && scene_folders_unchecked(dir).is_ok_and(|v| !v.is_empty())
+}
+
+/// Choices of how an offline directory is read.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct OfflineOptions {
+    /// The visibility file of each scene folder: [`VISIBLE_FILE`] (SAVN, GMAN) or a variant of
+    /// the projects built on the same data, e.g. `visible_object_map_1.5.json` (VTNet, HOZ:
+    /// visibility within 1.5 m).
+    pub visible_file: String,
+}
+
+impl Default for OfflineOptions {
+    fn default() -> Self {
+        OfflineOptions {
+            visible_file: VISIBLE_FILE.to_string(),
+        }
+    }
 }
 
 /// Room type and split of a floor plan by its number (see the module docs).
@@ -288,14 +334,18 @@ pub(crate) struct RawOfflineScene {
 pub(crate) fn load_scenes(
     dir: &Path,
     by_name: &HashMap<&str, CategoryId>,
+    opts: &OfflineOptions,
 ) -> Result<Vec<RawOfflineScene>> {
     let folders = scene_folders(dir)?;
     if folders.is_empty() {
-        bail!("{}: no FloorPlanN/ scene folders", dir.display());
+        bail!(
+            "{}: no FloorPlanN/ or FloorPlanN_physics/ scene folders",
+            dir.display()
+        );
     }
     folders
         .iter()
-        .map(|(name, path)| load_scene(name, path, by_name))
+        .map(|(name, path)| load_scene(name, path, by_name, opts))
         .collect()
 }
 
@@ -303,18 +353,27 @@ fn load_scene(
     name: &str,
     dir: &Path,
     by_name: &HashMap<&str, CategoryId>,
+    opts: &OfflineOptions,
 ) -> Result<RawOfflineScene> {
     let (room, split) = scene_room_split(name).with_context(|| format!("in {}", dir.display()))?;
     // Every required file first, so that a missing one is named before anything else fails.
-    for f in [FEATURE_FILE, GRAPH_FILE, GRID_FILE, VISIBLE_FILE] {
+    for f in [FEATURE_FILE, GRAPH_FILE, GRID_FILE] {
         let p = dir.join(f);
         if !p.is_file() {
             bail!("missing file {}", p.display());
         }
     }
+    let vis = dir.join(&opts.visible_file);
+    if !vis.is_file() {
+        bail!(
+            "missing file {} (the visibility file chosen by --visible-file {})",
+            vis.display(),
+            opts.visible_file
+        );
+    }
     let cells = read_cells(dir)?;
     let graph = SceneGraph::read(dir, &cells.iter().copied().collect())?;
-    let (known, visible) = read_visibility(dir, &graph, by_name)?;
+    let (known, visible) = read_visibility(&vis, &graph, by_name)?;
     let (features, att) = open_features(dir, &graph.nodes)?;
     let mut present: Vec<CategoryId> = known.iter().map(|k| k.1).collect();
     present.sort_unstable();
@@ -456,12 +515,11 @@ type Visibility = (Vec<(String, CategoryId, [f32; 3])>, Vec<(String, Vec<u32>)>)
 
 /// Reads the visibility file: the objects of known categories and where each is visible.
 fn read_visibility(
-    dir: &Path,
+    vis_path: &Path,
     g: &SceneGraph,
     by_name: &HashMap<&str, CategoryId>,
 ) -> Result<Visibility> {
-    let vis_path = dir.join(VISIBLE_FILE);
-    let vis: BTreeMap<String, Vec<String>> = read_json(&vis_path)?;
+    let vis: BTreeMap<String, Vec<String>> = read_json(vis_path)?;
     let mut known = Vec::new();
     let mut visible = Vec::new();
     for (id, keys) in &vis {
