@@ -577,6 +577,13 @@ unsafe fn with_handle(
             Ok(()) => GMAN_OK,
             Err((s, e)) => {
                 match e {
+                    // The C names of what to do.
+                    Some(Error::UpdateNotReady { slices_left }) => set_msg(
+                        &mut h.msg,
+                        format_args!(
+                            "inner update not ready at its commit point: {slices_left} slices left (run gman_adapt_slice, then the same step again; the step changed nothing)"
+                        ),
+                    ),
                     Some(e) => set_msg(&mut h.msg, format_args!("{e}")),
                     None => set_msg(&mut h.msg, format_args!("{}", status_text(s))),
                 }

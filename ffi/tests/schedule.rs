@@ -331,7 +331,10 @@ fn a_step_not_ready_is_reported_and_changes_nothing() {
                 .to_str()
                 .unwrap()
                 .to_owned();
-            assert!(msg.contains(&before.1.slices_left.to_string()), "{msg}");
+            assert!(
+                msg.contains(&before.1.slices_left.to_string()) && msg.contains("gman_adapt_slice"),
+                "{msg}"
+            );
             // Refused again while slices remain.
             let mut more = 1;
             assert_eq!(unsafe { gman_adapt_slice(bg.h, &mut more) }, GMAN_OK);

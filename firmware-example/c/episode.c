@@ -99,7 +99,7 @@ static uint8_t chunk[FEAT];
     } while (0)
 
 const char *ep_run(const uint8_t *blob, size_t blob_len, void *arena, size_t arena_len,
-                   ep_io *io) {
+                   uint32_t schedule, ep_io *io) {
     gman_nav *nav = 0;
     line l = {{0}, 0};
     uint8_t h[HEADER_LEN];
@@ -151,7 +151,7 @@ const char *ep_run(const uint8_t *blob, size_t blob_len, void *arena, size_t are
     if (info.feat != FEAT || info.attr != ATTR || info.map_rows * info.map_cols != CELLS ||
         info.noise > NOISE_MAX)
         return "the blob's sizes are not the episode's (Mcu with a 3 x 3 map)";
-    gman_options opts = {0, 0, 0}; /* greedy, automatic schedule */
+    gman_options opts = {0, schedule, 0}; /* greedy */
     opts.commit_delay = info.commit_delay ? info.commit_delay : COMMIT_DELAY;
     TRY(gman_init(blob, blob_len, arena, arena_len, &opts, &nav));
     gman_schedule_state sched;
@@ -221,7 +221,15 @@ const char *ep_run(const uint8_t *blob, size_t blob_len, void *arena, size_t are
         }
         gman_step_out o;
         gman_counters cn;
-        TRY(gman_step(nav, obs, FEAT, map, CELLS * FEAT, NULL, 0, &o));
+        if (schedule == 2) TRY(gman_adapt_slice(nav, NULL)); /* the background's share */
+        gman_status s = gman_step(nav, obs, FEAT, map, CELLS * FEAT, NULL, 0, &o);
+        if (s == GMAN_ERR_UPDATE_NOT_READY) {
+            /* The background fell behind: the step changed nothing; finish, step again. */
+            uint32_t more = 1;
+            while (more) TRY(gman_adapt_slice(nav, &more));
+            s = gman_step(nav, obs, FEAT, map, CELLS * FEAT, NULL, 0, &o);
+        }
+        TRY(s);
         TRY(gman_get_counters(nav, &cn));
         TRY(gman_get_schedule(nav, &sched));
         if (o.adapted) {
