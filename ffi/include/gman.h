@@ -95,8 +95,8 @@ typedef struct gman_info {
   float alpha_adapt;
   // Capacity of Ψ ([`GMAN_BUFFER_CAPACITY`]).
   uint32_t buffer_capacity;
-  // Steps between the start of an inner update and its commit (0: the update completes
-  // within the step that starts it; this library version always reports 0).
+  // The commit delay d the blob records (0 to 63): the inner update that starts when Ψ
+  // fills at step t takes effect at the end of step t + d (0: within step t).
   uint32_t commit_delay;
   // Bytes of arena a navigator over this blob needs ([`gman_arena_size`]).
   uint64_t arena_bytes;
@@ -107,14 +107,18 @@ typedef struct gman_options {
   // Action selection: 0 the most probable action (greedy), 1 a sample from the
   // probabilities with the navigator's seeded generator.
   uint32_t selection;
-  // When the inner update runs: 0 inside [`gman_step`] every k steps; 1 only when the
-  // caller calls [`gman_adapt_now`] (a step with a full buffer then fails with
-  // [`GMAN_ERR_CONFIG`]), e.g. from a lower-priority task. Other values are refused.
+  // When the inner update runs: 0 (automatic) inside [`gman_step`]: with a commit delay
+  // d = 0 in the step that fills Ψ, with d > 0 one bounded slice in each of the d steps
+  // after it; 1 (manual) only when the caller calls [`gman_adapt_now`] (a step with a
+  // full buffer then fails with [`GMAN_ERR_CONFIG`]); 2 (background, needs d >= 1) the
+  // caller runs the slices with [`gman_adapt_slice`] from a context of lower priority
+  // than the control loop, and a step that would commit an unfinished update fails with
+  // [`GMAN_ERR_UPDATE_NOT_READY`], changing nothing. Other values are refused.
   uint32_t schedule;
-  // Steps between the start of an inner update and its commit: 0, the update completes
-  // in the step that starts it (the only value this library version accepts; others are
-  // refused with [`GMAN_ERR_CONFIG`]). Reserved for an update computed in slices over
-  // the following steps.
+  // The commit delay d (steps between Ψ filling and the inner update taking effect,
+  // 0 to 63): 0 runs the blob's recorded delay ([`gman_info::commit_delay`]); a non-zero
+  // value runs at that delay when the blob records 0, and must equal the blob's delay
+  // when it records one (else [`GMAN_ERR_CONFIG`], as for a value above 63).
   uint32_t commit_delay;
 } gman_options;
 
@@ -130,6 +134,19 @@ typedef struct gman_step_out {
   // The critic's value estimate.
   float value;
 } gman_step_out;
+
+// The schedule a navigator runs and the state of its pending inner update
+// ([`gman_get_schedule`]).
+typedef struct gman_schedule_state {
+  // The schedule ([`gman_options::schedule`]): 0 automatic, 1 manual, 2 background.
+  uint32_t schedule;
+  // The commit delay d the navigator runs at (the blob's, or the one the options chose).
+  uint32_t commit_delay;
+  // 1 from the step that fills Ψ until its inner update commits (d > 0 only).
+  uint32_t pending;
+  // Slices of the pending update still to run (0: none pending, or all have run).
+  uint32_t slices_left;
+} gman_schedule_state;
 
 // Counters of a navigator, per episode (reset by [`gman_reset`]) and over its life.
 typedef struct gman_counters {
@@ -206,6 +223,11 @@ typedef struct gman_adapt_report {
 
 // A panic was caught at the boundary (host build only); the handle is poisoned.
 #define GMAN_ERR_PANIC 12
+
+// With the background schedule ([`gman_options::schedule`] = 2): this step would commit an
+// inner update whose slices have not all run yet ([`gman_adapt_slice`]). The step changed
+// nothing (no action, no counter, no state): run the remaining slices and step again.
+#define GMAN_ERR_UPDATE_NOT_READY 13
 
 #ifdef __cplusplus
 extern "C" {
@@ -290,6 +312,31 @@ gman_status gman_step(struct gman_nav *nav,
 // # Safety
 // `nav` a handle; `ran` null or writable.
 gman_status gman_adapt_now(struct gman_nav *nav, uint32_t *ran);
+
+// Runs one bounded slice of the pending inner update (the call of the background schedule's
+// lower-priority context); `*more` (may be NULL) is 1 while slices remain. Without a pending
+// update it does nothing (`*more` = 0). The slices never change what a step reads: the
+// update takes effect at its commit, bit for bit the update the automatic schedule
+// computes. Must not overlap a call of [`gman_step`] on the same navigator.
+//
+// # Safety
+// `nav` a handle; `more` null or writable.
+gman_status gman_adapt_slice(struct gman_nav *nav, uint32_t *more);
+
+// Completes the discriminator's part of a pending inner update and drops the rest (the
+// adapted parameters are restored by the next [`gman_reset`] anyway, which settles
+// itself). Call it after an episode's last step when D, which persists across episodes,
+// must have learnt from every buffer that filled before it is read or the navigator idles.
+//
+// # Safety
+// `nav` a handle.
+gman_status gman_settle(struct gman_nav *nav);
+
+// The navigator's schedule and the state of its pending inner update in `*out`.
+//
+// # Safety
+// `nav` a handle; `out` writable.
+gman_status gman_get_schedule(struct gman_nav *nav, struct gman_schedule_state *out);
 
 // Number of steps buffered in Ψ (0 to [`GMAN_BUFFER_CAPACITY`]) in `*out`.
 //

@@ -138,6 +138,10 @@ pub const GMAN_ERR_NUMERICAL: gman_status = 10;
 pub const GMAN_ERR_CONFIG: gman_status = 11;
 /// A panic was caught at the boundary (host build only); the handle is poisoned.
 pub const GMAN_ERR_PANIC: gman_status = 12;
+/// With the background schedule ([`gman_options::schedule`] = 2): this step would commit an
+/// inner update whose slices have not all run yet ([`gman_adapt_slice`]). The step changed
+/// nothing (no action, no counter, no state): run the remaining slices and step again.
+pub const GMAN_ERR_UPDATE_NOT_READY: gman_status = 13;
 
 /// What a blob holds ([`gman_inspect`]).
 #[repr(C)]
@@ -189,8 +193,8 @@ pub struct gman_info {
     pub alpha_adapt: f32,
     /// Capacity of Ψ ([`GMAN_BUFFER_CAPACITY`]).
     pub buffer_capacity: u32,
-    /// Steps between the start of an inner update and its commit (0: the update completes
-    /// within the step that starts it; this library version always reports 0).
+    /// The commit delay d the blob records (0 to 63): the inner update that starts when Ψ
+    /// fills at step t takes effect at the end of step t + d (0: within step t).
     pub commit_delay: u32,
     /// Bytes of arena a navigator over this blob needs ([`gman_arena_size`]).
     pub arena_bytes: u64,
@@ -203,14 +207,18 @@ pub struct gman_options {
     /// Action selection: 0 the most probable action (greedy), 1 a sample from the
     /// probabilities with the navigator's seeded generator.
     pub selection: u32,
-    /// When the inner update runs: 0 inside [`gman_step`] every k steps; 1 only when the
-    /// caller calls [`gman_adapt_now`] (a step with a full buffer then fails with
-    /// [`GMAN_ERR_CONFIG`]), e.g. from a lower-priority task. Other values are refused.
+    /// When the inner update runs: 0 (automatic) inside [`gman_step`]: with a commit delay
+    /// d = 0 in the step that fills Ψ, with d > 0 one bounded slice in each of the d steps
+    /// after it; 1 (manual) only when the caller calls [`gman_adapt_now`] (a step with a
+    /// full buffer then fails with [`GMAN_ERR_CONFIG`]); 2 (background, needs d >= 1) the
+    /// caller runs the slices with [`gman_adapt_slice`] from a context of lower priority
+    /// than the control loop, and a step that would commit an unfinished update fails with
+    /// [`GMAN_ERR_UPDATE_NOT_READY`], changing nothing. Other values are refused.
     pub schedule: u32,
-    /// Steps between the start of an inner update and its commit: 0, the update completes
-    /// in the step that starts it (the only value this library version accepts; others are
-    /// refused with [`GMAN_ERR_CONFIG`]). Reserved for an update computed in slices over
-    /// the following steps.
+    /// The commit delay d (steps between Ψ filling and the inner update taking effect,
+    /// 0 to 63): 0 runs the blob's recorded delay ([`gman_info::commit_delay`]); a non-zero
+    /// value runs at that delay when the blob records 0, and must equal the blob's delay
+    /// when it records one (else [`GMAN_ERR_CONFIG`], as for a value above 63).
     pub commit_delay: u32,
 }
 
@@ -247,6 +255,21 @@ pub struct gman_counters {
     pub total_adaptations: u64,
     /// Rollbacks over the navigator's life.
     pub total_rollbacks: u64,
+}
+
+/// The schedule a navigator runs and the state of its pending inner update
+/// ([`gman_get_schedule`]).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct gman_schedule_state {
+    /// The schedule ([`gman_options::schedule`]): 0 automatic, 1 manual, 2 background.
+    pub schedule: u32,
+    /// The commit delay d the navigator runs at (the blob's, or the one the options chose).
+    pub commit_delay: u32,
+    /// 1 from the step that fills Ψ until its inner update commits (d > 0 only).
+    pub pending: u32,
+    /// Slices of the pending update still to run (0: none pending, or all have run).
+    pub slices_left: u32,
 }
 
 /// Diagnostics of the last inner update ([`gman_last_adaptation`]).
@@ -353,6 +376,7 @@ fn status_of(e: &Error) -> gman_status {
         Error::Blob(b) => status_of_blob(b),
         Error::NumericalFault { .. } => GMAN_ERR_NUMERICAL,
         Error::Config { .. } => GMAN_ERR_CONFIG,
+        Error::UpdateNotReady { .. } => GMAN_ERR_UPDATE_NOT_READY,
         _ => GMAN_ERR_CONFIG,
     }
 }
@@ -486,7 +510,7 @@ fn blob_info(blob: &Blob<'_>) -> Result<gman_info, gman_status> {
         alpha_disc: cfg.alpha_disc,
         alpha_adapt: cfg.alpha_adapt,
         buffer_capacity: K as u32,
-        commit_delay: 0,
+        commit_delay: cfg.commit_delay,
         arena_bytes: arena as u64,
     })
 }
@@ -555,6 +579,13 @@ unsafe fn with_handle(
             Ok(()) => GMAN_OK,
             Err((s, e)) => {
                 match e {
+                    // The C names of what to do.
+                    Some(Error::UpdateNotReady { slices_left }) => set_msg(
+                        &mut h.msg,
+                        format_args!(
+                            "inner update not ready at its commit point: {slices_left} slices left (run gman_adapt_slice, then the same step again; the step changed nothing)"
+                        ),
+                    ),
                     Some(e) => set_msg(&mut h.msg, format_args!("{e}")),
                     None => set_msg(&mut h.msg, format_args!("{}", status_text(s))),
                 }
@@ -598,6 +629,9 @@ fn status_cstr(s: gman_status) -> &'static str {
         GMAN_ERR_NUMERICAL => "a computation produced NaN or infinity\0",
         GMAN_ERR_CONFIG => "a setting is out of range or a call was made out of order\0",
         GMAN_ERR_PANIC => "internal panic caught at the C boundary (handle poisoned)\0",
+        GMAN_ERR_UPDATE_NOT_READY => {
+            "the pending inner update has slices left: run gman_adapt_slice() first (nothing changed)\0"
+        }
         _ => "unknown status code\0",
     }
 }
@@ -750,11 +784,10 @@ unsafe fn init(
     cfg.schedule = match opts.schedule {
         0 => Schedule::Auto,
         1 => Schedule::Manual,
+        2 => Schedule::Background,
         _ => return Err(GMAN_ERR_CONFIG),
     };
-    if opts.commit_delay != 0 {
-        return Err(GMAN_ERR_CONFIG);
-    }
+    cfg.commit_delay = commit_delay(cfg.commit_delay, opts.commit_delay)?;
     let dims = blob.dims();
     let weights = NavWeights::from_blob(&blob, &dims).map_err(|e| status_of(&e))?;
     let pad = (GMAN_ARENA_ALIGN - (arena as usize) % GMAN_ARENA_ALIGN) % GMAN_ARENA_ALIGN;
@@ -796,6 +829,20 @@ unsafe fn init(
     };
     *out = hp as *mut gman_nav;
     Ok(())
+}
+
+/// The commit delay a navigator runs at: the blob's `recorded` one, or the `requested` one
+/// when the blob records none (0 requests nothing).
+fn commit_delay(recorded: u32, requested: u32) -> Result<u32, gman_status> {
+    if requested > gman_core::schema::MAX_COMMIT_DELAY {
+        return Err(GMAN_ERR_CONFIG);
+    }
+    match (recorded, requested) {
+        (r, 0) => Ok(r),
+        (0, q) => Ok(q),
+        (r, q) if r == q => Ok(r),
+        _ => Err(GMAN_ERR_CONFIG),
+    }
 }
 
 /// Starts an episode towards the target with attribute vector `attr` (`attr_len` =
@@ -875,6 +922,78 @@ pub unsafe extern "C" fn gman_adapt_now(nav: *mut gman_nav, ran: *mut u32) -> gm
             if !ran.is_null() {
                 *out_ref(ran).map_err(ffi_err)? = r as u32;
             }
+            Ok(())
+        })
+    }
+}
+
+/// Runs one bounded slice of the pending inner update (the call of the background schedule's
+/// lower-priority context); `*more` (may be NULL) is 1 while slices remain. Without a pending
+/// update it does nothing (`*more` = 0). The slices never change what a step reads: the
+/// update takes effect at its commit, bit for bit the update the automatic schedule
+/// computes. Must not overlap a call of [`gman_step`] on the same navigator.
+///
+/// # Safety
+/// `nav` a handle; `more` null or writable.
+#[no_mangle]
+pub unsafe extern "C" fn gman_adapt_slice(nav: *mut gman_nav, more: *mut u32) -> gman_status {
+    // SAFETY: forwarded from the caller.
+    unsafe {
+        with_handle(nav, |h| {
+            let more = if more.is_null() {
+                None
+            } else {
+                Some(out_ref(more).map_err(ffi_err)?)
+            };
+            let r = each!(&mut h.nav, n => n.adapt_slice()).map_err(core_err)?;
+            if let Some(m) = more {
+                *m = r as u32;
+            }
+            Ok(())
+        })
+    }
+}
+
+/// Completes the discriminator's part of a pending inner update and drops the rest (the
+/// adapted parameters are restored by the next [`gman_reset`] anyway, which settles
+/// itself). Call it after an episode's last step when D, which persists across episodes,
+/// must have learnt from every buffer that filled before it is read or the navigator idles.
+///
+/// # Safety
+/// `nav` a handle.
+#[no_mangle]
+pub unsafe extern "C" fn gman_settle(nav: *mut gman_nav) -> gman_status {
+    // SAFETY: forwarded from the caller.
+    unsafe {
+        with_handle(nav, |h| {
+            each!(&mut h.nav, n => n.settle()).map_err(core_err)
+        })
+    }
+}
+
+/// The navigator's schedule and the state of its pending inner update in `*out`.
+///
+/// # Safety
+/// `nav` a handle; `out` writable.
+#[no_mangle]
+pub unsafe extern "C" fn gman_get_schedule(
+    nav: *mut gman_nav,
+    out: *mut gman_schedule_state,
+) -> gman_status {
+    // SAFETY: forwarded from the caller.
+    unsafe {
+        with_handle(nav, |h| {
+            let o = out_ref(out).map_err(ffi_err)?;
+            *o = each!(&h.nav, n => gman_schedule_state {
+                schedule: match n.config().schedule {
+                    Schedule::Auto => 0,
+                    Schedule::Manual => 1,
+                    Schedule::Background => 2,
+                },
+                commit_delay: n.config().commit_delay,
+                pending: n.update_pending() as u32,
+                slices_left: n.slices_left(),
+            });
             Ok(())
         })
     }

@@ -75,11 +75,17 @@ fn step(n: &Nav, i: &gman_info, obs: &[f32], map: &[f32]) -> (gman_status, gman_
 #[test]
 fn status_strings_are_static_and_distinct() {
     let mut seen = std::collections::HashSet::new();
-    for s in 0..=GMAN_ERR_PANIC {
+    // The codes are stable: appended, never renumbered.
+    assert_eq!((GMAN_ERR_PANIC, GMAN_ERR_UPDATE_NOT_READY), (12, 13));
+    for s in 0..=GMAN_ERR_UPDATE_NOT_READY {
         let t = unsafe { CStr::from_ptr(gman_status_str(s)) }
             .to_str()
             .unwrap();
         assert!(!t.is_empty() && seen.insert(t.to_string()), "{s}: {t}");
+    }
+    for s in [-7, GMAN_ERR_UPDATE_NOT_READY + 1] {
+        let t = unsafe { CStr::from_ptr(gman_status_str(s)) };
+        assert_eq!(t.to_str().unwrap(), "unknown status code");
     }
     let t = unsafe { CStr::from_ptr(gman_status_str(-7)) };
     assert_eq!(t.to_str().unwrap(), "unknown status code");
@@ -282,7 +288,7 @@ fn order_shape_nan_alignment_and_dead_handles() {
     let delayed = gman_options {
         selection: 0,
         schedule: 0,
-        commit_delay: 20,
+        commit_delay: 64,
     };
     let s = unsafe {
         gman_init(

@@ -101,7 +101,7 @@ int main(void) {
         return 1;
     }
     ep_io io = {&f, hf_len, hf_read, hf_line};
-    const char *err = ep_run(blob, blob_len, arena, sizeof arena, &io);
+    const char *err = ep_run(blob, blob_len, arena, sizeof arena, 0, &io);
     int close_args[1] = {f.fd};
     semihost(SYS_CLOSE, close_args);
     if (err) {

@@ -14,6 +14,9 @@
 #define LABEL_MAX 160
 #define HEADER_LEN 28
 #define STEP_BYTES ((1 + CELLS) * FEAT)
+/* The commit delay the episode runs at when the blob records none (../src/episode.rs:
+ * COMMIT_DELAY; a blob's own non-zero delay wins). */
+#define COMMIT_DELAY 20
 
 /* ---- a tiny line formatter (no libc) ---- */
 typedef struct line {
@@ -96,7 +99,7 @@ static uint8_t chunk[FEAT];
     } while (0)
 
 const char *ep_run(const uint8_t *blob, size_t blob_len, void *arena, size_t arena_len,
-                   ep_io *io) {
+                   uint32_t schedule, ep_io *io) {
     gman_nav *nav = 0;
     line l = {{0}, 0};
     uint8_t h[HEADER_LEN];
@@ -148,7 +151,11 @@ const char *ep_run(const uint8_t *blob, size_t blob_len, void *arena, size_t are
     if (info.feat != FEAT || info.attr != ATTR || info.map_rows * info.map_cols != CELLS ||
         info.noise > NOISE_MAX)
         return "the blob's sizes are not the episode's (Mcu with a 3 x 3 map)";
-    TRY(gman_init(blob, blob_len, arena, arena_len, NULL, &nav));
+    gman_options opts = {0, schedule, 0}; /* greedy */
+    opts.commit_delay = info.commit_delay ? info.commit_delay : COMMIT_DELAY;
+    TRY(gman_init(blob, blob_len, arena, arena_len, &opts, &nav));
+    gman_schedule_state sched;
+    TRY(gman_get_schedule(nav, &sched));
 
     put_s(&l, "episode: ");
     put_sn(&l, label, label_len);
@@ -186,12 +193,24 @@ const char *ep_run(const uint8_t *blob, size_t blob_len, void *arena, size_t are
     put_bits(&l, info.alpha_adapt);
     emit(io, &l);
 
+    static const char *const SCHEDULE_NAMES[3] = {"Auto", "Manual", "Background"};
+    put_s(&l, "schedule: ");
+    put_s(&l, sched.schedule < 3 ? SCHEDULE_NAMES[sched.schedule] : "?");
+    put_s(&l, ", commit_delay=");
+    put_u64(&l, sched.commit_delay, 0);
+    put_s(&l, " (blob: ");
+    put_u64(&l, info.commit_delay, 0);
+    put_c(&l, ')');
+    emit(io, &l);
+
     TRY(gman_reset(nav, attr, ATTR, seed));
     TRY(gman_generator_output(nav, zero_z, info.noise, g0, FEAT));
     put_s(&l, "G(SE(y), 0) before adaptation: |x|=");
     put_fixed6(&l, norm_from(g0, 0, FEAT));
     emit(io, &l);
 
+    /* The step whose Ψ filled, while its update is pending (-1: none). */
+    long filled_at = -1;
     for (size_t t = 0; t < n; t++) {
         /* Step t's observations, dequantised as the Rust side does (b / 255). */
         size_t at = obs_at + t * (size_t)STEP_BYTES;
@@ -202,8 +221,27 @@ const char *ep_run(const uint8_t *blob, size_t blob_len, void *arena, size_t are
         }
         gman_step_out o;
         gman_counters cn;
-        TRY(gman_step(nav, obs, FEAT, map, CELLS * FEAT, NULL, 0, &o));
+        if (schedule == 2) TRY(gman_adapt_slice(nav, NULL)); /* the background's share */
+        gman_status s = gman_step(nav, obs, FEAT, map, CELLS * FEAT, NULL, 0, &o);
+        if (s == GMAN_ERR_UPDATE_NOT_READY) {
+            /* The background fell behind: the step changed nothing; finish, step again. */
+            uint32_t more = 1;
+            while (more) TRY(gman_adapt_slice(nav, &more));
+            s = gman_step(nav, obs, FEAT, map, CELLS * FEAT, NULL, 0, &o);
+        }
+        TRY(s);
         TRY(gman_get_counters(nav, &cn));
+        TRY(gman_get_schedule(nav, &sched));
+        if (o.adapted) {
+            uint64_t after = filled_at < 0 ? 1 : (uint64_t)t - (uint64_t)filled_at;
+            filled_at = -1;
+            put_s(&l, "  update committed ");
+            put_u64(&l, after, 0);
+            put_s(&l, " steps after \xce\xa8 filled");
+            emit(io, &l);
+        } else if (sched.pending && filled_at < 0) {
+            filled_at = (long)t;
+        }
         uint8_t scripted = 0xff;
         if (io->read_at(io->ctx, script_at + t, &scripted, 1)) scripted = 0xff;
         put_s(&l, "t=");

@@ -20,10 +20,13 @@ typedef struct ep_io {
 } ep_io;
 
 /*
- * Runs the episode with a navigator over blob (blob_len bytes) in arena (arena_len bytes).
- * Returns NULL on success, else a static description of the failure.
+ * Runs the episode with a navigator over blob (blob_len bytes) in arena (arena_len bytes)
+ * on the given schedule (gman_options.schedule: 0 automatic, the Rust firmware's; 2
+ * background, one gman_adapt_slice before each step and the rest when a step is not ready:
+ * the same lines but for the "schedule:" one). Returns NULL on success, else a static
+ * description of the failure.
  */
 const char *ep_run(const uint8_t *blob, size_t blob_len, void *arena, size_t arena_len,
-                   ep_io *io);
+                   uint32_t schedule, ep_io *io);
 
 #endif

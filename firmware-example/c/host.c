@@ -2,7 +2,9 @@
  * The recorded episode through the C API on the host: host MODEL.gman EPISODE.gmep.
  * Prints the Rust firmware's result lines, then OK. The arena is deliberately misaligned
  * (the library aligns it), and a second navigator in a second arena runs the same episode
- * while the first one's arena is still live: both must print the same lines.
+ * while the first one's arena is still live: both must print the same lines. A third runs
+ * it on the background schedule (its inner updates computed by gman_adapt_slice between
+ * the steps): the same lines but for the one naming the schedule.
  */
 #include <stdio.h>
 #include <stdlib.h>
@@ -70,14 +72,14 @@ int main(int argc, char **argv) {
     /* Two arenas, each one byte off any alignment. */
     uint8_t *a1 = malloc(need + 1), *a2 = malloc(need + 1);
     ep_io io1 = {&ep, f_len, f_read, f_line};
-    const char *err = ep_run(blob, (size_t)blob_len, a1 + 1, need, &io1);
+    const char *err = ep_run(blob, (size_t)blob_len, a1 + 1, need, 0, &io1);
     if (err) {
         printf("ERROR: %s\n", err);
         return 1;
     }
     file ep2 = {ep.bytes, ep.len, NULL, 0};
     ep_io io2 = {&ep2, f_len, f_read, f_line};
-    err = ep_run(blob, (size_t)blob_len, a2 + 1, need, &io2);
+    err = ep_run(blob, (size_t)blob_len, a2 + 1, need, 0, &io2);
     if (err) {
         printf("ERROR: second navigator: %s\n", err);
         return 1;
@@ -92,6 +94,37 @@ int main(int argc, char **argv) {
             return 1;
         }
         printf("%s\n", ep.lines[i]);
+    }
+    file ep3 = {ep.bytes, ep.len, NULL, 0};
+    ep_io io3 = {&ep3, f_len, f_read, f_line};
+    uint8_t *a3 = malloc(need);
+    err = ep_run(blob, (size_t)blob_len, a3, need, 2, &io3);
+    if (err) {
+        printf("ERROR: background navigator: %s\n", err);
+        return 1;
+    }
+    if (ep3.n != ep.n) {
+        printf("ERROR: the background navigator printed %zu lines, the automatic %zu\n", ep3.n,
+               ep.n);
+        return 1;
+    }
+    size_t schedule_lines = 0;
+    for (size_t i = 0; i < ep.n; i++) {
+        if (!strncmp(ep.lines[i], "schedule: ", 10)) {
+            schedule_lines++;
+            if (strncmp(ep3.lines[i], "schedule: Background,", 21)) {
+                printf("ERROR: line %zu of the background run: %s\n", i, ep3.lines[i]);
+                return 1;
+            }
+        } else if (strcmp(ep.lines[i], ep3.lines[i])) {
+            printf("ERROR: line %zu differs on the background schedule:\n%s\n%s\n", i,
+                   ep.lines[i], ep3.lines[i]);
+            return 1;
+        }
+    }
+    if (schedule_lines != 1) {
+        printf("ERROR: %zu schedule lines\n", schedule_lines);
+        return 1;
     }
     /* An arena one byte short is refused. */
     gman_nav *nav = NULL;

@@ -1,8 +1,10 @@
 //! The C API on the host: a C program (`firmware-example/c/host.c` + `episode.c`, built with
 //! the system's `cc` against `libgman_ffi.a`) loads the shipped blob, replays the recorded
 //! episode through the C API in two navigators (two arenas, both misaligned on purpose) and
-//! must print bit for bit the lines the Rust navigator prints for it, linked with the static
-//! library and with the shared one
+//! must print bit for bit the lines the Rust navigator prints for it (at its commit delay,
+//! 20), linked with the static library and with the shared one; a third navigator on the
+//! background schedule (`gman_adapt_slice` between the steps) must print the same lines but
+//! for the one naming the schedule
 //! (`firmware-example/src/episode.rs`, what the Rust firmware runs).
 
 use std::process::Command;
