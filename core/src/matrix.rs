@@ -200,7 +200,8 @@ impl<'a> MatRef<'a> {
     /// kernel of [`crate::qkernel`] ([`MatRef::with_int8_activations`]).
     #[inline]
     pub fn int8_activations(&self) -> bool {
-        self.act8
+        // Without the feature the integer branches of the kernels are dead code and vanish.
+        cfg!(feature = "int8-activations") && self.act8
     }
 
     /// The same view with the crate's own (portable) kernels.

@@ -442,6 +442,12 @@ impl<'w> NavWeights<'w> {
         }
         let w = NavWeights { dims: *dims, t };
         if blob.header().flags() & crate::schema::FLAG_INT8_ACTIVATIONS != 0 {
+            if !cfg!(feature = "int8-activations") {
+                return Err(Error::Config {
+                    what: "the blob needs int8 activations: build gman-core with the \
+                           `int8-activations` feature",
+                });
+            }
             return Ok(w.with_int8_activations());
         }
         Ok(w)

@@ -253,8 +253,8 @@ fn run() -> Result<(), Failure> {
         u.max as u64 * tick
     );
     // What the steps that computed an update took beyond plain steps, per update.
-    let update_alone = (u.sum * tick).saturating_sub(u.n as u64 * p.mean_insns())
-        / updates.max(1) as u64;
+    let update_alone =
+        (u.sum * tick).saturating_sub(u.n as u64 * p.mean_insns()) / updates.max(1) as u64;
     hprintln!(
         "# inner update alone (update steps - plain steps, per update): update_insns={}",
         update_alone
