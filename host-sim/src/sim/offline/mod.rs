@@ -60,8 +60,13 @@
 //!   the ids and the category footprint radii, as in the simulator.
 //!
 //! Every file, key and dataset shape is checked when the world is loaded (HDF5 metadata only;
-//! a scene's features are read when its tables are first built). An error names the file and
-//! the key. Reading a feature file that changed after loading panics with that error.
+//! a scene's features are read when its tables are first built, where a non-finite value or
+//! one beyond [`MAX_VALUE`] is refused). An error names the file and the key; a file that is
+//! a link loop, a broken link, a directory or a device says so ([`check_file`]). A scene
+//! folder named with a leading zero (`FloorPlan022`) is refused, and so is one floor plan in
+//! two folders. `train` and `eval` build the tables of the scenes they use before they start
+//! ([`crate::sim::World::prepare_scenes`]), so that a bad feature file is an error; reading
+//! one that changed or broke later panics with that error.
 
 use std::collections::{BTreeMap, HashMap, HashSet};
 use std::fs;
@@ -329,7 +334,7 @@ struct RawPoint {
 /// Checks that `path` is a regular file (after following links); otherwise an error that
 /// says what it is: missing, a broken link, a link loop, a directory, a device, FIFO or
 /// socket.
-pub(crate) fn check_file(path: &Path) -> Result<()> {
+pub fn check_file(path: &Path) -> Result<()> {
     let p = path.display();
     let link = match fs::symlink_metadata(path) {
         Ok(m) => m.file_type().is_symlink(),
@@ -361,7 +366,7 @@ pub(crate) fn check_file(path: &Path) -> Result<()> {
 }
 
 /// True when something (a file, a link, even a broken one) is at `path`.
-pub(crate) fn is_present(path: &Path) -> bool {
+pub fn is_present(path: &Path) -> bool {
     fs::symlink_metadata(path).is_ok()
 }
 
