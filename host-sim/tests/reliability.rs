@@ -13,11 +13,28 @@ use std::time::{Duration, Instant};
 use gman_host_sim::sim::{Split, World};
 use gman_host_sim::train::checkpoint::Checkpoint;
 
+/// Held while this process has HDF5 files open and while it starts a child: HDF5 locks the
+/// files it opens, and a child started meanwhile would inherit the open file (and its lock)
+/// for as long as it runs, so that another test's `gman` could not open it.
+static HDF5_OR_SPAWN: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
+fn spawn_lock() -> std::sync::MutexGuard<'static, ()> {
+    HDF5_OR_SPAWN
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner)
+}
+
 fn gman(args: &[&str]) -> (bool, String, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_gman"))
-        .args(args)
-        .output()
-        .expect("run gman");
+    let child = {
+        let _l = spawn_lock();
+        Command::new(env!("CARGO_BIN_EXE_gman"))
+            .args(args)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .expect("run gman")
+    };
+    let out = child.wait_with_output().expect("run gman");
     (
         out.status.success(),
         String::from_utf8_lossy(&out.stdout).into_owned(),
@@ -27,12 +44,15 @@ fn gman(args: &[&str]) -> (bool, String, String) {
 
 /// Runs gman, killing it (and failing) after `secs`: for cases that used to hang.
 fn gman_within(secs: u64, args: &[&str]) -> (bool, String) {
-    let mut child = Command::new(env!("CARGO_BIN_EXE_gman"))
-        .args(args)
-        .stdout(Stdio::null())
-        .stderr(Stdio::piped())
-        .spawn()
-        .expect("run gman");
+    let mut child = {
+        let _l = spawn_lock();
+        Command::new(env!("CARGO_BIN_EXE_gman"))
+            .args(args)
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped())
+            .spawn()
+            .expect("run gman")
+    };
     let t0 = Instant::now();
     loop {
         if let Some(status) = child.try_wait().unwrap() {
@@ -254,7 +274,7 @@ fn case06_resume_validates_stored_settings() {
         (
             "method",
             Box::new(|ck| ck.metadata["method"] = serde_json::json!("a3c-fg")),
-            "trained as a3c",
+            "method is \"a3c-fg\" but was \"a3c\"",
         ),
         (
             "entropy",
@@ -898,4 +918,575 @@ fn offline_fixture_never_writes_into_user_data() {
         "mine"
     );
     assert!(!fx.join("mine").exists());
+}
+
+/// A copy of the official val data with the first three episodes of each file, or `None`
+/// (test skipped) without the data.
+fn small_data_copy(name: &str) -> Option<PathBuf> {
+    let data = common::data_dir()?;
+    let d = tmp(&format!("small-{name}"));
+    std::fs::copy(data.join("attributes.json"), d.join("attributes.json")).unwrap();
+    std::fs::create_dir_all(d.join("scenes/val")).unwrap();
+    std::fs::create_dir_all(d.join("episodes/val")).unwrap();
+    for f in std::fs::read_dir(data.join("scenes/val")).unwrap() {
+        let f = f.unwrap().path();
+        std::fs::copy(&f, d.join("scenes/val").join(f.file_name().unwrap())).unwrap();
+    }
+    for f in std::fs::read_dir(data.join("episodes/val")).unwrap() {
+        let f = f.unwrap().path();
+        let text = std::fs::read_to_string(&f).unwrap();
+        let head: String = text.lines().take(3).map(|l| format!("{l}\n")).collect();
+        std::fs::write(d.join("episodes/val").join(f.file_name().unwrap()), head).unwrap();
+    }
+    Some(d)
+}
+
+/// Rewrites line `line` (1-based) of `path` with `f` applied to its JSON.
+fn edit_line(path: &Path, line: usize, f: &dyn Fn(&mut serde_json::Value)) {
+    let t = std::fs::read_to_string(path).unwrap();
+    let mut lines: Vec<String> = t.lines().map(String::from).collect();
+    let mut v: serde_json::Value = serde_json::from_str(&lines[line - 1]).unwrap();
+    f(&mut v);
+    lines[line - 1] = v.to_string();
+    std::fs::write(path, lines.join("\n") + "\n").unwrap();
+}
+
+/// Episode files: a repeated line was weighted twice without a word, `"split": "test"` in a
+/// val file and a start height of 1e300 were accepted.
+#[test]
+fn episode_files_repeats_split_and_height() {
+    let Some(ok) = small_data_copy("ep-ok") else {
+        return;
+    };
+    let w = World::load(&ok).unwrap();
+    assert_eq!(w.repeated_episodes_warning(Split::Val, None).unwrap(), None);
+    // The official files repeat 247 of their 8000 lines: counted, all of them evaluated.
+    let data = common::data_dir().unwrap();
+    let real = World::load(&data).unwrap();
+    let warn = real
+        .repeated_episodes_warning(Split::Val, None)
+        .unwrap()
+        .unwrap();
+    assert!(warn.starts_with("247 of the 8000 episodes"), "{warn}");
+    assert_eq!(real.episodes(Split::Val, None).unwrap().len(), 8000);
+
+    // A line repeated (the same fields written in another order counts too).
+    let d = small_data_copy("ep-dup").unwrap();
+    let f = d.join("episodes/val/bathroom_seen.jsonl");
+    let text = std::fs::read_to_string(&f).unwrap();
+    let first: serde_json::Value = serde_json::from_str(text.lines().next().unwrap()).unwrap();
+    let mut reordered = serde_json::to_string_pretty(&first)
+        .unwrap()
+        .replace('\n', " ");
+    reordered.push('\n');
+    std::fs::write(&f, format!("{text}{reordered}")).unwrap();
+    let w = World::load(&d).unwrap();
+    let warn = w
+        .repeated_episodes_warning(Split::Val, None)
+        .unwrap()
+        .unwrap();
+    assert!(
+        warn.starts_with("1 of the 25 episodes")
+            && warn.contains("bathroom_seen.jsonl 1")
+            && warn.contains("line 4 = line 1"),
+        "{warn}"
+    );
+    let (ok_run, _, e) = gman(&["eval", "--data", s(&d), "--agent", "random", "--quiet"]);
+    assert!(ok_run && e.contains("warning: 1 of the 25 episodes"), "{e}");
+
+    let load = |d: &Path| -> Result<usize, String> {
+        World::load(d)
+            .and_then(|w| w.episodes(Split::Val, None))
+            .map(|e| e.len())
+            .map_err(|e| format!("{e:#}"))
+    };
+    // `"split": "test"` inside a val file.
+    let d = small_data_copy("ep-split").unwrap();
+    edit_line(&d.join("episodes/val/kitchen_unseen.jsonl"), 2, &|v| {
+        v["split"] = "test".into()
+    });
+    let e = load(&d).unwrap_err();
+    assert!(
+        e.contains("kitchen_unseen.jsonl line 2") && e.contains("split \"test\" disagrees"),
+        "{e}"
+    );
+    // A start height of 1e300 (inf as f32) and of -5000 m.
+    for bad in ["1e300", "-5000"] {
+        let d = small_data_copy(&format!("ep-y{bad}")).unwrap();
+        edit_line(&d.join("episodes/val/bedroom_seen.jsonl"), 3, &|v| {
+            v["start"]["y"] = serde_json::from_str(bad).unwrap()
+        });
+        let e = load(&d).unwrap_err();
+        assert!(
+            e.contains("bedroom_seen.jsonl line 3") && e.contains("start y"),
+            "{bad}: {e}"
+        );
+    }
+}
+
+/// A checkpoint whose model settings were edited so that the tensors still fit (a 3 x 3 map
+/// relabelled 1 x 9, the adaptation mode switched) was evaluated and resumed with the new
+/// meaning.
+#[test]
+fn checkpoint_settings_that_disagree_with_the_trained_tensors_are_refused() {
+    let d = tmp("meta-vs-tensors");
+    let run = d.join("run");
+    let (ok, _, err) = gman(&[
+        "train",
+        "--method",
+        "a3c",
+        "--config",
+        "tiny",
+        "--map",
+        "3x3",
+        "--cell-embed",
+        "2",
+        "--min-steps",
+        "12",
+        "--workers",
+        "1",
+        "--updates",
+        "1",
+        "--quiet",
+        "--out",
+        s(&run),
+    ]);
+    assert!(ok, "{err}");
+    let ck = run.join("checkpoint.ckpt");
+    let original = std::fs::read(&ck).unwrap();
+    let mode = Checkpoint::load(&ck).unwrap().metadata["adapt_mode"].clone();
+    let other_mode = if mode == "full" { "efficient" } else { "full" };
+    type Edit = Box<dyn Fn(&mut Checkpoint)>;
+    let edits: Vec<(&str, Edit, &str)> = vec![
+        (
+            "1x9",
+            Box::new(|c: &mut Checkpoint| {
+                c.metadata["dims"]["map_rows"] = 1.into();
+                c.metadata["dims"]["map_cols"] = 9.into();
+            }),
+            "dims.map_cols is 9 but was 3",
+        ),
+        (
+            "mode",
+            Box::new(move |c: &mut Checkpoint| c.metadata["adapt_mode"] = other_mode.into()),
+            "adapt_mode",
+        ),
+    ];
+    for (name, edit, needle) in edits {
+        std::fs::write(&ck, &original).unwrap();
+        edit_checkpoint(&run, edit);
+        let (ok, _, e) = gman(&["eval", "--agent", s(&ck), "--episodes", "1", "--quiet"]);
+        assert!(
+            !ok && e.contains(needle) && e.contains("changed after training wrote it"),
+            "{name}: {e}"
+        );
+        let (ok, e) = resume(&run, 2, &[]);
+        assert!(!ok && e.contains(needle), "{name}: {e}");
+    }
+    // Unedited, both work.
+    std::fs::write(&ck, &original).unwrap();
+    let (ok, _, e) = gman(&["eval", "--agent", s(&ck), "--episodes", "1", "--quiet"]);
+    assert!(ok, "{e}");
+    let (ok, e) = resume(&run, 2, &[]);
+    assert!(ok, "{e}");
+}
+
+/// Adam's step count and the episode counters wrapped at u64::MAX (a panic in a debug
+/// build, NaN steps and counts restarting at 0 in a release build).
+#[test]
+fn counters_near_u64_max_are_errors_not_wraps() {
+    let d = tmp("counters");
+    let run = d.join("run");
+    train_run(&run, 1);
+    let ck = run.join("checkpoint.ckpt");
+    let original = std::fs::read(&ck).unwrap();
+    for (field, needle) in [
+        ("episodes", "episode counter"),
+        ("env_steps", "environment step counter"),
+    ] {
+        std::fs::write(&ck, &original).unwrap();
+        edit_checkpoint(&run, |c| {
+            c.metadata["trainer"][field] = (u64::MAX - 1).into();
+        });
+        let (ok, e) = resume(&run, 2, &[]);
+        assert!(!ok && e.contains(needle) && e.contains("u64::MAX"), "{e}");
+    }
+    std::fs::write(&ck, &original).unwrap();
+    edit_checkpoint(&run, |c| {
+        let adam = c.blobs.iter_mut().find(|(n, _)| n == "adam").unwrap();
+        // Magic (4 bytes), version (u32), then t (u64).
+        adam.1[8..16].copy_from_slice(&u64::MAX.to_le_bytes());
+    });
+    let (ok, e) = resume(&run, 2, &[]);
+    assert!(
+        !ok && e.contains("Adam's step count") && e.contains("u64::MAX"),
+        "{e}"
+    );
+    // The checkpoint was not overwritten with wrapped values.
+    let v = Checkpoint::load(&ck).unwrap().metadata;
+    assert_eq!(v["trainer"]["update"], 1);
+}
+
+/// A checkpoint of a build that did not store the run's target trained on to the preset's
+/// count (4000 after a killed `--updates 200` run), or did nothing and reported success
+/// when that count was below the checkpoint's update.
+#[test]
+fn resume_of_a_checkpoint_without_a_stored_target_asks_for_updates() {
+    let d = tmp("no-target");
+    let run = d.join("run");
+    train_run(&run, 2);
+    edit_checkpoint(&run, |c| {
+        c.metadata["trainer"]
+            .as_object_mut()
+            .unwrap()
+            .remove("target_updates");
+    });
+    let (ok, _, e) = gman(&["train", "--resume", s(&run), "--quiet"]);
+    assert!(
+        !ok && e.contains("predates stored targets")
+            && e.contains("at update 2")
+            && e.contains("give --updates"),
+        "{e}"
+    );
+    let ck = run.join("checkpoint.ckpt");
+    assert_eq!(
+        Checkpoint::load(&ck).unwrap().metadata["trainer"]["update"],
+        2
+    );
+    let (ok, e) = resume(&run, 3, &[]);
+    assert!(ok && e.contains("target: update 3"), "{e}");
+    let v = Checkpoint::load(&ck).unwrap().metadata;
+    assert_eq!(v["trainer"]["update"], 3);
+    assert_eq!(v["trainer"]["target_updates"], 3);
+}
+
+/// Rewrites every dataset of the HDF5 file `path`, with `edit` applied to each (by name).
+#[cfg(feature = "offline")]
+fn edit_h5(path: &Path, edit: impl Fn(&str, &mut Vec<f32>)) {
+    use gman_host_sim::sim::offline::h5;
+    let _l = spawn_lock();
+    let f = h5::H5File::open(path).unwrap();
+    let mut all = Vec::new();
+    for n in f.names().unwrap() {
+        let (shape, _) = f.shape_and_size(&n).unwrap();
+        let mut v = f.read(&n).unwrap();
+        edit(&n, &mut v);
+        all.push((n, shape, v));
+    }
+    drop(f);
+    h5::write_datasets(
+        path,
+        all.iter()
+            .map(|(n, sh, v)| (n.as_str(), sh.as_slice(), v.as_slice())),
+    )
+    .unwrap();
+}
+
+/// The sorted dataset names of the HDF5 file `path`.
+#[cfg(feature = "offline")]
+fn h5_names(path: &Path) -> Vec<String> {
+    let _l = spawn_lock();
+    let f = gman_host_sim::sim::offline::h5::H5File::open(path).unwrap();
+    f.names().unwrap()
+}
+
+/// [`write_fixture`](gman_host_sim::sim::offline::fixture::write_fixture) under the lock.
+#[cfg(feature = "offline")]
+fn fixture_at(dir: &Path) {
+    let _l = spawn_lock();
+    gman_host_sim::sim::offline::fixture::write_fixture(dir, 1).unwrap();
+}
+
+/// A short A3C run on the offline data `data` (1 update) in `run`.
+#[cfg(feature = "offline")]
+fn offline_train_run(data: &Path, run: &Path) {
+    let (ok, _, e) = gman(&[
+        "train",
+        "--data",
+        s(data),
+        "--method",
+        "a3c",
+        "--config",
+        "tiny",
+        "--max-steps",
+        "30",
+        "--min-steps",
+        "20",
+        "--workers",
+        "1",
+        "--updates",
+        "1",
+        "--quiet",
+        "--out",
+        s(run),
+    ]);
+    assert!(ok, "{e}");
+}
+
+/// Resume onto changed offline data was accepted: the fingerprint covered `attributes.json`
+/// only, not the graphs, grids, visibility or feature files under `FloorPlanN/`.
+#[cfg(feature = "offline")]
+#[test]
+fn offline_resume_onto_changed_scene_files_is_refused_naming_them() {
+    let d = tmp("offline-fp");
+    let data = d.join("data");
+    fixture_at(&data);
+    let run = d.join("run");
+    offline_train_run(&data, &run);
+    let ck = run.join("checkpoint.ckpt");
+    let w = &Checkpoint::load(&ck).unwrap().metadata["trainer"]["world"];
+    assert_eq!(w["fingerprint_rule"], 2);
+    assert!(
+        w["files"]["FloorPlan22/resnet18_featuremap.hdf5"].is_string(),
+        "{w}"
+    );
+    assert!(
+        w["files"]["FloorPlan22/att_in_view_v2.hdf5"].is_string(),
+        "{w}"
+    );
+    // The same data (moved elsewhere) resumes.
+    let moved = d.join("moved");
+    std::fs::rename(&data, &moved).unwrap();
+    let (ok, e) = resume(&run, 2, &["--data", s(&moved)]);
+    assert!(ok, "{e}");
+    let data = moved;
+
+    let graph = data.join("FloorPlan1/graph.json");
+    let g = std::fs::read_to_string(&graph).unwrap();
+    std::fs::write(&graph, format!("{g}\n")).unwrap();
+    let (ok, e) = resume(&run, 3, &["--data", s(&data)]);
+    assert!(!ok && e.contains("FloorPlan1/graph.json changed"), "{e}");
+    std::fs::write(&graph, g).unwrap();
+
+    // One value of one feature map (the first dataset, always in the sample).
+    let feats = data.join("FloorPlan2/resnet18_featuremap.hdf5");
+    let saved = std::fs::read(&feats).unwrap();
+    let first = h5_names(&feats)[0].clone();
+    edit_h5(&feats, |n, v| {
+        if n == first {
+            v[100] += 0.5;
+        }
+    });
+    let (ok, e) = resume(&run, 3, &["--data", s(&data)]);
+    assert!(
+        !ok && e.contains("FloorPlan2/resnet18_featuremap.hdf5 changed")
+            && !e.contains("graph.json"),
+        "{e}"
+    );
+    std::fs::write(&feats, &saved).unwrap();
+    // Another visibility file (same content under another name) is another world.
+    for scene in ["FloorPlan1", "FloorPlan2", "FloorPlan22"] {
+        let sd = data.join(scene);
+        std::fs::copy(sd.join("visible_object_map.json"), sd.join("vis2.json")).unwrap();
+    }
+    let (ok, e) = resume(
+        &run,
+        3,
+        &["--data", s(&data), "--visible-file", "vis2.json"],
+    );
+    assert!(!ok && e.contains("FloorPlan1/vis2.json is new"), "{e}");
+    let (ok, e) = resume(&run, 3, &["--data", s(&data)]);
+    assert!(ok, "{e}");
+
+    // A checkpoint of an older build (rule 1: attributes.json only): resumable with a warning
+    // when that rule matches, refused when it does not.
+    let rule1 = gman_host_sim::sim::data::fingerprint(&data).unwrap();
+    let old_world = |fp: &str| {
+        let fp = fp.to_string();
+        move |c: &mut Checkpoint| {
+            let w = c.metadata["trainer"]["world"].as_object_mut().unwrap();
+            w.remove("files");
+            w.remove("fingerprint_rule");
+            w.insert("fingerprint".into(), fp.into());
+        }
+    };
+    edit_checkpoint(&run, old_world(&rule1));
+    let (ok, e) = resume(&run, 4, &["--data", s(&data)]);
+    assert!(
+        ok && e.contains("older build") && e.contains("rule 1"),
+        "{e}"
+    );
+    let w = &Checkpoint::load(&ck).unwrap().metadata["trainer"]["world"];
+    assert_eq!(
+        w["fingerprint_rule"], 2,
+        "the resumed run stores the new rule"
+    );
+    edit_checkpoint(&run, old_world("0123456789abcdef"));
+    let (ok, e) = resume(&run, 5, &["--data", s(&data)]);
+    assert!(!ok && e.contains("0123456789abcdef"), "{e}");
+}
+
+/// Offline loader gaps: a second copy of a scene under a zero-padded name, NaN and 3e38 in
+/// feature files, a link loop and a device file reported as "missing file", and targets
+/// visible from no state counted nowhere.
+#[cfg(feature = "offline")]
+#[test]
+fn offline_loader_gaps_are_named() {
+    let d = tmp("offline-gaps");
+    let data = d.join("data");
+    fixture_at(&data);
+    let load = |d: &Path| {
+        let _l = spawn_lock();
+        World::load(d).map(|_| ()).map_err(|e| format!("{e:#}"))
+    };
+    let eval = |d: &Path| {
+        let (ok, _, e) = gman(&[
+            "eval",
+            "--data",
+            s(d),
+            "--split",
+            "val",
+            "--agent",
+            "oracle",
+            "--quiet",
+        ]);
+        assert!(!e.contains("panicked"), "{e}");
+        (ok, e)
+    };
+    let copy_of = |name: &str| {
+        let c = d.join(name);
+        let _ = std::fs::remove_dir_all(&c);
+        copy_tree(&data, &c);
+        c
+    };
+    let (ok, e) = eval(&data);
+    assert!(ok && !e.contains("warning"), "{e}");
+
+    // FloorPlan022 beside FloorPlan22; FloorPlan022 alone.
+    let c = copy_of("dup");
+    copy_tree(&c.join("FloorPlan22"), &c.join("FloorPlan022"));
+    let e = load(&c).unwrap_err();
+    assert!(
+        e.contains("twice") && e.contains("FloorPlan022") && e.contains("FloorPlan22 "),
+        "{e}"
+    );
+    std::fs::remove_dir_all(c.join("FloorPlan22")).unwrap();
+    let e = load(&c).unwrap_err();
+    assert!(
+        e.contains("leading zero") && e.contains("FloorPlan022"),
+        "{e}"
+    );
+
+    // NaN and 3e38 in a feature map, 3e38 in a PS target: the file and the key.
+    for (file, bad) in [
+        ("resnet18_featuremap.hdf5", f32::NAN),
+        ("resnet18_featuremap.hdf5", 3e38),
+        ("att_in_view_v2.hdf5", 3e38),
+    ] {
+        let c = copy_of("values");
+        let path = c.join("FloorPlan22").join(file);
+        let key = h5_names(&path)[3].clone();
+        edit_h5(&path, |n, v| {
+            if n == key {
+                v[7] = bad;
+            }
+        });
+        let (ok, e) = eval(&c);
+        assert!(
+            !ok && e.contains(&format!("FloorPlan22/{file}"))
+                && e.contains(&format!("dataset {key:?}"))
+                && e.contains("index 7"),
+            "{file} {bad}: {e}"
+        );
+    }
+    // Training reads the training scenes up front: NaN in one is named too.
+    let c = copy_of("train-nan");
+    edit_h5(&c.join("FloorPlan1/resnet18_featuremap.hdf5"), |_, v| {
+        v[0] = f32::NAN
+    });
+    let (ok, _, e) = gman(&[
+        "train",
+        "--data",
+        s(&c),
+        "--method",
+        "a3c",
+        "--config",
+        "tiny",
+        "--updates",
+        "1",
+        "--quiet",
+        "--out",
+        s(&d.join("nan-run")),
+    ]);
+    assert!(
+        !ok && e.contains("FloorPlan1/resnet18_featuremap.hdf5") && !e.contains("panicked"),
+        "{e}"
+    );
+
+    // A link loop, a device file, a broken link, a directory.
+    #[cfg(unix)]
+    {
+        let c = copy_of("links");
+        let g = c.join("FloorPlan2/graph.json");
+        std::fs::remove_file(&g).unwrap();
+        std::os::unix::fs::symlink("graph.json", &g).unwrap();
+        let e = load(&c).unwrap_err();
+        assert!(
+            e.contains("symbolic link loop") && e.contains("graph.json"),
+            "{e}"
+        );
+        std::fs::remove_file(&g).unwrap();
+        std::os::unix::fs::symlink("/dev/null", &g).unwrap();
+        let e = load(&c).unwrap_err();
+        assert!(
+            e.contains("not a regular file") && e.contains("graph.json"),
+            "{e}"
+        );
+        std::fs::remove_file(&g).unwrap();
+        std::os::unix::fs::symlink("nowhere.json", &g).unwrap();
+        let e = load(&c).unwrap_err();
+        assert!(e.contains("broken symbolic link"), "{e}");
+        std::fs::remove_file(&g).unwrap();
+        std::fs::create_dir(&g).unwrap();
+        let e = load(&c).unwrap_err();
+        assert!(e.contains("is a directory"), "{e}");
+        // An optional file that is a loop is not "absent".
+        std::fs::remove_dir(&g).unwrap();
+        std::fs::copy(data.join("FloorPlan2/graph.json"), &g).unwrap();
+        let a = c.join("FloorPlan2/att_in_view_v2.hdf5");
+        std::os::unix::fs::symlink("att_in_view_v2.hdf5", &a).unwrap();
+        let e = load(&c).unwrap_err();
+        assert!(
+            e.contains("symbolic link loop") && e.contains("att_in_view_v2"),
+            "{e}"
+        );
+    }
+
+    // Every instance of the val scene's objects visible from no state: its episodes cannot
+    // succeed, and eval says how many.
+    let c = copy_of("invisible");
+    let vis = c.join("FloorPlan22/visible_object_map.json");
+    let mut v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&vis).unwrap()).unwrap();
+    let ep = std::fs::read_to_string(c.join("episodes/val/kitchen_seen.jsonl")).unwrap();
+    let target: serde_json::Value = serde_json::from_str(ep.lines().next().unwrap()).unwrap();
+    let target = target["target"].as_str().unwrap().to_string();
+    let mut emptied = 0;
+    for (id, keys) in v.as_object_mut().unwrap() {
+        if id.split('|').next() == Some(target.as_str()) {
+            *keys = serde_json::json!([]);
+            emptied += 1;
+        }
+    }
+    assert!(emptied > 0);
+    std::fs::write(&vis, v.to_string()).unwrap();
+    let (ok, e) = eval(&c);
+    assert!(
+        ok && e.contains("cannot succeed") && e.contains(&target) && e.contains("FloorPlan22"),
+        "{e}"
+    );
+}
+
+/// Copies a directory tree (files and folders).
+#[cfg(feature = "offline")]
+fn copy_tree(from: &Path, to: &Path) {
+    std::fs::create_dir_all(to).unwrap();
+    for e in std::fs::read_dir(from).unwrap() {
+        let e = e.unwrap();
+        if e.file_type().unwrap().is_dir() {
+            copy_tree(&e.path(), &to.join(e.file_name()));
+        } else {
+            std::fs::copy(e.path(), to.join(e.file_name())).unwrap();
+        }
+    }
 }

@@ -6,7 +6,9 @@ use std::time::Instant;
 
 use anyhow::{bail, Context, Result};
 use clap::Args;
-use gman_host_sim::sim::{evaluate, EpisodeLimits, EvalConfig, EvalReport, RewardKind, Split};
+use gman_host_sim::sim::{
+    evaluate, EpisodeLimits, EvalConfig, EvalReport, RewardKind, Split, World,
+};
 
 use super::args::WorldArgs;
 use super::models::{self, agent_factory};
@@ -184,6 +186,7 @@ pub fn cmd_eval(a: EvalArgs) -> Result<()> {
     let world = a.world.load()?;
     models::check_agent_for_world(&a.agent, &world)?;
     let episodes = world.episodes(split, a.episodes)?;
+    check_episodes(&world, &episodes, split, a.episodes)?;
     let cfg = a.eval_config();
     let results = evaluate(&world, &episodes, |w| factory(w), &cfg);
     let report = EvalReport::new(split.name(), &a.agent, &results);
@@ -201,6 +204,26 @@ pub fn cmd_eval(a: EvalArgs) -> Result<()> {
     check_failures(&report)
 }
 
+/// Reads the episodes' scenes now (an offline feature file with bad values is an error
+/// naming it), then prints the counts of repeated episode lines and of episodes that cannot
+/// succeed, if any ([`World::repeated_episodes_warning`],
+/// [`World::unsolvable_episodes_warning`]).
+fn check_episodes(
+    world: &World,
+    episodes: &[gman_host_sim::sim::EpisodeSpec],
+    split: Split,
+    per_file: Option<usize>,
+) -> Result<()> {
+    world.prepare_scenes(episodes.iter().map(|e| e.scene))?;
+    if let Some(w) = world.repeated_episodes_warning(split, per_file)? {
+        eprintln!("warning: {w}");
+    }
+    if let Some(w) = world.unsolvable_episodes_warning(episodes)? {
+        eprintln!("warning: {w}");
+    }
+    Ok(())
+}
+
 /// `gman eval --seeds`: one evaluation per training seed, then mean ± std.
 fn eval_seeds(a: EvalArgs, split: Split) -> Result<()> {
     if !a.agent.contains("{seed}") {
@@ -209,6 +232,7 @@ fn eval_seeds(a: EvalArgs, split: Split) -> Result<()> {
     let t0 = Instant::now();
     let world = a.world.load()?;
     let episodes = world.episodes(split, a.episodes)?;
+    check_episodes(&world, &episodes, split, a.episodes)?;
     let cfg = a.eval_config();
     let mut reports = Vec::new();
     for s in &a.seeds {

@@ -427,11 +427,7 @@ fn validate_train_settings(
 /// directory, a fingerprint of its contents (the path may change, the data must not).
 fn world_identity(w: &WorldArgs) -> Result<WorldId> {
     Ok(match &w.data {
-        Some(dir) => WorldId::Data {
-            world_seed: w.world_seed,
-            fingerprint: gman_host_sim::sim::data::fingerprint(dir)?,
-            path: dir.display().to_string(),
-        },
+        Some(dir) => WorldId::of_data_dir(dir, w.world_seed, &w.visible_file)?,
         None => WorldId::Synthetic {
             world_seed: w.world_seed,
         },
@@ -593,31 +589,32 @@ fn train_on(
 }
 
 /// The update count a resumed run trains to: `--updates` when given (refused below the
-/// checkpoint's update), else the target stored in the checkpoint (older checkpoints
-/// without one: the preset's count, with a warning). Printed either way.
+/// checkpoint's update), else the target stored in the checkpoint; a checkpoint of an older
+/// build without one needs `--updates` (the preset's count could be below the checkpoint's
+/// update, or far beyond what the run was asked for). Printed either way.
 fn resumed_target(a: &TrainArgs, st: &TrainState, dir: &Path) -> Result<u64> {
     let target = match (a.updates, st.target_updates) {
         (Some(n), _) => {
             if n < st.update {
                 bail!(
-                    "--updates {n} on resuming {}: the checkpoint is already at update {}; give a target of at least {} (or omit --updates to continue to the stored target{})",
+                    "--updates {n} on resuming {}: the checkpoint is already at update {}; give a target of at least {}{}",
                     dir.display(),
                     st.update,
                     st.update,
-                    st.target_updates.map_or(String::new(), |t| format!(", {t}"))
+                    st.target_updates.map_or(String::new(), |t| format!(
+                        " (or omit --updates to continue to the stored target, {t})"
+                    ))
                 );
             }
             n
         }
         (None, Some(t)) => t,
-        (None, None) => {
-            let (n, _) = updates_and_lr(a);
-            eprintln!(
-                "warning: {} records no target update count (an older checkpoint); training to {n} (give --updates to choose)",
-                dir.display()
-            );
-            n
-        }
+        (None, None) => bail!(
+            "{}: its checkpoint predates stored targets (it does not record the run's --updates, so where the run was meant to stop is unknown); it is at update {}: give --updates N (at least {}) to resume",
+            dir.display(),
+            st.update,
+            st.update
+        ),
     };
     eprintln!(
         "target: update {target} ({} to go){}",
@@ -721,6 +718,8 @@ fn load_world(a: &TrainArgs) -> Result<World> {
         a.map.1,
         &format!("--map {}x{}", a.map.0, a.map.1),
     )?;
+    // Offline scenes are read now: a feature file with bad values is an error naming it.
+    world.prepare_split(gman_host_sim::sim::Split::Train)?;
     use rand::SeedableRng;
     let mut probe = rand_chacha::ChaCha8Rng::seed_from_u64(0);
     world.try_sample_train_episode_min(&mut probe, a.min_start_actions)?;
@@ -841,8 +840,14 @@ fn open_resumed(
     let (mut st, meta) = TrainState::load_with_settings(&ck)
         .with_context(|| format!("resuming {}", dir.display()))?;
     if let Some(w) = &st.world {
-        w.check_same(world_id)
-            .with_context(|| format!("resuming {}", dir.display()))?;
+        if let Some(warning) = w
+            .check_same(world_id)
+            .with_context(|| format!("resuming {}", dir.display()))?
+        {
+            eprintln!("warning: resuming {}: {warning}", dir.display());
+        }
+        // The same data: from now on the checkpoint stores this build's fingerprint of it.
+        st.world = Some(world_id.clone());
     }
     if explicit("preset") {
         preset_matches(&st.model, a.preset).with_context(|| {

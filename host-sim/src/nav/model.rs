@@ -746,6 +746,7 @@ impl NavModel {
         }
         let m: ModelMeta = serde_json::from_value(meta.clone())
             .map_err(|e| anyhow!("checkpoint metadata: {e}"))?;
+        super::state::check_model_record(meta)?;
         let (method, dims) = (m.method, m.dims.0);
         let mut params = ParamSet::new();
         for id in TensorId::all_for(&dims) {

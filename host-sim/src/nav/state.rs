@@ -11,9 +11,10 @@
 //!
 //! A version this build does not know is refused with [`SettingsError::Version`].
 
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-use anyhow::{bail, Result};
+use anyhow::{anyhow, bail, Result};
 use serde::{Deserialize, Serialize};
 
 use super::a3c::{A3cConfig, Objective};
@@ -118,40 +119,118 @@ pub enum WorldId {
     Data {
         /// `--world-seed`.
         world_seed: u64,
-        /// Fingerprint of the directory's contents (the path may change, the data must not).
+        /// Fingerprint of the directory's contents (the path may change, the data must not),
+        /// by the rule `fingerprint_rule` ([`crate::sim::fingerprint`]).
         fingerprint: String,
         /// The path it was trained from (for messages).
         path: String,
+        /// The rule of `fingerprint` (absent: 1, the only rule of older builds).
+        #[serde(default = "rule_one", skip_serializing_if = "is_rule_one")]
+        fingerprint_rule: u32,
+        /// The digest of every file the fingerprint covers, so that a refusal names the
+        /// files that differ (absent in checkpoints of older builds).
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        files: Option<BTreeMap<String, String>>,
+        /// The directory's rule-1 fingerprint, to compare with checkpoints of older builds
+        /// (computed, never stored).
+        #[serde(skip)]
+        rule1: Option<String>,
     },
 }
 
+fn rule_one() -> u32 {
+    1
+}
+
+fn is_rule_one(r: &u32) -> bool {
+    *r == 1
+}
+
 impl WorldId {
-    /// Refuses to resume a run trained on `self` on `now`, in words a user can act on.
-    pub fn check_same(&self, now: &WorldId) -> Result<()> {
-        let same = match (self, now) {
-            (WorldId::Synthetic { world_seed: a }, WorldId::Synthetic { world_seed: b }) => a == b,
+    /// The identity of data directory `dir` read with visibility file `visible_file`.
+    pub fn of_data_dir(dir: &Path, world_seed: u64, visible_file: &str) -> Result<WorldId> {
+        let f = crate::sim::fingerprint::of_dir(dir, visible_file)?;
+        Ok(WorldId::Data {
+            world_seed,
+            fingerprint: f.fingerprint,
+            path: dir.display().to_string(),
+            fingerprint_rule: f.rule,
+            files: Some(f.files),
+            rule1: Some(f.rule1),
+        })
+    }
+
+    /// Refuses to resume a run trained on `self` on `now`, in words a user can act on: which
+    /// files differ when both sides list their files. `Ok(Some(warning))` when `self` was
+    /// stored by an older build with a fingerprint rule that covers less than `now`'s and
+    /// that older rule matches (the files it does not cover cannot be compared).
+    pub fn check_same(&self, now: &WorldId) -> Result<Option<String>> {
+        let refuse = |detail: String| -> Result<Option<String>> {
+            bail!(
+                "the run was trained on {}, but this resume selects {}{detail}; resume with the same --data and --world-seed",
+                self.describe(),
+                now.describe()
+            )
+        };
+        match (self, now) {
+            (WorldId::Synthetic { world_seed: a }, WorldId::Synthetic { world_seed: b })
+                if a == b =>
+            {
+                Ok(None)
+            }
             (
                 WorldId::Data {
                     world_seed: a,
                     fingerprint: fa,
+                    fingerprint_rule: ra,
+                    files: files_a,
                     ..
                 },
                 WorldId::Data {
                     world_seed: b,
                     fingerprint: fb,
+                    fingerprint_rule: rb,
+                    files: files_b,
+                    rule1,
                     ..
                 },
-            ) => a == b && fa == fb,
-            _ => false,
-        };
-        if !same {
-            bail!(
-                "the run was trained on {}, but this resume selects {}; resume with the same --data and --world-seed",
-                self.describe(),
-                now.describe()
-            );
+            ) if a == b => {
+                if ra == rb && fa == fb {
+                    return Ok(None);
+                }
+                if *ra == crate::sim::fingerprint::RULE_SCENES
+                    && *rb != *ra
+                    && files_a.is_none()
+                    && rule1.as_ref() == Some(fa)
+                {
+                    return Ok(Some(format!(
+                        "the checkpoint was written by an older build whose data fingerprint (rule 1) covers attributes.json and scenes/ only; those match, but the scene folders' graphs, grids, visibility and feature files cannot be compared with what the run was trained on (checkpoints written from now on fingerprint them, rule {rb})"
+                    )));
+                }
+                if ra != rb {
+                    return refuse(format!(
+                        " (fingerprint rule {ra} in the checkpoint, rule {rb} for this directory: a directory of another layout)"
+                    ));
+                }
+                match (files_a, files_b) {
+                    (Some(x), Some(y)) => {
+                        let d = crate::sim::fingerprint::differences(x, y);
+                        let shown: Vec<&str> = d.iter().take(6).map(String::as_str).collect();
+                        refuse(format!(
+                            ": {}{}",
+                            shown.join(", "),
+                            if d.len() > shown.len() {
+                                format!(" and {} more", d.len() - shown.len())
+                            } else {
+                                String::new()
+                            }
+                        ))
+                    }
+                    _ => refuse(String::new()),
+                }
+            }
+            _ => refuse(String::new()),
         }
-        Ok(())
     }
 
     fn describe(&self) -> String {
@@ -160,6 +239,7 @@ impl WorldId {
                 world_seed,
                 fingerprint,
                 path,
+                ..
             } => format!(
                 "the data directory {path} (content fingerprint {fingerprint}) with --world-seed {world_seed}"
             ),
@@ -196,6 +276,71 @@ pub struct TrainerMeta {
     /// continues to it; absent in checkpoints of older builds.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub target_updates: Option<u64>,
+    /// A copy of the model's settings as the checkpoint was written (the metadata's top-level
+    /// keys other than `trainer`), so that settings the tensors cannot show (a 3 x 3 map
+    /// relabelled 1 x 9, the adaptation mode) are not changed unnoticed
+    /// ([`check_model_record`]); absent in checkpoints of older builds.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub model: Option<serde_json::Value>,
+}
+
+/// The model settings of a checkpoint's metadata: every top-level key but `trainer`.
+fn model_settings(metadata: &serde_json::Value) -> serde_json::Map<String, serde_json::Value> {
+    let mut m = metadata.as_object().cloned().unwrap_or_default();
+    m.remove("trainer");
+    m
+}
+
+/// Refuses a checkpoint whose model settings differ from the copy the trainer stored beside
+/// them ([`TrainerMeta::model`]), naming the first setting that differs and both values.
+/// Checkpoints without a copy (older builds, pre-training) pass.
+pub fn check_model_record(metadata: &serde_json::Value) -> Result<()> {
+    let Some(copy) = metadata
+        .get("trainer")
+        .and_then(|t| t.get("model"))
+        .filter(|c| !c.is_null())
+    else {
+        return Ok(());
+    };
+    let now = serde_json::Value::Object(model_settings(metadata));
+    let mut diffs = Vec::new();
+    json_diffs("", &now, copy, &mut diffs);
+    if let Some((key, a, b)) = diffs.first() {
+        bail!(
+            "the checkpoint's model settings were changed after training wrote it: {key} is {a} but was {b} when the checkpoint was written ({} setting(s) differ); the tensors were trained with the recorded settings",
+            diffs.len()
+        );
+    }
+    Ok(())
+}
+
+/// Leaves of `a` and `b` that differ, as (dotted key, value in `a`, value in `b`).
+fn json_diffs(
+    at: &str,
+    a: &serde_json::Value,
+    b: &serde_json::Value,
+    out: &mut Vec<(String, String, String)>,
+) {
+    use serde_json::Value;
+    match (a, b) {
+        (Value::Object(x), Value::Object(y)) => {
+            let keys: std::collections::BTreeSet<&String> = x.keys().chain(y.keys()).collect();
+            for k in keys {
+                let key = if at.is_empty() {
+                    k.clone()
+                } else {
+                    format!("{at}.{k}")
+                };
+                let show = |v: Option<&Value>| v.map_or("absent".to_string(), |v| v.to_string());
+                match (x.get(k), y.get(k)) {
+                    (Some(p), Some(q)) => json_diffs(&key, p, q, out),
+                    (p, q) => out.push((key, show(p), show(q))),
+                }
+            }
+        }
+        _ if a != b => out.push((at.to_string(), a.to_string(), b.to_string())),
+        _ => {}
+    }
 }
 
 fn version_one() -> u32 {
@@ -296,6 +441,22 @@ impl TrainState {
         }
     }
 
+    /// Counts one update that ran `episodes` episodes of `env_steps` steps in all. A counter
+    /// that would pass `u64::MAX` (a corrupt or hand-edited checkpoint) is an error that names
+    /// it; nothing is counted then.
+    pub fn count_update(&mut self, episodes: u64, env_steps: u64) -> Result<()> {
+        let add = |what: &str, now: u64, n: u64| {
+            now.checked_add(n).ok_or_else(|| {
+                anyhow!("the {what} counter ({now}) cannot count {n} more: it would pass u64::MAX; the checkpoint's counters are corrupt")
+            })
+        };
+        let update = add("update", self.update, 1)?;
+        let eps = add("episode", self.episodes, episodes)?;
+        let steps = add("environment step", self.env_steps, env_steps)?;
+        (self.update, self.episodes, self.env_steps) = (update, eps, steps);
+        Ok(())
+    }
+
     /// The `trainer` object of this state's checkpoint, for a run with settings `run`.
     pub fn trainer_meta(&self, run: &RunSettings) -> TrainerMeta {
         TrainerMeta {
@@ -307,6 +468,7 @@ impl TrainState {
             method: Some(self.model.method),
             world: self.world.clone(),
             target_updates: self.target_updates,
+            model: Some(self.model.metadata()),
         }
     }
 

@@ -223,9 +223,10 @@ pub fn train_in(
             let episodes: Vec<_> = shares.iter().flat_map(|(_, e)| e.iter().cloned()).collect();
             (outer_step(state, &grads, &episodes)?, episodes)
         };
-        state.update += 1;
-        state.episodes += episodes.len() as u64;
-        state.env_steps += episodes.iter().map(|(st, _)| st.steps as u64).sum::<u64>();
+        state.count_update(
+            episodes.len() as u64,
+            episodes.iter().map(|(st, _)| st.steps as u64).sum::<u64>(),
+        )?;
         fault.apply(rank, state);
         if ranks > 1
             && dist.check_every > 0

@@ -153,7 +153,12 @@ impl Adam {
             Some(max) if grad_norm > max as f64 => ((max as f64 / (grad_norm + 1e-6)) as f32, true),
             _ => (1.0, false),
         };
-        self.t += 1;
+        self.t = self.t.checked_add(1).ok_or_else(|| {
+            anyhow::anyhow!(
+                "Adam's step count t = {} cannot grow further (u64::MAX); the optimiser state is corrupt",
+                self.t
+            )
+        })?;
         let c = self.cfg;
         let bc1 = 1.0 - (c.beta1 as f64).powi(self.t.min(i32::MAX as u64) as i32);
         let bc2 = 1.0 - (c.beta2 as f64).powi(self.t.min(i32::MAX as u64) as i32);

@@ -113,6 +113,9 @@ pub struct RawEpisode {
     pub scene: String,
     /// Room type name.
     pub room: String,
+    /// The split the episode belongs to (`val`, `test`; absent: the split of its directory).
+    #[serde(default)]
+    pub split: Option<String>,
     /// `seen` or `unseen`.
     pub target_kind: String,
     /// Target category name.

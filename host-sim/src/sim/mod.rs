@@ -25,6 +25,7 @@ pub mod data;
 pub mod env;
 pub mod eval;
 pub mod features;
+pub mod fingerprint;
 pub mod geometry;
 pub mod metrics;
 pub mod offline;

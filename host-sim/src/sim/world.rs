@@ -138,6 +138,15 @@ pub(crate) struct WorldParts {
 
 /// The start state of an episode (on the grid, a multiple of 45 degrees, horizon 0 or 30).
 fn start_state(at: &dyn Fn() -> String, start: &data::RawStart) -> Result<AgentState> {
+    // The agent's height is not used, but a value no room has is a broken file.
+    if !(start.y.is_finite() && start.y.abs() <= data::MAX_COORD) {
+        bail!(
+            "{}: start y = {} is not a height in a room (at most {} m)",
+            at(),
+            start.y,
+            data::MAX_COORD
+        );
+    }
     for (axis, v) in [("x", start.x), ("z", start.z)] {
         let cells = v / super::geometry::GRID;
         if !v.is_finite() || (cells - cells.round()).abs() * super::geometry::GRID > 1e-3 {
@@ -478,6 +487,80 @@ impl World {
         })
     }
 
+    /// The state tables of a scene like [`World::tables`], built now if they are not yet:
+    /// for an offline scene whose files fail to read or hold bad values (NaN, 3e38), an
+    /// error that names the file and the dataset instead of a panic.
+    pub fn try_tables(&self, scene: SceneId) -> Result<&SceneTables> {
+        if let (None, Some(o)) = (self.tables[scene].get(), &self.offline[scene]) {
+            let t = o
+                .build_tables(&self.scenes[scene], &self.categories)
+                .with_context(|| format!("offline scene {}", self.scenes[scene].name))?;
+            let _ = self.tables[scene].set(t);
+        }
+        Ok(self.tables(scene))
+    }
+
+    /// Builds the tables of the offline scenes among `scenes` now ([`World::try_tables`]), so
+    /// that a broken feature file stops a command before it runs, with the file named.
+    /// Simulated scenes are left to be built on first use.
+    pub fn prepare_scenes(&self, scenes: impl IntoIterator<Item = SceneId>) -> Result<()> {
+        for s in scenes {
+            if self.offline[s].is_some() {
+                self.try_tables(s)?;
+            }
+        }
+        Ok(())
+    }
+
+    /// [`World::prepare_scenes`] for every scene of `split`.
+    pub fn prepare_split(&self, split: Split) -> Result<()> {
+        let scenes: Vec<SceneId> = (0..self.scenes.len())
+            .filter(|&s| self.scenes[s].split == split)
+            .collect();
+        self.prepare_scenes(scenes)
+    }
+
+    /// A warning for the episodes that cannot succeed because no state reachable from their
+    /// start shows an instance of the target (in offline data, typically an object whose
+    /// visibility list is empty), `None` when every episode can succeed. Counts those whose
+    /// target no state of the scene shows at all separately.
+    pub fn unsolvable_episodes_warning(&self, episodes: &[EpisodeSpec]) -> Result<Option<String>> {
+        let (mut unsolvable, mut nowhere) = (0usize, 0usize);
+        let mut first = None;
+        for e in episodes {
+            self.try_tables(e.scene)?;
+            let Some(start) = self.scenes[e.scene].state_index(e.start) else {
+                continue;
+            };
+            let goal = self.goal_table(e.scene, e.target);
+            if goal.dist[start] != UNREACHABLE {
+                continue;
+            }
+            unsolvable += 1;
+            if goal.dist.iter().all(|&d| d == UNREACHABLE) {
+                nowhere += 1;
+            }
+            first.get_or_insert(e);
+        }
+        let Some(e) = first else {
+            return Ok(None);
+        };
+        let vis = match &self.offline[e.scene] {
+            Some(o) => format!(
+                " (offline data: check the visibility lists of its instances under {})",
+                o.dir.display()
+            ),
+            None => String::new(),
+        };
+        Ok(Some(format!(
+            "{unsolvable} of the {} episodes cannot succeed: no state reachable from the start shows the target ({nowhere} of them: no state of the scene shows it at all); first: episode {}, {} in {}{vis}",
+            episodes.len(),
+            e.index,
+            self.category_name(e.target),
+            self.scenes[e.scene].name
+        )))
+    }
+
     /// The offline data of a scene (`None` for simulated scenes).
     pub fn offline_scene(&self, scene: SceneId) -> Option<&OfflineScene> {
         self.offline[scene].as_ref()
@@ -632,6 +715,56 @@ impl World {
         }
     }
 
+    /// A warning for the lines of a split's episode files that repeat an earlier line of
+    /// their file (the same episode, field for field), `None` when there are none (and in the
+    /// synthetic world). The official val files have 247 such lines among their 8000; they
+    /// are kept, as the reference benchmark evaluates every line, so each repeat counts again
+    /// in the results. `per_file` as in [`World::episodes`].
+    pub fn repeated_episodes_warning(
+        &self,
+        split: Split,
+        per_file: Option<usize>,
+    ) -> Result<Option<String>> {
+        let (WorldSource::Data(dir) | WorldSource::Offline(dir)) = &self.source else {
+            return Ok(None);
+        };
+        let every_room = matches!(self.source, WorldSource::Data(_));
+        let raw = data::load_raw_episodes(dir, split, per_file, every_room)?;
+        // (file, repeats, first repeat (line, earlier line)) in file order.
+        let mut files: Vec<(&Path, usize, (usize, usize))> = Vec::new();
+        let mut seen: HashMap<(&Path, String), usize> = HashMap::new();
+        for r in &raw {
+            // The parsed fields (f32 printed exactly), so that formatting does not matter.
+            let key = (r.file.as_path(), format!("{:?}", r.episode));
+            let Some(&first) = seen.get(&key) else {
+                seen.insert(key, r.line);
+                continue;
+            };
+            match files.last_mut() {
+                Some(f) if f.0 == r.file.as_path() => f.1 += 1,
+                _ => files.push((r.file.as_path(), 1, (r.line, first))),
+            }
+        }
+        if files.is_empty() {
+            return Ok(None);
+        }
+        let total: usize = files.iter().map(|f| f.1).sum();
+        let (file, _, (line, first)) = files[0];
+        let per: Vec<String> = files
+            .iter()
+            .map(|(f, n, _)| {
+                let name = f.file_name().unwrap_or_default().to_string_lossy();
+                format!("{name} {n}")
+            })
+            .collect();
+        Ok(Some(format!(
+            "{total} of the {} episodes of split {split} repeat an earlier line of their file ({}; first: {} line {line} = line {first}); each line is evaluated, as in the reference benchmark, so a repeated episode counts again",
+            raw.len(),
+            per.join(", "),
+            file.display()
+        )))
+    }
+
     fn resolve_episode(
         &self,
         index: usize,
@@ -640,6 +773,12 @@ impl World {
     ) -> Result<EpisodeSpec> {
         let at = || format!("{} line {}", r.file.display(), r.line);
         let e = &r.episode;
+        if let Some(s) = e.split.as_deref().filter(|s| *s != split.name()) {
+            bail!(
+                "{}: split {s:?} disagrees with the {split} episode directory it is in",
+                at()
+            );
+        }
         let scene = self
             .scene_id(&e.scene)
             .filter(|&s| self.scenes[s].split == split)

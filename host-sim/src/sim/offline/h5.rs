@@ -33,9 +33,7 @@ mod real {
     impl H5File {
         /// Opens `path` read-only; errors name the file.
         pub fn open(path: &Path) -> Result<H5File> {
-            if !path.is_file() {
-                bail!("missing file {}", path.display());
-            }
+            super::super::check_file(path)?;
             let file = hdf5::File::open(path)
                 .map_err(|e| anyhow!("{}: cannot open as HDF5: {e}", path.display()))?;
             Ok(H5File {
@@ -77,6 +75,25 @@ mod real {
                 );
             }
             Ok(())
+        }
+
+        /// The names of the datasets (and groups) at the file's root, sorted.
+        pub fn names(&self) -> Result<Vec<String>> {
+            let mut v = self
+                .file
+                .member_names()
+                .map_err(|e| anyhow!("{}: cannot list datasets: {e}", self.path.display()))?;
+            v.sort();
+            Ok(v)
+        }
+
+        /// Shape and element size in bytes of dataset `key` (HDF5 metadata only).
+        pub fn shape_and_size(&self, key: &str) -> Result<(Vec<usize>, usize)> {
+            let ds = self.dataset(key)?;
+            let dt = ds
+                .dtype()
+                .with_context(|| format!("{}: dataset {key:?}", self.path.display()))?;
+            Ok((ds.shape(), dt.size()))
         }
 
         /// Reads dataset `key` as f32 values in storage (C) order; f64 data is converted.
@@ -150,6 +167,16 @@ mod stub {
 
         /// Fails: this build has no HDF5 support.
         pub fn check(&self, _key: &str, _shapes: &[&[usize]]) -> Result<()> {
+            bail!("{}: {NEEDS_FEATURE}", self.path.display())
+        }
+
+        /// Fails: this build has no HDF5 support.
+        pub fn names(&self) -> Result<Vec<String>> {
+            bail!("{}: {NEEDS_FEATURE}", self.path.display())
+        }
+
+        /// Fails: this build has no HDF5 support.
+        pub fn shape_and_size(&self, _key: &str) -> Result<(Vec<usize>, usize)> {
             bail!("{}: {NEEDS_FEATURE}", self.path.display())
         }
 

@@ -60,8 +60,13 @@
 //!   the ids and the category footprint radii, as in the simulator.
 //!
 //! Every file, key and dataset shape is checked when the world is loaded (HDF5 metadata only;
-//! a scene's features are read when its tables are first built). An error names the file and
-//! the key. Reading a feature file that changed after loading panics with that error.
+//! a scene's features are read when its tables are first built, where a non-finite value or
+//! one beyond [`MAX_VALUE`] is refused). An error names the file and the key; a file that is
+//! a link loop, a broken link, a directory or a device says so ([`check_file`]). A scene
+//! folder named with a leading zero (`FloorPlan022`) is refused, and so is one floor plan in
+//! two folders. `train` and `eval` build the tables of the scenes they use before they start
+//! ([`crate::sim::World::prepare_scenes`]), so that a bad feature file is an error; reading
+//! one that changed or broke later panics with that error.
 
 use std::collections::{BTreeMap, HashMap, HashSet};
 use std::fs;
@@ -112,7 +117,7 @@ pub fn scene_of_folder(folder: &str) -> Option<&str> {
 
 /// Scene folders of `dir` (`FloorPlanN/` or `FloorPlanN_physics/`), as (scene name, folder),
 /// sorted by scene name. Both namings of one scene in one directory is an error.
-fn scene_folders(dir: &Path) -> Result<Vec<(String, PathBuf)>> {
+pub(crate) fn scene_folders(dir: &Path) -> Result<Vec<(String, PathBuf)>> {
     let out = scene_folders_unchecked(dir)?;
     if let Some(w) = out.windows(2).find(|w| w[0].0 == w[1].0) {
         bail!(
@@ -121,6 +126,32 @@ fn scene_folders(dir: &Path) -> Result<Vec<(String, PathBuf)>> {
             w[0].0,
             w[0].1.display(),
             w[1].1.display()
+        );
+    }
+    // `FloorPlan022` is floor plan 22 too: the same scene under a second name.
+    let number = |name: &str| name["FloorPlan".len()..].parse::<u64>().ok();
+    let mut by_number: BTreeMap<u64, &Path> = BTreeMap::new();
+    for (name, path) in &out {
+        let Some(n) = number(name) else {
+            bail!("{}: {name} is not a floor plan number", path.display());
+        };
+        if let Some(other) = by_number.insert(n, path) {
+            bail!(
+                "{}: scene FloorPlan{n} is there twice, as {} and {} (floor plan numbers are written without leading zeros; remove one)",
+                dir.display(),
+                other.display(),
+                path.display()
+            );
+        }
+    }
+    if let Some((name, path)) = out
+        .iter()
+        .find(|(name, _)| number(name).is_some_and(|n| name.as_str() != format!("FloorPlan{n}")))
+    {
+        bail!(
+            "{}: {name} has a leading zero; name the folder FloorPlan{} (the episodes and the benchmark name scenes without one)",
+            path.display(),
+            number(name).unwrap_or_default()
         );
     }
     Ok(out)
@@ -300,10 +331,47 @@ struct RawPoint {
     z: f32,
 }
 
-fn read_json<T: serde::de::DeserializeOwned>(path: &Path) -> Result<T> {
-    if !path.is_file() {
-        bail!("missing file {}", path.display());
+/// Checks that `path` is a regular file (after following links); otherwise an error that
+/// says what it is: missing, a broken link, a link loop, a directory, a device, FIFO or
+/// socket.
+pub fn check_file(path: &Path) -> Result<()> {
+    let p = path.display();
+    let link = match fs::symlink_metadata(path) {
+        Ok(m) => m.file_type().is_symlink(),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => bail!("missing file {p}"),
+        Err(e) => bail!("cannot read {p}: {e}"),
+    };
+    let m = match fs::metadata(path) {
+        Ok(m) => m,
+        Err(e) if link && e.kind() == std::io::ErrorKind::NotFound => {
+            let to = fs::read_link(path).map(|t| t.display().to_string());
+            bail!(
+                "{p} is a broken symbolic link (to {}): its target does not exist",
+                to.unwrap_or_else(|_| "?".into())
+            )
+        }
+        // ELOOP: too many levels of symbolic links.
+        Err(e) if link && e.raw_os_error() == Some(40) => {
+            bail!("{p} is a symbolic link loop (it never reaches a file): {e}")
+        }
+        Err(e) => bail!("cannot read {p}: {e}"),
+    };
+    if m.is_dir() {
+        bail!("{p} is a directory, not a file");
     }
+    if !m.is_file() {
+        bail!("{p} is not a regular file (a device, FIFO or socket), so it cannot be read as data");
+    }
+    Ok(())
+}
+
+/// True when something (a file, a link, even a broken one) is at `path`.
+pub fn is_present(path: &Path) -> bool {
+    fs::symlink_metadata(path).is_ok()
+}
+
+fn read_json<T: serde::de::DeserializeOwned>(path: &Path) -> Result<T> {
+    check_file(path)?;
     let text =
         fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
     serde_json::from_str(&text).with_context(|| format!("malformed JSON in {}", path.display()))
@@ -358,19 +426,15 @@ fn load_scene(
     let (room, split) = scene_room_split(name).with_context(|| format!("in {}", dir.display()))?;
     // Every required file first, so that a missing one is named before anything else fails.
     for f in [FEATURE_FILE, GRAPH_FILE, GRID_FILE] {
-        let p = dir.join(f);
-        if !p.is_file() {
-            bail!("missing file {}", p.display());
-        }
+        check_file(&dir.join(f))?;
     }
     let vis = dir.join(&opts.visible_file);
-    if !vis.is_file() {
-        bail!(
-            "missing file {} (the visibility file chosen by --visible-file {})",
-            vis.display(),
+    check_file(&vis).with_context(|| {
+        format!(
+            "the visibility file chosen by --visible-file {}",
             opts.visible_file
-        );
-    }
+        )
+    })?;
     let cells = read_cells(dir)?;
     let graph = SceneGraph::read(dir, &cells.iter().copied().collect())?;
     let (known, visible) = read_visibility(&vis, &graph, by_name)?;
@@ -560,7 +624,7 @@ fn open_features(
         features.check(key, &[&MAP_SHAPE])?;
     }
     let att_path = dir.join(ATT_FILE);
-    let att = if att_path.exists() {
+    let att = if is_present(&att_path) {
         let f = h5::H5File::open(&att_path)?;
         for (key, _) in nodes {
             f.check(key, &ATT_SHAPES)?;
@@ -680,6 +744,7 @@ impl OfflineScene {
                 v.len()
             );
         }
+        check_values(self.features.path(), key, &v)?;
         Ok(v)
     }
 
@@ -732,6 +797,7 @@ impl OfflineScene {
                             v.len()
                         );
                     }
+                    check_values(f.path(), key, &v)?;
                     ps_target.copy_from_slice(&v);
                 }
                 None if !visible.is_empty() => {
@@ -758,6 +824,28 @@ impl OfflineScene {
             self.visible_instances.clone(),
         ))
     }
+}
+
+/// Largest magnitude accepted in a feature map or PS-target dataset. ResNet18 activations
+/// and attribute means are far below it; a larger value (3e38, an overflow or garbage) would
+/// overflow the pooling's sums and every network input downstream.
+pub const MAX_VALUE: f32 = 1e6;
+
+/// Refuses a non-finite value or one beyond [`MAX_VALUE`] in dataset `key` of `path`,
+/// naming the file, the key and the first bad value's index.
+pub fn check_values(path: &Path, key: &str, v: &[f32]) -> Result<()> {
+    if let Some((i, x)) = v
+        .iter()
+        .enumerate()
+        .find(|(_, x)| !(x.is_finite() && x.abs() <= MAX_VALUE))
+    {
+        bail!(
+            "{}: dataset {key:?} holds {x:e} at index {i} (of {}); values must be finite and at most {MAX_VALUE:e} in magnitude",
+            path.display(),
+            v.len()
+        );
+    }
+    Ok(())
 }
 
 /// Average pooling of a 512 x 49 channel-major map over its 49 cells (f32 sum in cell order,

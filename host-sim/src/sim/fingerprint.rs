@@ -1,0 +1,185 @@
+//! Content fingerprints of data directories: what a training checkpoint stores so that
+//! `train --resume` refuses a world built from other data, and says which file differs.
+//!
+//! Two rules, each stored with its number:
+//!
+//! * **Rule 1** (directories of the `scenes/` layout, and what every checkpoint of an older
+//!   build stored): 64-bit FNV-1a over `attributes.json` and every `scenes/<split>/*.json`
+//!   ([`crate::sim::data::fingerprint`]).
+//! * **Rule 2** (offline data, [`crate::sim::offline`]): FNV-1a over one digest per file
+//!   the world is built from: `attributes.json`, and per scene (by scene name, so either
+//!   folder naming gives the same digests) `graph.json`, `grid.json`, the chosen visibility
+//!   file (all bytes), `resnet18_featuremap.hdf5` and, if present, `att_in_view_v2.hdf5`.
+//!   An HDF5 file's digest is cheap: its size, the sorted names of its datasets, and the
+//!   shape, element size and values of [`H5_SAMPLE`] datasets spread over the sorted names
+//!   (first and last included). A change inside a dataset outside the sample that keeps the
+//!   file's size is not seen.
+//!
+//! Both rules also list the per-file digests, so that a refusal names what differs.
+
+use std::collections::BTreeMap;
+use std::fs;
+use std::path::Path;
+
+use anyhow::{Context, Result};
+
+use super::offline::{self, h5, ATT_FILE, FEATURE_FILE, GRAPH_FILE, GRID_FILE};
+use super::types::Split;
+
+/// Datasets of an HDF5 file whose values a rule-2 digest reads.
+pub const H5_SAMPLE: usize = 8;
+
+/// The rule of a data directory's fingerprint.
+pub const RULE_SCENES: u32 = 1;
+/// The rule of an offline directory's fingerprint.
+pub const RULE_OFFLINE: u32 = 2;
+
+/// A data directory's fingerprint by its rule, with the digest of every file it covers.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct DataFingerprint {
+    /// [`RULE_SCENES`] or [`RULE_OFFLINE`].
+    pub rule: u32,
+    /// 16 hex digits.
+    pub fingerprint: String,
+    /// Digest (16 hex digits) by file, relative to the directory (`FloorPlan22/graph.json`).
+    pub files: BTreeMap<String, String>,
+    /// The rule-1 fingerprint of the same directory (what older checkpoints stored).
+    pub rule1: String,
+}
+
+struct Fnv(u64);
+
+impl Fnv {
+    fn new() -> Fnv {
+        Fnv(0xcbf2_9ce4_8422_2325)
+    }
+    fn eat(&mut self, bytes: &[u8]) {
+        for &b in bytes {
+            self.0 ^= b as u64;
+            self.0 = self.0.wrapping_mul(0x0000_0100_0000_01b3);
+        }
+    }
+    fn hex(&self) -> String {
+        format!("{:016x}", self.0)
+    }
+}
+
+fn file_digest(path: &Path) -> Result<String> {
+    let mut h = Fnv::new();
+    h.eat(&fs::read(path).with_context(|| format!("cannot read {}", path.display()))?);
+    Ok(h.hex())
+}
+
+/// The cheap digest of an HDF5 file (see the module docs).
+fn h5_digest(path: &Path) -> Result<String> {
+    let mut h = Fnv::new();
+    let len = fs::metadata(path)
+        .with_context(|| format!("cannot read {}", path.display()))?
+        .len();
+    h.eat(&len.to_le_bytes());
+    let f = h5::H5File::open(path)?;
+    let names = f.names()?;
+    for n in &names {
+        h.eat(n.as_bytes());
+        h.eat(&[0]);
+    }
+    let n = names.len();
+    let picks: Vec<usize> = if n <= H5_SAMPLE {
+        (0..n).collect()
+    } else {
+        let mut v: Vec<usize> = (0..H5_SAMPLE)
+            .map(|i| i * (n - 1) / (H5_SAMPLE - 1))
+            .collect();
+        v.dedup();
+        v
+    };
+    for i in picks {
+        let key = &names[i];
+        let (shape, size) = f.shape_and_size(key)?;
+        for d in &shape {
+            h.eat(&(*d as u64).to_le_bytes());
+        }
+        h.eat(&(size as u64).to_le_bytes());
+        for x in f.read(key)? {
+            h.eat(&x.to_bits().to_le_bytes());
+        }
+    }
+    Ok(h.hex())
+}
+
+/// The fingerprint of `dir` by the rule of its layout, for the visibility file
+/// `visible_file` of offline data.
+pub fn of_dir(dir: &Path, visible_file: &str) -> Result<DataFingerprint> {
+    let rule1 = super::data::fingerprint(dir)?;
+    let mut files = BTreeMap::new();
+    files.insert(
+        "attributes.json".to_string(),
+        file_digest(&dir.join("attributes.json"))?,
+    );
+    if !offline::is_offline_dir(dir) {
+        for split in Split::ALL {
+            let sdir = super::data::scenes_dir(dir, split);
+            let Ok(rd) = fs::read_dir(&sdir) else {
+                continue;
+            };
+            for p in rd.filter_map(|e| e.ok().map(|e| e.path())) {
+                if p.extension().is_some_and(|e| e == "json") {
+                    let rel = p.strip_prefix(dir).unwrap_or(&p).to_string_lossy();
+                    files.insert(rel.into_owned(), file_digest(&p)?);
+                }
+            }
+        }
+        return Ok(DataFingerprint {
+            rule: RULE_SCENES,
+            fingerprint: rule1.clone(),
+            files,
+            rule1,
+        });
+    }
+    for (scene, folder) in offline::scene_folders(dir)? {
+        for f in [GRAPH_FILE, GRID_FILE, visible_file] {
+            files.insert(format!("{scene}/{f}"), file_digest(&folder.join(f))?);
+        }
+        files.insert(
+            format!("{scene}/{FEATURE_FILE}"),
+            h5_digest(&folder.join(FEATURE_FILE))?,
+        );
+        let att = folder.join(ATT_FILE);
+        if offline::is_present(&att) {
+            files.insert(format!("{scene}/{ATT_FILE}"), h5_digest(&att)?);
+        }
+    }
+    let mut h = Fnv::new();
+    for (name, d) in &files {
+        h.eat(name.as_bytes());
+        h.eat(&[0]);
+        h.eat(d.as_bytes());
+        h.eat(&[0]);
+    }
+    Ok(DataFingerprint {
+        rule: RULE_OFFLINE,
+        fingerprint: h.hex(),
+        files,
+        rule1,
+    })
+}
+
+/// The files whose digests differ between `stored` and `now`, in words: `FloorPlan22/graph.json
+/// changed`, `FloorPlan23/grid.json is new`, `... is gone`.
+pub fn differences(
+    stored: &BTreeMap<String, String>,
+    now: &BTreeMap<String, String>,
+) -> Vec<String> {
+    let mut out = Vec::new();
+    for (k, v) in stored {
+        match now.get(k) {
+            Some(w) if w == v => {}
+            Some(_) => out.push(format!("{k} changed")),
+            None => out.push(format!("{k} is gone")),
+        }
+    }
+    for k in now.keys().filter(|k| !stored.contains_key(*k)) {
+        out.push(format!("{k} is new"));
+    }
+    out
+}
