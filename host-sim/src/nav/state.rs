@@ -18,7 +18,7 @@ use serde::{Deserialize, Serialize};
 
 use super::a3c::{A3cConfig, Objective};
 use super::model::{Method, NavModel};
-use crate::sim::RewardKind;
+use crate::sim::{ObjectLayout, RewardKind};
 use crate::train::adam::{Adam, AdamConfig};
 use crate::train::checkpoint::Checkpoint;
 
@@ -122,12 +122,35 @@ pub enum WorldId {
         fingerprint: String,
         /// The path it was trained from (for messages).
         path: String,
+        /// The object layout (`--object-layout`; absent in checkpoints written before it
+        /// existed, which were all `rule`).
+        #[serde(default, skip_serializing_if = "is_rule")]
+        object_layout: ObjectLayout,
     },
+}
+
+fn is_rule(l: &ObjectLayout) -> bool {
+    *l == ObjectLayout::Rule
 }
 
 impl WorldId {
     /// Refuses to resume a run trained on `self` on `now`, in words a user can act on.
     pub fn check_same(&self, now: &WorldId) -> Result<()> {
+        if let (
+            WorldId::Data {
+                object_layout: a, ..
+            },
+            WorldId::Data {
+                object_layout: b, ..
+            },
+        ) = (self, now)
+        {
+            if a != b {
+                bail!(
+                    "the run was trained with the object layout {a}, but this resume selects {b}; resume with --object-layout {a}"
+                );
+            }
+        }
         let same = match (self, now) {
             (WorldId::Synthetic { world_seed: a }, WorldId::Synthetic { world_seed: b }) => a == b,
             (
@@ -160,8 +183,9 @@ impl WorldId {
                 world_seed,
                 fingerprint,
                 path,
+                object_layout,
             } => format!(
-                "the data directory {path} (content fingerprint {fingerprint}) with --world-seed {world_seed}"
+                "the data directory {path} (content fingerprint {fingerprint}) with --world-seed {world_seed} and --object-layout {object_layout}"
             ),
             WorldId::Synthetic { world_seed } => {
                 format!("the synthetic world (no --data) with --world-seed {world_seed}")
