@@ -349,6 +349,30 @@ mod tests {
     }
 
     #[test]
+    fn boxes_are_seen_by_their_nearest_part() {
+        // A 2 m box centred 1.6 m ahead: its near face is 0.6 m away, within the 1 m
+        // visibility distance, while its centre is not.
+        let b = Aabb {
+            center: [0.0, 0.9, 1.6],
+            size: [2.0, 1.8, 2.0],
+        };
+        let a = appearance_box(0.0, 0.0, 0, 0, &b, &P);
+        assert!(a.in_fov && a.weight > 0.0);
+        assert!((a.footprint_distance - 0.6).abs() < 1e-6);
+        assert!((b.horizontal_distance(3.0, 1.6) - 2.0).abs() < 1e-6);
+        assert_eq!(b.horizontal_distance(0.5, 1.0), 0.0);
+        // Behind the agent: out of view; turned around: in view.
+        assert!(!appearance_box(0.0, 0.0, 4, 0, &b, &P).in_fov);
+        // A wide box whose centre is 70 degrees off-axis still shows its near corner.
+        let side = Aabb {
+            center: [2.0, 1.0, 0.73],
+            size: [0.2, 0.2, 2.4],
+        };
+        assert!(!appearance(0.0, 0.0, 0, 0, side.center, &P).in_fov);
+        assert!(appearance_box(0.0, 0.0, 0, 0, &side, &P).in_fov);
+    }
+
+    #[test]
     fn los_blocked_by_obstacle_between() {
         // Free floor except a wall strip at 1.0 <= z < 1.5.
         let free = |_x: f32, z: f32| !(1.0..1.5).contains(&z);

@@ -239,8 +239,8 @@ fn thor5_instances(
             matched += 1;
             let t = &thor5[i];
             let mut center = t.aabb.center;
-            for k in 0..3 {
-                center[k] += o.pos[k] - t.pos[k];
+            for ((c, a), b) in center.iter_mut().zip(o.pos).zip(t.pos) {
+                *c += a - b;
             }
             o.aabb = Some(Aabb {
                 center,
