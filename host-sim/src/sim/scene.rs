@@ -22,8 +22,9 @@
 //! ([`Thor5Object`]) and changes two things:
 //! * **Instances of the categories without a 2.x position** are the file's objects of that
 //!   category, at their 5.0 positions with their axis-aligned boxes (5.0 type `Stool` counts as
-//!   `Chair`, see [`thor5_category_name`]); only the categories of `object_types` are used. A
-//!   present category the file lacks is placed by the rule as above (listed in
+//!   `Chair`, see [`thor5_category_name`]); only the categories of `object_types` are used,
+//!   and a 5.0 object whose id a 2.x instance already has is not added again. A present
+//!   category left without an instance is placed by the rule as above (listed in
 //!   [`Scene::rule_fallback`]).
 //! * **2.x instances keep their positions** (episode goals and `known_objects`) and take the box
 //!   size of the nearest unused 5.0 object of their category within 0.5 m (horizontally and
@@ -249,8 +250,14 @@ fn thor5_instances(
         }
     }
     let with_2x: BTreeSet<CategoryId> = objects.iter().map(|o| o.category).collect();
+    let ids_2x: BTreeSet<String> = objects.iter().flat_map(|o| o.ids.clone()).collect();
     for t in thor5 {
-        if present.contains(&t.category) && !with_2x.contains(&t.category) {
+        // A 5.0 object whose id a 2.x instance already has is that instance (the 2.x files
+        // list some `Sink|...|SinkBasin` ids as a Sink): it is not added twice.
+        if present.contains(&t.category)
+            && !with_2x.contains(&t.category)
+            && !ids_2x.contains(&t.id)
+        {
             objects.push(ObjectInstance {
                 ids: vec![t.id.clone()],
                 category: t.category,
