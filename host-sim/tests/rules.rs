@@ -346,7 +346,7 @@ fn same_seed_same_world() {
 
 #[test]
 fn placed_objects_lie_against_the_reachable_boundary() {
-    let Some(world) = common::real_world() else {
+    let Some(world) = common::real_world_rule() else {
         return;
     };
     let mut placed = 0;

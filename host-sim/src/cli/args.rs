@@ -8,7 +8,7 @@ use anyhow::{bail, Result};
 use clap::{Args, ValueEnum};
 use gman_core::navigator::NoiseMode;
 use gman_core::Dims;
-use gman_host_sim::sim::{World, DEFAULT_WORLD_SEED};
+use gman_host_sim::sim::{ObjectLayout, World, DEFAULT_WORLD_SEED};
 
 /// Network size preset.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -56,6 +56,18 @@ impl NoiseArg {
     }
 }
 
+/// `--object-layout`: where the objects of the real floor plans come from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum LayoutArg {
+    /// `thor5` when DIR/objects_thor5/ exists, else `rule`.
+    Auto,
+    /// AI2-THOR 5.0 positions and boxes (objects_thor5/) for the categories without a 2.x
+    /// position; visibility measured to the boxes.
+    Thor5,
+    /// The seeded placement against the walls for the categories without a 2.x position.
+    Rule,
+}
+
 /// Options that choose the world.
 #[derive(Debug, Args, Clone)]
 pub struct WorldArgs {
@@ -72,6 +84,13 @@ pub struct WorldArgs {
     /// GMAN) or a variant such as `visible_object_map_1.5.json` (VTNet, HOZ).
     #[arg(long, value_name = "FILE", default_value = gman_host_sim::sim::offline::VISIBLE_FILE)]
     pub visible_file: String,
+    /// Object layout of the real floor plans: `thor5` (AI2-THOR 5.0 positions and boxes from
+    /// DIR/objects_thor5/ for every category the 2.x scene files do not place; episode goals
+    /// and known_objects keep their 2.x positions), `rule` (the seeded placement against the
+    /// walls), or `auto` (thor5 when DIR/objects_thor5/ exists, else rule). Part of the world:
+    /// a resumed run must use the layout it was trained with.
+    #[arg(long, value_enum, default_value = "auto")]
+    pub object_layout: LayoutArg,
 }
 
 impl WorldArgs {
@@ -85,15 +104,24 @@ impl WorldArgs {
                         self.visible_file
                     );
                 }
-                World::load_with_options(
+                let layout = match self.object_layout {
+                    LayoutArg::Auto => gman_host_sim::sim::world::auto_layout(dir),
+                    LayoutArg::Thor5 => ObjectLayout::Thor5,
+                    LayoutArg::Rule => ObjectLayout::Rule,
+                };
+                World::load_with_layout(
                     dir,
                     self.world_seed,
                     &gman_host_sim::sim::offline::OfflineOptions {
                         visible_file: self.visible_file.clone(),
                     },
+                    layout,
                 )
             }
             None => {
+                if self.object_layout == LayoutArg::Thor5 {
+                    bail!("--object-layout thor5 needs --data DIR (the synthetic world has no AI2-THOR 5.0 objects)");
+                }
                 eprintln!(
                     "note: no --data given, using the built-in synthetic demo world (seed {})",
                     self.world_seed

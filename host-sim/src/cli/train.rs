@@ -423,11 +423,12 @@ fn validate_train_settings(
     Ok(())
 }
 
-/// What world `w` selects, as stored in a run's checkpoint: kind, world seed and, for a data
-/// directory, a fingerprint of its contents (the path may change, the data must not).
-fn world_identity(w: &WorldArgs) -> Result<WorldId> {
+/// What world `w` selects (loaded as `world`), as stored in a run's checkpoint: kind, world
+/// seed and, for a data directory, its object layout and a fingerprint of the contents that
+/// layout reads (the path may change, the data must not).
+fn world_identity(w: &WorldArgs, world: &World) -> Result<WorldId> {
     Ok(match &w.data {
-        Some(dir) => WorldId::of_data_dir(dir, w.world_seed, &w.visible_file)?,
+        Some(dir) => WorldId::of_data_dir(dir, w.world_seed, &w.visible_file, world.layout)?,
         None => WorldId::Synthetic {
             world_seed: w.world_seed,
         },
@@ -539,7 +540,7 @@ fn train_on(
         _ => None,
     };
     let world = load_world(&a)?;
-    let world_id = world_identity(&a.world)?;
+    let world_id = world_identity(&a.world, &world)?;
     let mut opts = flag_options(&a);
     let mut state = match &a.resume {
         Some(dir) => {

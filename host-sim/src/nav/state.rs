@@ -19,7 +19,7 @@ use serde::{Deserialize, Serialize};
 
 use super::a3c::{A3cConfig, Objective};
 use super::model::{Method, NavModel};
-use crate::sim::RewardKind;
+use crate::sim::{ObjectLayout, RewardKind};
 use crate::train::adam::{Adam, AdamConfig};
 use crate::train::checkpoint::Checkpoint;
 
@@ -135,7 +135,15 @@ pub enum WorldId {
         /// (computed, never stored).
         #[serde(skip)]
         rule1: Option<String>,
+        /// The object layout (`--object-layout`; absent in checkpoints written before it
+        /// existed, which were all `rule`).
+        #[serde(default, skip_serializing_if = "is_rule")]
+        object_layout: ObjectLayout,
     },
+}
+
+fn is_rule(l: &ObjectLayout) -> bool {
+    *l == ObjectLayout::Rule
 }
 
 fn rule_one() -> u32 {
@@ -147,9 +155,15 @@ fn is_rule_one(r: &u32) -> bool {
 }
 
 impl WorldId {
-    /// The identity of data directory `dir` read with visibility file `visible_file`.
-    pub fn of_data_dir(dir: &Path, world_seed: u64, visible_file: &str) -> Result<WorldId> {
-        let f = crate::sim::fingerprint::of_dir(dir, visible_file)?;
+    /// The identity of data directory `dir` read with visibility file `visible_file` and
+    /// object layout `layout`.
+    pub fn of_data_dir(
+        dir: &Path,
+        world_seed: u64,
+        visible_file: &str,
+        layout: ObjectLayout,
+    ) -> Result<WorldId> {
+        let f = crate::sim::fingerprint::of_dir(dir, visible_file, layout)?;
         Ok(WorldId::Data {
             world_seed,
             fingerprint: f.fingerprint,
@@ -157,6 +171,7 @@ impl WorldId {
             fingerprint_rule: f.rule,
             files: Some(f.files),
             rule1: Some(f.rule1),
+            object_layout: layout,
         })
     }
 
@@ -172,6 +187,21 @@ impl WorldId {
                 now.describe()
             )
         };
+        if let (
+            WorldId::Data {
+                object_layout: a, ..
+            },
+            WorldId::Data {
+                object_layout: b, ..
+            },
+        ) = (self, now)
+        {
+            if a != b {
+                bail!(
+                    "the run was trained with the object layout {a}, but this resume selects {b}; resume with --object-layout {a}"
+                );
+            }
+        }
         match (self, now) {
             (WorldId::Synthetic { world_seed: a }, WorldId::Synthetic { world_seed: b })
                 if a == b =>
@@ -239,9 +269,10 @@ impl WorldId {
                 world_seed,
                 fingerprint,
                 path,
+                object_layout,
                 ..
             } => format!(
-                "the data directory {path} (content fingerprint {fingerprint}) with --world-seed {world_seed}"
+                "the data directory {path} (content fingerprint {fingerprint}) with --world-seed {world_seed} and --object-layout {object_layout}"
             ),
             WorldId::Synthetic { world_seed } => {
                 format!("the synthetic world (no --data) with --world-seed {world_seed}")

@@ -1,5 +1,6 @@
 //! Raw data files of the GMAN benchmark directory (`attributes.json`, `scenes/<split>/*.json`,
-//! `episodes/<split>/*.jsonl`), parsed with serde. Every error names the offending file.
+//! `episodes/<split>/*.jsonl`, the optional sidecar `objects_thor5/FloorPlanN.json`), parsed
+//! with serde. Every error names the offending file.
 //!
 //! These are the files' contents as written; [`crate::sim::world::World`] turns them into
 //! simulator scenes and episodes.
@@ -12,7 +13,7 @@ use anyhow::{bail, Context, Result};
 use gman_core::ATTR_DIM;
 use serde::Deserialize;
 
-use super::types::{RoomType, Split, TargetKind};
+use super::types::{ObjectLayout, RoomType, Split, TargetKind};
 
 /// Contents of `attributes.json`.
 #[derive(Clone, Debug, Deserialize)]
@@ -170,21 +171,37 @@ pub fn load_attributes(dir: &Path) -> Result<RawAttributes> {
 
 /// A content fingerprint of a data directory's world: 64-bit FNV-1a over `attributes.json`
 /// and every `scenes/<split>/*.json` (names and bytes, in sorted order), as 16 hex digits.
-/// Training stores it in its checkpoints so that `--resume` refuses other data.
+/// Training stores it in its checkpoints so that `--resume` refuses other data. This is the
+/// fingerprint of the `rule` layout ([`fingerprint_for`]).
 pub fn fingerprint(dir: &Path) -> Result<String> {
+    fingerprint_for(dir, ObjectLayout::Rule)
+}
+
+/// [`fingerprint`] of the world built with `layout`: under [`ObjectLayout::Thor5`] the
+/// `objects_thor5/*.json` files are covered too; under [`ObjectLayout::Rule`] they are not (a
+/// run trained before the sidecar existed resumes on the same data).
+pub fn fingerprint_for(dir: &Path, layout: ObjectLayout) -> Result<String> {
+    let json_in = |d: &Path| -> Vec<PathBuf> {
+        fs::read_dir(d)
+            .map(|rd| {
+                rd.filter_map(|e| e.ok().map(|e| e.path()))
+                    .filter(|p| p.extension().is_some_and(|e| e == "json"))
+                    .collect()
+            })
+            .unwrap_or_default()
+    };
     let mut files = vec![dir.join("attributes.json")];
     let mut scenes = Vec::new();
     for split in Split::ALL {
-        let sdir = scenes_dir(dir, split);
-        if let Ok(rd) = fs::read_dir(&sdir) {
-            scenes.extend(
-                rd.filter_map(|e| e.ok().map(|e| e.path()))
-                    .filter(|p| p.extension().is_some_and(|e| e == "json")),
-            );
-        }
+        scenes.extend(json_in(&scenes_dir(dir, split)));
     }
     scenes.sort();
     files.extend(scenes);
+    if layout == ObjectLayout::Thor5 {
+        let mut side = json_in(&thor5_dir(dir));
+        side.sort();
+        files.extend(side);
+    }
     let mut h: u64 = 0xcbf2_9ce4_8422_2325;
     let mut eat = |bytes: &[u8]| {
         for &b in bytes {
@@ -210,6 +227,14 @@ pub const MAX_COORD: f32 = 1000.0;
 pub fn scenes_dir(dir: &Path, split: Split) -> PathBuf {
     dir.join("scenes").join(split.name())
 }
+
+/// Directory `DIR/objects_thor5` (the AI2-THOR 5.0 object sidecar).
+pub fn thor5_dir(dir: &Path) -> PathBuf {
+    dir.join(THOR5_DIR)
+}
+
+/// Name of the sidecar directory of AI2-THOR 5.0 objects.
+pub const THOR5_DIR: &str = "objects_thor5";
 
 /// Directory `DIR/episodes/<split>`.
 pub fn episodes_dir(dir: &Path, split: Split) -> PathBuf {
@@ -385,4 +410,97 @@ pub fn load_raw_episodes(
         }
     }
     Ok(out)
+}
+
+/// One object of an `objects_thor5/FloorPlanN.json` file (AI2-THOR 5.0 default scene state).
+#[derive(Clone, Debug, Deserialize)]
+pub struct RawThor5Object {
+    /// AI2-THOR 5.0 object type (every type, not only the 40 categories).
+    #[serde(rename = "type")]
+    pub object_type: String,
+    /// AI2-THOR 5.0 object id `Type|+x.xx|+y.yy|+z.zz`.
+    pub id: String,
+    /// Position x (metres).
+    pub x: f32,
+    /// Position y, height (metres).
+    pub y: f32,
+    /// Position z (metres).
+    pub z: f32,
+    /// Centre of the axis-aligned bounding box (x, y, z, metres).
+    pub aabb_center: [f32; 3],
+    /// Size of the axis-aligned bounding box (x, y, z, metres; non-negative).
+    pub aabb_size: [f32; 3],
+    /// The receptacle the object rests on, if any.
+    #[serde(default)]
+    pub parent: Option<String>,
+}
+
+/// Contents of one `objects_thor5/FloorPlanN.json`.
+#[derive(Clone, Debug, Deserialize)]
+pub struct RawThor5Scene {
+    /// Floor plan name; must match the file name.
+    pub scene: String,
+    /// Every object of the scene.
+    pub objects: Vec<RawThor5Object>,
+}
+
+/// Largest box edge (metres) accepted in a sidecar file (iTHOR's largest objects, floors and
+/// walls, span a few metres).
+pub const MAX_BOX_SIZE: f32 = 100.0;
+
+/// Reads and checks `DIR/objects_thor5/<scene>.json`. Errors name the file and, for a bad
+/// value, the object and key; a missing file is an error (the directory exists, so every
+/// scene needs its file).
+pub fn load_thor5_scene(dir: &Path, scene: &str) -> Result<RawThor5Scene> {
+    let path = thor5_dir(dir).join(format!("{scene}.json"));
+    if !path.is_file() {
+        bail!(
+            "{}: missing: the object layout thor5 needs one AI2-THOR 5.0 object file per scene \
+             (scene {scene} has none in {}); add it, or use --object-layout rule",
+            path.display(),
+            thor5_dir(dir).display()
+        );
+    }
+    let text = read_text(&path)?;
+    let raw: RawThor5Scene = serde_json::from_str(&text)
+        .with_context(|| format!("malformed AI2-THOR 5.0 object JSON in {}", path.display()))?;
+    if raw.scene != scene {
+        bail!(
+            "{}: key scene is {:?}, expected {scene:?} (the file's name)",
+            path.display(),
+            raw.scene
+        );
+    }
+    let sane = |v: f32| v.is_finite() && v.abs() <= MAX_COORD;
+    for (i, o) in raw.objects.iter().enumerate() {
+        let at = || format!("{}: objects[{i}] ({})", path.display(), o.id);
+        if o.object_type.is_empty() {
+            bail!("{}: key type is empty", at());
+        }
+        for (key, v) in [("x", o.x), ("y", o.y), ("z", o.z)] {
+            if !sane(v) {
+                bail!(
+                    "{}: key {key} is {v}; coordinates must be finite and within {MAX_COORD} m",
+                    at()
+                );
+            }
+        }
+        for (k, &v) in o.aabb_center.iter().enumerate() {
+            if !sane(v) {
+                bail!(
+                    "{}: key aabb_center[{k}] is {v}; coordinates must be finite and within {MAX_COORD} m",
+                    at()
+                );
+            }
+        }
+        for (k, &v) in o.aabb_size.iter().enumerate() {
+            if !(v.is_finite() && (0.0..=MAX_BOX_SIZE).contains(&v)) {
+                bail!(
+                    "{}: key aabb_size[{k}] is {v}; box sizes must be finite, non-negative and at most {MAX_BOX_SIZE} m",
+                    at()
+                );
+            }
+        }
+    }
+    Ok(raw)
 }

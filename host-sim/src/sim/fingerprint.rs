@@ -25,6 +25,7 @@ use anyhow::{Context, Result};
 
 use super::offline::{self, h5, ATT_FILE, FEATURE_FILE, GRAPH_FILE, GRID_FILE};
 use super::types::Split;
+use super::ObjectLayout;
 
 /// Datasets of an HDF5 file whose values a rule-2 digest reads.
 pub const H5_SAMPLE: usize = 8;
@@ -108,8 +109,10 @@ fn h5_digest(path: &Path) -> Result<String> {
 }
 
 /// The fingerprint of `dir` by the rule of its layout, for the visibility file
-/// `visible_file` of offline data.
-pub fn of_dir(dir: &Path, visible_file: &str) -> Result<DataFingerprint> {
+/// `visible_file` of offline data; under the object layout [`ObjectLayout::Thor5`] rule 1
+/// also covers the `objects_thor5/*.json` sidecar files
+/// ([`crate::sim::data::fingerprint_for`]).
+pub fn of_dir(dir: &Path, visible_file: &str, layout: ObjectLayout) -> Result<DataFingerprint> {
     let rule1 = super::data::fingerprint(dir)?;
     let mut files = BTreeMap::new();
     files.insert(
@@ -117,8 +120,14 @@ pub fn of_dir(dir: &Path, visible_file: &str) -> Result<DataFingerprint> {
         file_digest(&dir.join("attributes.json"))?,
     );
     if !offline::is_offline_dir(dir) {
-        for split in Split::ALL {
-            let sdir = super::data::scenes_dir(dir, split);
+        let mut dirs: Vec<std::path::PathBuf> = Split::ALL
+            .iter()
+            .map(|&split| super::data::scenes_dir(dir, split))
+            .collect();
+        if layout == ObjectLayout::Thor5 {
+            dirs.push(super::data::thor5_dir(dir));
+        }
+        for sdir in dirs {
             let Ok(rd) = fs::read_dir(&sdir) else {
                 continue;
             };
@@ -131,7 +140,7 @@ pub fn of_dir(dir: &Path, visible_file: &str) -> Result<DataFingerprint> {
         }
         return Ok(DataFingerprint {
             rule: RULE_SCENES,
-            fingerprint: rule1.clone(),
+            fingerprint: super::data::fingerprint_for(dir, layout)?,
             files,
             rule1,
         });

@@ -69,6 +69,150 @@ pub fn footprint_distance(px: f32, pz: f32, obj: [f32; 3], props: &CategoryProps
     (d - props.radius).max(0.0)
 }
 
+/// An axis-aligned bounding box (metres): the extent of an object of the `thor5` object
+/// layout ([`crate::sim::types::ObjectLayout`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Aabb {
+    /// Centre (x, y, z).
+    pub center: [f32; 3],
+    /// Edge lengths (x, y, z), non-negative.
+    pub size: [f32; 3],
+}
+
+impl Aabb {
+    /// The point of the box's floor rectangle (x-z) nearest to (px, pz).
+    pub fn nearest_point(&self, px: f32, pz: f32) -> (f32, f32) {
+        let (hx, hz) = (self.size[0] * 0.5, self.size[2] * 0.5);
+        (
+            px.clamp(self.center[0] - hx, self.center[0] + hx),
+            pz.clamp(self.center[2] - hz, self.center[2] + hz),
+        )
+    }
+
+    /// Horizontal distance from (px, pz) to the box's floor rectangle (0 inside it).
+    pub fn horizontal_distance(&self, px: f32, pz: f32) -> f32 {
+        let (nx, nz) = self.nearest_point(px, pz);
+        ((nx - px).powi(2) + (nz - pz).powi(2)).sqrt()
+    }
+
+    /// The four corners (x, z) of the floor rectangle.
+    fn corners(&self) -> [(f32, f32); 4] {
+        let (hx, hz) = (self.size[0] * 0.5, self.size[2] * 0.5);
+        let (cx, cz) = (self.center[0], self.center[2]);
+        [
+            (cx - hx, cz - hz),
+            (cx - hx, cz + hz),
+            (cx + hx, cz - hz),
+            (cx + hx, cz + hz),
+        ]
+    }
+}
+
+/// Distance (degrees) from angle 0 to the interval [lo, hi] (degrees, lo <= hi), modulo 360.
+fn angle_to_interval(lo: f32, hi: f32) -> f32 {
+    [-360.0f32, 0.0, 360.0]
+        .iter()
+        .map(|k| {
+            if (lo..=hi).contains(k) {
+                0.0
+            } else {
+                (lo - k).abs().min((hi - k).abs())
+            }
+        })
+        .fold(f32::INFINITY, f32::min)
+}
+
+/// Signed angle (degrees, -180..=180) of the direction (dx, dz) from the heading (hx, hz).
+fn signed_angle(dx: f32, dz: f32, hx: f32, hz: f32) -> f32 {
+    // Heading dir (hx, hz) = (sin a, cos a); positive angles turn towards +x from +z.
+    (dx * hz - dz * hx).atan2(dx * hx + dz * hz).to_degrees()
+}
+
+/// [`appearance`] of an object with a bounding box (the `thor5` layout): the distance is to
+/// the box's floor rectangle, and the object is in the field of view when any part of the box
+/// is (its horizontal angular span from the corners, its vertical span from the top and bottom
+/// at the nearest and farthest horizontal distances). The weight keeps the category's visual
+/// size and the distance to the box centre, with the centrality of the box's nearest angles.
+pub fn appearance_box(
+    px: f32,
+    pz: f32,
+    heading: u8,
+    horizon: u8,
+    b: &Aabb,
+    props: &CategoryProps,
+) -> Appearance {
+    let fd = b.horizontal_distance(px, pz);
+    let half = FOV_DEG * 0.5;
+    let (hx, hz) = heading_dir(heading);
+    let corners = b.corners();
+    // Horizontal: 0 when the agent stands inside the rectangle, else the angular span of the
+    // corners around the direction to the centre (< 180 degrees from outside a convex box).
+    let h_eff = if fd <= 0.0 {
+        0.0
+    } else {
+        let (dcx, dcz) = (b.center[0] - px, b.center[2] - pz);
+        let ac = signed_angle(dcx, dcz, hx, hz);
+        let cs = dcx.hypot(dcz).max(1e-6);
+        let (ux, uz) = (dcx / cs, dcz / cs);
+        let (mut lo, mut hi) = (0.0f32, 0.0f32);
+        for &(x, z) in &corners {
+            let d = signed_angle(x - px, z - pz, ux, uz);
+            lo = lo.min(d);
+            hi = hi.max(d);
+        }
+        angle_to_interval(ac + lo, ac + hi)
+    };
+    // Vertical: the box's top and bottom seen from the nearest and farthest distances.
+    let d_near = fd.max(1e-3);
+    let d_far = corners
+        .iter()
+        .map(|&(x, z)| ((x - px).powi(2) + (z - pz).powi(2)).sqrt())
+        .fold(0.0f32, f32::max)
+        .max(d_near);
+    let (bot, top) = (
+        b.center[1] - b.size[1] * 0.5 - CAMERA_HEIGHT,
+        b.center[1] + b.size[1] * 0.5 - CAMERA_HEIGHT,
+    );
+    let elev = |y: f32, d: f32| y.atan2(d).to_degrees();
+    let lower = if bot < 0.0 {
+        elev(bot, d_near)
+    } else {
+        elev(bot, d_far)
+    };
+    let upper = if top > 0.0 {
+        elev(top, d_near)
+    } else {
+        elev(top, d_far)
+    };
+    let pitch = -(horizon as f32) * HORIZON_STEP_DEG;
+    let v_eff = if (lower..=upper).contains(&pitch) {
+        0.0
+    } else {
+        (lower - pitch).abs().min((upper - pitch).abs())
+    };
+    let in_fov = h_eff <= half && v_eff <= half;
+    if !in_fov {
+        return Appearance {
+            footprint_distance: fd,
+            in_fov,
+            weight: 0.0,
+        };
+    }
+    let dc = ((b.center[0] - px).powi(2) + (b.center[2] - pz).powi(2)).sqrt();
+    let d3 = (dc * dc + (b.center[1] - CAMERA_HEIGHT).powi(2))
+        .sqrt()
+        .max(0.2);
+    let hc = h_eff / half;
+    let vc = v_eff / half;
+    let centrality = (1.0 - 0.6 * hc * hc).max(0.0) * (1.0 - 0.6 * vc * vc).max(0.0);
+    let weight = (0.8 * props.size / d3).min(1.0) * centrality;
+    Appearance {
+        footprint_distance: fd,
+        in_fov,
+        weight,
+    }
+}
+
 /// How an object appears from a camera pose (ignoring occlusion).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Appearance {
@@ -202,6 +346,30 @@ mod tests {
         let floor = [0.0, 0.05, 0.8];
         assert!(!appearance(0.0, 0.0, 0, 0, floor, &P).in_fov);
         assert!(appearance(0.0, 0.0, 0, 1, floor, &P).in_fov);
+    }
+
+    #[test]
+    fn boxes_are_seen_by_their_nearest_part() {
+        // A 2 m box centred 1.6 m ahead: its near face is 0.6 m away, within the 1 m
+        // visibility distance, while its centre is not.
+        let b = Aabb {
+            center: [0.0, 0.9, 1.6],
+            size: [2.0, 1.8, 2.0],
+        };
+        let a = appearance_box(0.0, 0.0, 0, 0, &b, &P);
+        assert!(a.in_fov && a.weight > 0.0);
+        assert!((a.footprint_distance - 0.6).abs() < 1e-6);
+        assert!((b.horizontal_distance(3.0, 1.6) - 2.0).abs() < 1e-6);
+        assert_eq!(b.horizontal_distance(0.5, 1.0), 0.0);
+        // Behind the agent: out of view; turned around: in view.
+        assert!(!appearance_box(0.0, 0.0, 4, 0, &b, &P).in_fov);
+        // A wide box whose centre is 70 degrees off-axis still shows its near corner.
+        let side = Aabb {
+            center: [2.0, 1.0, 0.73],
+            size: [0.2, 0.2, 2.4],
+        };
+        assert!(!appearance(0.0, 0.0, 0, 0, side.center, &P).in_fov);
+        assert!(appearance_box(0.0, 0.0, 0, 0, &side, &P).in_fov);
     }
 
     #[test]

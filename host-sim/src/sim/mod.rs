@@ -44,5 +44,7 @@ pub use eval::{evaluate, Agent, EvalConfig, EvalReport, OracleAgent, RandomAgent
 pub use metrics::{mean_interval, wilson_interval, EpisodeMetrics, EpisodeResult, Summary};
 pub use reward::RewardKind;
 pub use tables::{InView, Observation};
-pub use types::{AgentState, Category, CategoryId, RoomType, SceneId, Split, TargetKind};
+pub use types::{
+    AgentState, Category, CategoryId, ObjectLayout, RoomType, SceneId, Split, TargetKind,
+};
 pub use world::{DominantView, EpisodeSpec, World, WorldSource, DEFAULT_WORLD_SEED};

@@ -15,6 +15,24 @@
 //!   by up to +-0.1 m along the wall, at the category's typical height. The seed is a hash of
 //!   the world seed, the scene name, the category name and the instance number.
 //! * **Unseen categories** are removed from training scenes (types and instances).
+//!
+//! # Object layouts
+//! The rules above are the `rule` layout ([`ObjectLayout::Rule`]). The `thor5` layout
+//! ([`ObjectLayout::Thor5`]) reads the AI2-THOR 5.0 objects of `objects_thor5/FloorPlanN.json`
+//! ([`Thor5Object`]) and changes two things:
+//! * **Instances of the categories without a 2.x position** are the file's objects of that
+//!   category, at their 5.0 positions with their axis-aligned boxes (5.0 type `Stool` counts as
+//!   `Chair`, see [`thor5_category_name`]); only the categories of `object_types` are used,
+//!   and a 5.0 object whose id a 2.x instance already has is not added again. A present
+//!   category left without an instance is placed by the rule as above (listed in
+//!   [`Scene::rule_fallback`]).
+//! * **2.x instances keep their positions** (episode goals and `known_objects`) and take the box
+//!   size of the nearest unused 5.0 object of their category within 0.5 m (horizontally and
+//!   vertically), shifted by the 2.x-to-5.0 position offset; one without a match keeps the
+//!   footprint circle of its category.
+//!
+//! Instances with a box are seen and measured by it ([`crate::sim::geometry::appearance_box`]);
+//! the others, and every instance under `rule`, by the footprint circle of their category.
 
 use std::collections::{BTreeSet, HashMap};
 
@@ -22,9 +40,10 @@ use gman_core::{Action, NUM_ACTIONS};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
-use super::geometry::{heading_step, turn, GRID};
+use super::geometry::{heading_step, turn, Aabb, GRID};
 use super::types::{
-    AgentState, Category, CategoryId, RoomType, Split, NUM_HEADINGS, STATES_PER_POSITION,
+    AgentState, Category, CategoryId, ObjectLayout, RoomType, Split, NUM_HEADINGS,
+    STATES_PER_POSITION,
 };
 use super::util::hash_str;
 
@@ -40,7 +59,38 @@ pub struct ObjectInstance {
     pub pos: [f32; 3],
     /// True when the position comes from the data, false when placed by the seeded rule.
     pub known: bool,
+    /// True when the instance comes from the AI2-THOR 5.0 sidecar (`thor5` layout).
+    pub thor5: bool,
+    /// Axis-aligned box (`thor5` layout; `None`: the category's footprint circle).
+    pub aabb: Option<Aabb>,
 }
+
+/// One AI2-THOR 5.0 object of the 40 categories (`objects_thor5`), for the `thor5` layout.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Thor5Object {
+    /// AI2-THOR 5.0 id.
+    pub id: String,
+    /// Category.
+    pub category: CategoryId,
+    /// Position (x, y, z) in metres.
+    pub pos: [f32; 3],
+    /// Axis-aligned box.
+    pub aabb: Aabb,
+}
+
+/// Our category name of an AI2-THOR 5.0 object type: the same name, except `Stool`, which
+/// AI2-THOR 3.0 split off from `Chair` (the kitchens whose 2.x `object_types` list a Chair have
+/// a Stool and no Chair in 5.0).
+pub fn thor5_category_name(object_type: &str) -> &str {
+    match object_type {
+        "Stool" => "Chair",
+        t => t,
+    }
+}
+
+/// Largest distance (metres, horizontal and vertical) between a 2.x instance and the 5.0
+/// object whose box it takes.
+pub const THOR5_MATCH_DISTANCE: f32 = 0.5;
 
 /// Inputs of [`Scene::build`]: a floor plan as read from a file or generated.
 #[derive(Clone, Debug)]
@@ -61,6 +111,9 @@ pub struct SceneSource {
     /// [`crate::sim::offline`]): no gap filling, no merging of nearby instances, no placed
     /// instances. The unseen categories are still removed from training scenes.
     pub exact: bool,
+    /// The `thor5` layout's AI2-THOR 5.0 objects (the 40 categories only); `None`: the
+    /// `rule` layout.
+    pub thor5: Option<Vec<Thor5Object>>,
 }
 
 /// A built scene.
@@ -82,6 +135,13 @@ pub struct Scene {
     pub present: Vec<CategoryId>,
     /// Seed of the scene's appearance style.
     pub seed: u64,
+    /// The object layout the scene was built with.
+    pub layout: ObjectLayout,
+    /// `thor5` layout: the present categories the 5.0 file lacks, placed by the rule instead
+    /// (empty under `rule`).
+    pub rule_fallback: Vec<CategoryId>,
+    /// `thor5` layout: the 2.x instances that took the box of a 5.0 object.
+    pub thor5_matched: usize,
     min_x: i32,
     min_z: i32,
     width: i32,
@@ -146,9 +206,69 @@ fn known_instances(
             category: cat,
             pos,
             known: true,
+            thor5: false,
+            aabb: None,
         });
     }
     objects
+}
+
+/// The `thor5` layout on top of the 2.x instances: boxes for the 2.x instances that match a 5.0
+/// object, the 5.0 objects of every present category without a 2.x instance. Returns the
+/// number of matched 2.x instances.
+fn thor5_instances(
+    objects: &mut Vec<ObjectInstance>,
+    thor5: &[Thor5Object],
+    present: &BTreeSet<CategoryId>,
+) -> usize {
+    let mut used = vec![false; thor5.len()];
+    let mut matched = 0;
+    for o in objects.iter_mut() {
+        let best = thor5
+            .iter()
+            .enumerate()
+            .filter(|(i, t)| {
+                !used[*i]
+                    && t.category == o.category
+                    && (t.pos[1] - o.pos[1]).abs() <= THOR5_MATCH_DISTANCE
+            })
+            .map(|(i, t)| (i, (t.pos[0] - o.pos[0]).hypot(t.pos[2] - o.pos[2])))
+            .filter(|&(_, d)| d <= THOR5_MATCH_DISTANCE)
+            .min_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
+        if let Some((i, _)) = best {
+            used[i] = true;
+            matched += 1;
+            let t = &thor5[i];
+            let mut center = t.aabb.center;
+            for ((c, a), b) in center.iter_mut().zip(o.pos).zip(t.pos) {
+                *c += a - b;
+            }
+            o.aabb = Some(Aabb {
+                center,
+                size: t.aabb.size,
+            });
+        }
+    }
+    let with_2x: BTreeSet<CategoryId> = objects.iter().map(|o| o.category).collect();
+    let ids_2x: BTreeSet<String> = objects.iter().flat_map(|o| o.ids.clone()).collect();
+    for t in thor5 {
+        // A 5.0 object whose id a 2.x instance already has is that instance (the 2.x files
+        // list some `Sink|...|SinkBasin` ids as a Sink): it is not added twice.
+        if present.contains(&t.category)
+            && !with_2x.contains(&t.category)
+            && !ids_2x.contains(&t.id)
+        {
+            objects.push(ObjectInstance {
+                ids: vec![t.id.clone()],
+                category: t.category,
+                pos: t.pos,
+                known: true,
+                thor5: true,
+                aabb: Some(t.aabb),
+            });
+        }
+    }
+    matched
 }
 
 impl Scene {
@@ -184,6 +304,13 @@ impl Scene {
             objects: Vec::new(),
             present: Vec::new(),
             seed,
+            layout: if src.thor5.is_some() {
+                ObjectLayout::Thor5
+            } else {
+                ObjectLayout::Rule
+            },
+            rule_fallback: Vec::new(),
+            thor5_matched: 0,
             min_x: gx,
             min_z: gz,
             width,
@@ -198,6 +325,14 @@ impl Scene {
             .filter(|&c| !banned(c))
             .collect();
         let mut objects = known_instances(src.known, src.exact, &banned, &mut present);
+        if let Some(thor5) = &src.thor5 {
+            scene.thor5_matched = thor5_instances(&mut objects, thor5, &present);
+            scene.rule_fallback = present
+                .iter()
+                .copied()
+                .filter(|&c| !objects.iter().any(|o| o.category == c))
+                .collect();
+        }
         scene.place_instances(&mut objects, &present, src.exact, categories);
         scene.objects = objects;
         scene.present = present.into_iter().collect();
@@ -243,6 +378,8 @@ impl Scene {
                     category: cat,
                     pos: [px, c.props.height, pz],
                     known: false,
+                    thor5: false,
+                    aabb: None,
                 });
             }
         }
@@ -400,6 +537,7 @@ mod tests {
             present: vec![0, 1],
             known: vec![],
             exact: false,
+            thor5: None,
         }
     }
 

@@ -209,6 +209,7 @@ pub fn generate(seed: u64, cfg: &SyntheticConfig) -> World {
                     present,
                     known: Vec::new(),
                     exact: false,
+                    thor5: None,
                 });
             }
         }
@@ -216,6 +217,7 @@ pub fn generate(seed: u64, cfg: &SyntheticConfig) -> World {
     let parts = WorldParts {
         source: WorldSource::Synthetic,
         seed,
+        layout: super::types::ObjectLayout::Rule,
         categories,
         seen,
         unseen,

@@ -6,11 +6,11 @@ use gman_core::{Action, ATTR_DIM, FEATURE_DIM, NUM_ACTIONS};
 
 use super::features::{FeatureModel, SceneStyle};
 use super::geometry::{
-    appearance, footprint_distance, line_of_sight, FEATURE_RANGE, GRID, IN_VIEW_MIN_WEIGHT,
-    VISIBILITY_DISTANCE,
+    appearance, appearance_box, footprint_distance, line_of_sight, Appearance, FEATURE_RANGE, GRID,
+    IN_VIEW_MIN_WEIGHT, VISIBILITY_DISTANCE,
 };
-use super::scene::Scene;
-use super::types::{Category, CategoryId, STATES_PER_POSITION};
+use super::scene::{ObjectInstance, Scene};
+use super::types::{Category, CategoryId, CategoryProps, STATES_PER_POSITION};
 
 /// An object that appears in a view.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -43,6 +43,46 @@ impl Observation {
     #[inline]
     pub fn is_visible(&self, category: CategoryId) -> bool {
         self.visible.binary_search(&category).is_ok()
+    }
+}
+
+/// Horizontal distance from (px, pz) to an instance: to its box when it has one (`thor5`
+/// layout), else to its category's footprint circle.
+pub fn instance_distance(px: f32, pz: f32, obj: &ObjectInstance, props: &CategoryProps) -> f32 {
+    match &obj.aabb {
+        Some(b) => b.horizontal_distance(px, pz),
+        None => footprint_distance(px, pz, obj.pos, props),
+    }
+}
+
+/// How an instance appears from a pose: [`appearance_box`] with a box, else [`appearance`].
+pub fn instance_appearance(
+    px: f32,
+    pz: f32,
+    heading: u8,
+    horizon: u8,
+    obj: &ObjectInstance,
+    props: &CategoryProps,
+) -> Appearance {
+    match &obj.aabb {
+        Some(b) => appearance_box(px, pz, heading, horizon, b, props),
+        None => appearance(px, pz, heading, horizon, obj.pos, props),
+    }
+}
+
+/// Line of sight from (px, pz) to an instance ([`line_of_sight`]): to its centre, or, for an
+/// instance with a box, to its centre or to the box's nearest point.
+fn instance_line_of_sight(scene: &Scene, px: f32, pz: f32, obj: &ObjectInstance) -> bool {
+    let free = |a: f32, b: f32| scene.is_reachable_point(a, b);
+    if line_of_sight(px, pz, obj.pos[0], obj.pos[2], free) {
+        return true;
+    }
+    match &obj.aabb {
+        Some(b) => {
+            let (nx, nz) = b.nearest_point(px, pz);
+            line_of_sight(px, pz, nx, nz, free)
+        }
+        None => false,
     }
 }
 
@@ -88,10 +128,8 @@ impl SceneTables {
             let (px, pz) = (x as f32 * GRID, z as f32 * GRID);
             for (o, obj) in scene.objects.iter().enumerate() {
                 let props = &categories[obj.category as usize].props;
-                los[o] = footprint_distance(px, pz, obj.pos, props) <= FEATURE_RANGE
-                    && line_of_sight(px, pz, obj.pos[0], obj.pos[2], |a, b| {
-                        scene.is_reachable_point(a, b)
-                    });
+                los[o] = instance_distance(px, pz, obj, props) <= FEATURE_RANGE
+                    && instance_line_of_sight(scene, px, pz, obj);
             }
             let fx = (x - min_x) as f32 / span;
             for r in 0..STATES_PER_POSITION {
@@ -104,7 +142,7 @@ impl SceneTables {
                         continue;
                     }
                     let props = &categories[obj.category as usize].props;
-                    let a = appearance(px, pz, heading, horizon, obj.pos, props);
+                    let a = instance_appearance(px, pz, heading, horizon, obj, props);
                     if !a.in_fov {
                         continue;
                     }
@@ -261,10 +299,10 @@ impl SceneTables {
                 scene
                     .instances_of(category)
                     .map(|i| {
-                        footprint_distance(
+                        instance_distance(
                             x as f32 * GRID,
                             z as f32 * GRID,
-                            scene.objects[i].pos,
+                            &scene.objects[i],
                             props,
                         )
                     })

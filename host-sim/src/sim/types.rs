@@ -186,3 +186,38 @@ pub const NUM_HEADINGS: usize = 8;
 pub const NUM_HORIZONS: usize = 2;
 /// Discrete states per grid position.
 pub const STATES_PER_POSITION: usize = NUM_HEADINGS * NUM_HORIZONS;
+
+/// Where the objects of the real floor plans come from, beyond the 2.x positions of the scene
+/// files (episode goal instances and `known_objects`, which every layout keeps). Part of the
+/// world's identity: a checkpoint stores it and a resumed run must use the same one.
+#[derive(
+    Clone, Copy, Debug, Default, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize,
+)]
+#[serde(rename_all = "snake_case")]
+pub enum ObjectLayout {
+    /// Every present category without a 2.x position is placed by the seeded rule against the
+    /// walls ([`crate::sim::scene`]); distances are measured to a footprint circle.
+    #[default]
+    Rule,
+    /// The AI2-THOR 5.0 objects of `objects_thor5/FloorPlanN.json`: their positions and
+    /// axis-aligned boxes for those categories, boxes for the 2.x instances they match, and
+    /// visibility measured to the boxes. A present category the 5.0 file lacks falls back
+    /// to the rule.
+    Thor5,
+}
+
+impl ObjectLayout {
+    /// `rule` or `thor5`.
+    pub fn name(self) -> &'static str {
+        match self {
+            ObjectLayout::Rule => "rule",
+            ObjectLayout::Thor5 => "thor5",
+        }
+    }
+}
+
+impl fmt::Display for ObjectLayout {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}

@@ -13,11 +13,11 @@ use super::catalog::props_of;
 use super::data;
 use super::features::{FeatureModel, SceneStyle};
 use super::offline::{self, OfflineScene};
-use super::scene::{Scene, SceneSource};
+use super::scene::{thor5_category_name, Scene, SceneSource, Thor5Object};
 use super::tables::{GoalTable, Observation, SceneTables, UNREACHABLE};
 use super::types::{
-    AgentState, Category, CategoryId, RoomType, SceneId, Split, TargetKind, NUM_HEADINGS,
-    STATES_PER_POSITION,
+    AgentState, Category, CategoryId, ObjectLayout, RoomType, SceneId, Split, TargetKind,
+    NUM_HEADINGS, STATES_PER_POSITION,
 };
 use super::util::{hash2, hash_str};
 
@@ -90,6 +90,8 @@ pub struct World {
     pub source: WorldSource,
     /// World seed.
     pub seed: u64,
+    /// Object layout of the JSON floor plans (`rule` for the synthetic world and offline data).
+    pub layout: ObjectLayout,
     /// All categories (AI2THOR order of `attributes.json`).
     pub categories: Vec<Category>,
     /// Seen evaluation targets.
@@ -128,6 +130,7 @@ impl std::fmt::Debug for World {
 pub(crate) struct WorldParts {
     pub source: WorldSource,
     pub seed: u64,
+    pub layout: ObjectLayout,
     pub categories: Vec<Category>,
     pub seen: Vec<CategoryId>,
     pub unseen: Vec<CategoryId>,
@@ -256,11 +259,49 @@ impl SplitTargets {
     }
 }
 
+/// The AI2-THOR 5.0 objects of the 40 categories in `objects_thor5/<scene>.json` (other types
+/// are ignored; `Stool` counts as `Chair`, see [`thor5_category_name`]).
+fn thor5_objects(
+    dir: &Path,
+    scene: &str,
+    by_name: &HashMap<&str, CategoryId>,
+) -> Result<Vec<Thor5Object>> {
+    let raw = data::load_thor5_scene(dir, scene)?;
+    Ok(raw
+        .objects
+        .iter()
+        .filter_map(|o| {
+            by_name
+                .get(thor5_category_name(&o.object_type))
+                .map(|&c| Thor5Object {
+                    id: o.id.clone(),
+                    category: c,
+                    pos: [o.x, o.y, o.z],
+                    aabb: super::geometry::Aabb {
+                        center: o.aabb_center,
+                        size: o.aabb_size,
+                    },
+                })
+        })
+        .collect())
+}
+
+/// The layout `auto` chooses for a data directory: `thor5` when `DIR/objects_thor5/` exists
+/// (and `DIR` is not AI2THOR offline data, whose objects come from its own files), else `rule`.
+pub fn auto_layout(dir: &Path) -> ObjectLayout {
+    if data::thor5_dir(dir).is_dir() && !offline::is_offline_dir(dir) {
+        ObjectLayout::Thor5
+    } else {
+        ObjectLayout::Rule
+    }
+}
+
 /// The scenes of `scenes/<split>/` (the JSON floor plans).
 fn json_scenes(
     dir: &Path,
     split: Split,
     by_name: &HashMap<&str, CategoryId>,
+    layout: ObjectLayout,
 ) -> Result<Vec<SceneSource>> {
     let mut scenes = Vec::new();
     for s in data::load_scenes(dir, split)? {
@@ -296,6 +337,10 @@ fn json_scenes(
             };
             known.push((o.id.clone(), c, [o.x, o.y, o.z]));
         }
+        let thor5 = match layout {
+            ObjectLayout::Rule => None,
+            ObjectLayout::Thor5 => Some(thor5_objects(dir, &s.scene, by_name)?),
+        };
         scenes.push(SceneSource {
             name: s.scene.clone(),
             room,
@@ -304,6 +349,7 @@ fn json_scenes(
             present,
             known,
             exact: false,
+            thor5,
         });
     }
     Ok(scenes)
@@ -311,9 +357,10 @@ fn json_scenes(
 
 impl World {
     /// Loads the real floor plans from a data directory (`attributes.json`, `scenes/<split>/`,
-    /// `episodes/<split>/`) with [`DEFAULT_WORLD_SEED`]. Every split directory present under
-    /// `scenes/` is loaded; at least one must exist. A directory without `scenes/` but with
-    /// `FloorPlanN/` folders is read as AI2THOR offline data ([`crate::sim::offline`]).
+    /// `episodes/<split>/`) with [`DEFAULT_WORLD_SEED`] and the object layout [`auto_layout`]
+    /// chooses. Every split directory present under `scenes/` is loaded; at least one must
+    /// exist. A directory without `scenes/` but with `FloorPlanN/` folders is read as AI2THOR
+    /// offline data ([`crate::sim::offline`]).
     pub fn load(dir: &Path) -> Result<World> {
         World::load_with_seed(dir, DEFAULT_WORLD_SEED)
     }
@@ -330,6 +377,35 @@ impl World {
         seed: u64,
         offline_opts: &offline::OfflineOptions,
     ) -> Result<World> {
+        World::load_with_layout(dir, seed, offline_opts, auto_layout(dir))
+    }
+
+    /// [`World::load_with_options`] with an explicit object layout of the JSON floor plans
+    /// ([`ObjectLayout`]; offline data takes its objects from its own files and refuses
+    /// `thor5`). `thor5` needs `DIR/objects_thor5/` with one file per scene.
+    pub fn load_with_layout(
+        dir: &Path,
+        seed: u64,
+        offline_opts: &offline::OfflineOptions,
+        layout: ObjectLayout,
+    ) -> Result<World> {
+        if layout == ObjectLayout::Thor5 {
+            let t5 = data::thor5_dir(dir);
+            if offline::is_offline_dir(dir) {
+                bail!(
+                    "{}: AI2THOR offline data takes its objects from its own files; the object \
+                     layout thor5 is for the JSON floor plans (use --object-layout rule or auto)",
+                    dir.display()
+                );
+            }
+            if !t5.is_dir() {
+                bail!(
+                    "object layout thor5: directory {} does not exist (it holds the AI2-THOR 5.0 \
+                     objects, objects_thor5/FloorPlanN.json); use --object-layout rule",
+                    t5.display()
+                );
+            }
+        }
         let raw = data::load_attributes(dir)?;
         let attr_path = dir.join("attributes.json");
         let categories = categories_of(&raw);
@@ -348,7 +424,7 @@ impl World {
         let mut scenes: Vec<SceneSource> = offline_raw.iter().map(|r| r.source.clone()).collect();
         for split in Split::ALL {
             if data::scenes_dir(dir, split).is_dir() {
-                scenes.extend(json_scenes(dir, split, &by_name)?);
+                scenes.extend(json_scenes(dir, split, &by_name, layout)?);
             }
         }
         if scenes.is_empty() {
@@ -365,6 +441,11 @@ impl World {
                 WorldSource::Data(dir.to_path_buf())
             },
             seed,
+            layout: if is_offline {
+                ObjectLayout::Rule
+            } else {
+                layout
+            },
             categories,
             seen: targets.seen,
             unseen: targets.unseen,
@@ -404,6 +485,7 @@ impl World {
         World {
             source: parts.source,
             seed: parts.seed,
+            layout: parts.layout,
             categories: parts.categories,
             seen: parts.seen,
             unseen: parts.unseen,

@@ -20,7 +20,25 @@ pub fn data_dir() -> Option<PathBuf> {
     }
 }
 
-/// The real world, loaded once per test binary.
+/// The real world under the `rule` object layout (the seeded placement), loaded once per
+/// test binary.
+pub fn real_world_rule() -> Option<&'static World> {
+    static W: OnceLock<Option<World>> = OnceLock::new();
+    W.get_or_init(|| {
+        data_dir().map(|d| {
+            World::load_with_layout(
+                &d,
+                gman_host_sim::sim::DEFAULT_WORLD_SEED,
+                &Default::default(),
+                gman_host_sim::sim::ObjectLayout::Rule,
+            )
+            .expect("load real world")
+        })
+    })
+    .as_ref()
+}
+
+/// The real world (the default object layout), loaded once per test binary.
 pub fn real_world() -> Option<&'static World> {
     static W: OnceLock<Option<World>> = OnceLock::new();
     W.get_or_init(|| data_dir().map(|d| World::load(&d).expect("load real world")))

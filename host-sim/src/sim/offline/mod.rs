@@ -451,6 +451,7 @@ fn load_scene(
             present,
             known,
             exact: true,
+            thor5: None,
         },
         dir: dir.to_path_buf(),
         nodes: graph.nodes,
