@@ -379,7 +379,7 @@ fn validate_train_settings(
     if opts.checkpoint_every == 0 {
         return Err(bad("checkpoint-every must be at least 1".into()));
     }
-    let max_b = gman_host_sim::nav::vec_rollout::MAX_BATCH_ENVS;
+    let max_b = gman_host_sim::nav::lockstep::MAX_BATCH_ENVS;
     if opts.run.batch_envs == 0 || opts.run.batch_envs > max_b {
         return Err(bad(format!(
             "batch-envs must be in 1..={max_b}, got {}",

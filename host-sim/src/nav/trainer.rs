@@ -73,6 +73,8 @@ use rand_chacha::ChaCha8Rng;
 
 use super::a3c::{A3cConfig, Objective, SegmentLoss};
 use super::bptt::segment_backward;
+use super::inner::{finish_stats, inner_update, InnerTally};
+use super::lockstep::{check_batch_envs, VecSettings};
 use super::dist::{
     decode_shares, encode_shares, fnv1a, params_hash, CommStats, Group, Single, WorkerShare,
 };
@@ -84,7 +86,7 @@ use super::rollout::{
 };
 use super::run_dir::open_csv;
 use super::step::StepRec;
-use super::vec_rollout::{self, VecSettings};
+use super::vec_rollout;
 use super::K;
 use crate::sim::spatial::MapGrid;
 use crate::sim::{Env, EpisodeLimits, EpisodeSpec, RewardKind, World};
@@ -372,7 +374,7 @@ fn check_options(run: &RunSettings, model: &NavModel) -> Result<()> {
     if !(1..=2).contains(&run.meta_order) {
         bail!("--meta-order must be 1 or 2");
     }
-    vec_rollout::check_batch_envs(model, run.batch_envs, run.meta_order)?;
+    check_batch_envs(model, run.batch_envs, run.meta_order)?;
     if run.meta_order == 2 && model.method.uses_cossim() {
         bail!("--meta-order 2 is implemented for the discriminator EMD only; use --meta-order 1 with gman-cossim");
     }
@@ -582,14 +584,6 @@ struct ObsBufs<'a> {
     map: &'a mut Vec<f32>,
 }
 
-/// What the inner updates of an episode did: `E[D(s)] − E[D(x)]` and L_ad summed over them.
-#[derive(Default)]
-pub(super) struct InnerTally {
-    gap: f64,
-    adapt_loss: f64,
-    n: u32,
-}
-
 fn train_episode_in<M: Mode>(
     ep: &EpisodeSetup<'_>,
     worker: &mut Worker,
@@ -739,64 +733,6 @@ fn next_value<M: Mode>(
         env.observe_map(grid, worker.map);
     }
     bootstrap_value(nav, &obs.features, worker.map, &ps)
-}
-
-/// Algorithm 1, lines 14-20, when Ψ holds `K` steps: the navigator's inner update (D's
-/// ascent on L_D, Eq. 1; θ_i, φ_i's descent on L_ad, Eq. 3; rolled back if it fails) while
-/// the per-episode cap allows, else Ψ is emptied. With `second` (meta-order 2) the inner
-/// step is recorded for the reverse recursion.
-pub(super) fn inner_update<M: Mode>(
-    nav: &mut Navigator<'_, M, K>,
-    second: bool,
-    tally: &mut InnerTally,
-) -> Result<Option<InnerStep>> {
-    if nav.buffered() != K {
-        return Ok(None);
-    }
-    if !nav.can_adapt() {
-        nav.clear_buffer();
-        return Ok(None);
-    }
-    let mut step = if second {
-        Some(InnerStep::before_update(nav)?)
-    } else {
-        None
-    };
-    nav.adapt_now()?;
-    if let Some(st) = step.as_mut() {
-        st.after_update(nav)?;
-    }
-    let r = nav.last_adaptation();
-    tally.gap += (r.ld.mean_real - r.ld.mean_fake) as f64;
-    tally.adapt_loss += r.adapt_loss as f64;
-    tally.n += 1;
-    Ok(step)
-}
-
-/// The episode's outcome and inner-loop summary into `stats`.
-pub(super) fn finish_stats<M: Mode>(
-    stats: &mut EpisodeStats,
-    env: &Env<'_>,
-    nav: &Navigator<'_, M, K>,
-    tally: &InnerTally,
-) {
-    let m = env.metrics();
-    let c = nav.counters();
-    stats.success = m.success;
-    stats.steps = env.steps();
-    stats.total_reward = m.total_reward;
-    stats.adaptations = c.adaptations;
-    stats.rollbacks = c.rollbacks;
-    let mean = |v: f64| {
-        if tally.n > 0 {
-            (v / tally.n as f64) as f32
-        } else {
-            f32::NAN
-        }
-    };
-    stats.disc_gap = mean(tally.gap);
-    stats.adapt_loss = mean(tally.adapt_loss);
-    stats.final_feature = nav.generated_feature().to_vec();
 }
 
 // ---------------------------------------------------------------------------------------
