@@ -4,14 +4,18 @@
 //! 1. [`train`] — the outer loop (lines 1-3, 21-22): the workers' updates in parallel, then
 //!    `outer_step`: Adam on the summed ∇L_nav (Eq. 4), ω carried across episodes;
 //! 2. `worker_update` — a worker's tasks τ_i, seeded by `(seed, update, worker, episode)`;
-//! 3. [`train_episode`] — one task (lines 4-20): `rollout_segment` (lines 5-13, through
-//!    gman-core's navigator), the segment's ∇L_nav ([`super::bptt::segment_backward`] of
-//!    the loss in [`super::a3c`]), `inner_update` (lines 14-20: Eq. 1 ascent, Eq. 3 descent,
-//!    in gman-core) and, for `--meta-order 2`, [`super::meta`]'s reverse recursion;
+//! 3. the worker's episodes, `B` in lockstep ([`super::vec_rollout::run_worker`], `B = 1`
+//!    included): each segment's ∇L_nav (the loss in [`super::a3c`], one batched BPTT in
+//!    [`super::bptt`]) and the inner update (lines 14-20: Eq. 1 ascent, Eq. 3 descent, in
+//!    gman-core);
 //! 4. `Log` — one `metrics.csv` row per update.
 //!
-//! The vectorised rollout ([`super::vec_rollout`]) replaces step 3 for `--batch-envs B > 1`;
-//! the checkpoint ([`super::state`]) and the run directory ([`super::run_dir`]) live beside.
+//! [`train_episode`] runs one task (lines 4-20) with one navigator: `rollout_segment`
+//! (lines 5-13), the segment's ∇L_nav ([`super::bptt::segment_backward`]), the inner update
+//! and [`super::meta`]'s reverse recursion; it serves `--meta-order 2`, whose recursion runs
+//! over one episode's inner steps, and is the reference the vectorised engine is tested
+//! against. The checkpoint ([`super::state`]) and the run directory ([`super::run_dir`])
+//! live beside.
 //!
 //! ```text
 //! for update u = 1, 2, ...                                   (Algorithm 1, line 1)
@@ -35,12 +39,11 @@
 //!   Adam step. Every random choice of an update derives from
 //!   `(seed, update, worker)`, so a run is reproducible bit for bit for a given worker count
 //!   and a resumed run continues exactly where the checkpoint left off.
-//! * **Vectorised episodes** (`--batch-envs B`): each worker steps `B` environments in
-//!   lockstep with the policy's passes over them as matrices, see [`super::vec_rollout`]
-//!   (and [`super::vec_adapt`] for the methods with an inner loop: one navigator per
-//!   episode, each with its own inner loop; first-order meta-gradient only); `B = 1` (the
-//!   default) is this loop's batch-1 runner, and the vectorised runner with `B = 1` gives the
-//!   same update bit for bit.
+//! * **Vectorised episodes** (`--batch-envs B`, default 16 in `gman train`): each worker
+//!   steps `B` environments in lockstep with the policy's passes over them as matrices, see
+//!   [`super::vec_rollout`] (and [`super::vec_adapt`] for the methods with an inner loop:
+//!   one navigator per episode, each with its own inner loop; first-order meta-gradient
+//!   only). `B = 1` runs in the same engine and gives [`train_episode`]'s update bit for bit.
 //! * **Baselines** run the same loop with the inner loop off (`a3c`, `a3c-fg`, `gman-nometa`):
 //!   plain synchronous advantage actor-critic, with G's θ frozen at its pre-trained value.
 //! * **The `gman-noemd` control** runs the loop with the inner loop off but lets Adam train θ
@@ -191,28 +194,7 @@ pub fn train_in(
         let t_update = Instant::now();
         // Lines 2-20: every worker samples its tasks τ_i ~ p(T) and runs them from θ, φ, ω
         // (each with its own θ_i, φ_i and inner loop), accumulating ∇L_nav into its grads.
-        let u = state.update;
-        let model = &state.model;
-        let first = rank * local;
-        let results: Vec<Result<WorkerOut>> = std::thread::scope(|s| {
-            let handles: Vec<_> = workers
-                .iter_mut()
-                .enumerate()
-                .map(|(w, (worker, grads))| {
-                    s.spawn(move || {
-                        worker_update(world, model, &opts.run, u, first + w, worker, grads)
-                    })
-                })
-                .collect();
-            handles
-                .into_iter()
-                .map(|h| h.join().unwrap_or_else(|_| Err(anyhow!("worker panicked"))))
-                .collect()
-        });
-        let mut per_worker = Vec::with_capacity(results.len());
-        for r in results {
-            per_worker.push(r?);
-        }
+        let per_worker = run_workers(world, state, &opts.run, rank * local, &mut workers)?;
         // Lines 21-22 (Eq. 4): θ, φ ← Adam(Σ_τ ∇L_nav(ω, θ_i, φ_i)); ω keeps what the
         // episodes' inner loops taught D.
         let (grad_norm, episodes) = if ranks == 1 {
@@ -246,6 +228,32 @@ pub fn train_in(
     }
     bar.finish_and_clear();
     Ok(comm)
+}
+
+/// This rank's workers' shares of the update `state.update`, one thread each: worker `w`
+/// of `workers` is the global worker `first + w`.
+fn run_workers(
+    world: &World,
+    state: &TrainState,
+    run: &RunSettings,
+    first: usize,
+    workers: &mut [(Worker, ParamSet)],
+) -> Result<Vec<WorkerOut>> {
+    let (u, model) = (state.update, &state.model);
+    let results: Vec<Result<WorkerOut>> = std::thread::scope(|s| {
+        let handles: Vec<_> = workers
+            .iter_mut()
+            .enumerate()
+            .map(|(w, (worker, grads))| {
+                s.spawn(move || worker_update(world, model, run, u, first + w, worker, grads))
+            })
+            .collect();
+        handles
+            .into_iter()
+            .map(|h| h.join().unwrap_or_else(|_| Err(anyhow!("worker panicked"))))
+            .collect()
+    });
+    results.into_iter().collect()
 }
 
 /// Every rank's workers' gradients and episodes, in global worker order, on every rank.
@@ -384,8 +392,8 @@ fn check_options(run: &RunSettings, model: &NavModel) -> Result<()> {
 /// Worker `w`'s share of update `u` (Algorithm 1, lines 2-3): whole episodes (tasks)
 /// `e = 0, 1, ..`, each sampled from the training scenes with the seed `(seed, u, w, e)`,
 /// until the worker has taken at least `min_steps` steps; their ∇L_nav summed into `grads`
-/// (zeroed first) in episode order. With `B > 1`, `B` episodes in lockstep (see
-/// [`super::vec_rollout`]).
+/// (zeroed first), `B` episodes in lockstep (see [`super::vec_rollout`]); with the
+/// second-order meta-gradient one episode at a time ([`train_episode`]).
 fn worker_update(
     world: &World,
     model: &NavModel,
@@ -403,7 +411,9 @@ fn worker_update(
         let max = run.max_steps.unwrap_or_else(|| limits.for_room(spec.room));
         Ok((spec, max))
     };
-    if run.batch_envs > 1 {
+    // Every update runs in the vectorised engine (B = 1 is its case of one slot), except the
+    // second-order meta-gradient, whose reverse recursion runs over one episode's inner steps.
+    if !(run.meta_order == 2 && model.method.adapts_in_training()) {
         let settings = VecSettings {
             batch_envs: run.batch_envs,
             min_steps: run.min_steps,

@@ -38,10 +38,9 @@
 //! and, within a step, over the batch in order. This batches the backward over all the
 //! update's episodes (a tick completes only a few segments, the update tens). The order is
 //! fixed by `(seed, update, worker, B)`, so runs stay reproducible and resumable bit for bit;
-//! it is not the order of earlier builds (one batch per tick), so a `B > 1` run differs from
-//! theirs by float rounding (`tests/vec_rollout.rs` checks the gradient against the
-//! per-episode sum within `1e-4` of each tensor's largest value; this module's tests pin
-//! the order). With `B = 1` each segment's backward runs as it completes: exactly the order
+//! the sum differs from the per-episode sum by float rounding only (`tests/vec_rollout.rs`
+//! checks the gradient against it within `1e-4` of each tensor's largest value; this
+//! module's tests pin the order). With `B = 1` each segment's backward runs as it completes: exactly the order
 //! of [`super::trainer::train_episode`], so `B = 1` gives the same update bit for bit.
 //!
 //! **Episodes per update.** A worker starts episodes (indices `e = 0, 1, ..`, seeded as in the
@@ -144,6 +143,9 @@ struct Bufs<'b> {
     /// and their steps.
     pending: Vec<PendingSeg>,
     pending_steps: usize,
+    /// The segments' losses so far, and how many segments completed.
+    losses: Vec<SegLoss>,
+    seq: u32,
 }
 
 /// G's forward over the episodes of a tick that draw a new x_t, as one batch.
@@ -230,9 +232,9 @@ fn run_worker_in<'w, M: Mode>(
         },
         pending: Vec::new(),
         pending_steps: 0,
+        losses: Vec::new(),
+        seq: 0,
     };
-    let mut losses: Vec<SegLoss> = Vec::new();
-    let mut seq = 0u32;
     let mut slots: Vec<Option<Slot<'w>>> = (0..s.batch_envs).map(|_| None).collect();
     let mut done: Vec<Finished> = Vec::new();
     let (mut next_e, mut taken) = (0u32, 0u64);
@@ -246,37 +248,53 @@ fn run_worker_in<'w, M: Mode>(
             break;
         }
         taken += step_slots(&cx, &mut bufs, &mut slots, &active)?;
-        // Segments complete at this tick: bootstrap, then one batched backward.
-        let ready: Vec<usize> = active
-            .iter()
-            .copied()
-            .filter(|&i| {
-                slots[i]
-                    .as_ref()
-                    .is_some_and(|s| s.seg.len() == K || s.env.is_done())
-            })
-            .collect();
-        if !ready.is_empty() {
-            pend_ready(&cx, &mut bufs, &mut slots, &ready, &mut seq)?;
-            // B = 1 runs each segment's backward at once: the batch-1 trainer's order.
-            if s.batch_envs == 1 || bufs.pending_steps >= MAX_PENDING_STEPS {
-                flush(&cx, &mut bufs, grads, &mut losses)?;
-            }
-            for slot in slots.iter_mut() {
-                if slot.as_ref().is_some_and(|s| s.env.is_done()) {
-                    if let Some(sl) = slot.take() {
-                        done.push(finish(sl, disc.clone()));
-                    }
-                }
-            }
-        }
+        close_segments(&cx, &mut bufs, &mut slots, &active, grads, &mut done, &disc)?;
     }
     match keep {
         // The tests' view of the final batch: its segments, instead of their backward.
         Some(k) => *k = std::mem::take(&mut bufs.pending),
-        None => flush(&cx, &mut bufs, grads, &mut losses)?,
+        None => flush(&cx, &mut bufs, grads)?,
     }
-    collect_losses(losses, done)
+    collect_losses(bufs.losses, done)
+}
+
+/// The segments complete at this tick (k = 20 steps, or the episode ended): their bootstrap
+/// values, then they wait for their backward (run at once with `B = 1`, the order of
+/// [`super::trainer::train_episode`], or when [`MAX_PENDING_STEPS`] steps wait); the ended
+/// episodes leave their slots, each with `disc`, D after it.
+fn close_segments(
+    cx: &Ctx<'_>,
+    bufs: &mut Bufs<'_>,
+    slots: &mut [Option<Slot<'_>>],
+    active: &[usize],
+    grads: &mut ParamSet,
+    done: &mut Vec<Finished>,
+    disc: &[Vec<f32>],
+) -> Result<()> {
+    let ready: Vec<usize> = active
+        .iter()
+        .copied()
+        .filter(|&i| {
+            slots[i]
+                .as_ref()
+                .is_some_and(|s| s.seg.len() == K || s.env.is_done())
+        })
+        .collect();
+    if ready.is_empty() {
+        return Ok(());
+    }
+    pend_ready(cx, bufs, slots, &ready)?;
+    if cx.s.batch_envs == 1 || bufs.pending_steps >= MAX_PENDING_STEPS {
+        flush(cx, bufs, grads)?;
+    }
+    for slot in slots.iter_mut() {
+        if slot.as_ref().is_some_and(|s| s.env.is_done()) {
+            if let Some(sl) = slot.take() {
+                done.push(finish(sl, disc.to_vec()));
+            }
+        }
+    }
+    Ok(())
 }
 
 /// One tick of the running episodes `active`: their inputs and x_t, one batched policy
@@ -358,7 +376,6 @@ fn pend_ready(
     b: &mut Bufs<'_>,
     slots: &mut [Option<Slot<'_>>],
     ready: &[usize],
-    seq: &mut u32,
 ) -> Result<()> {
     let boot = bootstrap(cx, b, slots, ready)?;
     for (&i, boot) in ready.iter().zip(boot) {
@@ -369,14 +386,14 @@ fn pend_ready(
         b.pending.push(PendingSeg {
             slot: i,
             e: sl.e,
-            seq: *seq,
+            seq: b.seq,
             steps,
             acts,
             attr: sl.attr.clone(),
             bootstrap: boot,
             own: (),
         });
-        *seq += 1;
+        b.seq += 1;
     }
     Ok(())
 }
@@ -384,12 +401,7 @@ fn pend_ready(
 /// The backward of the pending segments as one batched BPTT (see
 /// [`super::lockstep::backward_segments`]), at the update's parameters. Their losses are
 /// collected as `(episode, seq, loss)`; nothing is pending afterwards.
-fn flush(
-    cx: &Ctx<'_>,
-    b: &mut Bufs<'_>,
-    grads: &mut ParamSet,
-    losses: &mut Vec<SegLoss>,
-) -> Result<()> {
+fn flush(cx: &Ctx<'_>, b: &mut Bufs<'_>, grads: &mut ParamSet) -> Result<()> {
     let mut pend = std::mem::take(&mut b.pending);
     b.pending_steps = 0;
     let bx = BackwardCtx {
@@ -408,7 +420,7 @@ fn flush(
         grads,
         &mut b.bw,
         &mut b.gen,
-        losses,
+        &mut b.losses,
     )
 }
 
