@@ -10,8 +10,8 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
+use gman_host_sim::optim::checkpoint::Checkpoint;
 use gman_host_sim::sim::{Split, World};
-use gman_host_sim::train::checkpoint::Checkpoint;
 
 fn gman(args: &[&str]) -> (bool, String, String) {
     let out = Command::new(env!("CARGO_BIN_EXE_gman"))

@@ -35,7 +35,7 @@ use gman_core::{Dims, NUM_ACTIONS};
 
 use super::a3c::{output_grads, A3cConfig, SegmentLoss};
 use super::step::StepRec;
-use crate::train::params::ParamSet;
+use crate::optim::params::ParamSet;
 
 /// Names of the gradient tensors written by the backward pass (besides `CellW`, `CellB` of
 /// a model with a spatial map).
@@ -930,7 +930,7 @@ impl GenRows {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::train::generator::init_generator;
+    use crate::pretrain::generator::init_generator;
     use gman_core::matrix::MatRef;
     use gman_core::rng::{uniform, Xoshiro128};
 

@@ -12,9 +12,9 @@ use super::bptt::{Adapted, Backward, GenBufs, Rows, Segment, StepAct, Widths};
 use super::model::NavModel;
 use super::rollout::{ps_input, EpisodeStats};
 use super::step::StepRec;
+use crate::pretrain::ps::PsBuffers;
 use crate::sim::spatial::MapGrid;
 use crate::sim::{Env, RewardKind};
-use crate::train::ps::PsBuffers;
 use gman_core::generator::Generator;
 
 /// Most environments a worker steps in lockstep.
@@ -215,7 +215,7 @@ pub(super) fn backward_segments<'p, O>(
     segs: &'p mut [PendingSeg<O>],
     own: impl Fn(&'p PendingSeg<O>) -> Result<Option<Adapted<'p>>>,
     inspect: impl FnOnce(&[Segment<'_>]),
-    grads: &mut crate::train::params::ParamSet,
+    grads: &mut crate::optim::params::ParamSet,
     bw: &mut Backward,
     gbuf: &mut GenBufs,
     losses: &mut Vec<SegLoss>,

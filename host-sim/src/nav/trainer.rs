@@ -76,11 +76,11 @@ use rand_chacha::ChaCha8Rng;
 
 use super::a3c::{A3cConfig, Objective, SegmentLoss};
 use super::bptt::segment_backward;
-use super::inner::{finish_stats, inner_update, InnerTally};
-use super::lockstep::{check_batch_envs, VecSettings};
 use super::dist::{
     decode_shares, encode_shares, fnv1a, params_hash, CommStats, Group, Single, WorkerShare,
 };
+use super::inner::{finish_stats, inner_update, InnerTally};
+use super::lockstep::{check_batch_envs, VecSettings};
 use super::meta::{add_adapted, meta_backward, take_adapted, InnerSetup, InnerStep};
 use super::model::NavModel;
 use super::rollout::{
@@ -91,9 +91,9 @@ use super::run_dir::open_csv;
 use super::step::StepRec;
 use super::vec_rollout;
 use super::K;
+use crate::optim::params::ParamSet;
 use crate::sim::spatial::MapGrid;
 use crate::sim::{Env, EpisodeLimits, EpisodeSpec, RewardKind, World};
-use crate::train::params::ParamSet;
 
 pub use super::run_dir::{
     checkpoint_path, lock_run_dir, repair_csv, CsvRepair, RunLock, LOCK_FILE,
@@ -590,7 +590,7 @@ struct EpisodeSetup<'a> {
 
 /// The worker's observation buffers (PS activations, the spatial map), beside its arena.
 struct ObsBufs<'a> {
-    ps: &'a mut Option<crate::train::ps::PsBuffers>,
+    ps: &'a mut Option<crate::pretrain::ps::PsBuffers>,
     map: &'a mut Vec<f32>,
 }
 

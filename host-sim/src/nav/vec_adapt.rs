@@ -95,14 +95,14 @@ use super::lockstep::{
     VecSettings, MAX_PENDING_STEPS,
 };
 use super::model::NavModel;
-use super::rollout::{begin, disc_after_episode, expert_distribution, map_grid, EpisodeStats};
 use super::rollout::Worker;
+use super::rollout::{begin, disc_after_episode, expert_distribution, map_grid, EpisodeStats};
 use super::step::StepRec;
 use super::K;
+use crate::optim::params::ParamSet;
+use crate::pretrain::ps::PsBuffers;
 use crate::sim::spatial::MapGrid;
 use crate::sim::{Env, EpisodeSpec, World};
-use crate::train::params::ParamSet;
-use crate::train::ps::PsBuffers;
 
 /// Runs one worker's share of an update of a method with an inner loop with
 /// `s.batch_envs` environments in lockstep (see the module docs); episodes `e = 0, 1, ..`
@@ -785,8 +785,8 @@ mod tests {
     use super::*;
     use crate::nav::a3c::A3cConfig;
     use crate::nav::model::Method;
+    use crate::pretrain::generator::init_generator;
     use crate::sim::RewardKind;
-    use crate::train::generator::init_generator;
     use gman_core::dense::Dense;
     use gman_core::generator::Generator;
     use gman_core::matrix::MatRef;

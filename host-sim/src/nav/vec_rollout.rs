@@ -63,17 +63,17 @@ use super::a3c::Objective;
 use super::bptt::{take_act, Backward, GenBufs, Rows, StepAct, Widths};
 use super::lockstep::{
     backward_segments, bootstrap_values, check_batch_envs, collect_losses, fill_free_slots,
-    put_row, without_inner_loop, BackwardCtx, Finished, PendingSeg, RowState, SegLoss,
-    StepInputs, VecSettings, MAX_PENDING_STEPS,
+    put_row, without_inner_loop, BackwardCtx, Finished, PendingSeg, RowState, SegLoss, StepInputs,
+    VecSettings, MAX_PENDING_STEPS,
 };
 use super::model::NavModel;
 use super::rollout::{disc_after_episode, expert_distribution, EpisodeStats, Worker};
 use super::step::StepRec;
 use super::K;
+use crate::optim::params::ParamSet;
+use crate::pretrain::ps::PsBuffers;
 use crate::sim::spatial::MapGrid;
 use crate::sim::{Env, EpisodeSpec, RewardKind, World};
-use crate::train::params::ParamSet;
-use crate::train::ps::PsBuffers;
 
 /// One environment slot: a running episode and the navigator state it carries.
 struct Slot<'w> {
@@ -311,8 +311,7 @@ fn step_slots(
     for &i in active {
         let sl = slots[i].as_mut().ok_or_else(|| anyhow!("empty slot"))?;
         observe(sl, cx.model, b.ps, cx.grid, w.map)?;
-        sl.inp.expert =
-            (cx.s.objective == Objective::Dagger).then(|| expert_distribution(&sl.env));
+        sl.inp.expert = (cx.s.objective == Objective::Dagger).then(|| expert_distribution(&sl.env));
         if !sl.x_fixed {
             match cx.model.noise {
                 NoiseMode::Gaussian => {
@@ -587,14 +586,21 @@ fn bootstrap(
         .filter(|&i| slots[i].as_ref().is_some_and(|s| !s.env.is_done()))
         .collect();
     let ps = &mut *b.ps;
-    bootstrap_values(ready, &going, &cx.policy, &cx.w, &mut b.rows, |rows, j, i| {
-        let sl = slots[i].as_mut().ok_or_else(|| anyhow!("empty slot"))?;
-        observe(sl, cx.model, ps, cx.grid, cx.w.map)?;
-        put_inputs(rows, j, sl, &cx.w);
-        // The inputs are observed again at the next step.
-        sl.inp.obs.clear();
-        Ok(())
-    })
+    bootstrap_values(
+        ready,
+        &going,
+        &cx.policy,
+        &cx.w,
+        &mut b.rows,
+        |rows, j, i| {
+            let sl = slots[i].as_mut().ok_or_else(|| anyhow!("empty slot"))?;
+            observe(sl, cx.model, ps, cx.grid, cx.w.map)?;
+            put_inputs(rows, j, sl, &cx.w);
+            // The inputs are observed again at the next step.
+            sl.inp.obs.clear();
+            Ok(())
+        },
+    )
 }
 
 /// True when D as the navigator holds it after an episode without an inner loop
@@ -643,7 +649,7 @@ mod tests {
     use crate::nav::a3c::A3cConfig;
     use crate::nav::bptt::Segment;
     use crate::nav::model::Method;
-    use crate::train::generator::init_generator;
+    use crate::pretrain::generator::init_generator;
     use gman_core::rng::Xoshiro128;
     use rand::SeedableRng;
     use rand_chacha::ChaCha8Rng;
