@@ -425,8 +425,7 @@ fn backward_live<M: Mode>(
         w: &fx.w,
         d: &fx.d,
     };
-    let log = &mut b.log;
-    backward_segments(
+    backward_logged(
         &bx,
         &mut fresh,
         |p| {
@@ -436,6 +435,24 @@ fn backward_live<M: Mode>(
                 gen: nav.generator()?,
             }))
         },
+        b,
+        grads,
+    )
+}
+
+/// [`backward_segments`] over `pend` with `b`'s buffers, the batch shown to the test log.
+fn backward_logged<'p>(
+    bx: &BackwardCtx<'_>,
+    pend: &'p mut [Pending],
+    own: impl Fn(&'p Pending) -> Result<Option<Adapted<'p>>>,
+    b: &mut Bufs<'_, '_>,
+    grads: &mut ParamSet,
+) -> Result<()> {
+    let log = &mut b.log;
+    backward_segments(
+        bx,
+        pend,
+        own,
         |segs| {
             if let Some(l) = log.as_deref_mut() {
                 l.push(tick_log(segs));
@@ -543,8 +560,7 @@ fn flush_copies(fx: &Fixed<'_, '_>, b: &mut Bufs<'_, '_>, grads: &mut ParamSet) 
         w: &fx.w,
         d: &fx.d,
     };
-    let log = &mut b.log;
-    backward_segments(
+    backward_logged(
         &bx,
         &mut pend,
         |p| {
@@ -554,15 +570,8 @@ fn flush_copies(fx: &Fixed<'_, '_>, b: &mut Bufs<'_, '_>, grads: &mut ParamSet) 
                 .ok_or_else(|| anyhow!("vec_adapt: a waiting segment without its parameters"))?;
             Ok(Some(own.views(&fx.weights)))
         },
-        |segs| {
-            if let Some(l) = log.as_deref_mut() {
-                l.push(tick_log(segs));
-            }
-        },
+        b,
         grads,
-        &mut b.bw,
-        &mut b.gbuf,
-        &mut b.losses,
     )
 }
 
