@@ -481,10 +481,10 @@ mod tests {
         }
     }
 
-    /// The layout derived from the region table, pinned (figures of the hand-written formulas
-    /// of earlier builds, changed by the batched inner update's regions: Ψ_x, `k x F`, in
-    /// `psi`; batch buffers for `adapt_batch(mode, k)` entries in `work`). Long because most
-    /// of it is that table of pinned figures.
+    /// The layout derived from the region table, pinned (every region's figures per mode,
+    /// with the batched inner update's regions: Ψ_x, `k x F`, in `psi`; batch buffers for
+    /// `adapt_batch(mode, k)` entries in `work`). Long because most of it is that table of
+    /// pinned figures.
     #[test]
     fn region_table_gives_the_pinned_layout() {
         let expected = [

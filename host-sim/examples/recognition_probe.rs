@@ -21,10 +21,10 @@ use std::path::Path;
 use anyhow::{bail, Result};
 use gman_core::generator::GeneratorCache;
 use gman_core::Dims;
+use gman_host_sim::pretrain::fg::load_generator;
+use gman_host_sim::pretrain::generator::generator_view;
 use gman_host_sim::sim::spatial::MapGrid;
 use gman_host_sim::sim::{CategoryId, SceneId, Split, World};
-use gman_host_sim::train::fg::load_generator;
-use gman_host_sim::train::generator::generator_view;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 

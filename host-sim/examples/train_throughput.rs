@@ -22,10 +22,10 @@ use gman_core::rng::Xoshiro128;
 use gman_core::Dims;
 use gman_host_sim::nav::model::{Method, NavModel};
 use gman_host_sim::nav::trainer::{train, RunSettings, TrainOptions, TrainState};
+use gman_host_sim::optim::adam::AdamConfig;
+use gman_host_sim::pretrain::generator::init_generator;
 use gman_host_sim::sim::types::Split;
 use gman_host_sim::sim::{World, DEFAULT_WORLD_SEED};
-use gman_host_sim::train::adam::AdamConfig;
-use gman_host_sim::train::generator::init_generator;
 
 struct Args {
     method: Method,

@@ -14,12 +14,3 @@ pub mod ps;
 pub mod seeded;
 pub mod sim;
 pub mod simd;
-
-/// The earlier home of [`optim`] and [`pretrain`] (one `train/` folder held both), kept so
-/// that `gman_host_sim::train::...` paths keep working.
-pub mod train {
-    pub use crate::optim::{
-        adam, checkpoint, dims_json, parallel, params, rng_from_bytes, rng_to_bytes,
-    };
-    pub use crate::pretrain::{critic, fg, generator, ps};
-}

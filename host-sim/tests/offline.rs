@@ -16,6 +16,8 @@ use gman_core::{Action, Dims, FEATURE_DIM};
 use gman_host_sim::nav::agent::NavAgent;
 use gman_host_sim::nav::model::{load_model, Method, NavModel};
 use gman_host_sim::nav::trainer::{train, RunSettings, TrainOptions, TrainState};
+use gman_host_sim::optim::adam::AdamConfig;
+use gman_host_sim::pretrain::generator::init_generator;
 use gman_host_sim::sim::offline::fixture::{write_fixture, write_fixture_named, FixtureInfo};
 use gman_host_sim::sim::offline::{self, h5, state_key, MAP_LEN, MAP_SHAPE};
 use gman_host_sim::sim::spatial::MapGrid;
@@ -23,8 +25,6 @@ use gman_host_sim::sim::{
     evaluate, AgentState, Env, EpisodeLimits, EvalConfig, OracleAgent, RewardKind, Split, World,
     WorldSource,
 };
-use gman_host_sim::train::adam::AdamConfig;
-use gman_host_sim::train::generator::init_generator;
 use serde_json::Value;
 
 /// One test at a time: HDF5 locks every file it opens (flock), and a `gman` child process

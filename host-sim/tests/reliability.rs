@@ -10,8 +10,8 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
+use gman_host_sim::optim::checkpoint::Checkpoint;
 use gman_host_sim::sim::{Split, World};
-use gman_host_sim::train::checkpoint::Checkpoint;
 
 /// Held while this process has HDF5 files open and while it starts a child: HDF5 locks the
 /// files it opens, and a child started meanwhile would inherit the open file (and its lock)

@@ -8,13 +8,13 @@ use std::process::Command;
 
 use gman_core::rng::Xoshiro128;
 use gman_core::Dims;
-use gman_host_sim::sim::{Split, World};
-use gman_host_sim::train::checkpoint::{write_atomic, Checkpoint, CheckpointError};
-use gman_host_sim::train::fg::{
+use gman_host_sim::optim::checkpoint::{write_atomic, Checkpoint, CheckpointError};
+use gman_host_sim::optim::params::{Init, ParamSet};
+use gman_host_sim::pretrain::fg::{
     self, collect_fg_data, load_fg_state, load_generator, FgCollectConfig, FgDataset, FgTrainConfig,
 };
-use gman_host_sim::train::params::{Init, ParamSet};
-use gman_host_sim::train::ps::{self, PsDataConfig, PsModule, PsTrainConfig};
+use gman_host_sim::pretrain::ps::{self, PsDataConfig, PsModule, PsTrainConfig};
+use gman_host_sim::sim::{Split, World};
 
 fn check_fg_data_hygiene(world: &World, data: &FgDataset) {
     let train_scenes = world.split_scenes(Split::Train).unwrap();
@@ -283,7 +283,7 @@ fn fg_training_is_deterministic_and_resumable() {
     // 3 steps, "checkpoint" (state clone through bytes), 3 more == 6 straight.
     let mut half = run(2, &FgTrainConfig::new(3, 9));
     half.adam_gen =
-        gman_host_sim::train::adam::Adam::from_bytes(&half.adam_gen.to_bytes(), &half.gen).unwrap();
+        gman_host_sim::optim::adam::Adam::from_bytes(&half.adam_gen.to_bytes(), &half.gen).unwrap();
     fg::train_fg(&world, &dims, &data, &cfg, &mut half).unwrap();
     assert_eq!(half.gen, a.gen);
     assert_eq!(half.critic, a.critic);

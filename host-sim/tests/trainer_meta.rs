@@ -1,7 +1,7 @@
 //! The typed trainer settings of a training checkpoint (`nav::state::TrainerMeta`) against
-//! the untyped `trainer` object of earlier builds (format version 1, no `version` key):
+//! the untyped `trainer` object of format version 1 (no `version` key):
 //!
-//! * the metadata a base build (main at 0460aca, before the settings were typed) wrote for
+//! * the version-1 metadata of
 //!   `gman train --method gman --config tiny --updates 3 --workers 1` parses, with every
 //!   setting as that run had it, and has exactly the keys this build writes (less `version`);
 //! * a checkpoint in the version-1 form resumes bit for bit like an uninterrupted run;
@@ -17,10 +17,10 @@ use gman_host_sim::nav::trainer::{
     checkpoint_path, train, RunSettings, TrainOptions, TrainState, TrainerMeta, WorldId,
     TRAINER_META_VERSION,
 };
+use gman_host_sim::optim::adam::AdamConfig;
+use gman_host_sim::optim::checkpoint::Checkpoint;
+use gman_host_sim::pretrain::generator::init_generator;
 use gman_host_sim::sim::{RewardKind, World};
-use gman_host_sim::train::adam::AdamConfig;
-use gman_host_sim::train::checkpoint::Checkpoint;
-use gman_host_sim::train::generator::init_generator;
 
 const FIXTURE: &str = include_str!("fixtures/base-0460aca-gman-tiny.meta.json");
 
@@ -127,7 +127,7 @@ fn a_version_1_checkpoint_resumes_bit_for_bit() {
     let ck = checkpoint_path(&b);
     let v2 = TrainState::load_with_settings(&ck).unwrap().1;
     assert_eq!(v2.version, TRAINER_META_VERSION);
-    // The form of earlier builds: no version key.
+    // The version-1 form: no version key.
     edit_trainer(&ck, |t| {
         t.remove("version");
     });

@@ -10,7 +10,7 @@ use gman_core::Dims;
 use gman_host_sim::nav::a3c::{output_grads, A3cConfig};
 use gman_host_sim::nav::bptt::segment_backward;
 use gman_host_sim::nav::step::StepRec;
-use gman_host_sim::train::params::{Param, ParamSet};
+use gman_host_sim::optim::params::{Param, ParamSet};
 use gman_tests::reference::{finite_diff, lrelu, rel_err, Dense64, Gen64, Lstm64};
 
 const TINY: Dims = Dims {

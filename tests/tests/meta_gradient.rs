@@ -27,7 +27,7 @@ use gman_host_sim::nav::meta::{
     inner_grads, meta_backward, take_adapted, InnerSetup, InnerStep, PHI, THETA,
 };
 use gman_host_sim::nav::step::StepRec;
-use gman_host_sim::train::params::{Param, ParamSet};
+use gman_host_sim::optim::params::{Param, ParamSet};
 use gman_tests::reference::{
     adapt_loss, finite_diff, lrelu, rel_err, Dense64, Disc64, Gen64, Lstm64,
 };

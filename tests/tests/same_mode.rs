@@ -11,9 +11,9 @@ use gman_host_sim::nav::model::{AdaptLossName, InnerRule, Method, NavModel, Step
 use gman_host_sim::nav::rollout::Worker;
 use gman_host_sim::nav::trainer::train_episode;
 use gman_host_sim::nav::K;
+use gman_host_sim::optim::params::{Init, ParamSet};
 use gman_host_sim::sim::spatial::MapGrid;
 use gman_host_sim::sim::{Env, EpisodeSpec, RewardKind, World};
-use gman_host_sim::train::params::{Init, ParamSet};
 use rand::SeedableRng;
 
 /// A GMAN model with a random (not zero) generator and a fast inner loop, so adaptation

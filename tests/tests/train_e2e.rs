@@ -12,12 +12,12 @@ use gman_core::Dims;
 use gman_host_sim::nav::agent::NavAgent;
 use gman_host_sim::nav::model::{load_model, Method, NavModel};
 use gman_host_sim::nav::trainer::{train, RunSettings, TrainOptions, TrainState};
+use gman_host_sim::optim::adam::AdamConfig;
+use gman_host_sim::pretrain::fg::{self, FgCollectConfig, FgTrainConfig};
+use gman_host_sim::pretrain::generator::init_generator;
 use gman_host_sim::sim::{
     evaluate, Env, EpisodeLimits, EvalConfig, EvalReport, RandomAgent, RewardKind, Split, World,
 };
-use gman_host_sim::train::adam::AdamConfig;
-use gman_host_sim::train::fg::{self, FgCollectConfig, FgTrainConfig};
-use gman_host_sim::train::generator::init_generator;
 
 fn tmp(name: &str) -> PathBuf {
     let d = std::env::temp_dir().join(format!("gman-e2e-{}-{name}", std::process::id()));
@@ -449,7 +449,7 @@ fn meta_order_two_changes_only_the_generator_gradient() {
     train(&world, &o, &mut st).unwrap();
     assert!(st.model.params.all_finite());
     let ck =
-        gman_host_sim::train::checkpoint::Checkpoint::load(&dir.join("checkpoint.ckpt")).unwrap();
+        gman_host_sim::optim::checkpoint::Checkpoint::load(&dir.join("checkpoint.ckpt")).unwrap();
     assert_eq!(ck.metadata["trainer"]["meta_order"], 2);
 }
 

@@ -10,14 +10,14 @@ use clap::Args;
 use gman_host_sim::nav::agent::NavAgent;
 use gman_host_sim::nav::model::{Method, NavModel};
 use gman_host_sim::nav::trainer::{checkpoint_path, train, RunSettings, TrainOptions, TrainState};
+use gman_host_sim::optim::adam::AdamConfig;
+use gman_host_sim::pretrain::fg::{self};
 use gman_host_sim::sim::eval::drive;
 use gman_host_sim::sim::render::draw_scene;
 use gman_host_sim::sim::{
     mean_interval, wilson_interval, Agent, EpisodeResult, EpisodeSpec, EvalReport, RewardKind,
     TargetKind, World,
 };
-use gman_host_sim::train::adam::AdamConfig;
-use gman_host_sim::train::fg::{self};
 use serde::Serialize;
 
 use super::args::{PresetArg, WorldArgs};

@@ -97,7 +97,7 @@ pub fn cmd_export(a: ExportArgs) -> Result<()> {
         }
         (None, None) => bail!("give --ckpt or --blob"),
     };
-    gman_host_sim::train::checkpoint::write_atomic(&a.out, |f| {
+    gman_host_sim::optim::checkpoint::write_atomic(&a.out, |f| {
         std::io::Write::write_all(f, &bytes)
     })?;
     eprintln!(

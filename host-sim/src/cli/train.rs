@@ -12,10 +12,10 @@ use gman_host_sim::nav::model::{Method, NavModel};
 use gman_host_sim::nav::trainer::{
     checkpoint_path, train_in, Distributed, RunSettings, TrainOptions, TrainState, WorldId,
 };
+use gman_host_sim::optim::adam::AdamConfig;
+use gman_host_sim::pretrain::fg::{self, FgCollectConfig, FgTrainConfig};
+use gman_host_sim::pretrain::ps::{self, PsDataConfig, PsModule, PsTrainConfig};
 use gman_host_sim::sim::{RewardKind, World};
-use gman_host_sim::train::adam::AdamConfig;
-use gman_host_sim::train::fg::{self, FgCollectConfig, FgTrainConfig};
-use gman_host_sim::train::ps::{self, PsDataConfig, PsModule, PsTrainConfig};
 
 use super::args::{PresetArg, WorldArgs};
 
@@ -379,7 +379,7 @@ fn validate_train_settings(
     if opts.checkpoint_every == 0 {
         return Err(bad("checkpoint-every must be at least 1".into()));
     }
-    let max_b = gman_host_sim::nav::vec_rollout::MAX_BATCH_ENVS;
+    let max_b = gman_host_sim::nav::lockstep::MAX_BATCH_ENVS;
     if opts.run.batch_envs == 0 || opts.run.batch_envs > max_b {
         return Err(bad(format!(
             "batch-envs must be in 1..={max_b}, got {}",
@@ -881,7 +881,7 @@ fn open_resumed(
         );
     }
     if st.world.is_none() {
-        // Checkpoints of older builds did not record it: record it from now on.
+        // A checkpoint that does not record its world gets the one it resumes on.
         st.world = Some(world_id.clone());
     }
     Ok((st, run))

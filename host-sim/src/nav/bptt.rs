@@ -35,7 +35,7 @@ use gman_core::{Dims, NUM_ACTIONS};
 
 use super::a3c::{output_grads, A3cConfig, SegmentLoss};
 use super::step::StepRec;
-use crate::train::params::ParamSet;
+use crate::optim::params::ParamSet;
 
 /// Names of the gradient tensors written by the backward pass (besides `CellW`, `CellB` of
 /// a model with a spatial map).
@@ -550,29 +550,14 @@ impl Backward {
                 &mut sc,
             )?;
         } else {
-            let hd = w.hd;
             sc.dh.copy_from_slice(&self.dh_next[..nh]);
-            for (j, s) in segs.iter().enumerate() {
-                let p = match &s.own {
-                    Some(o) => Policy {
-                        actor: o.actor,
-                        ..*policy
-                    },
-                    None => *policy,
-                };
-                let au = &cache.actor_u[j * w.au..(j + 1) * w.au];
-                p.heads_backward(
-                    1,
-                    &cache.h[j * hd..(j + 1) * hd],
-                    au,
-                    &self.dl[j * NUM_ACTIONS..(j + 1) * NUM_ACTIONS],
-                    &self.dv[j..j + 1],
-                    &mut pg.actor,
-                    &mut pg.critic,
-                    &mut sc.dh[j * hd..(j + 1) * hd],
-                    &mut sc.tmp[..NUM_ACTIONS],
-                )?;
-            }
+            let heads = HeadRows {
+                h: &cache.h[..],
+                actor_u: &cache.actor_u[..],
+                dl: &self.dl,
+                dv: &self.dv,
+            };
+            heads_backward_by_row(policy, segs, w, &heads, pg, &mut sc.dh[..], &mut sc.tmp[..])?;
             policy.trunk_backward_batch(
                 n,
                 &inp,
@@ -589,6 +574,50 @@ impl Backward {
         std::mem::swap(&mut self.dc_next, &mut self.dc_prev);
         Ok(())
     }
+}
+
+/// The rows' activations and output gradients the heads' backward reads.
+struct HeadRows<'a> {
+    h: &'a [f32],
+    actor_u: &'a [f32],
+    dl: &'a [f32],
+    dv: &'a [f32],
+}
+
+/// The heads' backward row by row, each row at its segment's own actor head (the shared one
+/// without), in row order: the bits of the batched heads when the rows share one. `dh` holds
+/// `∂L/∂h` from the next step and receives the heads' part.
+fn heads_backward_by_row(
+    policy: &Policy<'_>,
+    segs: &[Segment<'_>],
+    w: &Widths,
+    r: &HeadRows<'_>,
+    pg: &mut PolicyGrads<'_>,
+    dh: &mut [f32],
+    tmp: &mut [f32],
+) -> Result<()> {
+    let hd = w.hd;
+    for (j, s) in segs.iter().enumerate() {
+        let p = match &s.own {
+            Some(o) => Policy {
+                actor: o.actor,
+                ..*policy
+            },
+            None => *policy,
+        };
+        p.heads_backward(
+            1,
+            &r.h[j * hd..(j + 1) * hd],
+            &r.actor_u[j * w.au..(j + 1) * w.au],
+            &r.dl[j * NUM_ACTIONS..(j + 1) * NUM_ACTIONS],
+            &r.dv[j..j + 1],
+            &mut pg.actor,
+            &mut pg.critic,
+            &mut dh[j * hd..(j + 1) * hd],
+            &mut tmp[..NUM_ACTIONS],
+        )?;
+    }
+    Ok(())
 }
 
 /// Accumulates `∇ L_nav` of a segment into `grads` (names as in blobs; see the module docs),
@@ -901,7 +930,7 @@ impl GenRows {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::train::generator::init_generator;
+    use crate::pretrain::generator::init_generator;
     use gman_core::matrix::MatRef;
     use gman_core::rng::{uniform, Xoshiro128};
 

@@ -16,7 +16,7 @@ use anyhow::{bail, Result};
 
 use super::a3c::SegmentLoss;
 use super::rollout::EpisodeStats;
-use crate::train::params::ParamSet;
+use crate::optim::params::ParamSet;
 
 /// The processes of one training run.
 pub trait Group {
@@ -305,7 +305,7 @@ impl Reader<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::train::params::Param;
+    use crate::optim::params::Param;
 
     #[test]
     fn shares_round_trip_bit_for_bit() {

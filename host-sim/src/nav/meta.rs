@@ -68,8 +68,8 @@ use gman_core::matrix::MatRef;
 use gman_core::navigator::{Mode, Navigator};
 use gman_core::{Dims, NUM_ACTIONS};
 
+use crate::optim::params::ParamSet;
 use crate::pretrain::generator::GenBuffers;
-use crate::train::params::ParamSet;
 
 /// The adapted tensors of G (θ), in the order of the flat vectors of this module.
 pub const THETA: [TensorId; 4] = TensorId::GENERATOR;

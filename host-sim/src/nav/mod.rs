@@ -11,6 +11,8 @@
 //! | [`meta`] | the second-order meta-gradient (`--meta-order 2`) |
 //! | [`step`] | what a rollout records of a step |
 //! | [`rollout`] | worker buffers, evaluation episodes, pieces shared with training |
+//! | `inner` | the inner update when Ψ is full, its tally, an episode's closing statistics |
+//! | [`lockstep`] | what the vectorised episodes share: settings, slots, inputs, bootstrap, batched BPTT |
 //! | [`vec_rollout`] | `B` training episodes in lockstep (`--batch-envs`) |
 //! | [`vec_adapt`] | the same for the methods with an inner loop: one navigator per episode |
 //! | [`state`] | what a checkpoint restores; the typed, versioned trainer settings |
@@ -26,6 +28,8 @@ pub mod a3c;
 pub mod agent;
 pub mod bptt;
 pub mod dist;
+mod inner;
+pub mod lockstep;
 pub mod meta;
 pub mod model;
 #[cfg(feature = "mpi")]

@@ -15,9 +15,9 @@ use gman_core::schema::{AdaptLossKind, Emd, ModelFlags};
 use gman_core::Dims;
 use serde::{Deserialize, Serialize};
 
-use crate::train::checkpoint::Checkpoint;
-use crate::train::params::{Init, Param, ParamSet};
-use crate::train::ps::PsModule;
+use crate::optim::checkpoint::Checkpoint;
+use crate::optim::params::{Init, Param, ParamSet};
+use crate::pretrain::ps::PsModule;
 
 /// When the inner loop of Algorithm 1 (the EMD's adaptation) runs.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -186,7 +186,7 @@ impl clap::ValueEnum for Method {
 }
 
 impl Serialize for Method {
-    /// As its preset name (what the enum of earlier builds wrote); `"custom"` for a
+    /// As its preset name (the form checkpoints store); `"custom"` for a
     /// combination that is no preset, which [`Method::parse`] then refuses on reading.
     fn serialize<S: serde::Serializer>(&self, s: S) -> std::result::Result<S::Ok, S::Error> {
         s.serialize_str(self.name())
@@ -757,10 +757,10 @@ impl NavModel {
             Some(h) => {
                 let mut set = ParamSet::new();
                 for (name, r, c) in [
-                    (crate::train::ps::PS_W1, h, gman_core::FEATURE_DIM),
-                    (crate::train::ps::PS_B1, h, 1),
-                    (crate::train::ps::PS_W2, gman_core::ATTR_DIM, h),
-                    (crate::train::ps::PS_B2, gman_core::ATTR_DIM, 1),
+                    (crate::pretrain::ps::PS_W1, h, gman_core::FEATURE_DIM),
+                    (crate::pretrain::ps::PS_B1, h, 1),
+                    (crate::pretrain::ps::PS_W2, gman_core::ATTR_DIM, h),
+                    (crate::pretrain::ps::PS_B2, gman_core::ATTR_DIM, 1),
                 ] {
                     set.push(ck.tensor(name, r, c)?.clone())?;
                 }
@@ -977,10 +977,10 @@ pub fn host_arena_len(dims: &Dims) -> usize {
 mod tests {
     use super::*;
 
-    /// The presets answer the six predicates exactly as the 9-variant enum of earlier builds
-    /// did (its truth table, written out, plus the presets added since), have distinct switches and round-trip their names.
+    /// The presets answer the six predicates as the truth table written out here pins them,
+    /// have distinct switches and round-trip their names.
     #[test]
-    fn presets_keep_the_old_predicates_and_names() {
+    fn presets_answer_the_pinned_predicates_and_names() {
         // name, uses_fg, uses_ps, adapts_in_training, uses_cossim, adapts_at_eval,
         // trains_generator
         let old = [
@@ -1038,7 +1038,7 @@ mod tests {
         serde_json::json!({
             "kind": "gman-navigator",
             "method": m.method.name(),
-            "dims": crate::train::dims_json(&m.dims),
+            "dims": crate::optim::dims_json(&m.dims),
             "noise": match m.noise { NoiseMode::Gaussian => "gaussian", NoiseMode::Zero => "zero" },
             "ps_hidden": m.ps.as_ref().map(|p| p.hidden),
             "inner_lr": m.inner_lr,
@@ -1050,9 +1050,11 @@ mod tests {
 
     #[test]
     fn typed_metadata_is_the_old_json_and_reads_old_checkpoints() {
-        let g =
-            crate::train::generator::init_generator(&Dims::MCU, &mut Xoshiro128::seed_from_u64(1))
-                .unwrap();
+        let g = crate::pretrain::generator::init_generator(
+            &Dims::MCU,
+            &mut Xoshiro128::seed_from_u64(1),
+        )
+        .unwrap();
         for (method, dims) in [
             (Method::Gman, Dims::MCU),
             (Method::A3cFg, Dims::MCU.with_map(3, 3, 8)),
@@ -1076,7 +1078,7 @@ mod tests {
         let mut first = serde_json::json!({
             "kind": "gman-navigator",
             "method": "gman",
-            "dims": crate::train::dims_json(&m.dims),
+            "dims": crate::optim::dims_json(&m.dims),
             "ps_hidden": null,
         });
         let mut ck = Checkpoint::new(first.clone());
@@ -1113,9 +1115,11 @@ mod inner_rule_tests {
 
     #[test]
     fn inner_rule_round_trips_through_checkpoint_and_blob() {
-        let g =
-            crate::train::generator::init_generator(&Dims::MCU, &mut Xoshiro128::seed_from_u64(1))
-                .unwrap();
+        let g = crate::pretrain::generator::init_generator(
+            &Dims::MCU,
+            &mut Xoshiro128::seed_from_u64(1),
+        )
+        .unwrap();
         let mut m = NavModel::init(Method::Gman, Dims::MCU, 1, Some(&g), None).unwrap();
         m.adapt_mode = AdaptMode::Efficient;
         m.inner_lr = 0.5;

@@ -12,9 +12,9 @@ use super::a3c::SegmentLoss;
 use super::bptt::{Rows, Widths};
 use super::model::NavModel;
 use super::K;
+use crate::pretrain::ps::PsBuffers;
 use crate::sim::spatial::MapGrid;
 use crate::sim::{Env, EpisodeSpec, World};
-use crate::train::ps::PsBuffers;
 
 /// Summary of a training episode.
 #[derive(Clone, Debug, Default)]

@@ -91,7 +91,7 @@ pub(crate) fn open_csv(out: &Path, update: u64) -> Result<File> {
         }
         keep.extend(r.rows);
     }
-    crate::train::checkpoint::write_atomic(&path, |f| {
+    crate::optim::checkpoint::write_atomic(&path, |f| {
         let mut w = std::io::BufWriter::new(f);
         for l in &keep {
             writeln!(w, "{l}")?;
@@ -173,7 +173,7 @@ pub fn lock_run_dir(out: &Path) -> Result<RunLock> {
     })
 }
 
-/// Removes `.NAME.tmp.PID` files (temporaries of [`crate::train::checkpoint::write_atomic`])
+/// Removes `.NAME.tmp.PID` files (temporaries of [`crate::optim::checkpoint::write_atomic`])
 /// of other processes from `dir`, `dir/fg` and `dir/ps`. Only called with the run
 /// directory's lock held, so no other writer can be using them.
 fn remove_stale_temporaries(dir: &Path) {

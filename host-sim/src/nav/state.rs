@@ -19,9 +19,9 @@ use serde::{Deserialize, Serialize};
 
 use super::a3c::{A3cConfig, Objective};
 use super::model::{Method, NavModel};
+use crate::optim::adam::{Adam, AdamConfig};
+use crate::optim::checkpoint::Checkpoint;
 use crate::sim::{ObjectLayout, RewardKind};
-use crate::train::adam::{Adam, AdamConfig};
-use crate::train::checkpoint::Checkpoint;
 
 /// Version of the `trainer` object written by this build (see the module docs).
 pub const TRAINER_META_VERSION: u32 = 2;
@@ -304,7 +304,7 @@ pub struct TrainerMeta {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub world: Option<WorldId>,
     /// The number of updates the run was asked for (`--updates`), so that a resumed run
-    /// continues to it; absent in checkpoints of older builds.
+    /// continues to it; absent when unknown (checkpoints that do not record it).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub target_updates: Option<u64>,
     /// A copy of the model's settings as the checkpoint was written (the metadata's top-level

@@ -4,14 +4,18 @@
 //! 1. [`train`] — the outer loop (lines 1-3, 21-22): the workers' updates in parallel, then
 //!    `outer_step`: Adam on the summed ∇L_nav (Eq. 4), ω carried across episodes;
 //! 2. `worker_update` — a worker's tasks τ_i, seeded by `(seed, update, worker, episode)`;
-//! 3. [`train_episode`] — one task (lines 4-20): `rollout_segment` (lines 5-13, through
-//!    gman-core's navigator), the segment's ∇L_nav ([`super::bptt::segment_backward`] of
-//!    the loss in [`super::a3c`]), `inner_update` (lines 14-20: Eq. 1 ascent, Eq. 3 descent,
-//!    in gman-core) and, for `--meta-order 2`, [`super::meta`]'s reverse recursion;
+//! 3. the worker's episodes, `B` in lockstep ([`super::vec_rollout::run_worker`], `B = 1`
+//!    included): each segment's ∇L_nav (the loss in [`super::a3c`], one batched BPTT in
+//!    [`super::bptt`]) and the inner update (lines 14-20: Eq. 1 ascent, Eq. 3 descent, in
+//!    gman-core);
 //! 4. `Log` — one `metrics.csv` row per update.
 //!
-//! The vectorised rollout ([`super::vec_rollout`]) replaces step 3 for `--batch-envs B > 1`;
-//! the checkpoint ([`super::state`]) and the run directory ([`super::run_dir`]) live beside.
+//! [`train_episode`] runs one task (lines 4-20) with one navigator: `rollout_segment`
+//! (lines 5-13), the segment's ∇L_nav ([`super::bptt::segment_backward`]), the inner update
+//! and [`super::meta`]'s reverse recursion; it serves `--meta-order 2`, whose recursion runs
+//! over one episode's inner steps, and is the reference the vectorised engine is tested
+//! against. The checkpoint ([`super::state`]) and the run directory ([`super::run_dir`])
+//! live beside.
 //!
 //! ```text
 //! for update u = 1, 2, ...                                   (Algorithm 1, line 1)
@@ -35,12 +39,11 @@
 //!   Adam step. Every random choice of an update derives from
 //!   `(seed, update, worker)`, so a run is reproducible bit for bit for a given worker count
 //!   and a resumed run continues exactly where the checkpoint left off.
-//! * **Vectorised episodes** (`--batch-envs B`): each worker steps `B` environments in
-//!   lockstep with the policy's passes over them as matrices, see [`super::vec_rollout`]
-//!   (and [`super::vec_adapt`] for the methods with an inner loop: one navigator per
-//!   episode, each with its own inner loop; first-order meta-gradient only); `B = 1` (the
-//!   default) is this loop's batch-1 runner, and the vectorised runner with `B = 1` gives the
-//!   same update bit for bit.
+//! * **Vectorised episodes** (`--batch-envs B`, default 16 in `gman train`): each worker
+//!   steps `B` environments in lockstep with the policy's passes over them as matrices, see
+//!   [`super::vec_rollout`] (and [`super::vec_adapt`] for the methods with an inner loop:
+//!   one navigator per episode, each with its own inner loop; first-order meta-gradient
+//!   only). `B = 1` runs in the same engine and gives [`train_episode`]'s update bit for bit.
 //! * **Baselines** run the same loop with the inner loop off (`a3c`, `a3c-fg`, `gman-nometa`):
 //!   plain synchronous advantage actor-critic, with G's θ frozen at its pre-trained value.
 //! * **The `gman-noemd` control** runs the loop with the inner loop off but lets Adam train θ
@@ -76,6 +79,8 @@ use super::bptt::segment_backward;
 use super::dist::{
     decode_shares, encode_shares, fnv1a, params_hash, CommStats, Group, Single, WorkerShare,
 };
+use super::inner::{finish_stats, inner_update, InnerTally};
+use super::lockstep::{check_batch_envs, VecSettings};
 use super::meta::{add_adapted, meta_backward, take_adapted, InnerSetup, InnerStep};
 use super::model::NavModel;
 use super::rollout::{
@@ -84,11 +89,11 @@ use super::rollout::{
 };
 use super::run_dir::open_csv;
 use super::step::StepRec;
-use super::vec_rollout::{self, VecSettings};
+use super::vec_rollout;
 use super::K;
+use crate::optim::params::ParamSet;
 use crate::sim::spatial::MapGrid;
 use crate::sim::{Env, EpisodeLimits, EpisodeSpec, RewardKind, World};
-use crate::train::params::ParamSet;
 
 pub use super::run_dir::{
     checkpoint_path, lock_run_dir, repair_csv, CsvRepair, RunLock, LOCK_FILE,
@@ -189,28 +194,7 @@ pub fn train_in(
         let t_update = Instant::now();
         // Lines 2-20: every worker samples its tasks τ_i ~ p(T) and runs them from θ, φ, ω
         // (each with its own θ_i, φ_i and inner loop), accumulating ∇L_nav into its grads.
-        let u = state.update;
-        let model = &state.model;
-        let first = rank * local;
-        let results: Vec<Result<WorkerOut>> = std::thread::scope(|s| {
-            let handles: Vec<_> = workers
-                .iter_mut()
-                .enumerate()
-                .map(|(w, (worker, grads))| {
-                    s.spawn(move || {
-                        worker_update(world, model, &opts.run, u, first + w, worker, grads)
-                    })
-                })
-                .collect();
-            handles
-                .into_iter()
-                .map(|h| h.join().unwrap_or_else(|_| Err(anyhow!("worker panicked"))))
-                .collect()
-        });
-        let mut per_worker = Vec::with_capacity(results.len());
-        for r in results {
-            per_worker.push(r?);
-        }
+        let per_worker = run_workers(world, state, &opts.run, rank * local, &mut workers)?;
         // Lines 21-22 (Eq. 4): θ, φ ← Adam(Σ_τ ∇L_nav(ω, θ_i, φ_i)); ω keeps what the
         // episodes' inner loops taught D.
         let (grad_norm, episodes) = if ranks == 1 {
@@ -245,6 +229,32 @@ pub fn train_in(
     }
     bar.finish_and_clear();
     Ok(comm)
+}
+
+/// This rank's workers' shares of the update `state.update`, one thread each: worker `w`
+/// of `workers` is the global worker `first + w`.
+fn run_workers(
+    world: &World,
+    state: &TrainState,
+    run: &RunSettings,
+    first: usize,
+    workers: &mut [(Worker, ParamSet)],
+) -> Result<Vec<WorkerOut>> {
+    let (u, model) = (state.update, &state.model);
+    let results: Vec<Result<WorkerOut>> = std::thread::scope(|s| {
+        let handles: Vec<_> = workers
+            .iter_mut()
+            .enumerate()
+            .map(|(w, (worker, grads))| {
+                s.spawn(move || worker_update(world, model, run, u, first + w, worker, grads))
+            })
+            .collect();
+        handles
+            .into_iter()
+            .map(|h| h.join().unwrap_or_else(|_| Err(anyhow!("worker panicked"))))
+            .collect()
+    });
+    results.into_iter().collect()
 }
 
 /// Every rank's workers' gradients and episodes, in global worker order, on every rank.
@@ -373,7 +383,7 @@ fn check_options(run: &RunSettings, model: &NavModel) -> Result<()> {
     if !(1..=2).contains(&run.meta_order) {
         bail!("--meta-order must be 1 or 2");
     }
-    vec_rollout::check_batch_envs(model, run.batch_envs, run.meta_order)?;
+    check_batch_envs(model, run.batch_envs, run.meta_order)?;
     if run.meta_order == 2 && model.method.uses_cossim() {
         bail!("--meta-order 2 is implemented for the discriminator EMD only; use --meta-order 1 with gman-cossim");
     }
@@ -383,8 +393,8 @@ fn check_options(run: &RunSettings, model: &NavModel) -> Result<()> {
 /// Worker `w`'s share of update `u` (Algorithm 1, lines 2-3): whole episodes (tasks)
 /// `e = 0, 1, ..`, each sampled from the training scenes with the seed `(seed, u, w, e)`,
 /// until the worker has taken at least `min_steps` steps; their ∇L_nav summed into `grads`
-/// (zeroed first) in episode order. With `B > 1`, `B` episodes in lockstep (see
-/// [`super::vec_rollout`]).
+/// (zeroed first), `B` episodes in lockstep (see [`super::vec_rollout`]); with the
+/// second-order meta-gradient one episode at a time ([`train_episode`]).
 fn worker_update(
     world: &World,
     model: &NavModel,
@@ -402,7 +412,9 @@ fn worker_update(
         let max = run.max_steps.unwrap_or_else(|| limits.for_room(spec.room));
         Ok((spec, max))
     };
-    if run.batch_envs > 1 {
+    // Every update runs in the vectorised engine (B = 1 is its case of one slot), except the
+    // second-order meta-gradient, whose reverse recursion runs over one episode's inner steps.
+    if !(run.meta_order == 2 && model.method.adapts_in_training()) {
         let settings = VecSettings {
             batch_envs: run.batch_envs,
             min_steps: run.min_steps,
@@ -579,16 +591,8 @@ struct EpisodeSetup<'a> {
 
 /// The worker's observation buffers (PS activations, the spatial map), beside its arena.
 struct ObsBufs<'a> {
-    ps: &'a mut Option<crate::train::ps::PsBuffers>,
+    ps: &'a mut Option<crate::pretrain::ps::PsBuffers>,
     map: &'a mut Vec<f32>,
-}
-
-/// What the inner updates of an episode did: `E[D(s)] − E[D(x)]` and L_ad summed over them.
-#[derive(Default)]
-pub(super) struct InnerTally {
-    gap: f64,
-    adapt_loss: f64,
-    n: u32,
 }
 
 fn train_episode_in<M: Mode>(
@@ -740,64 +744,6 @@ fn next_value<M: Mode>(
         env.observe_map(grid, worker.map);
     }
     bootstrap_value(nav, &obs.features, worker.map, &ps)
-}
-
-/// Algorithm 1, lines 14-20, when Ψ holds `K` steps: the navigator's inner update (D's
-/// ascent on L_D, Eq. 1; θ_i, φ_i's descent on L_ad, Eq. 3; rolled back if it fails) while
-/// the per-episode cap allows, else Ψ is emptied. With `second` (meta-order 2) the inner
-/// step is recorded for the reverse recursion.
-pub(super) fn inner_update<M: Mode>(
-    nav: &mut Navigator<'_, M, K>,
-    second: bool,
-    tally: &mut InnerTally,
-) -> Result<Option<InnerStep>> {
-    if nav.buffered() != K {
-        return Ok(None);
-    }
-    if !nav.can_adapt() {
-        nav.clear_buffer();
-        return Ok(None);
-    }
-    let mut step = if second {
-        Some(InnerStep::before_update(nav)?)
-    } else {
-        None
-    };
-    nav.adapt_now()?;
-    if let Some(st) = step.as_mut() {
-        st.after_update(nav)?;
-    }
-    let r = nav.last_adaptation();
-    tally.gap += (r.ld.mean_real - r.ld.mean_fake) as f64;
-    tally.adapt_loss += r.adapt_loss as f64;
-    tally.n += 1;
-    Ok(step)
-}
-
-/// The episode's outcome and inner-loop summary into `stats`.
-pub(super) fn finish_stats<M: Mode>(
-    stats: &mut EpisodeStats,
-    env: &Env<'_>,
-    nav: &Navigator<'_, M, K>,
-    tally: &InnerTally,
-) {
-    let m = env.metrics();
-    let c = nav.counters();
-    stats.success = m.success;
-    stats.steps = env.steps();
-    stats.total_reward = m.total_reward;
-    stats.adaptations = c.adaptations;
-    stats.rollbacks = c.rollbacks;
-    let mean = |v: f64| {
-        if tally.n > 0 {
-            (v / tally.n as f64) as f32
-        } else {
-            f32::NAN
-        }
-    };
-    stats.disc_gap = mean(tally.gap);
-    stats.adapt_loss = mean(tally.adapt_loss);
-    stats.final_feature = nav.generated_feature().to_vec();
 }
 
 // ---------------------------------------------------------------------------------------

@@ -83,22 +83,26 @@ use gman_core::memory::AdaptMode;
 use gman_core::navigator::{
     Efficient, Full, Mode, NavConfig, NavWeights, Navigator, NoiseMode, Selection,
 };
-use gman_core::policy::{Policy, PolicyInput};
+use gman_core::policy::Policy;
 use gman_core::{Dims, NUM_ACTIONS};
 
-use super::a3c::{A3cConfig, Objective, SegmentLoss};
+use super::a3c::{A3cConfig, Objective};
 use super::bptt::{take_act, Adapted, Backward, GenBufs, Rows, Segment, StepAct, Widths};
+use super::inner::{finish_stats, inner_update, InnerTally};
+use super::lockstep::{
+    backward_order, backward_segments, bootstrap_values, check_batch_envs, collect_losses,
+    fill_free_slots, put_row, BackwardCtx, Finished, PendingSeg, RowState, SegLoss, StepInputs,
+    VecSettings, MAX_PENDING_STEPS,
+};
 use super::model::NavModel;
+use super::rollout::Worker;
 use super::rollout::{begin, disc_after_episode, expert_distribution, map_grid, EpisodeStats};
-use super::rollout::{ps_input, Worker};
 use super::step::StepRec;
-use super::trainer::{finish_stats, inner_update, InnerTally};
-use super::vec_rollout::{check_batch_envs, Finished, VecSettings};
 use super::K;
+use crate::optim::params::ParamSet;
+use crate::pretrain::ps::PsBuffers;
 use crate::sim::spatial::MapGrid;
 use crate::sim::{Env, EpisodeSpec, World};
-use crate::train::params::ParamSet;
-use crate::train::ps::PsBuffers;
 
 /// Runs one worker's share of an update of a method with an inner loop with
 /// `s.batch_envs` environments in lockstep (see the module docs); episodes `e = 0, 1, ..`
@@ -128,11 +132,9 @@ struct Ep<'w> {
     acts: Vec<StepAct>,
     stats: EpisodeStats,
     tally: InnerTally,
-    // This step's inputs and the navigator's state before it.
-    obs: Vec<f32>,
-    ps: Vec<f32>,
-    map: Vec<f32>,
-    expert: Option<[f32; NUM_ACTIONS]>,
+    /// This step's inputs.
+    inp: StepInputs,
+    // The navigator's state before this step.
     h_prev: Vec<f32>,
     c_prev: Vec<f32>,
     prev: Vec<f32>,
@@ -158,15 +160,47 @@ pub(crate) struct TickLog {
 #[cfg(not(test))]
 pub(crate) struct TickLog;
 
-fn run_in<'w, M: Mode>(
-    world: &'w World,
-    model: &NavModel,
-    s: &VecSettings<'_>,
-    worker: &mut Worker,
-    grads: &mut ParamSet,
-    mut sample: impl FnMut(u32) -> Result<(EpisodeSpec, u32)>,
-    mut log: Option<&mut Vec<TickLog>>,
-) -> Result<Vec<Finished>> {
+/// A complete segment, with (when its backward waits) a copy of the episode's adapted
+/// parameters it ran with.
+type Pending = PendingSeg<Option<OwnCopy>>;
+
+/// What every tick of a worker's update reads: the model and its settings, the widths, and
+/// the trunk (and a G) of a navigator over the model's weights that does not adapt, for the
+/// waiting segments' backward.
+struct Fixed<'a, 'w> {
+    model: &'a NavModel,
+    objective: Objective,
+    grid: MapGrid,
+    weights: NavWeights<'w>,
+    trunk: Policy<'a>,
+    gen: Generator<'a>,
+    a3c: &'a A3cConfig,
+    train_generator: bool,
+    w: Widths,
+    d: Dims,
+    /// Efficient and B > 1: the segments' backward waits (see the module docs).
+    defer: bool,
+}
+
+/// The buffers and running tallies of a worker's update.
+struct Bufs<'b, 'l> {
+    ps: &'b mut Option<PsBuffers>,
+    rows: Rows,
+    gen_scratch: Vec<f32>,
+    bw: Backward,
+    gbuf: GenBufs,
+    /// The waiting segments (Efficient, B > 1) and their steps.
+    pending: Vec<Pending>,
+    pending_steps: usize,
+    losses: Vec<SegLoss>,
+    /// Segments completed so far in the update.
+    seq: u32,
+    log: Option<&'l mut Vec<TickLog>>,
+}
+
+/// The settings this module refuses: a method without inner loop, the privileged feature, a
+/// navigator that does not sample.
+fn check_settings(model: &NavModel, s: &VecSettings<'_>) -> Result<()> {
     check_batch_envs(model, s.batch_envs, 1)?;
     if !model.method.adapts_in_training() {
         bail!("vec_adapt runs the methods with an inner loop in training");
@@ -174,16 +208,22 @@ fn run_in<'w, M: Mode>(
     if model.privileged {
         bail!("the privileged-feature bound replaces G's output and cannot adapt G; use it with a method without inner loop (a3c-fg)");
     }
-    let cfg = model.nav_config(true);
-    if cfg.selection != Selection::Sample {
+    if model.nav_config(true).selection != Selection::Sample {
         bail!("vectorised episodes need a sampling navigator");
     }
-    let b = s.batch_envs;
-    let weights = model.weights()?;
+    Ok(())
+}
+
+/// The slots' navigators: `b` of them over the model, each in its own arena of `arenas`
+/// (grown on first use).
+fn slot_navigators<'a, M: Mode>(
+    model: &NavModel,
+    weights: NavWeights<'a>,
+    cfg: NavConfig,
+    arenas: &'a mut Vec<Vec<f32>>,
+    b: usize,
+) -> Result<Vec<Navigator<'a, M, K>>> {
     let alen = Navigator::<M, K>::arena_len_for(&model.dims, cfg.footprint);
-    let Worker {
-        ps: ps_buf, arenas, ..
-    } = worker;
     if arenas.len() < b {
         arenas.resize_with(b, Vec::new);
     }
@@ -194,16 +234,28 @@ fn run_in<'w, M: Mode>(
         }
         navs.push(Navigator::new(weights, a, cfg)?);
     }
+    Ok(navs)
+}
+
+fn run_in<'w, M: Mode>(
+    world: &'w World,
+    model: &NavModel,
+    s: &VecSettings<'_>,
+    worker: &mut Worker,
+    grads: &mut ParamSet,
+    mut sample: impl FnMut(u32) -> Result<(EpisodeSpec, u32)>,
+    log: Option<&mut Vec<TickLog>>,
+) -> Result<Vec<Finished>> {
+    check_settings(model, s)?;
+    let cfg = model.nav_config(true);
+    let b = s.batch_envs;
+    let weights = model.weights()?;
+    let Worker {
+        ps: ps_buf, arenas, ..
+    } = worker;
+    let mut navs = slot_navigators::<M>(model, weights, cfg, arenas, b)?;
     let d = *navs[0].dims();
     let w = Widths::of(&navs[0].policy()?, &d);
-    let grid = map_grid(model);
-    let train_generator = model.method.trains_generator();
-    let mut rows = Rows::default();
-    let mut gen_scratch: Vec<f32> = Vec::new();
-    let mut bw = Backward::default();
-    let mut gbuf = GenBufs::new(&navs[0].generator()?, w.f);
-    // The trunk (and a G) for the waiting segments' backward: a view of the model's
-    // weights through a navigator that does not adapt.
     let mut fixed_arena =
         vec![0.0f32; Navigator::<M, K>::arena_len_for(&model.dims, cfg.footprint)];
     let fixed_nav: Navigator<'_, M, K> = Navigator::new(
@@ -215,72 +267,45 @@ fn run_in<'w, M: Mode>(
         },
     )?;
     let fx = Fixed {
+        model,
+        objective: s.objective,
+        grid: map_grid(model),
         weights,
         trunk: fixed_nav.policy()?,
         gen: fixed_nav.generator()?,
         a3c: s.a3c,
-        train_generator,
+        train_generator: model.method.trains_generator(),
         w,
         d,
+        defer: M::MODE == AdaptMode::Efficient && b > 1,
     };
-    // Efficient and B > 1: the segments' backward waits (see the module docs).
-    let defer = M::MODE == AdaptMode::Efficient && b > 1;
-    let mut pending: Vec<PendingSeg> = Vec::new();
-    let mut pending_steps = 0usize;
-    let mut losses: Vec<(u32, u32, SegmentLoss)> = Vec::new();
-    let mut seq = 0u32;
+    let mut bufs = Bufs {
+        ps: ps_buf,
+        rows: Rows::default(),
+        gen_scratch: Vec::new(),
+        bw: Backward::default(),
+        gbuf: GenBufs::new(&navs[0].generator()?, w.f),
+        pending: Vec::new(),
+        pending_steps: 0,
+        losses: Vec::new(),
+        seq: 0,
+        log,
+    };
     let mut eps: Vec<Option<Ep<'w>>> = (0..b).map(|_| None).collect();
     let mut done: Vec<Finished> = Vec::new();
     let (mut next_e, mut taken) = (0u32, 0u64);
     loop {
-        // Free slots take new episodes while the step budget lasts.
-        for i in 0..b {
-            if eps[i].is_some() {
-                continue;
-            }
-            if next_e > 0 && taken >= s.min_steps as u64 {
-                break;
-            }
-            let (spec, max) = sample(next_e)?;
-            // The state of a new navigator over the model (what the batch-1 trainer builds
-            // for every episode): D from ω, θ_i = θ, φ_i = φ, the episode's seed.
-            navs[i].reset_discriminator()?;
-            begin(&mut navs[i], world, &spec, model)?;
-            eps[i] = Some(Ep {
-                e: next_e,
-                env: Env::new(world, &spec, s.reward, max),
-                seg: Vec::with_capacity(K),
-                acts: Vec::with_capacity(K),
-                stats: EpisodeStats::default(),
-                tally: InnerTally::default(),
-                obs: Vec::new(),
-                ps: Vec::new(),
-                map: Vec::new(),
-                expert: None,
-                h_prev: Vec::new(),
-                c_prev: Vec::new(),
-                prev: Vec::new(),
-            });
-            next_e += 1;
-        }
+        fill_free_slots(&mut eps, &mut next_e, taken, s.min_steps, |i, e| {
+            let (spec, max) = sample(e)?;
+            start_episode(&mut navs[i], world, &spec, model, s, max, e)
+        })?;
         if eps.iter().all(Option::is_none) {
             break;
         }
         let active: Vec<usize> = (0..b)
             .filter(|&i| eps[i].as_ref().is_some_and(|e| !e.env.is_done()))
             .collect();
-        taken += tick(
-            model,
-            s.objective,
-            grid,
-            &w,
-            ps_buf,
-            &mut rows,
-            &mut navs,
-            &mut eps,
-            &active,
-            &mut gen_scratch,
-        )?;
+        taken += tick(&fx, &mut bufs, &mut navs, &mut eps, &active)?;
         let ready: Vec<usize> = (0..b)
             .filter(|&i| {
                 // k recorded steps, then the commit window of a delayed update (if any).
@@ -292,144 +317,179 @@ fn run_in<'w, M: Mode>(
         if ready.is_empty() {
             continue;
         }
-        let boot = bootstrap(model, grid, &w, ps_buf, &mut rows, &navs, &mut eps, &ready)?;
-        // The complete segments, numbered in slot order (`seq`: the order they completed).
-        let mut fresh: Vec<PendingSeg> = Vec::new();
-        for (&i, bootv) in ready.iter().zip(boot) {
-            let ep = eps[i].as_mut().ok_or_else(|| anyhow!("empty slot"))?;
-            let steps = std::mem::replace(&mut ep.seg, Vec::with_capacity(K));
-            let acts = std::mem::replace(&mut ep.acts, Vec::with_capacity(K));
-            if steps.is_empty() {
-                continue;
-            }
-            let nav = &navs[i];
-            fresh.push(PendingSeg {
-                slot: i,
-                e: ep.e,
-                seq,
-                steps,
-                acts,
-                attr: nav.attr().to_vec(),
-                bootstrap: bootv,
-                own: if defer {
-                    Some(OwnCopy::of(nav, &weights)?)
-                } else {
-                    None
-                },
-            });
-            seq += 1;
-        }
-        if defer {
+        let fresh = complete_segments(&fx, &mut bufs, &navs, &mut eps, &ready)?;
+        if fx.defer {
             // Efficient, B > 1: the segments wait, with copies of their episodes' gains and
             // biases, for one batched BPTT over the update.
-            pending_steps += fresh.iter().map(|p| p.steps.len()).sum::<usize>();
-            pending.extend(fresh);
-            if pending_steps >= MAX_PENDING_STEPS {
-                flush_copies(
-                    &fx,
-                    &mut pending,
-                    grads,
-                    &mut bw,
-                    &mut gbuf,
-                    &mut losses,
-                    &mut log,
-                )?;
-                pending_steps = 0;
+            bufs.pending_steps += fresh.iter().map(|p| p.steps.len()).sum::<usize>();
+            bufs.pending.extend(fresh);
+            if bufs.pending_steps >= MAX_PENDING_STEPS {
+                flush_copies(&fx, &mut bufs, grads)?;
             }
-        } else if !fresh.is_empty() {
-            // One batched BPTT over this tick's segments, longest first, then by slot; each
-            // row at its episode's live adapted parameters (before its inner update).
-            fresh.sort_by_key(|p| (std::cmp::Reverse(p.steps.len()), p.seq));
-            let mut segs: Vec<Segment<'_>> = Vec::with_capacity(fresh.len());
-            for p in &fresh {
-                let nav = &navs[p.slot];
-                segs.push(Segment {
-                    steps: &p.steps,
-                    acts: &p.acts,
-                    attr: &p.attr,
-                    bootstrap: p.bootstrap,
-                    own: Some(Adapted {
-                        actor: nav.policy()?.actor,
-                        gen: nav.generator()?,
-                    }),
-                });
-            }
-            if let Some(l) = log.as_deref_mut() {
-                l.push(tick_log(&segs));
-            }
-            let trunk = navs[fresh[0].slot].policy()?;
-            let gen0 = navs[fresh[0].slot].generator()?;
-            let ls = bw.run(
-                &trunk,
-                &gen0,
-                &segs,
-                s.a3c,
-                train_generator,
-                &w,
-                &d,
-                grads,
-                &mut gbuf,
-            )?;
-            losses.extend(fresh.iter().zip(ls).map(|(p, l)| (p.e, p.seq, l)));
+        } else {
+            backward_live(&fx, &mut bufs, &navs, fresh, grads)?;
         }
-        // Then each of these episodes in slot order: ended, or its inner update on Ψ.
-        for &i in &ready {
-            let nav = &mut navs[i];
-            let ended = eps[i].as_ref().is_some_and(|e| e.env.is_done());
-            if ended {
-                let ep = eps[i].take().ok_or_else(|| anyhow!("empty slot"))?;
-                let mut stats = ep.stats;
-                finish_stats(&mut stats, &ep.env, nav, &ep.tally);
-                // D learns from a buffer whose delayed update had not committed yet.
-                nav.settle()?;
-                done.push((ep.e, stats, disc_after_episode(nav)?));
-            } else {
-                let ep = eps[i].as_mut().ok_or_else(|| anyhow!("empty slot"))?;
-                inner_update(nav, false, &mut ep.tally)?;
-            }
-        }
+        close_or_adapt(&ready, &mut navs, &mut eps, &mut done)?;
     }
-    flush_copies(
-        &fx,
-        &mut pending,
-        grads,
-        &mut bw,
-        &mut gbuf,
-        &mut losses,
-        &mut log,
-    )?;
-    // Each episode's losses in the order of its segments.
-    losses.sort_by_key(|&(e, q, _)| (e, q));
-    done.sort_by_key(|f| f.0);
-    let mut li = losses.iter().peekable();
-    for f in done.iter_mut() {
-        while let Some((_, _, l)) = li.next_if(|(e, _, _)| *e == f.0) {
-            f.1.loss.add(l);
-        }
-    }
-    if li.next().is_some() {
-        bail!("vectorised rollout: a segment's episode did not finish");
-    }
-    Ok(done)
+    flush_copies(&fx, &mut bufs, grads)?;
+    collect_losses(bufs.losses, done)
 }
 
-/// A complete segment of episode `e` (run in `slot`, numbered `seq` in completion order):
-/// its steps, activations, SE(y), `V_T` and, when its backward waits, a copy of the
-/// episode's adapted parameters it ran with.
-struct PendingSeg {
-    slot: usize,
+/// Starts episode `e` in a slot: its navigator in the state of a new navigator over the
+/// model (what the batch-1 trainer builds for every episode): D from ω, θ_i = θ, φ_i = φ, the
+/// episode's seed.
+fn start_episode<'w, M: Mode>(
+    nav: &mut Navigator<'_, M, K>,
+    world: &'w World,
+    spec: &EpisodeSpec,
+    model: &NavModel,
+    s: &VecSettings<'_>,
+    max: u32,
     e: u32,
-    seq: u32,
-    steps: Vec<StepRec>,
-    acts: Vec<StepAct>,
-    attr: Vec<f32>,
-    bootstrap: f32,
-    own: Option<OwnCopy>,
+) -> Result<Ep<'w>> {
+    nav.reset_discriminator()?;
+    begin(nav, world, spec, model)?;
+    Ok(Ep {
+        e,
+        env: Env::new(world, spec, s.reward, max),
+        seg: Vec::with_capacity(K),
+        acts: Vec::with_capacity(K),
+        stats: EpisodeStats::default(),
+        tally: InnerTally::default(),
+        inp: StepInputs::default(),
+        h_prev: Vec::new(),
+        c_prev: Vec::new(),
+        prev: Vec::new(),
+    })
 }
 
-/// With `B > 1` in the Efficient mode, the backward of the pending segments runs once this
-/// many steps wait (and at the end of the update): the bound on the memory they hold.
-pub const MAX_PENDING_STEPS: usize = 4096;
+/// The segments complete at this tick (`ready`): their bootstrap values, then each
+/// non-empty one taken from its episode, numbered in slot order (`seq`: the order they
+/// completed), with a copy of the episode's adapted parameters when its backward waits.
+fn complete_segments<M: Mode>(
+    fx: &Fixed<'_, '_>,
+    b: &mut Bufs<'_, '_>,
+    navs: &[Navigator<'_, M, K>],
+    eps: &mut [Option<Ep<'_>>],
+    ready: &[usize],
+) -> Result<Vec<Pending>> {
+    let boot = bootstrap(fx, b, navs, eps, ready)?;
+    let mut fresh: Vec<Pending> = Vec::new();
+    for (&i, bootv) in ready.iter().zip(boot) {
+        let ep = eps[i].as_mut().ok_or_else(|| anyhow!("empty slot"))?;
+        let steps = std::mem::replace(&mut ep.seg, Vec::with_capacity(K));
+        let acts = std::mem::replace(&mut ep.acts, Vec::with_capacity(K));
+        if steps.is_empty() {
+            continue;
+        }
+        let nav = &navs[i];
+        fresh.push(PendingSeg {
+            slot: i,
+            e: ep.e,
+            seq: b.seq,
+            steps,
+            acts,
+            attr: nav.attr().to_vec(),
+            bootstrap: bootv,
+            own: if fx.defer {
+                Some(OwnCopy::of(nav, &fx.weights)?)
+            } else {
+                None
+            },
+        });
+        b.seq += 1;
+    }
+    Ok(fresh)
+}
+
+/// One batched BPTT over this tick's segments (longest first, then by slot), each row at its
+/// episode's live adapted parameters (before its inner update).
+fn backward_live<M: Mode>(
+    fx: &Fixed<'_, '_>,
+    b: &mut Bufs<'_, '_>,
+    navs: &[Navigator<'_, M, K>],
+    mut fresh: Vec<Pending>,
+    grads: &mut ParamSet,
+) -> Result<()> {
+    if fresh.is_empty() {
+        return Ok(());
+    }
+    backward_order(&mut fresh);
+    let trunk = navs[fresh[0].slot].policy()?;
+    let gen0 = navs[fresh[0].slot].generator()?;
+    let bx = BackwardCtx {
+        policy: &trunk,
+        gen: &gen0,
+        a3c: fx.a3c,
+        train_generator: fx.train_generator,
+        w: &fx.w,
+        d: &fx.d,
+    };
+    backward_logged(
+        &bx,
+        &mut fresh,
+        |p| {
+            let nav = &navs[p.slot];
+            Ok(Some(Adapted {
+                actor: nav.policy()?.actor,
+                gen: nav.generator()?,
+            }))
+        },
+        b,
+        grads,
+    )
+}
+
+/// [`backward_segments`] over `pend` with `b`'s buffers, the batch shown to the test log.
+fn backward_logged<'p>(
+    bx: &BackwardCtx<'_>,
+    pend: &'p mut [Pending],
+    own: impl Fn(&'p Pending) -> Result<Option<Adapted<'p>>>,
+    b: &mut Bufs<'_, '_>,
+    grads: &mut ParamSet,
+) -> Result<()> {
+    let log = &mut b.log;
+    backward_segments(
+        bx,
+        pend,
+        own,
+        |segs| {
+            if let Some(l) = log.as_deref_mut() {
+                l.push(tick_log(segs));
+            }
+        },
+        grads,
+        &mut b.bw,
+        &mut b.gbuf,
+        &mut b.losses,
+    )
+}
+
+/// Each of the `ready` episodes in slot order: an ended one gives its statistics and D and
+/// frees its slot; the others run their inner update on Ψ.
+fn close_or_adapt<M: Mode>(
+    ready: &[usize],
+    navs: &mut [Navigator<'_, M, K>],
+    eps: &mut [Option<Ep<'_>>],
+    done: &mut Vec<Finished>,
+) -> Result<()> {
+    for &i in ready {
+        let nav = &mut navs[i];
+        let ended = eps[i].as_ref().is_some_and(|e| e.env.is_done());
+        if ended {
+            let ep = eps[i].take().ok_or_else(|| anyhow!("empty slot"))?;
+            let mut stats = ep.stats;
+            finish_stats(&mut stats, &ep.env, nav, &ep.tally);
+            // D learns from a buffer whose delayed update had not committed yet.
+            nav.settle()?;
+            done.push((ep.e, stats, disc_after_episode(nav)?));
+        } else {
+            let ep = eps[i].as_mut().ok_or_else(|| anyhow!("empty slot"))?;
+            inner_update(nav, false, &mut ep.tally)?;
+        }
+    }
+    Ok(())
+}
 
 /// A copy of an episode's adapted parameters in the Efficient mode: the per-unit gains and
 /// biases of its actor head and of G's two layers (their matrices are the model's).
@@ -486,64 +546,33 @@ fn same_matrix(a: &MatRef<'_>, b: &MatRef<'_>) -> bool {
     }
 }
 
-/// What [`flush_copies`] reads.
-struct Fixed<'a, 'w> {
-    weights: NavWeights<'w>,
-    trunk: Policy<'a>,
-    gen: Generator<'a>,
-    a3c: &'a A3cConfig,
-    train_generator: bool,
-    w: Widths,
-    d: Dims,
-}
-
 /// The backward of the waiting segments as one batched BPTT, longest first (then in the
 /// order they completed), each row at the copy of its episode's adapted parameters; their
 /// losses collected as `(episode, seq, loss)`; nothing waits afterwards.
-fn flush_copies(
-    fx: &Fixed<'_, '_>,
-    pending: &mut Vec<PendingSeg>,
-    grads: &mut ParamSet,
-    bw: &mut Backward,
-    gbuf: &mut GenBufs,
-    losses: &mut Vec<(u32, u32, SegmentLoss)>,
-    log: &mut Option<&mut Vec<TickLog>>,
-) -> Result<()> {
-    let mut pend = std::mem::take(pending);
-    if pend.is_empty() {
-        return Ok(());
-    }
-    pend.sort_by_key(|p| (std::cmp::Reverse(p.steps.len()), p.seq));
-    let mut segs: Vec<Segment<'_>> = Vec::with_capacity(pend.len());
-    for p in &pend {
-        let own = p
-            .own
-            .as_ref()
-            .ok_or_else(|| anyhow!("vec_adapt: a waiting segment without its parameters"))?;
-        segs.push(Segment {
-            steps: &p.steps,
-            acts: &p.acts,
-            attr: &p.attr,
-            bootstrap: p.bootstrap,
-            own: Some(own.views(&fx.weights)),
-        });
-    }
-    if let Some(l) = log.as_deref_mut() {
-        l.push(tick_log(&segs));
-    }
-    let ls = bw.run(
-        &fx.trunk,
-        &fx.gen,
-        &segs,
-        fx.a3c,
-        fx.train_generator,
-        &fx.w,
-        &fx.d,
+fn flush_copies(fx: &Fixed<'_, '_>, b: &mut Bufs<'_, '_>, grads: &mut ParamSet) -> Result<()> {
+    let mut pend = std::mem::take(&mut b.pending);
+    b.pending_steps = 0;
+    let bx = BackwardCtx {
+        policy: &fx.trunk,
+        gen: &fx.gen,
+        a3c: fx.a3c,
+        train_generator: fx.train_generator,
+        w: &fx.w,
+        d: &fx.d,
+    };
+    backward_logged(
+        &bx,
+        &mut pend,
+        |p| {
+            let own = p
+                .own
+                .as_ref()
+                .ok_or_else(|| anyhow!("vec_adapt: a waiting segment without its parameters"))?;
+            Ok(Some(own.views(&fx.weights)))
+        },
+        b,
         grads,
-        gbuf,
-    )?;
-    losses.extend(pend.iter().zip(ls).map(|(p, l)| (p.e, p.seq, l)));
-    Ok(())
+    )
 }
 
 #[cfg(test)]
@@ -586,128 +615,129 @@ fn tick_log(_: &[Segment<'_>]) -> TickLog {
 /// one batched trunk forward, each navigator's `finish_step` (its own actor head, the action,
 /// Ψ), the environment's step; the step and its activations recorded for the backward.
 /// Returns the steps taken.
-#[allow(clippy::too_many_arguments)]
 fn tick<M: Mode>(
-    model: &NavModel,
-    objective: Objective,
-    grid: MapGrid,
-    w: &Widths,
-    ps_buf: &mut Option<PsBuffers>,
-    rows: &mut Rows,
+    fx: &Fixed<'_, '_>,
+    b: &mut Bufs<'_, '_>,
     navs: &mut [Navigator<'_, M, K>],
     eps: &mut [Option<Ep<'_>>],
     active: &[usize],
-    gen_scratch: &mut Vec<f32>,
 ) -> Result<u64> {
-    let n = active.len();
+    let (n, w) = (active.len(), &fx.w);
     if n == 0 {
         return Ok(0);
     }
-    rows.resize(n, w);
+    b.rows.resize(n, w);
     let mut pending = Vec::with_capacity(n);
     for &i in active {
         let ep = eps[i].as_mut().ok_or_else(|| anyhow!("empty slot"))?;
         let nav = &mut navs[i];
-        observe(ep, model, ps_buf, grid, w.map)?;
-        ep.expert = (objective == Objective::Dagger).then(|| expert_distribution(&ep.env));
+        ep.inp.observe(&ep.env, fx.model, b.ps, fx.grid, w.map)?;
+        ep.inp.expert = (fx.objective == Objective::Dagger).then(|| expert_distribution(&ep.env));
         ep.h_prev = nav.hidden_state().to_vec();
         ep.c_prev = nav.cell_state().to_vec();
         ep.prev = nav.prev_probs().to_vec();
         // Line 7: x_t from this episode's θ_i (here, or below with the others).
-        if nav.begin_step_defer_g(&ep.obs, &ep.map, &ep.ps)? {
+        if nav.begin_step_defer_g(&ep.inp.obs, &ep.inp.map, &ep.inp.ps)? {
             pending.push(i);
         }
     }
-    let need = Navigator::<M, K>::generate_batch_scratch_len(&model.dims, pending.len());
-    if gen_scratch.len() < need {
-        gen_scratch.resize(need, 0.0);
+    let need = Navigator::<M, K>::generate_batch_scratch_len(&fx.model.dims, pending.len());
+    if b.gen_scratch.len() < need {
+        b.gen_scratch.resize(need, 0.0);
     }
-    Navigator::generate_batch(navs, &pending, gen_scratch)?;
+    Navigator::generate_batch(navs, &pending, &mut b.gen_scratch)?;
     for (j, &i) in active.iter().enumerate() {
         let ep = eps[i].as_ref().ok_or_else(|| anyhow!("empty slot"))?;
-        put_inputs(rows, j, ep, &navs[i], w);
+        put_inputs(&mut b.rows, j, ep, &navs[i], w);
     }
     // Line 8: the trunk of every running episode as one batch (the heads computed here are
     // the first navigator's; each row's own follow).
-    rows.forward(&navs[active[0]].policy()?, n, w)?;
-    let hd = w.hd;
+    b.rows.forward(&navs[active[0]].policy()?, n, w)?;
     // G ran in every begin_step (a new z_t each step): its activations are this step's.
-    let ran_g = model.noise == NoiseMode::Gaussian && !model.privileged;
+    let ran_g = fx.model.noise == NoiseMode::Gaussian && !fx.model.privileged;
     for (j, &i) in active.iter().enumerate() {
         let ep = eps[i].as_mut().ok_or_else(|| anyhow!("empty slot"))?;
-        let nav = &mut navs[i];
-        let (h, c) = (&rows.h[j * hd..(j + 1) * hd], &rows.c[j * hd..(j + 1) * hd]);
-        let out = nav.finish_step(&ep.obs, h, c)?;
-        // This row's heads at the episode's actor head, for the backward's activations
-        // (the bits finish_step computed).
-        {
-            let Rows {
-                h,
-                actor_u,
-                logits,
-                probs,
-                value,
-                ..
-            } = &mut *rows;
-            let (au, na) = (w.au, NUM_ACTIONS);
-            nav.policy()?.heads(
-                1,
-                &h[j * hd..(j + 1) * hd],
-                &mut actor_u[j * au..(j + 1) * au],
-                &mut logits[j * na..(j + 1) * na],
-                &mut probs[j * na..(j + 1) * na],
-                &mut value[j..j + 1],
-            )?;
-            if probs[j * na..(j + 1) * na]
-                .iter()
-                .zip(&out.probs)
-                .any(|(a, b)| a.to_bits() != b.to_bits())
-                || value[j].to_bits() != out.value.to_bits()
-            {
-                bail!("vectorised episode: the row's heads differ from the navigator's step");
-            }
-        }
-        ep.stats.actions.push(out.action.index() as u8);
-        let o = ep.env.step(out.action);
-        let mut act = take_act(rows, j, w);
-        if ran_g {
-            // G's activations of this x_t, for the backward (instead of running G again).
-            let (u1, h1, u2) = nav.generator_activations();
-            act.gen = (u1.to_vec(), h1.to_vec(), u2.to_vec());
-        }
-        ep.acts.push(act);
-        ep.seg.push(StepRec {
-            obs: std::mem::take(&mut ep.obs),
-            ps: std::mem::take(&mut ep.ps),
-            map: std::mem::take(&mut ep.map),
-            x: nav.generated_feature().to_vec(),
-            z: nav.noise().to_vec(),
-            h_prev: std::mem::take(&mut ep.h_prev),
-            c_prev: std::mem::take(&mut ep.c_prev),
-            prev_probs: std::mem::take(&mut ep.prev),
-            action: out.action.index(),
-            reward: o.reward,
-            probs: out.probs,
-            expert: ep.expert.take(),
-        });
+        finish_row(&mut b.rows, j, w, &mut navs[i], ep, ran_g)?;
     }
     Ok(n as u64)
 }
 
-/// The episode's current observation, PS input and map.
-fn observe(
+/// Row `j` of a tick after the batched trunk: its navigator's `finish_step` with the row's
+/// (h, c) (its own actor head, the critic, the action, Ψ), the row's heads recomputed for the
+/// backward's activations (checked against the step's bits), the environment's step, and the
+/// step recorded.
+fn finish_row<M: Mode>(
+    rows: &mut Rows,
+    j: usize,
+    w: &Widths,
+    nav: &mut Navigator<'_, M, K>,
     ep: &mut Ep<'_>,
-    model: &NavModel,
-    ps_buf: &mut Option<PsBuffers>,
-    grid: MapGrid,
-    map_len: usize,
+    ran_g: bool,
 ) -> Result<()> {
-    let obs = ep.env.observe();
-    ep.obs = obs.features.to_vec();
-    ep.ps = ps_input(model, ps_buf, &ep.obs)?;
-    ep.map = vec![0.0; map_len];
-    if !grid.is_empty() {
-        ep.env.observe_map(grid, &mut ep.map);
+    let hd = w.hd;
+    let (h, c) = (&rows.h[j * hd..(j + 1) * hd], &rows.c[j * hd..(j + 1) * hd]);
+    let out = nav.finish_step(&ep.inp.obs, h, c)?;
+    row_heads(rows, j, w, nav, &out.probs, out.value)?;
+    ep.stats.actions.push(out.action.index() as u8);
+    let o = ep.env.step(out.action);
+    let mut act = take_act(rows, j, w);
+    if ran_g {
+        // G's activations of this x_t, for the backward (instead of running G again).
+        let (u1, h1, u2) = nav.generator_activations();
+        act.gen = (u1.to_vec(), h1.to_vec(), u2.to_vec());
+    }
+    ep.acts.push(act);
+    ep.seg.push(StepRec {
+        obs: std::mem::take(&mut ep.inp.obs),
+        ps: std::mem::take(&mut ep.inp.ps),
+        map: std::mem::take(&mut ep.inp.map),
+        x: nav.generated_feature().to_vec(),
+        z: nav.noise().to_vec(),
+        h_prev: std::mem::take(&mut ep.h_prev),
+        c_prev: std::mem::take(&mut ep.c_prev),
+        prev_probs: std::mem::take(&mut ep.prev),
+        action: out.action.index(),
+        reward: o.reward,
+        probs: out.probs,
+        expert: ep.inp.expert.take(),
+    });
+    Ok(())
+}
+
+/// Row `j`'s heads at the episode's actor head, for the backward's activations (the bits
+/// `finish_step` computed, `probs` and `value`: refused if they differ).
+fn row_heads<M: Mode>(
+    rows: &mut Rows,
+    j: usize,
+    w: &Widths,
+    nav: &Navigator<'_, M, K>,
+    probs_out: &[f32; NUM_ACTIONS],
+    value_out: f32,
+) -> Result<()> {
+    let Rows {
+        h,
+        actor_u,
+        logits,
+        probs,
+        value,
+        ..
+    } = rows;
+    let (hd, au, na) = (w.hd, w.au, NUM_ACTIONS);
+    nav.policy()?.heads(
+        1,
+        &h[j * hd..(j + 1) * hd],
+        &mut actor_u[j * au..(j + 1) * au],
+        &mut logits[j * na..(j + 1) * na],
+        &mut probs[j * na..(j + 1) * na],
+        &mut value[j..j + 1],
+    )?;
+    if probs[j * na..(j + 1) * na]
+        .iter()
+        .zip(probs_out)
+        .any(|(a, b)| a.to_bits() != b.to_bits())
+        || value[j].to_bits() != value_out.to_bits()
+    {
+        bail!("vectorised episode: the row's heads differ from the navigator's step");
     }
     Ok(())
 }
@@ -721,27 +751,22 @@ fn put_inputs<M: Mode>(
     nav: &Navigator<'_, M, K>,
     w: &Widths,
 ) {
-    let inp = PolicyInput {
-        obs: &ep.obs,
+    let st = RowState {
         feat: nav.generated_feature(),
         attr: nav.attr(),
-        prev_probs: nav.prev_probs(),
-        ps: &ep.ps,
-        map: &ep.map,
+        prev: nav.prev_probs(),
+        h: nav.hidden_state(),
+        c: nav.cell_state(),
     };
-    rows.put_inputs(j, w, &inp, nav.hidden_state(), nav.cell_state());
+    put_row(rows, j, w, &ep.inp, st);
 }
 
 /// The critic's values of the next observations of the `ready` episodes that go on (one
 /// batched trunk forward at their navigators' states; the critic is never adapted), 0 for
 /// the ended ones; in `ready`'s order.
-#[allow(clippy::too_many_arguments)]
 fn bootstrap<M: Mode>(
-    model: &NavModel,
-    grid: MapGrid,
-    w: &Widths,
-    ps_buf: &mut Option<PsBuffers>,
-    rows: &mut Rows,
+    fx: &Fixed<'_, '_>,
+    b: &mut Bufs<'_, '_>,
     navs: &[Navigator<'_, M, K>],
     eps: &mut [Option<Ep<'_>>],
     ready: &[usize],
@@ -751,23 +776,17 @@ fn bootstrap<M: Mode>(
         .copied()
         .filter(|&i| eps[i].as_ref().is_some_and(|e| !e.env.is_done()))
         .collect();
-    let mut out = vec![0.0f32; ready.len()];
-    if going.is_empty() {
-        return Ok(out);
-    }
-    rows.resize(going.len(), w);
-    for (j, &i) in going.iter().enumerate() {
+    let Some(&first) = going.first() else {
+        return Ok(vec![0.0; ready.len()]);
+    };
+    let policy = navs[first].policy()?;
+    let ps = &mut *b.ps;
+    bootstrap_values(ready, &going, &policy, &fx.w, &mut b.rows, |rows, j, i| {
         let ep = eps[i].as_mut().ok_or_else(|| anyhow!("empty slot"))?;
-        observe(ep, model, ps_buf, grid, w.map)?;
-        put_inputs(rows, j, ep, &navs[i], w);
-    }
-    rows.forward(&navs[going[0]].policy()?, going.len(), w)?;
-    for (k, &i) in ready.iter().enumerate() {
-        if let Some(j) = going.iter().position(|&g| g == i) {
-            out[k] = rows.value[j];
-        }
-    }
-    Ok(out)
+        ep.inp.observe(&ep.env, fx.model, ps, fx.grid, fx.w.map)?;
+        put_inputs(rows, j, ep, &navs[i], &fx.w);
+        Ok(())
+    })
 }
 
 #[cfg(test)]
@@ -775,8 +794,8 @@ mod tests {
     use super::*;
     use crate::nav::a3c::A3cConfig;
     use crate::nav::model::Method;
+    use crate::pretrain::generator::init_generator;
     use crate::sim::RewardKind;
-    use crate::train::generator::init_generator;
     use gman_core::dense::Dense;
     use gman_core::generator::Generator;
     use gman_core::matrix::MatRef;

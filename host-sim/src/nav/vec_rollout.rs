@@ -38,10 +38,9 @@
 //! and, within a step, over the batch in order. This batches the backward over all the
 //! update's episodes (a tick completes only a few segments, the update tens). The order is
 //! fixed by `(seed, update, worker, B)`, so runs stay reproducible and resumable bit for bit;
-//! it is not the order of earlier builds (one batch per tick), so a `B > 1` run differs from
-//! theirs by float rounding (`tests/vec_rollout.rs` checks the gradient against the
-//! per-episode sum within `1e-4` of each tensor's largest value; this module's tests pin
-//! the order). With `B = 1` each segment's backward runs as it completes: exactly the order
+//! the sum differs from the per-episode sum by float rounding only (`tests/vec_rollout.rs`
+//! checks the gradient against it within `1e-4` of each tensor's largest value; this
+//! module's tests pin the order). With `B = 1` each segment's backward runs as it completes: exactly the order
 //! of [`super::trainer::train_episode`], so `B = 1` gives the same update bit for bit.
 //!
 //! **Episodes per update.** A worker starts episodes (indices `e = 0, 1, ..`, seeded as in the
@@ -56,43 +55,25 @@ use gman_core::generator::Generator;
 use gman_core::matrix::{MatRef, Weights};
 use gman_core::memory::AdaptMode;
 use gman_core::navigator::{select_action, Efficient, Full, Mode, Navigator, NoiseMode, Selection};
-use gman_core::policy::{Policy, PolicyInput};
+use gman_core::policy::Policy;
 use gman_core::rng::{fill_gaussian, Xoshiro128};
 use gman_core::{Dims, NUM_ACTIONS};
 
-use super::a3c::{A3cConfig, Objective, SegmentLoss};
-use super::bptt::{take_act, Backward, GenBufs, Rows, Segment, StepAct, Widths};
+use super::a3c::Objective;
+use super::bptt::{take_act, Backward, GenBufs, Rows, StepAct, Widths};
+use super::lockstep::{
+    backward_segments, bootstrap_values, check_batch_envs, collect_losses, fill_free_slots,
+    put_row, without_inner_loop, BackwardCtx, Finished, PendingSeg, RowState, SegLoss, StepInputs,
+    VecSettings, MAX_PENDING_STEPS,
+};
 use super::model::NavModel;
 use super::rollout::{disc_after_episode, expert_distribution, EpisodeStats, Worker};
 use super::step::StepRec;
 use super::K;
+use crate::optim::params::ParamSet;
+use crate::pretrain::ps::PsBuffers;
 use crate::sim::spatial::MapGrid;
 use crate::sim::{Env, EpisodeSpec, RewardKind, World};
-use crate::train::params::ParamSet;
-use crate::train::ps::PsBuffers;
-
-/// Most environments a worker steps in lockstep.
-pub const MAX_BATCH_ENVS: usize = 256;
-
-/// What the vectorised worker needs besides the model.
-#[derive(Clone, Copy, Debug)]
-pub struct VecSettings<'a> {
-    /// Environments in lockstep (`B`).
-    pub batch_envs: usize,
-    /// The worker starts episodes while it has taken fewer steps than this in the update.
-    pub min_steps: u32,
-    /// Reward.
-    pub reward: RewardKind,
-    /// A3C loss.
-    pub a3c: &'a A3cConfig,
-    /// Objective.
-    pub objective: Objective,
-}
-
-/// True when `model`'s method can be trained by [`run_worker`] (no inner loop in training).
-pub fn supports(model: &NavModel) -> bool {
-    !model.method.adapts_in_training()
-}
 
 /// One environment slot: a running episode and the navigator state it carries.
 struct Slot<'w> {
@@ -110,19 +91,9 @@ struct Slot<'w> {
     seg: Vec<StepRec>,
     acts: Vec<StepAct>,
     stats: EpisodeStats,
-    // This step's inputs (before the forward).
-    obs: Vec<f32>,
-    ps: Vec<f32>,
-    map: Vec<f32>,
-    expert: Option<[f32; NUM_ACTIONS]>,
+    /// This step's inputs (before the forward).
+    inp: StepInputs,
 }
-
-/// One finished episode of a worker's update: its index, statistics and D after it. Without
-/// an inner loop D after every episode is the model's ω; when its values are ω's bit for bit
-/// (checked once per update) the list is empty, which the trainer's delta sum
-/// `Σ_e (ω_e − ω)` (a zip over the tensors given) reads as no change — the same bits as the
-/// +0 that `ω_e − ω` gives for every value, without copying D for every episode.
-pub type Finished = (u32, EpisodeStats, Vec<Vec<f32>>);
 
 /// Runs one worker's share of an update with `s.batch_envs` environments in lockstep:
 /// episodes `e = 0, 1, ..` come from `sample(e)` (spec and step limit), the A3C gradient of
@@ -137,7 +108,7 @@ pub fn run_worker(
     grads: &mut ParamSet,
     sample: impl FnMut(u32) -> Result<(EpisodeSpec, u32)>,
 ) -> Result<Vec<Finished>> {
-    if !supports(model) {
+    if !without_inner_loop(model) {
         return super::vec_adapt::run_worker(world, model, s, worker, grads, sample);
     }
     match model.adapt_mode {
@@ -168,7 +139,13 @@ struct Bufs<'b> {
     bw: Backward,
     gen: GenBufs,
     gb: GenBatch,
-    pending: Pending,
+    /// Segments whose forward is done, waiting for their backward (see the module docs),
+    /// and their steps.
+    pending: Vec<PendingSeg>,
+    pending_steps: usize,
+    /// The segments' losses so far, and how many segments completed.
+    losses: Vec<SegLoss>,
+    seq: u32,
 }
 
 /// G's forward over the episodes of a tick that draw a new x_t, as one batch.
@@ -190,47 +167,9 @@ struct GenBatch {
     constant: Option<Vec<f32>>,
 }
 
-/// Segments whose forward is done, waiting for their backward (see the module docs).
-#[derive(Default)]
-struct Pending {
-    segs: Vec<PendingSeg>,
-    steps: usize,
-}
-
-/// A complete segment of episode `e`: its steps, their activations, SE(y), `V_T`; `seq`
-/// numbers the segments of an update in the order they completed.
-struct PendingSeg {
-    e: u32,
-    seq: u32,
-    steps: Vec<StepRec>,
-    acts: Vec<StepAct>,
-    attr: Vec<f32>,
-    bootstrap: f32,
-}
-
-/// With `B > 1`, the backward of the pending segments runs once this many steps wait (and at
-/// the end of the update): the bound on the memory they hold.
-pub const MAX_PENDING_STEPS: usize = 4096;
-
-/// Refuses a `B` out of `1..=MAX_BATCH_ENVS`, and `B > 1` for a method with an inner loop
-/// in training with the second-order meta-gradient (its reverse recursion runs per episode
-/// in [`super::trainer::train_episode`]).
-pub fn check_batch_envs(model: &NavModel, batch_envs: usize, meta_order: u8) -> Result<()> {
-    if !(1..=MAX_BATCH_ENVS).contains(&batch_envs) {
-        bail!("--batch-envs must be in 1..={MAX_BATCH_ENVS}, got {batch_envs}");
-    }
-    if batch_envs > 1 && !supports(model) && meta_order != 1 {
-        bail!(
-            "--batch-envs {batch_envs} with {} is implemented for the first-order meta-gradient; --meta-order {meta_order} runs its episodes one at a time: use --batch-envs 1",
-            model.method.name()
-        );
-    }
-    Ok(())
-}
-
 fn check_settings(model: &NavModel, s: &VecSettings<'_>) -> Result<()> {
     check_batch_envs(model, s.batch_envs, 1)?;
-    if !supports(model) {
+    if !without_inner_loop(model) {
         bail!(
             "the vectorised rollout runs the methods without an inner loop in training; {} runs its inner loop per episode",
             model.method.name()
@@ -291,71 +230,71 @@ fn run_worker_in<'w, M: Mode>(
             zero_g: is_zero(&cx.gen.l1.w) && is_zero(&cx.gen.l2.w),
             ..GenBatch::default()
         },
-        pending: Pending::default(),
+        pending: Vec::new(),
+        pending_steps: 0,
+        losses: Vec::new(),
+        seq: 0,
     };
-    let mut losses: Vec<(u32, u32, SegmentLoss)> = Vec::new();
-    let mut seq = 0u32;
     let mut slots: Vec<Option<Slot<'w>>> = (0..s.batch_envs).map(|_| None).collect();
     let mut done: Vec<Finished> = Vec::new();
     let (mut next_e, mut taken) = (0u32, 0u64);
     loop {
-        // Free slots take new episodes while the step budget lasts.
-        for slot in slots.iter_mut().filter(|s| s.is_none()) {
-            if next_e > 0 && taken >= s.min_steps as u64 {
-                break;
-            }
-            let (spec, max) = sample(next_e)?;
-            *slot = Some(start_slot(world, &spec, model, s.reward, max, next_e, &w)?);
-            next_e += 1;
-        }
+        fill_free_slots(&mut slots, &mut next_e, taken, s.min_steps, |_, e| {
+            let (spec, max) = sample(e)?;
+            start_slot(world, &spec, model, s.reward, max, e, &w)
+        })?;
         let active: Vec<usize> = (0..slots.len()).filter(|&i| slots[i].is_some()).collect();
         if active.is_empty() {
             break;
         }
         taken += step_slots(&cx, &mut bufs, &mut slots, &active)?;
-        // Segments complete at this tick: bootstrap, then one batched backward.
-        let ready: Vec<usize> = active
-            .iter()
-            .copied()
-            .filter(|&i| {
-                slots[i]
-                    .as_ref()
-                    .is_some_and(|s| s.seg.len() == K || s.env.is_done())
-            })
-            .collect();
-        if !ready.is_empty() {
-            pend_ready(&cx, &mut bufs, &mut slots, &ready, &mut seq)?;
-            // B = 1 runs each segment's backward at once: the batch-1 trainer's order.
-            if s.batch_envs == 1 || bufs.pending.steps >= MAX_PENDING_STEPS {
-                flush(&cx, &mut bufs, grads, &mut losses)?;
-            }
-            for slot in slots.iter_mut() {
-                if slot.as_ref().is_some_and(|s| s.env.is_done()) {
-                    if let Some(sl) = slot.take() {
-                        done.push(finish(sl, disc.clone()));
-                    }
-                }
-            }
-        }
+        close_segments(&cx, &mut bufs, &mut slots, &active, grads, &mut done, &disc)?;
     }
     match keep {
         // The tests' view of the final batch: its segments, instead of their backward.
-        Some(k) => *k = std::mem::take(&mut bufs.pending.segs),
-        None => flush(&cx, &mut bufs, grads, &mut losses)?,
+        Some(k) => *k = std::mem::take(&mut bufs.pending),
+        None => flush(&cx, &mut bufs, grads)?,
     }
-    // Each episode's losses in the order of its segments.
-    losses.sort_by_key(|&(e, q, _)| (e, q));
-    done.sort_by_key(|f| f.0);
-    let mut li = losses.iter().peekable();
-    for f in done.iter_mut() {
-        while let Some((_, _, l)) = li.next_if(|(e, _, _)| *e == f.0) {
-            f.1.loss.add(l);
+    collect_losses(bufs.losses, done)
+}
+
+/// The segments complete at this tick (k = 20 steps, or the episode ended): their bootstrap
+/// values, then they wait for their backward (run at once with `B = 1`, the order of
+/// [`super::trainer::train_episode`], or when [`MAX_PENDING_STEPS`] steps wait); the ended
+/// episodes leave their slots, each with `disc`, D after it.
+fn close_segments(
+    cx: &Ctx<'_>,
+    bufs: &mut Bufs<'_>,
+    slots: &mut [Option<Slot<'_>>],
+    active: &[usize],
+    grads: &mut ParamSet,
+    done: &mut Vec<Finished>,
+    disc: &[Vec<f32>],
+) -> Result<()> {
+    let ready: Vec<usize> = active
+        .iter()
+        .copied()
+        .filter(|&i| {
+            slots[i]
+                .as_ref()
+                .is_some_and(|s| s.seg.len() == K || s.env.is_done())
+        })
+        .collect();
+    if ready.is_empty() {
+        return Ok(());
+    }
+    pend_ready(cx, bufs, slots, &ready)?;
+    if cx.s.batch_envs == 1 || bufs.pending_steps >= MAX_PENDING_STEPS {
+        flush(cx, bufs, grads)?;
+    }
+    for slot in slots.iter_mut() {
+        if slot.as_ref().is_some_and(|s| s.env.is_done()) {
+            if let Some(sl) = slot.take() {
+                done.push(finish(sl, disc.to_vec()));
+            }
         }
     }
-    if li.next().is_some() {
-        bail!("vectorised rollout: a segment's episode did not finish");
-    }
-    Ok(done)
+    Ok(())
 }
 
 /// One tick of the running episodes `active`: their inputs and x_t, one batched policy
@@ -371,7 +310,8 @@ fn step_slots(
     b.gb.who.clear();
     for &i in active {
         let sl = slots[i].as_mut().ok_or_else(|| anyhow!("empty slot"))?;
-        observe(sl, cx.model, b.ps, cx.grid, w.map, cx.s.objective)?;
+        observe(sl, cx.model, b.ps, cx.grid, w.map)?;
+        sl.inp.expert = (cx.s.objective == Objective::Dagger).then(|| expert_distribution(&sl.env));
         if !sl.x_fixed {
             match cx.model.noise {
                 NoiseMode::Gaussian => {
@@ -409,9 +349,9 @@ fn step_slots(
         let o = sl.env.step(action);
         sl.acts.push(take_act(rows, j, w));
         let rec = StepRec {
-            obs: std::mem::take(&mut sl.obs),
-            ps: std::mem::take(&mut sl.ps),
-            map: std::mem::take(&mut sl.map),
+            obs: std::mem::take(&mut sl.inp.obs),
+            ps: std::mem::take(&mut sl.inp.ps),
+            map: std::mem::take(&mut sl.inp.map),
             x: sl.x.clone(),
             z: sl.z.clone(),
             h_prev: std::mem::replace(&mut sl.h, rows.h[j * w.hd..(j + 1) * w.hd].to_vec()),
@@ -420,7 +360,7 @@ fn step_slots(
             action: action.index(),
             reward: o.reward,
             probs: p,
-            expert: sl.expert.take(),
+            expert: sl.inp.expert.take(),
         };
         sl.seg.push(rec);
     }
@@ -435,75 +375,52 @@ fn pend_ready(
     b: &mut Bufs<'_>,
     slots: &mut [Option<Slot<'_>>],
     ready: &[usize],
-    seq: &mut u32,
 ) -> Result<()> {
-    let boot = bootstrap(
-        slots,
-        ready,
-        cx.model,
-        b.ps,
-        cx.grid,
-        &cx.policy,
-        &cx.w,
-        &mut b.rows,
-    )?;
+    let boot = bootstrap(cx, b, slots, ready)?;
     for (&i, boot) in ready.iter().zip(boot) {
         let sl = slots[i].as_mut().ok_or_else(|| anyhow!("empty slot"))?;
         let steps = std::mem::replace(&mut sl.seg, Vec::with_capacity(K));
         let acts = std::mem::replace(&mut sl.acts, Vec::with_capacity(K));
-        b.pending.steps += steps.len();
-        b.pending.segs.push(PendingSeg {
+        b.pending_steps += steps.len();
+        b.pending.push(PendingSeg {
+            slot: i,
             e: sl.e,
-            seq: *seq,
+            seq: b.seq,
             steps,
             acts,
             attr: sl.attr.clone(),
             bootstrap: boot,
+            own: (),
         });
-        *seq += 1;
+        b.seq += 1;
     }
     Ok(())
 }
 
-/// The backward of the pending segments as one batched BPTT, longest segment first (then in
-/// the order they completed), so that the segments running at each backward step are a
-/// prefix of the batch. Their losses are collected as `(episode, seq, loss)`; nothing is
-/// pending afterwards.
-fn flush(
-    cx: &Ctx<'_>,
-    b: &mut Bufs<'_>,
-    grads: &mut ParamSet,
-    losses: &mut Vec<(u32, u32, SegmentLoss)>,
-) -> Result<()> {
-    let mut pend = std::mem::take(&mut b.pending.segs);
-    b.pending.steps = 0;
-    if pend.is_empty() {
-        return Ok(());
-    }
-    pend.sort_by_key(|p| (std::cmp::Reverse(p.steps.len()), p.seq));
-    let segs: Vec<Segment<'_>> = pend
-        .iter()
-        .map(|p| Segment {
-            steps: &p.steps,
-            acts: &p.acts,
-            attr: &p.attr,
-            bootstrap: p.bootstrap,
-            own: None,
-        })
-        .collect();
-    let ls = b.bw.run(
-        &cx.policy,
-        &cx.gen,
-        &segs,
-        cx.s.a3c,
-        cx.train_generator,
-        &cx.w,
-        &cx.d,
+/// The backward of the pending segments as one batched BPTT (see
+/// [`super::lockstep::backward_segments`]), at the update's parameters. Their losses are
+/// collected as `(episode, seq, loss)`; nothing is pending afterwards.
+fn flush(cx: &Ctx<'_>, b: &mut Bufs<'_>, grads: &mut ParamSet) -> Result<()> {
+    let mut pend = std::mem::take(&mut b.pending);
+    b.pending_steps = 0;
+    let bx = BackwardCtx {
+        policy: &cx.policy,
+        gen: &cx.gen,
+        a3c: cx.s.a3c,
+        train_generator: cx.train_generator,
+        w: &cx.w,
+        d: &cx.d,
+    };
+    backward_segments(
+        &bx,
+        &mut pend,
+        |_| Ok(None),
+        |_| {},
         grads,
+        &mut b.bw,
         &mut b.gen,
-    )?;
-    losses.extend(pend.iter().zip(ls).map(|(p, l)| (p.e, p.seq, l)));
-    Ok(())
+        &mut b.losses,
+    )
 }
 
 impl GenBatch {
@@ -623,92 +540,67 @@ fn start_slot<'w>(
         seg: Vec::with_capacity(K),
         acts: Vec::with_capacity(K),
         stats: EpisodeStats::default(),
-        obs: Vec::new(),
-        ps: Vec::new(),
-        map: Vec::new(),
-        expert: None,
+        inp: StepInputs::default(),
     })
 }
 
-/// The slot's current observation, PS input, map (and the oracle's labels for DAgger).
+/// The slot's current observation, PS input and map, checked finite.
 fn observe(
     sl: &mut Slot<'_>,
     model: &NavModel,
     ps_buf: &mut Option<PsBuffers>,
     grid: MapGrid,
     map_len: usize,
-    objective: Objective,
 ) -> Result<()> {
-    let obs = sl.env.observe();
-    sl.obs = obs.features.to_vec();
-    sl.ps = match (&model.ps, ps_buf) {
-        (Some(ps), Some(b)) => {
-            ps.forward_buf(&sl.obs, b)?;
-            b.y.clone()
-        }
-        _ => Vec::new(),
-    };
-    sl.map = vec![0.0; map_len];
-    if !grid.is_empty() {
-        sl.env.observe_map(grid, &mut sl.map);
-    }
-    if !all_finite(&sl.obs) || !all_finite(&sl.map) || !all_finite(&sl.ps) {
+    sl.inp.observe(&sl.env, model, ps_buf, grid, map_len)?;
+    let inp = &sl.inp;
+    if !all_finite(&inp.obs) || !all_finite(&inp.map) || !all_finite(&inp.ps) {
         bail!("navigator: non-finite input");
     }
-    sl.expert = (objective == Objective::Dagger).then(|| expert_distribution(&sl.env));
     Ok(())
 }
 
 /// Copies the slot's step inputs (and LSTM state) into row `j`.
 fn put_inputs(rows: &mut Rows, j: usize, sl: &Slot<'_>, w: &Widths) {
-    let inp = PolicyInput {
-        obs: &sl.obs,
+    let st = RowState {
         feat: &sl.x,
         attr: &sl.attr,
-        prev_probs: &sl.prev,
-        ps: &sl.ps,
-        map: &sl.map,
+        prev: &sl.prev,
+        h: &sl.h,
+        c: &sl.c,
     };
-    rows.put_inputs(j, w, &inp, &sl.h, &sl.c);
+    put_row(rows, j, w, &sl.inp, st);
 }
 
 /// The critic's values of the next observations of the ready slots whose episode goes on
 /// (one batched forward), 0 for the ended ones; in `ready`'s order.
-#[allow(clippy::too_many_arguments)]
 fn bootstrap(
+    cx: &Ctx<'_>,
+    b: &mut Bufs<'_>,
     slots: &mut [Option<Slot<'_>>],
     ready: &[usize],
-    model: &NavModel,
-    ps_buf: &mut Option<PsBuffers>,
-    grid: MapGrid,
-    policy: &Policy<'_>,
-    w: &Widths,
-    rows: &mut Rows,
 ) -> Result<Vec<f32>> {
     let going: Vec<usize> = ready
         .iter()
         .copied()
         .filter(|&i| slots[i].as_ref().is_some_and(|s| !s.env.is_done()))
         .collect();
-    let mut out = vec![0.0f32; ready.len()];
-    if going.is_empty() {
-        return Ok(out);
-    }
-    rows.resize(going.len(), w);
-    for (j, &i) in going.iter().enumerate() {
-        let sl = slots[i].as_mut().ok_or_else(|| anyhow!("empty slot"))?;
-        observe(sl, model, ps_buf, grid, w.map, Objective::A3c)?;
-        put_inputs(rows, j, sl, w);
-        // The inputs are observed again at the next step.
-        sl.obs.clear();
-    }
-    rows.forward(policy, going.len(), w)?;
-    for (k, &i) in ready.iter().enumerate() {
-        if let Some(j) = going.iter().position(|&g| g == i) {
-            out[k] = rows.value[j];
-        }
-    }
-    Ok(out)
+    let ps = &mut *b.ps;
+    bootstrap_values(
+        ready,
+        &going,
+        &cx.policy,
+        &cx.w,
+        &mut b.rows,
+        |rows, j, i| {
+            let sl = slots[i].as_mut().ok_or_else(|| anyhow!("empty slot"))?;
+            observe(sl, cx.model, ps, cx.grid, cx.w.map)?;
+            put_inputs(rows, j, sl, &cx.w);
+            // The inputs are observed again at the next step.
+            sl.inp.obs.clear();
+            Ok(())
+        },
+    )
 }
 
 /// True when D as the navigator holds it after an episode without an inner loop
@@ -754,8 +646,10 @@ fn finish(sl: Slot<'_>, disc: Vec<Vec<f32>>) -> Finished {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::nav::a3c::A3cConfig;
+    use crate::nav::bptt::Segment;
     use crate::nav::model::Method;
-    use crate::train::generator::init_generator;
+    use crate::pretrain::generator::init_generator;
     use gman_core::rng::Xoshiro128;
     use rand::SeedableRng;
     use rand_chacha::ChaCha8Rng;

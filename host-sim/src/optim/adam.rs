@@ -358,7 +358,7 @@ impl<'a> Reader<'a> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::train::params::Param;
+    use crate::optim::params::Param;
 
     fn set(vals: &[f32]) -> ParamSet {
         let mut p = ParamSet::new();

@@ -512,7 +512,7 @@ mod tests {
     use super::*;
     use gman_core::rng::Xoshiro128;
 
-    use crate::train::params::Init;
+    use crate::optim::params::Init;
 
     fn sample() -> Checkpoint {
         let mut rng = Xoshiro128::seed_from_u64(7);

@@ -291,7 +291,7 @@ impl<'a> CondCritic<'a> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::train::params::Param;
+    use crate::optim::params::Param;
     use gman_core::rng::fill_gaussian;
 
     /// Independent f64 implementation of the critic, its input gradient and the penalty.

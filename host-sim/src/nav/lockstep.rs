@@ -1,0 +1,272 @@
+//! What the vectorised training episodes share, with and without an inner loop
+//! ([`super::vec_rollout`], [`super::vec_adapt`]): the settings, the slots' episode starts, an
+//! episode's step inputs and their row in the batched pass, the batched bootstrap values, the
+//! waiting segments and their one batched BPTT, and each episode's losses collected at the end.
+
+use anyhow::{bail, Result};
+use gman_core::policy::{Policy, PolicyInput};
+use gman_core::{Dims, NUM_ACTIONS};
+
+use super::a3c::{A3cConfig, Objective, SegmentLoss};
+use super::bptt::{Adapted, Backward, GenBufs, Rows, Segment, StepAct, Widths};
+use super::model::NavModel;
+use super::rollout::{ps_input, EpisodeStats};
+use super::step::StepRec;
+use crate::pretrain::ps::PsBuffers;
+use crate::sim::spatial::MapGrid;
+use crate::sim::{Env, RewardKind};
+use gman_core::generator::Generator;
+
+/// Most environments a worker steps in lockstep.
+pub const MAX_BATCH_ENVS: usize = 256;
+
+/// With `B > 1`, the backward of the waiting segments runs once this many steps wait (and at
+/// the end of the update): the bound on the memory they hold.
+pub const MAX_PENDING_STEPS: usize = 4096;
+
+/// What the vectorised worker needs besides the model.
+#[derive(Clone, Copy, Debug)]
+pub struct VecSettings<'a> {
+    /// Environments in lockstep (`B`).
+    pub batch_envs: usize,
+    /// The worker starts episodes while it has taken fewer steps than this in the update.
+    pub min_steps: u32,
+    /// Reward.
+    pub reward: RewardKind,
+    /// A3C loss.
+    pub a3c: &'a A3cConfig,
+    /// Objective.
+    pub objective: Objective,
+}
+
+/// One finished episode of a worker's update: its index, statistics and D after it. Without
+/// an inner loop D after every episode is the model's ω; when its values are ω's bit for bit
+/// (checked once per update) the list is empty, which the trainer's delta sum
+/// `Σ_e (ω_e − ω)` (a zip over the tensors given) reads as no change — the same bits as the
+/// +0 that `ω_e − ω` gives for every value, without copying D for every episode.
+pub type Finished = (u32, EpisodeStats, Vec<Vec<f32>>);
+
+/// A segment's loss, with its episode and completion number: `(e, seq, loss)`.
+pub(super) type SegLoss = (u32, u32, SegmentLoss);
+
+/// True when `model`'s method runs without an inner loop in training (the vectorised path of
+/// [`super::vec_rollout`] serves it; the others run through [`super::vec_adapt`]).
+pub fn without_inner_loop(model: &NavModel) -> bool {
+    !model.method.adapts_in_training()
+}
+
+/// Refuses a `B` out of `1..=MAX_BATCH_ENVS`, and `B > 1` for a method with an inner loop
+/// in training with the second-order meta-gradient (its reverse recursion runs per episode
+/// in [`super::trainer::train_episode`]).
+pub fn check_batch_envs(model: &NavModel, batch_envs: usize, meta_order: u8) -> Result<()> {
+    if !(1..=MAX_BATCH_ENVS).contains(&batch_envs) {
+        bail!("--batch-envs must be in 1..={MAX_BATCH_ENVS}, got {batch_envs}");
+    }
+    if batch_envs > 1 && !without_inner_loop(model) && meta_order != 1 {
+        bail!(
+            "--batch-envs {batch_envs} with {} is implemented for the first-order meta-gradient; --meta-order {meta_order} runs its episodes one at a time: use --batch-envs 1",
+            model.method.name()
+        );
+    }
+    Ok(())
+}
+
+/// Free slots take new episodes while the step budget lasts: the worker starts episode
+/// `next` (then `next + 1`, ...) with `start(slot, e)` while it has taken fewer than
+/// `min_steps` steps in the update (always at least one episode).
+pub(super) fn fill_free_slots<T>(
+    slots: &mut [Option<T>],
+    next: &mut u32,
+    taken: u64,
+    min_steps: u32,
+    mut start: impl FnMut(usize, u32) -> Result<T>,
+) -> Result<()> {
+    for (i, slot) in slots.iter_mut().enumerate() {
+        if slot.is_some() {
+            continue;
+        }
+        if *next > 0 && taken >= min_steps as u64 {
+            break;
+        }
+        *slot = Some(start(i, *next)?);
+        *next += 1;
+    }
+    Ok(())
+}
+
+/// An episode's inputs of the current step: the observation, the PS input, the map and, for
+/// DAgger, the oracle's labels.
+#[derive(Default)]
+pub(super) struct StepInputs {
+    pub obs: Vec<f32>,
+    pub ps: Vec<f32>,
+    pub map: Vec<f32>,
+    pub expert: Option<[f32; NUM_ACTIONS]>,
+}
+
+impl StepInputs {
+    /// The observation, PS input and map of `env`'s current state (the labels untouched).
+    pub fn observe(
+        &mut self,
+        env: &Env<'_>,
+        model: &NavModel,
+        ps_buf: &mut Option<PsBuffers>,
+        grid: MapGrid,
+        map_len: usize,
+    ) -> Result<()> {
+        let obs = env.observe();
+        self.obs = obs.features.to_vec();
+        self.ps = ps_input(model, ps_buf, &self.obs)?;
+        self.map = vec![0.0; map_len];
+        if !grid.is_empty() {
+            env.observe_map(grid, &mut self.map);
+        }
+        Ok(())
+    }
+}
+
+/// The recurrent state and conditioning of one episode's row: x_t, SE(y), the previous
+/// probabilities and the LSTM state.
+pub(super) struct RowState<'a> {
+    pub feat: &'a [f32],
+    pub attr: &'a [f32],
+    pub prev: &'a [f32],
+    pub h: &'a [f32],
+    pub c: &'a [f32],
+}
+
+/// Copies an episode's step inputs and state into row `j` of the batched pass.
+pub(super) fn put_row(rows: &mut Rows, j: usize, w: &Widths, inp: &StepInputs, st: RowState<'_>) {
+    let p = PolicyInput {
+        obs: &inp.obs,
+        feat: st.feat,
+        attr: st.attr,
+        prev_probs: st.prev,
+        ps: &inp.ps,
+        map: &inp.map,
+    };
+    rows.put_inputs(j, w, &p, st.h, st.c);
+}
+
+/// The critic's values of the next observations of the `going` episodes (those of `ready`
+/// that go on; `fill(rows, j, slot)` observes slot's episode and puts it into row `j`), one
+/// batched forward at `policy`; 0 for the ended ones; in `ready`'s order.
+pub(super) fn bootstrap_values(
+    ready: &[usize],
+    going: &[usize],
+    policy: &Policy<'_>,
+    w: &Widths,
+    rows: &mut Rows,
+    mut fill: impl FnMut(&mut Rows, usize, usize) -> Result<()>,
+) -> Result<Vec<f32>> {
+    let mut out = vec![0.0f32; ready.len()];
+    if going.is_empty() {
+        return Ok(out);
+    }
+    rows.resize(going.len(), w);
+    for (j, &i) in going.iter().enumerate() {
+        fill(rows, j, i)?;
+    }
+    rows.forward(policy, going.len(), w)?;
+    for (k, &i) in ready.iter().enumerate() {
+        if let Some(j) = going.iter().position(|&g| g == i) {
+            out[k] = rows.value[j];
+        }
+    }
+    Ok(out)
+}
+
+/// A complete segment of episode `e` (run in `slot`, numbered `seq` in the order the
+/// segments of the update completed): its steps, their activations, SE(y), `V_T`, and `own`,
+/// what the backward needs of the parameters it ran with.
+pub(super) struct PendingSeg<O = ()> {
+    pub slot: usize,
+    pub e: u32,
+    pub seq: u32,
+    pub steps: Vec<StepRec>,
+    pub acts: Vec<StepAct>,
+    pub attr: Vec<f32>,
+    pub bootstrap: f32,
+    pub own: O,
+}
+
+/// What one batched BPTT reads besides its segments.
+pub(super) struct BackwardCtx<'a> {
+    pub policy: &'a Policy<'a>,
+    pub gen: &'a Generator<'a>,
+    pub a3c: &'a A3cConfig,
+    pub train_generator: bool,
+    pub w: &'a Widths,
+    pub d: &'a Dims,
+}
+
+/// Sorts segments into the order of their batched BPTT: longest first, then in the order they
+/// completed, so that the segments running at each backward step are a prefix of the batch.
+pub(super) fn backward_order<O>(segs: &mut [PendingSeg<O>]) {
+    segs.sort_by_key(|p| (std::cmp::Reverse(p.steps.len()), p.seq));
+}
+
+/// The backward of `segs` as one batched BPTT in [`backward_order`], each row at the
+/// parameters `own(seg)` gives (`None`: `cx`'s). `inspect` sees the batch before it runs.
+/// Their losses are collected into `losses`.
+#[allow(clippy::too_many_arguments)]
+pub(super) fn backward_segments<'p, O>(
+    cx: &BackwardCtx<'_>,
+    segs: &'p mut [PendingSeg<O>],
+    own: impl Fn(&'p PendingSeg<O>) -> Result<Option<Adapted<'p>>>,
+    inspect: impl FnOnce(&[Segment<'_>]),
+    grads: &mut crate::optim::params::ParamSet,
+    bw: &mut Backward,
+    gbuf: &mut GenBufs,
+    losses: &mut Vec<SegLoss>,
+) -> Result<()> {
+    if segs.is_empty() {
+        return Ok(());
+    }
+    backward_order(segs);
+    let pend: &'p [PendingSeg<O>] = segs;
+    let mut batch: Vec<Segment<'p>> = Vec::with_capacity(pend.len());
+    for p in pend {
+        batch.push(Segment {
+            steps: &p.steps,
+            acts: &p.acts,
+            attr: &p.attr,
+            bootstrap: p.bootstrap,
+            own: own(p)?,
+        });
+    }
+    inspect(&batch);
+    let ls = bw.run(
+        cx.policy,
+        cx.gen,
+        &batch,
+        cx.a3c,
+        cx.train_generator,
+        cx.w,
+        cx.d,
+        grads,
+        gbuf,
+    )?;
+    losses.extend(pend.iter().zip(ls).map(|(p, l)| (p.e, p.seq, l)));
+    Ok(())
+}
+
+/// Adds each segment's loss to its episode's statistics (in the order of its segments) and
+/// sorts the episodes by index; refuses a loss whose episode did not finish.
+pub(super) fn collect_losses(
+    mut losses: Vec<SegLoss>,
+    mut done: Vec<Finished>,
+) -> Result<Vec<Finished>> {
+    losses.sort_by_key(|&(e, q, _)| (e, q));
+    done.sort_by_key(|f| f.0);
+    let mut li = losses.iter().peekable();
+    for f in done.iter_mut() {
+        while let Some((_, _, l)) = li.next_if(|(e, _, _)| *e == f.0) {
+            f.1.loss.add(l);
+        }
+    }
+    if li.next().is_some() {
+        bail!("vectorised rollout: a segment's episode did not finish");
+    }
+    Ok(done)
+}
