@@ -13,8 +13,10 @@
 //!   and `y_i += (acc_i as f32) * (s_x * s_i)`, blocks in order.
 //!
 //! The integers do not depend on the order of the additions, so the portable kernel
-//! ([`dots_i8`]), the Cortex-M4F's row-blocked one ([`dots_i8_rows`]) and a host's
-//! SIMD build (the `dots_i8` method of [`Kernels`]) give the same `acc_i`, and the few f32
+//! ([`dots_i8`]), the Cortex-M4F's `SMLAD` kernel ([`dots_i8_dsp`], through the `gman-dsp`
+//! crate), the row-blocked one of Arm targets without DSP instructions ([`dots_i8_rows`])
+//! and a host's SIMD build (the `dots_i8` method of [`Kernels`]) give the same `acc_i`, and
+//! the few f32
 //! operations around them run in one fixed order in this module: host and device compute
 //! the same bits by construction.
 //!
@@ -30,6 +32,8 @@ use crate::matrix::{seg_len, Kernels, MatRef, Scales, Weights};
 pub const QCOLS: usize = 256;
 /// Rows whose accumulators one kernel call fills (a stack buffer of this many `i32`).
 pub const QROWS: usize = 64;
+/// Words of one input block packed for [`dots_i8_dsp`] (two int16 halves per word).
+pub const QWORDS: usize = QCOLS / 2;
 
 /// The activation scale of a segment: `(s_x, inv) = (a / 127, 127 / a)` with `a` the largest
 /// finite `|x_j|`; `(0, 0)` when `a == 0`.
@@ -136,6 +140,46 @@ pub fn dots_i8_rows(q: &[u8], cols: usize, col0: usize, xq: &[i8], out: &mut [i3
     dots_i8(&q[done..], cols, col0, xq, rest);
 }
 
+/// [`dots_i8`] with the Cortex-M4F's DSP instructions: two rows at a time through
+/// [`gman_dsp::dots2`] (`SXTB16` unpacks four int8 weights into two pairs of int16, `SMLAD`
+/// adds two products per instruction) on the input block `xq` packed by [`gman_dsp::pack`]
+/// into `xp`, the last `xq.len() % 8` columns (and an odd last row) in plain Rust. The same
+/// integers as [`dots_i8`]; off DSP targets `gman_dsp::dots2` is its plain-Rust model of the
+/// instructions, which is how a host test checks this function.
+pub fn dots_i8_dsp(q: &[u8], cols: usize, col0: usize, xq: &[i8], xp: &[u32], out: &mut [i32]) {
+    let end = col0 + xq.len();
+    if cols == 0 || end > cols {
+        out.fill(0);
+        return;
+    }
+    let n = xq.len();
+    let main = gman_dsp::span(n, n, xp.len());
+    let tail = |row: &[u8]| -> i32 {
+        let mut acc = 0i32;
+        for (&w, &x) in row[main..].iter().zip(&xq[main..]) {
+            acc += (w as i8 as i32) * (x as i32);
+        }
+        acc
+    };
+    let mut rows = q.chunks_exact(cols).map(|r| &r[col0..end]);
+    let mut outs = out.chunks_exact_mut(2);
+    for o in &mut outs {
+        let (Some(a), Some(b)) = (rows.next(), rows.next()) else {
+            o.fill(0);
+            continue;
+        };
+        let (sa, sb) = gman_dsp::dots2(a, b, xp);
+        o[0] = sa + tail(a);
+        o[1] = sb + tail(b);
+    }
+    if let [last] = outs.into_remainder() {
+        *last = match rows.next() {
+            Some(a) => gman_dsp::dots2(a, a, xp).0 + tail(a),
+            None => 0,
+        };
+    }
+}
+
 /// Byte offset of the rows [`dots_i8_rows`] leaves to [`dots_i8`].
 #[inline]
 fn out_len_done(q: &[u8], cols: usize, rest: usize) -> usize {
@@ -148,6 +192,7 @@ fn out_len_done(q: &[u8], cols: usize, rest: usize) -> usize {
 enum Dots {
     Portable,
     Rows,
+    Dsp,
     Table(&'static dyn Kernels),
 }
 
@@ -157,6 +202,7 @@ enum Dots {
 pub fn matvec_acc_int8(w: &MatRef<'_>, x: &[&[f32]], y: &mut [f32]) -> Result<()> {
     let dots = match w.kernels() {
         Some(k) => Dots::Table(k),
+        None if gman_dsp::HAS_DSP => Dots::Dsp,
         None if cfg!(target_arch = "arm") => Dots::Rows,
         None => Dots::Portable,
     };
@@ -167,6 +213,12 @@ pub fn matvec_acc_int8(w: &MatRef<'_>, x: &[&[f32]], y: &mut [f32]) -> Result<()
 /// kernel table (the reference a test compares the optimised kernels with).
 pub fn matvec_acc_int8_portable(w: &MatRef<'_>, x: &[&[f32]], y: &mut [f32]) -> Result<()> {
     matvec_int8_with(w, x, y, Dots::Portable)
+}
+
+/// [`matvec_acc_int8`] with [`dots_i8_dsp`] whatever the target (on a host: its plain-Rust
+/// model of the DSP instructions), for the tests that compare it with the portable kernel.
+pub fn matvec_acc_int8_dsp(w: &MatRef<'_>, x: &[&[f32]], y: &mut [f32]) -> Result<()> {
+    matvec_int8_with(w, x, y, Dots::Dsp)
 }
 
 // Not inlined: one copy of the driver in a firmware image, whatever the call sites.
@@ -184,6 +236,7 @@ fn matvec_int8_with(w: &MatRef<'_>, x: &[&[f32]], y: &mut [f32], dots: Dots) -> 
         return Ok(());
     }
     let mut xq = [0i8; QCOLS];
+    let mut xp = [0u32; QWORDS];
     let mut acc = [0i32; QROWS];
     let mut off = 0;
     for seg in x {
@@ -192,8 +245,15 @@ fn matvec_int8_with(w: &MatRef<'_>, x: &[&[f32]], y: &mut [f32], dots: Dots) -> 
             for (b, xs) in seg.chunks(QCOLS).enumerate() {
                 let xq = &mut xq[..xs.len()];
                 quantize_act(xs, inv, xq);
+                let xp = match dots {
+                    Dots::Dsp => {
+                        let packed = gman_dsp::pack(xq, &mut xp);
+                        &xp[..packed / 2]
+                    }
+                    _ => &xp[..0],
+                };
                 let c0 = off + b * QCOLS;
-                block(q, &scales, cols, c0, xq, sx, &mut acc, y, dots);
+                block(q, &scales, cols, c0, xq, xp, sx, &mut acc, y, dots);
             }
         }
         off += seg.len();
@@ -211,6 +271,7 @@ fn block(
     cols: usize,
     c0: usize,
     xq: &[i8],
+    xp: &[u32],
     sx: f32,
     acc: &mut [i32; QROWS],
     y: &mut [f32],
@@ -221,6 +282,7 @@ fn block(
         match dots {
             Dots::Portable => dots_i8(qr, cols, c0, xq, acc),
             Dots::Rows => dots_i8_rows(qr, cols, c0, xq, acc),
+            Dots::Dsp => dots_i8_dsp(qr, cols, c0, xq, xp, acc),
             Dots::Table(k) => k.dots_i8(qr, cols, c0, xq, acc),
         }
         for (i, (yi, &a)) in yr.iter_mut().zip(acc.iter()).enumerate() {
