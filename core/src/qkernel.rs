@@ -39,30 +39,109 @@ pub const QWORDS: usize = QCOLS / 2;
 /// finite `|x_j|`; `(0, 0)` when `a == 0`.
 #[inline]
 pub fn act_scale(x: &[f32]) -> (f32, f32) {
-    let mut a = 0.0f32;
+    let (sx, inv, _) = act_range(x);
+    (sx, inv)
+}
+
+/// [`act_scale`], and whether no `x_j` has its sign bit set (then [`quantize_act`] may take
+/// its shorter non-negative form, [`quantize_nonneg`], with the same results).
+///
+/// The largest `|x_j|` is found on the bit patterns: for finite non-negative floats (and the
+/// magnitudes `bits & 0x7fff_ffff` are those) the integer order is the numeric order, so the
+/// integer maximum is the very value a float comparison finds. A segment holding an infinity
+/// or a NaN (a magnitude `>= 0x7f80_0000`) takes a second pass that skips them.
+#[inline]
+pub fn act_range(x: &[f32]) -> (f32, f32, bool) {
+    let (mut m, mut signs) = (0u32, 0u32);
     for &v in x {
-        let m = libm::fabsf(v);
-        // `m > a` is false for NaN; infinities are skipped.
-        if m > a && m != f32::INFINITY {
-            a = m;
+        let b = v.to_bits();
+        signs |= b;
+        let h = b & 0x7fff_ffff;
+        if h > m {
+            m = h;
         }
     }
+    if m >= 0x7f80_0000 {
+        m = 0;
+        for &v in x {
+            let h = v.to_bits() & 0x7fff_ffff;
+            if h < 0x7f80_0000 && h > m {
+                m = h;
+            }
+        }
+    }
+    let a = f32::from_bits(m);
+    let nonneg = signs >> 31 == 0;
     if a > 0.0 {
-        (a / 127.0, 127.0 / a)
+        (a / 127.0, 127.0 / a, nonneg)
     } else {
-        (0.0, 0.0)
+        (0.0, 0.0, nonneg)
     }
 }
 
-/// Quantises `x` with `inv` (from [`act_scale`]) into `out` (truncated to the shorter).
+/// One activation quantised with `inv`: `clamp(round_half_away(v * inv), -127, 127)`, NaN to
+/// 0. Written as the magnitude `min(trunc(|t| + 0.5), 127)` with the sign of `t` put back
+/// (`t - 0.5 == -(|t| + 0.5)` exactly, so this is `trunc(t - 0.5)` for negative `t`; `-0.0`
+/// and NaN give 0 either way), which needs no floating-point comparison.
+#[inline(always)]
+pub fn quantize_one(v: f32, inv: f32) -> i32 {
+    let t = v * inv;
+    // `as` saturates and maps NaN to 0.
+    let m = ((libm::fabsf(t) + 0.5) as i32).clamp(0, 127);
+    let s = (t.to_bits() as i32) >> 31;
+    (m ^ s) - s
+}
+
+/// [`quantize_one`] for a `v` whose sign bit is clear (`t = v * inv` is then `+0`, positive
+/// or a NaN): `min(trunc(t + 0.5), 127)`, the same value.
+#[inline(always)]
+pub fn quantize_nonneg(v: f32, inv: f32) -> i32 {
+    ((v * inv + 0.5) as i32).clamp(0, 127)
+}
+
+/// Quantises `x` with `inv` (from [`act_scale`]) into `out` (truncated to the shorter):
+/// [`quantize_one`] of every value.
 #[inline]
 pub fn quantize_act(x: &[f32], inv: f32, out: &mut [i8]) {
     for (o, &v) in out.iter_mut().zip(x) {
-        let t = v * inv;
-        let r = if t >= 0.0 { t + 0.5 } else { t - 0.5 };
-        // `as` saturates and maps NaN to 0.
-        *o = (r as i32).clamp(-127, 127) as i8;
+        *o = quantize_one(v, inv) as i8;
     }
+}
+
+/// [`quantize_act`] into `xq` (`xq.len() == x.len()`) and, for the DSP kernel, the same
+/// integers packed by [`gman_dsp::pair_words`] into `xp` (four inputs at a time, as many
+/// groups as both hold); `nonneg` (from [`act_range`]) picks [`quantize_nonneg`]. Returns the
+/// number of inputs packed.
+#[inline]
+fn quantize_pack(x: &[f32], inv: f32, nonneg: bool, xq: &mut [i8], xp: &mut [u32]) -> usize {
+    if nonneg {
+        quantize_pack_with(x, xq, xp, |v| quantize_nonneg(v, inv))
+    } else {
+        quantize_pack_with(x, xq, xp, |v| quantize_one(v, inv))
+    }
+}
+
+#[inline(always)]
+fn quantize_pack_with(x: &[f32], xq: &mut [i8], xp: &mut [u32], f: impl Fn(f32) -> i32) -> usize {
+    let mut packed = 0;
+    for ((xs, qs), ps) in x
+        .chunks_exact(4)
+        .zip(xq.chunks_exact_mut(4))
+        .zip(xp.chunks_exact_mut(2))
+    {
+        let v = [f(xs[0]), f(xs[1]), f(xs[2]), f(xs[3])];
+        for (q, &p) in qs.iter_mut().zip(&v) {
+            *q = p as i8;
+        }
+        let [a, b] = gman_dsp::pair_words(v);
+        ps[0] = a;
+        ps[1] = b;
+        packed += 4;
+    }
+    for (q, &v) in xq.iter_mut().zip(x).skip(packed) {
+        *q = f(v) as i8;
+    }
+    packed
 }
 
 /// `out[r] = sum_j (q[r * cols + col0 + j] as i8) * xq[j]` for `r in 0..out.len()`: the
@@ -240,17 +319,19 @@ fn matvec_int8_with(w: &MatRef<'_>, x: &[&[f32]], y: &mut [f32], dots: Dots) -> 
     let mut acc = [0i32; QROWS];
     let mut off = 0;
     for seg in x {
-        let (sx, inv) = act_scale(seg);
+        let (sx, inv, nonneg) = act_range(seg);
         if sx > 0.0 {
             for (b, xs) in seg.chunks(QCOLS).enumerate() {
                 let xq = &mut xq[..xs.len()];
-                quantize_act(xs, inv, xq);
                 let xp = match dots {
                     Dots::Dsp => {
-                        let packed = gman_dsp::pack(xq, &mut xp);
+                        let packed = quantize_pack(xs, inv, nonneg, xq, &mut xp);
                         &xp[..packed / 2]
                     }
-                    _ => &xp[..0],
+                    _ => {
+                        quantize_act(xs, inv, xq);
+                        &xp[..0]
+                    }
                 };
                 let c0 = off + b * QCOLS;
                 block(q, &scales, cols, c0, xq, xp, sx, &mut acc, y, dots);
@@ -285,8 +366,28 @@ fn block(
             Dots::Dsp => dots_i8_dsp(qr, cols, c0, xq, xp, acc),
             Dots::Table(k) => k.dots_i8(qr, cols, c0, xq, acc),
         }
-        for (i, (yi, &a)) in yr.iter_mut().zip(acc.iter()).enumerate() {
-            *yi += (a as f32) * (sx * scales.get(r0 * QROWS + i));
+        let first = r0 * QROWS;
+        match scales {
+            // The scales of these rows as one slice (`MatRef::i8` checked there is one per row).
+            Scales::F32(s) => {
+                for ((yi, &a), &si) in yr
+                    .iter_mut()
+                    .zip(acc.iter())
+                    .zip(s.get(first..).unwrap_or(&[]))
+                {
+                    *yi += (a as f32) * (sx * si);
+                }
+            }
+            Scales::Le(b) => {
+                for ((yi, &a), si) in yr
+                    .iter_mut()
+                    .zip(acc.iter())
+                    .zip(b.get(4 * first..).unwrap_or(&[]).chunks_exact(4))
+                {
+                    let si = f32::from_le_bytes([si[0], si[1], si[2], si[3]]);
+                    *yi += (a as f32) * (sx * si);
+                }
+            }
         }
     }
 }

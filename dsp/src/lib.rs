@@ -37,16 +37,23 @@ pub const STEP: usize = 8;
 pub fn pack(xq: &[i8], out: &mut [u32]) -> usize {
     let mut done = 0;
     for (x, o) in xq.chunks_exact(4).zip(out.chunks_exact_mut(2)) {
-        o[0] = half(x[0]) | (half(x[2]) << 16);
-        o[1] = half(x[1]) | (half(x[3]) << 16);
+        let [a, b] = pair_words([x[0] as i32, x[1] as i32, x[2] as i32, x[3] as i32]);
+        o[0] = a;
+        o[1] = b;
         done += 4;
     }
     done
 }
 
+/// The two operand words of four inputs `x0 x1 x2 x3` (each in `-32768..=32767`, only
+/// their low 16 bits are kept): `[(x0, x2), (x1, x3)]`, low half first (one `PKHBT` each).
 #[inline(always)]
-fn half(v: i8) -> u32 {
-    (v as i16 as u16) as u32
+pub fn pair_words(x: [i32; 4]) -> [u32; 2] {
+    let half = |v: i32| (v as u32) & 0xffff;
+    [
+        half(x[0]) | ((x[2] as u32) << 16),
+        half(x[1]) | ((x[3] as u32) << 16),
+    ]
 }
 
 /// Columns [`dots2`] covers for rows of `a` and `b` bytes and `words` packed words: the
