@@ -436,6 +436,156 @@ mod tests {
     }
 
     #[test]
+    fn dsp_kernel_gives_the_portable_integers() {
+        // Off DSP targets `gman_dsp::dots2` is its model of SXTB16 / SMLAD; the firmware's
+        // self-test runs the same comparison with the `asm!` kernel under QEMU.
+        let mut rng = Rng::seed_from_u64(11);
+        for &(rows, cols, col0, len) in &[
+            (1, 1, 0, 1),
+            (2, 8, 0, 8),
+            (3, 7, 2, 5),
+            (5, 45, 0, 45),
+            (7, 90, 45, 45),
+            (8, 1024, 512, 256),
+            (9, 33, 1, 31),
+            (13, 64, 0, 64),
+            (6, 300, 44, 256),
+            (4, 30, 3, 24),
+        ] {
+            let q = rand_i8(&mut rng, rows * cols);
+            let xb = rand_i8(&mut rng, len);
+            let mut xq: [i8; 256] = core::array::from_fn(|j| xb[j] as i8);
+            xq[0] = -127;
+            if len > 1 {
+                xq[len - 1] = 127;
+            }
+            let mut xp = [0u32; QWORDS];
+            let packed = gman_dsp::pack(&xq[..len], &mut xp);
+            let mut a = [0i32; 16];
+            let mut b = [1i32; 16];
+            dots_i8(&q[..rows * cols], cols, col0, &xq[..len], &mut a[..rows]);
+            dots_i8_dsp(
+                &q[..rows * cols],
+                cols,
+                col0,
+                &xq[..len],
+                &xp[..packed / 2],
+                &mut b[..rows],
+            );
+            assert_eq!(a[..rows], b[..rows], "rows {rows} cols {cols} col0 {col0}");
+        }
+    }
+
+    #[test]
+    fn dsp_driver_gives_the_portable_bits() {
+        let mut rng = Rng::seed_from_u64(5);
+        let (rows, cols) = (67, 301);
+        let qb = rand_i8(&mut rng, rows * cols);
+        let sc: [f32; 67] = core::array::from_fn(|i| 0.02 + i as f32 * 1e-4);
+        let w = MatRef::i8(rows, cols, &qb[..rows * cols], Scales::F32(&sc)).unwrap();
+        let mut le = [0u8; 4 * 67];
+        for (b, s) in le.chunks_exact_mut(4).zip(&sc) {
+            b.copy_from_slice(&s.to_le_bytes());
+        }
+        let wl = MatRef::i8(rows, cols, &qb[..rows * cols], Scales::Le(&le)).unwrap();
+        // Segments: non-negative, signed, with an infinity and a NaN, all zero.
+        let mut x: [f32; 301] = core::array::from_fn(|j| libm::sinf(j as f32 * 0.71) * 3.0);
+        for v in &mut x[..37] {
+            *v = libm::fabsf(*v);
+        }
+        x[50] = f32::INFINITY;
+        x[51] = f32::NAN;
+        x[52] = -0.0;
+        for v in &mut x[290..] {
+            *v = 0.0;
+        }
+        let segs: [&[f32]; 4] = [&x[..37], &x[37..45], &x[45..290], &x[290..]];
+        let mut y = [0.25f32; 67];
+        matvec_acc_int8_portable(&w, &segs, &mut y).unwrap();
+        for m in [&w, &wl] {
+            let mut yd = [0.25f32; 67];
+            matvec_acc_int8_dsp(m, &segs, &mut yd).unwrap();
+            assert_eq!(y.map(f32::to_bits), yd.map(f32::to_bits));
+        }
+    }
+
+    /// The quantisation as first written (float comparisons), the reference of the faster
+    /// forms.
+    fn quantize_reference(v: f32, inv: f32) -> i32 {
+        let t = v * inv;
+        let r = if t >= 0.0 { t + 0.5 } else { t - 0.5 };
+        (r as i32).clamp(-127, 127)
+    }
+
+    fn scale_reference(x: &[f32]) -> f32 {
+        let mut a = 0.0f32;
+        for &v in x {
+            let m = libm::fabsf(v);
+            if m > a && m != f32::INFINITY {
+                a = m;
+            }
+        }
+        a
+    }
+
+    #[test]
+    fn fast_quantisation_is_the_reference() {
+        // A stride through all 2^32 bit patterns (every exponent, both signs, NaNs,
+        // infinities, subnormals), against several scales, and the ties k + 0.5.
+        let invs = [
+            1.0f32,
+            127.0,
+            0.37,
+            1e-3,
+            3.0e5,
+            f32::from_bits(0x3f80_0001),
+        ];
+        let mut bits = 0u32;
+        loop {
+            let v = f32::from_bits(bits);
+            for &inv in &invs {
+                let want = quantize_reference(v, inv);
+                assert_eq!(quantize_one(v, inv), want, "v {v:e} inv {inv}");
+                if bits >> 31 == 0 {
+                    assert_eq!(quantize_nonneg(v, inv), want, "v {v:e} inv {inv}");
+                }
+            }
+            match bits.checked_add(65_521) {
+                Some(b) => bits = b,
+                None => break,
+            }
+        }
+        for k in -130i32..=130 {
+            let v = k as f32 + 0.5;
+            assert_eq!(quantize_one(v, 1.0), quantize_reference(v, 1.0), "{v}");
+            assert_eq!(quantize_one(-v, 1.0), quantize_reference(-v, 1.0), "{v}");
+        }
+        // The range on the bit patterns is the float maximum over finite values.
+        let mut rng = Rng::seed_from_u64(9);
+        for case in 0..200 {
+            let mut x = [0.0f32; 40];
+            for v in x.iter_mut() {
+                *v = f32::from_bits(rng.next_u32());
+            }
+            if case % 3 == 0 {
+                x[case % 40] = f32::INFINITY;
+            }
+            if case % 5 == 0 {
+                x[(case + 7) % 40] = f32::NAN;
+            }
+            let n = case % 41;
+            let a = scale_reference(&x[..n]);
+            let (sx, inv, nonneg) = act_range(&x[..n]);
+            if a > 0.0 {
+                assert_eq!((sx, inv), (a / 127.0, 127.0 / a), "case {case}");
+            } else {
+                assert_eq!((sx, inv), (0.0, 0.0));
+            }
+            assert_eq!(nonneg, x[..n].iter().all(|v| v.to_bits() >> 31 == 0));
+        }
+    }
+
+    #[test]
     fn quantisation_rounds_half_away_and_saturates() {
         let x = [
             1.0f32,
