@@ -34,6 +34,15 @@ pub const QCOLS: usize = 256;
 pub const QROWS: usize = 64;
 /// Words of one input block packed for [`dots_i8_dsp`] (two int16 halves per word).
 pub const QWORDS: usize = QCOLS / 2;
+/// True when [`dots_i8_dsp`] runs the `SXTB16` / `SMLAD` instructions (Armv7E-M targets),
+/// false where it runs their plain-Rust model; the integers are the same.
+pub const DSP_KERNEL: bool = gman_dsp::HAS_DSP;
+
+/// Packs an int8 input block for [`dots_i8_dsp`] (see [`gman_dsp::pack`]); returns the
+/// number of inputs packed.
+pub fn pack_dsp(xq: &[i8], xp: &mut [u32]) -> usize {
+    gman_dsp::pack(xq, xp)
+}
 
 /// The activation scale of a segment: `(s_x, inv) = (a / 127, 127 / a)` with `a` the largest
 /// finite `|x_j|`; `(0, 0)` when `a == 0`.

@@ -217,6 +217,10 @@ fn run() -> Result<(), Failure> {
         INSNS_PER_TICK
     );
 
+    hprintln!(
+        "# int8 kernel: dsp_smlad={} (1: SXTB16 + SMLAD, gman-dsp)",
+        gman_core::qkernel::DSP_KERNEL as u8
+    );
     selftest_phase()?;
     // Peak stack of the start-up and the self-test, then paint again so the navigator's own
     // peak is measured separately.
