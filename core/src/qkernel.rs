@@ -231,9 +231,10 @@ pub fn dots_i8_rows(q: &[u8], cols: usize, col0: usize, xq: &[i8], out: &mut [i3
 /// [`dots_i8`] with the Cortex-M4F's DSP instructions: two rows at a time through
 /// [`gman_dsp::dots2`] (`SXTB16` unpacks four int8 weights into two pairs of int16, `SMLAD`
 /// adds two products per instruction) on the input block `xq` packed by [`gman_dsp::pack`]
-/// into `xp`, the last `xq.len() % 8` columns (and an odd last row) in plain Rust. The same
+/// into `xp`, the last `xq.len() % 4` columns (and an odd last row) in plain Rust. The same
 /// integers as [`dots_i8`]; off DSP targets `gman_dsp::dots2` is its plain-Rust model of the
 /// instructions, which is how a host test checks this function.
+#[inline(always)]
 pub fn dots_i8_dsp(q: &[u8], cols: usize, col0: usize, xq: &[i8], xp: &[u32], out: &mut [i32]) {
     let end = col0 + xq.len();
     if cols == 0 || end > cols {

@@ -27,8 +27,8 @@
 /// [`dots2_model`].
 pub const HAS_DSP: bool = cfg!(gman_dsp);
 
-/// Columns [`dots2`] consumes per step of its inner loop.
-pub const STEP: usize = 8;
+/// Columns [`dots2`] consumes per step (its loop runs 16 at a time, then 8, then 4).
+pub const STEP: usize = 4;
 
 /// Packs `xq` into the operand words of [`dots2`] (see the crate docs): for every group of
 /// four inputs `x[4g..4g + 4]`, `out[2g] = (x0, x2)` and `out[2g + 1] = (x1, x3)` as two
@@ -183,12 +183,31 @@ mod arm {
                 );
             }
         }
-        if n % 16 != 0 {
-            // The last eight columns (n is a multiple of 8).
+        if n % 16 >= 8 {
+            // Eight more columns.
             // SAFETY: as above, for the 8 columns after the loop's 16 * sixteens.
             unsafe {
                 asm!(
                     quad!(),
+                    quad!(),
+                    sa = inout(reg) sa,
+                    sb = inout(reg) sb,
+                    pa = inout(reg) pa,
+                    pb = inout(reg) pb,
+                    px = inout(reg) px,
+                    x0 = out(reg) _,
+                    x1 = out(reg) _,
+                    w = out(reg) _,
+                    t = out(reg) _,
+                    options(nostack, readonly),
+                );
+            }
+        }
+        if n % 8 == 4 {
+            // The last four columns (n is a multiple of 4).
+            // SAFETY: as above, for the 4 columns after the 16- and 8-column steps.
+            unsafe {
+                asm!(
                     quad!(),
                     sa = inout(reg) sa,
                     sb = inout(reg) sb,
@@ -233,7 +252,7 @@ mod tests {
             let packed = pack(&x[..n], &mut xp);
             assert_eq!(packed, n - n % 4);
             let m = span(n, n, packed / 2);
-            assert_eq!(m, n - n % 8);
+            assert_eq!(m, n - n % 4);
             let (sa, sb) = dots2_model(&a[..n], &b[..n], &xp[..packed / 2]);
             assert_eq!(sa, plain(&a, &x, m), "n {n}");
             assert_eq!(sb, plain(&b, &x, m), "n {n}");
@@ -249,8 +268,8 @@ mod tests {
 
     #[test]
     fn span_is_the_shortest_operand_in_steps() {
-        assert_eq!(span(20, 30, 100), 16);
+        assert_eq!(span(22, 30, 100), 20);
         assert_eq!(span(100, 100, 5), 8);
-        assert_eq!(span(7, 100, 100), 0);
+        assert_eq!(span(3, 100, 100), 0);
     }
 }
