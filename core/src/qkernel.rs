@@ -34,6 +34,9 @@ pub const QCOLS: usize = 256;
 pub const QROWS: usize = 64;
 /// Words of one input block packed for [`dots_i8_dsp`] (two int16 halves per word).
 pub const QWORDS: usize = QCOLS / 2;
+/// True when gman-core is built with its feature `int8-activations` (the integer path is
+/// compiled in; without it, callers can compile out their own uses of this module).
+pub const INT8_ACTIVATIONS: bool = cfg!(feature = "int8-activations");
 /// True when [`dots_i8_dsp`] runs the `SXTB16` / `SMLAD` instructions (Armv7E-M targets),
 /// false where it runs their plain-Rust model; the integers are the same.
 pub const DSP_KERNEL: bool = gman_dsp::HAS_DSP;

@@ -22,13 +22,20 @@ const F: usize = D.feat;
 const DH: usize = D.disc_hidden;
 
 /// Runs the self-test on `blob`, reporting each result line through `out`: G, D and L_D,
-/// then the integer kernels (two frames one after the other, not nested, for the stack).
+/// then, for a blob with int8 activations and a gman-core with the integer path, the integer
+/// kernels (two frames one after the other, not nested, for the stack; an image without the
+/// integer path compiles that part out).
 pub fn run(
     blob_bytes: &[u8],
     out: &mut dyn FnMut(core::fmt::Arguments<'_>),
 ) -> gman_core::Result<()> {
     networks(blob_bytes, out)?;
-    int8_kernels(&Blob::parse(blob_bytes)?, out)
+    let blob = Blob::parse(blob_bytes)?;
+    let act8 = blob.header().flags() & gman_core::schema::FLAG_INT8_ACTIVATIONS != 0;
+    if gman_core::qkernel::INT8_ACTIVATIONS && act8 {
+        int8_kernels(&blob, out)?;
+    }
+    Ok(())
 }
 
 #[inline(never)]
