@@ -152,6 +152,37 @@ mod arm {
         };
     }
 
+    /// Eight columns of both rows with the registers of the 16-column loop: four input
+    /// words by one `LDM` (r2-r5), weights in r9, scratch r11, accumulators r0 / r1, row
+    /// pointers r8 / r10, input pointer r12.
+    macro_rules! eight {
+        () => {
+            concat!(
+                "ldm r12!, {{r2, r3, r4, r5}}\n",
+                "ldr r9, [r8], #4\n",
+                "sxtb16 r11, r9\n",
+                "smlad r0, r11, r2, r0\n",
+                "sxtb16 r9, r9, ror #8\n",
+                "smlad r0, r9, r3, r0\n",
+                "ldr r9, [r10], #4\n",
+                "sxtb16 r11, r9\n",
+                "smlad r1, r11, r2, r1\n",
+                "sxtb16 r9, r9, ror #8\n",
+                "smlad r1, r9, r3, r1\n",
+                "ldr r9, [r8], #4\n",
+                "sxtb16 r11, r9\n",
+                "smlad r0, r11, r4, r0\n",
+                "sxtb16 r9, r9, ror #8\n",
+                "smlad r0, r9, r5, r0\n",
+                "ldr r9, [r10], #4\n",
+                "sxtb16 r11, r9\n",
+                "smlad r1, r11, r4, r1\n",
+                "sxtb16 r9, r9, ror #8\n",
+                "smlad r1, r9, r5, r1\n",
+            )
+        };
+    }
+
     pub(super) fn dots2(a: &[u8], b: &[u8], xp: &[u32]) -> (i32, i32) {
         let n = super::span(a.len(), b.len(), xp.len());
         let (mut sa, mut sb) = (0i32, 0i32);
@@ -160,25 +191,26 @@ mod arm {
         if sixteens > 0 {
             // SAFETY: see the module's audit: 16 * sixteens <= n bytes of `a` and `b` and
             // 8 * sixteens <= n / 2 words of `xp` are read; only registers are written.
+            // Explicit registers: `LDM` needs its list in ascending order (r2-r5).
             unsafe {
                 asm!(
                     "2:",
-                    quad!(),
-                    quad!(),
-                    quad!(),
-                    quad!(),
+                    eight!(),
+                    eight!(),
                     "subs {k}, {k}, #1",
                     "bne 2b",
-                    sa = inout(reg) sa,
-                    sb = inout(reg) sb,
-                    pa = inout(reg) pa,
-                    pb = inout(reg) pb,
-                    px = inout(reg) px,
+                    inout("r0") sa,
+                    inout("r1") sb,
+                    out("r2") _,
+                    out("r3") _,
+                    out("r4") _,
+                    out("r5") _,
+                    inout("r8") pa,
+                    inout("r10") pb,
+                    inout("r12") px,
                     k = inout(reg) sixteens => _,
-                    x0 = out(reg) _,
-                    x1 = out(reg) _,
-                    w = out(reg) _,
-                    t = out(reg) _,
+                    out("r9") _,
+                    out("r11") _,
                     options(nostack, readonly),
                 );
             }
