@@ -27,7 +27,7 @@
 /// [`dots2_model`].
 pub const HAS_DSP: bool = cfg!(gman_dsp);
 
-/// Columns [`dots2`] consumes per step (its loop runs 16 at a time, then 8, then 4).
+/// Columns [`dots2`] consumes per step (its loop runs 32 at a time, then 16, 8 and 4).
 pub const STEP: usize = 4;
 
 /// Packs `xq` into the operand words of [`dots2`] (see the crate docs): for every group of
@@ -118,14 +118,16 @@ pub fn dots2_model(a: &[u8], b: &[u8], xp: &[u32]) -> (i32, i32) {
 /// The `asm!` kernel (Armv7E-M only).
 ///
 /// # Audit
-/// * Reads: `4 * n / 4 = n` bytes from each of `a` and `b` (word loads, `LDR`, which the
-///   Armv7-M architecture allows unaligned unless `CCR.UNALIGN_TRP` is set; cortex-m-rt
-///   leaves it clear), and `n / 2` words from `xp` (`LDRD`, which needs word alignment: `xp`
-///   is a `&[u32]`). `n = span(..)` is at most each slice's length, so every read is inside
-///   a slice; `n == 0` runs no instruction of the loops.
-/// * Writes: only the registers bound as outputs (accumulators, pointers, counter, scratch);
-///   no memory (`readonly`), no stack (`nostack`); the flags are clobbered (`SUBS`), which
-///   `asm!` assumes by default.
+/// * Reads: `n` bytes from each of `a` and `b` (word loads, `LDR`, which the Armv7-M
+///   architecture allows unaligned unless `CCR.UNALIGN_TRP` is set; cortex-m-rt leaves it
+///   clear), and `n / 2` words from `xp` (`LDM` / `LDRD`, which need word alignment: `xp` is
+///   a `&[u32]`), every pointer advancing by what it read. The blocks run 32, 16, 8 and 4
+///   columns (`n = span(..)` is a multiple of 4 and at most each slice's length), so every
+///   read is inside a slice; `n == 0` runs none of them.
+/// * Writes: only the registers bound as outputs (accumulators, pointers, counter, the input
+///   words r2-r5 and the scratch registers); no memory (`readonly`), no stack (`nostack`);
+///   the flags are clobbered (`SUBS`), which `asm!` assumes by default. The registers named
+///   explicitly (r0-r5, r8-r12) are ones `asm!` allows on `thumbv7em` (not r6, r7, sp, pc).
 /// * Arithmetic: `SMLAD` wraps on overflow (it only sets the Q flag, which nothing reads),
 ///   exactly as [`super::dots2_model`] does.
 #[cfg(gman_dsp)]
@@ -187,14 +189,16 @@ mod arm {
         let n = super::span(a.len(), b.len(), xp.len());
         let (mut sa, mut sb) = (0i32, 0i32);
         let (mut pa, mut pb, mut px) = (a.as_ptr(), b.as_ptr(), xp.as_ptr());
-        let sixteens = n / 16;
-        if sixteens > 0 {
-            // SAFETY: see the module's audit: 16 * sixteens <= n bytes of `a` and `b` and
-            // 8 * sixteens <= n / 2 words of `xp` are read; only registers are written.
+        let thirty_twos = n / 32;
+        if thirty_twos > 0 {
+            // SAFETY: see the module's audit: 32 * thirty_twos <= n bytes of `a` and `b` and
+            // 16 * thirty_twos <= n / 2 words of `xp` are read; only registers are written.
             // Explicit registers: `LDM` needs its list in ascending order (r2-r5).
             unsafe {
                 asm!(
                     "2:",
+                    eight!(),
+                    eight!(),
                     eight!(),
                     eight!(),
                     "subs {k}, {k}, #1",
@@ -208,7 +212,29 @@ mod arm {
                     inout("r8") pa,
                     inout("r10") pb,
                     inout("r12") px,
-                    k = inout(reg) sixteens => _,
+                    k = inout(reg) thirty_twos => _,
+                    out("r9") _,
+                    out("r11") _,
+                    options(nostack, readonly),
+                );
+            }
+        }
+        if n % 32 >= 16 {
+            // Sixteen more columns.
+            // SAFETY: as above, for the 16 columns after the loop's 32 * thirty_twos.
+            unsafe {
+                asm!(
+                    eight!(),
+                    eight!(),
+                    inout("r0") sa,
+                    inout("r1") sb,
+                    out("r2") _,
+                    out("r3") _,
+                    out("r4") _,
+                    out("r5") _,
+                    inout("r8") pa,
+                    inout("r10") pb,
+                    inout("r12") px,
                     out("r9") _,
                     out("r11") _,
                     options(nostack, readonly),
@@ -217,7 +243,7 @@ mod arm {
         }
         if n % 16 >= 8 {
             // Eight more columns.
-            // SAFETY: as above, for the 8 columns after the loop's 16 * sixteens.
+            // SAFETY: as above, for the 8 columns after the 32- and 16-column steps.
             unsafe {
                 asm!(
                     quad!(),
