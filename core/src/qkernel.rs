@@ -120,10 +120,11 @@ pub fn quantize_act(x: &[f32], inv: f32, out: &mut [i8]) {
     }
 }
 
-/// [`quantize_act`] into `xq` (`xq.len() == x.len()`) and, for the DSP kernel, the same
-/// integers packed by [`gman_dsp::pair_words`] into `xp` (four inputs at a time, as many
-/// groups as both hold); `nonneg` (from [`act_range`]) picks [`quantize_nonneg`]. Returns the
-/// number of inputs packed.
+/// [`quantize_act`] for the DSP kernel: the integers packed by [`gman_dsp::pair_words`] into
+/// `xp` (four inputs at a time, as many groups as `xp` and `xq` hold), the rest (fewer than
+/// four when `xp` holds the block) into `xq` at the same positions, which is all
+/// [`dots_i8_dsp`] reads of `xq`; `nonneg` (from [`act_range`]) picks [`quantize_nonneg`].
+/// Returns the number of inputs packed.
 #[inline]
 fn quantize_pack(x: &[f32], inv: f32, nonneg: bool, xq: &mut [i8], xp: &mut [u32]) -> usize {
     if nonneg {
@@ -136,15 +137,12 @@ fn quantize_pack(x: &[f32], inv: f32, nonneg: bool, xq: &mut [i8], xp: &mut [u32
 #[inline(always)]
 fn quantize_pack_with(x: &[f32], xq: &mut [i8], xp: &mut [u32], f: impl Fn(f32) -> i32) -> usize {
     let mut packed = 0;
-    for ((xs, qs), ps) in x
+    for (xs, ps) in x
         .chunks_exact(4)
-        .zip(xq.chunks_exact_mut(4))
         .zip(xp.chunks_exact_mut(2))
+        .take(xq.len() / 4)
     {
         let v = [f(xs[0]), f(xs[1]), f(xs[2]), f(xs[3])];
-        for (q, &p) in qs.iter_mut().zip(&v) {
-            *q = p as i8;
-        }
         let [a, b] = gman_dsp::pair_words(v);
         ps[0] = a;
         ps[1] = b;
@@ -235,8 +233,9 @@ pub fn dots_i8_rows(q: &[u8], cols: usize, col0: usize, xq: &[i8], out: &mut [i3
 /// [`gman_dsp::dots2`] (`SXTB16` unpacks four int8 weights into two pairs of int16, `SMLAD`
 /// adds two products per instruction) on the input block `xq` packed by [`gman_dsp::pack`]
 /// into `xp`, the last `xq.len() % 4` columns (and an odd last row) in plain Rust. The same
-/// integers as [`dots_i8`]; off DSP targets `gman_dsp::dots2` is its plain-Rust model of the
-/// instructions, which is how a host test checks this function.
+/// integers as [`dots_i8`] (`xq` is read only past the columns `xp` holds); off DSP targets
+/// `gman_dsp::dots2` is its plain-Rust model of the instructions, which is how a host test
+/// checks this function.
 #[inline(always)]
 pub fn dots_i8_dsp(q: &[u8], cols: usize, col0: usize, xq: &[i8], xp: &[u32], out: &mut [i32]) {
     let end = col0 + xq.len();
