@@ -13,8 +13,10 @@
 //!   and `y_i += (acc_i as f32) * (s_x * s_i)`, blocks in order.
 //!
 //! The integers do not depend on the order of the additions, so the portable kernel
-//! ([`dots_i8`]), the Cortex-M4F's row-blocked one ([`dots_i8_rows`]) and a host's
-//! SIMD build (the `dots_i8` method of [`Kernels`]) give the same `acc_i`, and the few f32
+//! ([`dots_i8`]), the Cortex-M4F's `SMLAD` kernel ([`dots_i8_dsp`], through the `gman-dsp`
+//! crate), the row-blocked one of Arm targets without DSP instructions ([`dots_i8_rows`])
+//! and a host's SIMD build (the `dots_i8` method of [`Kernels`]) give the same `acc_i`, and
+//! the few f32
 //! operations around them run in one fixed order in this module: host and device compute
 //! the same bits by construction.
 //!
@@ -30,35 +32,126 @@ use crate::matrix::{seg_len, Kernels, MatRef, Scales, Weights};
 pub const QCOLS: usize = 256;
 /// Rows whose accumulators one kernel call fills (a stack buffer of this many `i32`).
 pub const QROWS: usize = 64;
+/// Words of one input block packed for [`dots_i8_dsp`] (two int16 halves per word).
+pub const QWORDS: usize = QCOLS / 2;
+/// True when gman-core is built with its feature `int8-activations` (the integer path is
+/// compiled in; without it, callers can compile out their own uses of this module).
+pub const INT8_ACTIVATIONS: bool = cfg!(feature = "int8-activations");
+/// True when [`dots_i8_dsp`] runs the `SXTB16` / `SMLAD` instructions (Armv7E-M targets),
+/// false where it runs their plain-Rust model; the integers are the same.
+pub const DSP_KERNEL: bool = gman_dsp::HAS_DSP;
+
+/// Packs an int8 input block for [`dots_i8_dsp`] (see [`gman_dsp::pack`]); returns the
+/// number of inputs packed.
+pub fn pack_dsp(xq: &[i8], xp: &mut [u32]) -> usize {
+    gman_dsp::pack(xq, xp)
+}
 
 /// The activation scale of a segment: `(s_x, inv) = (a / 127, 127 / a)` with `a` the largest
 /// finite `|x_j|`; `(0, 0)` when `a == 0`.
 #[inline]
 pub fn act_scale(x: &[f32]) -> (f32, f32) {
-    let mut a = 0.0f32;
+    let (sx, inv, _) = act_range(x);
+    (sx, inv)
+}
+
+/// [`act_scale`], and whether no `x_j` has its sign bit set (then [`quantize_act`] may take
+/// its shorter non-negative form, [`quantize_nonneg`], with the same results).
+///
+/// The largest `|x_j|` is found on the bit patterns: for finite non-negative floats (and the
+/// magnitudes `bits & 0x7fff_ffff` are those) the integer order is the numeric order, so the
+/// integer maximum is the very value a float comparison finds. A segment holding an infinity
+/// or a NaN (a magnitude `>= 0x7f80_0000`) takes a second pass that skips them.
+#[inline]
+pub fn act_range(x: &[f32]) -> (f32, f32, bool) {
+    let (mut m, mut signs) = (0u32, 0u32);
     for &v in x {
-        let m = libm::fabsf(v);
-        // `m > a` is false for NaN; infinities are skipped.
-        if m > a && m != f32::INFINITY {
-            a = m;
+        let b = v.to_bits();
+        signs |= b;
+        let h = b & 0x7fff_ffff;
+        if h > m {
+            m = h;
         }
     }
+    if m >= 0x7f80_0000 {
+        m = 0;
+        for &v in x {
+            let h = v.to_bits() & 0x7fff_ffff;
+            if h < 0x7f80_0000 && h > m {
+                m = h;
+            }
+        }
+    }
+    let a = f32::from_bits(m);
+    let nonneg = signs >> 31 == 0;
     if a > 0.0 {
-        (a / 127.0, 127.0 / a)
+        (a / 127.0, 127.0 / a, nonneg)
     } else {
-        (0.0, 0.0)
+        (0.0, 0.0, nonneg)
     }
 }
 
-/// Quantises `x` with `inv` (from [`act_scale`]) into `out` (truncated to the shorter).
+/// One activation quantised with `inv`: `clamp(round_half_away(v * inv), -127, 127)`, NaN to
+/// 0. Written as the magnitude `min(trunc(|t| + 0.5), 127)` with the sign of `t` put back
+/// (`t - 0.5 == -(|t| + 0.5)` exactly, so this is `trunc(t - 0.5)` for negative `t`; `-0.0`
+/// and NaN give 0 either way), which needs no floating-point comparison.
+#[inline(always)]
+pub fn quantize_one(v: f32, inv: f32) -> i32 {
+    let t = v * inv;
+    // `as` saturates and maps NaN to 0.
+    let m = ((libm::fabsf(t) + 0.5) as i32).clamp(0, 127);
+    let s = (t.to_bits() as i32) >> 31;
+    (m ^ s) - s
+}
+
+/// [`quantize_one`] for a `v` whose sign bit is clear (`t = v * inv` is then `+0`, positive
+/// or a NaN): `min(trunc(t + 0.5), 127)`, the same value.
+#[inline(always)]
+pub fn quantize_nonneg(v: f32, inv: f32) -> i32 {
+    ((v * inv + 0.5) as i32).clamp(0, 127)
+}
+
+/// Quantises `x` with `inv` (from [`act_scale`]) into `out` (truncated to the shorter):
+/// [`quantize_one`] of every value.
 #[inline]
 pub fn quantize_act(x: &[f32], inv: f32, out: &mut [i8]) {
     for (o, &v) in out.iter_mut().zip(x) {
-        let t = v * inv;
-        let r = if t >= 0.0 { t + 0.5 } else { t - 0.5 };
-        // `as` saturates and maps NaN to 0.
-        *o = (r as i32).clamp(-127, 127) as i8;
+        *o = quantize_one(v, inv) as i8;
     }
+}
+
+/// [`quantize_act`] for the DSP kernel: the integers packed by [`gman_dsp::pair_words`] into
+/// `xp` (four inputs at a time, as many groups as `xp` and `xq` hold), the rest (fewer than
+/// four when `xp` holds the block) into `xq` at the same positions, which is all
+/// [`dots_i8_dsp`] reads of `xq`; `nonneg` (from [`act_range`]) picks [`quantize_nonneg`].
+/// Returns the number of inputs packed.
+#[inline]
+fn quantize_pack(x: &[f32], inv: f32, nonneg: bool, xq: &mut [i8], xp: &mut [u32]) -> usize {
+    if nonneg {
+        quantize_pack_with(x, xq, xp, |v| quantize_nonneg(v, inv))
+    } else {
+        quantize_pack_with(x, xq, xp, |v| quantize_one(v, inv))
+    }
+}
+
+#[inline(always)]
+fn quantize_pack_with(x: &[f32], xq: &mut [i8], xp: &mut [u32], f: impl Fn(f32) -> i32) -> usize {
+    let mut packed = 0;
+    for (xs, ps) in x
+        .chunks_exact(4)
+        .zip(xp.chunks_exact_mut(2))
+        .take(xq.len() / 4)
+    {
+        let v = [f(xs[0]), f(xs[1]), f(xs[2]), f(xs[3])];
+        let [a, b] = gman_dsp::pair_words(v);
+        ps[0] = a;
+        ps[1] = b;
+        packed += 4;
+    }
+    for (q, &v) in xq.iter_mut().zip(x).skip(packed) {
+        *q = f(v) as i8;
+    }
+    packed
 }
 
 /// `out[r] = sum_j (q[r * cols + col0 + j] as i8) * xq[j]` for `r in 0..out.len()`: the
@@ -136,6 +229,48 @@ pub fn dots_i8_rows(q: &[u8], cols: usize, col0: usize, xq: &[i8], out: &mut [i3
     dots_i8(&q[done..], cols, col0, xq, rest);
 }
 
+/// [`dots_i8`] with the Cortex-M4F's DSP instructions: two rows at a time through
+/// [`gman_dsp::dots2`] (`SXTB16` unpacks four int8 weights into two pairs of int16, `SMLAD`
+/// adds two products per instruction) on the input block `xq` packed by [`gman_dsp::pack`]
+/// into `xp`, the last `xq.len() % 4` columns (and an odd last row) in plain Rust. The same
+/// integers as [`dots_i8`] (`xq` is read only past the columns `xp` holds); off DSP targets
+/// `gman_dsp::dots2` is its plain-Rust model of the instructions, which is how a host test
+/// checks this function.
+#[inline(always)]
+pub fn dots_i8_dsp(q: &[u8], cols: usize, col0: usize, xq: &[i8], xp: &[u32], out: &mut [i32]) {
+    let end = col0 + xq.len();
+    if cols == 0 || end > cols {
+        out.fill(0);
+        return;
+    }
+    let n = xq.len();
+    let main = gman_dsp::span(n, n, xp.len());
+    let tail = |row: &[u8]| -> i32 {
+        let mut acc = 0i32;
+        for (&w, &x) in row[main..].iter().zip(&xq[main..]) {
+            acc += (w as i8 as i32) * (x as i32);
+        }
+        acc
+    };
+    let mut rows = q.chunks_exact(cols).map(|r| &r[col0..end]);
+    let mut outs = out.chunks_exact_mut(2);
+    for o in &mut outs {
+        let (Some(a), Some(b)) = (rows.next(), rows.next()) else {
+            o.fill(0);
+            continue;
+        };
+        let (sa, sb) = gman_dsp::dots2(a, b, xp);
+        o[0] = sa + tail(a);
+        o[1] = sb + tail(b);
+    }
+    if let [last] = outs.into_remainder() {
+        *last = match rows.next() {
+            Some(a) => gman_dsp::dots2(a, a, xp).0 + tail(a),
+            None => 0,
+        };
+    }
+}
+
 /// Byte offset of the rows [`dots_i8_rows`] leaves to [`dots_i8`].
 #[inline]
 fn out_len_done(q: &[u8], cols: usize, rest: usize) -> usize {
@@ -148,6 +283,7 @@ fn out_len_done(q: &[u8], cols: usize, rest: usize) -> usize {
 enum Dots {
     Portable,
     Rows,
+    Dsp,
     Table(&'static dyn Kernels),
 }
 
@@ -157,6 +293,7 @@ enum Dots {
 pub fn matvec_acc_int8(w: &MatRef<'_>, x: &[&[f32]], y: &mut [f32]) -> Result<()> {
     let dots = match w.kernels() {
         Some(k) => Dots::Table(k),
+        None if gman_dsp::HAS_DSP => Dots::Dsp,
         None if cfg!(target_arch = "arm") => Dots::Rows,
         None => Dots::Portable,
     };
@@ -167,6 +304,12 @@ pub fn matvec_acc_int8(w: &MatRef<'_>, x: &[&[f32]], y: &mut [f32]) -> Result<()
 /// kernel table (the reference a test compares the optimised kernels with).
 pub fn matvec_acc_int8_portable(w: &MatRef<'_>, x: &[&[f32]], y: &mut [f32]) -> Result<()> {
     matvec_int8_with(w, x, y, Dots::Portable)
+}
+
+/// [`matvec_acc_int8`] with [`dots_i8_dsp`] whatever the target (on a host: its plain-Rust
+/// model of the DSP instructions), for the tests that compare it with the portable kernel.
+pub fn matvec_acc_int8_dsp(w: &MatRef<'_>, x: &[&[f32]], y: &mut [f32]) -> Result<()> {
+    matvec_int8_with(w, x, y, Dots::Dsp)
 }
 
 // Not inlined: one copy of the driver in a firmware image, whatever the call sites.
@@ -184,16 +327,26 @@ fn matvec_int8_with(w: &MatRef<'_>, x: &[&[f32]], y: &mut [f32], dots: Dots) -> 
         return Ok(());
     }
     let mut xq = [0i8; QCOLS];
+    let mut xp = [0u32; QWORDS];
     let mut acc = [0i32; QROWS];
     let mut off = 0;
     for seg in x {
-        let (sx, inv) = act_scale(seg);
+        let (sx, inv, nonneg) = act_range(seg);
         if sx > 0.0 {
             for (b, xs) in seg.chunks(QCOLS).enumerate() {
                 let xq = &mut xq[..xs.len()];
-                quantize_act(xs, inv, xq);
+                let xp = match dots {
+                    Dots::Dsp => {
+                        let packed = quantize_pack(xs, inv, nonneg, xq, &mut xp);
+                        &xp[..packed / 2]
+                    }
+                    _ => {
+                        quantize_act(xs, inv, xq);
+                        &xp[..0]
+                    }
+                };
                 let c0 = off + b * QCOLS;
-                block(q, &scales, cols, c0, xq, sx, &mut acc, y, dots);
+                block(q, &scales, cols, c0, xq, xp, sx, &mut acc, y, dots);
             }
         }
         off += seg.len();
@@ -211,6 +364,7 @@ fn block(
     cols: usize,
     c0: usize,
     xq: &[i8],
+    xp: &[u32],
     sx: f32,
     acc: &mut [i32; QROWS],
     y: &mut [f32],
@@ -221,10 +375,31 @@ fn block(
         match dots {
             Dots::Portable => dots_i8(qr, cols, c0, xq, acc),
             Dots::Rows => dots_i8_rows(qr, cols, c0, xq, acc),
+            Dots::Dsp => dots_i8_dsp(qr, cols, c0, xq, xp, acc),
             Dots::Table(k) => k.dots_i8(qr, cols, c0, xq, acc),
         }
-        for (i, (yi, &a)) in yr.iter_mut().zip(acc.iter()).enumerate() {
-            *yi += (a as f32) * (sx * scales.get(r0 * QROWS + i));
+        let first = r0 * QROWS;
+        match scales {
+            // The scales of these rows as one slice (`MatRef::i8` checked there is one per row).
+            Scales::F32(s) => {
+                for ((yi, &a), &si) in yr
+                    .iter_mut()
+                    .zip(acc.iter())
+                    .zip(s.get(first..).unwrap_or(&[]))
+                {
+                    *yi += (a as f32) * (sx * si);
+                }
+            }
+            Scales::Le(b) => {
+                for ((yi, &a), si) in yr
+                    .iter_mut()
+                    .zip(acc.iter())
+                    .zip(b.get(4 * first..).unwrap_or(&[]).chunks_exact(4))
+                {
+                    let si = f32::from_le_bytes([si[0], si[1], si[2], si[3]]);
+                    *yi += (a as f32) * (sx * si);
+                }
+            }
         }
     }
 }
@@ -269,6 +444,156 @@ mod tests {
                     .sum();
                 assert_eq!(a[r], want);
             }
+        }
+    }
+
+    #[test]
+    fn dsp_kernel_gives_the_portable_integers() {
+        // Off DSP targets `gman_dsp::dots2` is its model of SXTB16 / SMLAD; the firmware's
+        // self-test runs the same comparison with the `asm!` kernel under QEMU.
+        let mut rng = Rng::seed_from_u64(11);
+        for &(rows, cols, col0, len) in &[
+            (1, 1, 0, 1),
+            (2, 8, 0, 8),
+            (3, 7, 2, 5),
+            (5, 45, 0, 45),
+            (7, 90, 45, 45),
+            (8, 1024, 512, 256),
+            (9, 33, 1, 31),
+            (13, 64, 0, 64),
+            (6, 300, 44, 256),
+            (4, 30, 3, 24),
+        ] {
+            let q = rand_i8(&mut rng, rows * cols);
+            let xb = rand_i8(&mut rng, len);
+            let mut xq: [i8; 256] = core::array::from_fn(|j| xb[j] as i8);
+            xq[0] = -127;
+            if len > 1 {
+                xq[len - 1] = 127;
+            }
+            let mut xp = [0u32; QWORDS];
+            let packed = gman_dsp::pack(&xq[..len], &mut xp);
+            let mut a = [0i32; 16];
+            let mut b = [1i32; 16];
+            dots_i8(&q[..rows * cols], cols, col0, &xq[..len], &mut a[..rows]);
+            dots_i8_dsp(
+                &q[..rows * cols],
+                cols,
+                col0,
+                &xq[..len],
+                &xp[..packed / 2],
+                &mut b[..rows],
+            );
+            assert_eq!(a[..rows], b[..rows], "rows {rows} cols {cols} col0 {col0}");
+        }
+    }
+
+    #[test]
+    fn dsp_driver_gives_the_portable_bits() {
+        let mut rng = Rng::seed_from_u64(5);
+        let (rows, cols) = (67, 301);
+        let qb = rand_i8(&mut rng, rows * cols);
+        let sc: [f32; 67] = core::array::from_fn(|i| 0.02 + i as f32 * 1e-4);
+        let w = MatRef::i8(rows, cols, &qb[..rows * cols], Scales::F32(&sc)).unwrap();
+        let mut le = [0u8; 4 * 67];
+        for (b, s) in le.chunks_exact_mut(4).zip(&sc) {
+            b.copy_from_slice(&s.to_le_bytes());
+        }
+        let wl = MatRef::i8(rows, cols, &qb[..rows * cols], Scales::Le(&le)).unwrap();
+        // Segments: non-negative, signed, with an infinity and a NaN, all zero.
+        let mut x: [f32; 301] = core::array::from_fn(|j| libm::sinf(j as f32 * 0.71) * 3.0);
+        for v in &mut x[..37] {
+            *v = libm::fabsf(*v);
+        }
+        x[50] = f32::INFINITY;
+        x[51] = f32::NAN;
+        x[52] = -0.0;
+        for v in &mut x[290..] {
+            *v = 0.0;
+        }
+        let segs: [&[f32]; 4] = [&x[..37], &x[37..45], &x[45..290], &x[290..]];
+        let mut y = [0.25f32; 67];
+        matvec_acc_int8_portable(&w, &segs, &mut y).unwrap();
+        for m in [&w, &wl] {
+            let mut yd = [0.25f32; 67];
+            matvec_acc_int8_dsp(m, &segs, &mut yd).unwrap();
+            assert_eq!(y.map(f32::to_bits), yd.map(f32::to_bits));
+        }
+    }
+
+    /// The quantisation as first written (float comparisons), the reference of the faster
+    /// forms.
+    fn quantize_reference(v: f32, inv: f32) -> i32 {
+        let t = v * inv;
+        let r = if t >= 0.0 { t + 0.5 } else { t - 0.5 };
+        (r as i32).clamp(-127, 127)
+    }
+
+    fn scale_reference(x: &[f32]) -> f32 {
+        let mut a = 0.0f32;
+        for &v in x {
+            let m = libm::fabsf(v);
+            if m > a && m != f32::INFINITY {
+                a = m;
+            }
+        }
+        a
+    }
+
+    #[test]
+    fn fast_quantisation_is_the_reference() {
+        // A stride through all 2^32 bit patterns (every exponent, both signs, NaNs,
+        // infinities, subnormals), against several scales, and the ties k + 0.5.
+        let invs = [
+            1.0f32,
+            127.0,
+            0.37,
+            1e-3,
+            3.0e5,
+            f32::from_bits(0x3f80_0001),
+        ];
+        let mut bits = 0u32;
+        loop {
+            let v = f32::from_bits(bits);
+            for &inv in &invs {
+                let want = quantize_reference(v, inv);
+                assert_eq!(quantize_one(v, inv), want, "v {v:e} inv {inv}");
+                if bits >> 31 == 0 {
+                    assert_eq!(quantize_nonneg(v, inv), want, "v {v:e} inv {inv}");
+                }
+            }
+            match bits.checked_add(65_521) {
+                Some(b) => bits = b,
+                None => break,
+            }
+        }
+        for k in -130i32..=130 {
+            let v = k as f32 + 0.5;
+            assert_eq!(quantize_one(v, 1.0), quantize_reference(v, 1.0), "{v}");
+            assert_eq!(quantize_one(-v, 1.0), quantize_reference(-v, 1.0), "{v}");
+        }
+        // The range on the bit patterns is the float maximum over finite values.
+        let mut rng = Rng::seed_from_u64(9);
+        for case in 0..200 {
+            let mut x = [0.0f32; 40];
+            for v in x.iter_mut() {
+                *v = f32::from_bits(rng.next_u32());
+            }
+            if case % 3 == 0 {
+                x[case % 40] = f32::INFINITY;
+            }
+            if case % 5 == 0 {
+                x[(case + 7) % 40] = f32::NAN;
+            }
+            let n = case % 41;
+            let a = scale_reference(&x[..n]);
+            let (sx, inv, nonneg) = act_range(&x[..n]);
+            if a > 0.0 {
+                assert_eq!((sx, inv), (a / 127.0, 127.0 / a), "case {case}");
+            } else {
+                assert_eq!((sx, inv), (0.0, 0.0));
+            }
+            assert_eq!(nonneg, x[..n].iter().all(|v| v.to_bits() >> 31 == 0));
         }
     }
 

@@ -203,6 +203,108 @@ fn navigator_phase(dev: &mut Device<'_>) -> Result<u32, Failure> {
     Ok(c.adaptations)
 }
 
+/// Instructions of each weight layer of a step, one `matvec_acc` at a time on the blob's own
+/// matrices (as the navigator views them: int8 activations when the blob says so) with
+/// inputs of the step's shapes and signs (observations, map and G's output non-negative;
+/// noise, hidden layers and LSTM state signed), and of two f32 parts (G's output sigmoid,
+/// the noise draw). Printed as a `# kernel:` line; the step minus the layers is everything
+/// else (activations, element-wise products, input checks, Ψ bookkeeping). Feature
+/// `kernel-table` (about 10 KB of flash, so not in the images the budget is measured on).
+#[cfg(feature = "kernel-table")]
+#[inline(never)]
+fn kernel_phase(clock: &Clock) -> Result<(), Failure> {
+    use gman_core::blob::{Blob, TensorId};
+    use gman_core::schema::FLAG_INT8_ACTIVATIONS;
+    const D: gman_core::Dims = episode::DIMS;
+    let blob = Blob::parse(BLOB)?;
+    let act8 = blob.header().flags() & FLAG_INT8_ACTIVATIONS != 0;
+    let m = |id: TensorId| -> Result<gman_core::matrix::MatRef<'_>, Failure> {
+        let w = blob.matrix(id)?;
+        Ok(if act8 { w.with_int8_activations() } else { w })
+    };
+    let pos = |i: usize| ((i * 37) % 101) as f32 / 101.0;
+    let sgn = |i: usize| ((i * 53) % 97) as f32 / 48.5 - 1.0;
+    let obs: [f32; D.feat] = core::array::from_fn(pos);
+    let x: [f32; D.feat] = core::array::from_fn(|i| pos(i + 7));
+    let prod: [f32; D.feat] = core::array::from_fn(|i| obs[i] * x[i]);
+    let z: [f32; D.noise] = core::array::from_fn(sgn);
+    let attr: [f32; D.attr] = core::array::from_fn(pos);
+    let h1: [f32; D.gen_hidden] = core::array::from_fn(sgn);
+    let probs = [1.0 / 6.0f32; gman_core::NUM_ACTIONS];
+    let cells: [f32; 72] = core::array::from_fn(sgn);
+    let small: [f32; D.embed] = core::array::from_fn(sgn);
+    let h: [f32; D.lstm_hidden] = core::array::from_fn(|i| sgn(i + 3));
+    let mut y = [0.0f32; 4 * D.lstm_hidden];
+    let mut yf = [0.0f32; D.feat];
+    let time = |f: &mut dyn FnMut() -> gman_core::Result<()>| -> Result<u64, Failure> {
+        let t0 = clock.now();
+        f()?;
+        Ok(clock.ticks_since(t0) as u64 * INSNS_PER_TICK as u64)
+    };
+    let (g1w, g2w, cw, fw) = (
+        m(TensorId::GenW1)?,
+        m(TensorId::GenW2)?,
+        m(TensorId::CellW)?,
+        m(TensorId::FuseW)?,
+    );
+    let (lx, lh, aw, crw) = (
+        m(TensorId::LstmWx)?,
+        m(TensorId::LstmWh)?,
+        m(TensorId::ActorW)?,
+        m(TensorId::CriticW)?,
+    );
+    let g1 = time(&mut || mv(&g1w, &[&z, &attr], &mut y[..D.gen_hidden]))?;
+    let g2 = time(&mut || mv(&g2w, &[&h1], &mut yf))?;
+    let cell = time(&mut || {
+        for c in 0..D.map_cells() {
+            let mc: [f32; D.feat] = core::array::from_fn(|i| pos(i + c));
+            mv(&cw, &[&mc, &prod], &mut y[..D.cell_embed])?;
+        }
+        Ok(())
+    })?;
+    let fuse = time(&mut || {
+        mv(
+            &fw,
+            &[&obs, &x, &prod, &attr, &probs, &cells],
+            &mut y[..D.embed],
+        )
+    })?;
+    let lstm = time(&mut || {
+        mv(&lx, &[&small], &mut y)?;
+        mv(&lh, &[&h], &mut y)
+    })?;
+    let heads = time(&mut || {
+        mv(&aw, &[&h], &mut y[..gman_core::NUM_ACTIONS])?;
+        mv(&crw, &[&h], &mut y[..1])
+    })?;
+    let sig = time(&mut || {
+        let f: fn(&mut [f32]) = core::hint::black_box(gman_core::activation::sigmoid_inplace);
+        f(&mut yf);
+        Ok(())
+    })?;
+    let mut rng = gman_core::rng::Xoshiro128::seed_from_u64(1);
+    let mut zn = [0.0f32; D.noise];
+    let noise = time(&mut || {
+        type Fill = fn(&mut gman_core::rng::Xoshiro128, &mut [f32]);
+        let f: Fill =
+            core::hint::black_box(gman_core::rng::fill_gaussian::<gman_core::rng::Xoshiro128>);
+        f(&mut rng, &mut zn);
+        Ok(())
+    })?;
+    hprintln!(
+        "# kernel: g1_insns={} g2_insns={} cells_insns={} fuse_insns={} lstm_insns={} heads_insns={} layers_insns={} sigmoid512_insns={} noise_insns={}",
+        g1, g2, cell, fuse, lstm, heads, g1 + g2 + cell + fuse + lstm + heads, sig, noise
+    );
+    Ok(())
+}
+
+/// One `matvec_acc`, not inlined: one copy of the kernels' dispatch for every layer timed.
+#[cfg(feature = "kernel-table")]
+#[inline(never)]
+fn mv(w: &gman_core::matrix::MatRef<'_>, x: &[&[f32]], y: &mut [f32]) -> gman_core::Result<()> {
+    w.matvec_acc(x, y)
+}
+
 const STACK_SATURATED: Failure =
     Failure::Episode("stack reached the bottom of the painted window (measure::STACK_WINDOW)");
 
@@ -217,6 +319,10 @@ fn run() -> Result<(), Failure> {
         INSNS_PER_TICK
     );
 
+    hprintln!(
+        "# int8 kernel: dsp_smlad={} (1: SXTB16 + SMLAD, gman-dsp)",
+        gman_core::qkernel::DSP_KERNEL as u8
+    );
     selftest_phase()?;
     // Peak stack of the start-up and the self-test, then paint again so the navigator's own
     // peak is measured separately.
@@ -235,6 +341,8 @@ fn run() -> Result<(), Failure> {
         commit_steps: 0,
     };
     let updates = navigator_phase(&mut dev)?;
+    #[cfg(feature = "kernel-table")]
+    kernel_phase(&clock)?;
 
     let (p, u, all) = (dev.plain, dev.update, dev.all);
     let tick = INSNS_PER_TICK as u64;

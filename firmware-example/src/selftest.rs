@@ -21,8 +21,25 @@ const H: usize = D.gen_hidden;
 const F: usize = D.feat;
 const DH: usize = D.disc_hidden;
 
-/// Runs the self-test on `blob`, reporting each result line through `out`.
+/// Runs the self-test on `blob`, reporting each result line through `out`: G, D and L_D,
+/// then, for a blob with int8 activations and a gman-core with the integer path, the integer
+/// kernels (two frames one after the other, not nested, for the stack; an image without the
+/// integer path compiles that part out).
 pub fn run(
+    blob_bytes: &[u8],
+    out: &mut dyn FnMut(core::fmt::Arguments<'_>),
+) -> gman_core::Result<()> {
+    networks(blob_bytes, out)?;
+    let blob = Blob::parse(blob_bytes)?;
+    let act8 = blob.header().flags() & gman_core::schema::FLAG_INT8_ACTIVATIONS != 0;
+    if gman_core::qkernel::INT8_ACTIVATIONS && act8 {
+        int8_kernels(&blob, out)?;
+    }
+    Ok(())
+}
+
+#[inline(never)]
+fn networks(
     blob_bytes: &[u8],
     out: &mut dyn FnMut(core::fmt::Arguments<'_>),
 ) -> gman_core::Result<()> {
@@ -155,6 +172,96 @@ pub fn run(
         ld.penalty.to_bits(),
         g_gain[0].to_bits(),
         g_w2[0].to_bits()
+    ));
+    Ok(())
+}
+
+/// The integer kernels of the int8-activation path on the blob's G layer-2 weights
+/// (512 x 256 int8): the Cortex-M4F's `SXTB16` / `SMLAD` kernel (`qkernel::dots_i8_dsp`; on
+/// the host, its plain-Rust model) against the portable one, integer for integer, on input
+/// blocks of every awkward length and offset (odd columns, unaligned rows, odd row counts,
+/// the extremes ±127); then the whole driver, bit for bit. A mismatch is an error; the
+/// checksum line is compared with the host's.
+#[inline(never)]
+fn int8_kernels(
+    blob: &Blob<'_>,
+    out: &mut dyn FnMut(core::fmt::Arguments<'_>),
+) -> gman_core::Result<()> {
+    use gman_core::matrix::Weights;
+    use gman_core::qkernel::{self, QCOLS, QWORDS};
+    let w = blob.matrix(TensorId::GenW2)?;
+    let Weights::I8 { q, .. } = w.weights() else {
+        return Err(gman_core::Error::Config {
+            what: "self-test: G's layer 2 is not int8",
+        });
+    };
+    let cols = w.cols();
+    let mut lcg = 0x2545_f491u32;
+    let mut next = move || {
+        lcg = lcg.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+        lcg >> 8
+    };
+    let (mut cases, mut sum) = (0u32, 0u32);
+    for &(rows, col0, len) in &[
+        (1usize, 0usize, 1usize),
+        (2, 0, 8),
+        (3, 1, 5),
+        (7, 3, 45),
+        (8, 0, 256),
+        (13, 77, 179),
+        (64, 0, 256),
+        (64, 5, 200),
+        (33, 250, 6),
+        (17, 128, 128),
+    ] {
+        let mut xq = [0i8; QCOLS];
+        for v in &mut xq[..len] {
+            *v = (next() % 255) as i8;
+        }
+        xq[0] = -127;
+        xq[len - 1] = 127;
+        let mut xp = [0u32; QWORDS];
+        let packed = qkernel::pack_dsp(&xq[..len], &mut xp);
+        let qr = &q[..rows * cols];
+        let (mut a, mut b) = ([0i32; 64], [0i32; 64]);
+        qkernel::dots_i8(qr, cols, col0, &xq[..len], &mut a[..rows]);
+        qkernel::dots_i8_dsp(
+            qr,
+            cols,
+            col0,
+            &xq[..len],
+            &xp[..packed / 2],
+            &mut b[..rows],
+        );
+        if a[..rows] != b[..rows] {
+            return Err(gman_core::Error::Config {
+                what: "self-test: the DSP int8 kernel differs from the portable one",
+            });
+        }
+        for v in &b[..rows] {
+            sum = sum.rotate_left(5) ^ (*v as u32);
+        }
+        cases += 1;
+    }
+    // The driver: y += W x on three segments, one with negative values.
+    let mut x = [0.0f32; 256];
+    for (i, v) in x.iter_mut().enumerate() {
+        *v = ((i * 53) % 97) as f32 / 97.0 - if i >= 200 { 0.5 } else { 0.0 };
+    }
+    let segs: [&[f32]; 3] = [&x[..45], &x[45..200], &x[200..]];
+    let (mut yp, mut yd) = ([0.0f32; 512], [0.0f32; 512]);
+    qkernel::matvec_acc_int8_portable(&w, &segs, &mut yp)?;
+    qkernel::matvec_acc_int8_dsp(&w, &segs, &mut yd)?;
+    if yp.map(f32::to_bits) != yd.map(f32::to_bits) {
+        return Err(gman_core::Error::Config {
+            what: "self-test: the DSP int8 driver differs from the portable one",
+        });
+    }
+    out(format_args!(
+        "int8 kernels: {} cases agree, checksum={:#010x}, y0={:#010x}",
+        cases,
+        sum,
+        yd[0].to_bits()
     ));
     Ok(())
 }
