@@ -159,7 +159,13 @@ fn main() -> Result<()> {
         }
     }
     let world = match &data {
-        Some(d) => World::load_with_seed(d, world_seed)?,
+        // The object layout the shipped model was trained under (`--object-layout rule`).
+        Some(d) => World::load_with_layout(
+            d,
+            world_seed,
+            &gman_host_sim::sim::offline::OfflineOptions::default(),
+            gman_host_sim::sim::ObjectLayout::Rule,
+        )?,
         None => World::synthetic(world_seed),
     };
     let bytes = record(&world, episode, steps)?;

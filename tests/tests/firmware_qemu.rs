@@ -429,9 +429,15 @@ fn checked_in_episode_is_what_record_episode_writes() {
         );
         return;
     }
-    let world =
-        gman_host_sim::sim::World::load_with_seed(&data, gman_host_sim::sim::DEFAULT_WORLD_SEED)
-            .expect("load the GMAN data");
+    // record_episode reads the real floor plans with the object layout the shipped model was
+    // trained under.
+    let world = gman_host_sim::sim::World::load_with_layout(
+        &data,
+        gman_host_sim::sim::DEFAULT_WORLD_SEED,
+        &gman_host_sim::sim::offline::OfflineOptions::default(),
+        gman_host_sim::sim::ObjectLayout::Rule,
+    )
+    .expect("load the GMAN data");
     let fresh = record_episode::record(&world, None, record_episode::DEFAULT_STEPS)
         .expect("record the default episode");
     assert!(
