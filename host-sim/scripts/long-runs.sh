@@ -11,25 +11,28 @@ cd "$(dirname "$0")/../.."
 cargo build --release -p gman-host-sim --bin gman --example emd_analysis --example done_analysis
 G=./target/release/gman
 D=${DATA:-../shared/data/gman}
+# The documented numbers were measured with the seeded object placement (LAYOUT=thor5 or
+# auto: the AI2-THOR 5.0 positions, see docs/data.md).
+LAYOUT=${LAYOUT:-rule}
 R=${OUT:-runs/real}
 U=${UPDATES:-15000}
 METHODS=${METHODS:-"a3c a3c-fg gman gman-noemd gman-cossim a3c-ps gman-ps"}
-[ -f "$R/fg/fg.ckpt" ] || $G pretrain-fg --data "$D" --preset mcu --seed 1 --out "$R/fg" --quiet
-[ -f "$R/ps/ps.ckpt" ] || $G pretrain-ps --data "$D" --seed 1 --out "$R/ps" --quiet
-[ -f "$R/eval/random.json" ] || { mkdir -p "$R/eval"; $G eval --data "$D" --split val --agent random --json "$R/eval/random.json" --quiet; }
+[ -f "$R/fg/fg.ckpt" ] || $G pretrain-fg --data "$D" --object-layout "$LAYOUT" --preset mcu --seed 1 --out "$R/fg" --quiet
+[ -f "$R/ps/ps.ckpt" ] || $G pretrain-ps --data "$D" --object-layout "$LAYOUT" --seed 1 --out "$R/ps" --quiet
+[ -f "$R/eval/random.json" ] || { mkdir -p "$R/eval"; $G eval --data "$D" --object-layout "$LAYOUT" --split val --agent random --json "$R/eval/random.json" --quiet; }
 run() { # NAME METHOD SEED [train args...]
   local name=$1 m=$2 s=$3; shift 3
   local out=$R/long-$name-seed$s
   if [ ! -f "$out.done" ]; then
     if [ -f "$out/checkpoint.ckpt" ]; then
-      $G train --data "$D" --updates "$U" --seed "$s" --resume "$out" --quiet "$@"
+      $G train --data "$D" --object-layout "$LAYOUT" --updates "$U" --seed "$s" --resume "$out" --quiet "$@"
     else
-      $G train --data "$D" --method "$m" --preset mcu --batch-envs 1 --updates "$U" --seed "$s" --fg "$R/fg/fg.ckpt" --out "$out" --quiet "$@"
+      $G train --data "$D" --object-layout "$LAYOUT" --method "$m" --preset mcu --batch-envs 1 --updates "$U" --seed "$s" --fg "$R/fg/fg.ckpt" --out "$out" --quiet "$@"
     fi
     touch "$out.done"
   fi
   mkdir -p "$R/eval-long/$name"
-  [ -f "$R/eval-long/$name/seed$s.json" ] || $G eval --data "$D" --split val --agent "$out/checkpoint.ckpt" \
+  [ -f "$R/eval-long/$name/seed$s.json" ] || $G eval --data "$D" --object-layout "$LAYOUT" --split val --agent "$out/checkpoint.ckpt" \
     --json "$R/eval-long/$name/seed$s.json" --quiet
 }
 for s in 1 2 3; do
@@ -38,7 +41,7 @@ for s in 1 2 3; do
   done
   # EMD without meta-learning: the A3C+FG runs with the inner loop switched on at test time.
   mkdir -p "$R/eval-long/gman-nometa"
-  [ -f "$R/eval-long/gman-nometa/seed$s.json" ] || $G eval --data "$D" --split val \
+  [ -f "$R/eval-long/gman-nometa/seed$s.json" ] || $G eval --data "$D" --object-layout "$LAYOUT" --split val \
     --agent "$R/long-a3c-fg-seed$s/checkpoint.ckpt" --method gman-nometa \
     --json "$R/eval-long/gman-nometa/seed$s.json" --quiet
   # The meta-trained methods with the inner loop switched off at test time.
@@ -46,7 +49,7 @@ for s in 1 2 3; do
     m=${pair%%:*}; as=${pair##*:}
     case " $METHODS " in *" $m "*) ;; *) continue ;; esac
     mkdir -p "$R/eval-long/$m-adapt-off"
-    [ -f "$R/eval-long/$m-adapt-off/seed$s.json" ] || $G eval --data "$D" --split val \
+    [ -f "$R/eval-long/$m-adapt-off/seed$s.json" ] || $G eval --data "$D" --object-layout "$LAYOUT" --split val \
       --agent "$R/long-$m-seed$s/checkpoint.ckpt" --method "$as" \
       --json "$R/eval-long/$m-adapt-off/seed$s.json" --quiet
   done

@@ -10,6 +10,9 @@ cd "$(dirname "$0")/../.."
 cargo build --release -p gman-host-sim --bin gman
 G=./target/release/gman
 D=${DATA:-../shared/data/gman}
+# The documented numbers were measured with the seeded object placement (LAYOUT=thor5 or
+# auto: the AI2-THOR 5.0 positions, see docs/data.md).
+LAYOUT=${LAYOUT:-rule}
 R=${OUT:-runs/ceilings}
 L=${LONG:-runs/long}
 mkdir -p "$L"
@@ -17,10 +20,10 @@ for r in ${RUNS:-map3-a3cfg-s1 map3-gman-a1e-2-s1 map3-priv-s1}; do
   [ -d "$L/$r" ] || cp -r "$R/$r" "$L/$r"
   for u in ${BUDGETS:-30000 45000 60000 90000}; do
     [ -f "$L/eval-$r-u$u.json" ] && continue
-    $G train --data "$D" --resume "$L/$r" --updates "$u" --quiet
+    $G train --data "$D" --object-layout "$LAYOUT" --resume "$L/$r" --updates "$u" --quiet
     cp -r "$L/$r" "$L/$r.u$u.snap"
-    $G eval --data "$D" --split val --agent "$L/$r/checkpoint.ckpt" --json "$L/eval-$r-u$u.json" --quiet
-    case $r in *gman*) $G eval --data "$D" --split val --agent "$L/$r/checkpoint.ckpt" \
+    $G eval --data "$D" --object-layout "$LAYOUT" --split val --agent "$L/$r/checkpoint.ckpt" --json "$L/eval-$r-u$u.json" --quiet
+    case $r in *gman*) $G eval --data "$D" --object-layout "$LAYOUT" --split val --agent "$L/$r/checkpoint.ckpt" \
       --method gman-noemd --json "$L/adaptoff-$r-u$u.json" --quiet ;; esac
   done
 done
