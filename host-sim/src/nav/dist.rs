@@ -224,12 +224,9 @@ pub fn decode_shares(
 
 /// A 64-bit FNV-1a hash of `bytes` (the ranks' agreement check; not cryptographic).
 pub fn fnv1a(bytes: &[u8]) -> u64 {
-    let mut h = 0xcbf2_9ce4_8422_2325u64;
-    for &x in bytes {
-        h ^= x as u64;
-        h = h.wrapping_mul(0x0000_0100_0000_01b3);
-    }
-    h
+    let mut h = crate::sim::util::Fnv::new();
+    h.eat(bytes);
+    h.0
 }
 
 /// The hash of a parameter store's values (bits, in tensor order).

@@ -202,21 +202,15 @@ pub fn fingerprint_for(dir: &Path, layout: ObjectLayout) -> Result<String> {
         side.sort();
         files.extend(side);
     }
-    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
-    let mut eat = |bytes: &[u8]| {
-        for &b in bytes {
-            h ^= b as u64;
-            h = h.wrapping_mul(0x0000_0100_0000_01b3);
-        }
-    };
+    let mut h = super::util::Fnv::new();
     for f in &files {
         let rel = f.strip_prefix(dir).unwrap_or(f);
-        eat(rel.to_string_lossy().as_bytes());
-        eat(&[0]);
-        eat(&fs::read(f).with_context(|| format!("cannot read {}", f.display()))?);
-        eat(&[0]);
+        h.eat(rel.to_string_lossy().as_bytes());
+        h.eat(&[0]);
+        h.eat(&fs::read(f).with_context(|| format!("cannot read {}", f.display()))?);
+        h.eat(&[0]);
     }
-    Ok(format!("{h:016x}"))
+    Ok(h.hex())
 }
 
 /// Largest coordinate (metres, absolute) accepted in a scene file; iTHOR rooms span a few

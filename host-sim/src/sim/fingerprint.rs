@@ -25,6 +25,7 @@ use anyhow::{Context, Result};
 
 use super::offline::{self, h5, ATT_FILE, FEATURE_FILE, GRAPH_FILE, GRID_FILE};
 use super::types::Split;
+use super::util::Fnv;
 use super::ObjectLayout;
 
 /// Datasets of an HDF5 file whose values a rule-2 digest reads.
@@ -46,23 +47,6 @@ pub struct DataFingerprint {
     pub files: BTreeMap<String, String>,
     /// The rule-1 fingerprint of the same directory (what older checkpoints stored).
     pub rule1: String,
-}
-
-struct Fnv(u64);
-
-impl Fnv {
-    fn new() -> Fnv {
-        Fnv(0xcbf2_9ce4_8422_2325)
-    }
-    fn eat(&mut self, bytes: &[u8]) {
-        for &b in bytes {
-            self.0 ^= b as u64;
-            self.0 = self.0.wrapping_mul(0x0000_0100_0000_01b3);
-        }
-    }
-    fn hex(&self) -> String {
-        format!("{:016x}", self.0)
-    }
 }
 
 fn file_digest(path: &Path) -> Result<String> {

@@ -9,6 +9,37 @@ pub fn mix64(mut x: u64) -> u64 {
     x ^ (x >> 31)
 }
 
+/// A streaming 64-bit FNV-1a hash (data fingerprints, the ranks' agreement check; not
+/// cryptographic).
+#[derive(Clone, Copy, Debug)]
+pub struct Fnv(pub u64);
+
+impl Fnv {
+    /// The FNV-1a offset basis.
+    pub fn new() -> Fnv {
+        Fnv(0xcbf2_9ce4_8422_2325)
+    }
+
+    /// Feeds `bytes`.
+    pub fn eat(&mut self, bytes: &[u8]) {
+        for &b in bytes {
+            self.0 ^= b as u64;
+            self.0 = self.0.wrapping_mul(0x0000_0100_0000_01b3);
+        }
+    }
+
+    /// The hash as 16 hex digits.
+    pub fn hex(&self) -> String {
+        format!("{:016x}", self.0)
+    }
+}
+
+impl Default for Fnv {
+    fn default() -> Fnv {
+        Fnv::new()
+    }
+}
+
 /// Hash of `seed` and a string (FNV-1a over the bytes, then mixed).
 pub fn hash_str(seed: u64, s: &str) -> u64 {
     let mut h: u64 = 0xcbf2_9ce4_8422_2325 ^ mix64(seed);
