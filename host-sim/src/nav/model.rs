@@ -70,7 +70,7 @@ impl Method {
     /// The paper's rows, in `--help` order: name, switches
     /// (`fg, ps, inner loop, EMD, θ trained`), help.
     #[rustfmt::skip]
-    pub const PRESETS: [Preset; 10] = [
+    pub const PRESETS: [Preset; 11] = [
         ("a3c", m(false, false, Off, D, false),
          "A3C baseline: observation, target attributes, previous action → LSTM → actor-critic"),
         ("a3c-fg", m(true, false, Off, D, false),
@@ -88,6 +88,8 @@ impl Method {
          "Control without the EMD: θ and the policy trained by the outer loop as in GMAN, but no inner loop runs, in training or at evaluation (differs from a3c-fg only in that θ is trained, from gman only in the adaptation)"),
         ("gman-fixed-g", m(true, false, Meta, D, false),
          "GMAN with G kept at the pre-trained generator by the outer loop: only the inner loop moves θ, per episode (the outer loop meta-trains the policy; the meta-trained G of `gman` drifts off the feature space)"),
+        ("gman-noemd-ps", m(true, true, Off, D, true),
+         "Control of GMAN† without the EMD: `gman-noemd` with the PS module (differs from gman-ps only in the adaptation)"),
     ];
     /// A3C baseline.
     pub const A3c: Method = Method::PRESETS[0].1;
@@ -109,12 +111,14 @@ impl Method {
     pub const GmanNoemd: Method = Method::PRESETS[8].1;
     /// GMAN with θ frozen in the outer loop (adapted per episode only).
     pub const GmanFixedG: Method = Method::PRESETS[9].1;
+    /// θ trained as in GMAN†, no inner loop (the control of GMAN†).
+    pub const GmanNoemdPs: Method = Method::PRESETS[10].1;
 
     /// Every preset, in `--help` order.
-    const ALL: [Method; 10] = {
-        let mut out = [Method::A3c; 10];
+    const ALL: [Method; Method::PRESETS.len()] = {
+        let mut out = [Method::A3c; Method::PRESETS.len()];
         let mut i = 0;
-        while i < 10 {
+        while i < Method::PRESETS.len() {
             out[i] = Method::PRESETS[i].1;
             i += 1;
         }
@@ -955,6 +959,17 @@ pub fn load_model(path: &Path, method: Option<Method>) -> Result<NavModel> {
     let mut m =
         NavModel::from_checkpoint(&ck).with_context(|| format!("checkpoint {}", path.display()))?;
     if let Some(method) = method {
+        if method.uses_ps() != m.method.uses_ps() {
+            bail!(
+                "checkpoint {}: it was trained as {} ({} the PS module) and cannot be evaluated as {}; \
+                 use a method {} the PS module (e.g. gman-noemd-ps for gman-ps with adaptation off)",
+                path.display(),
+                m.method.name(),
+                if m.method.uses_ps() { "with" } else { "without" },
+                method.name(),
+                if m.method.uses_ps() { "with" } else { "without" },
+            );
+        }
         m.method = method;
     }
     Ok(m)
@@ -995,6 +1010,7 @@ mod tests {
             ("gman-noemd", [true, false, false, false, false, true]),
             // added after the enum: meta-trained, θ frozen in the outer loop
             ("gman-fixed-g", [true, false, true, false, true, false]),
+            ("gman-noemd-ps", [true, true, false, false, false, true]),
         ];
         assert_eq!(old.len(), Method::PRESETS.len());
         for (name, p) in old {
