@@ -43,6 +43,41 @@ fn fw_dir() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../firmware-example")
 }
 
+/// A `--config` value that maps the checkout and the cargo home to fixed names in the
+/// firmware's panic locations, so its flash size does not depend on where the repository or
+/// the registry lives. (The value is merged with `.cargo/config.toml`'s rustflags.)
+fn remap_path_config() -> String {
+    fn toml_str(p: &std::path::Path) -> String {
+        p.display()
+            .to_string()
+            .replace('\\', "\\\\")
+            .replace('"', "\\\"")
+    }
+    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .parent()
+        .expect("tests/ has a parent")
+        .to_path_buf();
+    let cargo_home = std::env::var_os("CARGO_HOME")
+        .map(PathBuf::from)
+        .or_else(|| std::env::var_os("HOME").map(|h| PathBuf::from(h).join(".cargo")))
+        .unwrap_or_else(|| PathBuf::from(".cargo"));
+    let mut flags = Vec::new();
+    for (dir, to) in [(root, "gman"), (cargo_home, "cargo")] {
+        // Both spellings when one is a symbolic link: cargo passes the path as it found it.
+        let canonical = dir.canonicalize().unwrap_or_else(|_| dir.clone());
+        for d in [canonical, dir]
+            .iter()
+            .collect::<std::collections::BTreeSet<_>>()
+        {
+            flags.push(format!("\"--remap-path-prefix={}={to}\"", toml_str(d)));
+        }
+    }
+    format!(
+        "target.thumbv7em-none-eabihf.rustflags=[{}]",
+        flags.join(", ")
+    )
+}
+
 fn checked_in_episode() -> Vec<u8> {
     let p = fw_dir().join("data/episode.gmep");
     std::fs::read(&p).unwrap_or_else(|e| panic!("{}: {e}", p.display()))
@@ -137,6 +172,7 @@ fn run_and_compare(
     if !features.is_empty() {
         build.arg("--features").arg(features.join(","));
     }
+    build.arg("--config").arg(remap_path_config());
     match blob_file {
         Some(p) => build.env("GMAN_FIRMWARE_BLOB", p),
         None => build.env_remove("GMAN_FIRMWARE_BLOB"),
