@@ -218,11 +218,14 @@ impl fmt::Display for BlobError {
             BlobError::NonFiniteWeight { id } => {
                 write!(f, "tensor id {id} has a NaN or infinite weight")
             }
+            // The value is named by its class and bits, not printed in decimal: formatting
+            // an f32 would link core's float printing (about 15 KB of a Cortex-M4F's flash)
+            // into every program that reports errors.
             BlobError::BadInnerRate { field, bits } => write!(
                 f,
-                "inner-loop rate `{field}` is {}; it must be finite, non-negative and at most {}",
-                f32::from_bits(*bits),
-                crate::blob::MAX_INNER_RATE
+                "inner-loop rate `{field}` is {} (f32 bits {bits:#010x}); it must be finite, non-negative and at most {}",
+                rate_class(*bits),
+                MAX_INNER_RATE_TEXT
             ),
             BlobError::DimsTooLarge => write!(
                 f,
@@ -239,6 +242,25 @@ impl fmt::Display for BlobError {
             BlobError::Malformed => write!(f, "malformed postcard encoding"),
             BlobError::BufferTooSmall => write!(f, "output buffer too small"),
         }
+    }
+}
+
+/// [`crate::blob::MAX_INNER_RATE`] as text (checked by a unit test below).
+const MAX_INNER_RATE_TEXT: &str = "1.0";
+
+/// What is wrong with a rejected inner-loop rate, from its bits alone.
+fn rate_class(bits: u32) -> &'static str {
+    let v = f32::from_bits(bits);
+    if v.is_nan() {
+        "NaN"
+    } else if v.is_infinite() {
+        "infinite"
+    } else if v < 0.0 {
+        "negative"
+    } else if v > crate::blob::MAX_INNER_RATE {
+        "too large"
+    } else {
+        "valid"
     }
 }
 
@@ -276,5 +298,62 @@ pub(crate) fn check_len(what: &'static str, expected: usize, actual: usize) -> R
             expected,
             actual,
         }))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use core::fmt::Write;
+
+    struct Buf([u8; 256], usize);
+    impl Write for Buf {
+        fn write_str(&mut self, s: &str) -> fmt::Result {
+            let end = self.1 + s.len();
+            self.0
+                .get_mut(self.1..end)
+                .ok_or(fmt::Error)?
+                .copy_from_slice(s.as_bytes());
+            self.1 = end;
+            Ok(())
+        }
+    }
+    fn text(e: &BlobError) -> Buf {
+        let mut b = Buf([0; 256], 0);
+        write!(b, "{e}").expect("fits");
+        b
+    }
+
+    #[test]
+    fn max_inner_rate_text_is_the_constant() {
+        let v: f32 = MAX_INNER_RATE_TEXT.parse().expect("a number");
+        assert_eq!(v.to_bits(), crate::blob::MAX_INNER_RATE.to_bits());
+    }
+
+    #[test]
+    fn bad_inner_rate_names_class_and_bits() {
+        for (v, class) in [
+            (f32::NAN, "NaN"),
+            (f32::INFINITY, "infinite"),
+            (f32::NEG_INFINITY, "infinite"),
+            (-1e-4, "negative"),
+            (2.0, "too large"),
+        ] {
+            let bits = v.to_bits();
+            let b = text(&BlobError::BadInnerRate {
+                field: "alpha_disc",
+                bits,
+            });
+            let s = core::str::from_utf8(&b.0[..b.1]).expect("utf-8");
+            assert!(s.contains(class), "{s}");
+            let mut hex = Buf([0; 256], 0);
+            write!(hex, "{bits:#010x}").expect("fits");
+            let hex = core::str::from_utf8(&hex.0[..hex.1]).expect("utf-8");
+            assert!(s.contains(hex), "{s}");
+            assert!(
+                s.contains("`alpha_disc`") && s.ends_with("at most 1.0"),
+                "{s}"
+            );
+        }
     }
 }
