@@ -1,9 +1,14 @@
 //! The blob the firmware embeds, shared by `build.rs` and the host-side parity test
 //! (`tests/tests/firmware_qemu.rs`) so that both use the very same bytes: the shipped trained
-//! model, or a deterministic seeded int8 blob of the same shapes.
+//! model, or a deterministic seeded int8 blob of the same shapes; with the firmware's default
+//! feature `int8-activations`, re-emitted with int8 activations (as `gman export --activations
+//! int8` does).
 
-use gman_core::blob::{encode_model_scratch_len, encoded_model_len_bound, AdaptSettings, Quant};
-use gman_core::schema::FLAG_ADAPT;
+use gman_core::blob::{
+    encode_model_scratch_len, encode_with_settings, encoded_len_bound, encoded_model_len_bound,
+    AdaptSettings, Blob, Quant, TensorData, TensorSpec,
+};
+use gman_core::schema::{FLAG_ADAPT, FLAG_INT8_ACTIVATIONS};
 use gman_core::seeded::encode_seeded;
 use gman_core::Dims;
 
@@ -44,8 +49,59 @@ pub fn default_blob_in(base: &std::path::Path) -> Vec<u8> {
     std::fs::read(base.join(TRAINED)).unwrap_or_else(|_| seeded_blob(&FIRMWARE_DIMS, 1))
 }
 
-/// [`default_blob_in`] from the current directory (a build script runs in `firmware-example/`).
+/// `bytes` (an int8 weight blob) re-emitted with [`FLAG_INT8_ACTIVATIONS`] set: every tensor,
+/// the other flags and the inner-loop settings kept (the bytes `gman export --activations
+/// int8` writes; the parity test compares the two).
+pub fn with_int8_activations(bytes: &[u8]) -> Result<Vec<u8>, gman_core::BlobError> {
+    let blob = Blob::parse(bytes)?;
+    let h = blob.header();
+    let le = |b: &[u8]| -> Vec<f32> {
+        b.chunks_exact(4)
+            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+            .collect()
+    };
+    let owned: Vec<_> = blob
+        .tensors()
+        .map(|t| {
+            let v = le(if t.quant == Quant::F32 {
+                t.data
+            } else {
+                t.scales
+            });
+            (t, v)
+        })
+        .collect();
+    let specs: Vec<TensorSpec<'_>> = owned
+        .iter()
+        .map(|(t, v)| TensorSpec {
+            id: t.id,
+            data: match t.quant {
+                Quant::F32 => TensorData::F32(v),
+                Quant::I8 => TensorData::I8 {
+                    q: t.data,
+                    scales: v,
+                },
+            },
+        })
+        .collect();
+    let mut out = vec![0u8; encoded_len_bound(&specs)];
+    let flags = h.flags() | FLAG_INT8_ACTIVATIONS;
+    let n = encode_with_settings(&h.dims(), flags, h.adapt_settings(), &specs, &mut out)?;
+    out.truncate(n);
+    Ok(out)
+}
+
+/// The blob the firmware embeds by default for its activation mode: [`default_blob_in`], with
+/// int8 activations when `int8_activations` (the firmware's default feature).
 #[allow(dead_code)]
-pub fn default_blob() -> Vec<u8> {
-    default_blob_in(std::path::Path::new("."))
+pub fn firmware_blob_in(
+    base: &std::path::Path,
+    int8_activations: bool,
+) -> Result<Vec<u8>, gman_core::BlobError> {
+    let blob = default_blob_in(base);
+    if int8_activations {
+        with_int8_activations(&blob)
+    } else {
+        Ok(blob)
+    }
 }

@@ -5,7 +5,8 @@
 //! (`host-sim/models/gman-map3-b16-mcu-int8-seed5.gman`, see `blobgen::TRAINED`); otherwise a
 //! deterministic int8 blob of the same shapes (`Mcu` with the 3 x 3 map) made here from seeded
 //! random weights with gman-core's
-//! own encoder.
+//! own encoder. With the feature `int8-activations` (the default) the shipped or seeded blob
+//! is re-emitted with int8 activations (`blobgen::with_int8_activations`).
 
 use std::{env, fs, path::PathBuf};
 
@@ -27,7 +28,11 @@ fn main() {
         }
         None => {
             println!("cargo:rerun-if-changed={}", blobgen::TRAINED);
-            blobgen::default_blob()
+            // The default feature `int8-activations` runs the integer path: the shipped model
+            // re-emitted with int8 activations (its tensors unchanged).
+            let int8 = env::var_os("CARGO_FEATURE_INT8_ACTIVATIONS").is_some();
+            blobgen::firmware_blob_in(std::path::Path::new("."), int8)
+                .unwrap_or_else(|e| panic!("{}: {e}", blobgen::TRAINED))
         }
     };
     fs::write(out.join("model.gman"), blob).expect("write blob");

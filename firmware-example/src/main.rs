@@ -190,17 +190,19 @@ fn with_arena<R>(f: impl FnOnce(&mut [f32]) -> R) -> Option<R> {
 
 /// The kernel self-test. Not inlined, so its stack frame is gone before the navigator runs
 /// and the two peaks are measured separately.
+/// Its sample buffers live in the navigator's arena, which is not in use yet.
 #[inline(never)]
-fn selftest_phase() -> Result<(), Failure> {
-    Ok(selftest::run(BLOB, &mut |line| hprintln!("{}", line))?)
+fn selftest_phase(arena: &mut [f32]) -> Result<(), Failure> {
+    Ok(selftest::run(BLOB, arena, &mut |line| {
+        hprintln!("{}", line)
+    })?)
 }
 
 /// The scripted navigator episode (not inlined, for the same reason).
 #[inline(never)]
-fn navigator_phase(dev: &mut Device<'_>) -> Result<u32, Failure> {
+fn navigator_phase(dev: &mut Device<'_>, arena: &mut [f32]) -> Result<u32, Failure> {
     let mut file = HostFile::open(EPISODE_PATH)?;
-    let c = with_arena(|arena| episode::run(BLOB, &mut file, arena, dev))
-        .ok_or(Failure::Episode("arena already taken"))??;
+    let c = episode::run(BLOB, &mut file, arena, dev)?;
     Ok(c.adaptations)
 }
 
@@ -324,11 +326,6 @@ fn run() -> Result<(), Failure> {
         "# int8 kernel: dsp_smlad={} (1: SXTB16 + SMLAD, gman-dsp)",
         gman_core::qkernel::DSP_KERNEL as u8
     );
-    selftest_phase()?;
-    // Peak stack of the start-up and the self-test, then paint again so the navigator's own
-    // peak is measured separately.
-    let stack_selftest = measure::stack_peak().ok_or(STACK_SATURATED)?;
-    measure::paint_stack();
 
     let mut dev = Device {
         clock: &clock,
@@ -341,7 +338,15 @@ fn run() -> Result<(), Failure> {
         misses: 0,
         commit_steps: 0,
     };
-    let updates = navigator_phase(&mut dev)?;
+    let (stack_selftest, updates) = with_arena(|arena| -> Result<(usize, u32), Failure> {
+        selftest_phase(arena)?;
+        // Peak stack of the start-up and the self-test, then paint again so the navigator's
+        // own peak is measured separately.
+        let stack_selftest = measure::stack_peak().ok_or(STACK_SATURATED)?;
+        measure::paint_stack();
+        Ok((stack_selftest, navigator_phase(&mut dev, arena)?))
+    })
+    .ok_or(Failure::Episode("arena already taken"))??;
     #[cfg(feature = "kernel-table")]
     kernel_phase(&clock)?;
 

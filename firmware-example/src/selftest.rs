@@ -20,16 +20,23 @@ const K: usize = 4;
 const H: usize = D.gen_hidden;
 const F: usize = D.feat;
 const DH: usize = D.disc_hidden;
+/// Floats of scratch [`run`] needs: K generated and K synthetic observation features.
+pub const SCRATCH_LEN: usize = 2 * K * F;
 
 /// Runs the self-test on `blob`, reporting each result line through `out`: G, D and L_D,
 /// then, for a blob with int8 activations and a gman-core with the integer path, the integer
 /// kernels (two frames one after the other, not nested, for the stack; an image without the
 /// integer path compiles that part out).
+///
+/// `scratch` holds the self-test's sample buffers (at least [`SCRATCH_LEN`] floats): the
+/// firmware lends it the navigator's arena, which is not in use yet, so that the self-test's
+/// stack stays below the navigator's.
 pub fn run(
     blob_bytes: &[u8],
+    scratch: &mut [f32],
     out: &mut dyn FnMut(core::fmt::Arguments<'_>),
 ) -> gman_core::Result<()> {
-    networks(blob_bytes, out)?;
+    networks(blob_bytes, scratch, out)?;
     let blob = Blob::parse(blob_bytes)?;
     let act8 = blob.header().flags() & gman_core::schema::FLAG_INT8_ACTIVATIONS != 0;
     if gman_core::qkernel::INT8_ACTIVATIONS && act8 {
@@ -41,8 +48,20 @@ pub fn run(
 #[inline(never)]
 fn networks(
     blob_bytes: &[u8],
+    scratch: &mut [f32],
     out: &mut dyn FnMut(core::fmt::Arguments<'_>),
 ) -> gman_core::Result<()> {
+    let have = scratch.len();
+    let (fake, real) = scratch
+        .get_mut(..SCRATCH_LEN)
+        .ok_or(gman_core::ShapeError {
+            what: "self-test scratch",
+            expected: SCRATCH_LEN,
+            actual: have,
+        })?
+        .split_at_mut(K * F);
+    fake.fill(0.0);
+    real.fill(0.0);
     let blob = Blob::parse(blob_bytes)?;
     blob.check_dims(&D)?;
     out(format_args!(
@@ -92,8 +111,6 @@ fn networks(
 
     let mut rng = Xoshiro128::seed_from_u64(7);
     let attr = [0.25f32; D.attr];
-    let mut fake = [0.0f32; K * F];
-    let mut real = [0.0f32; K * F];
     let (mut u1, mut h1, mut u2, mut x) = ([0.0f32; H], [0.0f32; H], [0.0f32; F], [0.0f32; F]);
     let mut ds = (
         [0.0f32; DH],
@@ -159,8 +176,8 @@ fn networks(
         mix: &mut ds.5,
     };
     let ld = disc.ld_loss(
-        &real,
-        &fake,
+        real,
+        fake,
         &eps,
         LdConfig::default(),
         &mut s,

@@ -94,8 +94,9 @@ impl episode::Probe for Lines {
 /// What the firmware prints (minus the `# ` measurement lines), computed on the host.
 fn host_lines(blob: &[u8], ep: &[u8]) -> (Vec<String>, gman_core::navigator::Counters) {
     let mut out = Lines(Vec::new());
-    selftest::run(blob, &mut |a| out.0.push(a.to_string())).expect("host self-test");
+    // The firmware lends the self-test the navigator's arena; so does the host.
     let mut arena = vec![0.0f32; episode::ARENA_LEN];
+    selftest::run(blob, &mut arena, &mut |a| out.0.push(a.to_string())).expect("host self-test");
     let counters =
         episode::run(blob, &mut episode::Bytes(ep), &mut arena, &mut out).expect("host episode");
     out.0.push("OK".into());
@@ -160,8 +161,7 @@ fn run_and_compare(
     blob_file: Option<&std::path::Path>,
     blob: &[u8],
     log_name: &str,
-    features: &[&str],
-    flash_budget: u64,
+    cargo_args: &[&str],
 ) -> HashMap<String, u64> {
     let fw = fw_dir();
     let mut build = Command::new(env!("CARGO"));
@@ -169,9 +169,7 @@ fn run_and_compare(
         .current_dir(&fw)
         .args(["build", "--release", "--quiet", "--target-dir"])
         .arg(target_dir);
-    if !features.is_empty() {
-        build.arg("--features").arg(features.join(","));
-    }
+    build.args(cargo_args);
     build.arg("--config").arg(remap_path_config());
     match blob_file {
         Some(p) => build.env("GMAN_FIRMWARE_BLOB", p),
@@ -233,8 +231,8 @@ fn run_and_compare(
     assert!(get("mean_insns") > 0);
     let (flash, ram) = (get("flash_bytes"), get("ram_bytes"));
     assert!(
-        flash < flash_budget,
-        "flash {flash} B over the {flash_budget} B budget"
+        flash < FLASH_BUDGET,
+        "flash {flash} B over the {FLASH_BUDGET} B budget"
     );
     assert!(
         ram < RAM_BUDGET,
@@ -274,6 +272,12 @@ fn run_and_compare(
     m
 }
 
+/// The blob the default firmware embeds: the shipped model with int8 activations
+/// (`blobgen::firmware_blob_in`, what `build.rs` writes with the default features).
+fn int8_activation_blob() -> Vec<u8> {
+    blobgen::firmware_blob_in(&fw_dir(), true).expect("int8 activations")
+}
+
 #[test]
 fn firmware_under_qemu_matches_host_bit_for_bit() {
     if !qemu_available() {
@@ -282,51 +286,50 @@ fn firmware_under_qemu_matches_host_bit_for_bit() {
     // An explicit target dir: a CARGO_TARGET_DIR inherited from the outer cargo would put the
     // ELF elsewhere.
     let target_dir = fw_dir().join("target");
-    // The firmware embeds the shipped trained GMAN model (or the seeded blob without it).
-    let blob = blobgen::default_blob_in(&fw_dir());
+    // The default image: the integer path (feature `int8-activations`) on the shipped trained
+    // GMAN model re-emitted with int8 activations (or the seeded blob without it).
     // `gman bench` reads its firmware row from `qemu-measurements.txt`.
-    run_and_compare(
+    let m = run_and_compare(
         &target_dir,
         None,
-        &blob,
+        &int8_activation_blob(),
         "qemu-measurements.txt",
         &[],
-        FLASH_BUDGET,
     );
-}
-
-/// The default blob re-emitted with int8 activations (`gman export --activations int8`).
-fn int8_activation_blob() -> Vec<u8> {
-    let blob = blobgen::default_blob_in(&fw_dir());
-    gman_host_sim::blob_edit::reencode_with_activations(&blob, true).expect("int8 activations")
+    // The device ran gman-dsp's SXTB16 / SMLAD kernel (its self-test compared it with the
+    // portable one), not the model.
+    assert_eq!(m.get("dsp_smlad"), Some(&1), "the DSP kernel is not in use");
 }
 
 #[test]
-fn int8_activation_firmware_under_qemu_matches_host_bit_for_bit() {
+fn f32_activation_firmware_under_qemu_matches_host_bit_for_bit() {
     if !qemu_available() {
         return;
     }
     // Its own target dir (the embedded blob differs; the two tests may run at once).
-    let target_dir = fw_dir().join("target/int8-activations");
+    let target_dir = fw_dir().join("target/f32-activations");
     std::fs::create_dir_all(&target_dir).expect("target dir");
-    let blob = int8_activation_blob();
-    let file = target_dir.join("model-int8-activations.gman");
-    std::fs::write(&file, &blob).unwrap_or_else(|e| panic!("{}: {e}", file.display()));
+    // The shipped blob as it is (f32 activations), the integer path compiled out.
     let m = run_and_compare(
         &target_dir,
-        Some(&file),
-        &blob,
-        "qemu-measurements-int8-activations.txt",
-        &["int8-activations"],
-        // The integer path's code (its driver and DSP kernel, the self-test's kernel check)
-        // does not fit the 512 KiB budget beside the f32 path today (docs/kernels.md): this
-        // image is checked for parity and bounded at 528 KiB so that further growth is noticed.
-        FLASH_BUDGET + 16 * 1024,
+        None,
+        &blobgen::default_blob_in(&fw_dir()),
+        "qemu-measurements-f32-activations.txt",
+        &["--no-default-features"],
     );
     assert!(m.contains_key("mean_insns"));
-    // The device ran gman-dsp's SXTB16 / SMLAD kernel (its self-test compared it with the
-    // portable one), not the model.
-    assert_eq!(m.get("dsp_smlad"), Some(&1), "the DSP kernel is not in use");
+}
+
+#[test]
+fn firmware_int8_blob_is_what_gman_export_writes() {
+    let blob = blobgen::default_blob_in(&fw_dir());
+    let export = gman_host_sim::blob_edit::reencode_with_activations(&blob, true)
+        .expect("gman export --activations int8");
+    assert!(
+        int8_activation_blob() == export,
+        "blobgen's int8-activation blob differs from gman export's"
+    );
+    assert!(export != blob);
 }
 
 #[test]
@@ -354,6 +357,24 @@ fn int8_activations_change_the_episode() {
         "only {differ} of {} lines differ",
         f.len()
     );
+}
+
+#[test]
+fn episode_does_not_depend_on_what_the_arena_held() {
+    // The firmware lends the arena to the self-test before the navigator takes it: the
+    // episode must print the same lines whatever the arena held before.
+    let blob = int8_activation_blob();
+    let ep = checked_in_episode();
+    let run = |fill: f32| {
+        let mut arena = vec![fill; episode::ARENA_LEN];
+        let mut out = Lines(Vec::new());
+        episode::run(&blob, &mut episode::Bytes(&ep), &mut arena, &mut out).expect("episode");
+        out.0
+    };
+    let clean = run(0.0);
+    assert!(clean.len() > 40);
+    assert_eq!(clean, run(f32::NAN));
+    assert_eq!(clean, run(-3.5e7));
 }
 
 #[test]
