@@ -7,7 +7,7 @@
 //!
 //! It also checks the device's own measurements (lines starting with `# `): the SysTick
 //! calibration that makes the instruction counts valid, and the flash and RAM budget of the
-//! `Mcu` preset (flash < 512 KiB, static RAM + peak stack < 192 KiB). Those lines are written
+//! `Mcu` preset (flash < 448 KiB, static RAM + peak stack < 192 KiB). Those lines are written
 //! to `firmware-example/target/qemu-measurements.txt`, where `gman bench` reads its firmware
 //! row.
 //!
@@ -35,8 +35,10 @@ mod blobgen;
 mod record_episode;
 
 const KIB: u64 = 1024;
-/// The `Mcu` preset's budget (a Cortex-M4F with 512 KiB flash and 192 KiB RAM).
-const FLASH_BUDGET: u64 = 512 * KIB;
+/// The `Mcu` preset's budget on a Cortex-M4F with 512 KiB flash and 192 KiB RAM: flash
+/// leaves 64 KiB for the robot's own code; RAM is the whole chip (the 128 KiB goal is not
+/// met yet: the arena alone is 147 KiB).
+const FLASH_BUDGET: u64 = 448 * KIB;
 const RAM_BUDGET: u64 = 192 * KIB;
 
 fn fw_dir() -> PathBuf {
