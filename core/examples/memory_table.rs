@@ -39,4 +39,39 @@ fn main() {
             );
         }
     }
+    println!();
+    println!("RAM arena by part (KiB, k = 20):");
+    println!();
+    println!("| preset | mode | G params | D params | actor params | fixed biases | gradients | Psi | activations and scratch | total |");
+    println!("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|");
+    let kib = |floats: usize| (4 * floats) as f64 / 1024.0;
+    for (name, d) in [
+        ("paper", Dims::PAPER),
+        ("paper + 7x7 map (64 ch)", Dims::PAPER.with_map(7, 7, 64)),
+        ("mcu", Dims::MCU),
+        ("mcu + 3x3 map (8 ch)", Dims::MCU.with_map(3, 3, 8)),
+    ] {
+        for (mode, fp, label) in [
+            (AdaptMode::Full, Footprint::Fast, "Full"),
+            (AdaptMode::Efficient, Footprint::Compact, "Efficient"),
+            (
+                AdaptMode::Efficient,
+                Footprint::Fast,
+                "Efficient, fast (hosts)",
+            ),
+        ] {
+            let l = NavLayout::new_with(&d, mode, 20, fp);
+            println!(
+                "| {name} | {label} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} |",
+                kib(l.gen_params),
+                kib(l.disc_params),
+                kib(l.actor_params),
+                kib(l.fixed_biases),
+                kib(l.grads),
+                kib(l.psi),
+                kib(l.work),
+                l.total_bytes() as f64 / 1024.0,
+            );
+        }
+    }
 }
