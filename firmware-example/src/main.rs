@@ -308,6 +308,15 @@ fn mv(w: &gman_core::matrix::MatRef<'_>, x: &[&[f32]], y: &mut [f32]) -> gman_co
     w.matvec_acc(x, y)
 }
 
+/// Whether the blob runs the integer path (a flagged blob on an image without it is refused
+/// before the episode). Not inlined and called after the stack is measured, so the parsed
+/// blob is in no frame that is live during the episode.
+#[inline(never)]
+fn blob_int8_activations() -> Result<bool, Failure> {
+    let b = gman_core::blob::Blob::parse(BLOB)?;
+    Ok(b.header().flags() & gman_core::schema::FLAG_INT8_ACTIVATIONS != 0)
+}
+
 const STACK_SATURATED: Failure =
     Failure::Episode("stack reached the bottom of the painted window (measure::STACK_WINDOW)");
 
@@ -380,12 +389,14 @@ fn run() -> Result<(), Failure> {
         u.mean_insns() * 1_000_000 / CPU_HZ,
         update_alone * 1_000_000 / CPU_HZ
     );
-    hprintln!(
-        "# model: macs_per_step={} map_cells={}",
-        episode::DIMS.macs_per_step(),
-        episode::DIMS.map_cells()
-    );
     let stack_navigator = measure::stack_peak().ok_or(STACK_SATURATED)?;
+    let act8 = blob_int8_activations()?;
+    hprintln!(
+        "# model: macs_per_step={} map_cells={} int8_activations={}",
+        episode::DIMS.macs_per_step(),
+        episode::DIMS.map_cells(),
+        act8 as u8
+    );
     let stack = stack_selftest.max(stack_navigator);
     let (flash, stat) = (measure::flash_bytes(), measure::static_ram_bytes());
     hprintln!(

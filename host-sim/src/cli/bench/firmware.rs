@@ -28,8 +28,23 @@ pub struct Firmware {
     /// Multiply-accumulates of one step of the model the firmware ran (its `# model:
     /// macs_per_step=N` line; older captures without it: the pooled `Mcu` model's).
     pub macs: f64,
+    /// Whether the firmware's blob ran int8 activations (its `# model: ... int8_activations=B`
+    /// line; `None` for captures without it).
+    pub int8_activations: Option<bool>,
     /// The file the figures were read from.
     pub source: String,
+}
+
+impl Firmware {
+    /// The weight-storage label of the firmware's row: `int8-act` for the integer path,
+    /// `int8` for int8 weights with f32 activations (or a capture that does not say).
+    pub fn quant_label(&self) -> &'static str {
+        if self.int8_activations == Some(true) {
+            "int8-act"
+        } else {
+            "int8"
+        }
+    }
 }
 
 /// The value of `key=` in `line` (tokens separated by white space).
@@ -45,6 +60,7 @@ pub fn parse(text: &str, source: &str) -> Result<Firmware> {
     let mut adapt = None;
     let mut mhz = None;
     let mut macs = None;
+    let mut act8 = None;
     for line in text.lines().filter_map(|l| l.trim_end().strip_prefix("# ")) {
         if line.starts_with("step without inner update:") {
             step = value(line, "mean_insns");
@@ -52,6 +68,7 @@ pub fn parse(text: &str, source: &str) -> Result<Firmware> {
             adapt = value(line, "update_insns");
         } else if line.starts_with("model:") {
             macs = value(line, "macs_per_step");
+            act8 = value(line, "int8_activations").map(|v| v != 0.0);
         } else if let Some(rest) = line.strip_prefix("at ") {
             mhz = rest.split_whitespace().next().and_then(|v| v.parse().ok());
         }
@@ -70,6 +87,7 @@ pub fn parse(text: &str, source: &str) -> Result<Firmware> {
         adapt_instr,
         mhz,
         macs: macs.unwrap_or(gman_core::Dims::MCU.macs_per_step() as f64),
+        int8_activations: act8,
         source: source.to_string(),
     })
 }
@@ -111,6 +129,16 @@ mod tests {
         assert_eq!(f.macs, gman_core::Dims::MCU.macs_per_step() as f64);
         let map = format!("{OUTPUT}# model: macs_per_step=367232 map_cells=9\n");
         assert_eq!(parse(&map, "log").unwrap().macs, 367_232.0);
+        // The activation mode: unknown without the key, else the line's.
+        assert_eq!(f.int8_activations, None);
+        assert_eq!(f.quant_label(), "int8");
+        for (b, label) in [(1, "int8-act"), (0, "int8")] {
+            let m =
+                format!("{OUTPUT}# model: macs_per_step=367232 map_cells=9 int8_activations={b}\n");
+            let g = parse(&m, "log").unwrap();
+            assert_eq!(g.int8_activations, Some(b == 1));
+            assert_eq!(g.quant_label(), label);
+        }
     }
 
     #[test]

@@ -104,7 +104,7 @@ fn kernel_json(m: &Measured) -> Vec<Value> {
 fn firmware_json(m: &Measured) -> Value {
     match &m.firmware {
         Some(f) => json!({
-            "source": format!("{} (mcu, int8, Efficient; the firmware's own output)", f.source),
+            "source": format!("{} (mcu, {}, Efficient; the firmware's own output)", f.source, f.quant_label()),
             "step_instructions": f.step_instr,
             "adapt_instructions": f.adapt_instr,
             "mhz": f.mhz,
@@ -215,7 +215,8 @@ fn print_navigator(m: &Measured) {
 fn print_firmware_row(m: &Measured) {
     match &m.firmware {
         Some(f) => println!(
-            "| firmware M4F (QEMU) | int8 | Efficient | {:.0} instr ≈ {:.1} ms @{:.0} MHz | {:.1} M instr ≈ {:.0} ms | {:.0} | {} | {:.1} instr/MAC | | | | | |",
+            "| firmware M4F (QEMU) | {} | Efficient | {:.0} instr ≈ {:.1} ms @{:.0} MHz | {:.1} M instr ≈ {:.0} ms | {:.0} | {} | {:.1} instr/MAC | | | | | |",
+            f.quant_label(),
             f.step_instr,
             f.step_instr / f.mhz / 1e3,
             f.mhz,
