@@ -222,7 +222,7 @@ impl fmt::Display for BlobError {
                 f,
                 "inner-loop rate `{field}` is {}; it must be finite, non-negative and at most {}",
                 f32::from_bits(*bits),
-                crate::blob::MAX_INNER_RATE
+                crate::preset::MAX_INNER_RATE
             ),
             BlobError::DimsTooLarge => write!(
                 f,
