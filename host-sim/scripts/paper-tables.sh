@@ -9,13 +9,16 @@
 #
 #   DATA=../shared/data/gman OUT=runs/paper nice -n 19 bash host-sim/scripts/paper-tables.sh
 #
+# (bash reads a script while it runs it: to keep editing the tree, run a copy, e.g.
+# `cp host-sim/scripts/paper-tables.sh runs/ && REPO=$PWD bash runs/paper-tables.sh`.)
+#
 # About 12-20 min per run on 2 idle cores (B = 16, 3x3 map, mcu preset). The runs use a copy
 # of the binary ($OUT/bin/gman, made once), so rebuilding the tree does not change runs in
 # flight. Re-running the script skips what is done and resumes an interrupted run exactly
 # (from its last checkpoint; a run trains to each chunk's step target in one or more resumed
 # launches, and resuming changes no bit). The table: `gman table --runs $OUT/gman ...` (below).
 set -euo pipefail
-cd "$(dirname "$0")/../.."
+cd "${REPO:-$(dirname "$0")/../..}"
 D=${DATA:-../shared/data/gman}
 LAYOUT=${LAYOUT:-thor5}
 R=${OUT:-runs/paper}
@@ -38,14 +41,15 @@ mkdir -p "$R/random"
 # The last row of a run's metrics.csv: "update env_steps".
 last() { tail -n 1 "$1/metrics.csv" | awk -F, '{print $1, $3}'; }
 
-# Trains run directory $1 until its environment steps reach $2: each launch resumes to the
-# update count that the mean steps per update of the last 500 updates says reaches $2.
+# Trains run directory $1 until its environment steps reach $2: each launch resumes to 90% of
+# the update count that the mean steps per update of the last 500 updates says reaches $2
+# (episodes grow longer as the policy learns, so the full estimate would overshoot).
 advance() {
   local dir=$1 target=$2 u s rate n
   read -r u s < <(last "$dir")
   while [ "$s" -lt "$target" ]; do
     rate=$(tail -n 500 "$dir/metrics.csv" | awk -F, 'NR==1{u0=$1;s0=$3} {u=$1;s=$3} END{r=(u>u0)?(s-s0)/(u-u0):s/u; print (r>0)?r:1}')
-    n=$(awk -v r="$rate" -v rem=$((target - s)) 'BEGIN{n=int(rem/r)+1; print (n<1)?1:n}')
+    n=$(awk -v r="$rate" -v rem=$((target - s)) 'BEGIN{n=int(0.9*rem/r)+1; print (n<1)?1:n}')
     $G train --data "$D" --object-layout "$LAYOUT" --resume "$dir" --updates $((u + n)) --quiet
     read -r u s < <(last "$dir")
   done
