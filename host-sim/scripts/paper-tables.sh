@@ -5,7 +5,9 @@
 # rows (a3c-ps, a3c-fg-ps, gman-ps and its control gman-noemd-ps) over EXTRA_SEEDS (default
 # 3). Every run is evaluated on all 8000 val episodes after every CHUNK environment steps
 # (the learning curve, RUN/curve/*.json) and at the end; a run with an inner loop also with
-# adaptation off, and every a3c-fg run also as gman-nometa (the EMD at test time only).
+# adaptation off, and every a3c-fg run also as gman-nometa (the EMD at test time only); the
+# privileged-feature ceiling at the same budget; the learning curves, seeds averaged, in
+# $OUT/curves.png.
 #
 #   DATA=../shared/data/gman OUT=runs/paper nice -n 19 bash host-sim/scripts/paper-tables.sh
 #
@@ -55,14 +57,15 @@ advance() {
   done
 }
 
-# run METHOD SEED [train flags...]: trains, evaluates every chunk and at the end.
+# run ROW METHOD SEED [train flags...]: trains RUNS/ROW-sSEED, evaluates it every chunk and at
+# the end into ROW/sSEED.json.
 run() {
-  local method=$1 s=$2; shift 2
-  local dir=$R/runs/$method-s$s k target u st
-  [ -f "$R/$method/s$s.json" ] && return 0
-  mkdir -p "$R/$method" "$dir/curve"
+  local row=$1 method=$2 s=$3; shift 3
+  local dir=$R/runs/$row-s$s k target u st
+  [ -f "$R/$row/s$s.json" ] && return 0
+  mkdir -p "$R/$row" "$dir/curve"
   if [ ! -f "$dir/checkpoint.ckpt" ]; then
-    log "start $method seed $s"
+    log "start $row seed $s"
     $G train --data "$D" --object-layout "$LAYOUT" --preset mcu --fg "$R/fg/fg.ckpt" --batch-envs "$B" \
       --map 3x3 --method "$method" --updates 100 --seed "$s" --out "$dir" --quiet "$@"
   fi
@@ -76,38 +79,43 @@ run() {
       # the update and step count the point was measured at, beside the evaluation
       echo "$u,$st" >"$dir/curve/k$target.at"
       mv "$dir/curve/k$target.tmp" "$dir/curve/k$target.json"
-      log "$method seed $s: update $u, $st steps"
+      log "$row seed $s: update $u, $st steps"
     }
     [ "$target" -ge "$STEPS" ] && break
   done
-  case $method in
+  case $row in
     gman | gman-cossim | gman-ps)
       local off=gman-noemd
       [ "$method" = gman-ps ] && off=gman-noemd-ps
-      mkdir -p "$R/$method-adaptoff"
+      mkdir -p "$R/$row-adaptoff"
       $G eval --data "$D" --object-layout "$LAYOUT" --split val --agent "$dir/checkpoint.ckpt" \
-        --method "$off" --json "$R/$method-adaptoff/s$s.json" --quiet ;;
+        --method "$off" --json "$R/$row-adaptoff/s$s.json" --quiet ;;
     a3c-fg)
       mkdir -p "$R/gman-nometa"
       $G eval --data "$D" --object-layout "$LAYOUT" --split val --agent "$dir/checkpoint.ckpt" \
         --method gman-nometa --inner-lr 0.01 --json "$R/gman-nometa/s$s.json" --quiet ;;
   esac
-  cp "$dir/curve/k$STEPS.json" "$R/$method/s$s.json"
+  cp "$dir/curve/k$STEPS.json" "$R/$row/s$s.json"
 }
 
 for s in ${SEEDS:-1 2 3 4 5}; do
-  run gman "$s" --inner-lr 0.01
-  run gman-noemd "$s"
-  run a3c-fg "$s"
-  run a3c "$s"
+  run gman gman "$s" --inner-lr 0.01
+  run gman-noemd gman-noemd "$s"
+  run a3c-fg a3c-fg "$s"
+  run a3c a3c "$s"
 done
 for s in ${EXTRA_SEEDS:-1 2 3}; do
-  run gman-cossim "$s" --inner-lr 0.01
-  run gman-ps "$s" --inner-lr 0.01 --ps "$R/ps/ps.ckpt"
-  run gman-noemd-ps "$s" --ps "$R/ps/ps.ckpt"
-  run a3c-ps "$s" --ps "$R/ps/ps.ckpt"
-  run a3c-fg-ps "$s" --ps "$R/ps/ps.ckpt"
+  # the ceiling at the same budget: A3C+FG given the target's true feature (docs/ceilings.md)
+  run privileged a3c-fg "$s" --privileged-feature
+  run gman-cossim gman-cossim "$s" --inner-lr 0.01
+  run gman-ps gman-ps "$s" --inner-lr 0.01 --ps "$R/ps/ps.ckpt"
+  run gman-noemd-ps gman-noemd-ps "$s" --ps "$R/ps/ps.ckpt"
+  run a3c-ps a3c-ps "$s" --ps "$R/ps/ps.ckpt"
+  run a3c-fg-ps a3c-fg-ps "$s" --ps "$R/ps/ps.ckpt"
 done
 $G table --runs "$R"/gman "$R"/gman-adaptoff "$R"/gman-noemd "$R"/a3c-fg "$R"/gman-nometa "$R"/a3c "$R"/random
-$G table --runs "$R"/gman-cossim "$R"/gman-cossim-adaptoff "$R"/gman-ps "$R"/gman-ps-adaptoff \
-  "$R"/gman-noemd-ps "$R"/a3c-ps "$R"/a3c-fg-ps
+$G table --runs "$R"/privileged "$R"/gman-cossim "$R"/gman-cossim-adaptoff "$R"/gman-ps \
+  "$R"/gman-ps-adaptoff "$R"/gman-noemd-ps "$R"/a3c-ps "$R"/a3c-fg-ps
+for g in gman gman-noemd a3c-fg a3c privileged gman-cossim gman-ps gman-noemd-ps a3c-ps a3c-fg-ps; do
+  ls -d "$R"/runs/$g-s* >/dev/null 2>&1 && printf '%s\n' "$R"/runs/$g-s[0-9]*
+done | xargs $G plot --by-method --png "$R/curves.png" --run

@@ -130,7 +130,10 @@ fn average(label: String, runs: &[Curve], smooth_w: usize) -> Curve {
         })
         .collect();
     Curve {
-        label: format!("{label} (mean of {} seeds)", runs.len()),
+        label: match runs.len() {
+            1 => format!("{label} (1 seed)"),
+            n => format!("{label} (mean of {n} seeds)"),
+        },
         train,
         val,
     }
