@@ -1,9 +1,9 @@
 #!/usr/bin/env bash
 # The paper's Tables 2 and 3 at the reference implementation's training budget (8.77 M
 # environment steps per run), on the AI2-THOR 5.0 object positions: a3c, a3c-fg, gman and its
-# no-inner-loop control gman-noemd over SEEDS (default 5), then gman-cossim and the dagger
-# rows (a3c-ps, a3c-fg-ps, gman-ps and its control gman-noemd-ps) over EXTRA_SEEDS (default
-# 3). Every run is evaluated on all 8000 val episodes after every CHUNK environment steps
+# no-inner-loop control gman-noemd over SEEDS (default 5); gman-cossim and the dagger rows
+# (a3c-ps, a3c-fg-ps, gman-ps and its control gman-noemd-ps) over EXTRA_SEEDS (default 3).
+# Every run is evaluated on all 8000 val episodes after every CHUNK environment steps
 # (the learning curve, RUN/curve/*.json) and at the end; a run with an inner loop also with
 # adaptation off, and every a3c-fg run also as gman-nometa (the EMD at test time only); the
 # privileged-feature ceiling at the same budget; the learning curves, seeds averaged, in
@@ -98,24 +98,31 @@ run() {
   cp "$dir/curve/k$STEPS.json" "$R/$row/s$s.json"
 }
 
-for s in ${SEEDS:-1 2 3 4 5}; do
-  run gman gman "$s" --inner-lr 0.01
-  run gman-noemd gman-noemd "$s"
-  run a3c-fg a3c-fg "$s"
-  run a3c a3c "$s"
-done
-for s in ${EXTRA_SEEDS:-1 2 3}; do
+# Seed by seed, so that a partial sweep is a complete table over fewer seeds: every row for
+# the first EXTRA_SEEDS, then the four main rows for the remaining SEEDS.
+main_rows() {
+  run gman gman "$1" --inner-lr 0.01
+  run gman-noemd gman-noemd "$1"
+  run a3c-fg a3c-fg "$1"
+  run a3c a3c "$1"
+}
+extra_rows() {
+  run gman-ps gman-ps "$1" --inner-lr 0.01 --ps "$R/ps/ps.ckpt"
+  run gman-noemd-ps gman-noemd-ps "$1" --ps "$R/ps/ps.ckpt"
   # the ceiling at the same budget: A3C+FG given the target's true feature (docs/ceilings.md)
-  run privileged a3c-fg "$s" --privileged-feature
-  run gman-cossim gman-cossim "$s" --inner-lr 0.01
-  run gman-ps gman-ps "$s" --inner-lr 0.01 --ps "$R/ps/ps.ckpt"
-  run gman-noemd-ps gman-noemd-ps "$s" --ps "$R/ps/ps.ckpt"
-  run a3c-ps a3c-ps "$s" --ps "$R/ps/ps.ckpt"
-  run a3c-fg-ps a3c-fg-ps "$s" --ps "$R/ps/ps.ckpt"
+  run privileged a3c-fg "$1" --privileged-feature
+  run gman-cossim gman-cossim "$1" --inner-lr 0.01
+  run a3c-ps a3c-ps "$1" --ps "$R/ps/ps.ckpt"
+  run a3c-fg-ps a3c-fg-ps "$1" --ps "$R/ps/ps.ckpt"
+}
+EXTRA_SEEDS=${EXTRA_SEEDS:-1 2 3}
+for s in ${SEEDS:-1 2 3 4 5}; do
+  main_rows "$s"
+  case " $EXTRA_SEEDS " in *" $s "*) extra_rows "$s" ;; esac
 done
 $G table --runs "$R"/gman "$R"/gman-adaptoff "$R"/gman-noemd "$R"/a3c-fg "$R"/gman-nometa "$R"/a3c "$R"/random
 $G table --runs "$R"/privileged "$R"/gman-cossim "$R"/gman-cossim-adaptoff "$R"/gman-ps \
   "$R"/gman-ps-adaptoff "$R"/gman-noemd-ps "$R"/a3c-ps "$R"/a3c-fg-ps
 for g in gman gman-noemd a3c-fg a3c privileged gman-cossim gman-ps gman-noemd-ps a3c-ps a3c-fg-ps; do
-  ls -d "$R"/runs/$g-s* >/dev/null 2>&1 && printf '%s\n' "$R"/runs/$g-s[0-9]*
+  if ls -d "$R"/runs/$g-s[0-9]* >/dev/null 2>&1; then printf '%s\n' "$R"/runs/$g-s[0-9]*; fi
 done | xargs $G plot --by-method --png "$R/curves.png" --run
