@@ -376,6 +376,7 @@ pub fn cmd_demo(a: DemoArgs) -> Result<()> {
         ],
         png: curve.clone(),
         smooth: 50,
+        by_method: false,
     })?;
     pictures.push(format!(
         "{}: training success rate and reward of a3c-fg (red) and gman (blue)",
