@@ -262,30 +262,83 @@ const COLOUR_NAMES: [&str; 8] = [
     "red", "blue", "green", "magenta", "cyan", "black", "orange", "purple",
 ];
 
-/// `gman plot`: learning curves (success rate and reward against environment steps, and the
-/// val success rates measured during training where the runs have them).
-pub fn cmd_plot(a: PlotArgs) -> Result<()> {
+/// What a panel draws: the training success rate, the reward, the val SR on unseen or on
+/// seen targets.
+#[derive(Clone, Copy, PartialEq)]
+enum Series {
+    TrainSr,
+    Reward,
+    ValUnseen,
+    ValSeen,
+}
+
+impl Series {
+    fn points(self, c: &Curve) -> Vec<(f64, f64)> {
+        match self {
+            Series::TrainSr => c.train.iter().map(|p| (p.0, p.1)).collect(),
+            Series::Reward => c.train.iter().map(|p| (p.0, p.2)).collect(),
+            Series::ValUnseen => c.val.iter().map(|p| (p.0, p.1)).collect(),
+            Series::ValSeen => c.val.iter().map(|p| (p.0, p.2)).collect(),
+        }
+    }
+}
+
+/// One panel of the picture: its y range, series and title.
+type Panel = ((f64, f64), Series, &'static str);
+
+/// The panels: training SR, then val unseen / seen where the runs have val points, else the
+/// reward.
+fn panels(curves: &[Curve]) -> Vec<Panel> {
+    let train = (
+        (0.0, 1.0),
+        Series::TrainSr,
+        "training success rate (moving average)",
+    );
+    if curves.iter().any(|c| !c.val.is_empty()) {
+        let vmax = curves
+            .iter()
+            .flat_map(|c| c.val.iter().flat_map(|p| [p.1, p.2]))
+            .fold(10.0, f64::max)
+            * 1.1;
+        vec![
+            train,
+            (
+                (0.0, vmax),
+                Series::ValUnseen,
+                "val success rate (%), unseen targets",
+            ),
+            (
+                (0.0, vmax),
+                Series::ValSeen,
+                "val success rate (%), seen targets",
+            ),
+        ]
+    } else {
+        let rewards = || curves.iter().flat_map(|c| c.train.iter().map(|p| p.2));
+        let (lo, hi) = (rewards().fold(0.0, f64::min), rewards().fold(1.0, f64::max));
+        vec![
+            train,
+            (
+                (lo, hi),
+                Series::Reward,
+                "mean episode reward (moving average)",
+            ),
+        ]
+    }
+}
+
+/// Draws one panel with every curve in it.
+fn draw_panel<DB: plotters::prelude::DrawingBackend>(
+    area: &plotters::prelude::DrawingArea<DB, plotters::coord::Shift>,
+    (range, series, title): &Panel,
+    curves: &[Curve],
+    xmax: f64,
+    labels: bool,
+) -> Result<()>
+where
+    DB::ErrorType: 'static,
+{
     use plotters::prelude::*;
-    let curves = curves(&a)?;
-    let labels = gman_host_sim::sim::render::register_plot_font();
-    let xmax = curves
-        .iter()
-        .flat_map(|c| c.train.iter().map(|p| p.0).chain(c.val.iter().map(|p| p.0)))
-        .fold(1.0, f64::max);
-    let rmin = curves
-        .iter()
-        .flat_map(|c| c.train.iter().map(|p| p.2))
-        .fold(0.0, f64::min);
-    let rmax = curves
-        .iter()
-        .flat_map(|c| c.train.iter().map(|p| p.2))
-        .fold(1.0, f64::max);
-    let has_val = curves.iter().any(|c| !c.val.is_empty());
-    let vmax = curves
-        .iter()
-        .flat_map(|c| c.val.iter().flat_map(|p| [p.1, p.2]))
-        .fold(10.0, f64::max)
-        * 1.1;
     let colors = [
         RED,
         BLUE,
@@ -296,74 +349,70 @@ pub fn cmd_plot(a: PlotArgs) -> Result<()> {
         RGBColor(255, 128, 0),
         RGBColor(128, 0, 255),
     ];
-    // (y range, which value, title): training SR, then val unseen / seen or the reward.
-    let panels: Vec<((f64, f64), usize, &str)> = if has_val {
-        vec![
-            ((0.0, 1.0), 0, "training success rate (moving average)"),
-            ((0.0, vmax), 2, "val success rate (%), unseen targets"),
-            ((0.0, vmax), 3, "val success rate (%), seen targets"),
-        ]
+    let mut b = ChartBuilder::on(area);
+    b.margin(15);
+    if labels {
+        b.caption(*title, ("sans-serif", 20))
+            .x_label_area_size(35)
+            .y_label_area_size(55);
+    }
+    let mut chart = b.build_cartesian_2d(0.0..xmax, range.0..range.1)?;
+    let mut mesh = chart.configure_mesh();
+    mesh.x_labels(8).y_labels(6);
+    if labels {
+        mesh.x_desc("environment steps (millions)")
+            .x_label_formatter(&|x| format!("{:.1}", x / 1e6))
+            .label_style(("sans-serif", 14));
     } else {
-        vec![
-            ((0.0, 1.0), 0, "training success rate (moving average)"),
-            ((rmin, rmax), 1, "mean episode reward (moving average)"),
-        ]
-    };
+        mesh.disable_x_axis().disable_y_axis();
+    }
+    mesh.draw()?;
+    for (i, c) in curves.iter().enumerate() {
+        let col = colors[i % colors.len()];
+        let pts = series.points(c);
+        if matches!(series, Series::ValUnseen | Series::ValSeen) {
+            chart.draw_series(pts.iter().map(|&p| Circle::new(p, 3, col.filled())))?;
+        }
+        let s = chart.draw_series(LineSeries::new(pts, col.stroke_width(2)))?;
+        if labels {
+            s.label(c.label.clone()).legend(move |(x, y)| {
+                PathElement::new(vec![(x, y), (x + 20, y)], col.stroke_width(2))
+            });
+        }
+    }
+    if labels {
+        chart
+            .configure_series_labels()
+            .position(SeriesLabelPosition::LowerRight)
+            .background_style(WHITE.mix(0.8))
+            .border_style(BLACK)
+            .label_font(("sans-serif", 13))
+            .draw()?;
+    }
+    Ok(())
+}
+
+/// `gman plot`: learning curves (success rate and reward against environment steps, and the
+/// val success rates measured during training where the runs have them).
+pub fn cmd_plot(a: PlotArgs) -> Result<()> {
+    use plotters::prelude::*;
+    let curves = curves(&a)?;
+    let labels = gman_host_sim::sim::render::register_plot_font();
+    let xmax = curves
+        .iter()
+        .flat_map(|c| c.train.iter().map(|p| p.0).chain(c.val.iter().map(|p| p.0)))
+        .fold(1.0, f64::max);
+    let panels = panels(&curves);
     {
         let root =
             BitMapBackend::new(&a.png, (1000, 400 * panels.len() as u32)).into_drawing_area();
         root.fill(&WHITE)?;
-        for (panel, ((lo, hi), pick, title)) in
-            root.split_evenly((panels.len(), 1)).iter().zip(&panels)
-        {
-            let mut b = ChartBuilder::on(panel);
-            b.margin(15);
-            if labels {
-                b.caption(*title, ("sans-serif", 20))
-                    .x_label_area_size(35)
-                    .y_label_area_size(55);
-            }
-            let mut chart = b.build_cartesian_2d(0.0..xmax, *lo..*hi)?;
-            let mut mesh = chart.configure_mesh();
-            mesh.x_labels(8).y_labels(6);
-            if labels {
-                mesh.x_desc("environment steps (millions)")
-                    .x_label_formatter(&|x| format!("{:.1}", x / 1e6))
-                    .label_style(("sans-serif", 14));
-            } else {
-                mesh.disable_x_axis().disable_y_axis();
-            }
-            mesh.draw()?;
-            for (i, c) in curves.iter().enumerate() {
-                let col = colors[i % colors.len()];
-                let pts: Vec<(f64, f64)> = match pick {
-                    0 => c.train.iter().map(|p| (p.0, p.1)).collect(),
-                    1 => c.train.iter().map(|p| (p.0, p.2)).collect(),
-                    2 => c.val.iter().map(|p| (p.0, p.1)).collect(),
-                    _ => c.val.iter().map(|p| (p.0, p.2)).collect(),
-                };
-                if *pick >= 2 {
-                    chart.draw_series(pts.iter().map(|&p| Circle::new(p, 3, col.filled())))?;
-                }
-                let s = chart.draw_series(LineSeries::new(pts, col.stroke_width(2)))?;
-                if labels {
-                    s.label(c.label.clone()).legend(move |(x, y)| {
-                        PathElement::new(vec![(x, y), (x + 20, y)], col.stroke_width(2))
-                    });
-                }
-            }
-            if labels {
-                chart
-                    .configure_series_labels()
-                    .position(SeriesLabelPosition::LowerRight)
-                    .background_style(WHITE.mix(0.8))
-                    .border_style(BLACK)
-                    .label_font(("sans-serif", 13))
-                    .draw()?;
-            }
+        for (area, panel) in root.split_evenly((panels.len(), 1)).iter().zip(&panels) {
+            draw_panel(area, panel, &curves, xmax, labels)?;
         }
         root.present()?;
     }
+    let has_val = panels.len() == 3;
     println!(
         "wrote {}: {}, x = environment steps (0..{xmax:.0}), moving average over {} updates{}{}",
         a.png.display(),
