@@ -92,11 +92,7 @@ pub use crate::schema::{
 pub const MAGIC: [u8; 4] = *b"GMAN";
 /// The format version this build writes (v4: the CRC covers the header and the payload).
 pub const FORMAT_VERSION: u16 = 4;
-/// Largest inner-loop rate (α1, α2) a blob, an encoder or
-/// [`Navigator::new`](crate::navigator::Navigator::new) accepts. The paper's rates are 1e-4;
-/// a rate above this makes every adaptation step diverge (and is what a flipped exponent bit
-/// turns 0.01 into).
-pub const MAX_INNER_RATE: f32 = 1.0;
+pub use crate::preset::MAX_INNER_RATE;
 /// The oldest format version this build still reads (v1: no inner-loop settings in the
 /// header; they default to [`AdaptSettings::PAPER`]).
 pub const MIN_FORMAT_VERSION: u16 = 1;

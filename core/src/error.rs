@@ -245,7 +245,7 @@ impl fmt::Display for BlobError {
     }
 }
 
-/// [`crate::blob::MAX_INNER_RATE`] as text (checked by a unit test below).
+/// [`crate::preset::MAX_INNER_RATE`] as text (checked by a unit test below).
 const MAX_INNER_RATE_TEXT: &str = "1.0";
 
 /// What is wrong with a rejected inner-loop rate, from its bits alone.
@@ -257,7 +257,7 @@ fn rate_class(bits: u32) -> &'static str {
         "infinite"
     } else if v < 0.0 {
         "negative"
-    } else if v > crate::blob::MAX_INNER_RATE {
+    } else if v > crate::preset::MAX_INNER_RATE {
         "too large"
     } else {
         "valid"
@@ -327,7 +327,7 @@ mod tests {
     #[test]
     fn max_inner_rate_text_is_the_constant() {
         let v: f32 = MAX_INNER_RATE_TEXT.parse().expect("a number");
-        assert_eq!(v.to_bits(), crate::blob::MAX_INNER_RATE.to_bits());
+        assert_eq!(v.to_bits(), crate::preset::MAX_INNER_RATE.to_bits());
     }
 
     #[test]

@@ -113,11 +113,11 @@ pub trait Kernels: Sync + core::fmt::Debug {
         alpha: f32,
     ) -> Result<()>;
 
-    /// [`crate::qkernel::dots_i8`]: the integer dot products of `out.len()` int8 rows with an
+    /// [`dots_i8`]: the integer dot products of `out.len()` int8 rows with an
     /// int8 input block. Integers are exact, so any order of additions gives the same
     /// result; the default is the portable kernel.
     fn dots_i8(&self, q: &[u8], cols: usize, col0: usize, xq: &[i8], out: &mut [i32]) {
-        crate::qkernel::dots_i8(q, cols, col0, xq, out)
+        dots_i8(q, cols, col0, xq, out)
     }
 }
 
@@ -331,6 +331,31 @@ pub fn dot(a: &[f32], b: &[f32]) -> f32 {
         s += x * y;
     }
     s
+}
+
+/// `out[r] = sum_j (q[r * cols + col0 + j] as i8) * xq[j]` for `r in 0..out.len()`: the
+/// portable integer kernel (one row at a time). `q` holds at least `out.len()` rows of
+/// `cols` bytes and `col0 + xq.len() <= cols` (the driver checks; shorter rows are cut).
+pub fn dots_i8(q: &[u8], cols: usize, col0: usize, xq: &[i8], out: &mut [i32]) {
+    dots_i8_body(q, cols, col0, xq, out)
+}
+
+/// The body of [`dots_i8`], inlined into its caller so that a host can compile it for a
+/// wider instruction set (the integers are exact: any vectorisation gives the same values).
+#[inline(always)]
+pub fn dots_i8_body(q: &[u8], cols: usize, col0: usize, xq: &[i8], out: &mut [i32]) {
+    let end = col0 + xq.len();
+    if cols == 0 || end > cols {
+        out.fill(0);
+        return;
+    }
+    for (row, o) in q.chunks_exact(cols).zip(out.iter_mut()) {
+        let mut acc = 0i32;
+        for (&w, &x) in row[col0..end].iter().zip(xq) {
+            acc += (w as i8 as i32) * (x as i32);
+        }
+        *o = acc;
+    }
 }
 
 /// Dot product of an int8 row (bytes read as `i8`) with an f32 vector, unscaled.

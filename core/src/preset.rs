@@ -18,6 +18,12 @@
 
 use crate::NUM_ACTIONS;
 
+/// Largest inner-loop rate (α1, α2) a blob, an encoder or
+/// [`Navigator::new`](crate::navigator::Navigator::new) accepts. The paper's rates are 1e-4;
+/// a rate above this makes every adaptation step diverge (and is what a flipped exponent bit
+/// turns 0.01 into).
+pub const MAX_INNER_RATE: f32 = 1.0;
+
 /// `?` for `Option` in a `const fn`.
 macro_rules! tri {
     ($e:expr) => {

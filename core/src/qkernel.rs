@@ -26,6 +26,7 @@
 //! calibration data whose range a new scene could exceed.
 
 use crate::error::{check_len, Result};
+pub use crate::matrix::{dots_i8, dots_i8_body};
 use crate::matrix::{seg_len, Kernels, MatRef, Scales, Weights};
 
 /// Columns of one quantised input block (a stack buffer of this many `i8`).
@@ -152,31 +153,6 @@ fn quantize_pack_with(x: &[f32], xq: &mut [i8], xp: &mut [u32], f: impl Fn(f32) 
         *q = f(v) as i8;
     }
     packed
-}
-
-/// `out[r] = sum_j (q[r * cols + col0 + j] as i8) * xq[j]` for `r in 0..out.len()`: the
-/// portable integer kernel (one row at a time). `q` holds at least `out.len()` rows of
-/// `cols` bytes and `col0 + xq.len() <= cols` (the driver checks; shorter rows are cut).
-pub fn dots_i8(q: &[u8], cols: usize, col0: usize, xq: &[i8], out: &mut [i32]) {
-    dots_i8_body(q, cols, col0, xq, out)
-}
-
-/// The body of [`dots_i8`], inlined into its caller so that a host can compile it for a
-/// wider instruction set (the integers are exact: any vectorisation gives the same values).
-#[inline(always)]
-pub fn dots_i8_body(q: &[u8], cols: usize, col0: usize, xq: &[i8], out: &mut [i32]) {
-    let end = col0 + xq.len();
-    if cols == 0 || end > cols {
-        out.fill(0);
-        return;
-    }
-    for (row, o) in q.chunks_exact(cols).zip(out.iter_mut()) {
-        let mut acc = 0i32;
-        for (&w, &x) in row[col0..end].iter().zip(xq) {
-            acc += (w as i8 as i32) * (x as i32);
-        }
-        *o = acc;
-    }
 }
 
 /// [`dots_i8`] four rows at a time (each input byte loaded once for four rows, columns in

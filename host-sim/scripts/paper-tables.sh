@@ -1,13 +1,18 @@
 #!/usr/bin/env bash
 # The paper's Tables 2 and 3 at the reference implementation's training budget (8.77 M
 # environment steps per run), on the AI2-THOR 5.0 object positions: a3c, a3c-fg, gman and its
-# no-inner-loop control gman-noemd over SEEDS (default 5), then gman-cossim and the dagger
-# rows (a3c-ps, a3c-fg-ps, gman-ps and its control gman-noemd-ps) over EXTRA_SEEDS (default
-# 3). Every run is evaluated on all 8000 val episodes after every CHUNK environment steps
+# no-inner-loop control gman-noemd over SEEDS (default 5); gman-cossim and the dagger rows
+# (a3c-ps, a3c-fg-ps, gman-ps and its control gman-noemd-ps) over EXTRA_SEEDS (default 3).
+# Every run is evaluated on all 8000 val episodes after every CHUNK environment steps
 # (the learning curve, RUN/curve/*.json) and at the end; a run with an inner loop also with
-# adaptation off, and every a3c-fg run also as gman-nometa (the EMD at test time only).
+# adaptation off, and every a3c-fg run also as gman-nometa (the EMD at test time only); the
+# privileged-feature ceiling at the same budget; the learning curves, seeds averaged, in
+# $OUT/curves.png.
 #
 #   DATA=../shared/data/gman OUT=runs/paper nice -n 19 bash host-sim/scripts/paper-tables.sh
+#
+# (bash reads a script while it runs it: to keep editing the tree, run a copy, e.g.
+# `cp host-sim/scripts/paper-tables.sh runs/ && REPO=$PWD bash runs/paper-tables.sh`.)
 #
 # About 12-20 min per run on 2 idle cores (B = 16, 3x3 map, mcu preset). The runs use a copy
 # of the binary ($OUT/bin/gman, made once), so rebuilding the tree does not change runs in
@@ -15,7 +20,7 @@
 # (from its last checkpoint; a run trains to each chunk's step target in one or more resumed
 # launches, and resuming changes no bit). The table: `gman table --runs $OUT/gman ...` (below).
 set -euo pipefail
-cd "$(dirname "$0")/../.."
+cd "${REPO:-$(dirname "$0")/../..}"
 D=${DATA:-../shared/data/gman}
 LAYOUT=${LAYOUT:-thor5}
 R=${OUT:-runs/paper}
@@ -38,27 +43,29 @@ mkdir -p "$R/random"
 # The last row of a run's metrics.csv: "update env_steps".
 last() { tail -n 1 "$1/metrics.csv" | awk -F, '{print $1, $3}'; }
 
-# Trains run directory $1 until its environment steps reach $2: each launch resumes to the
-# update count that the mean steps per update of the last 500 updates says reaches $2.
+# Trains run directory $1 until its environment steps reach $2: each launch resumes to 90% of
+# the update count that the mean steps per update of the last 500 updates says reaches $2
+# (episodes grow longer as the policy learns, so the full estimate would overshoot).
 advance() {
   local dir=$1 target=$2 u s rate n
   read -r u s < <(last "$dir")
   while [ "$s" -lt "$target" ]; do
     rate=$(tail -n 500 "$dir/metrics.csv" | awk -F, 'NR==1{u0=$1;s0=$3} {u=$1;s=$3} END{r=(u>u0)?(s-s0)/(u-u0):s/u; print (r>0)?r:1}')
-    n=$(awk -v r="$rate" -v rem=$((target - s)) 'BEGIN{n=int(rem/r)+1; print (n<1)?1:n}')
+    n=$(awk -v r="$rate" -v rem=$((target - s)) 'BEGIN{n=int(0.9*rem/r)+1; print (n<1)?1:n}')
     $G train --data "$D" --object-layout "$LAYOUT" --resume "$dir" --updates $((u + n)) --quiet
     read -r u s < <(last "$dir")
   done
 }
 
-# run METHOD SEED [train flags...]: trains, evaluates every chunk and at the end.
+# run ROW METHOD SEED [train flags...]: trains RUNS/ROW-sSEED, evaluates it every chunk and at
+# the end into ROW/sSEED.json.
 run() {
-  local method=$1 s=$2; shift 2
-  local dir=$R/runs/$method-s$s k target u st
-  [ -f "$R/$method/s$s.json" ] && return 0
-  mkdir -p "$R/$method" "$dir/curve"
+  local row=$1 method=$2 s=$3; shift 3
+  local dir=$R/runs/$row-s$s k target u st
+  [ -f "$R/$row/s$s.json" ] && return 0
+  mkdir -p "$R/$row" "$dir/curve"
   if [ ! -f "$dir/checkpoint.ckpt" ]; then
-    log "start $method seed $s"
+    log "start $row seed $s"
     $G train --data "$D" --object-layout "$LAYOUT" --preset mcu --fg "$R/fg/fg.ckpt" --batch-envs "$B" \
       --map 3x3 --method "$method" --updates 100 --seed "$s" --out "$dir" --quiet "$@"
   fi
@@ -72,38 +79,50 @@ run() {
       # the update and step count the point was measured at, beside the evaluation
       echo "$u,$st" >"$dir/curve/k$target.at"
       mv "$dir/curve/k$target.tmp" "$dir/curve/k$target.json"
-      log "$method seed $s: update $u, $st steps"
+      log "$row seed $s: update $u, $st steps"
     }
     [ "$target" -ge "$STEPS" ] && break
   done
-  case $method in
+  case $row in
     gman | gman-cossim | gman-ps)
       local off=gman-noemd
       [ "$method" = gman-ps ] && off=gman-noemd-ps
-      mkdir -p "$R/$method-adaptoff"
+      mkdir -p "$R/$row-adaptoff"
       $G eval --data "$D" --object-layout "$LAYOUT" --split val --agent "$dir/checkpoint.ckpt" \
-        --method "$off" --json "$R/$method-adaptoff/s$s.json" --quiet ;;
+        --method "$off" --json "$R/$row-adaptoff/s$s.json" --quiet ;;
     a3c-fg)
       mkdir -p "$R/gman-nometa"
       $G eval --data "$D" --object-layout "$LAYOUT" --split val --agent "$dir/checkpoint.ckpt" \
         --method gman-nometa --inner-lr 0.01 --json "$R/gman-nometa/s$s.json" --quiet ;;
   esac
-  cp "$dir/curve/k$STEPS.json" "$R/$method/s$s.json"
+  cp "$dir/curve/k$STEPS.json" "$R/$row/s$s.json"
 }
 
+# Seed by seed, so that a partial sweep is a complete table over fewer seeds: every row for
+# the first EXTRA_SEEDS, then the four main rows for the remaining SEEDS.
+main_rows() {
+  run gman gman "$1" --inner-lr 0.01
+  run gman-noemd gman-noemd "$1"
+  run a3c-fg a3c-fg "$1"
+  run a3c a3c "$1"
+}
+extra_rows() {
+  run gman-ps gman-ps "$1" --inner-lr 0.01 --ps "$R/ps/ps.ckpt"
+  run gman-noemd-ps gman-noemd-ps "$1" --ps "$R/ps/ps.ckpt"
+  # the ceiling at the same budget: A3C+FG given the target's true feature (docs/ceilings.md)
+  run privileged a3c-fg "$1" --privileged-feature
+  run gman-cossim gman-cossim "$1" --inner-lr 0.01
+  run a3c-ps a3c-ps "$1" --ps "$R/ps/ps.ckpt"
+  run a3c-fg-ps a3c-fg-ps "$1" --ps "$R/ps/ps.ckpt"
+}
+EXTRA_SEEDS=${EXTRA_SEEDS:-1 2 3}
 for s in ${SEEDS:-1 2 3 4 5}; do
-  run gman "$s" --inner-lr 0.01
-  run gman-noemd "$s"
-  run a3c-fg "$s"
-  run a3c "$s"
-done
-for s in ${EXTRA_SEEDS:-1 2 3}; do
-  run gman-cossim "$s" --inner-lr 0.01
-  run gman-ps "$s" --inner-lr 0.01 --ps "$R/ps/ps.ckpt"
-  run gman-noemd-ps "$s" --ps "$R/ps/ps.ckpt"
-  run a3c-ps "$s" --ps "$R/ps/ps.ckpt"
-  run a3c-fg-ps "$s" --ps "$R/ps/ps.ckpt"
+  main_rows "$s"
+  case " $EXTRA_SEEDS " in *" $s "*) extra_rows "$s" ;; esac
 done
 $G table --runs "$R"/gman "$R"/gman-adaptoff "$R"/gman-noemd "$R"/a3c-fg "$R"/gman-nometa "$R"/a3c "$R"/random
-$G table --runs "$R"/gman-cossim "$R"/gman-cossim-adaptoff "$R"/gman-ps "$R"/gman-ps-adaptoff \
-  "$R"/gman-noemd-ps "$R"/a3c-ps "$R"/a3c-fg-ps
+$G table --runs "$R"/privileged "$R"/gman-cossim "$R"/gman-cossim-adaptoff "$R"/gman-ps \
+  "$R"/gman-ps-adaptoff "$R"/gman-noemd-ps "$R"/a3c-ps "$R"/a3c-fg-ps
+for g in gman gman-noemd a3c-fg a3c privileged gman-cossim gman-ps gman-noemd-ps a3c-ps a3c-fg-ps; do
+  if ls -d "$R"/runs/$g-s[0-9]* >/dev/null 2>&1; then printf '%s\n' "$R"/runs/$g-s[0-9]*; fi
+done | xargs $G plot --by-method --png "$R/curves.png" --run

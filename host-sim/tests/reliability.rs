@@ -69,11 +69,32 @@ fn gman_within(secs: u64, args: &[&str]) -> (bool, String) {
     }
 }
 
-fn tmp(name: &str) -> PathBuf {
+/// A fresh directory under the system's temporary directory, removed when the test passes
+/// (kept, and named on stderr, when it fails).
+struct TmpDir(PathBuf);
+
+impl std::ops::Deref for TmpDir {
+    type Target = Path;
+    fn deref(&self) -> &Path {
+        &self.0
+    }
+}
+
+impl Drop for TmpDir {
+    fn drop(&mut self) {
+        if std::thread::panicking() {
+            eprintln!("kept {} for inspection", self.0.display());
+        } else {
+            let _ = std::fs::remove_dir_all(&self.0);
+        }
+    }
+}
+
+fn tmp(name: &str) -> TmpDir {
     let d = std::env::temp_dir().join(format!("gman-rel-test-{}-{name}", std::process::id()));
     let _ = std::fs::remove_dir_all(&d);
     std::fs::create_dir_all(&d).unwrap();
-    d
+    TmpDir(d)
 }
 
 fn s(p: &Path) -> &str {
@@ -342,23 +363,7 @@ fn case09_malformed_data_files_are_refused() {
     let w = World::load(&data).unwrap();
     assert_eq!(w.episodes(Split::Val, None).unwrap().len(), 8000);
 
-    let make = |name: &str| -> PathBuf {
-        let d = tmp(&format!("data-{name}"));
-        std::fs::copy(data.join("attributes.json"), d.join("attributes.json")).unwrap();
-        std::fs::create_dir_all(d.join("scenes/val")).unwrap();
-        std::fs::create_dir_all(d.join("episodes/val")).unwrap();
-        for f in std::fs::read_dir(data.join("scenes/val")).unwrap() {
-            let f = f.unwrap().path();
-            std::fs::copy(&f, d.join("scenes/val").join(f.file_name().unwrap())).unwrap();
-        }
-        for f in std::fs::read_dir(data.join("episodes/val")).unwrap() {
-            let f = f.unwrap().path();
-            let text = std::fs::read_to_string(&f).unwrap();
-            let head: String = text.lines().take(3).map(|l| format!("{l}\n")).collect();
-            std::fs::write(d.join("episodes/val").join(f.file_name().unwrap()), head).unwrap();
-        }
-        d
-    };
+    let make = |name: &str| small_data_copy(&format!("data-{name}")).expect("data present");
     let load = |d: &Path| -> Result<usize, String> {
         World::load(d)
             .and_then(|w| w.episodes(Split::Val, None))
@@ -922,7 +927,7 @@ fn offline_fixture_never_writes_into_user_data() {
 
 /// A copy of the official val data with the first three episodes of each file, or `None`
 /// (test skipped) without the data.
-fn small_data_copy(name: &str) -> Option<PathBuf> {
+fn small_data_copy(name: &str) -> Option<TmpDir> {
     let data = common::data_dir()?;
     let d = tmp(&format!("small-{name}"));
     std::fs::copy(data.join("attributes.json"), d.join("attributes.json")).unwrap();

@@ -265,40 +265,7 @@ pub fn cmd_demo(a: DemoArgs) -> Result<()> {
     rows.push(("random".to_string(), rnd));
     let mut last_model = None;
     for method in [Method::A3cFg, Method::Gman] {
-        let dir = a.out.join(method.name());
-        let state_path = checkpoint_path(&dir);
-        let mut state = if state_path.exists() {
-            TrainState::load(&state_path)?
-        } else {
-            // The setting of the README's results: the mcu preset with a 3 x 3 spatial map, the
-            // inner loop in the device's Efficient mode.
-            let dims = gman_core::Dims::MCU.with_map(3, 3, 8);
-            let mut model = NavModel::init(method, dims, 1, Some(&gen), None)?;
-            model.adapt_mode = gman_core::memory::AdaptMode::Efficient;
-            TrainState::new(
-                model,
-                AdamConfig {
-                    lr: 1e-3,
-                    ..AdamConfig::default()
-                },
-            )
-        };
-        eprintln!("training {} ({} updates)", method.name(), a.updates);
-        let opts = TrainOptions {
-            updates: a.updates,
-            run: RunSettings {
-                adam: AdamConfig {
-                    lr: 1e-3,
-                    ..AdamConfig::default()
-                },
-                ..RunSettings::default()
-            },
-            checkpoint_every: 100,
-            out: dir.clone(),
-            progress: true,
-        };
-        train(&world, &opts, &mut state)?;
-        let model = Arc::new(state.model);
+        let model = train_method(&world, &a, method, &gen)?;
         eprintln!(
             "evaluating {} on {} val episodes",
             method.name(),
@@ -317,10 +284,80 @@ pub fn cmd_demo(a: DemoArgs) -> Result<()> {
     std::fs::write(a.out.join("table.txt"), &detail)
         .with_context(|| format!("writing {}", a.out.join("table.txt").display()))?;
 
+    let agents = agent_results(&rows);
+    let (verdict, distinguishable) = verdict(&agents, a.updates, episodes.len());
+    let pictures = draw_pictures(&a, &world, &episodes, &rows, last_model.as_ref())?;
+    let summary = DemoSummary {
+        split: split.name().to_string(),
+        world: a
+            .world
+            .data
+            .as_ref()
+            .map_or("synthetic".to_string(), |d| d.display().to_string()),
+        updates: a.updates,
+        interval: "95%: Wilson score interval for SR, mean ± 1.96 standard errors for SPL".into(),
+        agents,
+        gman_vs_a3c_fg_distinguishable: distinguishable,
+        verdict,
+        seconds: t0.elapsed().as_secs_f64(),
+    };
+    let sp = a.out.join("summary.json");
+    std::fs::write(&sp, serde_json::to_string_pretty(&summary)? + "\n")
+        .with_context(|| format!("writing {}", sp.display()))?;
+    print_summary(&a, &summary, &rows[0].1, &sp, &pictures);
+    Ok(())
+}
+
+/// Trains `method` for the demo's updates in `OUT/METHOD` (resuming its checkpoint when there
+/// is one) and returns the trained model.
+fn train_method(
+    world: &World,
+    a: &DemoArgs,
+    method: Method,
+    gen: &gman_host_sim::optim::params::ParamSet,
+) -> Result<Arc<NavModel>> {
+    let dir = a.out.join(method.name());
+    let state_path = checkpoint_path(&dir);
+    let mut state = if state_path.exists() {
+        TrainState::load(&state_path)?
+    } else {
+        // The setting of the README's results: the mcu preset with a 3 x 3 spatial map, the
+        // inner loop in the device's Efficient mode.
+        let dims = gman_core::Dims::MCU.with_map(3, 3, 8);
+        let mut model = NavModel::init(method, dims, 1, Some(gen), None)?;
+        model.adapt_mode = gman_core::memory::AdaptMode::Efficient;
+        TrainState::new(
+            model,
+            AdamConfig {
+                lr: 1e-3,
+                ..AdamConfig::default()
+            },
+        )
+    };
+    eprintln!("training {} ({} updates)", method.name(), a.updates);
+    let opts = TrainOptions {
+        updates: a.updates,
+        run: RunSettings {
+            adam: AdamConfig {
+                lr: 1e-3,
+                ..AdamConfig::default()
+            },
+            ..RunSettings::default()
+        },
+        checkpoint_every: 100,
+        out: dir,
+        progress: true,
+    };
+    train(world, &opts, &mut state)?;
+    Ok(Arc::new(state.model))
+}
+
+/// The rows of `summary.json`: every agent's unseen and seen results and whether both SR
+/// intervals lie above the random agent's (`rows[0]`).
+fn agent_results(rows: &[(String, Vec<EpisodeResult>)]) -> Vec<AgentResult> {
     let rnd_u = KindResult::of(&rows[0].1, TargetKind::Unseen);
     let rnd_s = KindResult::of(&rows[0].1, TargetKind::Seen);
-    let agents: Vec<AgentResult> = rows
-        .iter()
+    rows.iter()
         .map(|(name, res)| {
             let unseen = KindResult::of(res, TargetKind::Unseen);
             let seen = KindResult::of(res, TargetKind::Seen);
@@ -334,7 +371,12 @@ pub fn cmd_demo(a: DemoArgs) -> Result<()> {
                 seen,
             }
         })
-        .collect();
+        .collect()
+}
+
+/// The verdict in words (random, a3c-fg, gman in `agents`) and whether gman and a3c-fg
+/// differ by more than their intervals.
+fn verdict(agents: &[AgentResult], updates: u64, episodes: usize) -> (Vec<String>, bool) {
     let mut verdict = Vec::new();
     for r in agents.iter().skip(1) {
         verdict.push(if r.above_random {
@@ -361,12 +403,21 @@ pub fn cmd_demo(a: DemoArgs) -> Result<()> {
         )
     } else {
         format!(
-            "gman and a3c-fg cannot be told apart at this budget ({} updates, {} episodes): their 95% intervals overlap on unseen and seen SR, so their order in the table is noise. Telling them apart takes longer training (`gman train`) and several seeds.",
-            a.updates,
-            episodes.len()
+            "gman and a3c-fg cannot be told apart at this budget ({updates} updates, {episodes} episodes): their 95% intervals overlap on unseen and seen SR, so their order in the table is noise. Telling them apart takes longer training (`gman train`) and several seeds.",
         )
     });
+    (verdict, distinguishable)
+}
 
+/// `curve.png` (the two training curves) and `episode.png` (an episode of the last model);
+/// returns a line per picture.
+fn draw_pictures(
+    a: &DemoArgs,
+    world: &World,
+    episodes: &[EpisodeSpec],
+    rows: &[(String, Vec<EpisodeResult>)],
+    last_model: Option<&Arc<NavModel>>,
+) -> Result<Vec<String>> {
     let mut pictures = Vec::new();
     let curve = a.out.join("curve.png");
     cmd_plot(PlotArgs {
@@ -376,41 +427,36 @@ pub fn cmd_demo(a: DemoArgs) -> Result<()> {
         ],
         png: curve.clone(),
         smooth: 50,
+        by_method: false,
     })?;
     pictures.push(format!(
         "{}: training success rate and reward of a3c-fg (red) and gman (blue)",
         curve.display()
     ));
-    if let Some(model) = &last_model {
+    if let Some(model) = last_model {
         pictures.push(draw_episode(
-            &world,
-            &episodes,
+            world,
+            episodes,
             &rows[2].1,
             model,
             &a.out.join("episode.png"),
         )?);
     }
+    Ok(pictures)
+}
 
-    let summary = DemoSummary {
-        split: split.name().to_string(),
-        world: a
-            .world
-            .data
-            .as_ref()
-            .map_or("synthetic".to_string(), |d| d.display().to_string()),
-        updates: a.updates,
-        interval: "95%: Wilson score interval for SR, mean ± 1.96 standard errors for SPL".into(),
-        agents,
-        gman_vs_a3c_fg_distinguishable: distinguishable,
-        verdict,
-        seconds: t0.elapsed().as_secs_f64(),
-    };
-    let sp = a.out.join("summary.json");
-    std::fs::write(&sp, serde_json::to_string_pretty(&summary)? + "\n")
-        .with_context(|| format!("writing {}", sp.display()))?;
-
+/// Prints the table, the verdict and what was written.
+fn print_summary(
+    a: &DemoArgs,
+    summary: &DemoSummary,
+    random: &[EpisodeResult],
+    sp: &Path,
+    pictures: &[String],
+) {
+    let rnd_u = KindResult::of(random, TargetKind::Unseen);
+    let rnd_s = KindResult::of(random, TargetKind::Seen);
     println!();
-    print!("{}", table(&summary.agents, split.name()));
+    print!("{}", table(&summary.agents, &summary.split));
     println!(
         "{} val episodes per agent ({} unseen, {} seen targets); [..] = 95% interval (Wilson); SR = success rate, SPL = success weighted by path length.",
         summary.agents[0].episodes, rnd_u.episodes, rnd_s.episodes
@@ -424,7 +470,7 @@ pub fn cmd_demo(a: DemoArgs) -> Result<()> {
         sp.display(),
         a.out.join("table.txt").display()
     );
-    for p in &pictures {
+    for p in pictures {
         println!("wrote {p}");
     }
     println!(
@@ -432,5 +478,4 @@ pub fn cmd_demo(a: DemoArgs) -> Result<()> {
         summary.seconds,
         a.out.display()
     );
-    Ok(())
 }

@@ -5,8 +5,8 @@ use std::path::PathBuf;
 use anyhow::{bail, Context, Result};
 use clap::Args;
 use gman_host_sim::emd_report::{self, Summary};
-use gman_host_sim::nav::model::load_model;
-use gman_host_sim::sim::{Split, TargetKind};
+use gman_host_sim::nav::model::{load_model, NavModel};
+use gman_host_sim::sim::{Split, TargetKind, World};
 use serde::Serialize;
 
 use super::args::WorldArgs;
@@ -96,6 +96,38 @@ pub fn cmd_emd_report(a: EmdReportArgs) -> Result<()> {
         model.dims.map_cols,
         &format!("model {}", a.agent.display()),
     )?;
+    apply_inner_flags(&a, &mut model)?;
+    let episodes = world.episodes(split, Some(a.episodes))?;
+    eprintln!(
+        "emd-report: {} episodes of {}, inner rate {} (α1 {}), cap {}, mode {:?}, {} D steps, {:?} step",
+        episodes.len(),
+        split.name(),
+        model.inner_lr,
+        model.inner_rule.disc_lr.unwrap_or(model.inner_lr),
+        model.max_inner,
+        model.adapt_mode,
+        model.inner_rule.disc_steps,
+        model.inner_rule.step_rule
+    );
+    let records = emd_report::measure(&world, &model, &episodes)?;
+    let seen = emd_report::summarize(&records, TargetKind::Seen);
+    let unseen = emd_report::summarize(&records, TargetKind::Unseen);
+    for (name, m) in [("seen", &seen), ("unseen", &unseen)] {
+        println!(
+            "{name}: {} adapted episodes; |G(y,0) - true target feature| {:.4} -> {:.4} ({:.2}% closed); G moved {:.5} (cosine to the true feature {:.3}, to the mean view {:.3}); the mean view is {:.4} from the true feature (the best point toward it closes {:.1}%); {:.1}% of G's dims saturated; {:.2} inner updates per episode, {:.3} rollbacks per update",
+            m.episodes, m.before, m.after, m.closed_percent, m.moved, m.cos_to_true,
+            m.cos_to_views, m.view_mean, m.best_toward_views_percent, m.saturated_percent,
+            m.adaptations, m.rollbacks_per_update
+        );
+    }
+    if records.is_empty() {
+        println!("no episode reached an inner update (does the model adapt? is k larger than the episodes?)");
+    }
+    write_outputs(&a, &world, &model, split, &records, seen, unseen)
+}
+
+/// The inner-rule flags given on the command line, applied to `model` and checked.
+fn apply_inner_flags(a: &EmdReportArgs, model: &mut NavModel) -> Result<()> {
     if let Some(lr) = a.inner_lr {
         if !(lr.is_finite() && (0.0..=gman_core::blob::MAX_INNER_RATE).contains(&lr)) {
             bail!(
@@ -124,35 +156,22 @@ pub fn cmd_emd_report(a: EmdReportArgs) -> Result<()> {
         model.inner_rule.head_only = true;
     }
     model.inner_rule.validate()?;
-    let episodes = world.episodes(split, Some(a.episodes))?;
-    eprintln!(
-        "emd-report: {} episodes of {}, inner rate {} (α1 {}), cap {}, mode {:?}, {} D steps, {:?} step",
-        episodes.len(),
-        split.name(),
-        model.inner_lr,
-        model.inner_rule.disc_lr.unwrap_or(model.inner_lr),
-        model.max_inner,
-        model.adapt_mode,
-        model.inner_rule.disc_steps,
-        model.inner_rule.step_rule
-    );
-    let records = emd_report::measure(&world, &model, &episodes)?;
-    let seen = emd_report::summarize(&records, TargetKind::Seen);
-    let unseen = emd_report::summarize(&records, TargetKind::Unseen);
-    for (name, m) in [("seen", &seen), ("unseen", &unseen)] {
-        println!(
-            "{name}: {} adapted episodes; |G(y,0) - true target feature| {:.4} -> {:.4} ({:.2}% closed); G moved {:.5} (cosine to the true feature {:.3}, to the mean view {:.3}); the mean view is {:.4} from the true feature (the best point toward it closes {:.1}%); {:.1}% of G's dims saturated; {:.2} inner updates per episode, {:.3} rollbacks per update",
-            m.episodes, m.before, m.after, m.closed_percent, m.moved, m.cos_to_true,
-            m.cos_to_views, m.view_mean, m.best_toward_views_percent, m.saturated_percent,
-            m.adaptations, m.rollbacks_per_update
-        );
-    }
-    if records.is_empty() {
-        println!("no episode reached an inner update (does the model adapt? is k larger than the episodes?)");
-    }
+    Ok(())
+}
+
+/// `--png` (Fig. 3), `--dump` (the records) and `--json` (the summaries).
+fn write_outputs(
+    a: &EmdReportArgs,
+    world: &World,
+    model: &NavModel,
+    split: Split,
+    records: &[emd_report::Record],
+    seen: Summary,
+    unseen: Summary,
+) -> Result<()> {
     if let Some(png) = &a.png {
-        let scenes = emd_report::busiest_scenes(&records);
-        let n = emd_report::plot(&records, &scenes, &world, png)?;
+        let scenes = emd_report::busiest_scenes(records);
+        let n = emd_report::plot(records, &scenes, world, png)?;
         let names: Vec<&str> = scenes
             .iter()
             .filter_map(|&s| world.scenes.get(s).map(|sc| sc.name.as_str()))
@@ -163,7 +182,7 @@ pub fn cmd_emd_report(a: EmdReportArgs) -> Result<()> {
         );
     }
     if let Some(path) = &a.dump {
-        let text = serde_json::to_string(&records)?;
+        let text = serde_json::to_string(records)?;
         std::fs::write(path, text).with_context(|| format!("writing {}", path.display()))?;
         println!("wrote {} ({} episodes)", path.display(), records.len());
     }

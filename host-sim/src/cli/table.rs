@@ -58,8 +58,24 @@ fn welch_t(a: &[f64], b: &[f64]) -> f64 {
     }
 }
 
+/// Paired t of the differences `a[i] − b[i]` (the same seeds on both sides); NaN with fewer
+/// than two pairs or no spread.
+fn paired_t(a: &[f64], b: &[f64]) -> f64 {
+    if a.len() != b.len() || a.len() < 2 {
+        return f64::NAN;
+    }
+    let d: Vec<f64> = a.iter().zip(b).map(|(x, y)| x - y).collect();
+    let (m, s) = mean_std(&d);
+    if s > 0.0 {
+        m / (s / (d.len() as f64).sqrt())
+    } else {
+        f64::NAN
+    }
+}
+
 /// `gman table`: Table 2/3 layout from evaluation JSON files, then each row's SR against the
-/// first row's with Welch's t.
+/// first row's with Welch's t, and a paired t where both rows hold the same file names (the
+/// same seeds, e.g. a run evaluated with adaptation on and off).
 pub fn cmd_table(a: TableArgs) -> Result<()> {
     println!(
         "{:<28} | {:^47} | {:^47}",
@@ -69,7 +85,7 @@ pub fn cmd_table(a: TableArgs) -> Result<()> {
         "{:<28} | {:>11} {:>11} {:>11} {:>11} | {:>11} {:>11} {:>11} {:>11}",
         "", "SR(%)", "SPL(%)", "EPA(%)", "DTS(m)", "SR(%)", "SPL(%)", "EPA(%)", "DTS(m)"
     );
-    let mut rows: Vec<(String, Vec<[f64; 8]>)> = Vec::new();
+    let mut rows: Vec<(String, Vec<String>, Vec<[f64; 8]>)> = Vec::new();
     for run in &a.runs {
         let files = json_files(run)?;
         let mut vals: Vec<[f64; 8]> = Vec::new();
@@ -116,19 +132,44 @@ pub fn cmd_table(a: TableArgs) -> Result<()> {
             cells[..4].join(" "),
             cells[4..].join(" ")
         );
-        rows.push((name, vals));
+        let stems = files
+            .iter()
+            .map(|f| {
+                f.file_name()
+                    .map_or(String::new(), |n| n.to_string_lossy().into_owned())
+            })
+            .collect();
+        rows.push((name, stems, vals));
     }
     println!("(mean ± sample std over the JSON files of each row)");
-    if let Some(((first, base), rest)) = rows.split_first().filter(|(_, r)| !r.is_empty()) {
+    if let Some(((first, base_files, base), rest)) =
+        rows.split_first().filter(|(_, r)| !r.is_empty())
+    {
         let col = |v: &[[f64; 8]], i: usize| v.iter().map(|r| r[i]).collect::<Vec<_>>();
-        println!("SR against {first} (difference of the means, Welch's t):");
-        for (name, v) in rest {
+        println!(
+            "SR against {first} (difference of the means, Welch's t; paired t over the same \
+             file names where both rows have them):"
+        );
+        for (name, files, v) in rest {
+            let paired = files == base_files;
             let d = |i: usize| {
                 let (a, b) = (col(base, i), col(v, i));
-                (mean_std(&a).0 - mean_std(&b).0, welch_t(&a, &b))
+                let p = if paired { paired_t(&a, &b) } else { f64::NAN };
+                (mean_std(&a).0 - mean_std(&b).0, welch_t(&a, &b), p)
             };
-            let ((du, tu), (ds, ts)) = (d(0), d(4));
-            println!("  − {name:<26} unseen {du:+6.2} (t {tu:5.2})  seen {ds:+6.2} (t {ts:5.2})");
+            let ((du, tu, pu), (ds, ts, ps)) = (d(0), d(4));
+            let pcell = |p: f64| {
+                if paired {
+                    format!(", paired t {p:5.2}")
+                } else {
+                    String::new()
+                }
+            };
+            println!(
+                "  − {name:<26} unseen {du:+6.2} (t {tu:5.2}{})  seen {ds:+6.2} (t {ts:5.2}{})",
+                pcell(pu),
+                pcell(ps)
+            );
         }
     }
     Ok(())
@@ -137,6 +178,15 @@ pub fn cmd_table(a: TableArgs) -> Result<()> {
 #[cfg(test)]
 mod tests {
     use super::welch_t;
+
+    #[test]
+    fn paired_t_matches_a_hand_computation() {
+        // differences 1, 2, 3: mean 2, sd 1, t = 2 / (1 / sqrt 3)
+        let t = super::paired_t(&[2.0, 4.0, 6.0], &[1.0, 2.0, 3.0]);
+        assert!((t - 2.0 * 3f64.sqrt()).abs() < 1e-12, "{t}");
+        assert!(super::paired_t(&[1.0, 2.0], &[1.0]).is_nan());
+        assert!(super::paired_t(&[2.0, 3.0], &[1.0, 2.0]).is_nan());
+    }
 
     #[test]
     fn welch_t_matches_a_hand_computation() {

@@ -1,7 +1,10 @@
-//! What the vectorised training episodes share, with and without an inner loop
-//! ([`super::vec_rollout`], [`super::vec_adapt`]): the settings, the slots' episode starts, an
-//! episode's step inputs and their row in the batched pass, the batched bootstrap values, the
-//! waiting segments and their one batched BPTT, and each episode's losses collected at the end.
+//! The rollout engine's frame, shared by its two paths ([`super::vec_rollout`] without an
+//! inner loop, [`super::vec_adapt`] with one): a worker's share of an update ([`Share`]), the
+//! loop over `B` slots (`lockstep`: free slots take new episodes while the step budget
+//! lasts, every tick runs the episodes in the slots), an episode's step inputs and their row
+//! in the batched pass, the segment being recorded (`Recording`), the batched bootstrap
+//! values, the complete segments numbered and waiting (`SegQueue`) and their one batched
+//! BPTT, and each episode's losses collected at the end.
 
 use anyhow::{bail, Result};
 use gman_core::policy::{Policy, PolicyInput};
@@ -10,11 +13,13 @@ use gman_core::{Dims, NUM_ACTIONS};
 use super::a3c::{A3cConfig, Objective, SegmentLoss};
 use super::bptt::{Adapted, Backward, GenBufs, Rows, Segment, StepAct, Widths};
 use super::model::NavModel;
-use super::rollout::{ps_input, EpisodeStats};
+use super::rollout::{ps_input, EpisodeStats, Worker};
 use super::step::StepRec;
+use super::K;
+use crate::optim::params::ParamSet;
 use crate::pretrain::ps::PsBuffers;
 use crate::sim::spatial::MapGrid;
-use crate::sim::{Env, RewardKind};
+use crate::sim::{Env, EpisodeSpec, RewardKind, World};
 use gman_core::generator::Generator;
 
 /// Most environments a worker steps in lockstep.
@@ -37,6 +42,24 @@ pub struct VecSettings<'a> {
     pub a3c: &'a A3cConfig,
     /// Objective.
     pub objective: Objective,
+}
+
+/// One worker's share of an update, as the engine takes it: the world, the model, the
+/// settings, the worker's buffers, the gradient its segments accumulate into, and
+/// `sample(e)`, the spec and step limit of its episode `e`.
+pub struct Share<'a, 'w, F> {
+    /// The world.
+    pub world: &'w World,
+    /// The model at the update's parameters.
+    pub model: &'a NavModel,
+    /// The settings.
+    pub s: &'a VecSettings<'a>,
+    /// The worker's buffers.
+    pub worker: &'a mut Worker,
+    /// The worker's gradient.
+    pub grads: &'a mut ParamSet,
+    /// Episode `e`'s spec and step limit.
+    pub sample: F,
 }
 
 /// One finished episode of a worker's update: its index, statistics and D after it. Without
@@ -71,10 +94,37 @@ pub fn check_batch_envs(model: &NavModel, batch_envs: usize, meta_order: u8) -> 
     Ok(())
 }
 
+/// The engine's loop, the same on both paths: `batch_envs` slots; free slots take new
+/// episodes while the step budget lasts (episode `e`'s spec and step limit from `sample(e)`,
+/// started in slot `i` by `start(state, i, e, spec, max)`), and every tick runs the episodes
+/// in the slots (`tick`, which returns the steps taken and empties the slots of the ended
+/// episodes), until no episode runs. `state` is what both steps change.
+pub(super) fn lockstep<T, S>(
+    batch_envs: usize,
+    min_steps: u32,
+    mut sample: impl FnMut(u32) -> Result<(EpisodeSpec, u32)>,
+    state: &mut S,
+    mut start: impl FnMut(&mut S, usize, u32, &EpisodeSpec, u32) -> Result<T>,
+    mut tick: impl FnMut(&mut S, &mut [Option<T>]) -> Result<u64>,
+) -> Result<()> {
+    let mut slots: Vec<Option<T>> = (0..batch_envs).map(|_| None).collect();
+    let (mut next, mut taken) = (0u32, 0u64);
+    loop {
+        fill_free_slots(&mut slots, &mut next, taken, min_steps, |i, e| {
+            let (spec, max) = sample(e)?;
+            start(state, i, e, &spec, max)
+        })?;
+        if slots.iter().all(Option::is_none) {
+            return Ok(());
+        }
+        taken += tick(state, &mut slots)?;
+    }
+}
+
 /// Free slots take new episodes while the step budget lasts: the worker starts episode
 /// `next` (then `next + 1`, ...) with `start(slot, e)` while it has taken fewer than
 /// `min_steps` steps in the update (always at least one episode).
-pub(super) fn fill_free_slots<T>(
+fn fill_free_slots<T>(
     slots: &mut [Option<T>],
     next: &mut u32,
     taken: u64,
@@ -190,6 +240,112 @@ pub(super) struct PendingSeg<O = ()> {
     pub own: O,
 }
 
+/// The segment an episode is recording: its steps and their activations (at most k = 20).
+pub(super) struct Recording {
+    pub steps: Vec<StepRec>,
+    pub acts: Vec<StepAct>,
+}
+
+impl Recording {
+    /// An empty segment.
+    pub fn new() -> Recording {
+        Recording {
+            steps: Vec::with_capacity(K),
+            acts: Vec::with_capacity(K),
+        }
+    }
+
+    /// Steps recorded.
+    pub fn len(&self) -> usize {
+        self.steps.len()
+    }
+
+    /// True before the segment's first step.
+    pub fn is_empty(&self) -> bool {
+        self.steps.is_empty()
+    }
+
+    /// Records a step and its activations.
+    pub fn push(&mut self, step: StepRec, act: StepAct) {
+        self.steps.push(step);
+        self.acts.push(act);
+    }
+
+    /// The recorded segment (steps, activations); the recording starts anew.
+    pub fn take(&mut self) -> (Vec<StepRec>, Vec<StepAct>) {
+        let old = std::mem::replace(self, Recording::new());
+        (old.steps, old.acts)
+    }
+}
+
+/// The complete segments of a worker's update: numbered in the order they complete, those
+/// whose backward waits (and their steps), and the losses of those whose backward ran.
+pub(super) struct SegQueue<O = ()> {
+    /// The waiting segments.
+    pub pending: Vec<PendingSeg<O>>,
+    /// Their steps.
+    pub steps: usize,
+    /// The segments' losses so far.
+    pub losses: Vec<SegLoss>,
+    /// Segments numbered so far.
+    seq: u32,
+}
+
+impl<O> SegQueue<O> {
+    /// Nothing complete yet.
+    pub fn new() -> SegQueue<O> {
+        SegQueue {
+            pending: Vec::new(),
+            steps: 0,
+            losses: Vec::new(),
+            seq: 0,
+        }
+    }
+
+    /// Episode `e`'s complete segment (run in `slot`, recorded in `rec`, which starts anew),
+    /// numbered as the next to complete.
+    pub fn complete(
+        &mut self,
+        slot: usize,
+        e: u32,
+        rec: &mut Recording,
+        attr: Vec<f32>,
+        bootstrap: f32,
+        own: O,
+    ) -> PendingSeg<O> {
+        let (steps, acts) = rec.take();
+        let seq = self.seq;
+        self.seq += 1;
+        PendingSeg {
+            slot,
+            e,
+            seq,
+            steps,
+            acts,
+            attr,
+            bootstrap,
+            own,
+        }
+    }
+
+    /// `seg` waits for its backward.
+    pub fn wait(&mut self, seg: PendingSeg<O>) {
+        self.steps += seg.steps.len();
+        self.pending.push(seg);
+    }
+
+    /// True when [`MAX_PENDING_STEPS`] steps or more wait.
+    pub fn full(&self) -> bool {
+        self.steps >= MAX_PENDING_STEPS
+    }
+
+    /// The waiting segments; none wait afterwards.
+    pub fn take(&mut self) -> Vec<PendingSeg<O>> {
+        self.steps = 0;
+        std::mem::take(&mut self.pending)
+    }
+}
+
 /// What one batched BPTT reads besides its segments.
 pub(super) struct BackwardCtx<'a> {
     pub policy: &'a Policy<'a>,
@@ -215,7 +371,7 @@ pub(super) fn backward_segments<'p, O>(
     segs: &'p mut [PendingSeg<O>],
     own: impl Fn(&'p PendingSeg<O>) -> Result<Option<Adapted<'p>>>,
     inspect: impl FnOnce(&[Segment<'_>]),
-    grads: &mut crate::optim::params::ParamSet,
+    grads: &mut ParamSet,
     bw: &mut Backward,
     gbuf: &mut GenBufs,
     losses: &mut Vec<SegLoss>,

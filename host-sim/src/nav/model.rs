@@ -750,7 +750,7 @@ impl NavModel {
         }
         let m: ModelMeta = serde_json::from_value(meta.clone())
             .map_err(|e| anyhow!("checkpoint metadata: {e}"))?;
-        super::state::check_model_record(meta)?;
+        check_model_record(meta)?;
         let (method, dims) = (m.method, m.dims.0);
         let mut params = ParamSet::new();
         for id in TensorId::all_for(&dims) {
@@ -986,6 +986,65 @@ pub fn host_arena_len(dims: &Dims) -> usize {
         dims,
         Footprint::Fast,
     ))
+}
+
+/// The model settings of a checkpoint's metadata: every top-level key but `trainer`.
+fn model_settings(metadata: &serde_json::Value) -> serde_json::Map<String, serde_json::Value> {
+    let mut m = metadata.as_object().cloned().unwrap_or_default();
+    m.remove("trainer");
+    m
+}
+
+/// Refuses a checkpoint whose model settings differ from the copy the trainer stored beside
+/// them (the trainer settings' `model`), naming the first setting that differs and both values.
+/// Checkpoints without a copy (older builds, pre-training) pass.
+pub fn check_model_record(metadata: &serde_json::Value) -> Result<()> {
+    let Some(copy) = metadata
+        .get("trainer")
+        .and_then(|t| t.get("model"))
+        .filter(|c| !c.is_null())
+    else {
+        return Ok(());
+    };
+    let now = serde_json::Value::Object(model_settings(metadata));
+    let mut diffs = Vec::new();
+    json_diffs("", &now, copy, &mut diffs);
+    if let Some((key, a, b)) = diffs.first() {
+        bail!(
+            "the checkpoint's model settings were changed after training wrote it: {key} is {a} but was {b} when the checkpoint was written ({} setting(s) differ); the tensors were trained with the recorded settings",
+            diffs.len()
+        );
+    }
+    Ok(())
+}
+
+/// Leaves of `a` and `b` that differ, as (dotted key, value in `a`, value in `b`).
+fn json_diffs(
+    at: &str,
+    a: &serde_json::Value,
+    b: &serde_json::Value,
+    out: &mut Vec<(String, String, String)>,
+) {
+    use serde_json::Value;
+    match (a, b) {
+        (Value::Object(x), Value::Object(y)) => {
+            let keys: std::collections::BTreeSet<&String> = x.keys().chain(y.keys()).collect();
+            for k in keys {
+                let key = if at.is_empty() {
+                    k.clone()
+                } else {
+                    format!("{at}.{k}")
+                };
+                let show = |v: Option<&Value>| v.map_or("absent".to_string(), |v| v.to_string());
+                match (x.get(k), y.get(k)) {
+                    (Some(p), Some(q)) => json_diffs(&key, p, q, out),
+                    (p, q) => out.push((key, show(p), show(q))),
+                }
+            }
+        }
+        _ if a != b => out.push((at.to_string(), a.to_string(), b.to_string())),
+        _ => {}
+    }
 }
 
 #[cfg(test)]

@@ -310,68 +310,9 @@ pub struct TrainerMeta {
     /// A copy of the model's settings as the checkpoint was written (the metadata's top-level
     /// keys other than `trainer`), so that settings the tensors cannot show (a 3 x 3 map
     /// relabelled 1 x 9, the adaptation mode) are not changed unnoticed
-    /// ([`check_model_record`]); absent in checkpoints of older builds.
+    /// ([`check_model_record`](super::model::check_model_record)); absent in checkpoints of older builds.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub model: Option<serde_json::Value>,
-}
-
-/// The model settings of a checkpoint's metadata: every top-level key but `trainer`.
-fn model_settings(metadata: &serde_json::Value) -> serde_json::Map<String, serde_json::Value> {
-    let mut m = metadata.as_object().cloned().unwrap_or_default();
-    m.remove("trainer");
-    m
-}
-
-/// Refuses a checkpoint whose model settings differ from the copy the trainer stored beside
-/// them ([`TrainerMeta::model`]), naming the first setting that differs and both values.
-/// Checkpoints without a copy (older builds, pre-training) pass.
-pub fn check_model_record(metadata: &serde_json::Value) -> Result<()> {
-    let Some(copy) = metadata
-        .get("trainer")
-        .and_then(|t| t.get("model"))
-        .filter(|c| !c.is_null())
-    else {
-        return Ok(());
-    };
-    let now = serde_json::Value::Object(model_settings(metadata));
-    let mut diffs = Vec::new();
-    json_diffs("", &now, copy, &mut diffs);
-    if let Some((key, a, b)) = diffs.first() {
-        bail!(
-            "the checkpoint's model settings were changed after training wrote it: {key} is {a} but was {b} when the checkpoint was written ({} setting(s) differ); the tensors were trained with the recorded settings",
-            diffs.len()
-        );
-    }
-    Ok(())
-}
-
-/// Leaves of `a` and `b` that differ, as (dotted key, value in `a`, value in `b`).
-fn json_diffs(
-    at: &str,
-    a: &serde_json::Value,
-    b: &serde_json::Value,
-    out: &mut Vec<(String, String, String)>,
-) {
-    use serde_json::Value;
-    match (a, b) {
-        (Value::Object(x), Value::Object(y)) => {
-            let keys: std::collections::BTreeSet<&String> = x.keys().chain(y.keys()).collect();
-            for k in keys {
-                let key = if at.is_empty() {
-                    k.clone()
-                } else {
-                    format!("{at}.{k}")
-                };
-                let show = |v: Option<&Value>| v.map_or("absent".to_string(), |v| v.to_string());
-                match (x.get(k), y.get(k)) {
-                    (Some(p), Some(q)) => json_diffs(&key, p, q, out),
-                    (p, q) => out.push((key, show(p), show(q))),
-                }
-            }
-        }
-        _ if a != b => out.push((at.to_string(), a.to_string(), b.to_string())),
-        _ => {}
-    }
 }
 
 fn version_one() -> u32 {

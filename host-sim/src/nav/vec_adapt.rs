@@ -73,6 +73,8 @@
 //!
 //! Not served here: `--meta-order 2` (its reverse recursion runs per episode, refused with
 //! `B > 1`) and the privileged-feature bound (refused with an inner loop, as in batch 1).
+//!
+//! [`MAX_PENDING_STEPS`]: super::lockstep::MAX_PENDING_STEPS
 
 use anyhow::{anyhow, bail, Result};
 use gman_core::blob::TensorId;
@@ -87,12 +89,12 @@ use gman_core::policy::Policy;
 use gman_core::{Dims, NUM_ACTIONS};
 
 use super::a3c::{A3cConfig, Objective};
-use super::bptt::{take_act, Adapted, Backward, GenBufs, Rows, Segment, StepAct, Widths};
+use super::bptt::{take_act, Adapted, Backward, GenBufs, Rows, Segment, Widths};
 use super::inner::{finish_stats, inner_update, InnerTally};
 use super::lockstep::{
     backward_order, backward_segments, bootstrap_values, check_batch_envs, collect_losses,
-    fill_free_slots, put_row, BackwardCtx, Finished, PendingSeg, RowState, SegLoss, StepInputs,
-    VecSettings, MAX_PENDING_STEPS,
+    lockstep, put_row, BackwardCtx, Finished, PendingSeg, Recording, RowState, SegQueue, Share,
+    StepInputs, VecSettings,
 };
 use super::model::NavModel;
 use super::rollout::Worker;
@@ -110,16 +112,11 @@ use crate::sim::{Env, EpisodeSpec, World};
 /// in [`super::vec_rollout::run_worker`]. Returns the finished episodes sorted by index, each
 /// with D after it.
 pub fn run_worker(
-    world: &World,
-    model: &NavModel,
-    s: &VecSettings<'_>,
-    worker: &mut Worker,
-    grads: &mut ParamSet,
-    sample: impl FnMut(u32) -> Result<(EpisodeSpec, u32)>,
+    job: Share<'_, '_, impl FnMut(u32) -> Result<(EpisodeSpec, u32)>>,
 ) -> Result<Vec<Finished>> {
-    match model.adapt_mode {
-        AdaptMode::Full => run_in::<Full>(world, model, s, worker, grads, sample, None),
-        AdaptMode::Efficient => run_in::<Efficient>(world, model, s, worker, grads, sample, None),
+    match job.model.adapt_mode {
+        AdaptMode::Full => run_in::<Full>(job, None),
+        AdaptMode::Efficient => run_in::<Efficient>(job, None),
     }
 }
 
@@ -128,8 +125,7 @@ pub fn run_worker(
 struct Ep<'w> {
     e: u32,
     env: Env<'w>,
-    seg: Vec<StepRec>,
-    acts: Vec<StepAct>,
+    rec: Recording,
     stats: EpisodeStats,
     tally: InnerTally,
     /// This step's inputs.
@@ -142,7 +138,7 @@ struct Ep<'w> {
 
 /// A logged segment: steps, activations, SE(y), `V_T`.
 #[cfg(test)]
-type LoggedSeg = (Vec<StepRec>, Vec<StepAct>, Vec<f32>, f32);
+type LoggedSeg = (Vec<StepRec>, Vec<super::bptt::StepAct>, Vec<f32>, f32);
 
 /// A copy of a dense layer: `W` (row-major), `b`, the gain.
 #[cfg(test)]
@@ -189,12 +185,8 @@ struct Bufs<'b, 'l> {
     gen_scratch: Vec<f32>,
     bw: Backward,
     gbuf: GenBufs,
-    /// The waiting segments (Efficient, B > 1) and their steps.
-    pending: Vec<Pending>,
-    pending_steps: usize,
-    losses: Vec<SegLoss>,
-    /// Segments completed so far in the update.
-    seq: u32,
+    /// The waiting segments (Efficient, B > 1), the losses of those whose backward ran.
+    queue: SegQueue<Option<OwnCopy>>,
     log: Option<&'l mut Vec<TickLog>>,
 }
 
@@ -237,15 +229,20 @@ fn slot_navigators<'a, M: Mode>(
     Ok(navs)
 }
 
+/// [`run_worker`] in the adaptation mode `M`; `log` (the tests') records every backward's
+/// batch.
 fn run_in<'w, M: Mode>(
-    world: &'w World,
-    model: &NavModel,
-    s: &VecSettings<'_>,
-    worker: &mut Worker,
-    grads: &mut ParamSet,
-    mut sample: impl FnMut(u32) -> Result<(EpisodeSpec, u32)>,
+    job: Share<'_, 'w, impl FnMut(u32) -> Result<(EpisodeSpec, u32)>>,
     log: Option<&mut Vec<TickLog>>,
 ) -> Result<Vec<Finished>> {
+    let Share {
+        world,
+        model,
+        s,
+        worker,
+        grads,
+        sample,
+    } = job;
     check_settings(model, s)?;
     let cfg = model.nav_config(true);
     let b = s.batch_envs;
@@ -285,54 +282,65 @@ fn run_in<'w, M: Mode>(
         gen_scratch: Vec::new(),
         bw: Backward::default(),
         gbuf: GenBufs::new(&navs[0].generator()?, w.f),
-        pending: Vec::new(),
-        pending_steps: 0,
-        losses: Vec::new(),
-        seq: 0,
+        queue: SegQueue::new(),
         log,
     };
-    let mut eps: Vec<Option<Ep<'w>>> = (0..b).map(|_| None).collect();
     let mut done: Vec<Finished> = Vec::new();
-    let (mut next_e, mut taken) = (0u32, 0u64);
-    loop {
-        fill_free_slots(&mut eps, &mut next_e, taken, s.min_steps, |i, e| {
-            let (spec, max) = sample(e)?;
-            start_episode(&mut navs[i], world, &spec, model, s, max, e)
-        })?;
-        if eps.iter().all(Option::is_none) {
-            break;
-        }
-        let active: Vec<usize> = (0..b)
-            .filter(|&i| eps[i].as_ref().is_some_and(|e| !e.env.is_done()))
-            .collect();
-        taken += tick(&fx, &mut bufs, &mut navs, &mut eps, &active)?;
-        let ready: Vec<usize> = (0..b)
-            .filter(|&i| {
-                // k recorded steps, then the commit window of a delayed update (if any).
-                eps[i].as_ref().is_some_and(|e| {
-                    (e.seg.len() >= K && !navs[i].in_commit_window()) || e.env.is_done()
-                })
-            })
-            .collect();
-        if ready.is_empty() {
-            continue;
-        }
-        let fresh = complete_segments(&fx, &mut bufs, &navs, &mut eps, &ready)?;
-        if fx.defer {
-            // Efficient, B > 1: the segments wait, with copies of their episodes' gains and
-            // biases, for one batched BPTT over the update.
-            bufs.pending_steps += fresh.iter().map(|p| p.steps.len()).sum::<usize>();
-            bufs.pending.extend(fresh);
-            if bufs.pending_steps >= MAX_PENDING_STEPS {
-                flush_copies(&fx, &mut bufs, grads)?;
-            }
-        } else {
-            backward_live(&fx, &mut bufs, &navs, fresh, grads)?;
-        }
-        close_or_adapt(&ready, &mut navs, &mut eps, &mut done)?;
-    }
+    lockstep(
+        b,
+        s.min_steps,
+        sample,
+        &mut navs,
+        |navs, i, e, spec, max| start_episode(&mut navs[i], world, spec, model, s, max, e),
+        |navs, eps: &mut [Option<Ep<'w>>]| {
+            let active: Vec<usize> = (0..eps.len())
+                .filter(|&i| eps[i].as_ref().is_some_and(|e| !e.env.is_done()))
+                .collect();
+            let taken = tick(&fx, &mut bufs, navs, eps, &active)?;
+            close_ready(&fx, &mut bufs, navs, eps, grads, &mut done)?;
+            Ok(taken)
+        },
+    )?;
     flush_copies(&fx, &mut bufs, grads)?;
-    collect_losses(bufs.losses, done)
+    collect_losses(bufs.queue.losses, done)
+}
+
+/// After a tick: the segments complete at it (k recorded steps, then the commit window of a
+/// delayed update if any; or the episode ended) get their bootstrap values and either wait
+/// (Efficient, `B > 1`) or join this tick's batched BPTT; then each of those episodes ends or
+/// runs its inner update.
+fn close_ready<M: Mode>(
+    fx: &Fixed<'_, '_>,
+    bufs: &mut Bufs<'_, '_>,
+    navs: &mut [Navigator<'_, M, K>],
+    eps: &mut [Option<Ep<'_>>],
+    grads: &mut ParamSet,
+    done: &mut Vec<Finished>,
+) -> Result<()> {
+    let ready: Vec<usize> = (0..eps.len())
+        .filter(|&i| {
+            eps[i].as_ref().is_some_and(|e| {
+                (e.rec.len() >= K && !navs[i].in_commit_window()) || e.env.is_done()
+            })
+        })
+        .collect();
+    if ready.is_empty() {
+        return Ok(());
+    }
+    let fresh = complete_segments(fx, bufs, navs, eps, &ready)?;
+    if fx.defer {
+        // Efficient, B > 1: the segments wait, with copies of their episodes' gains and
+        // biases, for one batched BPTT over the update.
+        for seg in fresh {
+            bufs.queue.wait(seg);
+        }
+        if bufs.queue.full() {
+            flush_copies(fx, bufs, grads)?;
+        }
+    } else {
+        backward_live(fx, bufs, navs, fresh, grads)?;
+    }
+    close_or_adapt(&ready, navs, eps, done)
 }
 
 /// Starts episode `e` in a slot: its navigator in the state of a new navigator over the
@@ -352,8 +360,7 @@ fn start_episode<'w, M: Mode>(
     Ok(Ep {
         e,
         env: Env::new(world, spec, s.reward, max),
-        seg: Vec::with_capacity(K),
-        acts: Vec::with_capacity(K),
+        rec: Recording::new(),
         stats: EpisodeStats::default(),
         tally: InnerTally::default(),
         inp: StepInputs::default(),
@@ -377,27 +384,17 @@ fn complete_segments<M: Mode>(
     let mut fresh: Vec<Pending> = Vec::new();
     for (&i, bootv) in ready.iter().zip(boot) {
         let ep = eps[i].as_mut().ok_or_else(|| anyhow!("empty slot"))?;
-        let steps = std::mem::replace(&mut ep.seg, Vec::with_capacity(K));
-        let acts = std::mem::replace(&mut ep.acts, Vec::with_capacity(K));
-        if steps.is_empty() {
+        if ep.rec.is_empty() {
             continue;
         }
         let nav = &navs[i];
-        fresh.push(PendingSeg {
-            slot: i,
-            e: ep.e,
-            seq: b.seq,
-            steps,
-            acts,
-            attr: nav.attr().to_vec(),
-            bootstrap: bootv,
-            own: if fx.defer {
-                Some(OwnCopy::of(nav, &fx.weights)?)
-            } else {
-                None
-            },
-        });
-        b.seq += 1;
+        let own = if fx.defer {
+            Some(OwnCopy::of(nav, &fx.weights)?)
+        } else {
+            None
+        };
+        let attr = nav.attr().to_vec();
+        fresh.push(b.queue.complete(i, ep.e, &mut ep.rec, attr, bootv, own));
     }
     Ok(fresh)
 }
@@ -461,7 +458,7 @@ fn backward_logged<'p>(
         grads,
         &mut b.bw,
         &mut b.gbuf,
-        &mut b.losses,
+        &mut b.queue.losses,
     )
 }
 
@@ -550,8 +547,7 @@ fn same_matrix(a: &MatRef<'_>, b: &MatRef<'_>) -> bool {
 /// order they completed), each row at the copy of its episode's adapted parameters; their
 /// losses collected as `(episode, seq, loss)`; nothing waits afterwards.
 fn flush_copies(fx: &Fixed<'_, '_>, b: &mut Bufs<'_, '_>, grads: &mut ParamSet) -> Result<()> {
-    let mut pend = std::mem::take(&mut b.pending);
-    b.pending_steps = 0;
+    let mut pend = b.queue.take();
     let bx = BackwardCtx {
         policy: &fx.trunk,
         gen: &fx.gen,
@@ -686,8 +682,7 @@ fn finish_row<M: Mode>(
         let (u1, h1, u2) = nav.generator_activations();
         act.gen = (u1.to_vec(), h1.to_vec(), u2.to_vec());
     }
-    ep.acts.push(act);
-    ep.seg.push(StepRec {
+    let step = StepRec {
         obs: std::mem::take(&mut ep.inp.obs),
         ps: std::mem::take(&mut ep.inp.ps),
         map: std::mem::take(&mut ep.inp.map),
@@ -700,7 +695,8 @@ fn finish_row<M: Mode>(
         reward: o.reward,
         probs: out.probs,
         expert: ep.inp.expert.take(),
-    });
+    };
+    ep.rec.push(step, act);
     Ok(())
 }
 
@@ -847,25 +843,17 @@ mod tests {
             let mut got = model.params.zeros_like();
             let mut worker = Worker::new(&model);
             let mut log = Vec::new();
+            let job = Share {
+                world: &world,
+                model: &model,
+                s: &s,
+                worker: &mut worker,
+                grads: &mut got,
+                sample,
+            };
             let done = match mode {
-                AdaptMode::Efficient => run_in::<Efficient>(
-                    &world,
-                    &model,
-                    &s,
-                    &mut worker,
-                    &mut got,
-                    sample,
-                    Some(&mut log),
-                ),
-                AdaptMode::Full => run_in::<Full>(
-                    &world,
-                    &model,
-                    &s,
-                    &mut worker,
-                    &mut got,
-                    sample,
-                    Some(&mut log),
-                ),
+                AdaptMode::Efficient => run_in::<Efficient>(job, Some(&mut log)),
+                AdaptMode::Full => run_in::<Full>(job, Some(&mut log)),
             }
             .unwrap();
             assert!(done.iter().filter(|f| f.1.adaptations > 0).count() >= 3);

@@ -47,6 +47,8 @@
 //! batch-1 trainer) while it has taken fewer than `min_steps` steps in the update, and the
 //! update ends when all its running episodes have ended; so an update holds at least `B`
 //! episodes per worker (with `B = 1` exactly the batch-1 rule).
+//!
+//! [`MAX_PENDING_STEPS`]: super::lockstep::MAX_PENDING_STEPS
 
 use anyhow::{anyhow, bail, Result};
 use gman_core::activation::{all_finite, leaky_relu_inplace, sigmoid_inplace};
@@ -60,11 +62,11 @@ use gman_core::rng::{fill_gaussian, Xoshiro128};
 use gman_core::{Dims, NUM_ACTIONS};
 
 use super::a3c::Objective;
-use super::bptt::{take_act, Backward, GenBufs, Rows, StepAct, Widths};
+use super::bptt::{take_act, Backward, GenBufs, Rows, Widths};
 use super::lockstep::{
-    backward_segments, bootstrap_values, check_batch_envs, collect_losses, fill_free_slots,
-    put_row, without_inner_loop, BackwardCtx, Finished, PendingSeg, RowState, SegLoss, StepInputs,
-    VecSettings, MAX_PENDING_STEPS,
+    backward_segments, bootstrap_values, check_batch_envs, collect_losses, lockstep, put_row,
+    without_inner_loop, BackwardCtx, Finished, PendingSeg, Recording, RowState, SegQueue, Share,
+    StepInputs, VecSettings,
 };
 use super::model::NavModel;
 use super::rollout::{disc_after_episode, expert_distribution, EpisodeStats, Worker};
@@ -88,8 +90,7 @@ struct Slot<'w> {
     z: Vec<f32>,
     x_valid: bool,
     x_fixed: bool,
-    seg: Vec<StepRec>,
-    acts: Vec<StepAct>,
+    rec: Recording,
     stats: EpisodeStats,
     /// This step's inputs (before the forward).
     inp: StepInputs,
@@ -108,14 +109,20 @@ pub fn run_worker(
     grads: &mut ParamSet,
     sample: impl FnMut(u32) -> Result<(EpisodeSpec, u32)>,
 ) -> Result<Vec<Finished>> {
+    let job = Share {
+        world,
+        model,
+        s,
+        worker,
+        grads,
+        sample,
+    };
     if !without_inner_loop(model) {
-        return super::vec_adapt::run_worker(world, model, s, worker, grads, sample);
+        return super::vec_adapt::run_worker(job);
     }
     match model.adapt_mode {
-        AdaptMode::Full => run_worker_in::<Full>(world, model, s, worker, grads, sample, None),
-        AdaptMode::Efficient => {
-            run_worker_in::<Efficient>(world, model, s, worker, grads, sample, None)
-        }
+        AdaptMode::Full => run_worker_in::<Full>(job, None),
+        AdaptMode::Efficient => run_worker_in::<Efficient>(job, None),
     }
 }
 
@@ -140,12 +147,8 @@ struct Bufs<'b> {
     gen: GenBufs,
     gb: GenBatch,
     /// Segments whose forward is done, waiting for their backward (see the module docs),
-    /// and their steps.
-    pending: Vec<PendingSeg>,
-    pending_steps: usize,
-    /// The segments' losses so far, and how many segments completed.
-    losses: Vec<SegLoss>,
-    seq: u32,
+    /// and the losses of those whose backward ran.
+    queue: SegQueue,
 }
 
 /// G's forward over the episodes of a tick that draw a new x_t, as one batch.
@@ -182,15 +185,20 @@ fn check_settings(model: &NavModel, s: &VecSettings<'_>) -> Result<()> {
     Ok(())
 }
 
+/// [`run_worker`] for a method without an inner loop, in the adaptation mode `M`; `keep`
+/// (the tests') takes the update's last waiting segments instead of their backward.
 fn run_worker_in<'w, M: Mode>(
-    world: &'w World,
-    model: &NavModel,
-    s: &VecSettings<'_>,
-    worker: &mut Worker,
-    grads: &mut ParamSet,
-    mut sample: impl FnMut(u32) -> Result<(EpisodeSpec, u32)>,
+    job: Share<'_, 'w, impl FnMut(u32) -> Result<(EpisodeSpec, u32)>>,
     keep: Option<&mut Vec<PendingSeg>>,
 ) -> Result<Vec<Finished>> {
+    let Share {
+        world,
+        model,
+        s,
+        worker,
+        grads,
+        sample,
+    } = job;
     check_settings(model, s)?;
     // The navigator provides the parameter views (G and the policy, in the model's mode).
     let weights = model.weights()?;
@@ -230,38 +238,36 @@ fn run_worker_in<'w, M: Mode>(
             zero_g: is_zero(&cx.gen.l1.w) && is_zero(&cx.gen.l2.w),
             ..GenBatch::default()
         },
-        pending: Vec::new(),
-        pending_steps: 0,
-        losses: Vec::new(),
-        seq: 0,
+        queue: SegQueue::new(),
     };
-    let mut slots: Vec<Option<Slot<'w>>> = (0..s.batch_envs).map(|_| None).collect();
     let mut done: Vec<Finished> = Vec::new();
-    let (mut next_e, mut taken) = (0u32, 0u64);
-    loop {
-        fill_free_slots(&mut slots, &mut next_e, taken, s.min_steps, |_, e| {
-            let (spec, max) = sample(e)?;
-            start_slot(world, &spec, model, s.reward, max, e, &w)
-        })?;
-        let active: Vec<usize> = (0..slots.len()).filter(|&i| slots[i].is_some()).collect();
-        if active.is_empty() {
-            break;
-        }
-        taken += step_slots(&cx, &mut bufs, &mut slots, &active)?;
-        close_segments(&cx, &mut bufs, &mut slots, &active, grads, &mut done, &disc)?;
-    }
+    lockstep(
+        s.batch_envs,
+        s.min_steps,
+        sample,
+        &mut (),
+        |_, _, e, spec, max| start_slot(world, spec, model, s.reward, max, e, &w),
+        |_, slots: &mut [Option<Slot<'w>>]| {
+            let active: Vec<usize> = (0..slots.len()).filter(|&i| slots[i].is_some()).collect();
+            let taken = step_slots(&cx, &mut bufs, slots, &active)?;
+            close_segments(&cx, &mut bufs, slots, &active, grads, &mut done, &disc)?;
+            Ok(taken)
+        },
+    )?;
     match keep {
         // The tests' view of the final batch: its segments, instead of their backward.
-        Some(k) => *k = std::mem::take(&mut bufs.pending),
+        Some(k) => *k = bufs.queue.take(),
         None => flush(&cx, &mut bufs, grads)?,
     }
-    collect_losses(bufs.losses, done)
+    collect_losses(bufs.queue.losses, done)
 }
 
 /// The segments complete at this tick (k = 20 steps, or the episode ended): their bootstrap
 /// values, then they wait for their backward (run at once with `B = 1`, the order of
 /// [`super::trainer::train_episode`], or when [`MAX_PENDING_STEPS`] steps wait); the ended
 /// episodes leave their slots, each with `disc`, D after it.
+///
+/// [`MAX_PENDING_STEPS`]: super::lockstep::MAX_PENDING_STEPS
 fn close_segments(
     cx: &Ctx<'_>,
     bufs: &mut Bufs<'_>,
@@ -277,14 +283,14 @@ fn close_segments(
         .filter(|&i| {
             slots[i]
                 .as_ref()
-                .is_some_and(|s| s.seg.len() == K || s.env.is_done())
+                .is_some_and(|s| s.rec.len() == K || s.env.is_done())
         })
         .collect();
     if ready.is_empty() {
         return Ok(());
     }
     pend_ready(cx, bufs, slots, &ready)?;
-    if cx.s.batch_envs == 1 || bufs.pending_steps >= MAX_PENDING_STEPS {
+    if cx.s.batch_envs == 1 || bufs.queue.full() {
         flush(cx, bufs, grads)?;
     }
     for slot in slots.iter_mut() {
@@ -347,8 +353,8 @@ fn step_slots(
         let action = select_action(Selection::Sample, &p, &mut sl.rng);
         sl.stats.actions.push(action.index() as u8);
         let o = sl.env.step(action);
-        sl.acts.push(take_act(rows, j, w));
-        let rec = StepRec {
+        let act = take_act(rows, j, w);
+        let step = StepRec {
             obs: std::mem::take(&mut sl.inp.obs),
             ps: std::mem::take(&mut sl.inp.ps),
             map: std::mem::take(&mut sl.inp.map),
@@ -362,7 +368,7 @@ fn step_slots(
             probs: p,
             expert: sl.inp.expert.take(),
         };
-        sl.seg.push(rec);
+        sl.rec.push(step, act);
     }
     Ok(n as u64)
 }
@@ -379,20 +385,10 @@ fn pend_ready(
     let boot = bootstrap(cx, b, slots, ready)?;
     for (&i, boot) in ready.iter().zip(boot) {
         let sl = slots[i].as_mut().ok_or_else(|| anyhow!("empty slot"))?;
-        let steps = std::mem::replace(&mut sl.seg, Vec::with_capacity(K));
-        let acts = std::mem::replace(&mut sl.acts, Vec::with_capacity(K));
-        b.pending_steps += steps.len();
-        b.pending.push(PendingSeg {
-            slot: i,
-            e: sl.e,
-            seq: b.seq,
-            steps,
-            acts,
-            attr: sl.attr.clone(),
-            bootstrap: boot,
-            own: (),
-        });
-        b.seq += 1;
+        let seg = b
+            .queue
+            .complete(i, sl.e, &mut sl.rec, sl.attr.clone(), boot, ());
+        b.queue.wait(seg);
     }
     Ok(())
 }
@@ -401,8 +397,7 @@ fn pend_ready(
 /// [`super::lockstep::backward_segments`]), at the update's parameters. Their losses are
 /// collected as `(episode, seq, loss)`; nothing is pending afterwards.
 fn flush(cx: &Ctx<'_>, b: &mut Bufs<'_>, grads: &mut ParamSet) -> Result<()> {
-    let mut pend = std::mem::take(&mut b.pending);
-    b.pending_steps = 0;
+    let mut pend = b.queue.take();
     let bx = BackwardCtx {
         policy: &cx.policy,
         gen: &cx.gen,
@@ -419,7 +414,7 @@ fn flush(cx: &Ctx<'_>, b: &mut Bufs<'_>, grads: &mut ParamSet) -> Result<()> {
         grads,
         &mut b.bw,
         &mut b.gen,
-        &mut b.losses,
+        &mut b.queue.losses,
     )
 }
 
@@ -537,8 +532,7 @@ fn start_slot<'w>(
         z: vec![0.0; w.z],
         x_valid: false,
         x_fixed,
-        seg: Vec::with_capacity(K),
-        acts: Vec::with_capacity(K),
+        rec: Recording::new(),
         stats: EpisodeStats::default(),
         inp: StepInputs::default(),
     })
@@ -680,16 +674,15 @@ mod tests {
             let run = |keep: Option<&mut Vec<PendingSeg>>| {
                 let mut grads = model.params.zeros_like();
                 let mut worker = Worker::new(&model);
-                let done = run_worker_in::<Efficient>(
-                    &world,
-                    &model,
-                    &s,
-                    &mut worker,
-                    &mut grads,
+                let job = Share {
+                    world: &world,
+                    model: &model,
+                    s: &s,
+                    worker: &mut worker,
+                    grads: &mut grads,
                     sample,
-                    keep,
-                )
-                .unwrap();
+                };
+                let done = run_worker_in::<Efficient>(job, keep).unwrap();
                 (grads, done)
             };
             let (got, done) = run(None);
