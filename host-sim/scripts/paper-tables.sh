@@ -19,6 +19,10 @@
 # flight. Re-running the script skips what is done and resumes an interrupted run exactly
 # (from its last checkpoint; a run trains to each chunk's step target in one or more resumed
 # launches, and resuming changes no bit). The table: `gman table --runs $OUT/gman ...` (below).
+#
+# KEEP=DIR (e.g. KEEP=results/paper, the folder the repository keeps) lays the finished runs kept
+# there into $OUT before the sweep starts, and keeps every run's small outputs there when it
+# finishes (host-sim/scripts/paper-keep.sh), so a sweep moved to another machine resumes.
 set -euo pipefail
 cd "${REPO:-$(dirname "$0")/../..}"
 D=${DATA:-../shared/data/gman}
@@ -33,6 +37,9 @@ if [ ! -x "$R/bin/gman" ]; then
   cp target/release/gman "$R/bin/gman"
 fi
 G=$R/bin/gman
+KEEP=${KEEP:-}
+KEEPER=$(pwd)/host-sim/scripts/paper-keep.sh
+[ -z "$KEEP" ] || [ ! -d "$KEEP" ] || bash "$KEEPER" restore "$KEEP" "$R"
 log() { echo "[$(date +%H:%M:%S)] $*"; }
 [ -f "$R/fg/fg.ckpt" ] || $G pretrain-fg --data "$D" --object-layout "$LAYOUT" --preset mcu --seed 1 --out "$R/fg" --quiet
 [ -f "$R/ps/ps.ckpt" ] || $G pretrain-ps --data "$D" --object-layout "$LAYOUT" --seed 1 --out "$R/ps" --quiet
@@ -95,7 +102,13 @@ run() {
       $G eval --data "$D" --object-layout "$LAYOUT" --split val --agent "$dir/checkpoint.ckpt" \
         --method gman-nometa --inner-lr 0.01 --json "$R/gman-nometa/s$s.json" --quiet ;;
   esac
+  # the int8 blob of the run (gman eval runs it through gman-core; a PS row's blob needs the
+  # PS input from outside, `gman export` says so)
+  mkdir -p "$R/models"
+  [ -f "$R/models/$row-s$s.gman" ] ||
+    $G export --ckpt "$dir/checkpoint.ckpt" --preset mcu --quant int8 --out "$R/models/$row-s$s.gman" >/dev/null
   cp "$dir/curve/k$STEPS.json" "$R/$row/s$s.json"
+  [ -z "$KEEP" ] || bash "$KEEPER" save "$R" "$KEEP"
 }
 
 # Seed by seed, so that a partial sweep is a complete table over fewer seeds: every row for
