@@ -3,9 +3,10 @@
 //! ([`register_plot_font`]), the scale bar and the colour swatches do not.
 //!
 //! Legend: light grey squares are reachable cells from the data, light blue squares cells added
-//! by gap filling; filled discs are objects with known positions, rings objects placed by the
-//! seeded rule (colour per category, size from the footprint radius); goal instances have a
-//! thick black outline. A path is drawn in red from a green start marker (with a heading tick)
+//! by gap filling; tinted rectangles are objects with an AI2-THOR 5.0 box (the `thor5` layout,
+//! the box seen from above), filled discs other objects with known positions, rings objects
+//! placed by the seeded rule (colour per category, disc size from the footprint radius); goal
+//! instances have a thick black outline. A path is drawn in red from a green start marker (with a heading tick)
 //! to a blue end marker. +x points right, +z up.
 
 use std::path::Path;
@@ -57,6 +58,10 @@ impl Frame {
         }
         for o in &sc.objects {
             extend(o.pos[0], o.pos[2]);
+            if let Some(b) = o.aabb {
+                extend(b.center[0] - b.size[0] * 0.5, b.center[2] - b.size[2] * 0.5);
+                extend(b.center[0] + b.size[0] * 0.5, b.center[2] + b.size[2] * 0.5);
+            }
         }
         let (x0, z0) = (min.0 - MARGIN_M, min.1 - MARGIN_M);
         let (x1, z1) = (max.0 + MARGIN_M, max.1 + MARGIN_M);
@@ -127,7 +132,7 @@ fn draw_header<DB: DrawingBackend>(
         (GREEN, "start"),
         (RED, "path"),
         (BLUE, "end"),
-        (BLACK, "goal (black ring)"),
+        (BLACK, "goal (black outline)"),
     ];
     for (i, (c, _)) in swatches.iter().enumerate() {
         let x = 10 + 92 * i as i32;
@@ -147,7 +152,8 @@ fn draw_header<DB: DrawingBackend>(
             root.draw(&Text::new(l.to_string(), (x + 16, 49), small.clone()))?;
         }
         root.draw(&Text::new(
-            "objects: filled = known position, ring = placed by rule".to_string(),
+            "objects: rectangle = AI2-THOR 5.0 box, disc = known position, ring = placed by rule"
+                .to_string(),
             (10, 30),
             small,
         ))?;
@@ -180,8 +186,8 @@ fn draw_cells<DB: DrawingBackend>(
     Ok(())
 }
 
-/// The objects: discs at known positions, rings where the rule placed them, the goal's
-/// instances outlined in black.
+/// The objects: boxes where AI2-THOR 5.0 gives one, else discs at known positions and rings
+/// where the rule placed them; the goal's instances outlined in black.
 fn draw_objects<DB: DrawingBackend>(
     root: &DrawingArea<DB, plotters::coord::Shift>,
     world: &World,
@@ -192,6 +198,10 @@ fn draw_objects<DB: DrawingBackend>(
     for o in &sc.objects {
         let name = world.category_name(o.category);
         let color = category_color(name);
+        if let Some(b) = o.aabb {
+            draw_box(root, &b, color, goal == Some(o.category), frame)?;
+            continue;
+        }
         let r = ((world.categories[o.category as usize].props.radius * frame.scale) as i32).max(4);
         let c = frame.px(o.pos[0], o.pos[2]);
         if goal == Some(o.category) {
@@ -206,6 +216,30 @@ fn draw_objects<DB: DrawingBackend>(
             root.draw(&Circle::new(c, r, WHITE.filled()))?;
         }
         root.draw(&Circle::new(c, r, style))?;
+    }
+    Ok(())
+}
+
+/// An object's AI2-THOR 5.0 box seen from above (its x-z rectangle, at least 8 px a side so
+/// that small objects stay visible): tinted inside, outlined in the category's colour, a goal
+/// instance outlined in black.
+fn draw_box<DB: DrawingBackend>(
+    root: &DrawingArea<DB, plotters::coord::Shift>,
+    b: &super::geometry::Aabb,
+    color: RGBColor,
+    goal: bool,
+    frame: &Frame,
+) -> Drawn<DB> {
+    let (x0, z1) = frame.px(b.center[0] - b.size[0] * 0.5, b.center[2] + b.size[2] * 0.5);
+    let (x1, z0) = frame.px(b.center[0] + b.size[0] * 0.5, b.center[2] - b.size[2] * 0.5);
+    let (cx, cz) = ((x0 + x1) / 2, (z0 + z1) / 2);
+    let (hx, hz) = (((x1 - x0) / 2).max(4), ((z0 - z1) / 2).max(4));
+    let corners = [(cx - hx, cz - hz), (cx + hx, cz + hz)];
+    root.draw(&Rectangle::new(corners, color.mix(0.3).filled()))?;
+    root.draw(&Rectangle::new(corners, color.stroke_width(2)))?;
+    if goal {
+        let outer = [(cx - hx - 3, cz - hz - 3), (cx + hx + 3, cz + hz + 3)];
+        root.draw(&Rectangle::new(outer, BLACK.stroke_width(3)))?;
     }
     Ok(())
 }
