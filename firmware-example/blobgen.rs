@@ -5,8 +5,8 @@
 //! int8` does).
 
 use gman_core::blob::{
-    encode_model_scratch_len, encode_with_settings, encoded_len_bound, encoded_model_len_bound,
-    AdaptSettings, Blob, Quant, TensorData, TensorSpec,
+    encode_model_scratch_len, encoded_model_len_bound, reencode_with_flags, reencoded_len_bound,
+    AdaptSettings, Blob, Quant,
 };
 use gman_core::schema::{FLAG_ADAPT, FLAG_INT8_ACTIVATIONS};
 use gman_core::seeded::encode_seeded;
@@ -53,40 +53,9 @@ pub fn default_blob_in(base: &std::path::Path) -> Vec<u8> {
 /// the other flags and the inner-loop settings kept (the bytes `gman export --activations
 /// int8` writes; the parity test compares the two).
 pub fn with_int8_activations(bytes: &[u8]) -> Result<Vec<u8>, gman_core::BlobError> {
-    let blob = Blob::parse(bytes)?;
-    let h = blob.header();
-    let le = |b: &[u8]| -> Vec<f32> {
-        b.chunks_exact(4)
-            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-            .collect()
-    };
-    let owned: Vec<_> = blob
-        .tensors()
-        .map(|t| {
-            let v = le(if t.quant == Quant::F32 {
-                t.data
-            } else {
-                t.scales
-            });
-            (t, v)
-        })
-        .collect();
-    let specs: Vec<TensorSpec<'_>> = owned
-        .iter()
-        .map(|(t, v)| TensorSpec {
-            id: t.id,
-            data: match t.quant {
-                Quant::F32 => TensorData::F32(v),
-                Quant::I8 => TensorData::I8 {
-                    q: t.data,
-                    scales: v,
-                },
-            },
-        })
-        .collect();
-    let mut out = vec![0u8; encoded_len_bound(&specs)];
-    let flags = h.flags() | FLAG_INT8_ACTIVATIONS;
-    let n = encode_with_settings(&h.dims(), flags, h.adapt_settings(), &specs, &mut out)?;
+    let flags = Blob::parse(bytes)?.header().flags() | FLAG_INT8_ACTIVATIONS;
+    let mut out = vec![0u8; reencoded_len_bound(bytes)];
+    let n = reencode_with_flags(bytes, flags, &mut out)?;
     out.truncate(n);
     Ok(out)
 }

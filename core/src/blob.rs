@@ -866,7 +866,7 @@ struct RecordOut<'a> {
     cols: u32,
     quant: u8,
     data: DataOut<'a>,
-    scales: F32Bytes<'a>,
+    scales: DataOut<'a>,
 }
 
 enum DataOut<'a> {
@@ -989,7 +989,11 @@ impl<'o> Encoder<'o> {
                 if v.iter().any(|x| !x.is_finite()) {
                     return Err(BlobError::NonFiniteWeight { id: raw });
                 }
-                (Quant::F32, DataOut::F32(F32Bytes(v)), F32Bytes(&[]))
+                (
+                    Quant::F32,
+                    DataOut::F32(F32Bytes(v)),
+                    DataOut::F32(F32Bytes(&[])),
+                )
             }
             TensorData::I8 { q, scales } => {
                 if t.id.is_vector() {
@@ -1001,9 +1005,67 @@ impl<'o> Encoder<'o> {
                 if scales.iter().any(|s| !s.is_finite() || *s < 0.0) {
                     return Err(BlobError::NonFiniteScale { id: raw });
                 }
-                (Quant::I8, DataOut::Raw(RawBytes(q)), F32Bytes(scales))
+                (
+                    Quant::I8,
+                    DataOut::Raw(RawBytes(q)),
+                    DataOut::F32(F32Bytes(scales)),
+                )
             }
         };
+        self.write_record(raw, rows, cols, quant, data, scales)
+    }
+
+    /// Appends the record of a tensor of a parsed blob, its bytes as they are (the same
+    /// record [`Encoder::push`] writes for its values), checked like [`Encoder::push`]
+    /// checks values.
+    pub fn push_view(&mut self, t: &TensorView<'_>) -> Result<(), BlobError> {
+        let raw = t.id as u16;
+        if core::mem::replace(&mut self.seen[t.id as usize], true) {
+            return Err(BlobError::DuplicateTensor { id: raw });
+        }
+        if !t.id.present(&self.dims) || t.id.shape(&self.dims) != (t.rows, t.cols) {
+            return Err(BlobError::BadTensorShape { id: raw });
+        }
+        let le = |b: &[u8]| -> f32 { f32::from_le_bytes([b[0], b[1], b[2], b[3]]) };
+        let n = t.rows * t.cols;
+        match t.quant {
+            Quant::F32 => {
+                if t.data.len() != 4 * n || !t.scales.is_empty() {
+                    return Err(BlobError::BadTensorShape { id: raw });
+                }
+                if t.data.chunks_exact(4).any(|b| !le(b).is_finite()) {
+                    return Err(BlobError::NonFiniteWeight { id: raw });
+                }
+            }
+            Quant::I8 => {
+                if t.id.is_vector() {
+                    return Err(BlobError::BadQuantization { id: raw });
+                }
+                if t.data.len() != n || t.scales.len() != 4 * t.rows {
+                    return Err(BlobError::BadTensorShape { id: raw });
+                }
+                let bad = |b: &[u8]| !le(b).is_finite() || le(b) < 0.0;
+                if t.scales.chunks_exact(4).any(bad) {
+                    return Err(BlobError::NonFiniteScale { id: raw });
+                }
+            }
+        }
+        let (data, scales) = (
+            DataOut::Raw(RawBytes(t.data)),
+            DataOut::Raw(RawBytes(t.scales)),
+        );
+        self.write_record(raw, t.rows, t.cols, t.quant, data, scales)
+    }
+
+    fn write_record(
+        &mut self,
+        raw: u16,
+        rows: usize,
+        cols: usize,
+        quant: Quant,
+        data: DataOut<'_>,
+        scales: DataOut<'_>,
+    ) -> Result<(), BlobError> {
         let rec = RecordOut {
             id: raw,
             rows: rows as u32,
@@ -1056,6 +1118,27 @@ impl<'o> Encoder<'o> {
         out[..hlen].copy_from_slice(&hbuf[..hlen]);
         Ok(hlen + payload_len)
     }
+}
+
+/// Length of the `out` buffer [`reencode_with_flags`] needs for the blob `bytes`.
+pub const fn reencoded_len_bound(bytes: &[u8]) -> usize {
+    bytes.len().saturating_add(HEADER_RESERVE)
+}
+
+/// The blob `bytes` emitted again through the one encoder with the model flags `flags`:
+/// the dims, the inner-loop settings and every tensor record are kept byte for byte (a
+/// format v1-v3 blob comes out as the current format). Writes into `out` (at least
+/// [`reencoded_len_bound`] bytes) and returns the new blob's length. `gman export --blob
+/// --activations` and the firmware's build script set or clear
+/// [`crate::schema::FLAG_INT8_ACTIVATIONS`] with it.
+pub fn reencode_with_flags(bytes: &[u8], flags: u32, out: &mut [u8]) -> Result<usize, BlobError> {
+    let blob = Blob::parse(bytes)?;
+    let h = blob.header();
+    let mut e = Encoder::new(&h.dims(), flags, h.adapt_settings(), out)?;
+    for t in blob.tensors() {
+        e.push_view(&t)?;
+    }
+    e.finish()
 }
 
 /// Bytes a blob of every tensor of `d` takes at most, in `quant` (matrices; vectors are

@@ -145,6 +145,27 @@ pub struct PolicyScratch<'a> {
     pub cell_tmp: &'a mut [f32],
 }
 
+/// Whether the map's cell layer runs [`crate::qkernel::cell_layer_int8`] (an int8 view on
+/// int8 activations without a gain: the integer path's own form of `W [m; m ⊙ x]`).
+fn int8_cells(cell: &Dense<'_>) -> bool {
+    cell.w.int8_activations() && cell.gain.is_none()
+}
+
+/// The cell layer on the integer path for one step's cells: `out` (`cells x cell_embed`)
+/// receives `LeakyReLU(W [m_c; m_c ⊙ x] + b)`.
+fn cell_layer_int8(cell: &Dense<'_>, map: &[f32], x: &[f32], out: &mut [f32]) -> Result<()> {
+    let ce = cell.out_dim();
+    if ce == 0 {
+        return Ok(());
+    }
+    for o in out.chunks_exact_mut(ce) {
+        o.copy_from_slice(cell.b);
+    }
+    crate::qkernel::cell_layer_int8(&cell.w, map, x, out)?;
+    leaky_relu_inplace(out);
+    Ok(())
+}
+
 impl<'a> Policy<'a> {
     /// Checks the layer shapes against each other.
     pub fn validate(&self) -> Result<()> {
@@ -181,19 +202,37 @@ impl<'a> Policy<'a> {
         self.validate()?;
         let wd = self.batch_widths(inp, 1, cache.cell.len())?;
         let (f, cells, ce) = (wd.f, wd.cells, wd.ce);
-        if let Some(cell) = &self.cell {
-            check_len("policy.cell_prod", f, cache.cell_prod.len())?;
-            for c in 0..cells {
-                let m = &inp.map[c * f..(c + 1) * f];
-                for ((p, &mv), &x) in cache.cell_prod.iter_mut().zip(m).zip(inp.feat) {
-                    *p = mv * x;
-                }
-                let out = &mut cache.cell[c * ce..(c + 1) * ce];
-                cell.forward(&[m, cache.cell_prod], &mut [], out)?;
-                leaky_relu_inplace(out);
+        match &self.cell {
+            Some(cell) if int8_cells(cell) => {
+                cell_layer_int8(cell, inp.map, inp.feat, &mut cache.cell[..cells * ce])?;
             }
+            Some(cell) => self.cells_f32(cell, inp, f, cells, ce, cache)?,
+            None => {}
         }
         self.forward_tail(1, wd, inp, h_prev, c_prev, cache)
+    }
+
+    /// The map's cells one at a time through a single cell's scratch (`cache.cell_prod`).
+    fn cells_f32(
+        &self,
+        cell: &Dense<'_>,
+        inp: &PolicyInput<'_>,
+        f: usize,
+        cells: usize,
+        ce: usize,
+        cache: &mut PolicyCache<'_>,
+    ) -> Result<()> {
+        check_len("policy.cell_prod", f, cache.cell_prod.len())?;
+        for c in 0..cells {
+            let m = &inp.map[c * f..(c + 1) * f];
+            for ((p, &mv), &x) in cache.cell_prod.iter_mut().zip(m).zip(inp.feat) {
+                *p = mv * x;
+            }
+            let out = &mut cache.cell[c * ce..(c + 1) * ce];
+            cell.forward(&[m, cache.cell_prod], &mut [], out)?;
+            leaky_relu_inplace(out);
+        }
+        Ok(())
     }
 
     /// The policy after the cell layer, over a batch of `n` rows: `s_t ⊙ x_t`, the fusion
@@ -377,14 +416,26 @@ impl<'a> Policy<'a> {
                     }
                 }
             }
-            cell.forward_batch(
-                &[inp.map, cache.cell_prod],
-                &[f, f],
-                nc,
-                &mut [],
-                cache.cell,
-            )?;
-            leaky_relu_inplace(cache.cell);
+            if int8_cells(cell) && f > 0 {
+                let (cells, ce) = (wd.cells, wd.ce);
+                for ((m, x), o) in inp
+                    .map
+                    .chunks_exact(cells * f)
+                    .zip(inp.feat.chunks_exact(f))
+                    .zip(cache.cell.chunks_exact_mut(cells * ce))
+                {
+                    cell_layer_int8(cell, m, x, o)?;
+                }
+            } else {
+                cell.forward_batch(
+                    &[inp.map, cache.cell_prod],
+                    &[f, f],
+                    nc,
+                    &mut [],
+                    cache.cell,
+                )?;
+                leaky_relu_inplace(cache.cell);
+            }
         }
         self.forward_tail(n, wd, inp, h_prev, c_prev, cache)
     }

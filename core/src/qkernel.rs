@@ -214,6 +214,26 @@ pub fn dots_i8_rows(q: &[u8], cols: usize, col0: usize, xq: &[i8], out: &mut [i3
 /// checks this function.
 #[inline(always)]
 pub fn dots_i8_dsp(q: &[u8], cols: usize, col0: usize, xq: &[i8], xp: &[u32], out: &mut [i32]) {
+    dots_dsp(q, cols, col0, xq, xp, out)
+}
+
+/// [`dots_i8_dsp`] on int16 inputs (the map layer's products, [`cell_layer_int8`]): `xp`
+/// holds them packed as [`gman_dsp::pair_words`] packs them, `xq` the columns past those.
+/// The same integers as [`dots_i16`].
+#[inline(always)]
+pub fn dots_i16_dsp(q: &[u8], cols: usize, col0: usize, xq: &[i16], xp: &[u32], out: &mut [i32]) {
+    dots_dsp(q, cols, col0, xq, xp, out)
+}
+
+#[inline(always)]
+fn dots_dsp<T: Copy + Into<i32>>(
+    q: &[u8],
+    cols: usize,
+    col0: usize,
+    xq: &[T],
+    xp: &[u32],
+    out: &mut [i32],
+) {
     let end = col0 + xq.len();
     if cols == 0 || end > cols {
         out.fill(0);
@@ -224,7 +244,7 @@ pub fn dots_i8_dsp(q: &[u8], cols: usize, col0: usize, xq: &[i8], xp: &[u32], ou
     let tail = |row: &[u8]| -> i32 {
         let mut acc = 0i32;
         for (&w, &x) in row[main..].iter().zip(&xq[main..]) {
-            acc += (w as i8 as i32) * (x as i32);
+            acc += (w as i8 as i32) * x.into();
         }
         acc
     };
@@ -244,6 +264,23 @@ pub fn dots_i8_dsp(q: &[u8], cols: usize, col0: usize, xq: &[i8], xp: &[u32], ou
             Some(a) => gman_dsp::dots2(a, a, xp).0 + tail(a),
             None => 0,
         };
+    }
+}
+
+/// [`dots_i8`] on int16 inputs: `out[r] = sum_j (q[r * cols + col0 + j] as i8) * x[j]`, the
+/// portable kernel of the map layer's products ([`cell_layer_int8`]).
+pub fn dots_i16(q: &[u8], cols: usize, col0: usize, x: &[i16], out: &mut [i32]) {
+    let end = col0 + x.len();
+    if cols == 0 || end > cols {
+        out.fill(0);
+        return;
+    }
+    for (row, o) in q.chunks_exact(cols).zip(out.iter_mut()) {
+        let mut acc = 0i32;
+        for (&w, &v) in row[col0..end].iter().zip(x) {
+            acc += (w as i8 as i32) * (v as i32);
+        }
+        *o = acc;
     }
 }
 
@@ -267,13 +304,23 @@ enum Dots {
 /// int8 (else the call is an error naming it); `x` are segments adding up to `w.cols()`.
 /// A kernel table attached to `w` fills the accumulators (same integers).
 pub fn matvec_acc_int8(w: &MatRef<'_>, x: &[&[f32]], y: &mut [f32]) -> Result<()> {
-    let dots = match w.kernels() {
+    matvec_int8_with(w, x, y, pick(w))
+}
+
+/// The kernel of a view: the DSP kernel on a DSP target (a constant there, so that a firmware
+/// image holds the drivers' DSP form only), else the view's table if it has one, else the
+/// target's.
+#[inline]
+fn pick(w: &MatRef<'_>) -> Dots {
+    if gman_dsp::HAS_DSP {
+        return Dots::Dsp;
+    }
+    match w.kernels() {
         Some(k) => Dots::Table(k),
         None if gman_dsp::HAS_DSP => Dots::Dsp,
         None if cfg!(target_arch = "arm") => Dots::Rows,
         None => Dots::Portable,
-    };
-    matvec_int8_with(w, x, y, dots)
+    }
 }
 
 /// [`matvec_acc_int8`] with gman-core's portable kernel whatever the target or the view's
@@ -330,16 +377,197 @@ fn matvec_int8_with(w: &MatRef<'_>, x: &[&[f32]], y: &mut [f32], dots: Dots) -> 
     Ok(())
 }
 
+/// Map cells whose scales [`cell_layer_int8`] holds at once (more cells run in groups of
+/// this many; each cell's computation is the same).
+const CELL_GROUP: usize = 16;
+
+/// The map's per-cell layer on int8 activations: `out_c += W [m_c; m_c ⊙ x]` for every cell
+/// `c` of `map` (`cells x f`, cell-major; `x` is `f` wide, `W` is `rows x 2f`, `out` is
+/// `cells x rows`, holding the bias). Its canonical computation differs from
+/// [`matvec_acc_int8`] of the two segments in one point: the product `m_c ⊙ x` is not
+/// formed in f32 and quantised again, it is the product of the two quantised factors,
+/// exact in int16 (`|p| <= 127 * 127`):
+///
+/// * `x` is quantised once for all cells (its own scale `s_x`, [`act_range`]), `m_c` once
+///   per cell (scale `s_m`); a segment whose scale is 0 adds nothing;
+/// * per block of [`QCOLS`] columns `b`, in order: `y_i += (acc_i as f32) * (s_m * s_i)`
+///   with `acc_i = sum_j q_ij pm_j` over the block of the `m` half, then
+///   `y_i += (acc_i as f32) * ((s_m * s_x) * s_i)` with `acc_i = sum_j q_i,f+j (pm_j px_j)`
+///   over the same block of the product half (`|acc| <= 128 * 127 * 127 * QCOLS < 2^31`).
+///
+/// Each value of the map is quantised once and serves both halves; `x` is quantised once
+/// per step instead of nine products per cell. The DSP kernel runs the int16 products as
+/// they are (`SMLAD` multiplies int16 halves; [`dots_i16_dsp`]).
+pub fn cell_layer_int8(w: &MatRef<'_>, map: &[f32], x: &[f32], out: &mut [f32]) -> Result<()> {
+    if gman_dsp::HAS_DSP {
+        return cell_layer_with::<true>(w, map, x, out, Dots::Dsp);
+    }
+    cell_layer_with::<false>(w, map, x, out, pick(w))
+}
+
+/// [`cell_layer_int8`] with the portable kernels whatever the target or kernel table.
+pub fn cell_layer_int8_portable(
+    w: &MatRef<'_>,
+    map: &[f32],
+    x: &[f32],
+    out: &mut [f32],
+) -> Result<()> {
+    cell_layer_with::<false>(w, map, x, out, Dots::Portable)
+}
+
+/// [`cell_layer_int8`] with the DSP kernels whatever the target (on a host: their model).
+pub fn cell_layer_int8_dsp(w: &MatRef<'_>, map: &[f32], x: &[f32], out: &mut [f32]) -> Result<()> {
+    cell_layer_with::<true>(w, map, x, out, Dots::Dsp)
+}
+
+/// Multiplies the int16 halves of two words packed by [`gman_dsp::pair_words`]: the packed
+/// words of the four products (each product must fit in an int16).
+#[inline(always)]
+fn mul_halves(a: u32, b: u32) -> u32 {
+    let lo = (a as u16 as i16 as i32) * (b as u16 as i16 as i32);
+    let hi = ((a as i32) >> 16) * ((b as i32) >> 16);
+    (lo as u32 & 0xffff) | ((hi as u32) << 16)
+}
+
+/// `DSP`: the kernel is [`Dots::Dsp`] (a constant, so that an image holds that form only).
+#[inline(never)]
+fn cell_layer_with<const DSP: bool>(
+    w: &MatRef<'_>,
+    map: &[f32],
+    x: &[f32],
+    out: &mut [f32],
+    dots: Dots,
+) -> Result<()> {
+    let (rows, cols, f) = (w.rows(), w.cols(), x.len());
+    check_len("cell_int8.w", 2 * f, cols)?;
+    let Weights::I8 { q, scales } = w.weights() else {
+        return Err(crate::Error::Config {
+            what: "cell_layer_int8: the matrix is not int8",
+        });
+    };
+    let cells = map.len().checked_div(f).unwrap_or(0);
+    check_len("cell_int8.map", cells * f, map.len())?;
+    check_len("cell_int8.out", cells * rows, out.len())?;
+    if f == 0 || rows == 0 {
+        return Ok(());
+    }
+    let dots = if DSP { Dots::Dsp } else { dots };
+    let dsp = DSP || matches!(dots, Dots::Dsp);
+    let (sx, xinv, xnonneg) = act_range(x);
+    let mut xq = [0i8; QCOLS];
+    let mut xw = [0u32; QWORDS];
+    let mut mq = [0i8; QCOLS];
+    let mut mw = [0u32; QWORDS];
+    let mut pq = [0i16; QCOLS];
+    let mut acc = [0i32; QROWS];
+    let mut sc = [(0.0f32, 0.0f32, false); CELL_GROUP];
+    for (mg, og) in map
+        .chunks(CELL_GROUP * f)
+        .zip(out.chunks_mut(CELL_GROUP * rows))
+    {
+        for (s, m) in sc.iter_mut().zip(mg.chunks_exact(f)) {
+            *s = act_range(m);
+        }
+        for c0 in (0..f).step_by(QCOLS) {
+            let len = (f - c0).min(QCOLS);
+            let (xq, mq, pq) = (&mut xq[..len], &mut mq[..len], &mut pq[..len]);
+            let mut xpacked = 0;
+            if sx > 0.0 {
+                if dsp {
+                    xpacked = quantize_pack(&x[c0..c0 + len], xinv, xnonneg, xq, &mut xw);
+                } else {
+                    quantize_act(&x[c0..c0 + len], xinv, xq);
+                }
+            }
+            for ((m, o), &(sm, minv, mnonneg)) in
+                mg.chunks_exact(f).zip(og.chunks_exact_mut(rows)).zip(&sc)
+            {
+                if sm <= 0.0 {
+                    continue;
+                }
+                let mb = &m[c0..c0 + len];
+                let packed = if dsp {
+                    quantize_pack(mb, minv, mnonneg, mq, &mut mw)
+                } else {
+                    quantize_act(mb, minv, mq);
+                    0
+                };
+                let words = &mut mw[..packed / 2];
+                block(q, &scales, cols, c0, &*mq, words, sm, &mut acc, o, dots);
+                if sx > 0.0 {
+                    // The product block: packed words multiplied half by half, the columns
+                    // past them (all of them off the DSP path) one by one.
+                    let done = packed.min(xpacked);
+                    for (a, &b) in words[..done / 2].iter_mut().zip(&xw) {
+                        *a = mul_halves(*a, b);
+                    }
+                    for ((p, &a), &b) in pq.iter_mut().zip(mq.iter()).zip(xq.iter()).skip(done) {
+                        *p = a as i16 * b as i16;
+                    }
+                    let words = &mw[..done / 2];
+                    block(
+                        q,
+                        &scales,
+                        cols,
+                        f + c0,
+                        &*pq,
+                        words,
+                        sm * sx,
+                        &mut acc,
+                        o,
+                        dots,
+                    );
+                }
+            }
+        }
+    }
+    Ok(())
+}
+
+/// An input type of the integer kernels and the kernel that takes it: `i8` (quantised
+/// activations, every kernel) or `i16` (the map layer's products of two quantised values:
+/// the DSP kernel, whose `SMLAD` multiplies int16 halves, or the portable one).
+trait Act: Copy + Into<i32> {
+    fn dots(dots: Dots, q: &[u8], cols: usize, c0: usize, x: &[Self], xp: &[u32], acc: &mut [i32]);
+}
+
+impl Act for i8 {
+    #[inline(always)]
+    fn dots(dots: Dots, q: &[u8], cols: usize, c0: usize, x: &[i8], xp: &[u32], acc: &mut [i32]) {
+        match dots {
+            Dots::Portable => dots_i8(q, cols, c0, x, acc),
+            // (No DSP target runs the row-blocked kernel: one kernel less in its image.)
+            Dots::Rows if gman_dsp::HAS_DSP => dots_i8(q, cols, c0, x, acc),
+            Dots::Rows => dots_i8_rows(q, cols, c0, x, acc),
+            Dots::Dsp => dots_i8_dsp(q, cols, c0, x, xp, acc),
+            Dots::Table(k) => k.dots_i8(q, cols, c0, x, acc),
+        }
+    }
+}
+
+impl Act for i16 {
+    #[inline(always)]
+    fn dots(dots: Dots, q: &[u8], cols: usize, c0: usize, x: &[i16], xp: &[u32], acc: &mut [i32]) {
+        // A DSP target always runs the DSP form (the same integers; one kernel in its image).
+        match dots {
+            _ if gman_dsp::HAS_DSP => dots_i16_dsp(q, cols, c0, x, xp, acc),
+            Dots::Dsp => dots_i16_dsp(q, cols, c0, x, xp, acc),
+            _ => dots_i16(q, cols, c0, x, acc),
+        }
+    }
+}
+
 /// One quantised input block against every row: accumulators [`QROWS`] rows at a time, then
 /// `y_i += (acc_i as f32) * (s_x * s_i)`.
+// Not inlined: one copy per input type in an image, shared by the drivers.
 #[allow(clippy::too_many_arguments)]
-#[inline]
-fn block(
+#[inline(never)]
+fn block<T: Act>(
     q: &[u8],
     scales: &Scales<'_>,
     cols: usize,
     c0: usize,
-    xq: &[i8],
+    xq: &[T],
     xp: &[u32],
     sx: f32,
     acc: &mut [i32; QROWS],
@@ -348,12 +576,7 @@ fn block(
 ) {
     for (r0, (qr, yr)) in q.chunks(QROWS * cols).zip(y.chunks_mut(QROWS)).enumerate() {
         let acc = &mut acc[..yr.len()];
-        match dots {
-            Dots::Portable => dots_i8(qr, cols, c0, xq, acc),
-            Dots::Rows => dots_i8_rows(qr, cols, c0, xq, acc),
-            Dots::Dsp => dots_i8_dsp(qr, cols, c0, xq, xp, acc),
-            Dots::Table(k) => k.dots_i8(qr, cols, c0, xq, acc),
-        }
+        T::dots(dots, qr, cols, c0, xq, xp, acc);
         let first = r0 * QROWS;
         match scales {
             // The scales of these rows as one slice (`MatRef::i8` checked there is one per row).
@@ -643,6 +866,145 @@ mod tests {
             }
         }
         assert_eq!(y.map(f32::to_bits), want.map(f32::to_bits));
+    }
+
+    /// A map layer: `rows x 2f` int8 weights, `cells` cells (some all zero, some signed).
+    fn cell_case(rng: &mut Rng, rows: usize, f: usize, cells: usize) -> ([u8; 32768], [f32; 64]) {
+        assert!(rows * 2 * f <= 32768 && rows <= 64 && cells * f <= 8192);
+        let mut q = rand_i8(rng, rows * 2 * f);
+        q[0] = 0x80; // -128
+        let sc: [f32; 64] = core::array::from_fn(|i| 0.015 + i as f32 * 1e-4);
+        (q, sc)
+    }
+
+    fn cell_inputs(f: usize, cells: usize, signed_x: bool) -> ([f32; 8192], [f32; 512]) {
+        let mut map = [0.0f32; 8192];
+        for (i, v) in map[..cells * f].iter_mut().enumerate() {
+            *v = (((i * 37) % 256) as f32) / 255.0;
+        }
+        // An all-zero cell, a signed one.
+        if cells > 2 {
+            map[f..2 * f].fill(0.0);
+            for v in &mut map[2 * f..3 * f] {
+                *v -= 0.4;
+            }
+        }
+        let x: [f32; 512] = core::array::from_fn(|j| {
+            let v = libm::sinf(j as f32 * 0.53) * 1.7;
+            if signed_x {
+                v
+            } else {
+                libm::fabsf(v)
+            }
+        });
+        (map, x)
+    }
+
+    #[test]
+    fn cell_layer_dsp_gives_the_portable_bits_and_the_formula() {
+        let mut rng = Rng::seed_from_u64(21);
+        for &(rows, f, cells, signed_x) in &[
+            (8, 512, 9, false),
+            (9, 300, 18, true),
+            (3, 7, 20, false),
+            (1, 1, 2, true),
+            (5, 257, 3, true),
+        ] {
+            let (q, sc) = cell_case(&mut rng, rows, f, cells);
+            let q = &q[..rows * 2 * f];
+            let w = MatRef::i8(rows, 2 * f, q, Scales::F32(&sc[..rows])).unwrap();
+            let mut le = [0u8; 4 * 64];
+            for (b, s) in le.chunks_exact_mut(4).zip(&sc) {
+                b.copy_from_slice(&s.to_le_bytes());
+            }
+            let wl = MatRef::i8(rows, 2 * f, q, Scales::Le(&le[..4 * rows])).unwrap();
+            let (map, x) = cell_inputs(f, cells, signed_x);
+            let (map, x) = (&map[..cells * f], &x[..f]);
+            let n = cells * rows;
+            let mut y = [0.125f32; 512];
+            cell_layer_int8_portable(&w, map, x, &mut y[..n]).unwrap();
+            for m in [&w, &wl] {
+                let mut yd = [0.125f32; 512];
+                cell_layer_int8_dsp(m, map, x, &mut yd[..n]).unwrap();
+                for k in 0..n {
+                    assert_eq!(y[k].to_bits(), yd[k].to_bits(), "rows {rows} f {f} k {k}");
+                }
+                let mut yt = [0.125f32; 512];
+                cell_layer_int8(m, map, x, &mut yt[..n]).unwrap();
+                for k in 0..n {
+                    assert_eq!(y[k].to_bits(), yt[k].to_bits(), "rows {rows} f {f} k {k}");
+                }
+            }
+            // The canonical formula, written out.
+            let (sx, xinv) = act_scale(x);
+            let mut px = [0i8; 512];
+            quantize_act(x, xinv, &mut px[..f]);
+            for c in 0..cells {
+                let m = &map[c * f..(c + 1) * f];
+                let (sm, minv) = act_scale(m);
+                let mut pm = [0i8; 512];
+                quantize_act(m, minv, &mut pm[..f]);
+                for i in 0..rows {
+                    let mut want = 0.125f32;
+                    if sm > 0.0 {
+                        for c0 in (0..f).step_by(QCOLS) {
+                            let len = (f - c0).min(QCOLS);
+                            let w = |j: usize| q[i * 2 * f + j] as i8 as i32;
+                            let a: i32 = (c0..c0 + len).map(|j| w(j) * pm[j] as i32).sum();
+                            want += (a as f32) * (sm * sc[i]);
+                            if sx > 0.0 {
+                                let a: i32 = (c0..c0 + len)
+                                    .map(|j| w(f + j) * (pm[j] as i32 * px[j] as i32))
+                                    .sum();
+                                want += (a as f32) * ((sm * sx) * sc[i]);
+                            }
+                        }
+                    }
+                    assert_eq!(
+                        y[c * rows + i].to_bits(),
+                        want.to_bits(),
+                        "cell {c} row {i}"
+                    );
+                }
+                // Close to the f32 layer: |m x - pm px sm sx| <= (|m| sx + |x| sm) / 2 + sm sx / 4.
+                let mut prod = [0.0f32; 512];
+                for j in 0..f {
+                    prod[j] = m[j] * x[j];
+                }
+                let mut yf = [0.125f32; 64];
+                MatRef::i8(rows, 2 * f, q, Scales::F32(&sc[..rows]))
+                    .unwrap()
+                    .matvec_acc(&[m, &prod[..f]], &mut yf[..rows])
+                    .unwrap();
+                for i in 0..rows {
+                    let bound: f32 = (0..f)
+                        .map(|j| {
+                            let wm = (q[i * 2 * f + j] as i8 as f32).abs() * sc[i];
+                            let wp = (q[i * 2 * f + f + j] as i8 as f32).abs() * sc[i];
+                            wm * sm / 2.0
+                                + wp * ((m[j].abs() * sx + x[j].abs() * sm) / 2.0 + sm * sx / 4.0)
+                        })
+                        .sum();
+                    let got = y[c * rows + i];
+                    assert!(
+                        (got - yf[i]).abs() <= bound * 1.01 + 1e-4,
+                        "{got} vs {} ({bound})",
+                        yf[i]
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn products_multiply_half_by_half() {
+        for &(a, b) in &[(127i32, -127i32), (-127, -127), (0, 5), (-1, 1), (64, 2)] {
+            let wa = gman_dsp::pair_words([a, -a, b, a]);
+            let wb = gman_dsp::pair_words([b, b, -a, 1]);
+            let want = gman_dsp::pair_words([a * b, -a * b, -b * a, a]);
+            assert_eq!(mul_halves(wa[0], wb[0]), want[0]);
+            assert_eq!(mul_halves(wa[1], wb[1]), want[1]);
+        }
     }
 
     #[test]

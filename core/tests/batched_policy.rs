@@ -136,14 +136,30 @@ fn bits(v: &[f32]) -> Vec<u32> {
     v.iter().map(|x| x.to_bits()).collect()
 }
 
-fn check(map: bool, gain: bool, int8: bool, ps: usize) {
+/// `act8`: the int8 matrices (fusion, and the map's cell layer) run on int8 activations
+/// (the cell layer then through `qkernel::cell_layer_int8`).
+fn check(map: bool, gain: bool, int8: bool, act8: bool, ps: usize) {
     let cells = if map { 3 } else { 0 };
     let fuse_in = 3 * F + A + NUM_ACTIONS + ps + cells * CE;
     let p = params(fuse_in);
     let fuse_w = if int8 {
-        MatRef::i8(E, fuse_in, &p.fuse_q, Scales::F32(&p.fuse_s)).unwrap()
+        let m = MatRef::i8(E, fuse_in, &p.fuse_q, Scales::F32(&p.fuse_s)).unwrap();
+        if act8 {
+            m.with_int8_activations()
+        } else {
+            m
+        }
     } else {
         MatRef::f32(E, fuse_in, &p.fuse_w).unwrap()
+    };
+    let cell_q: Vec<u8> = p.cellw.iter().map(|v| ((v * 120.0) as i8) as u8).collect();
+    let cell_s = vec![0.01f32; CE];
+    let cell_w = if act8 {
+        MatRef::i8(CE, 2 * F, &cell_q, Scales::F32(&cell_s))
+            .unwrap()
+            .with_int8_activations()
+    } else {
+        MatRef::f32(CE, 2 * F, &p.cellw).unwrap()
     };
     let policy = Policy {
         fuse: Dense {
@@ -167,7 +183,7 @@ fn check(map: bool, gain: bool, int8: bool, ps: usize) {
             gain: None,
         },
         cell: map.then(|| Dense {
-            w: MatRef::f32(CE, 2 * F, &p.cellw).unwrap(),
+            w: cell_w,
             b: &p.cellb,
             gain: None,
         }),
@@ -436,9 +452,9 @@ fn check(map: bool, gain: bool, int8: bool, ps: usize) {
 fn batched_policy_matches_batch1_bit_for_bit() {
     for map in [false, true] {
         for gain in [false, true] {
-            for int8 in [false, true] {
+            for (int8, act8) in [(false, false), (true, false), (true, true)] {
                 for ps in [0, 2] {
-                    check(map, gain, int8, ps);
+                    check(map, gain, int8, act8, ps);
                 }
             }
         }

@@ -239,6 +239,7 @@ fn kernel_phase(clock: &Clock) -> Result<(), Failure> {
     let h: [f32; D.lstm_hidden] = core::array::from_fn(|i| sgn(i + 3));
     let mut y = [0.0f32; 4 * D.lstm_hidden];
     let mut yf = [0.0f32; D.feat];
+    let mut cell_prod = [0.0f32; D.feat];
     let time = |f: &mut dyn FnMut() -> gman_core::Result<()>| -> Result<u64, Failure> {
         let t0 = clock.now();
         f()?;
@@ -258,10 +259,20 @@ fn kernel_phase(clock: &Clock) -> Result<(), Failure> {
     );
     let g1 = time(&mut || mv(&g1w, &[&z, &attr], &mut y[..D.gen_hidden]))?;
     let g2 = time(&mut || mv(&g2w, &[&h1], &mut yf))?;
+    // The map layer: on int8 activations the integer path's own form over all cells
+    // (`qkernel::cell_layer_int8`, the product of the quantised factors), else one product
+    // per cell as the f32 path runs it.
+    let map: [f32; D.map_len()] = core::array::from_fn(|i| pos(i + i / D.feat));
+    let mut yc = [0.0f32; 72];
     let cell = time(&mut || {
-        for c in 0..D.map_cells() {
-            let mc: [f32; D.feat] = core::array::from_fn(|i| pos(i + c));
-            mv(&cw, &[&mc, &prod], &mut y[..D.cell_embed])?;
+        if act8 && gman_core::qkernel::INT8_ACTIVATIONS {
+            return gman_core::qkernel::cell_layer_int8(&cw, &map, &x, &mut yc);
+        }
+        for mc in map.chunks_exact(D.feat) {
+            for (p, (&a, &b)) in cell_prod.iter_mut().zip(mc.iter().zip(&x)) {
+                *p = a * b;
+            }
+            mv(&cw, &[mc, &cell_prod], &mut y[..D.cell_embed])?;
         }
         Ok(())
     })?;
@@ -356,6 +367,10 @@ fn run() -> Result<(), Failure> {
         Ok((stack_selftest, navigator_phase(&mut dev, arena)?))
     })
     .ok_or(Failure::Episode("arena already taken"))??;
+    // The kernel table's input arrays (the whole map among them) are no part of the
+    // navigator's stack: its peak is taken before them.
+    #[cfg(feature = "kernel-table")]
+    let stack_before_table = measure::stack_peak().ok_or(STACK_SATURATED)?;
     #[cfg(feature = "kernel-table")]
     kernel_phase(&clock)?;
 
@@ -389,7 +404,10 @@ fn run() -> Result<(), Failure> {
         u.mean_insns() * 1_000_000 / CPU_HZ,
         update_alone * 1_000_000 / CPU_HZ
     );
+    #[cfg(not(feature = "kernel-table"))]
     let stack_navigator = measure::stack_peak().ok_or(STACK_SATURATED)?;
+    #[cfg(feature = "kernel-table")]
+    let stack_navigator = stack_before_table;
     let act8 = blob_int8_activations()?;
     hprintln!(
         "# model: macs_per_step={} map_cells={} int8_activations={}",

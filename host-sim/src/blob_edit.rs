@@ -2,9 +2,7 @@
 //! gman-core's one encoder).
 
 use anyhow::{anyhow, bail, Result};
-use gman_core::blob::{
-    encode_with_settings, encoded_len_bound, Blob, Quant, TensorData, TensorSpec, TensorView,
-};
+use gman_core::blob::{reencode_with_flags, reencoded_len_bound, Blob, Quant};
 use gman_core::schema::FLAG_INT8_ACTIVATIONS;
 
 /// `bytes` (a weight blob) emitted again with [`FLAG_INT8_ACTIVATIONS`] set (`int8`) or
@@ -20,37 +18,8 @@ pub fn reencode_with_activations(bytes: &[u8], int8: bool) -> Result<Vec<u8>> {
         }
         flags |= FLAG_INT8_ACTIVATIONS;
     }
-    // Owned copies of every tensor (f32 data and int8 scales are little-endian bytes).
-    let le = |b: &[u8]| -> Vec<f32> {
-        b.chunks_exact(4)
-            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-            .collect()
-    };
-    let owned: Vec<(TensorView<'_>, Vec<f32>)> = blob
-        .tensors()
-        .map(|t| {
-            let v = match t.quant {
-                Quant::F32 => le(t.data),
-                Quant::I8 => le(t.scales),
-            };
-            (t, v)
-        })
-        .collect();
-    let specs: Vec<TensorSpec<'_>> = owned
-        .iter()
-        .map(|(t, v)| TensorSpec {
-            id: t.id,
-            data: match t.quant {
-                Quant::F32 => TensorData::F32(v),
-                Quant::I8 => TensorData::I8 {
-                    q: t.data,
-                    scales: v,
-                },
-            },
-        })
-        .collect();
-    let mut out = vec![0u8; encoded_len_bound(&specs)];
-    let n = encode_with_settings(&h.dims(), flags, h.adapt_settings(), &specs, &mut out)
+    let mut out = vec![0u8; reencoded_len_bound(bytes)];
+    let n = reencode_with_flags(bytes, flags, &mut out)
         .map_err(|e| anyhow!("encoding the blob: {e}"))?;
     out.truncate(n);
     Ok(out)

@@ -237,4 +237,32 @@ mod tests {
             assert_eq!(a, b, "rows {rows} cols {cols} col0 {col0} len {len}");
         }
     }
+
+    #[test]
+    fn avx2_map_layer_equals_the_portable_one() {
+        use gman_core::matrix::{MatRef, Scales};
+        use gman_core::qkernel::{cell_layer_int8, cell_layer_int8_portable};
+        let Some(k) = super::avx2() else {
+            eprintln!("SKIPPED: no AVX2 on this CPU");
+            return;
+        };
+        let (rows, f, cells) = (8, 512, 9);
+        let q: Vec<u8> = (0..rows * 2 * f)
+            .map(|i| ((i * 97 % 255) as i32 - 127) as i8 as u8)
+            .collect();
+        let sc: Vec<f32> = (0..rows).map(|i| 0.01 + i as f32 * 1e-3).collect();
+        let map: Vec<f32> = (0..cells * f)
+            .map(|i| (i * 31 % 256) as f32 / 255.0)
+            .collect();
+        let x: Vec<f32> = (0..f).map(|j| (j as f32 * 0.7).sin().abs()).collect();
+        let w = MatRef::i8(rows, 2 * f, &q, Scales::F32(&sc))
+            .unwrap()
+            .with_int8_activations();
+        let mut a = vec![0.5f32; cells * rows];
+        let mut b = a.clone();
+        cell_layer_int8_portable(&w, &map, &x, &mut a).unwrap();
+        cell_layer_int8(&w.with_kernels(k), &map, &x, &mut b).unwrap();
+        let bits = |v: &[f32]| v.iter().map(|f| f.to_bits()).collect::<Vec<_>>();
+        assert_eq!(bits(&a), bits(&b));
+    }
 }
