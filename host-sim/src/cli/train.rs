@@ -8,7 +8,7 @@ use clap::builder::TypedValueParser;
 use clap::{Args, ValueEnum};
 use gman_host_sim::nav::a3c::Objective;
 use gman_host_sim::nav::dist::{Group, Single};
-use gman_host_sim::nav::model::{Method, NavModel};
+use gman_host_sim::nav::model::{InnerRule, Method, ModelSpec, NavModel};
 use gman_host_sim::nav::trainer::{
     checkpoint_path, train_in, Distributed, RunSettings, TrainOptions, TrainState, WorldId,
 };
@@ -17,25 +17,11 @@ use gman_host_sim::pretrain::fg::{self, FgCollectConfig, FgTrainConfig};
 use gman_host_sim::pretrain::ps::{self, PsDataConfig, PsModule, PsTrainConfig};
 use gman_host_sim::sim::{RewardKind, World};
 
-use super::args::{PresetArg, WorldArgs};
+use gman_core::memory::AdaptMode;
+use gman_core::navigator::{NoiseMode, StepRule};
+use gman_core::schema::AdaptLossKind;
 
-/// `--adapt-mode`.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
-pub enum AdaptModeArg {
-    /// Every parameter of θ, ω and the actor head (hosts, application processors).
-    Full,
-    /// Per-unit gains and biases over the base weights (microcontrollers).
-    Efficient,
-}
-
-impl AdaptModeArg {
-    fn mode(self) -> gman_core::memory::AdaptMode {
-        match self {
-            AdaptModeArg::Full => gman_core::memory::AdaptMode::Full,
-            AdaptModeArg::Efficient => gman_core::memory::AdaptMode::Efficient,
-        }
-    }
-}
+use super::args::{named, PresetArg, WorldArgs};
 
 /// Training configuration presets.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -125,10 +111,10 @@ pub struct TrainArgs {
     #[arg(
         help_heading = "Inner loop (adaptation)",
         long,
-        value_enum,
+        value_parser = named::<StepRule>(),
         default_value = "gradient"
     )]
-    pub step_rule: gman_host_sim::nav::model::StepRuleName,
+    pub step_rule: StepRule,
     /// D restarts with every episode: layer 1 from ω, the output layer (w2, b2) at zero, so
     /// D's first ascent step sets the head from the episode's own buffer; ω then does not
     /// learn across episodes (paper: off, D persists). Recorded in the blob.
@@ -139,10 +125,10 @@ pub struct TrainArgs {
     #[arg(
         help_heading = "Inner loop (adaptation)",
         long,
-        value_enum,
+        value_parser = named::<AdaptLossKind>(),
         default_value = "paper"
     )]
-    pub adapt_loss: gman_host_sim::nav::model::AdaptLossName,
+    pub adapt_loss: AdaptLossKind,
     /// Scale L_D's critic terms by 10, as the reference implementation does (the paper: 1).
     /// Recorded in the blob.
     #[arg(help_heading = "Inner loop (adaptation)", long)]
@@ -191,8 +177,8 @@ pub struct TrainArgs {
     /// Adaptation mode of the inner loop (in training and on the device; blobs record it):
     /// `efficient` (per-unit gains and biases, what the microcontroller runs) or `full`
     /// (every parameter). Default: efficient for the mcu preset, full for paper.
-    #[arg(help_heading = "Inner loop (adaptation)", long, value_enum)]
-    pub adapt_mode: Option<AdaptModeArg>,
+    #[arg(help_heading = "Inner loop (adaptation)", long, value_parser = named::<AdaptMode>())]
+    pub adapt_mode: Option<AdaptMode>,
     /// Training objective: `a3c` (the paper's actor-critic loss) or `dagger` (imitation of
     /// the shortest-path oracle on the learner's own states: the imitation ceiling).
     #[arg(help_heading = "Optimisation", long, value_enum, default_value = "a3c")]
@@ -206,10 +192,10 @@ pub struct TrainArgs {
     #[arg(
         help_heading = "Inner loop (adaptation)",
         long,
-        value_enum,
+        value_parser = named::<NoiseMode>(),
         default_value = "gaussian"
     )]
-    pub noise: super::args::NoiseArg,
+    pub noise: NoiseMode,
     /// Meta-gradient order: 1 = first-order MAML (the gradient at the adapted parameters),
     /// 2 = exact through the inner SGD steps (Hessian-vector products by central finite
     /// differences of gradients).
@@ -342,17 +328,23 @@ fn resumed<T: PartialEq + std::fmt::Debug>(
     Ok(stored)
 }
 
-/// The inner rule the flags ask for.
-fn inner_rule(a: &TrainArgs) -> gman_host_sim::nav::model::InnerRule {
-    gman_host_sim::nav::model::InnerRule {
-        disc_lr: a.disc_lr,
-        disc_steps: a.disc_steps,
-        step_rule: a.step_rule,
-        disc_head_reset: a.disc_head_reset,
-        adapt_loss: a.adapt_loss,
-        reference_critic: a.reference_critic,
-        head_only: a.adapt_head_only,
-        commit_delay: a.commit_delay,
+/// The model's switches the flags ask for (those of a new run).
+fn model_spec(a: &TrainArgs) -> ModelSpec {
+    ModelSpec {
+        noise: a.noise,
+        inner_lr: a.inner_lr,
+        max_inner: a.max_inner,
+        adapt_mode: new_run_adapt_mode(a),
+        inner_rule: InnerRule {
+            disc_lr: a.disc_lr,
+            disc_steps: a.disc_steps,
+            step_rule: a.step_rule,
+            disc_head_reset: a.disc_head_reset,
+            adapt_loss: a.adapt_loss,
+            reference_critic: a.reference_critic,
+            head_only: a.adapt_head_only,
+            commit_delay: a.commit_delay,
+        },
     }
 }
 
@@ -362,13 +354,7 @@ const MAX_WORKERS: usize = 256;
 /// The checks on trainer settings, applied to the flags of a new run and to the settings a
 /// resumed run reads from its checkpoint (whose CRC says nothing about their sense). `what`
 /// names where they came from.
-fn validate_train_settings(
-    what: &str,
-    opts: &TrainOptions,
-    inner_lr: f32,
-    max_inner: u32,
-) -> Result<()> {
-    let _ = max_inner; // every u32 is a valid cap
+fn validate_train_settings(what: &str, opts: &TrainOptions) -> Result<()> {
     let bad = |msg: String| anyhow!("{what}: {msg}");
     if opts.run.workers == 0 || opts.run.workers > MAX_WORKERS {
         return Err(bad(format!(
@@ -384,11 +370,6 @@ fn validate_train_settings(
         return Err(bad(format!(
             "batch-envs must be in 1..={max_b}, got {}",
             opts.run.batch_envs
-        )));
-    }
-    if !(inner_lr.is_finite() && inner_lr >= 0.0) {
-        return Err(bad(format!(
-            "inner-lr must be finite and non-negative, got {inner_lr}"
         )));
     }
     let c = &opts.run.a3c;
@@ -439,7 +420,7 @@ fn world_identity(w: &WorldArgs, world: &World) -> Result<WorldId> {
 /// Efficient (what a microcontroller runs) for mcu.
 fn new_run_adapt_mode(a: &TrainArgs) -> gman_core::memory::AdaptMode {
     match (a.adapt_mode, a.preset) {
-        (Some(m), _) => m.mode(),
+        (Some(m), _) => m,
         (None, PresetArg::Paper) => gman_core::memory::AdaptMode::Full,
         (None, _) => gman_core::memory::AdaptMode::Efficient,
     }
@@ -450,6 +431,7 @@ fn check_train_flags(a: &TrainArgs) -> Result<()> {
     if a.map.0 > 0 && a.cell_embed == 0 {
         bail!("--cell-embed must be at least 1 with a --map");
     }
+    model_spec(a).validate().map_err(|e| anyhow!("--{e}"))?;
     if a.resume.is_some() {
         return Ok(());
     }
@@ -465,11 +447,10 @@ fn check_train_flags(a: &TrainArgs) -> Result<()> {
     {
         bail!("--meta-order 2 is implemented for the Full adaptation mode; add --adapt-mode full");
     }
-    inner_rule(a).validate()?;
     // The commit delay only moves the update in time: the meta-gradient is the same recursion.
-    let rule = gman_host_sim::nav::model::InnerRule {
+    let rule = InnerRule {
         commit_delay: 0,
-        ..inner_rule(a)
+        ..model_spec(a).inner_rule
     };
     if a.meta_order == 2 && a.method.adapts_in_training() && !rule.is_paper() {
         bail!("--meta-order 2 differentiates the paper's inner rule only (one D step, the gradient step, α1 = α2); use --meta-order 1 with --disc-lr, --disc-steps, --step-rule, --disc-head-reset, --adapt-loss, --reference-critic or --adapt-head-only");
@@ -567,7 +548,7 @@ fn train_on(
                 Some(s) => s,
                 None => new_run(&a, &world, &out, world_id)?,
             };
-            validate_train_settings("command line", &opts, a.inner_lr, a.max_inner)?;
+            validate_train_settings("command line", &opts)?;
             state.target_updates = Some(opts.updates);
             opts.out = out;
             state
@@ -646,19 +627,8 @@ fn check_train_numbers(a: &TrainArgs) -> Result<()> {
     if a.workers > MAX_WORKERS {
         bail!("--workers {} is more than {MAX_WORKERS}", a.workers);
     }
-    if !(a.inner_lr.is_finite() && a.inner_lr >= 0.0 && a.entropy.is_finite() && a.entropy >= 0.0) {
-        bail!("--inner-lr and --entropy must be finite and non-negative");
-    }
-    let max_rate = gman_core::blob::MAX_INNER_RATE;
-    if a.inner_lr > max_rate
-        || a.disc_lr
-            .is_some_and(|r| !(r.is_finite() && (0.0..=max_rate).contains(&r)))
-    {
-        bail!(
-            "--inner-lr {} / --disc-lr {:?}: inner-loop rates must be in 0..={max_rate} (a larger step diverges at every adaptation; the paper's is 1e-4)",
-            a.inner_lr,
-            a.disc_lr
-        );
+    if !(a.entropy.is_finite() && a.entropy >= 0.0) {
+        bail!("--entropy must be finite and non-negative");
     }
     let (_, lr) = updates_and_lr(a);
     if !(lr.is_finite() && lr > 0.0 && lr <= MAX_LR) {
@@ -813,12 +783,8 @@ fn new_run(a: &TrainArgs, world: &World, out: &Path, world_id: WorldId) -> Resul
         a.preset.dims()
     };
     let mut model = NavModel::init(a.method, dims, a.seed, gen.as_ref(), psm)?;
-    model.adapt_mode = new_run_adapt_mode(a);
     model.privileged = a.privileged_feature;
-    model.noise = a.noise.mode();
-    model.inner_lr = a.inner_lr;
-    model.max_inner = a.max_inner;
-    model.inner_rule = inner_rule(a);
+    model.set_spec(model_spec(a));
     let adam = AdamConfig {
         lr: updates_and_lr(a).1,
         ..AdamConfig::default()
@@ -867,13 +833,7 @@ fn open_resumed(
         run: run.clone(),
         ..flag_options(a)
     };
-    let m = &st.model;
-    validate_train_settings(
-        &format!("{}: stored setting", ck.display()),
-        &check,
-        m.inner_lr,
-        m.max_inner,
-    )?;
+    validate_train_settings(&format!("{}: stored setting", ck.display()), &check)?;
     if !st.model.params.all_finite() {
         bail!(
             "{}: the model holds non-finite weights; the run diverged before this checkpoint and cannot be resumed",
@@ -942,12 +902,7 @@ fn check_resumed_model(a: &TrainArgs, m: &NavModel, explicit: &dyn Fn(&str) -> b
     )?;
     resumed("--method", a.method, m.method, explicit("method"))?;
     if let Some(mode) = a.adapt_mode {
-        resumed(
-            "--adapt-mode",
-            mode.mode(),
-            m.adapt_mode,
-            explicit("adapt_mode"),
-        )?;
+        resumed("--adapt-mode", mode, m.adapt_mode, explicit("adapt_mode"))?;
     }
     let d = &m.dims;
     resumed("--map", a.map, (d.map_rows, d.map_cols), explicit("map"))?;
