@@ -469,7 +469,11 @@ impl NavModel {
             // A host has the RAM: Ψ as one batch and G's pre-gain outputs kept (the same
             // bits as the device's compact layout).
             footprint: Footprint::Fast,
-            ..NavConfig::from_flags(self.model_flags(), self.adapt_settings())
+            ..NavConfig::from_spec(
+                &self.spec(),
+                self.method.adapts_at_eval(),
+                self.method.emd(),
+            )
         }
     }
 
