@@ -576,3 +576,25 @@ impl RunConfig {
         Ok(kept.run)
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::{Args, Command};
+
+    /// Every kept setting names a flag of `gman train` by its clap id (a wrong id would never
+    /// be given explicitly, so its conflict would pass unnoticed), and no id appears twice.
+    #[test]
+    fn kept_settings_name_real_flags() {
+        let cmd = TrainArgs::augment_args(Command::new("train"));
+        for (i, (flag, id, _)) in KEPT.iter().enumerate() {
+            let arg = cmd
+                .get_arguments()
+                .find(|a| a.get_id() == *id)
+                .unwrap_or_else(|| panic!("{flag}: no argument with id {id}"));
+            let long = arg.get_long().expect("a long flag");
+            assert!(flag.starts_with(&format!("--{long}")), "{flag} vs --{long}");
+            assert!(KEPT[i + 1..].iter().all(|k| k.1 != *id), "{id} twice");
+        }
+    }
+}
