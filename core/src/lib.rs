@@ -86,6 +86,7 @@ pub mod quant;
 pub mod rng;
 pub mod schema;
 pub mod seeded;
+pub mod spec;
 
 // What an integrator needs, at the root (the device loop above uses only these).
 pub use action::{Action, NUM_ACTIONS};

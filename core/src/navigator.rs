@@ -101,6 +101,7 @@ use crate::preset::Dims;
 use crate::rng::{fill_gaussian, uniform, Xoshiro128};
 pub use crate::schema::{Emd, NoiseMode};
 use crate::schema::{ModelFlags, TensorId, NUM_TENSORS};
+use crate::spec::ModelSpec;
 use crate::{Action, NUM_ACTIONS};
 
 /// Compile-time choice of the adaptation mode (see [`AdaptMode`]).
@@ -253,6 +254,13 @@ impl NavConfig {
     /// are concerned. See also [`Blob::nav_config`].
     pub fn from_header(header: &Header) -> NavConfig {
         NavConfig::from_flags(header.model_flags(), header.adapt_settings())
+    }
+
+    /// [`NavConfig::from_flags`] of a model's switches (gman-core's one declaration of them,
+    /// [`ModelSpec`]), `adapt` and `emd` being the method's ([`ModelSpec::flags`]): what a
+    /// host that holds the model's settings runs before it writes them into a blob.
+    pub fn from_spec(spec: &ModelSpec, adapt: bool, emd: Emd) -> NavConfig {
+        NavConfig::from_flags(spec.flags(adapt, emd), spec.adapt_settings())
     }
 
     /// [`NavConfig::from_header`] from the settings themselves: the one mapping of a model's

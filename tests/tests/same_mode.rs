@@ -6,8 +6,10 @@
 
 use gman_core::blob::Blob;
 use gman_core::memory::AdaptMode;
+use gman_core::navigator::StepRule;
 use gman_core::navigator::{Efficient, Full, Mode, Navigator, Selection};
-use gman_host_sim::nav::model::{AdaptLossName, InnerRule, Method, NavModel, StepRuleName};
+use gman_core::schema::AdaptLossKind;
+use gman_host_sim::nav::model::{InnerRule, Method, NavModel};
 use gman_host_sim::nav::rollout::Worker;
 use gman_host_sim::nav::trainer::train_episode;
 use gman_host_sim::nav::K;
@@ -164,9 +166,9 @@ fn trainer_and_device_agree_with_the_levers() {
     let rule = InnerRule {
         disc_lr: Some(0.1),
         disc_steps: 2,
-        step_rule: StepRuleName::PerGroup,
+        step_rule: StepRule::PerGroup,
         disc_head_reset: true,
-        adapt_loss: AdaptLossName::Reference,
+        adapt_loss: AdaptLossKind::Reference,
         reference_critic: true,
         head_only: false,
         commit_delay: 0,
@@ -176,7 +178,7 @@ fn trainer_and_device_agree_with_the_levers() {
     // length then comes from the head alone).
     let head_only = InnerRule {
         head_only: true,
-        step_rule: StepRuleName::Normalized,
+        step_rule: StepRule::Normalized,
         ..InnerRule::default()
     };
     check_with(AdaptMode::Efficient, gman_core::Dims::MCU, head_only);
@@ -204,9 +206,9 @@ fn trainer_and_device_agree_with_a_commit_delay() {
     let rule = InnerRule {
         disc_lr: Some(0.1),
         disc_steps: 2,
-        step_rule: StepRuleName::PerGroup,
+        step_rule: StepRule::PerGroup,
         disc_head_reset: true,
-        adapt_loss: AdaptLossName::Reference,
+        adapt_loss: AdaptLossKind::Reference,
         reference_critic: true,
         head_only: false,
         commit_delay: 7,

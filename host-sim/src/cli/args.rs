@@ -5,8 +5,9 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{bail, Result};
+use clap::builder::{PossibleValue, PossibleValuesParser, TypedValueParser};
 use clap::{Args, ValueEnum};
-use gman_core::navigator::NoiseMode;
+use gman_core::spec::Named;
 use gman_core::Dims;
 use gman_host_sim::sim::{ObjectLayout, World, DEFAULT_WORLD_SEED};
 
@@ -37,23 +38,16 @@ impl PresetArg {
     }
 }
 
-/// The noise z of G at navigation time (`gman train --noise`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
-pub enum NoiseArg {
-    /// z ~ N(0, I) drawn per step (the paper).
-    Gaussian,
-    /// z = 0: G's output is a deterministic function of SE(y) (the reference's option).
-    Zero,
-}
-
-impl NoiseArg {
-    /// The navigator's noise mode.
-    pub fn mode(self) -> NoiseMode {
-        match self {
-            NoiseArg::Gaussian => NoiseMode::Gaussian,
-            NoiseArg::Zero => NoiseMode::Zero,
-        }
-    }
+/// The value parser of a gman-core setting enum (`--noise`, `--adapt-mode`, `--step-rule`,
+/// `--adapt-loss`): its names, each with its meaning, from the enum's one table
+/// ([`Named::NAMES`]).
+pub fn named<T: Named + Send + Sync>() -> impl TypedValueParser<Value = T> {
+    PossibleValuesParser::new(
+        T::NAMES
+            .iter()
+            .map(|&(_, name, help)| PossibleValue::new(name).help(help)),
+    )
+    .map(|s| T::from_name(&s).expect("a listed value"))
 }
 
 /// `--object-layout`: where the objects of the real floor plans come from.

@@ -41,8 +41,8 @@ pub struct EmdReportArgs {
     #[arg(long, value_name = "N")]
     pub disc_steps: Option<u32>,
     /// Override the descent step rule (`gradient` or `normalized`).
-    #[arg(long, value_enum)]
-    pub step_rule: Option<gman_host_sim::nav::model::StepRuleName>,
+    #[arg(long, value_parser = super::args::named::<gman_core::navigator::StepRule>())]
+    pub step_rule: Option<gman_core::navigator::StepRule>,
     /// Override the cap on inner updates per episode.
     #[arg(long, value_name = "N")]
     pub max_inner: Option<u32>,
@@ -129,12 +129,6 @@ pub fn cmd_emd_report(a: EmdReportArgs) -> Result<()> {
 /// The inner-rule flags given on the command line, applied to `model` and checked.
 fn apply_inner_flags(a: &EmdReportArgs, model: &mut NavModel) -> Result<()> {
     if let Some(lr) = a.inner_lr {
-        if !(lr.is_finite() && (0.0..=gman_core::blob::MAX_INNER_RATE).contains(&lr)) {
-            bail!(
-                "--inner-lr {lr} must be in 0..={}",
-                gman_core::blob::MAX_INNER_RATE
-            );
-        }
         model.inner_lr = lr;
     }
     if let Some(n) = a.max_inner {
@@ -155,7 +149,7 @@ fn apply_inner_flags(a: &EmdReportArgs, model: &mut NavModel) -> Result<()> {
     if a.adapt_head_only {
         model.inner_rule.head_only = true;
     }
-    model.inner_rule.validate()?;
+    model.spec().validate()?;
     Ok(())
 }
 
@@ -193,7 +187,7 @@ fn write_outputs(
             inner_lr: model.inner_lr,
             max_inner: model.max_inner,
             inner_rule: model.inner_rule,
-            mode: gman_host_sim::nav::model::mode_name(model.adapt_mode),
+            mode: gman_core::spec::Named::name(model.adapt_mode),
             seen,
             unseen,
         };

@@ -24,6 +24,7 @@ pub mod pretrain_ps;
 pub mod scene;
 pub mod table;
 pub mod train;
+pub mod train_config;
 
 pub use args::PresetArg;
 

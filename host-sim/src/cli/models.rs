@@ -4,7 +4,7 @@
 use std::path::Path;
 use std::sync::Arc;
 
-use anyhow::{bail, Result};
+use anyhow::{bail, Context, Result};
 use gman_host_sim::nav::agent::NavAgent;
 use gman_host_sim::nav::model::{load_model, Method};
 use gman_host_sim::sim::eval::AgentFactory;
@@ -29,12 +29,6 @@ pub struct ModelOverrides {
 pub fn model_factory(path: &Path, ov: &ModelOverrides) -> Result<(AgentFactory, String)> {
     let mut model = load_model(path, ov.method)?;
     if let Some(lr) = ov.inner_lr {
-        if !(lr.is_finite() && (0.0..=gman_core::blob::MAX_INNER_RATE).contains(&lr)) {
-            bail!(
-                "--inner-lr must be in 0..={}, got {lr}",
-                gman_core::blob::MAX_INNER_RATE
-            );
-        }
         model.inner_lr = lr;
     }
     if let Some(n) = ov.max_inner {
@@ -45,8 +39,8 @@ pub fn model_factory(path: &Path, ov: &ModelOverrides) -> Result<(AgentFactory, 
     }
     if let Some(d) = ov.commit_delay {
         model.inner_rule.commit_delay = d;
-        model.inner_rule.validate()?;
     }
+    model.spec().validate().context("the overridden settings")?;
     let model = Arc::new(model);
     let label = format!("{} ({})", model.method.name(), path.display());
     let factory: AgentFactory = Box::new(move |_| Box::new(NavAgent::new(model.clone())));

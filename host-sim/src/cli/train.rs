@@ -4,243 +4,21 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{anyhow, bail, Context, Result};
-use clap::builder::TypedValueParser;
-use clap::{Args, ValueEnum};
-use gman_host_sim::nav::a3c::Objective;
 use gman_host_sim::nav::dist::{Group, Single};
-use gman_host_sim::nav::model::{Method, NavModel};
+use gman_host_sim::nav::model::NavModel;
 use gman_host_sim::nav::trainer::{
-    checkpoint_path, train_in, Distributed, RunSettings, TrainOptions, TrainState, WorldId,
+    checkpoint_path, train_in, Distributed, RunSettings, TrainState, WorldId,
 };
 use gman_host_sim::optim::adam::AdamConfig;
 use gman_host_sim::pretrain::fg::{self, FgCollectConfig, FgTrainConfig};
 use gman_host_sim::pretrain::ps::{self, PsDataConfig, PsModule, PsTrainConfig};
-use gman_host_sim::sim::{RewardKind, World};
+use gman_host_sim::sim::World;
 
 use super::args::{PresetArg, WorldArgs};
-
-/// `--adapt-mode`.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
-pub enum AdaptModeArg {
-    /// Every parameter of θ, ω and the actor head (hosts, application processors).
-    Full,
-    /// Per-unit gains and biases over the base weights (microcontrollers).
-    Efficient,
-}
-
-impl AdaptModeArg {
-    fn mode(self) -> gman_core::memory::AdaptMode {
-        match self {
-            AdaptModeArg::Full => gman_core::memory::AdaptMode::Full,
-            AdaptModeArg::Efficient => gman_core::memory::AdaptMode::Efficient,
-        }
-    }
-}
-
-/// Training configuration presets.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
-pub enum ConfigArg {
-    /// A few minutes on 2 cores: short pre-training and a few hundred updates.
-    Tiny,
-    /// The budget of the reported runs.
-    Default,
-}
-
-/// `gman train`.
-#[derive(Debug, Args)]
-pub struct TrainArgs {
-    /// World selection (training episodes come from the training scenes).
-    #[command(flatten, next_help_heading = "World")]
-    pub world: WorldArgs,
-    /// Method (the rows of the paper's Tables 2 and 3).
-    #[arg(help_heading = "Basics", long, value_enum, default_value = "gman")]
-    pub method: Method,
-    /// Network sizes.
-    #[arg(help_heading = "Basics", long, value_enum, default_value = "mcu")]
-    pub preset: PresetArg,
-    /// Budget preset: `tiny` (minutes) or `default`.
-    #[arg(help_heading = "Basics", long, value_enum, default_value = "default")]
-    pub config: ConfigArg,
-    /// Updates to reach (overrides the config).
-    #[arg(help_heading = "Basics", long, value_name = "N")]
-    pub updates: Option<u64>,
-    /// Seed of the run.
-    #[arg(help_heading = "Basics", long, default_value_t = 1)]
-    pub seed: u64,
-    /// Run directory: metrics.csv, checkpoint.ckpt (and fg/, ps/ when pre-trained here).
-    #[arg(
-        help_heading = "Basics",
-        long,
-        value_name = "RUN_DIR",
-        required_unless_present = "resume"
-    )]
-    pub out: Option<PathBuf>,
-    /// Continue the run in RUN_DIR from its checkpoint (bit for bit).
-    #[arg(
-        help_heading = "Basics",
-        long,
-        value_name = "RUN_DIR",
-        conflicts_with = "out"
-    )]
-    pub resume: Option<PathBuf>,
-    /// Pre-trained generator (`gman pretrain-fg` output, fg.ckpt); pre-trained here if absent.
-    #[arg(help_heading = "Basics", long, value_name = "FG_CKPT")]
-    pub fg: Option<PathBuf>,
-    /// Pre-trained PS module (ps.ckpt) for the PS variants; pre-trained here if absent.
-    #[arg(help_heading = "Basics", long, value_name = "PS_CKPT")]
-    pub ps: Option<PathBuf>,
-    /// Parallel workers (one thread each); under MPI, per rank (the run has ranks x this).
-    #[arg(help_heading = "Basics", long, default_value_t = 2)]
-    pub workers: usize,
-    /// Environments each worker steps in lockstep, with the policy's passes run over them
-    /// as matrices (1: one episode at a time; methods with an inner loop: one navigator per
-    /// episode, first-order meta-gradient only). Every update then holds at least this many
-    /// episodes per worker. Default: 16 (measured: README, "Batched training, B = 16"), 1 with
-    /// `--meta-order 2`; pass 1 to reproduce the one-episode-at-a-time results.
-    #[arg(help_heading = "Optimisation", long)]
-    pub batch_envs: Option<usize>,
-    /// Outer Adam learning rate β (overrides the config).
-    #[arg(help_heading = "Optimisation", long)]
-    pub lr: Option<f32>,
-    /// Inner learning rates α1 (D) and α2 (θ, φ) (paper: 1e-4).
-    #[arg(help_heading = "Inner loop (adaptation)", long, default_value_t = 1e-4)]
-    pub inner_lr: f32,
-    /// At most this many inner updates per episode (GMAN variants).
-    #[arg(help_heading = "Inner loop (adaptation)", long, default_value_t = gman_host_sim::nav::model::DEFAULT_MAX_INNER)]
-    pub max_inner: u32,
-    /// α1 alone, D's ascent rate on L_D (default: --inner-lr, the paper's α1 = α2).
-    #[arg(help_heading = "Inner loop (adaptation)", long, value_name = "ALPHA1")]
-    pub disc_lr: Option<f32>,
-    /// D's ascent steps on L_D per inner update (paper: 1).
-    #[arg(
-        help_heading = "Inner loop (adaptation)",
-        long,
-        value_name = "N",
-        default_value_t = 1
-    )]
-    pub disc_steps: u32,
-    /// The descent step of θ and φ on L_ad: `gradient` (α2 ∇, the paper), `normalized`
-    /// (α2 ∇/‖∇‖: --inner-lr is then the step's length) or `per-group` (θ and φ each
-    /// normalised to that length). Recorded in the blob.
-    #[arg(
-        help_heading = "Inner loop (adaptation)",
-        long,
-        value_enum,
-        default_value = "gradient"
-    )]
-    pub step_rule: gman_host_sim::nav::model::StepRuleName,
-    /// D restarts with every episode: layer 1 from ω, the output layer (w2, b2) at zero, so
-    /// D's first ascent step sets the head from the episode's own buffer; ω then does not
-    /// learn across episodes (paper: off, D persists). Recorded in the blob.
-    #[arg(help_heading = "Inner loop (adaptation)", long)]
-    pub disc_head_reset: bool,
-    /// The form of L_ad: `paper` (Eq. 3) or `reference` (‖Σ_t a_t (−D(x_t))‖₂, the
-    /// reference implementation's). Recorded in the blob.
-    #[arg(
-        help_heading = "Inner loop (adaptation)",
-        long,
-        value_enum,
-        default_value = "paper"
-    )]
-    pub adapt_loss: gman_host_sim::nav::model::AdaptLossName,
-    /// Scale L_D's critic terms by 10, as the reference implementation does (the paper: 1).
-    /// Recorded in the blob.
-    #[arg(help_heading = "Inner loop (adaptation)", long)]
-    pub reference_critic: bool,
-    /// The inner loop's descent step on L_ad adapts only the actor head; G stays at θ (the
-    /// reference implementation's default, whose G gets no inner gradient; the paper: G and
-    /// the head). Recorded in the blob.
-    #[arg(help_heading = "Inner loop (adaptation)", long)]
-    pub adapt_head_only: bool,
-    /// The inner update's commit delay D in steps (0..=63): the update that starts when Ψ
-    /// fills takes effect D steps later, the steps between acting on the current parameters
-    /// and not recorded in Ψ; what a device that computes the update in slices, or at a lower
-    /// priority, runs (see docs/device.md). 0: at once (the paper). Recorded in the blob.
-    #[arg(
-        help_heading = "Inner loop (adaptation)",
-        long,
-        default_value_t = 0,
-        value_name = "D"
-    )]
-    pub commit_delay: u32,
-    /// Minimum steps per worker and update.
-    #[arg(help_heading = "Episodes and reward", long, default_value_t = 40)]
-    pub min_steps: u32,
-    /// Step limit of training episodes (default: 200 in living rooms, 100 elsewhere).
-    #[arg(help_heading = "Episodes and reward", long)]
-    pub max_steps: Option<u32>,
-    /// Training starts need at least this many actions to see the target (0: any start).
-    #[arg(help_heading = "Episodes and reward", long, default_value_t = 1)]
-    pub min_start_actions: u32,
-    /// Entropy bonus β of the A3C loss.
-    #[arg(help_heading = "Optimisation", long, default_value_t = 0.01)]
-    pub entropy: f32,
-    /// Reward: navigation (R_n), distance (R_{n+d}), similarity (R_{n+s}) or mixed (R_{n+d+s}, the paper's).
-    #[arg(long, default_value = "mixed", help_heading = "Episodes and reward", value_parser = clap::builder::PossibleValuesParser::new(["navigation", "distance", "similarity", "mixed"]).map(|s| s.parse::<RewardKind>().expect("a listed value")))]
-    pub reward: RewardKind,
-    /// Checkpoint every N updates.
-    #[arg(help_heading = "Basics", long, default_value_t = 100)]
-    pub checkpoint_every: u64,
-    /// Spatial observation map fed to the policy: `RxC` sectors of the view (e.g. `3x3`,
-    /// `1x3`, `7x7` as the reference's ResNet map), or `none` (the pooled embedding only).
-    #[arg(help_heading = "Model", long, default_value = "none", value_parser = parse_map_grid)]
-    pub map: (usize, usize),
-    /// Channels of the shared per-cell layer over the map (the reference's 1x1 conv: 64).
-    #[arg(help_heading = "Model", long, default_value_t = 8)]
-    pub cell_embed: usize,
-    /// Adaptation mode of the inner loop (in training and on the device; blobs record it):
-    /// `efficient` (per-unit gains and biases, what the microcontroller runs) or `full`
-    /// (every parameter). Default: efficient for the mcu preset, full for paper.
-    #[arg(help_heading = "Inner loop (adaptation)", long, value_enum)]
-    pub adapt_mode: Option<AdaptModeArg>,
-    /// Training objective: `a3c` (the paper's actor-critic loss) or `dagger` (imitation of
-    /// the shortest-path oracle on the learner's own states: the imitation ceiling).
-    #[arg(help_heading = "Optimisation", long, value_enum, default_value = "a3c")]
-    pub objective: Objective,
-    /// The privileged-feature ceiling: the policy sees the target's true feature in the
-    /// current scene in place of G's output (not exportable; methods without inner loop).
-    #[arg(help_heading = "Model", long)]
-    pub privileged_feature: bool,
-    /// Noise z of G at navigation time, in training and wherever the model runs (recorded in
-    /// the checkpoint and the blob; a resumed run keeps its own).
-    #[arg(
-        help_heading = "Inner loop (adaptation)",
-        long,
-        value_enum,
-        default_value = "gaussian"
-    )]
-    pub noise: super::args::NoiseArg,
-    /// Meta-gradient order: 1 = first-order MAML (the gradient at the adapted parameters),
-    /// 2 = exact through the inner SGD steps (Hessian-vector products by central finite
-    /// differences of gradients).
-    #[arg(help_heading = "Optimisation", long, default_value_t = 1, value_parser = clap::value_parser!(u8).range(1..=2))]
-    pub meta_order: u8,
-    /// No progress bar.
-    #[arg(help_heading = "Basics", long)]
-    pub quiet: bool,
-    /// On --resume, continue with another total worker count (ranks x --workers) than the
-    /// run was trained with; the run then no longer matches an uninterrupted one bit for bit.
-    #[arg(help_heading = "Basics", long)]
-    pub change_workers: bool,
-    /// Under MPI: every N updates (and at the last) the ranks compare a hash of their
-    /// parameters and Adam state and stop with an error if they differ (0: never).
-    #[arg(help_heading = "Basics", long, value_name = "N", default_value_t = 10)]
-    pub rank_check_every: u64,
-}
-
-/// Parses `--map`: `none` or `RxC` with 1 <= R, C <= 16.
-fn parse_map_grid(s: &str) -> std::result::Result<(usize, usize), String> {
-    if s == "none" {
-        return Ok((0, 0));
-    }
-    let bad = || format!("expected `none` or ROWSxCOLS such as 3x3 (each 1..=16), got {s:?}");
-    let (r, c) = s.split_once(['x', 'X']).ok_or_else(bad)?;
-    let (r, c): (usize, usize) = (r.parse().map_err(|_| bad())?, c.parse().map_err(|_| bad())?);
-    if !(1..=16).contains(&r) || !(1..=16).contains(&c) {
-        return Err(bad());
-    }
-    Ok((r, c))
-}
+use super::train_config::{
+    check_train_flags, check_train_numbers, flag_options, model_spec, updates_and_lr, RunConfig,
+};
+pub use super::train_config::{ConfigArg, TrainArgs, MAX_EPISODE_STEPS};
 
 pub(super) fn preset_matches(model: &NavModel, preset: PresetArg) -> Result<()> {
     let d = preset.dims();
@@ -324,105 +102,6 @@ fn ensure_ps(world: &World, given: Option<&Path>, dir: &Path, seed: u64) -> Resu
     Ok(path)
 }
 
-/// One setting of a resumed run: the value stored in its checkpoint wins; a flag given
-/// explicitly on the command line must agree with it (otherwise the resumed run would
-/// silently differ from an uninterrupted one).
-fn resumed<T: PartialEq + std::fmt::Debug>(
-    flag: &str,
-    cli: T,
-    stored: T,
-    explicit: bool,
-) -> Result<T> {
-    if explicit && stored != cli {
-        bail!(
-            "{flag} {cli:?} conflicts with the resumed run, which was trained with {stored:?}; a \
-             resumed run keeps its own settings (omit the flag, or start a new run with --out)"
-        );
-    }
-    Ok(stored)
-}
-
-/// The inner rule the flags ask for.
-fn inner_rule(a: &TrainArgs) -> gman_host_sim::nav::model::InnerRule {
-    gman_host_sim::nav::model::InnerRule {
-        disc_lr: a.disc_lr,
-        disc_steps: a.disc_steps,
-        step_rule: a.step_rule,
-        disc_head_reset: a.disc_head_reset,
-        adapt_loss: a.adapt_loss,
-        reference_critic: a.reference_critic,
-        head_only: a.adapt_head_only,
-        commit_delay: a.commit_delay,
-    }
-}
-
-/// Most `--workers` a run may have (one thread each).
-const MAX_WORKERS: usize = 256;
-
-/// The checks on trainer settings, applied to the flags of a new run and to the settings a
-/// resumed run reads from its checkpoint (whose CRC says nothing about their sense). `what`
-/// names where they came from.
-fn validate_train_settings(
-    what: &str,
-    opts: &TrainOptions,
-    inner_lr: f32,
-    max_inner: u32,
-) -> Result<()> {
-    let _ = max_inner; // every u32 is a valid cap
-    let bad = |msg: String| anyhow!("{what}: {msg}");
-    if opts.run.workers == 0 || opts.run.workers > MAX_WORKERS {
-        return Err(bad(format!(
-            "workers must be in 1..={MAX_WORKERS}, got {}",
-            opts.run.workers
-        )));
-    }
-    if opts.checkpoint_every == 0 {
-        return Err(bad("checkpoint-every must be at least 1".into()));
-    }
-    let max_b = gman_host_sim::nav::lockstep::MAX_BATCH_ENVS;
-    if opts.run.batch_envs == 0 || opts.run.batch_envs > max_b {
-        return Err(bad(format!(
-            "batch-envs must be in 1..={max_b}, got {}",
-            opts.run.batch_envs
-        )));
-    }
-    if !(inner_lr.is_finite() && inner_lr >= 0.0) {
-        return Err(bad(format!(
-            "inner-lr must be finite and non-negative, got {inner_lr}"
-        )));
-    }
-    let c = &opts.run.a3c;
-    if !(c.entropy.is_finite() && c.entropy >= 0.0) {
-        return Err(bad(format!(
-            "entropy must be finite and non-negative, got {}",
-            c.entropy
-        )));
-    }
-    if !((0.0..=1.0).contains(&c.gamma) && (0.0..=1.0).contains(&c.tau)) {
-        return Err(bad(format!(
-            "A3C gamma {} and tau {} must be in [0, 1]",
-            c.gamma, c.tau
-        )));
-    }
-    if !(c.value_coef.is_finite() && c.value_coef >= 0.0) {
-        return Err(bad(format!(
-            "A3C value coefficient {} must be finite and non-negative",
-            c.value_coef
-        )));
-    }
-    opts.run
-        .adam
-        .validate()
-        .map_err(|e| bad(format!("{e:#}")))?;
-    if !(1..=2).contains(&opts.run.meta_order) {
-        return Err(bad(format!(
-            "meta-order must be 1 or 2, got {}",
-            opts.run.meta_order
-        )));
-    }
-    Ok(())
-}
-
 /// What world `w` selects (loaded as `world`), as stored in a run's checkpoint: kind, world
 /// seed and, for a data directory, its object layout and a fingerprint of the contents that
 /// layout reads (the path may change, the data must not).
@@ -435,47 +114,6 @@ fn world_identity(w: &WorldArgs, world: &World) -> Result<WorldId> {
     })
 }
 
-/// The adaptation mode of a new run: `--adapt-mode`, else Full for the paper preset and
-/// Efficient (what a microcontroller runs) for mcu.
-fn new_run_adapt_mode(a: &TrainArgs) -> gman_core::memory::AdaptMode {
-    match (a.adapt_mode, a.preset) {
-        (Some(m), _) => m.mode(),
-        (None, PresetArg::Paper) => gman_core::memory::AdaptMode::Full,
-        (None, _) => gman_core::memory::AdaptMode::Efficient,
-    }
-}
-
-/// Combinations of the new flags that cannot work, refused before anything is loaded.
-fn check_train_flags(a: &TrainArgs) -> Result<()> {
-    if a.map.0 > 0 && a.cell_embed == 0 {
-        bail!("--cell-embed must be at least 1 with a --map");
-    }
-    if a.resume.is_some() {
-        return Ok(());
-    }
-    if a.privileged_feature && a.method.adapts_in_training() {
-        bail!(
-            "--privileged-feature replaces G's output, so it goes with a method without inner loop (a3c, a3c-fg, a3c-ps, a3c-fg-ps), not {}",
-            a.method.name()
-        );
-    }
-    if a.meta_order == 2
-        && a.method.adapts_in_training()
-        && new_run_adapt_mode(a) == gman_core::memory::AdaptMode::Efficient
-    {
-        bail!("--meta-order 2 is implemented for the Full adaptation mode; add --adapt-mode full");
-    }
-    inner_rule(a).validate()?;
-    // The commit delay only moves the update in time: the meta-gradient is the same recursion.
-    let rule = gman_host_sim::nav::model::InnerRule {
-        commit_delay: 0,
-        ..inner_rule(a)
-    };
-    if a.meta_order == 2 && a.method.adapts_in_training() && !rule.is_paper() {
-        bail!("--meta-order 2 differentiates the paper's inner rule only (one D step, the gradient step, α1 = α2); use --meta-order 1 with --disc-lr, --disc-steps, --step-rule, --disc-head-reset, --adapt-loss, --reference-critic or --adapt-head-only");
-    }
-    Ok(())
-}
 /// `gman train`. `explicit(id)` says whether the flag of field `id` was given on the command
 /// line (on `--resume`, only those are checked against the checkpoint's settings). Started by
 /// an MPI launcher (`mpirun`, `srun`; build with `--features mpi`), the run spans its ranks,
@@ -514,6 +152,10 @@ fn train_on(
     check_train_numbers(&a)?;
     let (rank, ranks) = (group.rank(), group.size());
     let lead = rank == 0;
+    // From here on `workers` counts the workers of all ranks, the number the run stores.
+    let per_rank = a.workers;
+    a.workers = per_rank.saturating_mul(ranks);
+    RunConfig::from_flags(&a).validate()?;
     if a.resume.is_some() && lead {
         // Flags that only shape a new run have no effect here: said so, not silently dropped.
         for (flag, id) in [("--fg", "fg"), ("--ps", "ps"), ("--config", "config")] {
@@ -523,14 +165,11 @@ fn train_on(
         }
     }
     let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
-    if a.workers > cores && lead {
+    if per_rank > cores && lead {
         eprintln!(
-            "warning: --workers {} runs {} threads on {cores} core(s); the run is reproducible for its worker count but slower than with --workers {cores}",
-            a.workers, a.workers
+            "warning: --workers {per_rank} runs {per_rank} threads on {cores} core(s); the run is reproducible for its worker count but slower than with --workers {cores}"
         );
     }
-    // From here on `workers` counts the workers of all ranks, the number the run stores.
-    a.workers *= ranks;
     if !lead {
         a.quiet = true;
     }
@@ -567,7 +206,6 @@ fn train_on(
                 Some(s) => s,
                 None => new_run(&a, &world, &out, world_id)?,
             };
-            validate_train_settings("command line", &opts, a.inner_lr, a.max_inner)?;
             state.target_updates = Some(opts.updates);
             opts.out = out;
             state
@@ -629,85 +267,6 @@ fn resumed_target(a: &TrainArgs, st: &TrainState, dir: &Path) -> Result<u64> {
     Ok(target)
 }
 
-/// The budget preset's update count and the outer learning rate, as the flags select them.
-fn updates_and_lr(a: &TrainArgs) -> (u64, f32) {
-    let tiny = a.config == ConfigArg::Tiny;
-    (
-        a.updates.unwrap_or(if tiny { 300 } else { 4000 }),
-        a.lr.unwrap_or(1e-3),
-    )
-}
-
-/// The numeric flags' ranges, checked before anything is loaded.
-fn check_train_numbers(a: &TrainArgs) -> Result<()> {
-    if a.workers == 0 || a.checkpoint_every == 0 {
-        bail!("--workers and --checkpoint-every must be at least 1");
-    }
-    if a.workers > MAX_WORKERS {
-        bail!("--workers {} is more than {MAX_WORKERS}", a.workers);
-    }
-    if !(a.inner_lr.is_finite() && a.inner_lr >= 0.0 && a.entropy.is_finite() && a.entropy >= 0.0) {
-        bail!("--inner-lr and --entropy must be finite and non-negative");
-    }
-    let max_rate = gman_core::blob::MAX_INNER_RATE;
-    if a.inner_lr > max_rate
-        || a.disc_lr
-            .is_some_and(|r| !(r.is_finite() && (0.0..=max_rate).contains(&r)))
-    {
-        bail!(
-            "--inner-lr {} / --disc-lr {:?}: inner-loop rates must be in 0..={max_rate} (a larger step diverges at every adaptation; the paper's is 1e-4)",
-            a.inner_lr,
-            a.disc_lr
-        );
-    }
-    let (_, lr) = updates_and_lr(a);
-    if !(lr.is_finite() && lr > 0.0 && lr <= MAX_LR) {
-        bail!("--lr {lr} must be in (0, {MAX_LR}] (the paper's is 1e-3)");
-    }
-    if a.max_steps == Some(0) || a.max_steps.is_some_and(|n| n > MAX_EPISODE_STEPS) {
-        bail!(
-            "--max-steps {} must be in 1..={MAX_EPISODE_STEPS} (default: 200 in living rooms, 100 elsewhere)",
-            a.max_steps.unwrap_or(0)
-        );
-    }
-    if a.min_steps == 0 || a.min_steps > MAX_MIN_STEPS {
-        bail!(
-            "--min-steps {} must be in 1..={MAX_MIN_STEPS} (steps per worker and update are buffered in memory)",
-            a.min_steps
-        );
-    }
-    if a.map.0 > MAX_MAP_SIDE || a.map.1 > MAX_MAP_SIDE {
-        bail!(
-            "--map {}x{}: a map grid has at most {MAX_MAP_SIDE} rows and {MAX_MAP_SIDE} columns",
-            a.map.0,
-            a.map.1
-        );
-    }
-    if a.cell_embed > MAX_CELL_EMBED {
-        bail!(
-            "--cell-embed {} is more than {MAX_CELL_EMBED} (the reference's is 64; every map cell adds that many fusion inputs)",
-            a.cell_embed
-        );
-    }
-    if a.updates.is_some_and(|n| n > MAX_UPDATES) || a.checkpoint_every > MAX_UPDATES {
-        bail!("--updates and --checkpoint-every must be at most {MAX_UPDATES}");
-    }
-    Ok(())
-}
-
-/// Largest outer (Adam) learning rate `--lr` accepts.
-const MAX_LR: f32 = 1.0;
-/// Largest `--max-steps` (episode step limit).
-pub(crate) const MAX_EPISODE_STEPS: u32 = 10_000;
-/// Largest `--min-steps` (steps per worker and update, all held in memory for BPTT).
-const MAX_MIN_STEPS: u32 = 10_000;
-/// Largest map side (`--map RxC`, rows and columns each).
-const MAX_MAP_SIDE: usize = 16;
-/// Largest `--cell-embed`.
-const MAX_CELL_EMBED: usize = 1024;
-/// Largest `--updates` (and `--checkpoint-every`): counters stay far from `u64::MAX`.
-const MAX_UPDATES: u64 = 1 << 40;
-
 /// Loads the world, refusing a map grid offline data cannot serve, and fails now (not after
 /// pre-training) if no training start can satisfy `--min-start-actions` (a separate
 /// generator: the run's own draws are untouched).
@@ -725,51 +284,6 @@ fn load_world(a: &TrainArgs) -> Result<World> {
     let mut probe = rand_chacha::ChaCha8Rng::seed_from_u64(0);
     world.try_sample_train_episode_min(&mut probe, a.min_start_actions)?;
     Ok(world)
-}
-
-/// `--batch-envs` when given, else the default: [`DEFAULT_BATCH_ENVS`], or 1 with
-/// `--meta-order 2` (whose reverse recursion runs one episode at a time).
-fn batch_envs(a: &TrainArgs) -> usize {
-    a.batch_envs.unwrap_or(if a.meta_order == 2 {
-        1
-    } else {
-        DEFAULT_BATCH_ENVS
-    })
-}
-
-/// The default of `--batch-envs`: 16 environments per worker. Measured on the official val
-/// episodes (README, "Batched training, B = 16"): at 6000 updates GMAN reaches 19.47 ± 0.70
-/// unseen SR in about 6 minutes against 14.93 ± 2.76 at B = 1 after 45000 updates.
-pub const DEFAULT_BATCH_ENVS: usize = 16;
-
-/// The options the flags ask for (a resumed run replaces `run` and `out` by its own).
-fn flag_options(a: &TrainArgs) -> TrainOptions {
-    let (updates, lr) = updates_and_lr(a);
-    TrainOptions {
-        updates,
-        run: RunSettings {
-            seed: a.seed,
-            workers: a.workers,
-            batch_envs: batch_envs(a),
-            min_steps: a.min_steps,
-            reward: a.reward,
-            max_steps: a.max_steps,
-            min_start_actions: a.min_start_actions,
-            adam: AdamConfig {
-                lr,
-                ..AdamConfig::default()
-            },
-            a3c: gman_host_sim::nav::a3c::A3cConfig {
-                entropy: a.entropy,
-                ..Default::default()
-            },
-            objective: a.objective,
-            meta_order: a.meta_order,
-        },
-        checkpoint_every: a.checkpoint_every,
-        out: PathBuf::new(),
-        progress: !a.quiet,
-    }
 }
 
 /// A new run in `out`: pre-trains (or loads) G and the PS module as the method needs, and
@@ -813,12 +327,8 @@ fn new_run(a: &TrainArgs, world: &World, out: &Path, world_id: WorldId) -> Resul
         a.preset.dims()
     };
     let mut model = NavModel::init(a.method, dims, a.seed, gen.as_ref(), psm)?;
-    model.adapt_mode = new_run_adapt_mode(a);
     model.privileged = a.privileged_feature;
-    model.noise = a.noise.mode();
-    model.inner_lr = a.inner_lr;
-    model.max_inner = a.max_inner;
-    model.inner_rule = inner_rule(a);
+    model.set_spec(model_spec(a));
     let adam = AdamConfig {
         lr: updates_and_lr(a).1,
         ..AdamConfig::default()
@@ -861,18 +371,11 @@ fn open_resumed(
         st.model.method.name(),
         st.update
     );
-    check_resumed_model(a, &st.model, explicit)?;
-    let run = resumed_settings(a, &meta.run, explicit)?;
-    let check = TrainOptions {
-        run: run.clone(),
-        ..flag_options(a)
-    };
-    let m = &st.model;
-    validate_train_settings(
-        &format!("{}: stored setting", ck.display()),
-        &check,
-        m.inner_lr,
-        m.max_inner,
+    let run = RunConfig::stored(&st.model, &meta.run).resume(
+        &RunConfig::from_flags(a),
+        a.change_workers,
+        explicit,
+        &ck,
     )?;
     if !st.model.params.all_finite() {
         bail!(
@@ -885,149 +388,6 @@ fn open_resumed(
         st.world = Some(world_id.clone());
     }
     Ok((st, run))
-}
-
-/// The model settings of a resumed run against the flags given explicitly.
-fn check_resumed_model(a: &TrainArgs, m: &NavModel, explicit: &dyn Fn(&str) -> bool) -> Result<()> {
-    resumed("--inner-lr", a.inner_lr, m.inner_lr, explicit("inner_lr"))?;
-    resumed(
-        "--max-inner",
-        a.max_inner,
-        m.max_inner,
-        explicit("max_inner"),
-    )?;
-    let rule = &m.inner_rule;
-    resumed("--disc-lr", a.disc_lr, rule.disc_lr, explicit("disc_lr"))?;
-    resumed(
-        "--disc-steps",
-        a.disc_steps,
-        rule.disc_steps,
-        explicit("disc_steps"),
-    )?;
-    resumed(
-        "--step-rule",
-        a.step_rule,
-        rule.step_rule,
-        explicit("step_rule"),
-    )?;
-    resumed(
-        "--disc-head-reset",
-        a.disc_head_reset,
-        m.inner_rule.disc_head_reset,
-        explicit("disc_head_reset"),
-    )?;
-    resumed(
-        "--adapt-loss",
-        a.adapt_loss,
-        m.inner_rule.adapt_loss,
-        explicit("adapt_loss"),
-    )?;
-    resumed(
-        "--reference-critic",
-        a.reference_critic,
-        m.inner_rule.reference_critic,
-        explicit("reference_critic"),
-    )?;
-    resumed(
-        "--adapt-head-only",
-        a.adapt_head_only,
-        m.inner_rule.head_only,
-        explicit("adapt_head_only"),
-    )?;
-    resumed(
-        "--commit-delay",
-        a.commit_delay,
-        m.inner_rule.commit_delay,
-        explicit("commit_delay"),
-    )?;
-    resumed("--method", a.method, m.method, explicit("method"))?;
-    if let Some(mode) = a.adapt_mode {
-        resumed(
-            "--adapt-mode",
-            mode.mode(),
-            m.adapt_mode,
-            explicit("adapt_mode"),
-        )?;
-    }
-    let d = &m.dims;
-    resumed("--map", a.map, (d.map_rows, d.map_cols), explicit("map"))?;
-    if d.map_cells() > 0 {
-        resumed(
-            "--cell-embed",
-            a.cell_embed,
-            d.cell_embed,
-            explicit("cell_embed"),
-        )?;
-    }
-    resumed(
-        "--privileged-feature",
-        a.privileged_feature,
-        m.privileged,
-        explicit("privileged_feature"),
-    )?;
-    Ok(())
-}
-
-/// The stored settings of a resumed run, each checked against its flag when given.
-fn resumed_settings(
-    a: &TrainArgs,
-    s: &RunSettings,
-    explicit: &dyn Fn(&str) -> bool,
-) -> Result<RunSettings> {
-    let (_, lr) = updates_and_lr(a);
-    resumed(
-        "--objective",
-        a.objective,
-        s.objective,
-        explicit("objective"),
-    )?;
-    resumed("--seed", a.seed, s.seed, explicit("seed"))?;
-    if !a.change_workers {
-        resumed(
-            "--workers (x ranks)",
-            a.workers,
-            s.workers,
-            explicit("workers"),
-        )?;
-    }
-    resumed(
-        "--batch-envs",
-        batch_envs(a),
-        s.batch_envs,
-        explicit("batch_envs"),
-    )?;
-    resumed(
-        "--min-steps",
-        a.min_steps,
-        s.min_steps,
-        explicit("min_steps"),
-    )?;
-    resumed(
-        "--min-start-actions",
-        a.min_start_actions,
-        s.min_start_actions,
-        explicit("min_start_actions"),
-    )?;
-    resumed(
-        "--max-steps",
-        a.max_steps,
-        s.max_steps,
-        explicit("max_steps"),
-    )?;
-    resumed(
-        "--meta-order",
-        a.meta_order,
-        s.meta_order,
-        explicit("meta_order"),
-    )?;
-    resumed("--reward", a.reward, s.reward, explicit("reward"))?;
-    resumed("--lr", lr, s.adam.lr, explicit("lr"))?;
-    resumed("--entropy", a.entropy, s.a3c.entropy, explicit("entropy"))?;
-    let mut s = s.clone();
-    if a.change_workers {
-        s.workers = a.workers;
-    }
-    Ok(s)
 }
 
 /// The closing line of a run.

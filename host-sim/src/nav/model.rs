@@ -9,9 +9,10 @@ use gman_core::blob::{
 };
 use gman_core::matrix::MatRef;
 use gman_core::memory::{AdaptMode, Footprint};
-use gman_core::navigator::{NavConfig, NavWeights, NoiseMode, Selection, StepRule};
+use gman_core::navigator::{NavConfig, NavWeights, NoiseMode, Selection};
 use gman_core::rng::Xoshiro128;
-use gman_core::schema::{AdaptLossKind, Emd, ModelFlags};
+use gman_core::schema::{Emd, ModelFlags};
+pub use gman_core::spec::{InnerRule, ModelSpec, Named};
 use gman_core::Dims;
 use serde::{Deserialize, Serialize};
 
@@ -205,16 +206,8 @@ impl<'de> Deserialize<'de> for Method {
     }
 }
 
-/// `full` / `efficient`, as in checkpoints and on the command line.
-pub fn mode_name(m: AdaptMode) -> &'static str {
-    match m {
-        AdaptMode::Full => "full",
-        AdaptMode::Efficient => "efficient",
-    }
-}
-
 /// Default cap on inner updates per episode (gman-core's default).
-pub const DEFAULT_MAX_INNER: u32 = 4;
+pub const DEFAULT_MAX_INNER: u32 = AdaptSettings::PAPER.max_inner;
 
 /// The `kind` of a navigator checkpoint's metadata.
 pub const NAVIGATOR_KIND: &str = "gman-navigator";
@@ -231,234 +224,16 @@ pub struct ModelMeta {
     pub method: Method,
     /// The sizes.
     pub dims: DimsMeta,
-    /// Noise of G (absent: Gaussian).
-    #[serde(default)]
-    pub noise: NoiseName,
     /// Hidden width of the PS module (PS variants only; `null` otherwise).
     #[serde(default)]
     pub ps_hidden: Option<usize>,
-    /// Inner-loop rate α1 = α2 (absent: 1e-4).
-    #[serde(default = "default_inner_lr")]
-    pub inner_lr: f32,
-    /// Cap on inner updates per episode (absent: [`DEFAULT_MAX_INNER`]).
-    #[serde(default = "default_max_inner")]
-    pub max_inner: u32,
     /// The privileged-feature bound (absent: false).
     #[serde(default)]
     pub privileged: bool,
-    /// The adaptation mode (absent: `full`, what checkpoints before the setting were trained
-    /// in).
-    #[serde(default)]
-    pub adapt_mode: ModeName,
-    /// The inner rule's levers (absent, and not written, for the paper's rule).
-    #[serde(default, skip_serializing_if = "InnerRule::is_paper")]
-    pub inner_rule: InnerRule,
-}
-
-fn default_inner_lr() -> f32 {
-    1e-4
-}
-
-fn default_max_inner() -> u32 {
-    DEFAULT_MAX_INNER
-}
-
-/// The inner loop's rule where it departs from the paper's (the levers of docs/emd-analysis.md), recorded in
-/// checkpoints and blobs so that evaluation and the device run the rule that was meta-learned.
-/// [`InnerRule::default`] is the paper's: α1 = α2, one D step, the plain gradient step.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-pub struct InnerRule {
-    /// α1 (D's ascent rate on L_D) when it differs from the model's `inner_lr` (then α2 only).
-    #[serde(default)]
-    pub disc_lr: Option<f32>,
-    /// D's ascent steps per inner update (1..=256).
-    #[serde(default = "one")]
-    pub disc_steps: u32,
-    /// The descent step on L_ad: `gradient` (α2 ∇), `normalized` (α2 ∇/‖∇‖) or `per-group`
-    /// (θ and φ each normalised to length α2).
-    #[serde(default)]
-    pub step_rule: StepRuleName,
-    /// D restarts with every episode, its output layer at zero (not written when false, so
-    /// checkpoints of the earlier rules keep their bytes).
-    #[serde(default, skip_serializing_if = "is_false")]
-    pub disc_head_reset: bool,
-    /// The form of L_ad: `paper` (Eq. 3) or `reference` (‖Σ_t a_t (−D(x_t))‖₂, the reference
-    /// implementation's); not written when the paper's.
-    #[serde(default, skip_serializing_if = "is_paper_loss")]
-    pub adapt_loss: AdaptLossName,
-    /// L_D's critic terms scaled by 10, as the reference implementation does (the paper: 1);
-    /// not written when false.
-    #[serde(default, skip_serializing_if = "is_false")]
-    pub reference_critic: bool,
-    /// The descent step on L_ad adapts only the actor head, G stays at θ (the reference
-    /// implementation's default; the paper: G and the head); not written when false.
-    #[serde(default, skip_serializing_if = "is_false")]
-    pub head_only: bool,
-    /// The inner update's commit delay d in steps (gman-core's `NavConfig::commit_delay`):
-    /// it takes effect d steps after Ψ fills, the steps between not recorded (0, the
-    /// default: at once; not written when 0).
-    #[serde(default, skip_serializing_if = "is_zero")]
-    pub commit_delay: u32,
-}
-
-fn is_zero(v: &u32) -> bool {
-    *v == 0
-}
-
-fn is_paper_loss(l: &AdaptLossName) -> bool {
-    *l == AdaptLossName::Paper
-}
-
-/// [`AdaptLossKind`] as stored in checkpoints and named on the command line.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Default, Serialize, Deserialize, clap::ValueEnum)]
-#[serde(rename_all = "lowercase")]
-pub enum AdaptLossName {
-    /// `−mean_t D(x_t) ‖a_t‖₂` (the paper's Eq. 3).
-    #[default]
-    Paper,
-    /// `‖ Σ_t a_t (−D(x_t)) ‖₂` (the reference implementation).
-    Reference,
-}
-
-impl From<AdaptLossName> for AdaptLossKind {
-    fn from(l: AdaptLossName) -> AdaptLossKind {
-        match l {
-            AdaptLossName::Paper => AdaptLossKind::Paper,
-            AdaptLossName::Reference => AdaptLossKind::Reference,
-        }
-    }
-}
-
-impl From<AdaptLossKind> for AdaptLossName {
-    fn from(l: AdaptLossKind) -> AdaptLossName {
-        match l {
-            AdaptLossKind::Paper => AdaptLossName::Paper,
-            AdaptLossKind::Reference => AdaptLossName::Reference,
-        }
-    }
-}
-
-fn one() -> u32 {
-    1
-}
-
-fn is_false(b: &bool) -> bool {
-    !*b
-}
-
-impl Default for InnerRule {
-    fn default() -> Self {
-        InnerRule {
-            disc_lr: None,
-            disc_steps: 1,
-            step_rule: StepRuleName::Gradient,
-            disc_head_reset: false,
-            adapt_loss: AdaptLossName::Paper,
-            reference_critic: false,
-            head_only: false,
-            commit_delay: 0,
-        }
-    }
-}
-
-impl InnerRule {
-    /// True for the paper's rule (what every checkpoint before the levers used).
-    pub fn is_paper(&self) -> bool {
-        *self == InnerRule::default()
-    }
-
-    /// Checks the values (from flags or a file): a finite non-negative α1, 1..=256 steps.
-    pub fn validate(&self) -> Result<()> {
-        if let Some(a) = self.disc_lr {
-            if !(a.is_finite() && a >= 0.0) {
-                bail!("disc-lr must be finite and non-negative, got {a}");
-            }
-        }
-        if !(1..=256).contains(&self.disc_steps) {
-            bail!("disc-steps must be in 1..=256, got {}", self.disc_steps);
-        }
-        if self.commit_delay > gman_core::schema::MAX_COMMIT_DELAY {
-            bail!(
-                "commit-delay must be in 0..={}, got {}",
-                gman_core::schema::MAX_COMMIT_DELAY,
-                self.commit_delay
-            );
-        }
-        Ok(())
-    }
-}
-
-/// [`StepRule`] as stored in checkpoints and named on the command line.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Default, Serialize, Deserialize, clap::ValueEnum)]
-#[serde(rename_all = "kebab-case")]
-pub enum StepRuleName {
-    /// θ ← θ − α2 ∇ (the paper).
-    #[default]
-    Gradient,
-    /// θ ← θ − α2 ∇/‖∇‖ (α2 is the step's length).
-    Normalized,
-    /// θ and φ each normalised: G moves by α2 whatever the actor head's gradient.
-    PerGroup,
-}
-
-impl From<StepRuleName> for StepRule {
-    fn from(r: StepRuleName) -> StepRule {
-        match r {
-            StepRuleName::Gradient => StepRule::Gradient,
-            StepRuleName::Normalized => StepRule::Normalized,
-            StepRuleName::PerGroup => StepRule::PerGroup,
-        }
-    }
-}
-
-impl From<StepRule> for StepRuleName {
-    fn from(r: StepRule) -> StepRuleName {
-        match r {
-            StepRule::Gradient => StepRuleName::Gradient,
-            StepRule::Normalized => StepRuleName::Normalized,
-            StepRule::PerGroup => StepRuleName::PerGroup,
-        }
-    }
-}
-
-/// [`NoiseMode`] as stored in checkpoints.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Default, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum NoiseName {
-    /// `gaussian`.
-    #[default]
-    Gaussian,
-    /// `zero`.
-    Zero,
-}
-
-/// [`AdaptMode`] as stored in checkpoints ([`mode_name`]).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Default, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum ModeName {
-    /// `full` (the default: checkpoints from before the setting existed were trained in it).
-    #[default]
-    Full,
-    /// `efficient`.
-    Efficient,
-}
-
-impl From<AdaptMode> for ModeName {
-    fn from(m: AdaptMode) -> ModeName {
-        match m {
-            AdaptMode::Full => ModeName::Full,
-            AdaptMode::Efficient => ModeName::Efficient,
-        }
-    }
-}
-
-impl From<ModeName> for AdaptMode {
-    fn from(m: ModeName) -> AdaptMode {
-        match m {
-            ModeName::Full => AdaptMode::Full,
-            ModeName::Efficient => AdaptMode::Efficient,
-        }
-    }
+    /// The model's switches (`noise`, `inner_lr`, `max_inner`, `adapt_mode`, `inner_rule`,
+    /// each absent in the first checkpoints: gman-core's [`ModelSpec`] defaults).
+    #[serde(flatten)]
+    pub spec: ModelSpec,
 }
 
 /// [`Dims`] as stored in checkpoints: the eight sizes, and the spatial-map sizes only for a
@@ -626,12 +401,12 @@ impl NavModel {
             params,
             ps,
             noise: NoiseMode::Gaussian,
-            inner_lr: 1e-4,
+            inner_lr: AdaptSettings::PAPER.alpha_adapt,
             max_inner: DEFAULT_MAX_INNER,
             blob: None,
             privileged: false,
             adapt_mode: AdaptMode::Full,
-            inner_rule: InnerRule::default(),
+            inner_rule: InnerRule::PAPER,
         })
     }
 
@@ -694,7 +469,11 @@ impl NavModel {
             // A host has the RAM: Ψ as one batch and G's pre-gain outputs kept (the same
             // bits as the device's compact layout).
             footprint: Footprint::Fast,
-            ..NavConfig::from_flags(self.model_flags(), self.adapt_settings())
+            ..NavConfig::from_spec(
+                &self.spec(),
+                self.method.adapts_at_eval(),
+                self.method.emd(),
+            )
         }
     }
 
@@ -710,17 +489,35 @@ impl NavModel {
             kind: NAVIGATOR_KIND.to_string(),
             method: self.method,
             dims: DimsMeta(self.dims),
-            noise: match self.noise {
-                NoiseMode::Gaussian => NoiseName::Gaussian,
-                NoiseMode::Zero => NoiseName::Zero,
-            },
             ps_hidden: self.ps.as_ref().map(|p| p.hidden),
+            privileged: self.privileged,
+            spec: self.spec(),
+        }
+    }
+
+    /// The model's switches (gman-core's [`ModelSpec`]): what its blobs record and its
+    /// checkpoints store.
+    pub fn spec(&self) -> ModelSpec {
+        ModelSpec {
+            noise: self.noise,
             inner_lr: self.inner_lr,
             max_inner: self.max_inner,
-            privileged: self.privileged,
-            adapt_mode: self.adapt_mode.into(),
+            adapt_mode: self.adapt_mode,
             inner_rule: self.inner_rule,
         }
+    }
+
+    /// Sets the model's switches to `spec`.
+    pub fn set_spec(&mut self, spec: ModelSpec) {
+        let ModelSpec {
+            noise,
+            inner_lr,
+            max_inner,
+            adapt_mode,
+            inner_rule,
+        } = spec;
+        (self.noise, self.inner_lr, self.max_inner) = (noise, inner_lr, max_inner);
+        (self.adapt_mode, self.inner_rule) = (adapt_mode, inner_rule);
     }
 
     /// Metadata stored in checkpoints: [`NavModel::meta`] as JSON (keys sorted, as always).
@@ -772,14 +569,10 @@ impl NavModel {
             }
             None => None,
         };
-        let inner_lr = m.inner_lr;
         // The checks `gman train` applies to the flags, applied to what the file says.
-        if !(inner_lr.is_finite() && inner_lr >= 0.0) {
-            bail!("stored inner_lr {inner_lr} is invalid: it must be finite and non-negative (like --inner-lr)");
-        }
-        m.inner_rule
+        m.spec
             .validate()
-            .context("stored inner_rule is invalid")?;
+            .context("stored model settings are invalid")?;
         if method.uses_ps() != (dims.ps > 0) || method.uses_ps() != ps.is_some() {
             bail!(
                 "stored method {} does not match the model (PS input width {}, PS module {}); the metadata was changed",
@@ -788,22 +581,21 @@ impl NavModel {
                 if ps.is_some() { "present" } else { "absent" }
             );
         }
-        Ok(NavModel {
+        let mut model = NavModel {
             method,
             dims,
             params,
             ps,
-            noise: match m.noise {
-                NoiseName::Gaussian => NoiseMode::Gaussian,
-                NoiseName::Zero => NoiseMode::Zero,
-            },
-            inner_lr,
-            max_inner: m.max_inner,
+            noise: NoiseMode::Gaussian,
+            inner_lr: 0.0,
+            max_inner: 0,
             blob: None,
             privileged: m.privileged,
-            adapt_mode: m.adapt_mode.into(),
-            inner_rule: m.inner_rule,
-        })
+            adapt_mode: AdaptMode::Full,
+            inner_rule: InnerRule::PAPER,
+        };
+        model.set_spec(m.spec);
+        Ok(model)
     }
 
     /// Blob flags of this model.
@@ -813,29 +605,13 @@ impl NavModel {
 
     /// The model flags of this model's blobs.
     pub fn model_flags(&self) -> ModelFlags {
-        ModelFlags {
-            adapt: self.method.adapts_at_eval(),
-            emd: self.method.emd(),
-            noise: self.noise,
-            mode: self.adapt_mode,
-            disc_steps: self.inner_rule.disc_steps,
-            step_rule: self.inner_rule.step_rule.into(),
-            disc_head_reset: self.inner_rule.disc_head_reset,
-            adapt_loss: self.inner_rule.adapt_loss.into(),
-            reference_critic: self.inner_rule.reference_critic,
-            head_only: self.inner_rule.head_only,
-            commit_delay: self.inner_rule.commit_delay,
-        }
+        self.spec()
+            .flags(self.method.adapts_at_eval(), self.method.emd())
     }
 
-    /// The inner-loop settings stored in the model's blobs: α1 (`inner_lr` unless the inner
-    /// rule sets its own), α2 = `inner_lr`, and `max_inner`.
+    /// The inner-loop settings stored in the model's blobs ([`ModelSpec::adapt_settings`]).
     pub fn adapt_settings(&self) -> AdaptSettings {
-        AdaptSettings {
-            alpha_disc: self.inner_rule.disc_lr.unwrap_or(self.inner_lr),
-            alpha_adapt: self.inner_lr,
-            max_inner: self.max_inner,
-        }
+        self.spec().adapt_settings()
     }
 
     /// Encodes the model as a gman-core weight blob (format v4, see `gman_core::blob`), int8 (per-row scales) or
@@ -921,31 +697,19 @@ pub fn model_from_blob(bytes: &[u8], method: Option<Method>) -> Result<NavModel>
     if method.uses_ps() {
         bail!("blob evaluation of PS variants needs the PS module, which blobs do not carry; evaluate the checkpoint instead");
     }
-    let noise = flags.noise;
-    let settings = blob.header().adapt_settings();
-    let inner_rule = InnerRule {
-        disc_lr: (settings.alpha_disc.to_bits() != settings.alpha_adapt.to_bits())
-            .then_some(settings.alpha_disc),
-        disc_steps: flags.disc_steps,
-        step_rule: flags.step_rule.into(),
-        disc_head_reset: flags.disc_head_reset,
-        adapt_loss: flags.adapt_loss.into(),
-        reference_critic: flags.reference_critic,
-        head_only: flags.head_only,
-        commit_delay: flags.commit_delay,
-    };
+    let spec = ModelSpec::from_header(blob.header());
     Ok(NavModel {
         method,
         dims,
         params,
         ps: None,
-        noise,
-        inner_lr: settings.alpha_adapt,
-        max_inner: settings.max_inner,
+        noise: spec.noise,
+        inner_lr: spec.inner_lr,
+        max_inner: spec.max_inner,
         blob: Some(std::sync::Arc::new(bytes.to_vec())),
         privileged: false,
-        adapt_mode: flags.mode,
-        inner_rule,
+        adapt_mode: spec.adapt_mode,
+        inner_rule: spec.inner_rule,
     })
 }
 
@@ -1119,7 +883,7 @@ mod tests {
             "inner_lr": m.inner_lr,
             "max_inner": m.max_inner,
             "privileged": m.privileged,
-            "adapt_mode": mode_name(m.adapt_mode),
+            "adapt_mode": match m.adapt_mode { AdaptMode::Full => "full", AdaptMode::Efficient => "efficient" },
         })
     }
 
@@ -1187,6 +951,8 @@ mod tests {
 mod inner_rule_tests {
     use super::*;
     use crate::optim::checkpoint::Checkpoint;
+    use gman_core::navigator::StepRule;
+    use gman_core::schema::AdaptLossKind;
 
     #[test]
     fn inner_rule_round_trips_through_checkpoint_and_blob() {
@@ -1203,9 +969,9 @@ mod inner_rule_tests {
         m.inner_rule = InnerRule {
             disc_lr: Some(0.05),
             disc_steps: 5,
-            step_rule: StepRuleName::PerGroup,
+            step_rule: StepRule::PerGroup,
             disc_head_reset: true,
-            adapt_loss: AdaptLossName::Reference,
+            adapt_loss: AdaptLossKind::Reference,
             reference_critic: true,
             head_only: true,
             commit_delay: 17,

@@ -1,0 +1,558 @@
+//! The model's switches, declared once: what a blob header records about how a model runs,
+//! what a host checkpoint stores beside the weights, and what a command line sets.
+//!
+//! * [`Named`]: the one table of names of each setting enum ([`AdaptMode`], [`NoiseMode`],
+//!   [`StepRule`], [`AdaptLossKind`]), with its `FromStr`, `Display` and serde forms; a
+//!   command line lists the table's values and their meaning.
+//! * [`InnerRule`]: the inner loop's rule where it departs from the paper's (α1 apart from
+//!   α2, D's steps, the step rule, D's head reset, the form of L_ad, the critic scale, the
+//!   head-only step, the commit delay).
+//! * [`ModelSpec`]: the noise, the adaptation mode, the inner rates, the cap on inner
+//!   updates and the [`InnerRule`]; [`ModelSpec::flags`] and [`ModelSpec::adapt_settings`]
+//!   are what a blob header records, [`ModelSpec::from_header`] reads them back, and
+//!   [`ModelSpec::validate`] is the one check of their ranges.
+//!
+//! Whether a model adapts at inference and what scores its features ([`ModelFlags::adapt`],
+//! [`ModelFlags::emd`]) belong to the training method, so [`ModelSpec::flags`] takes them.
+
+use core::fmt;
+use core::str::FromStr;
+
+use serde::{Deserialize, Deserializer, Serialize, Serializer};
+
+use crate::blob::{AdaptSettings, Header};
+use crate::preset::MAX_INNER_RATE;
+use crate::schema::MAX_COMMIT_DELAY;
+use crate::schema::{AdaptLossKind, AdaptMode, Emd, ModelFlags, NoiseMode, StepRule};
+
+/// A setting enum with one table of names: the form a command line, a checkpoint and a
+/// report use. `FromStr`, `Display` and serde (as the name) derive from [`Named::NAMES`].
+pub trait Named: Copy + PartialEq + Sized + 'static {
+    /// Every value, its name and a one-line meaning, in the order a command line lists them.
+    const NAMES: &'static [(Self, &'static str, &'static str)];
+
+    /// The name of this value.
+    fn name(self) -> &'static str {
+        Self::NAMES.iter().find(|e| e.0 == self).map_or("", |e| e.1)
+    }
+
+    /// The value named `s`.
+    fn from_name(s: &str) -> Option<Self> {
+        Self::NAMES.iter().find(|e| e.1 == s).map(|e| e.0)
+    }
+}
+
+/// A name that none of a [`Named`] enum's values has.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct UnknownName {
+    /// The names that exist.
+    pub expected: &'static [&'static str],
+}
+
+impl fmt::Display for UnknownName {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write_names(f, self.expected.iter().copied(), self.expected.len())
+    }
+}
+
+macro_rules! named {
+    ($t:ty, $list:ident, [$(($v:expr, $name:literal, $help:literal)),* $(,)?]) => {
+        impl Named for $t {
+            const NAMES: &'static [(Self, &'static str, &'static str)] = &[$(($v, $name, $help)),*];
+        }
+
+        impl $t {
+            /// The names of the values ([`Named::NAMES`]).
+            pub const $list: &'static [&'static str] = &[$($name),*];
+        }
+
+        impl FromStr for $t {
+            type Err = UnknownName;
+            fn from_str(s: &str) -> Result<Self, UnknownName> {
+                <$t as Named>::from_name(s).ok_or(UnknownName { expected: <$t>::$list })
+            }
+        }
+
+        impl fmt::Display for $t {
+            fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+                f.write_str(Named::name(*self))
+            }
+        }
+
+        impl Serialize for $t {
+            fn serialize<S: Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+                s.serialize_str(Named::name(*self))
+            }
+        }
+
+        impl<'de> Deserialize<'de> for $t {
+            fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+                d.deserialize_str(NameVisitor::<$t>(core::marker::PhantomData))
+            }
+        }
+    };
+}
+
+/// Reads a [`Named`] value from its name.
+struct NameVisitor<T>(core::marker::PhantomData<T>);
+
+impl<T: Named> serde::de::Visitor<'_> for NameVisitor<T> {
+    type Value = T;
+
+    fn expecting(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str("a name")
+    }
+
+    fn visit_str<E: serde::de::Error>(self, v: &str) -> Result<T, E> {
+        T::from_name(v).ok_or_else(|| {
+            E::custom(format_args!(
+                "unknown variant `{v}`, {}",
+                NameList::<T>(core::marker::PhantomData)
+            ))
+        })
+    }
+}
+
+/// "expected `a`, `b` or `c`": the names of a [`Named`] enum.
+struct NameList<T>(core::marker::PhantomData<T>);
+
+impl<T: Named> fmt::Display for NameList<T> {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write_names(f, T::NAMES.iter().map(|e| e.1), T::NAMES.len())
+    }
+}
+
+fn write_names<'a>(
+    f: &mut fmt::Formatter<'_>,
+    names: impl Iterator<Item = &'a str>,
+    n: usize,
+) -> fmt::Result {
+    f.write_str("expected ")?;
+    for (i, name) in names.enumerate() {
+        let sep = match i {
+            0 => "",
+            _ if i + 1 == n => " or ",
+            _ => ", ",
+        };
+        write!(f, "{sep}`{name}`")?;
+    }
+    Ok(())
+}
+
+named!(
+    AdaptMode,
+    NAME_LIST,
+    [
+        (
+            AdaptMode::Full,
+            "full",
+            "Every parameter of θ, ω and the actor head (hosts, application processors)"
+        ),
+        (
+            AdaptMode::Efficient,
+            "efficient",
+            "Per-unit gains and biases over the base weights (microcontrollers)"
+        ),
+    ]
+);
+
+named!(
+    NoiseMode,
+    NAME_LIST,
+    [
+        (
+            NoiseMode::Gaussian,
+            "gaussian",
+            "z ~ N(0, I) drawn per step (the paper)"
+        ),
+        (
+            NoiseMode::Zero,
+            "zero",
+            "z = 0: G's output is a deterministic function of SE(y) (the reference's option)"
+        ),
+    ]
+);
+
+named!(
+    StepRule,
+    NAME_LIST,
+    [
+        (StepRule::Gradient, "gradient", "θ ← θ − α2 ∇ (the paper)"),
+        (
+            StepRule::Normalized,
+            "normalized",
+            "θ ← θ − α2 ∇/‖∇‖ (α2 is the step's length)"
+        ),
+        (
+            StepRule::PerGroup,
+            "per-group",
+            "θ and φ each normalised: G moves by α2 whatever the actor head's gradient"
+        ),
+    ]
+);
+
+named!(
+    AdaptLossKind,
+    NAME_LIST,
+    [
+        (
+            AdaptLossKind::Paper,
+            "paper",
+            "`−mean_t D(x_t) ‖a_t‖₂` (the paper's Eq. 3)"
+        ),
+        (
+            AdaptLossKind::Reference,
+            "reference",
+            "`‖ Σ_t a_t (−D(x_t)) ‖₂` (the reference implementation)"
+        ),
+    ]
+);
+
+/// The largest number of D's ascent steps per inner update a blob can record.
+pub const MAX_DISC_STEPS: u32 = 256;
+
+/// A setting of a [`ModelSpec`] out of its range. The message names the setting as its
+/// command-line flag does (without the dashes).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum SpecError {
+    /// `inner_lr` (α2, and α1 unless [`InnerRule::disc_lr`] is set) is not in
+    /// `0..=`[`MAX_INNER_RATE`].
+    InnerRate(f32),
+    /// [`InnerRule::disc_lr`] is not in `0..=`[`MAX_INNER_RATE`].
+    DiscRate(f32),
+    /// [`InnerRule::disc_steps`] is not in `1..=`[`MAX_DISC_STEPS`].
+    DiscSteps(u32),
+    /// [`InnerRule::commit_delay`] is above [`MAX_COMMIT_DELAY`].
+    CommitDelay(u32),
+}
+
+impl fmt::Display for SpecError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let why = "(a larger step diverges at every adaptation; the paper's is 1e-4)";
+        match *self {
+            SpecError::InnerRate(a) => {
+                write!(f, "inner-lr {a} must be in 0..={MAX_INNER_RATE} {why}")
+            }
+            SpecError::DiscRate(a) => {
+                write!(f, "disc-lr {a} must be in 0..={MAX_INNER_RATE} {why}")
+            }
+            SpecError::DiscSteps(n) => {
+                write!(f, "disc-steps must be in 1..={MAX_DISC_STEPS}, got {n}")
+            }
+            SpecError::CommitDelay(d) => {
+                write!(f, "commit-delay must be in 0..={MAX_COMMIT_DELAY}, got {d}")
+            }
+        }
+    }
+}
+
+impl core::error::Error for SpecError {}
+
+fn rate_ok(a: f32) -> bool {
+    a.is_finite() && (0.0..=MAX_INNER_RATE).contains(&a)
+}
+
+/// The inner loop's rule where it departs from the paper's (the levers of
+/// docs/emd-analysis.md), recorded in checkpoints and blobs so that evaluation and the device
+/// run the rule that was meta-learned. [`InnerRule::default`] is the paper's: α1 = α2, one
+/// D step, the plain gradient step. Its serde form leaves out every lever at the paper's
+/// value but `disc_steps` and `step_rule` (so records written before a lever existed keep
+/// their bytes).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct InnerRule {
+    /// α1 (D's ascent rate on L_D) when it differs from the model's `inner_lr` (then α2 only).
+    #[serde(default)]
+    pub disc_lr: Option<f32>,
+    /// D's ascent steps per inner update (1..=[`MAX_DISC_STEPS`]).
+    #[serde(default = "one")]
+    pub disc_steps: u32,
+    /// The descent step on L_ad: `gradient` (α2 ∇), `normalized` (α2 ∇/‖∇‖) or `per-group`
+    /// (θ and φ each normalised to length α2).
+    #[serde(default)]
+    pub step_rule: StepRule,
+    /// D restarts with every episode, its output layer at zero.
+    #[serde(default, skip_serializing_if = "is_false")]
+    pub disc_head_reset: bool,
+    /// The form of L_ad: `paper` (Eq. 3) or `reference` (‖Σ_t a_t (−D(x_t))‖₂, the reference
+    /// implementation's).
+    #[serde(default, skip_serializing_if = "is_paper_loss")]
+    pub adapt_loss: AdaptLossKind,
+    /// L_D's critic terms scaled by 10, as the reference implementation does (the paper: 1).
+    #[serde(default, skip_serializing_if = "is_false")]
+    pub reference_critic: bool,
+    /// The descent step on L_ad adapts only the actor head, G stays at θ (the reference
+    /// implementation's default; the paper: G and the head).
+    #[serde(default, skip_serializing_if = "is_false")]
+    pub head_only: bool,
+    /// The inner update's commit delay d in steps
+    /// ([`NavConfig::commit_delay`](crate::navigator::NavConfig::commit_delay)): it takes
+    /// effect d steps after Ψ fills, the steps between not recorded (0: at once).
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub commit_delay: u32,
+}
+
+fn one() -> u32 {
+    1
+}
+
+fn is_false(b: &bool) -> bool {
+    !*b
+}
+
+fn is_zero(v: &u32) -> bool {
+    *v == 0
+}
+
+fn is_paper_loss(l: &AdaptLossKind) -> bool {
+    *l == AdaptLossKind::Paper
+}
+
+impl Default for InnerRule {
+    fn default() -> Self {
+        InnerRule::PAPER
+    }
+}
+
+impl InnerRule {
+    /// The paper's rule.
+    pub const PAPER: InnerRule = InnerRule {
+        disc_lr: None,
+        disc_steps: 1,
+        step_rule: StepRule::Gradient,
+        disc_head_reset: false,
+        adapt_loss: AdaptLossKind::Paper,
+        reference_critic: false,
+        head_only: false,
+        commit_delay: 0,
+    };
+
+    /// True for the paper's rule.
+    pub fn is_paper(&self) -> bool {
+        *self == InnerRule::PAPER
+    }
+
+    /// Checks the ranges: α1 in `0..=`[`MAX_INNER_RATE`], 1..=[`MAX_DISC_STEPS`] D steps, a
+    /// commit delay of at most [`MAX_COMMIT_DELAY`].
+    pub fn validate(&self) -> Result<(), SpecError> {
+        if let Some(a) = self.disc_lr {
+            if !rate_ok(a) {
+                return Err(SpecError::DiscRate(a));
+            }
+        }
+        if !(1..=MAX_DISC_STEPS).contains(&self.disc_steps) {
+            return Err(SpecError::DiscSteps(self.disc_steps));
+        }
+        if self.commit_delay > MAX_COMMIT_DELAY {
+            return Err(SpecError::CommitDelay(self.commit_delay));
+        }
+        Ok(())
+    }
+}
+
+/// The model's switches a blob header records and a host checkpoint stores (under these
+/// keys, beside the method and sizes): G's noise, the adaptation mode, the inner rates
+/// (`inner_lr` = α2, and α1 unless the rule sets its own), the cap on inner updates and the
+/// [`InnerRule`]. A field absent from a stored record takes the value the records written
+/// before it existed were trained with.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ModelSpec {
+    /// Noise of G at navigation time (absent: Gaussian).
+    #[serde(default)]
+    pub noise: NoiseMode,
+    /// Inner-loop rate α2 (and α1 unless [`InnerRule::disc_lr`]; absent: the paper's 1e-4).
+    #[serde(default = "paper_rate")]
+    pub inner_lr: f32,
+    /// Cap on inner updates per episode (absent: 4, the paper's).
+    #[serde(default = "paper_max_inner")]
+    pub max_inner: u32,
+    /// The adaptation mode the model was meta-trained in (absent: `full`, the mode of the
+    /// records written before the setting existed).
+    #[serde(default = "full_mode")]
+    pub adapt_mode: AdaptMode,
+    /// The inner rule's levers (absent, and not written, for the paper's rule).
+    #[serde(default, skip_serializing_if = "InnerRule::is_paper")]
+    pub inner_rule: InnerRule,
+}
+
+fn paper_rate() -> f32 {
+    AdaptSettings::PAPER.alpha_adapt
+}
+
+fn paper_max_inner() -> u32 {
+    AdaptSettings::PAPER.max_inner
+}
+
+fn full_mode() -> AdaptMode {
+    AdaptMode::Full
+}
+
+impl ModelSpec {
+    /// The paper's settings in the given adaptation mode, with Gaussian noise.
+    pub const fn paper(adapt_mode: AdaptMode) -> ModelSpec {
+        ModelSpec {
+            noise: NoiseMode::Gaussian,
+            inner_lr: AdaptSettings::PAPER.alpha_adapt,
+            max_inner: AdaptSettings::PAPER.max_inner,
+            adapt_mode,
+            inner_rule: InnerRule::PAPER,
+        }
+    }
+
+    /// The one check of the ranges (of flags, of a stored record, of overrides): `inner_lr`
+    /// in `0..=`[`MAX_INNER_RATE`] and [`InnerRule::validate`]. Any `max_inner` is valid.
+    pub fn validate(&self) -> Result<(), SpecError> {
+        if !rate_ok(self.inner_lr) {
+            return Err(SpecError::InnerRate(self.inner_lr));
+        }
+        self.inner_rule.validate()
+    }
+
+    /// The blob header's model flags of a model with these switches, `adapt` (the inner loop
+    /// runs at inference) and `emd` (what scores its features) being the method's.
+    pub const fn flags(&self, adapt: bool, emd: Emd) -> ModelFlags {
+        let r = &self.inner_rule;
+        ModelFlags {
+            adapt,
+            emd,
+            noise: self.noise,
+            mode: self.adapt_mode,
+            disc_steps: r.disc_steps,
+            step_rule: r.step_rule,
+            disc_head_reset: r.disc_head_reset,
+            adapt_loss: r.adapt_loss,
+            reference_critic: r.reference_critic,
+            head_only: r.head_only,
+            commit_delay: r.commit_delay,
+        }
+    }
+
+    /// The blob header's inner-loop settings: α1 (`inner_lr` unless the rule sets its own),
+    /// α2 = `inner_lr`, and `max_inner`.
+    pub fn adapt_settings(&self) -> AdaptSettings {
+        AdaptSettings {
+            alpha_disc: self.inner_rule.disc_lr.unwrap_or(self.inner_lr),
+            alpha_adapt: self.inner_lr,
+            max_inner: self.max_inner,
+        }
+    }
+
+    /// The switches a blob's flags and inner-loop settings record (the inverse of
+    /// [`ModelSpec::flags`] and [`ModelSpec::adapt_settings`]; α1 is a separate `disc_lr`
+    /// exactly when its bits differ from α2's).
+    pub fn from_flags(flags: ModelFlags, settings: AdaptSettings) -> ModelSpec {
+        let (a1, a2) = (settings.alpha_disc, settings.alpha_adapt);
+        ModelSpec {
+            noise: flags.noise,
+            inner_lr: a2,
+            max_inner: settings.max_inner,
+            adapt_mode: flags.mode,
+            inner_rule: InnerRule {
+                disc_lr: (a1.to_bits() != a2.to_bits()).then_some(a1),
+                disc_steps: flags.disc_steps,
+                step_rule: flags.step_rule,
+                disc_head_reset: flags.disc_head_reset,
+                adapt_loss: flags.adapt_loss,
+                reference_critic: flags.reference_critic,
+                head_only: flags.head_only,
+                commit_delay: flags.commit_delay,
+            },
+        }
+    }
+
+    /// [`ModelSpec::from_flags`] of a blob header.
+    pub fn from_header(header: &Header) -> ModelSpec {
+        ModelSpec::from_flags(header.model_flags(), header.adapt_settings())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn names_round_trip_and_unknown_names_list_the_known() {
+        fn check<T: Named + FromStr<Err = UnknownName> + fmt::Debug>() {
+            for &(v, name, _) in T::NAMES {
+                assert_eq!(v.name(), name);
+                assert_eq!(name.parse::<T>(), Ok(v));
+            }
+            assert!("sideways".parse::<T>().is_err());
+        }
+        check::<AdaptMode>();
+        check::<NoiseMode>();
+        check::<StepRule>();
+        check::<AdaptLossKind>();
+        assert_eq!(StepRule::PerGroup.name(), "per-group");
+        let e = "x".parse::<StepRule>().unwrap_err();
+        let mut s = heapless_string();
+        fmt::write(&mut s, format_args!("{e}")).unwrap();
+        assert_eq!(
+            s.as_str(),
+            "expected `gradient`, `normalized` or `per-group`"
+        );
+    }
+
+    fn heapless_string() -> Buf {
+        Buf([0; 96], 0)
+    }
+
+    struct Buf([u8; 96], usize);
+    impl Buf {
+        fn as_str(&self) -> &str {
+            core::str::from_utf8(&self.0[..self.1]).unwrap()
+        }
+    }
+    impl fmt::Write for Buf {
+        fn write_str(&mut self, s: &str) -> fmt::Result {
+            let b = s.as_bytes();
+            self.0[self.1..self.1 + b.len()].copy_from_slice(b);
+            self.1 += b.len();
+            Ok(())
+        }
+    }
+
+    #[test]
+    fn spec_round_trips_through_flags_and_settings() {
+        let spec = ModelSpec {
+            noise: NoiseMode::Zero,
+            inner_lr: 0.5,
+            max_inner: 7,
+            adapt_mode: AdaptMode::Efficient,
+            inner_rule: InnerRule {
+                disc_lr: Some(0.05),
+                disc_steps: 5,
+                step_rule: StepRule::PerGroup,
+                disc_head_reset: true,
+                adapt_loss: AdaptLossKind::Reference,
+                reference_critic: true,
+                head_only: true,
+                commit_delay: 17,
+            },
+        };
+        let flags = ModelFlags::from_bits(spec.flags(true, Emd::CosSim).bits());
+        assert!(flags.adapt && flags.emd == Emd::CosSim);
+        assert_eq!(ModelSpec::from_flags(flags, spec.adapt_settings()), spec);
+        let paper = ModelSpec::paper(AdaptMode::Full);
+        assert_eq!(paper.adapt_settings(), AdaptSettings::PAPER);
+        assert_eq!(paper.validate(), Ok(()));
+        assert_eq!(spec.validate(), Ok(()));
+    }
+
+    #[test]
+    fn validate_names_the_setting_out_of_range() {
+        let mut s = ModelSpec::paper(AdaptMode::Full);
+        s.inner_lr = 1e30;
+        assert_eq!(s.validate(), Err(SpecError::InnerRate(1e30)));
+        s.inner_lr = f32::NAN;
+        assert!(matches!(s.validate(), Err(SpecError::InnerRate(_))));
+        let mut s = ModelSpec::paper(AdaptMode::Full);
+        s.inner_rule.disc_lr = Some(-1.0);
+        assert_eq!(s.validate(), Err(SpecError::DiscRate(-1.0)));
+        s.inner_rule.disc_lr = None;
+        s.inner_rule.disc_steps = 0;
+        assert_eq!(s.validate(), Err(SpecError::DiscSteps(0)));
+        s.inner_rule.disc_steps = MAX_DISC_STEPS;
+        s.inner_rule.commit_delay = MAX_COMMIT_DELAY + 1;
+        assert_eq!(s.validate(), Err(SpecError::CommitDelay(64)));
+    }
+}
