@@ -421,3 +421,104 @@ fn demo_writes_summary_pictures_and_intervals() {
     }
     assert!(stdout.contains("target/release/gman"), "{stdout}");
 }
+
+#[test]
+fn ps_variant_blob_evaluates_with_its_ps_module() {
+    let d = tmp("psblob");
+    let run = d.join("run");
+    let (ok, _, err) = gman(&[
+        "train",
+        "--method",
+        "a3c-ps",
+        "--config",
+        "tiny",
+        "--workers",
+        "1",
+        "--updates",
+        "2",
+        "--quiet",
+        "--out",
+        run.to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    let ckpt = run.join("checkpoint.ckpt");
+    let blob = d.join("m.gman");
+    let (ok, _, err) = gman(&[
+        "export",
+        "--ckpt",
+        ckpt.to_str().unwrap(),
+        "--quant",
+        "f32",
+        "--out",
+        blob.to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    let eval = |agent: &PathBuf, ps: Option<&PathBuf>, json: &str| {
+        let out = d.join(json);
+        let mut args = vec![
+            "eval",
+            "--agent",
+            agent.to_str().unwrap(),
+            "--episodes",
+            "3",
+            "--quiet",
+            "--json",
+            out.to_str().unwrap(),
+        ];
+        if let Some(p) = ps {
+            args.extend(["--ps", p.to_str().unwrap()]);
+        }
+        let (ok, _, err) = gman(&args);
+        (ok, err, out)
+    };
+    // without its PS module the blob is refused, naming the flag
+    let (ok, err, _) = eval(&blob, None, "none.json");
+    assert!(!ok && err.contains("--ps"), "{err}");
+    // a checkpoint carries its own
+    let (ok, err, _) = eval(&ckpt, Some(&ckpt), "twice.json");
+    assert!(!ok && err.contains("carries its own PS module"), "{err}");
+    // the blob with the PS tensors of its checkpoint scores what the checkpoint scores
+    let (ok, err, from_blob) = eval(&blob, Some(&ckpt), "blob.json");
+    assert!(ok, "{err}");
+    let (ok, err, from_ckpt) = eval(&ckpt, None, "ckpt.json");
+    assert!(ok, "{err}");
+    let read = |p: &PathBuf| -> serde_json::Value {
+        serde_json::from_str(&std::fs::read_to_string(p).unwrap()).unwrap()
+    };
+    let (b, c) = (read(&from_blob), read(&from_ckpt));
+    assert_eq!(b["results"], c["results"]);
+    assert_eq!(b["by_room"], c["by_room"]);
+    // training keeps the PS module frozen: the pre-trained ps.ckpt serves as well
+    let (ok, err, from_pretrained) = eval(&blob, Some(&run.join("ps").join("ps.ckpt")), "p.json");
+    assert!(ok, "{err}");
+    assert_eq!(read(&from_pretrained)["results"], c["results"]);
+    // and another PS module gives other episodes (the PS input reaches the policy)
+    let other = d.join("other");
+    let (ok, _, err) = gman(&[
+        "pretrain-ps",
+        "--seed",
+        "7",
+        "--iters",
+        "5",
+        "--out",
+        other.to_str().unwrap(),
+        "--quiet",
+    ]);
+    assert!(ok, "{err}");
+    // the PS module the blob's model holds is the one given, bit for bit (a short run's
+    // episodes barely depend on it, so the results above alone would not tell)
+    use gman_host_sim::nav::model::{load_model, load_model_with_ps};
+    let w1 = |ps: Option<&PathBuf>, from: &PathBuf| -> Vec<f32> {
+        let m = match ps {
+            Some(p) => load_model_with_ps(from, None, Some(p)).unwrap(),
+            None => load_model(from, None).unwrap(),
+        };
+        let ps = m.ps.expect("a PS module");
+        ps.params.tensor("PsW1").unwrap().data.clone()
+    };
+    let trained = w1(None, &ckpt);
+    assert_eq!(w1(Some(&ckpt), &blob), trained);
+    assert_eq!(w1(Some(&run.join("ps").join("ps.ckpt")), &blob), trained);
+    assert_ne!(w1(Some(&other.join("ps.ckpt")), &blob), trained);
+    let _ = std::fs::remove_dir_all(&d);
+}

@@ -46,6 +46,10 @@ pub struct EvalArgs {
     /// measure what a device's delay costs a model.
     #[arg(long, value_name = "D")]
     pub commit_delay: Option<u32>,
+    /// The PS module of a PS variant's blob (`a3c-ps`, `gman-ps`, ...), which blobs do not
+    /// carry: the `ps.ckpt` the run was trained with, or its training checkpoint.
+    #[arg(long, value_name = "PS.ckpt")]
+    pub ps: Option<PathBuf>,
     /// At most N episodes per episode file (file order).
     #[arg(long, value_name = "N")]
     pub episodes: Option<usize>,
@@ -83,6 +87,7 @@ impl EvalArgs {
             max_inner: self.max_inner,
             head_only: self.adapt_head_only,
             commit_delay: self.commit_delay,
+            ps: self.ps.clone(),
         }
     }
 
@@ -184,7 +189,7 @@ pub fn cmd_eval(a: EvalArgs) -> Result<()> {
     let factory = agent_factory(&a.agent, a.seed, &a.overrides())?;
     let t0 = Instant::now();
     let world = a.world.load()?;
-    models::check_agent_for_world(&a.agent, &world)?;
+    models::check_agent_for_world(&a.agent, &world, &a.overrides())?;
     let episodes = world.episodes(split, a.episodes)?;
     check_episodes(&world, &episodes, split, a.episodes)?;
     let cfg = a.eval_config();
@@ -238,7 +243,7 @@ fn eval_seeds(a: EvalArgs, split: Split) -> Result<()> {
     for s in &a.seeds {
         let path = a.agent.replace("{seed}", &s.to_string());
         let factory = agent_factory(&path, a.seed, &a.overrides())?;
-        models::check_agent_for_world(&path, &world)?;
+        models::check_agent_for_world(&path, &world, &a.overrides())?;
         let results = evaluate(&world, &episodes, |w| factory(w), &cfg);
         let report = EvalReport::new(split.name(), &path, &results);
         print!("{}", report.table());

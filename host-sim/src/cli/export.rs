@@ -84,7 +84,7 @@ pub fn cmd_export(a: ExportArgs) -> Result<()> {
             preset_matches(&model, a.preset)?;
             if model.method.uses_ps() {
                 eprintln!(
-                    "note: the PS module is not part of the blob; the device must supply the PS input"
+                    "note: the PS module is not part of the blob; the device must supply the PS input (gman eval: --ps PS.ckpt)"
                 );
             }
             let bytes = model.to_blob(a.quant == QuantArg::Int8)?;

@@ -1,17 +1,17 @@
 //! Agents by name for `gman eval` and `gman scene`: the built-in `random` and `oracle`, and
 //! model files (`--agent PATH`, with the model overrides).
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use anyhow::{bail, Context, Result};
 use gman_host_sim::nav::agent::NavAgent;
-use gman_host_sim::nav::model::{load_model, Method};
+use gman_host_sim::nav::model::{load_model_with_ps, Method};
 use gman_host_sim::sim::eval::AgentFactory;
 use gman_host_sim::sim::{OracleAgent, RandomAgent};
 
 /// Evaluation-time changes to a loaded model (`gman eval --method/--inner-lr/--max-inner`).
-#[derive(Clone, Copy, Debug, Default)]
+#[derive(Clone, Debug, Default)]
 pub struct ModelOverrides {
     /// Treat the model as this method.
     pub method: Option<Method>,
@@ -23,11 +23,13 @@ pub struct ModelOverrides {
     pub head_only: bool,
     /// The inner update's commit delay in steps.
     pub commit_delay: Option<u32>,
+    /// The PS module of a PS variant's blob (a checkpoint file holding its tensors).
+    pub ps: Option<PathBuf>,
 }
 
 /// Model-file agents for `gman eval`: a checkpoint or a blob.
 pub fn model_factory(path: &Path, ov: &ModelOverrides) -> Result<(AgentFactory, String)> {
-    let mut model = load_model(path, ov.method)?;
+    let mut model = load_model_with_ps(path, ov.method, ov.ps.as_deref())?;
     if let Some(lr) = ov.inner_lr {
         model.inner_lr = lr;
     }
@@ -49,11 +51,15 @@ pub fn model_factory(path: &Path, ov: &ModelOverrides) -> Result<(AgentFactory, 
 
 /// Refuses a model agent (a checkpoint or a blob) whose map grid `world` cannot serve
 /// ([`gman_host_sim::sim::spatial::check_grid_for_world`]); built-in agents pass.
-pub fn check_agent_for_world(name: &str, world: &gman_host_sim::sim::World) -> Result<()> {
+pub fn check_agent_for_world(
+    name: &str,
+    world: &gman_host_sim::sim::World,
+    ov: &ModelOverrides,
+) -> Result<()> {
     if matches!(name, "random" | "oracle") || !Path::new(name).exists() {
         return Ok(());
     }
-    let d = gman_host_sim::nav::model::load_model(Path::new(name), None)?.dims;
+    let d = load_model_with_ps(Path::new(name), ov.method, ov.ps.as_deref())?.dims;
     gman_host_sim::sim::spatial::check_grid_for_world(
         world,
         d.map_rows,

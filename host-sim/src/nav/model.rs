@@ -663,6 +663,17 @@ impl NavModel {
 /// `NavConfig::from_header` with sampled actions. A blob whose α1 and α2 differ is refused
 /// (a `NavModel` has one inner rate).
 pub fn model_from_blob(bytes: &[u8], method: Option<Method>) -> Result<NavModel> {
+    model_from_blob_with_ps(bytes, method, None)
+}
+
+/// [`model_from_blob`] with the PS module a PS variant's blob needs (blobs do not carry it;
+/// the PS variants are evaluated with the `ps.ckpt` they were trained with, or the tensors of
+/// their training checkpoint). A PS module for a model without a PS input is refused.
+pub fn model_from_blob_with_ps(
+    bytes: &[u8],
+    method: Option<Method>,
+    ps: Option<PsModule>,
+) -> Result<NavModel> {
     let blob = Blob::parse(bytes).map_err(|e| anyhow!("{e}"))?;
     let dims = blob.dims();
     let flags = blob.header().model_flags();
@@ -694,15 +705,24 @@ pub fn model_from_blob(bytes: &[u8], method: Option<Method>) -> Result<NavModel>
         (false, false) => Method::A3cFg,
         (false, true) => Method::A3cFgPs,
     });
-    if method.uses_ps() {
-        bail!("blob evaluation of PS variants needs the PS module, which blobs do not carry; evaluate the checkpoint instead");
+    match (method.uses_ps(), &ps) {
+        (true, None) => bail!(
+            "{} is a PS variant and blobs do not carry the PS module: give the one it was trained \
+             with (`--ps ps.ckpt`, or its training checkpoint), or evaluate the checkpoint",
+            method.name()
+        ),
+        (false, Some(_)) => bail!(
+            "a PS module was given, but {} has no PS input",
+            method.name()
+        ),
+        _ => {}
     }
     let spec = ModelSpec::from_header(blob.header());
     Ok(NavModel {
         method,
         dims,
         params,
-        ps: None,
+        ps,
         noise: spec.noise,
         inner_lr: spec.inner_lr,
         max_inner: spec.max_inner,
@@ -715,9 +735,34 @@ pub fn model_from_blob(bytes: &[u8], method: Option<Method>) -> Result<NavModel>
 
 /// Reads a model from a checkpoint (`.ckpt`) or a blob (`.gman`) file.
 pub fn load_model(path: &Path, method: Option<Method>) -> Result<NavModel> {
+    load_model_with_ps(path, method, None)
+}
+
+/// [`load_model`]; a blob of a PS variant takes its PS module from the checkpoint file
+/// `ps_path` (a `ps.ckpt` of `gman pretrain-ps`, or the run's training checkpoint). A
+/// checkpoint carries its own PS module, so `ps_path` is refused with one.
+pub fn load_model_with_ps(
+    path: &Path,
+    method: Option<Method>,
+    ps_path: Option<&Path>,
+) -> Result<NavModel> {
     let bytes = std::fs::read(path).with_context(|| format!("reading model {}", path.display()))?;
     if bytes.starts_with(&gman_core::blob::MAGIC) && !bytes.starts_with(b"GMANCKPT") {
-        return model_from_blob(&bytes, method).with_context(|| format!("blob {}", path.display()));
+        let ps = match ps_path {
+            Some(p) => Some(
+                PsModule::load(p).with_context(|| format!("loading PS module {}", p.display()))?,
+            ),
+            None => None,
+        };
+        return model_from_blob_with_ps(&bytes, method, ps)
+            .with_context(|| format!("blob {}", path.display()));
+    }
+    if let Some(p) = ps_path {
+        bail!(
+            "checkpoint {}: a checkpoint carries its own PS module; --ps {} is for blobs",
+            path.display(),
+            p.display()
+        );
     }
     let ck = Checkpoint::from_bytes(&bytes, Some(path))?;
     let mut m =
