@@ -81,6 +81,7 @@
 //! ```
 
 use core::marker::PhantomData;
+use core::ops::Deref;
 
 use crate::activation::{all_finite, leaky_relu_inplace, sigmoid_inplace};
 use crate::adapt::{actor_head_grad, AdaptLossKind};
@@ -90,11 +91,12 @@ use crate::discriminator::{DiscGrads, Discriminator, LdConfig, LdValue};
 use crate::error::BlobError;
 use crate::error::{check_len, Error, Result};
 use crate::generator::{Generator, GeneratorCache};
-use crate::inner::{self, InnerWork};
+use crate::inner::{self, InnerWorkOf};
 use crate::lstm::Lstm;
 use crate::matrix::MatRef;
 use crate::memory::{
-    adapt_batch_with, arena_len_with, region_lens, AdaptMode, Footprint, Region, NUM_REGIONS,
+    adapt_batch_with, arena_len_with, arena_table, first, region_lens, AdaptMode, Footprint,
+    NUM_REGIONS,
 };
 use crate::policy::{Policy, PolicyCache, PolicyInput};
 use crate::preset::Dims;
@@ -516,43 +518,35 @@ const ARENA_TOO_SMALL: Error = Error::Config {
     what: "arena too small for these dims, mode and k (see memory::arena_len)",
 };
 
-/// Takes the next `n` floats of the arena.
-fn take<'a>(rest: &mut &'a mut [f32], n: usize) -> Result<&'a mut [f32]> {
-    let r = core::mem::take(rest);
-    if r.len() < n {
-        return Err(ARENA_TOO_SMALL);
-    }
-    let (a, b) = r.split_at_mut(n);
-    *rest = b;
-    Ok(a)
-}
-
 /// An adapted (or RAM-resident) dense layer: `w` is empty when the base weights are read
 /// from the blob; `gain` is empty in `Full` mode.
-struct LayerRam<'w> {
-    w: &'w mut [f32],
-    gain: &'w mut [f32],
-    b: &'w mut [f32],
+#[derive(Default)]
+struct LayerRam<T> {
+    w: T,
+    gain: T,
+    b: T,
 }
 
-impl<'w> LayerRam<'w> {
+impl<T: Deref<Target = [f32]>> LayerRam<T> {
     fn view<'s>(&'s self, base: MatRef<'s>) -> Result<Dense<'s>> {
         let w = if self.w.is_empty() {
             base
         } else {
-            MatRef::f32(base.rows(), base.cols(), self.w)?.kernels_from(&base)
+            MatRef::f32(base.rows(), base.cols(), &self.w)?.kernels_from(&base)
         };
         Ok(Dense {
             w,
-            b: self.b,
+            b: &self.b,
             gain: if self.gain.is_empty() {
                 None
             } else {
-                Some(self.gain)
+                Some(&self.gain)
             },
         })
     }
+}
 
+impl LayerRam<&mut [f32]> {
     /// Restores the meta-learned values: `w` from the blob (Full) or gain 1 (Efficient).
     fn restore(&mut self, w: &MatRef<'_>, b: &MatRef<'_>) -> Result<()> {
         if !self.w.is_empty() {
@@ -564,13 +558,14 @@ impl<'w> LayerRam<'w> {
 }
 
 /// Gradient buffers matching a [`LayerRam`] (`a` is dW in Full, dgain in Efficient).
-struct LayerGrad<'w> {
-    a: &'w mut [f32],
-    b: &'w mut [f32],
+#[derive(Default)]
+struct LayerGrad<T> {
+    a: T,
+    b: T,
     full: bool,
 }
 
-impl<'w> LayerGrad<'w> {
+impl LayerGrad<&mut [f32]> {
     fn grads(&mut self) -> DenseGrads<'_> {
         if self.full {
             DenseGrads::Full {
@@ -601,11 +596,11 @@ impl<'w> LayerGrad<'w> {
         self.a.iter().chain(self.b.iter()).map(|v| v * v).sum()
     }
     /// True if `p + step * g` stays finite everywhere.
-    fn update_ok(&self, p: &LayerRam<'_>, step: f32) -> bool {
+    fn update_ok(&self, p: &LayerRam<&mut [f32]>, step: f32) -> bool {
         let target = if self.full { &*p.w } else { &*p.gain };
         ok_update(target, self.a, step) && ok_update(p.b, self.b, step)
     }
-    fn apply(&self, p: &mut LayerRam<'_>, step: f32) {
+    fn apply(&self, p: &mut LayerRam<&mut [f32]>, step: f32) {
         let target = if self.full { &mut *p.w } else { &mut *p.gain };
         axpy_inplace(target, self.a, step);
         axpy_inplace(p.b, self.b, step);
@@ -613,9 +608,9 @@ impl<'w> LayerGrad<'w> {
 }
 
 /// The view of G over its RAM layers (`gen1`, `gen2`) and the blob's base weights.
-fn gen_view<'s>(
-    gen1: &'s LayerRam<'_>,
-    gen2: &'s LayerRam<'_>,
+fn gen_view<'s, T: Deref<Target = [f32]>>(
+    gen1: &'s LayerRam<T>,
+    gen2: &'s LayerRam<T>,
     w: &NavWeights<'s>,
 ) -> Result<Generator<'s>> {
     Ok(Generator {
@@ -642,8 +637,8 @@ fn same_storage(a: &MatRef<'_>, b: &MatRef<'_>) -> bool {
 }
 
 /// The view of D over its RAM parameters and the blob's base weights.
-fn disc_view<'s>(
-    disc1: &'s LayerRam<'_>,
+fn disc_view<'s, T: Deref<Target = [f32]>>(
+    disc1: &'s LayerRam<T>,
     w2: &'s [f32],
     b2: &[f32],
     w: &NavWeights<'s>,
@@ -657,10 +652,10 @@ fn disc_view<'s>(
 
 /// The policy's layers: the trunk's weights from `w` (never adapted), its biases
 /// `[fuse, lstm, critic, cell]` and the actor head (adapted) from the navigator's RAM.
-fn policy_view<'s>(
+fn policy_view<'s, T: Deref<Target = [f32]>>(
     w: &'s NavWeights<'_>,
     [fuse_b, lstm_b, critic_b, cell_b]: [&'s [f32]; 4],
-    actor: &'s LayerRam<'_>,
+    actor: &'s LayerRam<T>,
 ) -> Result<Policy<'s>> {
     let dense = |id, b| Dense {
         w: w.get(id),
@@ -690,65 +685,115 @@ fn axpy_inplace(p: &mut [f32], g: &[f32], step: f32) {
     }
 }
 
-/// All RAM regions of the navigator, carved from the caller's arena.
-struct Ram<'w> {
-    gen1: LayerRam<'w>,
-    gen2: LayerRam<'w>,
-    disc1: LayerRam<'w>,
-    disc_w2: &'w mut [f32],
-    disc_b2: &'w mut [f32],
-    actor: LayerRam<'w>,
-    fuse_b: &'w mut [f32],
-    lstm_b: &'w mut [f32],
-    critic_b: &'w mut [f32],
-    cell_b: &'w mut [f32],
-    g_gen1: LayerGrad<'w>,
-    g_gen2: LayerGrad<'w>,
-    g_disc1: LayerGrad<'w>,
-    g_disc_w2: &'w mut [f32],
-    g_disc_b2: &'w mut [f32],
-    g_actor: LayerGrad<'w>,
-    psi_s: &'w mut [f32],
-    psi_z: &'w mut [f32],
-    psi_p: &'w mut [f32],
-    psi_h: &'w mut [f32],
-    psi_x: &'w mut [f32],
-    psi_u2: &'w mut [f32],
-    // G activations of the step
-    u1: &'w mut [f32],
-    h1: &'w mut [f32],
-    u2: &'w mut [f32],
-    x: &'w mut [f32],
-    // the batched inner update's work
-    iw: InnerWork<'w>,
-    // adaptation work
-    eps: &'w mut [f32],
-    d: &'w mut [f32],
-    dd: &'w mut [f32],
-    dprobs: &'w mut [f32],
-    // policy work and state
-    prod: &'w mut [f32],
-    fuse: &'w mut [f32],
-    gates: &'w mut [f32],
-    h: &'w mut [f32],
-    c: &'w mut [f32],
-    h_state: &'w mut [f32],
-    c_state: &'w mut [f32],
-    logits: &'w mut [f32],
-    probs: &'w mut [f32],
-    prev_probs: &'w mut [f32],
-    dlogits: &'w mut [f32],
-    actor_u: &'w mut [f32],
-    z: &'w mut [f32],
-    attr: &'w mut [f32],
-    ps: &'w mut [f32],
-    cell: &'w mut [f32],
-    cell_prod: &'w mut [f32],
+/// A region of the arena as the carve splits it: a mutable or a shared slice.
+trait Piece: Default {
+    fn len(&self) -> usize;
+    fn split(self, n: usize) -> (Self, Self);
 }
 
-impl<'w> Ram<'w> {
-    /// Carves the regions of [`crate::memory`]'s arena table (the one statement of their
-    /// order and sizes) from `arena`; returns them and the floats used.
+impl Piece for &mut [f32] {
+    fn len(&self) -> usize {
+        <[f32]>::len(self)
+    }
+    fn split(self, n: usize) -> (Self, Self) {
+        self.split_at_mut(n)
+    }
+}
+
+impl Piece for &[f32] {
+    fn len(&self) -> usize {
+        <[f32]>::len(self)
+    }
+    fn split(self, n: usize) -> (Self, Self) {
+        self.split_at(n)
+    }
+}
+
+/// A group of regions of the arena table (a struct of the `Ram`), told the mode and the
+/// inner update's batch after the carve.
+trait Group {
+    fn finish(&mut self, _full: bool, _b: usize) {}
+}
+
+impl<T> Group for LayerRam<T> {}
+
+impl<T> Group for LayerGrad<T> {
+    fn finish(&mut self, full: bool, _b: usize) {
+        self.full = full;
+    }
+}
+
+impl<T> Group for InnerWorkOf<T> {
+    fn finish(&mut self, _full: bool, b: usize) {
+        self.b = b;
+    }
+}
+
+/// The type of a field of the `Ram`: a region (`T`) or a group of regions (`Kind<T>`).
+macro_rules! ram_field {
+    ($t:ident) => { $t };
+    ($t:ident, $kind:ident) => { $kind<$t> };
+}
+
+/// Generates, from the arena table ([`crate::memory`]'s `arena_table`), the `Ram` struct
+/// (one field per region or group of regions, in table order) and its carve.
+macro_rules! arena_ram {
+    (|$d:ident, $full:ident, $g:ident, $k:ident, $b:ident, $map:ident, $gen_in:ident, $fast:ident|
+     $($field:ident $(: $kind:ident)? in $part:ident
+        $({ $($sub:ident = $sl:expr;)* })? $(= $len:expr;)?)*) => {
+        /// All RAM regions of the navigator, carved from its arena: `T` is `&mut [f32]`, or
+        /// `&[f32]` for a read-only view.
+        struct Ram<T> {
+            $($field: ram_field!(T $(, $kind)?),)*
+        }
+
+        impl<T: Default> Default for Ram<T> {
+            fn default() -> Self {
+                Ram { $($field: Default::default(),)* }
+            }
+        }
+
+        impl<T: Piece> Ram<T> {
+            /// Carves the regions of lengths `lens` (the arena table's, in its order) from
+            /// `arena`; returns them, what is left of `arena`, and whether it was too short
+            /// (then the regions that did not fit are empty).
+            fn carve_lens(
+                arena: T,
+                lens: &[usize; NUM_REGIONS],
+                full: bool,
+                b: usize,
+            ) -> (Self, T, bool) {
+                let mut ram = Ram::<T>::default();
+                let mut rest = arena;
+                let mut short = false;
+                let mut lens = lens.iter();
+                let mut next = || {
+                    let n = lens.next().copied().unwrap_or(0);
+                    let r = core::mem::take(&mut rest);
+                    if r.len() < n {
+                        short = true;
+                        return T::default();
+                    }
+                    let (a, tail) = r.split(n);
+                    rest = tail;
+                    a
+                };
+                $(
+                    $($(ram.$field.$sub = next();)*)?
+                    $(first!({ ram.$field = next(); }, $len);)?
+                )*
+                $($(first!(Group::finish(&mut ram.$field, full, b), $kind);)?)*
+                (ram, rest, short)
+            }
+        }
+    };
+}
+
+arena_table!(arena_ram);
+
+impl<'w> Ram<&'w mut [f32]> {
+    /// Carves the regions of [`crate::memory`]'s arena table for `d`, `mode`, `k` and `fp`
+    /// from `arena`; returns them and the floats used.
     fn carve(
         arena: &'w mut [f32],
         d: &Dims,
@@ -758,93 +803,12 @@ impl<'w> Ram<'w> {
     ) -> Result<(Self, usize)> {
         let total = arena.len();
         let lens = region_lens(d, mode, k, fp).ok_or(ARENA_TOO_SMALL)?;
-        let full = mode == AdaptMode::Full;
-        let mut rest = arena;
-        let mut short = false;
-        let mut regions: [&'w mut [f32]; NUM_REGIONS] =
-            core::array::from_fn(|i| match take(&mut rest, lens[i]) {
-                Ok(s) => s,
-                Err(_) => {
-                    short = true;
-                    &mut []
-                }
-            });
+        let b = adapt_batch_with(mode, k, fp).max(1);
+        let (ram, rest, short) = Ram::carve_lens(arena, &lens, mode == AdaptMode::Full, b);
         if short {
             return Err(ARENA_TOO_SMALL);
         }
-        let used = total - rest.len();
-        let mut t = |r: Region| core::mem::take(&mut regions[r as usize]);
-        let layer = |w, gain, b| LayerRam { w, gain, b };
-        let grad = |a, b| LayerGrad { a, b, full };
-        let ram = Ram {
-            gen1: layer(t(Region::Gen1W), t(Region::Gen1Gain), t(Region::Gen1B)),
-            gen2: layer(t(Region::Gen2W), t(Region::Gen2Gain), t(Region::Gen2B)),
-            disc1: layer(t(Region::Disc1W), t(Region::Disc1Gain), t(Region::Disc1B)),
-            disc_w2: t(Region::DiscW2),
-            disc_b2: t(Region::DiscB2),
-            actor: layer(t(Region::ActorW), t(Region::ActorGain), t(Region::ActorB)),
-            fuse_b: t(Region::FuseB),
-            lstm_b: t(Region::LstmB),
-            critic_b: t(Region::CriticB),
-            cell_b: t(Region::CellB),
-            g_gen1: grad(t(Region::GGen1A), t(Region::GGen1B)),
-            g_gen2: grad(t(Region::GGen2A), t(Region::GGen2B)),
-            g_disc1: grad(t(Region::GDisc1A), t(Region::GDisc1B)),
-            g_disc_w2: t(Region::GDiscW2),
-            g_disc_b2: t(Region::GDiscB2),
-            g_actor: grad(t(Region::GActorA), t(Region::GActorB)),
-            psi_s: t(Region::PsiS),
-            psi_z: t(Region::PsiZ),
-            psi_p: t(Region::PsiP),
-            psi_h: t(Region::PsiH),
-            psi_x: t(Region::PsiX),
-            psi_u2: t(Region::PsiU2),
-            u1: t(Region::U1),
-            h1: t(Region::H1),
-            u2: t(Region::U2),
-            x: t(Region::X),
-            iw: InnerWork {
-                b: adapt_batch_with(mode, k, fp).max(1),
-                z: t(Region::BZ),
-                attr: t(Region::BAttr),
-                u1: t(Region::BU1),
-                h1: t(Region::BH1),
-                u2: t(Region::BU2),
-                dpre2: t(Region::DPre2),
-                dh1: t(Region::DH1),
-                dpre1: t(Region::DPre1),
-                du: t(Region::DU),
-                dh: t(Region::DH),
-                dv: t(Region::DV),
-                w1g: t(Region::DW1G),
-                g: t(Region::DG),
-                mix: t(Region::DMix),
-                outer_x: t(Region::DOuterX),
-                outer_dy: t(Region::DOuterY),
-            },
-            eps: t(Region::Eps),
-            d: t(Region::D),
-            dd: t(Region::DD),
-            dprobs: t(Region::DProbs),
-            prod: t(Region::Prod),
-            fuse: t(Region::Fuse),
-            gates: t(Region::Gates),
-            h: t(Region::HNew),
-            c: t(Region::CNew),
-            h_state: t(Region::HState),
-            c_state: t(Region::CState),
-            logits: t(Region::Logits),
-            probs: t(Region::Probs),
-            prev_probs: t(Region::PrevProbs),
-            dlogits: t(Region::DLogits),
-            actor_u: t(Region::ActorU),
-            z: t(Region::Z),
-            attr: t(Region::Attr),
-            ps: t(Region::Ps),
-            cell: t(Region::Cell),
-            cell_prod: t(Region::CellProd),
-        };
-        Ok((ram, used))
+        Ok((ram, total - rest.len()))
     }
 }
 
@@ -854,7 +818,7 @@ pub struct Navigator<'w, M: Mode, const K: usize> {
     w: NavWeights<'w>,
     cfg: NavConfig,
     rng: Xoshiro128,
-    r: Ram<'w>,
+    r: Ram<&'w mut [f32]>,
     counters: Counters,
     n_buf: usize,
     ready: bool,
@@ -2258,8 +2222,16 @@ mod tests {
                 {
                     let n = arena_len_with(&d, mode, k, fp);
                     let mut arena = vec![0.0f32; n + 7];
-                    let (_, used) = Ram::carve(&mut arena, &d, mode, k, fp).unwrap();
+                    let base = arena.as_ptr() as usize;
+                    let (ram, used) = Ram::carve(&mut arena, &d, mode, k, fp).unwrap();
                     assert_eq!(used, n, "{d:?} {mode:?} k={k} {fp:?}");
+                    // Ψ follows the parameters and gradients; the step's work ends the arena.
+                    let l = crate::memory::NavLayout::new_with(&d, mode, k, fp);
+                    let at = |s: &[f32]| (s.as_ptr() as usize - base) / 4;
+                    let params = l.gen_params + l.disc_params + l.actor_params;
+                    assert_eq!(at(ram.psi_s), params + l.fixed_biases + l.grads);
+                    assert_eq!(at(ram.gen1.w), 0);
+                    assert_eq!(at(ram.cell_prod) + ram.cell_prod.len(), n);
                     let mut small = vec![0.0f32; n - 1];
                     assert!(Ram::carve(&mut small, &d, mode, k, fp).is_err());
                 }
