@@ -529,21 +529,27 @@ struct LayerRam<T> {
 
 impl<T: Deref<Target = [f32]>> LayerRam<T> {
     fn view<'s>(&'s self, base: MatRef<'s>) -> Result<Dense<'s>> {
-        let w = if self.w.is_empty() {
-            base
-        } else {
-            MatRef::f32(base.rows(), base.cols(), &self.w)?.kernels_from(&base)
-        };
-        Ok(Dense {
-            w,
-            b: &self.b,
-            gain: if self.gain.is_empty() {
-                None
-            } else {
-                Some(&self.gain)
-            },
-        })
+        dense_over([&self.w, &self.gain, &self.b], base)
     }
+}
+
+/// [`LayerRam::view`] of a read-only layer, for as long as its slices live.
+fn layer_view<'s>(l: LayerRam<&'s [f32]>, base: MatRef<'s>) -> Result<Dense<'s>> {
+    dense_over([l.w, l.gain, l.b], base)
+}
+
+/// The layer over RAM weights `w` (empty: the blob's `base`), gains (empty: none) and `b`.
+fn dense_over<'s>([w, gain, b]: [&'s [f32]; 3], base: MatRef<'s>) -> Result<Dense<'s>> {
+    let w = if w.is_empty() {
+        base
+    } else {
+        MatRef::f32(base.rows(), base.cols(), w)?.kernels_from(&base)
+    };
+    Ok(Dense {
+        w,
+        b,
+        gain: if gain.is_empty() { None } else { Some(gain) },
+    })
 }
 
 impl LayerRam<&mut [f32]> {
@@ -652,10 +658,10 @@ fn disc_view<'s, T: Deref<Target = [f32]>>(
 
 /// The policy's layers: the trunk's weights from `w` (never adapted), its biases
 /// `[fuse, lstm, critic, cell]` and the actor head (adapted) from the navigator's RAM.
-fn policy_view<'s, T: Deref<Target = [f32]>>(
+fn policy_view<'s>(
     w: &'s NavWeights<'_>,
     [fuse_b, lstm_b, critic_b, cell_b]: [&'s [f32]; 4],
-    actor: &'s LayerRam<T>,
+    actor: Dense<'s>,
 ) -> Result<Policy<'s>> {
     let dense = |id, b| Dense {
         w: w.get(id),
@@ -669,7 +675,7 @@ fn policy_view<'s, T: Deref<Target = [f32]>>(
             wh: w.get(TensorId::LstmWh),
             b: lstm_b,
         },
-        actor: actor.view(w.get(TensorId::ActorW))?,
+        actor,
         critic: dense(TensorId::CriticW, critic_b),
         cell: (w.dims.map_cells() > 0).then(|| dense(TensorId::CellW, cell_b)),
     })
@@ -763,21 +769,27 @@ macro_rules! arena_ram {
                 full: bool,
                 b: usize,
             ) -> (Self, T, bool) {
-                let mut ram = Ram::<T>::default();
                 let mut rest = arena;
                 let mut short = false;
-                let mut lens = lens.iter();
-                let mut next = || {
-                    let n = lens.next().copied().unwrap_or(0);
+                // The regions in table order (one loop, so that the code stays small), then
+                // each to its field.
+                let mut parts: [T; NUM_REGIONS] = core::array::from_fn(|i| {
                     let r = core::mem::take(&mut rest);
-                    if r.len() < n {
+                    if r.len() < lens[i] {
                         short = true;
                         return T::default();
                     }
-                    let (a, tail) = r.split(n);
+                    let (a, tail) = r.split(lens[i]);
                     rest = tail;
                     a
+                });
+                let mut i = 0;
+                let mut next = || {
+                    let p = core::mem::take(&mut parts[i]);
+                    i += 1;
+                    p
                 };
+                let mut ram = Ram::<T>::default();
                 $(
                     $($(ram.$field.$sub = next();)*)?
                     $(first!({ ram.$field = next(); }, $len);)?
@@ -791,34 +803,62 @@ macro_rules! arena_ram {
 
 arena_table!(arena_ram);
 
-impl<'w> Ram<&'w mut [f32]> {
-    /// Carves the regions of [`crate::memory`]'s arena table for `d`, `mode`, `k` and `fp`
-    /// from `arena`; returns them and the floats used.
-    fn carve(
-        arena: &'w mut [f32],
-        d: &Dims,
-        mode: AdaptMode,
-        k: usize,
-        fp: Footprint,
-    ) -> Result<(Self, usize)> {
-        let total = arena.len();
-        let lens = region_lens(d, mode, k, fp).ok_or(ARENA_TOO_SMALL)?;
-        let b = adapt_batch_with(mode, k, fp).max(1);
-        let (ram, rest, short) = Ram::carve_lens(arena, &lens, mode == AdaptMode::Full, b);
-        if short {
-            return Err(ARENA_TOO_SMALL);
-        }
-        Ok((ram, total - rest.len()))
+/// The lengths of the regions of [`crate::memory`]'s arena table for `d`, `mode`, `k` and
+/// `fp`, checked against `arena` (too short: an error); returns them and the floats used.
+fn carve_check(
+    arena: &mut [f32],
+    d: &Dims,
+    mode: AdaptMode,
+    k: usize,
+    fp: Footprint,
+) -> Result<([usize; NUM_REGIONS], usize)> {
+    let total = arena.len();
+    let lens = region_lens(d, mode, k, fp).ok_or(ARENA_TOO_SMALL)?;
+    let (_, rest, short) = Ram::carve_lens(arena, &lens, mode == AdaptMode::Full, 1);
+    if short {
+        return Err(ARENA_TOO_SMALL);
+    }
+    Ok((lens, total - rest.len()))
+}
+
+/// The navigator's arena: its storage and the lengths of the table's regions in it, carved
+/// into the `Ram` on every access (the storage may be owned, so the navigator keeps no
+/// slices into it).
+struct Arena<S> {
+    store: S,
+    lens: [usize; NUM_REGIONS],
+    /// Full mode (the gradients are full weight gradients).
+    full: bool,
+    /// Entries of Ψ per batch of the inner update (at least 1).
+    b: usize,
+}
+
+impl<S: AsRef<[f32]> + AsMut<[f32]>> Arena<S> {
+    /// The regions, writable. Not inlined: one copy of the carve in the image.
+    #[inline(never)]
+    fn ram(&mut self) -> Ram<&mut [f32]> {
+        Ram::carve_lens(self.store.as_mut(), &self.lens, self.full, self.b).0
+    }
+
+    /// The regions, read-only. Not inlined, as [`Arena::ram`].
+    #[inline(never)]
+    fn view(&self) -> Ram<&[f32]> {
+        Ram::carve_lens(self.store.as_ref(), &self.lens, self.full, self.b).0
     }
 }
 
 /// The on-device GMAN navigator. `M` is the adaptation mode ([`Full`] or [`Efficient`]),
-/// `K` the capacity of the buffer Ψ (the paper's k = 20).
-pub struct Navigator<'w, M: Mode, const K: usize> {
+/// `K` the capacity of the buffer Ψ (the paper's k = 20), `S` the storage of its RAM arena:
+/// whoever holds the floats, as long as it lends them as a slice (`AsRef<[f32]> +
+/// AsMut<[f32]>`, always the same slice). The default, `&'w mut [f32]`, is an arena the
+/// caller owns (a firmware's `static` array, the C API's caller-owned buffer); a host may
+/// give the navigator its own (`Vec<f32>`, `Box<[f32]>`) and keep it as one value
+/// ([`Navigator::into_storage`] gives the buffer back).
+pub struct Navigator<'w, M: Mode, const K: usize, S = &'w mut [f32]> {
     w: NavWeights<'w>,
     cfg: NavConfig,
     rng: Xoshiro128,
-    r: Ram<&'w mut [f32]>,
+    arena: Arena<S>,
     counters: Counters,
     n_buf: usize,
     ready: bool,
@@ -888,6 +928,16 @@ struct Update {
 }
 
 impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
+    /// A navigator over `weights`, with all mutable state in `arena` (at least
+    /// [`Navigator::arena_len`] floats), which the caller owns and lends for the navigator's
+    /// life ([`Navigator::with_storage`] for other storage). D and the fixed biases are
+    /// loaded from `weights`; call [`Navigator::reset`] before the first step.
+    pub fn new(weights: NavWeights<'w>, arena: &'w mut [f32], cfg: NavConfig) -> Result<Self> {
+        Self::with_storage(weights, arena, cfg)
+    }
+}
+
+impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, M, K, S> {
     /// Number of f32 the arena must hold: [`crate::memory::arena_len`] for these dims, `M`
     /// and `K` (the default [`Footprint::Compact`]).
     pub fn arena_len(dims: &Dims) -> usize {
@@ -899,10 +949,18 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
         arena_len_with(dims, M::MODE, K, fp)
     }
 
-    /// A navigator over `weights`, with all mutable state in `arena` (at least
-    /// [`Navigator::arena_len`] floats). D and the fixed biases are loaded from `weights`;
-    /// call [`Navigator::reset`] before the first step.
-    pub fn new(weights: NavWeights<'w>, arena: &'w mut [f32], cfg: NavConfig) -> Result<Self> {
+    /// The navigator's arena storage, given back (its contents are the navigator's state;
+    /// a new navigator over it starts afresh).
+    pub fn into_storage(self) -> S {
+        self.arena.store
+    }
+
+    /// A navigator over `weights`, with all mutable state in the storage `arena` (at least
+    /// [`Navigator::arena_len`] floats), which it keeps: [`Navigator::new`] for an arena the
+    /// caller owns, e.g. `Vec<f32>` or `Box<[f32]>` for one the navigator owns. D and the
+    /// fixed biases are loaded from `weights`; call [`Navigator::reset`] before the first
+    /// step.
+    pub fn with_storage(weights: NavWeights<'w>, mut arena: S, cfg: NavConfig) -> Result<Self> {
         if K == 0 {
             return Err(Error::Config {
                 what: "buffer capacity K must be at least 1",
@@ -959,12 +1017,17 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
                 what: "dims too large: the arena size for these dims, mode and K overflows",
             });
         }
-        let (r, _used) = Ram::carve(arena, &dims, M::MODE, K, cfg.footprint)?;
+        let (lens, _used) = carve_check(arena.as_mut(), &dims, M::MODE, K, cfg.footprint)?;
         let mut nav = Navigator {
             w: weights,
             cfg,
             rng: Xoshiro128::seed_from_u64(0),
-            r,
+            arena: Arena {
+                store: arena,
+                lens,
+                full: M::MODE == AdaptMode::Full,
+                b: adapt_batch_with(M::MODE, K, cfg.footprint).max(1),
+            },
             counters: Counters::default(),
             n_buf: 0,
             ready: false,
@@ -981,10 +1044,11 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
         };
         // Validate every shape once by building the views.
         nav.reset_discriminator()?;
-        copy_mat(&nav.w.get(TensorId::FuseB), nav.r.fuse_b)?;
-        copy_mat(&nav.w.get(TensorId::LstmB), nav.r.lstm_b)?;
-        copy_mat(&nav.w.get(TensorId::CriticB), nav.r.critic_b)?;
-        copy_mat(&nav.w.get(TensorId::CellB), nav.r.cell_b)?;
+        let (w, r) = (&nav.w, nav.arena.ram());
+        copy_mat(&w.get(TensorId::FuseB), r.fuse_b)?;
+        copy_mat(&w.get(TensorId::LstmB), r.lstm_b)?;
+        copy_mat(&w.get(TensorId::CriticB), r.critic_b)?;
+        copy_mat(&w.get(TensorId::CellB), r.cell_b)?;
         nav.restore_adapted()?;
         nav.policy()?.validate()?;
         nav.generator()?.validate()?;
@@ -995,24 +1059,20 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
     /// Restores D's parameters ω to the values in the weights (D otherwise persists across
     /// episodes, learning from every buffer).
     pub fn reset_discriminator(&mut self) -> Result<()> {
-        let w = self.w;
-        self.r
-            .disc1
+        let (w, mut r) = (self.w, self.arena.ram());
+        r.disc1
             .restore(&w.get(TensorId::DiscW1), &w.get(TensorId::DiscB1))?;
-        copy_mat(&w.get(TensorId::DiscW2), self.r.disc_w2)?;
-        copy_mat(&w.get(TensorId::DiscB2), self.r.disc_b2)
+        copy_mat(&w.get(TensorId::DiscW2), r.disc_w2)?;
+        copy_mat(&w.get(TensorId::DiscB2), r.disc_b2)
     }
 
     fn restore_adapted(&mut self) -> Result<()> {
-        let w = self.w;
-        self.r
-            .gen1
+        let (w, mut r) = (self.w, self.arena.ram());
+        r.gen1
             .restore(&w.get(TensorId::GenW1), &w.get(TensorId::GenB1))?;
-        self.r
-            .gen2
+        r.gen2
             .restore(&w.get(TensorId::GenW2), &w.get(TensorId::GenB2))?;
-        self.r
-            .actor
+        r.actor
             .restore(&w.get(TensorId::ActorW), &w.get(TensorId::ActorB))
     }
 
@@ -1030,13 +1090,15 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
         if self.cfg.disc_head_reset {
             // D restarts with the episode: layer 1 from ω, the head at zero.
             self.reset_discriminator()?;
-            self.r.disc_w2.fill(0.0);
-            self.r.disc_b2.fill(0.0);
+            let r = self.arena.ram();
+            r.disc_w2.fill(0.0);
+            r.disc_b2.fill(0.0);
         }
-        self.r.attr.copy_from_slice(attr);
-        self.r.h_state.fill(0.0);
-        self.r.c_state.fill(0.0);
-        self.r.prev_probs.fill(0.0);
+        let r = self.arena.ram();
+        r.attr.copy_from_slice(attr);
+        r.h_state.fill(0.0);
+        r.c_state.fill(0.0);
+        r.prev_probs.fill(0.0);
         self.rng = Xoshiro128::seed_from_u64(seed);
         self.n_buf = 0;
         self.x_valid = false;
@@ -1067,8 +1129,9 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
         if !all_finite(x) {
             return Err(Error::NonFiniteInput { what: "x" });
         }
-        self.r.x.copy_from_slice(x);
-        self.r.z.fill(0.0);
+        let r = self.arena.ram();
+        r.x.copy_from_slice(x);
+        r.z.fill(0.0);
         self.x_fixed = true;
         Ok(())
     }
@@ -1095,7 +1158,7 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
 
     /// The generated target feature x_t of the last step (`feat` floats).
     pub fn generated_feature(&self) -> &[f32] {
-        self.r.x
+        self.arena.view().x
     }
 
     /// G's activations of its last forward in the step's G scratch (the x_t of the last
@@ -1105,32 +1168,33 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
     /// 2's `W2 h1` before its gain (`feat`, empty without a gain). A host's backward through
     /// x_t may reuse them (with [`Navigator::generated_feature`]) instead of running G again.
     pub fn generator_activations(&self) -> (&[f32], &[f32], &[f32]) {
-        (self.r.u1, self.r.h1, self.r.u2)
+        let r = self.arena.view();
+        (r.u1, r.h1, r.u2)
     }
 
     /// The current LSTM hidden state.
     pub fn hidden_state(&self) -> &[f32] {
-        self.r.h_state
+        self.arena.view().h_state
     }
 
     /// The current LSTM cell state.
     pub fn cell_state(&self) -> &[f32] {
-        self.r.c_state
+        self.arena.view().c_state
     }
 
     /// The previous step's action probabilities (zeros before the first step).
     pub fn prev_probs(&self) -> &[f32] {
-        self.r.prev_probs
+        self.arena.view().prev_probs
     }
 
     /// The noise z of the last generated feature.
     pub fn noise(&self) -> &[f32] {
-        self.r.z
+        self.arena.view().z
     }
 
     /// The target attribute vector of the episode.
     pub fn attr(&self) -> &[f32] {
-        self.r.attr
+        self.arena.view().attr
     }
 
     /// True while more inner updates are allowed in this episode (`adapt` is on and fewer
@@ -1205,33 +1269,39 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
     /// Read-only views of the [`Navigator::buffered`] entries of Ψ, for host-side
     /// meta-gradients (they are what the next inner update's L_ad is computed on).
     pub fn buffer(&self) -> BufferView<'_> {
-        let (d, n) = (&self.w.dims, self.n_buf);
+        let (d, n, r) = (&self.w.dims, self.n_buf, self.arena.view());
         BufferView {
-            obs: &self.r.psi_s[..n * d.feat],
-            noise: &self.r.psi_z[..n * d.noise],
-            probs: &self.r.psi_p[..n * NUM_ACTIONS],
-            hidden: &self.r.psi_h[..n * d.lstm_hidden],
+            obs: &r.psi_s[..n * d.feat],
+            noise: &r.psi_z[..n * d.noise],
+            probs: &r.psi_p[..n * NUM_ACTIONS],
+            hidden: &r.psi_h[..n * d.lstm_hidden],
         }
     }
 
     /// The adapted generator θ_i as a view (for diagnostics and host-side meta-gradients).
     pub fn generator(&self) -> Result<Generator<'_>> {
-        gen_view(&self.r.gen1, &self.r.gen2, &self.w)
+        let r = self.arena.view();
+        Ok(Generator {
+            l1: layer_view(r.gen1, self.w.get(TensorId::GenW1))?,
+            l2: layer_view(r.gen2, self.w.get(TensorId::GenW2))?,
+        })
     }
 
     /// The current discriminator ω as a view.
     pub fn discriminator(&self) -> Result<Discriminator<'_>> {
-        disc_view(&self.r.disc1, self.r.disc_w2, self.r.disc_b2, &self.w)
+        let r = self.arena.view();
+        Ok(Discriminator {
+            l1: layer_view(r.disc1, self.w.get(TensorId::DiscW1))?,
+            w2: r.disc_w2,
+            b2: r.disc_b2.first().copied().unwrap_or(0.0),
+        })
     }
 
     /// The adapted policy φ_i as a view.
     pub fn policy(&self) -> Result<Policy<'_>> {
-        let r = &self.r;
-        policy_view(
-            &self.w,
-            [r.fuse_b, r.lstm_b, r.critic_b, r.cell_b],
-            &r.actor,
-        )
+        let r = self.arena.view();
+        let actor = layer_view(r.actor, self.w.get(TensorId::ActorW))?;
+        policy_view(&self.w, [r.fuse_b, r.lstm_b, r.critic_b, r.cell_b], actor)
     }
 
     /// One control step on the observation embedding `obs` (`feat` floats) and, for policies
@@ -1268,12 +1338,12 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
         match self.cfg.noise {
             _ if self.x_fixed => {}
             NoiseMode::Gaussian => {
-                fill_gaussian(&mut self.rng, self.r.z);
+                fill_gaussian(&mut self.rng, self.arena.ram().z);
                 self.run_generator(None)?;
             }
             NoiseMode::Zero => {
                 if !self.x_valid {
-                    self.r.z.fill(0.0);
+                    self.arena.ram().z.fill(0.0);
                     self.run_generator(None)?;
                     self.x_valid = true;
                 }
@@ -1326,7 +1396,7 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
         if !all_finite(ps) {
             return Err(Error::NonFiniteInput { what: "ps" });
         }
-        self.r.ps.copy_from_slice(ps);
+        self.arena.ram().ps.copy_from_slice(ps);
         Ok(())
     }
 
@@ -1335,7 +1405,8 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
     /// batch: the Efficient mode (only G's gains and biases are adapted), Gaussian noise, x_t
     /// not fixed by the caller.
     pub fn defers_generator(&self) -> bool {
-        let (g1, g2) = (&self.r.gen1, &self.r.gen2);
+        let r = self.arena.view();
+        let (g1, g2) = (&r.gen1, &r.gen2);
         self.cfg.noise == NoiseMode::Gaussian
             && !self.x_fixed
             && g1.w.is_empty()
@@ -1355,7 +1426,7 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
             return Ok(false);
         }
         self.begin_checks(obs, map, ps)?;
-        fill_gaussian(&mut self.rng, self.r.z);
+        fill_gaussian(&mut self.rng, self.arena.ram().z);
         self.g_pending = true;
         self.begun = true;
         Ok(true)
@@ -1421,14 +1492,15 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
         let (u1s, rest) = rest.split_at_mut(n * nh);
         let (h1s, u2s) = rest.split_at_mut(n * nh);
         for (j, &i) in who.iter().enumerate() {
-            zs[j * nz..(j + 1) * nz].copy_from_slice(navs[i].r.z);
-            attrs[j * na..(j + 1) * na].copy_from_slice(navs[i].r.attr);
+            let r = navs[i].arena.view();
+            zs[j * nz..(j + 1) * nz].copy_from_slice(r.z);
+            attrs[j * na..(j + 1) * na].copy_from_slice(r.attr);
         }
         // Layer 1: u1 = W1 [z; a] (Dense::forward with a gain: u from zero, then g u + b).
         u1s.fill(0.0);
         crate::batch::matmul_acc(&w1, &[&*zs, &*attrs], &[nz, na], n, u1s)?;
         for (j, &i) in who.iter().enumerate() {
-            let r = &mut navs[i].r;
+            let r = navs[i].arena.ram();
             r.u1.copy_from_slice(&u1s[j * nh..(j + 1) * nh]);
             gain_bias(r.h1, r.u1, r.gen1.gain, r.gen1.b)?;
             leaky_relu_inplace(r.h1);
@@ -1439,7 +1511,7 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
         crate::batch::matmul_acc(&w2, &[&*h1s], &[nh], n, u2s)?;
         for (j, &i) in who.iter().enumerate() {
             let nav = &mut navs[i];
-            let r = &mut nav.r;
+            let r = nav.arena.ram();
             r.u2.copy_from_slice(&u2s[j * nf..(j + 1) * nf]);
             gain_bias(r.x, r.u2, r.gen2.gain, r.gen2.b)?;
             sigmoid_inplace(r.x);
@@ -1472,11 +1544,12 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
         if !all_finite(h) || !all_finite(c) {
             return Err(Error::NonFiniteInput { what: "h, c" });
         }
-        let r = &mut self.r;
+        let r = self.arena.ram();
         r.h.copy_from_slice(h);
         r.c.copy_from_slice(c);
         let biases = [&*r.fuse_b, &*r.lstm_b, &*r.critic_b, &*r.cell_b];
-        let policy = policy_view(&self.w, biases, &r.actor)?;
+        let actor = r.actor.view(self.w.get(TensorId::ActorW))?;
+        let policy = policy_view(&self.w, biases, actor)?;
         let mut value = [0.0f32];
         policy.heads(1, r.h, r.actor_u, r.logits, r.probs, &mut value)?;
         self.commit_step(obs, value[0])
@@ -1487,7 +1560,7 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
     fn commit_step(&mut self, obs: &[f32], value: f32) -> Result<StepOutput> {
         self.begun = false;
         let d = self.w.dims;
-        if !all_finite(self.r.probs) || !value.is_finite() {
+        if !all_finite(self.arena.view().probs) || !value.is_finite() {
             return Err(Error::NumericalFault {
                 what: "action probabilities",
             });
@@ -1497,18 +1570,20 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
         let window = self.upd.is_some();
         if !window {
             let (f, z, lh, n) = (d.feat, d.noise, d.lstm_hidden, self.n_buf);
-            self.r.psi_s[n * f..(n + 1) * f].copy_from_slice(obs);
-            self.r.psi_z[n * z..(n + 1) * z].copy_from_slice(self.r.z);
-            self.r.psi_p[n * NUM_ACTIONS..(n + 1) * NUM_ACTIONS].copy_from_slice(self.r.probs);
-            self.r.psi_h[n * lh..(n + 1) * lh].copy_from_slice(self.r.h);
+            let r = self.arena.ram();
+            r.psi_s[n * f..(n + 1) * f].copy_from_slice(obs);
+            r.psi_z[n * z..(n + 1) * z].copy_from_slice(r.z);
+            r.psi_p[n * NUM_ACTIONS..(n + 1) * NUM_ACTIONS].copy_from_slice(r.probs);
+            r.psi_h[n * lh..(n + 1) * lh].copy_from_slice(r.h);
             self.record_psi_features(n);
             self.n_buf += 1;
         }
-        self.r.h_state.copy_from_slice(self.r.h);
-        self.r.c_state.copy_from_slice(self.r.c);
-        self.r.prev_probs.copy_from_slice(self.r.probs);
+        let r = self.arena.ram();
+        r.h_state.copy_from_slice(r.h);
+        r.c_state.copy_from_slice(r.c);
+        r.prev_probs.copy_from_slice(r.probs);
         let mut probs = [0.0f32; NUM_ACTIONS];
-        probs.copy_from_slice(self.r.probs);
+        probs.copy_from_slice(r.probs);
         self.counters.steps = self.counters.steps.saturating_add(1);
         self.counters.total_steps = self.counters.total_steps.saturating_add(1);
         // Lines 14-20: every k steps, the inner update; then empty Ψ. With a commit delay d
@@ -1585,7 +1660,7 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
     fn run_generator(&mut self, z_out: Option<(&[f32], &mut [f32])>) -> Result<()> {
         // A probe leaves x_t alone but overwrites the activations of the step's G pass.
         self.u2_valid = z_out.is_none();
-        let r = &mut self.r;
+        let r = self.arena.ram();
         let gen = gen_view(&r.gen1, &r.gen2, &self.w)?;
         let (z, x) = match z_out {
             Some((z, x)) => (z, x),
@@ -1601,9 +1676,10 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
     }
 
     fn run_policy(&mut self, obs: &[f32], map: &[f32]) -> Result<f32> {
-        let r = &mut self.r;
+        let r = self.arena.ram();
         let biases = [&*r.fuse_b, &*r.lstm_b, &*r.critic_b, &*r.cell_b];
-        let policy = policy_view(&self.w, biases, &r.actor)?;
+        let actor = r.actor.view(self.w.get(TensorId::ActorW))?;
+        let policy = policy_view(&self.w, biases, actor)?;
         let inp = PolicyInput {
             obs,
             feat: r.x,
@@ -1631,7 +1707,7 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
     }
 
     fn select(&mut self) -> Action {
-        select_action(self.cfg.selection, &self.r.probs[..], &mut self.rng)
+        select_action(self.cfg.selection, self.arena.view().probs, &mut self.rng)
     }
 
     /// Runs the inner update (lines 15-20 of Algorithm 1) now on the steps buffered in Ψ,
@@ -1727,7 +1803,7 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
         let d = self.w.dims;
         let (f, dh, h, zin) = (d.feat, d.disc_hidden, d.gen_hidden, d.noise + d.attr);
         let full = (M::MODE == AdaptMode::Full) as usize;
-        let keep_u2 = !self.r.psi_u2.is_empty() && self.psi_recorded;
+        let keep_u2 = !self.arena.view().psi_u2.is_empty() && self.psi_recorded;
         let per = match phase {
             Phase::Generate => h * zin + f * h,
             // D on real, fake, interpolate; its input gradient, W1 g; W1's outer products.
@@ -1760,7 +1836,7 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
     /// Upper bound of the slices of the pending update, in all.
     fn slice_bound(&self) -> u32 {
         let Some(u) = self.upd else { return 0 };
-        let per = self.n_buf.div_ceil(self.r.iw.b.max(1)) as u32;
+        let per = self.n_buf.div_ceil(self.arena.b) as u32;
         let gen = if self.psi_recorded { 0 } else { per };
         let back = if self.cfg.head_only { 0 } else { per };
         gen + u.disc_steps * per + per + back + 1
@@ -1773,7 +1849,7 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
             return Ok(());
         };
         let n = self.n_buf;
-        let b = self.r.iw.b.max(1);
+        let b = self.arena.b;
         let (t0, t1) = (u.t, (u.t + b).min(n));
         let phase = u.phase;
         u.done = u.done.saturating_add(self.slice_cost(phase, t1 - t0));
@@ -1873,12 +1949,13 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
     /// fixed x_t ([`Navigator::fix_generated_feature`]): Ψ_x is then G's output, regenerated.
     fn record_psi_features(&mut self, n: usize) {
         let f = self.w.dims.feat;
-        let keep_u2 = !self.r.psi_u2.is_empty();
+        let r = self.arena.ram();
+        let keep_u2 = !r.psi_u2.is_empty();
         let ok = !self.x_fixed && (!keep_u2 || self.u2_valid);
         if ok {
-            self.r.psi_x[n * f..(n + 1) * f].copy_from_slice(self.r.x);
+            r.psi_x[n * f..(n + 1) * f].copy_from_slice(r.x);
             if keep_u2 {
-                self.r.psi_u2[n * f..(n + 1) * f].copy_from_slice(self.r.u2);
+                r.psi_u2[n * f..(n + 1) * f].copy_from_slice(r.u2);
             }
         }
         self.psi_recorded = (n == 0 || self.psi_recorded) && ok;
@@ -1897,7 +1974,7 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
             attr,
             iw,
             ..
-        } = &mut self.r;
+        } = &mut self.arena.ram();
         let gen = gen_view(gen1, gen2, &w)?;
         inner::generate(
             &gen,
@@ -1935,7 +2012,7 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
             eps,
             iw,
             ..
-        } = &mut self.r;
+        } = &mut self.arena.ram();
         if t0 == 0 {
             g_disc1.zero();
             g_disc_w2.fill(0.0);
@@ -1977,7 +2054,7 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
             g_disc_w2,
             g_disc_b2,
             ..
-        } = &mut self.r;
+        } = &mut self.arena.ram();
         g_disc1.scale(inv);
         g_disc_w2
             .iter_mut()
@@ -1996,7 +2073,7 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
             g_disc_w2,
             g_disc_b2,
             ..
-        } = &mut self.r;
+        } = &mut self.arena.ram();
         // Ascent: ω ← ω + α1 ∇_ω L_D, only if everything stays finite and bounded.
         let a1 = cfg.alpha_disc;
         let disc_ok = loss.is_finite()
@@ -2046,7 +2123,7 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
             attr,
             iw,
             ..
-        } = &mut self.r;
+        } = &mut self.arena.ram();
         if t0 == 0 {
             g_gen1.zero();
             g_gen2.zero();
@@ -2096,7 +2173,7 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
             attr,
             iw,
             ..
-        } = &mut self.r;
+        } = &mut self.arena.ram();
         let gen = gen_view(gen1, gen2, &w)?;
         let disc = disc_view(disc1, disc_w2, disc_b2, &w)?;
         let inp = inner::AdaptInputs {
@@ -2131,7 +2208,7 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
             dlogits,
             actor_u,
             ..
-        } = &mut self.r;
+        } = &mut self.arena.ram();
         let head = actor.view(w.get(TensorId::ActorW))?;
         actor_head_grad(
             &head,
@@ -2157,7 +2234,7 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
             g_gen2,
             g_actor,
             ..
-        } = &mut self.r;
+        } = &mut self.arena.ram();
         // −α2 / ‖g‖ for a step of length α2 (none for a zero gradient)
         let unit = |sq: f32| {
             let norm = libm::sqrtf(sq);
@@ -2223,7 +2300,10 @@ mod tests {
                     let n = arena_len_with(&d, mode, k, fp);
                     let mut arena = vec![0.0f32; n + 7];
                     let base = arena.as_ptr() as usize;
-                    let (ram, used) = Ram::carve(&mut arena, &d, mode, k, fp).unwrap();
+                    let (lens, used) = carve_check(&mut arena, &d, mode, k, fp).unwrap();
+                    let full = mode == AdaptMode::Full;
+                    let (ram, _, short) = Ram::carve_lens(&mut arena[..], &lens, full, 1);
+                    assert!(!short);
                     assert_eq!(used, n, "{d:?} {mode:?} k={k} {fp:?}");
                     // Ψ follows the parameters and gradients; the step's work ends the arena.
                     let l = crate::memory::NavLayout::new_with(&d, mode, k, fp);
@@ -2233,7 +2313,7 @@ mod tests {
                     assert_eq!(at(ram.gen1.w), 0);
                     assert_eq!(at(ram.cell_prod) + ram.cell_prod.len(), n);
                     let mut small = vec![0.0f32; n - 1];
-                    assert!(Ram::carve(&mut small, &d, mode, k, fp).is_err());
+                    assert!(carve_check(&mut small, &d, mode, k, fp).is_err());
                 }
             }
         }
