@@ -41,43 +41,46 @@ use crate::matrix::{axpy, dot};
 /// `Z, A, H, F` are G's noise, attribute, hidden and feature widths, `DH` D's hidden width;
 /// "gain" buffers are needed only when the layer has a gain (else they may be empty), the
 /// `outer_*` ones only when D's `W1` gradient is full.
-#[derive(Debug)]
-pub struct InnerWork<'a> {
+#[derive(Debug, Default)]
+pub struct InnerWorkOf<T> {
     /// Entries per batch.
     pub b: usize,
     /// `b x Z`: the noise of each entry of a batch.
-    pub z: &'a mut [f32],
+    pub z: T,
     /// `b x A`: the attribute, repeated.
-    pub attr: &'a mut [f32],
+    pub attr: T,
     /// `b x H` (gain): `W1 [z; a]`.
-    pub u1: &'a mut [f32],
+    pub u1: T,
     /// `b x H`: G's hidden activation.
-    pub h1: &'a mut [f32],
+    pub h1: T,
     /// `b x F` (gain): `W2 h1`.
-    pub u2: &'a mut [f32],
+    pub u2: T,
     /// `b x F`.
-    pub dpre2: &'a mut [f32],
+    pub dpre2: T,
     /// `b x H`.
-    pub dh1: &'a mut [f32],
+    pub dh1: T,
     /// `b x H`.
-    pub dpre1: &'a mut [f32],
+    pub dpre1: T,
     /// `3b x DH` (gain): D's `W1 v` for the real, fake and interpolated inputs (3 blocks).
-    pub du: &'a mut [f32],
+    pub du: T,
     /// `3b x DH`: D's hidden activations (3 blocks).
-    pub dh: &'a mut [f32],
+    pub dh: T,
     /// `3b x DH`: `gain ⊙ w2 ⊙ m` and hidden-layer gradients (3 blocks).
-    pub dv: &'a mut [f32],
+    pub dv: T,
     /// `b x DH`: `W1 g`.
-    pub w1g: &'a mut [f32],
+    pub w1g: T,
     /// `b x F`: D's input gradients.
-    pub g: &'a mut [f32],
+    pub g: T,
     /// `b x F`: interpolates, features, G's backward scratch.
-    pub mix: &'a mut [f32],
+    pub mix: T,
     /// `3b x F` (full `W1` gradient of D): the outer products' inputs, in entry order.
-    pub outer_x: &'a mut [f32],
+    pub outer_x: T,
     /// `3b x DH` (full `W1` gradient of D): their output gradients.
-    pub outer_dy: &'a mut [f32],
+    pub outer_dy: T,
 }
+
+/// [`InnerWorkOf`] over mutable slices: the buffers the inner update's functions write.
+pub type InnerWork<'a> = InnerWorkOf<&'a mut [f32]>;
 
 /// What L_ad is computed on: SE(y), the entries' noise (`n x Z`), their features
 /// (`n x F`; `None`: regenerated from the noise) and observations (`n x F`; read by CosSim

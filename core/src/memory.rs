@@ -89,7 +89,7 @@ impl NavLayout {
 
     /// The layout for `dims`, `mode` and buffer capacity `k`, or `None` when any region or
     /// the total byte count overflows `usize` (checked arithmetic throughout). Each field is
-    /// the sum of its regions of the arena table (`region_lens`, the one statement of the layout).
+    /// the sum of its regions of the arena table (`memory::arena_table`, the one statement of the layout).
     pub const fn try_new(d: &Dims, mode: AdaptMode, k: usize) -> Option<NavLayout> {
         NavLayout::try_new_with(d, mode, k, Footprint::Compact)
     }
@@ -158,23 +158,21 @@ pub(crate) enum Part {
     Work,
 }
 
-macro_rules! arena_regions {
+/// Generates, from the arena table ([`arena_table`]), what the RAM accounting needs: the
+/// length of every region in carve order (`region_lens`) and the [`NavLayout`] field each
+/// counts towards. The navigator generates its `Ram` struct and carve from the same table.
+macro_rules! arena_lens {
     (|$d:ident, $full:ident, $g:ident, $k:ident, $b:ident, $map:ident, $gen_in:ident, $fast:ident|
-     $($(#[$m:meta])* $name:ident in $part:ident = $len:expr;)*) => {
-        /// One region of the navigator's arena, in carve order (`Ram::carve` in
-        /// `navigator.rs` takes each by name; [`NavLayout`] sums them per field).
-        #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-        #[allow(missing_docs)]
-        pub(crate) enum Region { $($(#[$m])* $name),* }
+     $($field:ident $(: $kind:ident)? in $part:ident
+        $({ $($sub:ident = $sl:expr;)* })? $(= $len:expr;)?)*) => {
+        /// The [`NavLayout`] field of every region, in carve order.
+        const REGION_PART: &[Part] = &[$($($(first!(Part::$part, $sub),)*)? $(first!(Part::$part, $len),)?)*];
 
         /// Number of regions.
-        pub(crate) const NUM_REGIONS: usize = [$(Region::$name),*].len();
-
-        const REGION_PART: [Part; NUM_REGIONS] = [$(Part::$part),*];
+        pub(crate) const NUM_REGIONS: usize = REGION_PART.len();
 
         /// Length in f32 of every region, in carve order, for `d`, `mode`, buffer
-        /// capacity `k` and footprint `fp` (`None` when one overflows `usize`). The one
-        /// statement of the arena layout.
+        /// capacity `k` and footprint `fp` (`None` when one overflows `usize`).
         pub(crate) const fn region_lens(
             $d: &Dims,
             mode: AdaptMode,
@@ -189,10 +187,18 @@ macro_rules! arena_regions {
             let $gen_in = tri!($d.checked_gen_in());
             // Entries of Ψ the batched inner update processes at a time.
             let $b: usize = adapt_batch_with(mode, $k, fp);
-            Some([$($len),*])
+            Some([$($($($sl,)*)? $($len,)?)*])
         }
     };
 }
+
+/// Expands to its first argument (a repetition of the arena table driven by the second).
+macro_rules! first {
+    ($a:expr, $($rest:tt)*) => {
+        $a
+    };
+}
+pub(crate) use first;
 
 /// `n` in `Full` mode, else 0.
 const fn if_full(full: bool, n: Option<usize>) -> Option<usize> {
@@ -230,99 +236,138 @@ pub const fn adapt_batch_with(mode: AdaptMode, k: usize, fp: Footprint) -> usize
     }
 }
 
-arena_regions! { |d, full, g, k, b, map, gen_in, fast|
-    // Adapted G (θ, or its gains and biases): weights in Full, gains in Efficient, biases.
-    Gen1W in GenParams = tri!(if_full(full, d.gen_hidden.checked_mul(gen_in)));
-    Gen1Gain in GenParams = g * d.gen_hidden;
-    Gen1B in GenParams = d.gen_hidden;
-    Gen2W in GenParams = tri!(if_full(full, d.feat.checked_mul(d.gen_hidden)));
-    Gen2Gain in GenParams = g * d.feat;
-    Gen2B in GenParams = d.feat;
-    // D in RAM (ω, or its hidden layer's gains and biases and its output layer).
-    Disc1W in DiscParams = tri!(if_full(full, d.disc_hidden.checked_mul(d.feat)));
-    Disc1Gain in DiscParams = g * d.disc_hidden;
-    Disc1B in DiscParams = d.disc_hidden;
-    DiscW2 in DiscParams = d.disc_hidden;
-    DiscB2 in DiscParams = 1;
-    // The adapted actor head.
-    ActorW in ActorParams = tri!(if_full(full, d.lstm_hidden.checked_mul(NUM_ACTIONS)));
-    ActorGain in ActorParams = g * NUM_ACTIONS;
-    ActorB in ActorParams = NUM_ACTIONS;
-    // Biases of the layers read in place from the blob.
-    FuseB in FixedBiases = d.embed;
-    LstmB in FixedBiases = tri!(d.lstm_hidden.checked_mul(4));
-    CriticB in FixedBiases = 1;
-    CellB in FixedBiases = if map { d.cell_embed } else { 0 };
-    // Gradients: dW (Full) or dgain (Efficient), and db, of each adapted layer.
-    GGen1A in Grads = if full { tri!(d.gen_hidden.checked_mul(gen_in)) } else { d.gen_hidden };
-    GGen1B in Grads = d.gen_hidden;
-    GGen2A in Grads = if full { tri!(d.feat.checked_mul(d.gen_hidden)) } else { d.feat };
-    GGen2B in Grads = d.feat;
-    GDisc1A in Grads = if full { tri!(d.disc_hidden.checked_mul(d.feat)) } else { d.disc_hidden };
-    GDisc1B in Grads = d.disc_hidden;
-    GDiscW2 in Grads = d.disc_hidden;
-    GDiscB2 in Grads = 1;
-    GActorA in Grads = if full { tri!(d.lstm_hidden.checked_mul(NUM_ACTIONS)) } else { NUM_ACTIONS };
-    GActorB in Grads = NUM_ACTIONS;
-    // Ψ: k observations, noises, action probabilities and LSTM hidden states.
-    PsiS in Psi = tri!(k.checked_mul(d.feat));
-    PsiZ in Psi = tri!(k.checked_mul(d.noise));
-    PsiP in Psi = tri!(k.checked_mul(NUM_ACTIONS));
-    PsiH in Psi = tri!(k.checked_mul(d.lstm_hidden));
-    // Ψ_x: the generated feature of every entry, made once per inner update (G is fixed
-    // within an adaptation window, so these are the bits each entry's forward pass gives).
-    PsiX in Psi = tri!(k.checked_mul(d.feat));
-    // Fast footprint, Efficient mode: G's pre-gain output `W2 h1` of every entry, recorded
-    // at its step, so that L_ad's backward pass needs no forward pass of G (`inner`).
-    PsiU2 in Psi = if fast { g * tri!(k.checked_mul(d.feat)) } else { 0 };
-    // G activations of the step.
-    U1 in Work = g * d.gen_hidden;
-    H1 in Work = d.gen_hidden;
-    U2 in Work = g * d.feat;
-    X in Work = d.feat;
-    // Batched inner update (`b` entries at a time): G's inputs, activations and scratch.
-    BZ in Work = tri!(b.checked_mul(d.noise));
-    BAttr in Work = tri!(b.checked_mul(d.attr));
-    BU1 in Work = g * tri!(b.checked_mul(d.gen_hidden));
-    BH1 in Work = tri!(b.checked_mul(d.gen_hidden));
-    BU2 in Work = g * tri!(b.checked_mul(d.feat));
-    DPre2 in Work = tri!(b.checked_mul(d.feat));
-    DH1 in Work = tri!(b.checked_mul(d.gen_hidden));
-    DPre1 in Work = tri!(b.checked_mul(d.gen_hidden));
-    // D's activations for `3 b` inputs (real, fake, interpolate) and scratch.
-    DU in Work = g * tri!(tri!(b.checked_mul(3)).checked_mul(d.disc_hidden));
-    DH in Work = tri!(tri!(b.checked_mul(3)).checked_mul(d.disc_hidden));
-    DV in Work = tri!(tri!(b.checked_mul(3)).checked_mul(d.disc_hidden));
-    DW1G in Work = tri!(b.checked_mul(d.disc_hidden));
-    DG in Work = tri!(b.checked_mul(d.feat));
-    DMix in Work = tri!(b.checked_mul(d.feat));
-    // Full: the inputs and output gradients of D's `3 b` weight-gradient outer products.
-    DOuterX in Work = tri!(if_full(full, tri!(b.checked_mul(3)).checked_mul(d.feat)));
-    DOuterY in Work = tri!(if_full(full, tri!(b.checked_mul(3)).checked_mul(d.disc_hidden)));
-    // Adaptation work.
-    Eps in Work = k;
-    D in Work = k;
-    DD in Work = k;
-    DProbs in Work = tri!(k.checked_mul(NUM_ACTIONS));
-    // Policy work and state.
-    Prod in Work = d.feat;
-    Fuse in Work = d.embed;
-    Gates in Work = tri!(d.lstm_hidden.checked_mul(4));
-    HNew in Work = d.lstm_hidden;
-    CNew in Work = d.lstm_hidden;
-    HState in Work = d.lstm_hidden;
-    CState in Work = d.lstm_hidden;
-    Logits in Work = NUM_ACTIONS;
-    Probs in Work = NUM_ACTIONS;
-    PrevProbs in Work = NUM_ACTIONS;
-    DLogits in Work = NUM_ACTIONS;
-    ActorU in Work = g * NUM_ACTIONS;
-    Z in Work = d.noise;
-    Attr in Work = d.attr;
-    Ps in Work = d.ps;
-    Cell in Work = tri!(d.checked_cell_out());
-    CellProd in Work = if map { d.feat } else { 0 };
+/// The arena table: every region of the navigator's arena, in carve order, with the
+/// [`NavLayout`] field it counts towards and its length in f32 (an expression of `d`, the
+/// dims; `full`, Full mode; `g`, 1 with gains (Efficient) else 0; `k`, Ψ's capacity; `b`,
+/// the entries of Ψ the inner update processes at a time; `map`, a spatial map; `gen_in`,
+/// G's input width; `fast`, [`Footprint::Fast`]). The one statement of the arena: a region
+/// is named here only. `field in Part = len;` is a region of its own; `field: Kind in Part
+/// { sub = len; .. }` groups regions into one struct of the navigator (`LayerRam`, an
+/// adapted layer; `LayerGrad`, its gradient; `InnerWorkOf`, the batched inner update's
+/// buffers). It expands to `$gen! { table }`: [`NavLayout`] sums it with `arena_lens`, the
+/// navigator generates its `Ram` struct and carve from it with `arena_ram`.
+macro_rules! arena_table {
+    ($gen:ident) => {
+        $gen! { |d, full, g, k, b, map, gen_in, fast|
+            // Adapted G (θ, or its gains and biases): weights in Full, gains in Efficient,
+            // biases.
+            gen1: LayerRam in GenParams {
+                w = tri!(if_full(full, d.gen_hidden.checked_mul(gen_in)));
+                gain = g * d.gen_hidden;
+                b = d.gen_hidden;
+            }
+            gen2: LayerRam in GenParams {
+                w = tri!(if_full(full, d.feat.checked_mul(d.gen_hidden)));
+                gain = g * d.feat;
+                b = d.feat;
+            }
+            // D in RAM (ω, or its hidden layer's gains and biases and its output layer).
+            disc1: LayerRam in DiscParams {
+                w = tri!(if_full(full, d.disc_hidden.checked_mul(d.feat)));
+                gain = g * d.disc_hidden;
+                b = d.disc_hidden;
+            }
+            disc_w2 in DiscParams = d.disc_hidden;
+            disc_b2 in DiscParams = 1;
+            // The adapted actor head.
+            actor: LayerRam in ActorParams {
+                w = tri!(if_full(full, d.lstm_hidden.checked_mul(NUM_ACTIONS)));
+                gain = g * NUM_ACTIONS;
+                b = NUM_ACTIONS;
+            }
+            // Biases of the layers read in place from the blob.
+            fuse_b in FixedBiases = d.embed;
+            lstm_b in FixedBiases = tri!(d.lstm_hidden.checked_mul(4));
+            critic_b in FixedBiases = 1;
+            cell_b in FixedBiases = if map { d.cell_embed } else { 0 };
+            // Gradients: dW (Full) or dgain (Efficient), and db, of each adapted layer.
+            g_gen1: LayerGrad in Grads {
+                a = if full { tri!(d.gen_hidden.checked_mul(gen_in)) } else { d.gen_hidden };
+                b = d.gen_hidden;
+            }
+            g_gen2: LayerGrad in Grads {
+                a = if full { tri!(d.feat.checked_mul(d.gen_hidden)) } else { d.feat };
+                b = d.feat;
+            }
+            g_disc1: LayerGrad in Grads {
+                a = if full { tri!(d.disc_hidden.checked_mul(d.feat)) } else { d.disc_hidden };
+                b = d.disc_hidden;
+            }
+            g_disc_w2 in Grads = d.disc_hidden;
+            g_disc_b2 in Grads = 1;
+            g_actor: LayerGrad in Grads {
+                a = if full { tri!(d.lstm_hidden.checked_mul(NUM_ACTIONS)) } else { NUM_ACTIONS };
+                b = NUM_ACTIONS;
+            }
+            // Ψ: k observations, noises, action probabilities and LSTM hidden states.
+            psi_s in Psi = tri!(k.checked_mul(d.feat));
+            psi_z in Psi = tri!(k.checked_mul(d.noise));
+            psi_p in Psi = tri!(k.checked_mul(NUM_ACTIONS));
+            psi_h in Psi = tri!(k.checked_mul(d.lstm_hidden));
+            // Ψ_x: the generated feature of every entry, made once per inner update (G is
+            // fixed within an adaptation window, so these are the bits each entry's forward
+            // pass gives).
+            psi_x in Psi = tri!(k.checked_mul(d.feat));
+            // Fast footprint, Efficient mode: G's pre-gain output `W2 h1` of every entry,
+            // recorded at its step, so that L_ad's backward pass needs no forward pass of G
+            // (`inner`).
+            psi_u2 in Psi = if fast { g * tri!(k.checked_mul(d.feat)) } else { 0 };
+            // G activations of the step.
+            u1 in Work = g * d.gen_hidden;
+            h1 in Work = d.gen_hidden;
+            u2 in Work = g * d.feat;
+            x in Work = d.feat;
+            // The batched inner update (`b` entries at a time): G's inputs, activations and
+            // scratch; D's activations for `3 b` inputs (real, fake, interpolate) and scratch;
+            // in Full mode the inputs and output gradients of D's `3 b` weight-gradient outer
+            // products.
+            iw: InnerWorkOf in Work {
+                z = tri!(b.checked_mul(d.noise));
+                attr = tri!(b.checked_mul(d.attr));
+                u1 = g * tri!(b.checked_mul(d.gen_hidden));
+                h1 = tri!(b.checked_mul(d.gen_hidden));
+                u2 = g * tri!(b.checked_mul(d.feat));
+                dpre2 = tri!(b.checked_mul(d.feat));
+                dh1 = tri!(b.checked_mul(d.gen_hidden));
+                dpre1 = tri!(b.checked_mul(d.gen_hidden));
+                du = g * tri!(tri!(b.checked_mul(3)).checked_mul(d.disc_hidden));
+                dh = tri!(tri!(b.checked_mul(3)).checked_mul(d.disc_hidden));
+                dv = tri!(tri!(b.checked_mul(3)).checked_mul(d.disc_hidden));
+                w1g = tri!(b.checked_mul(d.disc_hidden));
+                g = tri!(b.checked_mul(d.feat));
+                mix = tri!(b.checked_mul(d.feat));
+                outer_x = tri!(if_full(full, tri!(b.checked_mul(3)).checked_mul(d.feat)));
+                outer_dy = tri!(if_full(full, tri!(b.checked_mul(3)).checked_mul(d.disc_hidden)));
+            }
+            // Adaptation work.
+            eps in Work = k;
+            d in Work = k;
+            dd in Work = k;
+            dprobs in Work = tri!(k.checked_mul(NUM_ACTIONS));
+            // Policy work and state (`h`, `c`: the step's new LSTM state).
+            prod in Work = d.feat;
+            fuse in Work = d.embed;
+            gates in Work = tri!(d.lstm_hidden.checked_mul(4));
+            h in Work = d.lstm_hidden;
+            c in Work = d.lstm_hidden;
+            h_state in Work = d.lstm_hidden;
+            c_state in Work = d.lstm_hidden;
+            logits in Work = NUM_ACTIONS;
+            probs in Work = NUM_ACTIONS;
+            prev_probs in Work = NUM_ACTIONS;
+            dlogits in Work = NUM_ACTIONS;
+            actor_u in Work = g * NUM_ACTIONS;
+            z in Work = d.noise;
+            attr in Work = d.attr;
+            ps in Work = d.ps;
+            cell in Work = tri!(d.checked_cell_out());
+            cell_prod in Work = if map { d.feat } else { 0 };
+        }
+    };
 }
+pub(crate) use arena_table;
+
+arena_table!(arena_lens);
 
 /// Checked sum of `v`.
 const fn sum(v: &[usize]) -> Option<usize> {
@@ -587,6 +632,20 @@ mod tests {
                 l.work,
             ];
             assert_eq!(got, *e, "{:?} {mode:?} k={k}", dims[i / 4]);
+        }
+    }
+
+    /// The regions of each [`NavLayout`] field are contiguous in the arena, the fields in
+    /// their declaration order (what `docs/memory.md` describes).
+    #[test]
+    fn regions_are_grouped_by_layout_field_in_order() {
+        for w in REGION_PART.windows(2) {
+            assert!(
+                w[0] as usize <= w[1] as usize,
+                "{:?} before {:?}",
+                w[0],
+                w[1]
+            );
         }
     }
 

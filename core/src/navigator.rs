@@ -81,6 +81,7 @@
 //! ```
 
 use core::marker::PhantomData;
+use core::ops::Deref;
 
 use crate::activation::{all_finite, leaky_relu_inplace, sigmoid_inplace};
 use crate::adapt::{actor_head_grad, AdaptLossKind};
@@ -90,11 +91,12 @@ use crate::discriminator::{DiscGrads, Discriminator, LdConfig, LdValue};
 use crate::error::BlobError;
 use crate::error::{check_len, Error, Result};
 use crate::generator::{Generator, GeneratorCache};
-use crate::inner::{self, InnerWork};
+use crate::inner::{self, InnerWorkOf};
 use crate::lstm::Lstm;
 use crate::matrix::MatRef;
 use crate::memory::{
-    adapt_batch_with, arena_len_with, region_lens, AdaptMode, Footprint, Region, NUM_REGIONS,
+    adapt_batch_with, arena_len_with, arena_table, first, region_lens, AdaptMode, Footprint,
+    NUM_REGIONS,
 };
 use crate::policy::{Policy, PolicyCache, PolicyInput};
 use crate::preset::Dims;
@@ -524,43 +526,41 @@ const ARENA_TOO_SMALL: Error = Error::Config {
     what: "arena too small for these dims, mode and k (see memory::arena_len)",
 };
 
-/// Takes the next `n` floats of the arena.
-fn take<'a>(rest: &mut &'a mut [f32], n: usize) -> Result<&'a mut [f32]> {
-    let r = core::mem::take(rest);
-    if r.len() < n {
-        return Err(ARENA_TOO_SMALL);
-    }
-    let (a, b) = r.split_at_mut(n);
-    *rest = b;
-    Ok(a)
-}
-
 /// An adapted (or RAM-resident) dense layer: `w` is empty when the base weights are read
 /// from the blob; `gain` is empty in `Full` mode.
-struct LayerRam<'w> {
-    w: &'w mut [f32],
-    gain: &'w mut [f32],
-    b: &'w mut [f32],
+#[derive(Default)]
+struct LayerRam<T> {
+    w: T,
+    gain: T,
+    b: T,
 }
 
-impl<'w> LayerRam<'w> {
+impl<T: Deref<Target = [f32]>> LayerRam<T> {
     fn view<'s>(&'s self, base: MatRef<'s>) -> Result<Dense<'s>> {
-        let w = if self.w.is_empty() {
-            base
-        } else {
-            MatRef::f32(base.rows(), base.cols(), self.w)?.kernels_from(&base)
-        };
-        Ok(Dense {
-            w,
-            b: self.b,
-            gain: if self.gain.is_empty() {
-                None
-            } else {
-                Some(self.gain)
-            },
-        })
+        dense_over([&self.w, &self.gain, &self.b], base)
     }
+}
 
+/// [`LayerRam::view`] of a read-only layer, for as long as its slices live.
+fn layer_view<'s>(l: LayerRam<&'s [f32]>, base: MatRef<'s>) -> Result<Dense<'s>> {
+    dense_over([l.w, l.gain, l.b], base)
+}
+
+/// The layer over RAM weights `w` (empty: the blob's `base`), gains (empty: none) and `b`.
+fn dense_over<'s>([w, gain, b]: [&'s [f32]; 3], base: MatRef<'s>) -> Result<Dense<'s>> {
+    let w = if w.is_empty() {
+        base
+    } else {
+        MatRef::f32(base.rows(), base.cols(), w)?.kernels_from(&base)
+    };
+    Ok(Dense {
+        w,
+        b,
+        gain: if gain.is_empty() { None } else { Some(gain) },
+    })
+}
+
+impl LayerRam<&mut [f32]> {
     /// Restores the meta-learned values: `w` from the blob (Full) or gain 1 (Efficient).
     fn restore(&mut self, w: &MatRef<'_>, b: &MatRef<'_>) -> Result<()> {
         if !self.w.is_empty() {
@@ -572,13 +572,14 @@ impl<'w> LayerRam<'w> {
 }
 
 /// Gradient buffers matching a [`LayerRam`] (`a` is dW in Full, dgain in Efficient).
-struct LayerGrad<'w> {
-    a: &'w mut [f32],
-    b: &'w mut [f32],
+#[derive(Default)]
+struct LayerGrad<T> {
+    a: T,
+    b: T,
     full: bool,
 }
 
-impl<'w> LayerGrad<'w> {
+impl LayerGrad<&mut [f32]> {
     fn grads(&mut self) -> DenseGrads<'_> {
         if self.full {
             DenseGrads::Full {
@@ -609,11 +610,11 @@ impl<'w> LayerGrad<'w> {
         self.a.iter().chain(self.b.iter()).map(|v| v * v).sum()
     }
     /// True if `p + step * g` stays finite everywhere.
-    fn update_ok(&self, p: &LayerRam<'_>, step: f32) -> bool {
+    fn update_ok(&self, p: &LayerRam<&mut [f32]>, step: f32) -> bool {
         let target = if self.full { &*p.w } else { &*p.gain };
         ok_update(target, self.a, step) && ok_update(p.b, self.b, step)
     }
-    fn apply(&self, p: &mut LayerRam<'_>, step: f32) {
+    fn apply(&self, p: &mut LayerRam<&mut [f32]>, step: f32) {
         let target = if self.full { &mut *p.w } else { &mut *p.gain };
         axpy_inplace(target, self.a, step);
         axpy_inplace(p.b, self.b, step);
@@ -621,9 +622,9 @@ impl<'w> LayerGrad<'w> {
 }
 
 /// The view of G over its RAM layers (`gen1`, `gen2`) and the blob's base weights.
-fn gen_view<'s>(
-    gen1: &'s LayerRam<'_>,
-    gen2: &'s LayerRam<'_>,
+fn gen_view<'s, T: Deref<Target = [f32]>>(
+    gen1: &'s LayerRam<T>,
+    gen2: &'s LayerRam<T>,
     w: &NavWeights<'s>,
 ) -> Result<Generator<'s>> {
     Ok(Generator {
@@ -650,8 +651,8 @@ fn same_storage(a: &MatRef<'_>, b: &MatRef<'_>) -> bool {
 }
 
 /// The view of D over its RAM parameters and the blob's base weights.
-fn disc_view<'s>(
-    disc1: &'s LayerRam<'_>,
+fn disc_view<'s, T: Deref<Target = [f32]>>(
+    disc1: &'s LayerRam<T>,
     w2: &'s [f32],
     b2: &[f32],
     w: &NavWeights<'s>,
@@ -668,7 +669,7 @@ fn disc_view<'s>(
 fn policy_view<'s>(
     w: &'s NavWeights<'_>,
     [fuse_b, lstm_b, critic_b, cell_b]: [&'s [f32]; 4],
-    actor: &'s LayerRam<'_>,
+    actor: Dense<'s>,
 ) -> Result<Policy<'s>> {
     let dense = |id, b| Dense {
         w: w.get(id),
@@ -682,7 +683,7 @@ fn policy_view<'s>(
             wh: w.get(TensorId::LstmWh),
             b: lstm_b,
         },
-        actor: actor.view(w.get(TensorId::ActorW))?,
+        actor,
         critic: dense(TensorId::CriticW, critic_b),
         cell: (w.dims.map_cells() > 0).then(|| dense(TensorId::CellW, cell_b)),
     })
@@ -698,171 +699,174 @@ fn axpy_inplace(p: &mut [f32], g: &[f32], step: f32) {
     }
 }
 
-/// All RAM regions of the navigator, carved from the caller's arena.
-struct Ram<'w> {
-    gen1: LayerRam<'w>,
-    gen2: LayerRam<'w>,
-    disc1: LayerRam<'w>,
-    disc_w2: &'w mut [f32],
-    disc_b2: &'w mut [f32],
-    actor: LayerRam<'w>,
-    fuse_b: &'w mut [f32],
-    lstm_b: &'w mut [f32],
-    critic_b: &'w mut [f32],
-    cell_b: &'w mut [f32],
-    g_gen1: LayerGrad<'w>,
-    g_gen2: LayerGrad<'w>,
-    g_disc1: LayerGrad<'w>,
-    g_disc_w2: &'w mut [f32],
-    g_disc_b2: &'w mut [f32],
-    g_actor: LayerGrad<'w>,
-    psi_s: &'w mut [f32],
-    psi_z: &'w mut [f32],
-    psi_p: &'w mut [f32],
-    psi_h: &'w mut [f32],
-    psi_x: &'w mut [f32],
-    psi_u2: &'w mut [f32],
-    // G activations of the step
-    u1: &'w mut [f32],
-    h1: &'w mut [f32],
-    u2: &'w mut [f32],
-    x: &'w mut [f32],
-    // the batched inner update's work
-    iw: InnerWork<'w>,
-    // adaptation work
-    eps: &'w mut [f32],
-    d: &'w mut [f32],
-    dd: &'w mut [f32],
-    dprobs: &'w mut [f32],
-    // policy work and state
-    prod: &'w mut [f32],
-    fuse: &'w mut [f32],
-    gates: &'w mut [f32],
-    h: &'w mut [f32],
-    c: &'w mut [f32],
-    h_state: &'w mut [f32],
-    c_state: &'w mut [f32],
-    logits: &'w mut [f32],
-    probs: &'w mut [f32],
-    prev_probs: &'w mut [f32],
-    dlogits: &'w mut [f32],
-    actor_u: &'w mut [f32],
-    z: &'w mut [f32],
-    attr: &'w mut [f32],
-    ps: &'w mut [f32],
-    cell: &'w mut [f32],
-    cell_prod: &'w mut [f32],
+/// A region of the arena as the carve splits it: a mutable or a shared slice.
+trait Piece: Default {
+    fn len(&self) -> usize;
+    fn split(self, n: usize) -> (Self, Self);
 }
 
-impl<'w> Ram<'w> {
-    /// Carves the regions of [`crate::memory`]'s arena table (the one statement of their
-    /// order and sizes) from `arena`; returns them and the floats used.
-    fn carve(
-        arena: &'w mut [f32],
-        d: &Dims,
-        mode: AdaptMode,
-        k: usize,
-        fp: Footprint,
-    ) -> Result<(Self, usize)> {
-        let total = arena.len();
-        let lens = region_lens(d, mode, k, fp).ok_or(ARENA_TOO_SMALL)?;
-        let full = mode == AdaptMode::Full;
-        let mut rest = arena;
-        let mut short = false;
-        let mut regions: [&'w mut [f32]; NUM_REGIONS] =
-            core::array::from_fn(|i| match take(&mut rest, lens[i]) {
-                Ok(s) => s,
-                Err(_) => {
-                    short = true;
-                    &mut []
-                }
-            });
-        if short {
-            return Err(ARENA_TOO_SMALL);
+impl Piece for &mut [f32] {
+    fn len(&self) -> usize {
+        <[f32]>::len(self)
+    }
+    fn split(self, n: usize) -> (Self, Self) {
+        self.split_at_mut(n)
+    }
+}
+
+impl Piece for &[f32] {
+    fn len(&self) -> usize {
+        <[f32]>::len(self)
+    }
+    fn split(self, n: usize) -> (Self, Self) {
+        self.split_at(n)
+    }
+}
+
+/// A group of regions of the arena table (a struct of the `Ram`), told the mode and the
+/// inner update's batch after the carve.
+trait Group {
+    fn finish(&mut self, _full: bool, _b: usize) {}
+}
+
+impl<T> Group for LayerRam<T> {}
+
+impl<T> Group for LayerGrad<T> {
+    fn finish(&mut self, full: bool, _b: usize) {
+        self.full = full;
+    }
+}
+
+impl<T> Group for InnerWorkOf<T> {
+    fn finish(&mut self, _full: bool, b: usize) {
+        self.b = b;
+    }
+}
+
+/// The type of a field of the `Ram`: a region (`T`) or a group of regions (`Kind<T>`).
+macro_rules! ram_field {
+    ($t:ident) => { $t };
+    ($t:ident, $kind:ident) => { $kind<$t> };
+}
+
+/// Generates, from the arena table ([`crate::memory`]'s `arena_table`), the `Ram` struct
+/// (one field per region or group of regions, in table order) and its carve.
+macro_rules! arena_ram {
+    (|$d:ident, $full:ident, $g:ident, $k:ident, $b:ident, $map:ident, $gen_in:ident, $fast:ident|
+     $($field:ident $(: $kind:ident)? in $part:ident
+        $({ $($sub:ident = $sl:expr;)* })? $(= $len:expr;)?)*) => {
+        /// All RAM regions of the navigator, carved from its arena: `T` is `&mut [f32]`, or
+        /// `&[f32]` for a read-only view.
+        struct Ram<T> {
+            $($field: ram_field!(T $(, $kind)?),)*
         }
-        let used = total - rest.len();
-        let mut t = |r: Region| core::mem::take(&mut regions[r as usize]);
-        let layer = |w, gain, b| LayerRam { w, gain, b };
-        let grad = |a, b| LayerGrad { a, b, full };
-        let ram = Ram {
-            gen1: layer(t(Region::Gen1W), t(Region::Gen1Gain), t(Region::Gen1B)),
-            gen2: layer(t(Region::Gen2W), t(Region::Gen2Gain), t(Region::Gen2B)),
-            disc1: layer(t(Region::Disc1W), t(Region::Disc1Gain), t(Region::Disc1B)),
-            disc_w2: t(Region::DiscW2),
-            disc_b2: t(Region::DiscB2),
-            actor: layer(t(Region::ActorW), t(Region::ActorGain), t(Region::ActorB)),
-            fuse_b: t(Region::FuseB),
-            lstm_b: t(Region::LstmB),
-            critic_b: t(Region::CriticB),
-            cell_b: t(Region::CellB),
-            g_gen1: grad(t(Region::GGen1A), t(Region::GGen1B)),
-            g_gen2: grad(t(Region::GGen2A), t(Region::GGen2B)),
-            g_disc1: grad(t(Region::GDisc1A), t(Region::GDisc1B)),
-            g_disc_w2: t(Region::GDiscW2),
-            g_disc_b2: t(Region::GDiscB2),
-            g_actor: grad(t(Region::GActorA), t(Region::GActorB)),
-            psi_s: t(Region::PsiS),
-            psi_z: t(Region::PsiZ),
-            psi_p: t(Region::PsiP),
-            psi_h: t(Region::PsiH),
-            psi_x: t(Region::PsiX),
-            psi_u2: t(Region::PsiU2),
-            u1: t(Region::U1),
-            h1: t(Region::H1),
-            u2: t(Region::U2),
-            x: t(Region::X),
-            iw: InnerWork {
-                b: adapt_batch_with(mode, k, fp).max(1),
-                z: t(Region::BZ),
-                attr: t(Region::BAttr),
-                u1: t(Region::BU1),
-                h1: t(Region::BH1),
-                u2: t(Region::BU2),
-                dpre2: t(Region::DPre2),
-                dh1: t(Region::DH1),
-                dpre1: t(Region::DPre1),
-                du: t(Region::DU),
-                dh: t(Region::DH),
-                dv: t(Region::DV),
-                w1g: t(Region::DW1G),
-                g: t(Region::DG),
-                mix: t(Region::DMix),
-                outer_x: t(Region::DOuterX),
-                outer_dy: t(Region::DOuterY),
-            },
-            eps: t(Region::Eps),
-            d: t(Region::D),
-            dd: t(Region::DD),
-            dprobs: t(Region::DProbs),
-            prod: t(Region::Prod),
-            fuse: t(Region::Fuse),
-            gates: t(Region::Gates),
-            h: t(Region::HNew),
-            c: t(Region::CNew),
-            h_state: t(Region::HState),
-            c_state: t(Region::CState),
-            logits: t(Region::Logits),
-            probs: t(Region::Probs),
-            prev_probs: t(Region::PrevProbs),
-            dlogits: t(Region::DLogits),
-            actor_u: t(Region::ActorU),
-            z: t(Region::Z),
-            attr: t(Region::Attr),
-            ps: t(Region::Ps),
-            cell: t(Region::Cell),
-            cell_prod: t(Region::CellProd),
-        };
-        Ok((ram, used))
+
+        impl<T: Default> Default for Ram<T> {
+            fn default() -> Self {
+                Ram { $($field: Default::default(),)* }
+            }
+        }
+
+        impl<T: Piece> Ram<T> {
+            /// Carves the regions of lengths `lens` (the arena table's, in its order) from
+            /// `arena`; returns them, what is left of `arena`, and whether it was too short
+            /// (then the regions that did not fit are empty).
+            fn carve_lens(
+                arena: T,
+                lens: &[usize; NUM_REGIONS],
+                full: bool,
+                b: usize,
+            ) -> (Self, T, bool) {
+                let mut rest = arena;
+                let mut short = false;
+                // The regions in table order (one loop, so that the code stays small), then
+                // each to its field.
+                let mut parts: [T; NUM_REGIONS] = core::array::from_fn(|i| {
+                    let r = core::mem::take(&mut rest);
+                    if r.len() < lens[i] {
+                        short = true;
+                        return T::default();
+                    }
+                    let (a, tail) = r.split(lens[i]);
+                    rest = tail;
+                    a
+                });
+                let mut i = 0;
+                let mut next = || {
+                    let p = core::mem::take(&mut parts[i]);
+                    i += 1;
+                    p
+                };
+                let mut ram = Ram::<T>::default();
+                $(
+                    $($(ram.$field.$sub = next();)*)?
+                    $(first!({ ram.$field = next(); }, $len);)?
+                )*
+                $($(first!(Group::finish(&mut ram.$field, full, b), $kind);)?)*
+                (ram, rest, short)
+            }
+        }
+    };
+}
+
+arena_table!(arena_ram);
+
+/// The lengths of the regions of [`crate::memory`]'s arena table for `d`, `mode`, `k` and
+/// `fp`, checked against `arena` (too short: an error); returns them and the floats used.
+fn carve_check(
+    arena: &mut [f32],
+    d: &Dims,
+    mode: AdaptMode,
+    k: usize,
+    fp: Footprint,
+) -> Result<([usize; NUM_REGIONS], usize)> {
+    let total = arena.len();
+    let lens = region_lens(d, mode, k, fp).ok_or(ARENA_TOO_SMALL)?;
+    let (_, rest, short) = Ram::carve_lens(arena, &lens, mode == AdaptMode::Full, 1);
+    if short {
+        return Err(ARENA_TOO_SMALL);
+    }
+    Ok((lens, total - rest.len()))
+}
+
+/// The navigator's arena: its storage and the lengths of the table's regions in it, carved
+/// into the `Ram` on every access (the storage may be owned, so the navigator keeps no
+/// slices into it).
+struct Arena<S> {
+    store: S,
+    lens: [usize; NUM_REGIONS],
+    /// Full mode (the gradients are full weight gradients).
+    full: bool,
+    /// Entries of Ψ per batch of the inner update (at least 1).
+    b: usize,
+}
+
+impl<S: AsRef<[f32]> + AsMut<[f32]>> Arena<S> {
+    /// The regions, writable. Not inlined: one copy of the carve in the image.
+    #[inline(never)]
+    fn ram(&mut self) -> Ram<&mut [f32]> {
+        Ram::carve_lens(self.store.as_mut(), &self.lens, self.full, self.b).0
+    }
+
+    /// The regions, read-only. Not inlined, as [`Arena::ram`].
+    #[inline(never)]
+    fn view(&self) -> Ram<&[f32]> {
+        Ram::carve_lens(self.store.as_ref(), &self.lens, self.full, self.b).0
     }
 }
 
 /// The on-device GMAN navigator. `M` is the adaptation mode ([`Full`] or [`Efficient`]),
-/// `K` the capacity of the buffer Ψ (the paper's k = 20).
-pub struct Navigator<'w, M: Mode, const K: usize> {
+/// `K` the capacity of the buffer Ψ (the paper's k = 20), `S` the storage of its RAM arena:
+/// whoever holds the floats, as long as it lends them as a slice (`AsRef<[f32]> +
+/// AsMut<[f32]>`, always the same slice). The default, `&'w mut [f32]`, is an arena the
+/// caller owns (a firmware's `static` array, the C API's caller-owned buffer); a host may
+/// give the navigator its own (`Vec<f32>`, `Box<[f32]>`) and keep it as one value
+/// ([`Navigator::into_storage`] gives the buffer back).
+pub struct Navigator<'w, M: Mode, const K: usize, S = &'w mut [f32]> {
     w: NavWeights<'w>,
     cfg: NavConfig,
     rng: Xoshiro128,
-    r: Ram<'w>,
+    arena: Arena<S>,
     counters: Counters,
     n_buf: usize,
     ready: bool,
@@ -932,6 +936,16 @@ struct Update {
 }
 
 impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
+    /// A navigator over `weights`, with all mutable state in `arena` (at least
+    /// [`Navigator::arena_len`] floats), which the caller owns and lends for the navigator's
+    /// life ([`Navigator::with_storage`] for other storage). D and the fixed biases are
+    /// loaded from `weights`; call [`Navigator::reset`] before the first step.
+    pub fn new(weights: NavWeights<'w>, arena: &'w mut [f32], cfg: NavConfig) -> Result<Self> {
+        Self::with_storage(weights, arena, cfg)
+    }
+}
+
+impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, M, K, S> {
     /// Number of f32 the arena must hold: [`crate::memory::arena_len`] for these dims, `M`
     /// and `K` (the default [`Footprint::Compact`]).
     pub fn arena_len(dims: &Dims) -> usize {
@@ -943,10 +957,18 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
         arena_len_with(dims, M::MODE, K, fp)
     }
 
-    /// A navigator over `weights`, with all mutable state in `arena` (at least
-    /// [`Navigator::arena_len`] floats). D and the fixed biases are loaded from `weights`;
-    /// call [`Navigator::reset`] before the first step.
-    pub fn new(weights: NavWeights<'w>, arena: &'w mut [f32], cfg: NavConfig) -> Result<Self> {
+    /// The navigator's arena storage, given back (its contents are the navigator's state;
+    /// a new navigator over it starts afresh).
+    pub fn into_storage(self) -> S {
+        self.arena.store
+    }
+
+    /// A navigator over `weights`, with all mutable state in the storage `arena` (at least
+    /// [`Navigator::arena_len`] floats), which it keeps: [`Navigator::new`] for an arena the
+    /// caller owns, e.g. `Vec<f32>` or `Box<[f32]>` for one the navigator owns. D and the
+    /// fixed biases are loaded from `weights`; call [`Navigator::reset`] before the first
+    /// step.
+    pub fn with_storage(weights: NavWeights<'w>, mut arena: S, cfg: NavConfig) -> Result<Self> {
         if K == 0 {
             return Err(Error::Config {
                 what: "buffer capacity K must be at least 1",
@@ -1003,12 +1025,17 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
                 what: "dims too large: the arena size for these dims, mode and K overflows",
             });
         }
-        let (r, _used) = Ram::carve(arena, &dims, M::MODE, K, cfg.footprint)?;
+        let (lens, _used) = carve_check(arena.as_mut(), &dims, M::MODE, K, cfg.footprint)?;
         let mut nav = Navigator {
             w: weights,
             cfg,
             rng: Xoshiro128::seed_from_u64(0),
-            r,
+            arena: Arena {
+                store: arena,
+                lens,
+                full: M::MODE == AdaptMode::Full,
+                b: adapt_batch_with(M::MODE, K, cfg.footprint).max(1),
+            },
             counters: Counters::default(),
             n_buf: 0,
             ready: false,
@@ -1025,10 +1052,11 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
         };
         // Validate every shape once by building the views.
         nav.reset_discriminator()?;
-        copy_mat(&nav.w.get(TensorId::FuseB), nav.r.fuse_b)?;
-        copy_mat(&nav.w.get(TensorId::LstmB), nav.r.lstm_b)?;
-        copy_mat(&nav.w.get(TensorId::CriticB), nav.r.critic_b)?;
-        copy_mat(&nav.w.get(TensorId::CellB), nav.r.cell_b)?;
+        let (w, r) = (&nav.w, nav.arena.ram());
+        copy_mat(&w.get(TensorId::FuseB), r.fuse_b)?;
+        copy_mat(&w.get(TensorId::LstmB), r.lstm_b)?;
+        copy_mat(&w.get(TensorId::CriticB), r.critic_b)?;
+        copy_mat(&w.get(TensorId::CellB), r.cell_b)?;
         nav.restore_adapted()?;
         nav.policy()?.validate()?;
         nav.generator()?.validate()?;
@@ -1039,24 +1067,20 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
     /// Restores D's parameters ω to the values in the weights (D otherwise persists across
     /// episodes, learning from every buffer).
     pub fn reset_discriminator(&mut self) -> Result<()> {
-        let w = self.w;
-        self.r
-            .disc1
+        let (w, mut r) = (self.w, self.arena.ram());
+        r.disc1
             .restore(&w.get(TensorId::DiscW1), &w.get(TensorId::DiscB1))?;
-        copy_mat(&w.get(TensorId::DiscW2), self.r.disc_w2)?;
-        copy_mat(&w.get(TensorId::DiscB2), self.r.disc_b2)
+        copy_mat(&w.get(TensorId::DiscW2), r.disc_w2)?;
+        copy_mat(&w.get(TensorId::DiscB2), r.disc_b2)
     }
 
     fn restore_adapted(&mut self) -> Result<()> {
-        let w = self.w;
-        self.r
-            .gen1
+        let (w, mut r) = (self.w, self.arena.ram());
+        r.gen1
             .restore(&w.get(TensorId::GenW1), &w.get(TensorId::GenB1))?;
-        self.r
-            .gen2
+        r.gen2
             .restore(&w.get(TensorId::GenW2), &w.get(TensorId::GenB2))?;
-        self.r
-            .actor
+        r.actor
             .restore(&w.get(TensorId::ActorW), &w.get(TensorId::ActorB))
     }
 
@@ -1074,13 +1098,15 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
         if self.cfg.disc_head_reset {
             // D restarts with the episode: layer 1 from ω, the head at zero.
             self.reset_discriminator()?;
-            self.r.disc_w2.fill(0.0);
-            self.r.disc_b2.fill(0.0);
+            let r = self.arena.ram();
+            r.disc_w2.fill(0.0);
+            r.disc_b2.fill(0.0);
         }
-        self.r.attr.copy_from_slice(attr);
-        self.r.h_state.fill(0.0);
-        self.r.c_state.fill(0.0);
-        self.r.prev_probs.fill(0.0);
+        let r = self.arena.ram();
+        r.attr.copy_from_slice(attr);
+        r.h_state.fill(0.0);
+        r.c_state.fill(0.0);
+        r.prev_probs.fill(0.0);
         self.rng = Xoshiro128::seed_from_u64(seed);
         self.n_buf = 0;
         self.x_valid = false;
@@ -1111,8 +1137,9 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
         if !all_finite(x) {
             return Err(Error::NonFiniteInput { what: "x" });
         }
-        self.r.x.copy_from_slice(x);
-        self.r.z.fill(0.0);
+        let r = self.arena.ram();
+        r.x.copy_from_slice(x);
+        r.z.fill(0.0);
         self.x_fixed = true;
         Ok(())
     }
@@ -1139,7 +1166,7 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
 
     /// The generated target feature x_t of the last step (`feat` floats).
     pub fn generated_feature(&self) -> &[f32] {
-        self.r.x
+        self.arena.view().x
     }
 
     /// G's activations of its last forward in the step's G scratch (the x_t of the last
@@ -1149,32 +1176,33 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
     /// 2's `W2 h1` before its gain (`feat`, empty without a gain). A host's backward through
     /// x_t may reuse them (with [`Navigator::generated_feature`]) instead of running G again.
     pub fn generator_activations(&self) -> (&[f32], &[f32], &[f32]) {
-        (self.r.u1, self.r.h1, self.r.u2)
+        let r = self.arena.view();
+        (r.u1, r.h1, r.u2)
     }
 
     /// The current LSTM hidden state.
     pub fn hidden_state(&self) -> &[f32] {
-        self.r.h_state
+        self.arena.view().h_state
     }
 
     /// The current LSTM cell state.
     pub fn cell_state(&self) -> &[f32] {
-        self.r.c_state
+        self.arena.view().c_state
     }
 
     /// The previous step's action probabilities (zeros before the first step).
     pub fn prev_probs(&self) -> &[f32] {
-        self.r.prev_probs
+        self.arena.view().prev_probs
     }
 
     /// The noise z of the last generated feature.
     pub fn noise(&self) -> &[f32] {
-        self.r.z
+        self.arena.view().z
     }
 
     /// The target attribute vector of the episode.
     pub fn attr(&self) -> &[f32] {
-        self.r.attr
+        self.arena.view().attr
     }
 
     /// True while more inner updates are allowed in this episode (`adapt` is on and fewer
@@ -1249,33 +1277,39 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
     /// Read-only views of the [`Navigator::buffered`] entries of Ψ, for host-side
     /// meta-gradients (they are what the next inner update's L_ad is computed on).
     pub fn buffer(&self) -> BufferView<'_> {
-        let (d, n) = (&self.w.dims, self.n_buf);
+        let (d, n, r) = (&self.w.dims, self.n_buf, self.arena.view());
         BufferView {
-            obs: &self.r.psi_s[..n * d.feat],
-            noise: &self.r.psi_z[..n * d.noise],
-            probs: &self.r.psi_p[..n * NUM_ACTIONS],
-            hidden: &self.r.psi_h[..n * d.lstm_hidden],
+            obs: &r.psi_s[..n * d.feat],
+            noise: &r.psi_z[..n * d.noise],
+            probs: &r.psi_p[..n * NUM_ACTIONS],
+            hidden: &r.psi_h[..n * d.lstm_hidden],
         }
     }
 
     /// The adapted generator θ_i as a view (for diagnostics and host-side meta-gradients).
     pub fn generator(&self) -> Result<Generator<'_>> {
-        gen_view(&self.r.gen1, &self.r.gen2, &self.w)
+        let r = self.arena.view();
+        Ok(Generator {
+            l1: layer_view(r.gen1, self.w.get(TensorId::GenW1))?,
+            l2: layer_view(r.gen2, self.w.get(TensorId::GenW2))?,
+        })
     }
 
     /// The current discriminator ω as a view.
     pub fn discriminator(&self) -> Result<Discriminator<'_>> {
-        disc_view(&self.r.disc1, self.r.disc_w2, self.r.disc_b2, &self.w)
+        let r = self.arena.view();
+        Ok(Discriminator {
+            l1: layer_view(r.disc1, self.w.get(TensorId::DiscW1))?,
+            w2: r.disc_w2,
+            b2: r.disc_b2.first().copied().unwrap_or(0.0),
+        })
     }
 
     /// The adapted policy φ_i as a view.
     pub fn policy(&self) -> Result<Policy<'_>> {
-        let r = &self.r;
-        policy_view(
-            &self.w,
-            [r.fuse_b, r.lstm_b, r.critic_b, r.cell_b],
-            &r.actor,
-        )
+        let r = self.arena.view();
+        let actor = layer_view(r.actor, self.w.get(TensorId::ActorW))?;
+        policy_view(&self.w, [r.fuse_b, r.lstm_b, r.critic_b, r.cell_b], actor)
     }
 
     /// One control step on the observation embedding `obs` (`feat` floats) and, for policies
@@ -1312,12 +1346,12 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
         match self.cfg.noise {
             _ if self.x_fixed => {}
             NoiseMode::Gaussian => {
-                fill_gaussian(&mut self.rng, self.r.z);
+                fill_gaussian(&mut self.rng, self.arena.ram().z);
                 self.run_generator(None)?;
             }
             NoiseMode::Zero => {
                 if !self.x_valid {
-                    self.r.z.fill(0.0);
+                    self.arena.ram().z.fill(0.0);
                     self.run_generator(None)?;
                     self.x_valid = true;
                 }
@@ -1370,7 +1404,7 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
         if !all_finite(ps) {
             return Err(Error::NonFiniteInput { what: "ps" });
         }
-        self.r.ps.copy_from_slice(ps);
+        self.arena.ram().ps.copy_from_slice(ps);
         Ok(())
     }
 
@@ -1379,7 +1413,8 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
     /// batch: the Efficient mode (only G's gains and biases are adapted), Gaussian noise, x_t
     /// not fixed by the caller.
     pub fn defers_generator(&self) -> bool {
-        let (g1, g2) = (&self.r.gen1, &self.r.gen2);
+        let r = self.arena.view();
+        let (g1, g2) = (&r.gen1, &r.gen2);
         self.cfg.noise == NoiseMode::Gaussian
             && !self.x_fixed
             && g1.w.is_empty()
@@ -1399,7 +1434,7 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
             return Ok(false);
         }
         self.begin_checks(obs, map, ps)?;
-        fill_gaussian(&mut self.rng, self.r.z);
+        fill_gaussian(&mut self.rng, self.arena.ram().z);
         self.g_pending = true;
         self.begun = true;
         Ok(true)
@@ -1465,14 +1500,15 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
         let (u1s, rest) = rest.split_at_mut(n * nh);
         let (h1s, u2s) = rest.split_at_mut(n * nh);
         for (j, &i) in who.iter().enumerate() {
-            zs[j * nz..(j + 1) * nz].copy_from_slice(navs[i].r.z);
-            attrs[j * na..(j + 1) * na].copy_from_slice(navs[i].r.attr);
+            let r = navs[i].arena.view();
+            zs[j * nz..(j + 1) * nz].copy_from_slice(r.z);
+            attrs[j * na..(j + 1) * na].copy_from_slice(r.attr);
         }
         // Layer 1: u1 = W1 [z; a] (Dense::forward with a gain: u from zero, then g u + b).
         u1s.fill(0.0);
         crate::batch::matmul_acc(&w1, &[&*zs, &*attrs], &[nz, na], n, u1s)?;
         for (j, &i) in who.iter().enumerate() {
-            let r = &mut navs[i].r;
+            let r = navs[i].arena.ram();
             r.u1.copy_from_slice(&u1s[j * nh..(j + 1) * nh]);
             gain_bias(r.h1, r.u1, r.gen1.gain, r.gen1.b)?;
             leaky_relu_inplace(r.h1);
@@ -1483,7 +1519,7 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
         crate::batch::matmul_acc(&w2, &[&*h1s], &[nh], n, u2s)?;
         for (j, &i) in who.iter().enumerate() {
             let nav = &mut navs[i];
-            let r = &mut nav.r;
+            let r = nav.arena.ram();
             r.u2.copy_from_slice(&u2s[j * nf..(j + 1) * nf]);
             gain_bias(r.x, r.u2, r.gen2.gain, r.gen2.b)?;
             sigmoid_inplace(r.x);
@@ -1516,11 +1552,12 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
         if !all_finite(h) || !all_finite(c) {
             return Err(Error::NonFiniteInput { what: "h, c" });
         }
-        let r = &mut self.r;
+        let r = self.arena.ram();
         r.h.copy_from_slice(h);
         r.c.copy_from_slice(c);
         let biases = [&*r.fuse_b, &*r.lstm_b, &*r.critic_b, &*r.cell_b];
-        let policy = policy_view(&self.w, biases, &r.actor)?;
+        let actor = r.actor.view(self.w.get(TensorId::ActorW))?;
+        let policy = policy_view(&self.w, biases, actor)?;
         let mut value = [0.0f32];
         policy.heads(1, r.h, r.actor_u, r.logits, r.probs, &mut value)?;
         self.commit_step(obs, value[0])
@@ -1531,7 +1568,7 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
     fn commit_step(&mut self, obs: &[f32], value: f32) -> Result<StepOutput> {
         self.begun = false;
         let d = self.w.dims;
-        if !all_finite(self.r.probs) || !value.is_finite() {
+        if !all_finite(self.arena.view().probs) || !value.is_finite() {
             return Err(Error::NumericalFault {
                 what: "action probabilities",
             });
@@ -1541,18 +1578,20 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
         let window = self.upd.is_some();
         if !window {
             let (f, z, lh, n) = (d.feat, d.noise, d.lstm_hidden, self.n_buf);
-            self.r.psi_s[n * f..(n + 1) * f].copy_from_slice(obs);
-            self.r.psi_z[n * z..(n + 1) * z].copy_from_slice(self.r.z);
-            self.r.psi_p[n * NUM_ACTIONS..(n + 1) * NUM_ACTIONS].copy_from_slice(self.r.probs);
-            self.r.psi_h[n * lh..(n + 1) * lh].copy_from_slice(self.r.h);
+            let r = self.arena.ram();
+            r.psi_s[n * f..(n + 1) * f].copy_from_slice(obs);
+            r.psi_z[n * z..(n + 1) * z].copy_from_slice(r.z);
+            r.psi_p[n * NUM_ACTIONS..(n + 1) * NUM_ACTIONS].copy_from_slice(r.probs);
+            r.psi_h[n * lh..(n + 1) * lh].copy_from_slice(r.h);
             self.record_psi_features(n);
             self.n_buf += 1;
         }
-        self.r.h_state.copy_from_slice(self.r.h);
-        self.r.c_state.copy_from_slice(self.r.c);
-        self.r.prev_probs.copy_from_slice(self.r.probs);
+        let r = self.arena.ram();
+        r.h_state.copy_from_slice(r.h);
+        r.c_state.copy_from_slice(r.c);
+        r.prev_probs.copy_from_slice(r.probs);
         let mut probs = [0.0f32; NUM_ACTIONS];
-        probs.copy_from_slice(self.r.probs);
+        probs.copy_from_slice(r.probs);
         self.counters.steps = self.counters.steps.saturating_add(1);
         self.counters.total_steps = self.counters.total_steps.saturating_add(1);
         // Lines 14-20: every k steps, the inner update; then empty Ψ. With a commit delay d
@@ -1629,7 +1668,7 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
     fn run_generator(&mut self, z_out: Option<(&[f32], &mut [f32])>) -> Result<()> {
         // A probe leaves x_t alone but overwrites the activations of the step's G pass.
         self.u2_valid = z_out.is_none();
-        let r = &mut self.r;
+        let r = self.arena.ram();
         let gen = gen_view(&r.gen1, &r.gen2, &self.w)?;
         let (z, x) = match z_out {
             Some((z, x)) => (z, x),
@@ -1645,9 +1684,10 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
     }
 
     fn run_policy(&mut self, obs: &[f32], map: &[f32]) -> Result<f32> {
-        let r = &mut self.r;
+        let r = self.arena.ram();
         let biases = [&*r.fuse_b, &*r.lstm_b, &*r.critic_b, &*r.cell_b];
-        let policy = policy_view(&self.w, biases, &r.actor)?;
+        let actor = r.actor.view(self.w.get(TensorId::ActorW))?;
+        let policy = policy_view(&self.w, biases, actor)?;
         let inp = PolicyInput {
             obs,
             feat: r.x,
@@ -1675,7 +1715,7 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
     }
 
     fn select(&mut self) -> Action {
-        select_action(self.cfg.selection, &self.r.probs[..], &mut self.rng)
+        select_action(self.cfg.selection, self.arena.view().probs, &mut self.rng)
     }
 
     /// Runs the inner update (lines 15-20 of Algorithm 1) now on the steps buffered in Ψ,
@@ -1771,7 +1811,7 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
         let d = self.w.dims;
         let (f, dh, h, zin) = (d.feat, d.disc_hidden, d.gen_hidden, d.noise + d.attr);
         let full = (M::MODE == AdaptMode::Full) as usize;
-        let keep_u2 = !self.r.psi_u2.is_empty() && self.psi_recorded;
+        let keep_u2 = !self.arena.view().psi_u2.is_empty() && self.psi_recorded;
         let per = match phase {
             Phase::Generate => h * zin + f * h,
             // D on real, fake, interpolate; its input gradient, W1 g; W1's outer products.
@@ -1804,7 +1844,7 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
     /// Upper bound of the slices of the pending update, in all.
     fn slice_bound(&self) -> u32 {
         let Some(u) = self.upd else { return 0 };
-        let per = self.n_buf.div_ceil(self.r.iw.b.max(1)) as u32;
+        let per = self.n_buf.div_ceil(self.arena.b) as u32;
         let gen = if self.psi_recorded { 0 } else { per };
         let back = if self.cfg.head_only { 0 } else { per };
         gen + u.disc_steps * per + per + back + 1
@@ -1817,7 +1857,7 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
             return Ok(());
         };
         let n = self.n_buf;
-        let b = self.r.iw.b.max(1);
+        let b = self.arena.b;
         let (t0, t1) = (u.t, (u.t + b).min(n));
         let phase = u.phase;
         u.done = u.done.saturating_add(self.slice_cost(phase, t1 - t0));
@@ -1917,12 +1957,13 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
     /// fixed x_t ([`Navigator::fix_generated_feature`]): Ψ_x is then G's output, regenerated.
     fn record_psi_features(&mut self, n: usize) {
         let f = self.w.dims.feat;
-        let keep_u2 = !self.r.psi_u2.is_empty();
+        let r = self.arena.ram();
+        let keep_u2 = !r.psi_u2.is_empty();
         let ok = !self.x_fixed && (!keep_u2 || self.u2_valid);
         if ok {
-            self.r.psi_x[n * f..(n + 1) * f].copy_from_slice(self.r.x);
+            r.psi_x[n * f..(n + 1) * f].copy_from_slice(r.x);
             if keep_u2 {
-                self.r.psi_u2[n * f..(n + 1) * f].copy_from_slice(self.r.u2);
+                r.psi_u2[n * f..(n + 1) * f].copy_from_slice(r.u2);
             }
         }
         self.psi_recorded = (n == 0 || self.psi_recorded) && ok;
@@ -1941,7 +1982,7 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
             attr,
             iw,
             ..
-        } = &mut self.r;
+        } = &mut self.arena.ram();
         let gen = gen_view(gen1, gen2, &w)?;
         inner::generate(
             &gen,
@@ -1979,7 +2020,7 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
             eps,
             iw,
             ..
-        } = &mut self.r;
+        } = &mut self.arena.ram();
         if t0 == 0 {
             g_disc1.zero();
             g_disc_w2.fill(0.0);
@@ -2021,7 +2062,7 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
             g_disc_w2,
             g_disc_b2,
             ..
-        } = &mut self.r;
+        } = &mut self.arena.ram();
         g_disc1.scale(inv);
         g_disc_w2
             .iter_mut()
@@ -2040,7 +2081,7 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
             g_disc_w2,
             g_disc_b2,
             ..
-        } = &mut self.r;
+        } = &mut self.arena.ram();
         // Ascent: ω ← ω + α1 ∇_ω L_D, only if everything stays finite and bounded.
         let a1 = cfg.alpha_disc;
         let disc_ok = loss.is_finite()
@@ -2090,7 +2131,7 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
             attr,
             iw,
             ..
-        } = &mut self.r;
+        } = &mut self.arena.ram();
         if t0 == 0 {
             g_gen1.zero();
             g_gen2.zero();
@@ -2140,7 +2181,7 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
             attr,
             iw,
             ..
-        } = &mut self.r;
+        } = &mut self.arena.ram();
         let gen = gen_view(gen1, gen2, &w)?;
         let disc = disc_view(disc1, disc_w2, disc_b2, &w)?;
         let inp = inner::AdaptInputs {
@@ -2175,7 +2216,7 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
             dlogits,
             actor_u,
             ..
-        } = &mut self.r;
+        } = &mut self.arena.ram();
         let head = actor.view(w.get(TensorId::ActorW))?;
         actor_head_grad(
             &head,
@@ -2201,7 +2242,7 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
             g_gen2,
             g_actor,
             ..
-        } = &mut self.r;
+        } = &mut self.arena.ram();
         // −α2 / ‖g‖ for a step of length α2 (none for a zero gradient)
         let unit = |sq: f32| {
             let norm = libm::sqrtf(sq);
@@ -2266,10 +2307,21 @@ mod tests {
                 {
                     let n = arena_len_with(&d, mode, k, fp);
                     let mut arena = vec![0.0f32; n + 7];
-                    let (_, used) = Ram::carve(&mut arena, &d, mode, k, fp).unwrap();
+                    let base = arena.as_ptr() as usize;
+                    let (lens, used) = carve_check(&mut arena, &d, mode, k, fp).unwrap();
+                    let full = mode == AdaptMode::Full;
+                    let (ram, _, short) = Ram::carve_lens(&mut arena[..], &lens, full, 1);
+                    assert!(!short);
                     assert_eq!(used, n, "{d:?} {mode:?} k={k} {fp:?}");
+                    // Ψ follows the parameters and gradients; the step's work ends the arena.
+                    let l = crate::memory::NavLayout::new_with(&d, mode, k, fp);
+                    let at = |s: &[f32]| (s.as_ptr() as usize - base) / 4;
+                    let params = l.gen_params + l.disc_params + l.actor_params;
+                    assert_eq!(at(ram.psi_s), params + l.fixed_biases + l.grads);
+                    assert_eq!(at(ram.gen1.w), 0);
+                    assert_eq!(at(ram.cell_prod) + ram.cell_prod.len(), n);
                     let mut small = vec![0.0f32; n - 1];
-                    assert!(Ram::carve(&mut small, &d, mode, k, fp).is_err());
+                    assert!(carve_check(&mut small, &d, mode, k, fp).is_err());
                 }
             }
         }

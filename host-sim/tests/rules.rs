@@ -144,12 +144,13 @@ fn random_agent_is_deterministic_and_mostly_fails() {
 /// An agent that repeats one action.
 struct Repeat(Action);
 impl Agent for Repeat {
-    fn begin_episode(&mut self, _t: &gman_host_sim::sim::TargetInfo) {}
-    fn act(
+    fn begin_episode(
         &mut self,
-        _o: &gman_host_sim::sim::Observation,
-        _v: &gman_host_sim::sim::OracleView<'_>,
-    ) -> Action {
+        _e: &gman_host_sim::sim::Env<'_>,
+        _t: &gman_host_sim::sim::TargetInfo,
+    ) {
+    }
+    fn act(&mut self, _e: &gman_host_sim::sim::Env<'_>) -> Action {
         self.0
     }
 }

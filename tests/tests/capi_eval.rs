@@ -12,8 +12,7 @@ use gman_host_sim::nav::agent::NavAgent;
 use gman_host_sim::nav::model::load_model;
 use gman_host_sim::sim::spatial::MapGrid;
 use gman_host_sim::sim::{
-    evaluate, Agent, Env, EpisodeSpec, EvalConfig, Observation, OracleView, Split, TargetInfo,
-    World, DEFAULT_WORLD_SEED,
+    evaluate, Agent, Env, EpisodeSpec, EvalConfig, Split, TargetInfo, World, DEFAULT_WORLD_SEED,
 };
 
 const MODEL: &str = concat!(
@@ -49,8 +48,9 @@ impl CApiAgent {
 }
 
 impl Agent for CApiAgent {
-    fn begin_episode(&mut self, _target: &TargetInfo) {}
-    fn act(&mut self, _obs: &Observation, _oracle: &OracleView<'_>) -> gman_core::Action {
+    fn begin_episode(&mut self, _env: &Env<'_>, _target: &TargetInfo) {}
+    fn act(&mut self, _env: &Env<'_>) -> gman_core::Action {
+        // Never called: `run_episode` drives the episode through the C API.
         gman_core::Action::Done
     }
     fn run_episode(&mut self, env: &mut Env<'_>, spec: &EpisodeSpec) {

@@ -1,10 +1,10 @@
 //! Running episodes with gman-core's navigator: the per-worker buffers and the pieces the
 //! training episode ([`super::trainer::train_episode`], [`super::vec_rollout`]) shares with
-//! evaluation ([`eval_episode`], the device's schedule).
+//! evaluation ([`super::agent::NavAgent`], the device's schedule).
 
-use anyhow::{anyhow, Result};
+use anyhow::Result;
 use gman_core::memory::AdaptMode;
-use gman_core::navigator::{Efficient, Full, Mode, Navigator};
+use gman_core::navigator::{Mode, Navigator};
 use gman_core::policy::PolicyInput;
 use gman_core::{Action, NUM_ACTIONS};
 
@@ -14,7 +14,7 @@ use super::model::NavModel;
 use super::K;
 use crate::pretrain::ps::PsBuffers;
 use crate::sim::spatial::MapGrid;
-use crate::sim::{Env, EpisodeSpec, World};
+use crate::sim::{CategoryId, Env, EpisodeSpec, SceneId, World};
 
 /// Summary of a training episode.
 #[derive(Clone, Debug, Default)]
@@ -66,9 +66,22 @@ pub(crate) fn begin<M: Mode>(
     spec: &EpisodeSpec,
     model: &NavModel,
 ) -> Result<()> {
-    nav.reset(world.attributes(spec.target), spec.seed)?;
+    begin_on(nav, world, spec.scene, spec.target, spec.seed, model)
+}
+
+/// [`begin`] on the episode towards `target` in `scene` with seed `seed`, whoever holds
+/// the navigator's arena.
+pub(crate) fn begin_on<M: Mode, S: AsRef<[f32]> + AsMut<[f32]>>(
+    nav: &mut Navigator<'_, M, K, S>,
+    world: &World,
+    scene: SceneId,
+    target: CategoryId,
+    seed: u64,
+    model: &NavModel,
+) -> Result<()> {
+    nav.reset(world.attributes(target), seed)?;
     if model.privileged {
-        nav.fix_generated_feature(&world.object_feature(spec.scene, spec.target))?;
+        nav.fix_generated_feature(&world.object_feature(scene, target))?;
     }
     Ok(())
 }
@@ -165,57 +178,7 @@ pub(crate) fn disc_after_episode<M: Mode>(nav: &Navigator<'_, M, K>) -> Result<V
     Ok(vec![w1, d.l1.b.to_vec(), d.w2.to_vec(), vec![d.b2]])
 }
 
-/// Runs one evaluation episode in `env` with the device's schedule (inner update inside
-/// `step`, every `K` steps). D starts from the model's ω in every episode, so results do not
-/// depend on episode order or worker count. On a navigator error the agent issues Done (and
-/// the error is returned for reporting).
-///
-/// The model runs in its adaptation mode ([`NavModel::adapt_mode`]; a blob's is recorded in
-/// its header), a blob over its weights in place, exactly as on the device.
-pub fn eval_episode(
-    env: &mut Env<'_>,
-    spec: &EpisodeSpec,
-    model: &NavModel,
-    worker: &mut Worker,
-) -> Result<()> {
-    if eval_mode_is_efficient(model) {
-        eval_episode_in::<Efficient>(env, spec, model, worker)
-    } else {
-        eval_episode_in::<Full>(env, spec, model, worker)
-    }
-}
-
 /// True when `model` runs in the `Efficient` adaptation mode (what the microcontroller runs).
 pub fn eval_mode_is_efficient(model: &NavModel) -> bool {
     model.adapt_mode == AdaptMode::Efficient
-}
-
-fn eval_episode_in<M: Mode>(
-    env: &mut Env<'_>,
-    spec: &EpisodeSpec,
-    model: &NavModel,
-    worker: &mut Worker,
-) -> Result<()> {
-    let weights = model.weights()?;
-    let mut nav: Navigator<'_, M, K> =
-        Navigator::new(weights, &mut worker.arena, model.nav_config(false))?;
-    begin(&mut nav, env.world(), spec, model)?;
-    let grid = map_grid(model);
-    while !env.is_done() {
-        let obs = env.observe();
-        let ps = ps_input(model, &mut worker.ps, &obs.features)?;
-        if !grid.is_empty() {
-            env.observe_map(grid, &mut worker.map);
-        }
-        match nav.step_map(&obs.features, &worker.map, &ps) {
-            Ok(out) => {
-                env.step(out.action);
-            }
-            Err(e) => {
-                env.step(Action::Done);
-                return Err(anyhow!("navigator: {e}"));
-            }
-        }
-    }
-    Ok(())
 }

@@ -14,10 +14,9 @@ use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 use serde::Serialize;
 
-use super::env::{Env, EpisodeLimits, OracleView};
+use super::env::{Env, EpisodeLimits};
 use super::metrics::{EpisodeResult, Summary};
 use super::reward::RewardKind;
-use super::tables::Observation;
 use super::types::{CategoryId, RoomType, SceneId, TargetKind};
 use super::util::hash2;
 use super::world::{EpisodeSpec, World};
@@ -58,18 +57,21 @@ impl TargetInfo {
 
 /// A navigation policy.
 pub trait Agent {
-    /// Called before the first step of every episode.
-    fn begin_episode(&mut self, target: &TargetInfo);
-    /// Chooses the next action. `oracle` is ground truth for scripted agents; learned agents
-    /// must ignore it.
-    fn act(&mut self, obs: &Observation, oracle: &OracleView<'_>) -> Action;
-    /// Runs a whole episode in `env`. The default calls [`Agent::begin_episode`] and then
-    /// [`Agent::act`] until the episode ends; agents whose per-episode state borrows from
-    /// themselves (a gman-core navigator over the agent's own arena) override it.
+    /// Called before the first step of every episode in `env` (whose world holds what a
+    /// diagnostic agent may be given besides `target`, e.g. the target's true feature in the
+    /// scene for the privileged-feature bound).
+    fn begin_episode(&mut self, env: &Env<'_>, target: &TargetInfo);
+    /// Chooses the next action in `env`'s current state. What an agent senses:
+    /// [`Env::observe`] and [`Env::observe_map`]; [`Env::oracle`] is ground truth for
+    /// scripted agents, which learned agents must not read.
+    fn act(&mut self, env: &Env<'_>) -> Action;
+    /// Runs a whole episode in `env`: [`Agent::begin_episode`], then [`Agent::act`] and a
+    /// step until the episode ends (the per-step loop every agent here runs; an agent
+    /// driving a whole episode elsewhere, e.g. through the C API, may override it).
     fn run_episode(&mut self, env: &mut Env<'_>, spec: &EpisodeSpec) {
-        self.begin_episode(&TargetInfo::of(env.world(), spec));
+        self.begin_episode(env, &TargetInfo::of(env.world(), spec));
         while !env.is_done() {
-            let a = self.act(env.observe(), &env.oracle());
+            let a = self.act(env);
             env.step(a);
         }
     }
@@ -102,10 +104,10 @@ impl RandomAgent {
 }
 
 impl Agent for RandomAgent {
-    fn begin_episode(&mut self, target: &TargetInfo) {
+    fn begin_episode(&mut self, _env: &Env<'_>, target: &TargetInfo) {
         self.rng = ChaCha8Rng::seed_from_u64(hash2(self.seed, target.episode_seed));
     }
-    fn act(&mut self, _obs: &Observation, _oracle: &OracleView<'_>) -> Action {
+    fn act(&mut self, _env: &Env<'_>) -> Action {
         Action::ALL[self.rng.random_range(0..NUM_ACTIONS)]
     }
 }
@@ -115,9 +117,9 @@ impl Agent for RandomAgent {
 pub struct OracleAgent;
 
 impl Agent for OracleAgent {
-    fn begin_episode(&mut self, _target: &TargetInfo) {}
-    fn act(&mut self, _obs: &Observation, oracle: &OracleView<'_>) -> Action {
-        oracle.optimal_action()
+    fn begin_episode(&mut self, _env: &Env<'_>, _target: &TargetInfo) {}
+    fn act(&mut self, env: &Env<'_>) -> Action {
+        env.oracle().optimal_action()
     }
 }
 
