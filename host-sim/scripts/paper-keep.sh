@@ -10,7 +10,8 @@
 # of the sweep (ROW/sS.json, ROW-adaptoff/sS.json, gman-nometa/sS.json, random/s1.json), the
 # learning curve (runs/ROW-sS/curve/kN.json and kN.at) and the training curve: metrics.csv
 # reduced to the columns `gman plot` reads (update, episodes, env_steps, success_rate,
-# mean_reward), gzip-compressed, and the run's int8 blob (models/ROW-sS.gman, 345 KB).
+# mean_reward), gzip-compressed, and the run's int8 blob (models/ROW-sS.gman, 345 KB); the
+# sweep's PS module (ps/ps.ckpt, 1.1 MB), with which the PS rows' blobs are evaluated.
 # Checkpoints are not kept (5 MB each).
 set -euo pipefail
 [ $# -eq 3 ] || { sed -n '2,13p' "$0" >&2; exit 2; }
@@ -27,6 +28,8 @@ copy() {
 
 case $mode in
   save)
+    # the PS module, which the PS rows' blobs need (`gman eval --ps`)
+    [ -f "$src/ps/ps.ckpt" ] && copy "$src/ps/ps.ckpt" "$dst/ps/ps.ckpt"
     for json in "$src"/*/s[0-9]*.json; do
       [ -e "$json" ] || continue
       rel=${json#"$src"/}
