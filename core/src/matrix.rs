@@ -119,6 +119,13 @@ pub trait Kernels: Sync + core::fmt::Debug {
     fn dots_i8(&self, q: &[u8], cols: usize, col0: usize, xq: &[i8], out: &mut [i32]) {
         dots_i8(q, cols, col0, xq, out)
     }
+
+    /// [`dots_i16`]: the same on an int16 input block (the map layer's products of two
+    /// quantised values, `crate::qkernel::cell_layer_int8`); the default is the portable
+    /// kernel.
+    fn dots_i16(&self, q: &[u8], cols: usize, col0: usize, x: &[i16], out: &mut [i32]) {
+        dots_i16(q, cols, col0, x, out)
+    }
 }
 
 /// A read-only `rows x cols` row-major matrix view. Construct with [`MatRef::f32`] or
@@ -353,6 +360,23 @@ pub fn dots_i8_body(q: &[u8], cols: usize, col0: usize, xq: &[i8], out: &mut [i3
         let mut acc = 0i32;
         for (&w, &x) in row[col0..end].iter().zip(xq) {
             acc += (w as i8 as i32) * (x as i32);
+        }
+        *o = acc;
+    }
+}
+
+/// [`dots_i8`] on int16 inputs: `out[r] = sum_j (q[r * cols + col0 + j] as i8) * x[j]`, the
+/// portable kernel of the map layer's products (`crate::qkernel::cell_layer_int8`).
+pub fn dots_i16(q: &[u8], cols: usize, col0: usize, x: &[i16], out: &mut [i32]) {
+    let end = col0 + x.len();
+    if cols == 0 || end > cols {
+        out.fill(0);
+        return;
+    }
+    for (row, o) in q.chunks_exact(cols).zip(out.iter_mut()) {
+        let mut acc = 0i32;
+        for (&w, &v) in row[col0..end].iter().zip(x) {
+            acc += (w as i8 as i32) * (v as i32);
         }
         *o = acc;
     }

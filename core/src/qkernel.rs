@@ -26,7 +26,7 @@
 //! calibration data whose range a new scene could exceed.
 
 use crate::error::{check_len, Result};
-pub use crate::matrix::{dots_i8, dots_i8_body};
+pub use crate::matrix::{dots_i16, dots_i8, dots_i8_body};
 use crate::matrix::{seg_len, Kernels, MatRef, Scales, Weights};
 
 /// Columns of one quantised input block (a stack buffer of this many `i8`).
@@ -264,23 +264,6 @@ fn dots_dsp<T: Copy + Into<i32>>(
             Some(a) => gman_dsp::dots2(a, a, xp).0 + tail(a),
             None => 0,
         };
-    }
-}
-
-/// [`dots_i8`] on int16 inputs: `out[r] = sum_j (q[r * cols + col0 + j] as i8) * x[j]`, the
-/// portable kernel of the map layer's products ([`cell_layer_int8`]).
-pub fn dots_i16(q: &[u8], cols: usize, col0: usize, x: &[i16], out: &mut [i32]) {
-    let end = col0 + x.len();
-    if cols == 0 || end > cols {
-        out.fill(0);
-        return;
-    }
-    for (row, o) in q.chunks_exact(cols).zip(out.iter_mut()) {
-        let mut acc = 0i32;
-        for (&w, &v) in row[col0..end].iter().zip(x) {
-            acc += (w as i8 as i32) * (v as i32);
-        }
-        *o = acc;
     }
 }
 
@@ -552,6 +535,7 @@ impl Act for i16 {
         match dots {
             _ if gman_dsp::HAS_DSP => dots_i16_dsp(q, cols, c0, x, xp, acc),
             Dots::Dsp => dots_i16_dsp(q, cols, c0, x, xp, acc),
+            Dots::Table(k) => k.dots_i16(q, cols, c0, x, acc),
             _ => dots_i16(q, cols, c0, x, acc),
         }
     }

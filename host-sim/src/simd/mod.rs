@@ -105,10 +105,17 @@ impl Kernels for Avx2 {
 
     fn dots_i8(&self, q: &[u8], cols: usize, col0: usize, xq: &[i8], out: &mut [i32]) {
         // SAFETY: as above.
-        unsafe { x86::dots_i8(q, cols, col0, xq, out) }
+        unsafe { avx2_int8::dots_i8(q, cols, col0, xq, out) }
+    }
+
+    fn dots_i16(&self, q: &[u8], cols: usize, col0: usize, x: &[i16], out: &mut [i32]) {
+        // SAFETY: as above.
+        unsafe { avx2_int8::dots_i16(q, cols, col0, x, out) }
     }
 }
 
+#[cfg(target_arch = "x86_64")]
+mod avx2_int8;
 #[cfg(target_arch = "x86_64")]
 mod avx2_matmul;
 
@@ -131,50 +138,6 @@ mod x86 {
         } else {
             // Small batches (the Efficient inner update's pairs): 32 columns x 2 vectors.
             matmul_t_acc_blocked::<4, 2>(w, dy, n, dx, col0)
-        }
-    }
-
-    /// gman-core's integer kernel (`gman_core::qkernel::dots_i8`) with AVX2: the input block
-    /// widened once to i16, then per row 16 weights at a time sign-extended to i16
-    /// (`vpmovsxbw`) and multiplied pairwise into i32 (`vpmaddwd`, at most 2 * 127 * 127
-    /// per lane), summed in i32. Integers are exact, so every value equals the portable
-    /// kernel's (pinned by `tests::avx2_int8_dots_equal_the_portable_kernel`).
-    #[target_feature(enable = "avx2")]
-    pub(super) unsafe fn dots_i8(q: &[u8], cols: usize, col0: usize, xq: &[i8], out: &mut [i32]) {
-        use core::arch::x86_64::*;
-        use gman_core::qkernel::{dots_i8_body, QCOLS};
-        let n = xq.len();
-        let end = col0 + n;
-        if cols == 0 || end > cols || n > QCOLS {
-            return dots_i8_body(q, cols, col0, xq, out);
-        }
-        let mut xw = [0i16; QCOLS];
-        for (d, &s) in xw.iter_mut().zip(xq) {
-            *d = s as i16;
-        }
-        let n16 = n - n % 16;
-        for (row, o) in q.chunks_exact(cols).zip(out.iter_mut()) {
-            let r = &row[col0..end];
-            let mut acc = _mm256_setzero_si256();
-            let mut j = 0;
-            while j < n16 {
-                // SAFETY: j + 16 <= n16 <= r.len() and <= xw.len(); unaligned loads.
-                let w = _mm256_cvtepi8_epi16(_mm_loadu_si128(r.as_ptr().add(j) as *const __m128i));
-                let x = _mm256_loadu_si256(xw.as_ptr().add(j) as *const __m256i);
-                acc = _mm256_add_epi32(acc, _mm256_madd_epi16(w, x));
-                j += 16;
-            }
-            let s = _mm_add_epi32(
-                _mm256_castsi256_si128(acc),
-                _mm256_extracti128_si256(acc, 1),
-            );
-            let s = _mm_add_epi32(s, _mm_shuffle_epi32(s, 0b01_00_11_10));
-            let s = _mm_add_epi32(s, _mm_shuffle_epi32(s, 0b10_11_00_01));
-            let mut t = _mm_cvtsi128_si32(s);
-            for k in n16..n {
-                t += (r[k] as i8 as i32) * (xq[k] as i32);
-            }
-            *o = t;
         }
     }
 
@@ -235,6 +198,94 @@ mod tests {
             dots_i8(&q, cols, col0, &xq, &mut a);
             k.dots_i8(&q, cols, col0, &xq, &mut b);
             assert_eq!(a, b, "rows {rows} cols {cols} col0 {col0} len {len}");
+        }
+    }
+
+    /// Every length 0..=70 (all the 32-, 16- and 1-column steps and their mixes), the
+    /// full block, row counts 0..=9 (four-row passes and every remainder), offsets into a
+    /// wider matrix; random values and the extremes (all +-127, alternating signs, zeros),
+    /// and inputs holding -128 (the widening fallback). Every integer is compared.
+    #[test]
+    fn avx2_int8_dots_every_length_and_row_count() {
+        use gman_core::qkernel::dots_i16;
+        let Some(k) = super::avx2() else {
+            eprintln!("SKIPPED: no AVX2 on this CPU");
+            return;
+        };
+        let mut state = 0x9e37_79b9u32;
+        let mut next = move || {
+            state ^= state << 13;
+            state ^= state >> 17;
+            state ^= state << 5;
+            state
+        };
+        let lens: Vec<usize> = (0..=70).chain([95, 128, 200, 255, QCOLS]).collect();
+        for &len in &lens {
+            for rows in 0..=9usize {
+                for pattern in 0..5 {
+                    let col0 = (len * 7 + rows) % 5;
+                    let cols = col0 + len + rows % 3;
+                    let wv = |i: usize, r: u32| -> u8 {
+                        (match pattern {
+                            0 => (r % 255) as i32 - 127,
+                            1 => 127,
+                            2 => -127,
+                            3 => [127, -127][i % 2],
+                            _ => [0, 127, -127, 1, -1][i % 5],
+                        }) as i8 as u8
+                    };
+                    let q: Vec<u8> = (0..rows * cols).map(|i| wv(i, next())).collect();
+                    let mut xq: Vec<i8> = (0..len)
+                        .map(|j| match pattern {
+                            0 => ((next() % 255) as i32 - 127) as i8,
+                            1 => 127,
+                            2 => -127,
+                            3 => [-127, 127][j % 2],
+                            _ => [127, -127, 0][j % 3],
+                        })
+                        .collect();
+                    let mut a = vec![0i32; rows];
+                    let mut b = vec![7i32; rows];
+                    dots_i8(&q, cols, col0, &xq, &mut a);
+                    k.dots_i8(&q, cols, col0, &xq, &mut b);
+                    assert_eq!(a, b, "i8: len {len} rows {rows} pattern {pattern}");
+                    if len > 0 {
+                        // An input of -128 (never made by the quantisation): the fallback.
+                        xq[(next() as usize) % len] = i8::MIN;
+                        dots_i8(&q, cols, col0, &xq, &mut a);
+                        k.dots_i8(&q, cols, col0, &xq, &mut b);
+                        assert_eq!(
+                            a, b,
+                            "i8 with -128: len {len} rows {rows} pattern {pattern}"
+                        );
+                    }
+                    // The int16 kernel: products of two quantised values, their extremes,
+                    // and any int16 (the kernel takes every weight byte and every int16).
+                    let q16: Vec<u8> = (0..rows * cols)
+                        .map(|i| {
+                            if pattern == 4 {
+                                [0x80u8, 0x7f][i % 2]
+                            } else {
+                                wv(i, next())
+                            }
+                        })
+                        .collect();
+                    let x16: Vec<i16> = (0..len)
+                        .map(|j| match pattern {
+                            0 => ((next() % 255) as i16 - 127) * ((next() % 255) as i16 - 127),
+                            1 => 16129,
+                            2 => -16129,
+                            3 => next() as i16,
+                            _ => [i16::MIN, i16::MAX][j % 2],
+                        })
+                        .collect();
+                    let mut a = vec![0i32; rows];
+                    let mut b = vec![7i32; rows];
+                    dots_i16(&q16, cols, col0, &x16, &mut a);
+                    k.dots_i16(&q16, cols, col0, &x16, &mut b);
+                    assert_eq!(a, b, "i16: len {len} rows {rows} pattern {pattern}");
+                }
+            }
         }
     }
 
