@@ -2,14 +2,14 @@
 //! weight rows per pass sharing each input load.
 //!
 //! * [`dots_i8`]: `vpmaddubsw` takes unsigned bytes times signed bytes, so the sign of each
-//!   input moves onto the weight (`vpsignb`): `w_j x_j = |x_j| * (sign(x_j) w_j)`, with
-//!   `|x_j| <= 127` and `|sign(x_j) w_j| <= 127` a pair of products is at most
-//!   `2 * 127 * 127 = 32,258 < 2^15`, so the int16 sums never saturate; `vpmaddwd` by ones
+//!   weight moves onto the input (`vpsignb`): `w_j x_j = |w_j| * (sign(w_j) x_j)`. `vpabsb`
+//!   of -128 is the byte 0x80, which `vpmaddubsw` reads as the unsigned 128, so every weight
+//!   byte is exact; with `|x_j| <= 127` a pair of products is at most
+//!   `2 * 128 * 127 = 32,512 < 2^15`, so the int16 sums never saturate; `vpmaddwd` by ones
 //!   widens them into i32. 32 columns per step (then 16 with the 128-bit forms, then one by
-//!   one). Exact when every input is in `-127..=127` (the quantisation's range: an input
-//!   block holding -128 runs the widening kernel [`dots_i8_wide`]) and every weight byte in
-//!   `-127..=127` (the range `gman_core::quant` gives every int8 tensor: `vpsignb` cannot
-//!   negate -128).
+//!   one). Exact for every weight byte and every input in `-127..=127` (the quantisation's
+//!   range: an input block holding -128, which `vpsignb` cannot negate, runs the widening
+//!   kernel [`dots_i8_wide`]).
 //! * [`dots_i16`]: the map layer's int16 products times int8 weights, weights widened with
 //!   `vpmovsxbw` and multiplied pairwise into i32 (`vpmaddwd`, exact for any int16 input).
 //!
@@ -39,21 +39,21 @@ unsafe fn sum1(a: __m256i) -> i32 {
     _mm_cvtsi128_si32(s)
 }
 
-/// `|x| * (sign(x) w)` summed pairwise into i32 lanes (32 columns).
+/// `|w| * (sign(w) x)` summed pairwise into i32 lanes (32 columns).
 #[target_feature(enable = "avx2")]
 #[inline]
-unsafe fn mac32(acc: __m256i, ax: __m256i, x: __m256i, w: *const u8, ones: __m256i) -> __m256i {
+unsafe fn mac32(acc: __m256i, x: __m256i, w: *const u8, ones: __m256i) -> __m256i {
     let w = _mm256_loadu_si256(w as *const __m256i);
-    let p = _mm256_maddubs_epi16(ax, _mm256_sign_epi8(w, x));
+    let p = _mm256_maddubs_epi16(_mm256_abs_epi8(w), _mm256_sign_epi8(x, w));
     _mm256_add_epi32(acc, _mm256_madd_epi16(p, ones))
 }
 
 /// The same on 16 columns (128-bit forms), added into the low half of `acc`.
 #[target_feature(enable = "avx2")]
 #[inline]
-unsafe fn mac16(acc: __m256i, ax: __m128i, x: __m128i, w: *const u8) -> __m256i {
+unsafe fn mac16(acc: __m256i, x: __m128i, w: *const u8) -> __m256i {
     let w = _mm_loadu_si128(w as *const __m128i);
-    let p = _mm_maddubs_epi16(ax, _mm_sign_epi8(w, x));
+    let p = _mm_maddubs_epi16(_mm_abs_epi8(w), _mm_sign_epi8(x, w));
     let s = _mm_madd_epi16(p, _mm_set1_epi16(1));
     _mm256_add_epi32(acc, _mm256_inserti128_si256::<0>(_mm256_setzero_si256(), s))
 }
@@ -84,20 +84,17 @@ pub(super) unsafe fn dots_i8(q: &[u8], cols: usize, col0: usize, xq: &[i8], out:
     }
     let n32 = n - n % 32;
     let n16 = n - n % 16;
-    // |x| and x per 32 columns, computed once for every row.
-    let mut ax = [_mm256_setzero_si256(); QCOLS / 32];
+    // x per 32 columns, loaded once for every row.
     let mut xv = [_mm256_setzero_si256(); QCOLS / 32];
-    for (c, (a, v)) in ax.iter_mut().zip(xv.iter_mut()).enumerate().take(n32 / 32) {
+    for (c, v) in xv.iter_mut().enumerate().take(n32 / 32) {
         // SAFETY: 32 (c + 1) <= n32 <= xq.len().
         *v = _mm256_loadu_si256(xq.as_ptr().add(32 * c) as *const __m256i);
-        *a = _mm256_abs_epi8(*v);
     }
-    let (x16, ax16) = if n16 > n32 {
+    let x16 = if n16 > n32 {
         // SAFETY: n32 + 16 = n16 <= xq.len().
-        let v = _mm_loadu_si128(xq.as_ptr().add(n32) as *const __m128i);
-        (v, _mm_abs_epi8(v))
+        _mm_loadu_si128(xq.as_ptr().add(n32) as *const __m128i)
     } else {
-        (_mm_setzero_si128(), _mm_setzero_si128())
+        _mm_setzero_si128()
     };
     let ones = _mm256_set1_epi16(1);
     let tail = |row: &[u8]| -> i32 {
@@ -121,19 +118,18 @@ pub(super) unsafe fn dots_i8(q: &[u8], cols: usize, col0: usize, xq: &[i8], out:
             _mm256_setzero_si256(),
             _mm256_setzero_si256(),
         );
-        for c in 0..n32 / 32 {
-            let (a, x) = (ax[c], xv[c]);
+        for (c, &x) in xv.iter().enumerate().take(n32 / 32) {
             let j = 32 * c;
-            a0 = mac32(a0, a, x, w0.as_ptr().add(j), ones);
-            a1 = mac32(a1, a, x, w1.as_ptr().add(j), ones);
-            a2 = mac32(a2, a, x, w2.as_ptr().add(j), ones);
-            a3 = mac32(a3, a, x, w3.as_ptr().add(j), ones);
+            a0 = mac32(a0, x, w0.as_ptr().add(j), ones);
+            a1 = mac32(a1, x, w1.as_ptr().add(j), ones);
+            a2 = mac32(a2, x, w2.as_ptr().add(j), ones);
+            a3 = mac32(a3, x, w3.as_ptr().add(j), ones);
         }
         if n16 > n32 {
-            a0 = mac16(a0, ax16, x16, w0.as_ptr().add(n32));
-            a1 = mac16(a1, ax16, x16, w1.as_ptr().add(n32));
-            a2 = mac16(a2, ax16, x16, w2.as_ptr().add(n32));
-            a3 = mac16(a3, ax16, x16, w3.as_ptr().add(n32));
+            a0 = mac16(a0, x16, w0.as_ptr().add(n32));
+            a1 = mac16(a1, x16, w1.as_ptr().add(n32));
+            a2 = mac16(a2, x16, w2.as_ptr().add(n32));
+            a3 = mac16(a3, x16, w3.as_ptr().add(n32));
         }
         let s = sum4(a0, a1, a2, a3);
         let mut v = [0i32; 4];
@@ -150,11 +146,11 @@ pub(super) unsafe fn dots_i8(q: &[u8], cols: usize, col0: usize, xq: &[i8], out:
     while r < rows {
         let w0 = &q[r * cols + col0..r * cols + end];
         let mut a0 = _mm256_setzero_si256();
-        for c in 0..n32 / 32 {
-            a0 = mac32(a0, ax[c], xv[c], w0.as_ptr().add(32 * c), ones);
+        for (c, &x) in xv.iter().enumerate().take(n32 / 32) {
+            a0 = mac32(a0, x, w0.as_ptr().add(32 * c), ones);
         }
         if n16 > n32 {
-            a0 = mac16(a0, ax16, x16, w0.as_ptr().add(n32));
+            a0 = mac16(a0, x16, w0.as_ptr().add(n32));
         }
         out[r] = sum1(a0) + tail(w0);
         r += 1;

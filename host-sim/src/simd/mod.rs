@@ -225,13 +225,14 @@ mod tests {
                 for pattern in 0..5 {
                     let col0 = (len * 7 + rows) % 5;
                     let cols = col0 + len + rows % 3;
+                    // every weight byte, -128 (which the quantisation never makes) included
                     let wv = |i: usize, r: u32| -> u8 {
                         (match pattern {
-                            0 => (r % 255) as i32 - 127,
+                            0 => (r % 256) as i32 - 128,
                             1 => 127,
-                            2 => -127,
-                            3 => [127, -127][i % 2],
-                            _ => [0, 127, -127, 1, -1][i % 5],
+                            2 => -128,
+                            3 => [127, -128][i % 2],
+                            _ => [0, 127, -127, 1, -1, -128][i % 6],
                         }) as i8 as u8
                     };
                     let q: Vec<u8> = (0..rows * cols).map(|i| wv(i, next())).collect();
