@@ -24,6 +24,25 @@ fn tmp(name: &str) -> PathBuf {
     d
 }
 
+/// Trains `method` for two updates of the tiny configuration into `run`.
+fn train_tiny(method: &str, run: &std::path::Path) {
+    let (ok, _, err) = gman(&[
+        "train",
+        "--method",
+        method,
+        "--config",
+        "tiny",
+        "--workers",
+        "1",
+        "--updates",
+        "2",
+        "--quiet",
+        "--out",
+        run.to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+}
+
 #[test]
 fn eval_synthetic_writes_json() {
     let d = tmp("eval");
@@ -253,21 +272,7 @@ fn train_refuses_impossible_flag_combinations() {
 fn emd_report_measures_a_gman_model() {
     let d = tmp("emd");
     let run = d.join("run");
-    let (ok, _, err) = gman(&[
-        "train",
-        "--method",
-        "gman",
-        "--config",
-        "tiny",
-        "--workers",
-        "1",
-        "--updates",
-        "2",
-        "--quiet",
-        "--out",
-        run.to_str().unwrap(),
-    ]);
-    assert!(ok, "{err}");
+    train_tiny("gman", &run);
     let ckpt = run.join("checkpoint.ckpt");
     let (png, json) = (d.join("fig3.png"), d.join("emd.json"));
     let (ok, stdout, err) = gman(&[
@@ -426,21 +431,7 @@ fn demo_writes_summary_pictures_and_intervals() {
 fn ps_variant_blob_evaluates_with_its_ps_module() {
     let d = tmp("psblob");
     let run = d.join("run");
-    let (ok, _, err) = gman(&[
-        "train",
-        "--method",
-        "a3c-ps",
-        "--config",
-        "tiny",
-        "--workers",
-        "1",
-        "--updates",
-        "2",
-        "--quiet",
-        "--out",
-        run.to_str().unwrap(),
-    ]);
-    assert!(ok, "{err}");
+    train_tiny("a3c-ps", &run);
     let ckpt = run.join("checkpoint.ckpt");
     let blob = d.join("m.gman");
     let (ok, _, err) = gman(&[
