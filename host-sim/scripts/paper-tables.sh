@@ -20,6 +20,9 @@
 # (from its last checkpoint; a run trains to each chunk's step target in one or more resumed
 # launches, and resuming changes no bit). The table: `gman table --runs $OUT/gman ...` (below).
 #
+# ONLY="ROW ..." restricts the sweep to those rows (e.g. ONLY="gman-ps gman-noemd-ps" SEEDS=1 to
+# run one comparison before the rest); the tables and curves at the end cover what exists.
+#
 # KEEP=DIR (e.g. KEEP=results/paper, the folder the repository keeps) lays the finished runs kept
 # there into $OUT before the sweep starts, and keeps every run's small outputs there when it
 # finishes (host-sim/scripts/paper-keep.sh), so a sweep moved to another machine resumes.
@@ -70,6 +73,7 @@ run() {
   local row=$1 method=$2 s=$3; shift 3
   local dir=$R/runs/$row-s$s k target u st
   [ -f "$R/$row/s$s.json" ] && return 0
+  [ -z "${ONLY:-}" ] || case " $ONLY " in *" $row "*) ;; *) return 0 ;; esac
   mkdir -p "$R/$row" "$dir/curve"
   if [ ! -f "$dir/checkpoint.ckpt" ]; then
     log "start $row seed $s"

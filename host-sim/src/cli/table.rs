@@ -12,6 +12,9 @@ pub struct TableArgs {
     /// its files, like the paper's three seeds).
     #[arg(long, value_name = "DIR_OR_JSON", required = true, num_args = 1..)]
     pub runs: Vec<PathBuf>,
+    /// Print the table and the comparisons as Markdown (for the results document).
+    #[arg(long)]
+    pub markdown: bool,
 }
 
 fn json_files(p: &Path) -> Result<Vec<PathBuf>> {
@@ -73,106 +76,191 @@ fn paired_t(a: &[f64], b: &[f64]) -> f64 {
     }
 }
 
-/// `gman table`: Table 2/3 layout from evaluation JSON files, then each row's SR against the
-/// first row's with Welch's t, and a paired t where both rows hold the same file names (the
-/// same seeds, e.g. a run evaluated with adaptation on and off).
-pub fn cmd_table(a: TableArgs) -> Result<()> {
-    println!(
-        "{:<28} | {:^47} | {:^47}",
-        "Method", "Unseen Objects", "Seen Objects"
-    );
-    println!(
-        "{:<28} | {:>11} {:>11} {:>11} {:>11} | {:>11} {:>11} {:>11} {:>11}",
-        "", "SR(%)", "SPL(%)", "EPA(%)", "DTS(m)", "SR(%)", "SPL(%)", "EPA(%)", "DTS(m)"
-    );
-    let mut rows: Vec<(String, Vec<String>, Vec<[f64; 8]>)> = Vec::new();
-    for run in &a.runs {
-        let files = json_files(run)?;
-        let mut vals: Vec<[f64; 8]> = Vec::new();
-        let mut split = String::new();
-        for f in &files {
-            let text =
-                std::fs::read_to_string(f).with_context(|| format!("reading {}", f.display()))?;
-            let j: serde_json::Value =
-                serde_json::from_str(&text).with_context(|| format!("parsing {}", f.display()))?;
-            split = j["split"].as_str().unwrap_or("?").to_string();
-            let g = |k: &str, m: &str| -> Result<f64> {
-                j["results"][k][m]
-                    .as_f64()
-                    .ok_or_else(|| anyhow!("{}: results.{k}.{m} missing", f.display()))
-            };
-            vals.push([
-                g("unseen", "sr")?,
-                g("unseen", "spl")?,
-                g("unseen", "epa")?,
-                g("unseen", "dts")?,
-                g("seen", "sr")?,
-                g("seen", "spl")?,
-                g("seen", "epa")?,
-                g("seen", "dts")?,
-            ]);
-        }
-        let cells: Vec<String> = (0..8)
-            .map(|i| {
-                let (m, s) = mean_std(&vals.iter().map(|v| v[i]).collect::<Vec<_>>());
-                format!("{m:>6.2}±{s:<4.2}")
-            })
-            .collect();
-        let name = format!(
-            "{} [{} x{}]",
-            run.file_name()
-                .map(|s| s.to_string_lossy().to_string())
-                .unwrap_or_default(),
-            split,
-            files.len()
-        );
-        println!(
-            "{:<28} | {} | {}",
-            name,
-            cells[..4].join(" "),
-            cells[4..].join(" ")
-        );
-        let stems = files
-            .iter()
-            .map(|f| {
-                f.file_name()
-                    .map_or(String::new(), |n| n.to_string_lossy().into_owned())
-            })
-            .collect();
-        rows.push((name, stems, vals));
+/// One row of the table: its label, the file names it averages and each file's eight metrics
+/// (SR, SPL, EPA, DTS unseen, then seen).
+struct Row {
+    name: String,
+    files: Vec<String>,
+    vals: Vec<[f64; 8]>,
+}
+
+const METRICS: [&str; 4] = ["SR(%)", "SPL(%)", "EPA(%)", "DTS(m)"];
+
+fn load_row(run: &Path) -> Result<Row> {
+    let files = json_files(run)?;
+    let mut vals: Vec<[f64; 8]> = Vec::new();
+    let mut split = String::new();
+    for f in &files {
+        let text =
+            std::fs::read_to_string(f).with_context(|| format!("reading {}", f.display()))?;
+        let j: serde_json::Value =
+            serde_json::from_str(&text).with_context(|| format!("parsing {}", f.display()))?;
+        split = j["split"].as_str().unwrap_or("?").to_string();
+        let g = |k: &str, m: &str| -> Result<f64> {
+            j["results"][k][m]
+                .as_f64()
+                .ok_or_else(|| anyhow!("{}: results.{k}.{m} missing", f.display()))
+        };
+        vals.push([
+            g("unseen", "sr")?,
+            g("unseen", "spl")?,
+            g("unseen", "epa")?,
+            g("unseen", "dts")?,
+            g("seen", "sr")?,
+            g("seen", "spl")?,
+            g("seen", "epa")?,
+            g("seen", "dts")?,
+        ]);
     }
-    println!("(mean ± sample std over the JSON files of each row)");
-    if let Some(((first, base_files, base), rest)) =
-        rows.split_first().filter(|(_, r)| !r.is_empty())
-    {
-        let col = |v: &[[f64; 8]], i: usize| v.iter().map(|r| r[i]).collect::<Vec<_>>();
-        println!(
-            "SR against {first} (difference of the means, Welch's t; paired t over the same \
-             file names where both rows have them):"
-        );
-        for (name, files, v) in rest {
-            let paired = files == base_files;
+    let name = format!(
+        "{} [{} x{}]",
+        run.file_name()
+            .map(|s| s.to_string_lossy().to_string())
+            .unwrap_or_default(),
+        split,
+        files.len()
+    );
+    let files = files
+        .iter()
+        .map(|f| {
+            f.file_name()
+                .map_or(String::new(), |n| n.to_string_lossy().into_owned())
+        })
+        .collect();
+    Ok(Row { name, files, vals })
+}
+
+/// The eight cells of a row: mean ± sample std, the mean alone for one file.
+fn cells(r: &Row) -> Vec<String> {
+    (0..8)
+        .map(|i| {
+            let (m, s) = mean_std(&r.vals.iter().map(|v| v[i]).collect::<Vec<_>>());
+            if r.vals.len() > 1 {
+                format!("{m:>6.2}±{s:<4.2}")
+            } else {
+                format!("{m:>6.2}     ")
+            }
+        })
+        .collect()
+}
+
+/// A t value, or "-" where it is undefined (fewer than two files a side, or no spread).
+fn t_cell(t: f64) -> String {
+    if t.is_finite() {
+        format!("{t:5.2}")
+    } else {
+        "    -".to_string()
+    }
+}
+
+/// Each row's SR against the first row's: difference of the means, Welch's t, and the paired t
+/// where both rows hold the same file names.
+fn comparisons(rows: &[Row]) -> Vec<String> {
+    let Some((first, rest)) = rows.split_first() else {
+        return Vec::new();
+    };
+    let col = |v: &[[f64; 8]], i: usize| v.iter().map(|r| r[i]).collect::<Vec<_>>();
+    rest.iter()
+        .map(|r| {
+            let paired = r.files == first.files;
             let d = |i: usize| {
-                let (a, b) = (col(base, i), col(v, i));
+                let (a, b) = (col(&first.vals, i), col(&r.vals, i));
                 let p = if paired { paired_t(&a, &b) } else { f64::NAN };
                 (mean_std(&a).0 - mean_std(&b).0, welch_t(&a, &b), p)
             };
             let ((du, tu, pu), (ds, ts, ps)) = (d(0), d(4));
             let pcell = |p: f64| {
                 if paired {
-                    format!(", paired t {p:5.2}")
+                    format!(", paired t {}", t_cell(p))
                 } else {
                     String::new()
                 }
             };
-            println!(
-                "  − {name:<26} unseen {du:+6.2} (t {tu:5.2}{})  seen {ds:+6.2} (t {ts:5.2}{})",
+            format!(
+                "{:<26} unseen {du:+6.2} (t {}{})  seen {ds:+6.2} (t {}{})",
+                r.name,
+                t_cell(tu),
                 pcell(pu),
+                t_cell(ts),
                 pcell(ps)
-            );
-        }
+            )
+        })
+        .collect()
+}
+
+/// `gman table`: Table 2/3 layout from evaluation JSON files, then each row's SR against the
+/// first row's with Welch's t, and a paired t where both rows hold the same file names (the
+/// same seeds, e.g. a run evaluated with adaptation on and off).
+pub fn cmd_table(a: TableArgs) -> Result<()> {
+    let rows = a
+        .runs
+        .iter()
+        .map(|r| load_row(r))
+        .collect::<Result<Vec<_>>>()?;
+    if a.markdown {
+        print_markdown(&rows);
+    } else {
+        print_text(&rows);
     }
     Ok(())
+}
+
+fn print_text(rows: &[Row]) {
+    println!(
+        "{:<28} | {:^47} | {:^47}",
+        "Method", "Unseen Objects", "Seen Objects"
+    );
+    let heads = format!(
+        "{:>11} {:>11} {:>11} {:>11}",
+        METRICS[0], METRICS[1], METRICS[2], METRICS[3]
+    );
+    println!("{:<28} | {heads} | {heads}", "");
+    for r in rows {
+        let c = cells(r);
+        println!(
+            "{:<28} | {} | {}",
+            r.name,
+            c[..4].join(" "),
+            c[4..].join(" ")
+        );
+    }
+    println!("(mean ± sample std over the JSON files of each row; t is \"-\" with fewer than two files a side)");
+    let lines = comparisons(rows);
+    if !lines.is_empty() {
+        println!(
+            "SR against {} (difference of the means, Welch's t; paired t over the same \
+             file names where both rows have them):",
+            rows[0].name
+        );
+        for l in lines {
+            println!("  − {l}");
+        }
+    }
+}
+
+fn print_markdown(rows: &[Row]) {
+    let heads: Vec<String> = ["unseen", "seen"]
+        .iter()
+        .flat_map(|s| METRICS.iter().map(move |m| format!("{m} {s}")))
+        .collect();
+    println!("| method | {} |", heads.join(" | "));
+    println!("|---|{}", "---:|".repeat(8));
+    for r in rows {
+        let c: Vec<String> = cells(r).iter().map(|c| c.trim().to_string()).collect();
+        println!("| {} | {} |", r.name, c.join(" | "));
+    }
+    let lines = comparisons(rows);
+    if !lines.is_empty() {
+        println!();
+        println!(
+            "SR against {} (difference of the means, Welch's t; paired t over the same seeds):",
+            rows[0].name
+        );
+        println!();
+        for l in lines {
+            println!("* {}", l.split_whitespace().collect::<Vec<_>>().join(" "));
+        }
+    }
 }
 
 #[cfg(test)]
