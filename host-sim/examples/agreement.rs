@@ -9,8 +9,7 @@ use std::path::Path;
 use anyhow::{bail, Result};
 use gman_core::blob::Blob;
 use gman_core::navigator::{Efficient, Full, NavWeights, Navigator};
-use gman_host_sim::nav::model::load_model;
-use gman_host_sim::nav::K;
+use gman_host_sim::model::{load_model, K};
 use gman_host_sim::sim::{Env, EpisodeLimits, RewardKind, Split, World};
 
 fn main() -> Result<()> {

@@ -11,8 +11,8 @@ use std::path::Path;
 use std::sync::Arc;
 
 use anyhow::{bail, Result};
-use gman_host_sim::nav::agent::NavAgent;
-use gman_host_sim::nav::model::load_model;
+use gman_host_sim::eval::agent::NavAgent;
+use gman_host_sim::model::load_model;
 use gman_host_sim::sim::{
     evaluate, Agent, EpisodeLimits, EvalConfig, RandomAgent, RewardKind, Split, World,
 };

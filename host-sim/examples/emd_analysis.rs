@@ -15,8 +15,8 @@ use std::sync::Arc;
 
 use anyhow::{bail, Result};
 use gman_host_sim::emd_report;
-use gman_host_sim::nav::agent::NavAgent;
-use gman_host_sim::nav::model::load_model;
+use gman_host_sim::eval::agent::NavAgent;
+use gman_host_sim::model::load_model;
 use gman_host_sim::sim::{
     evaluate, EpisodeLimits, EvalConfig, EvalReport, RewardKind, Split, TargetKind, World,
 };

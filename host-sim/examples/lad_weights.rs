@@ -16,9 +16,9 @@ use anyhow::{bail, Result};
 use gman_core::adapt::cosine;
 use gman_core::discriminator::DiscScratch;
 use gman_core::navigator::{Efficient, Full, Mode, Navigator};
-use gman_host_sim::nav::model::{load_model, NavModel};
-use gman_host_sim::nav::rollout::eval_mode_is_efficient;
-use gman_host_sim::nav::K;
+use gman_host_sim::model::episode::eval_mode_is_efficient;
+use gman_host_sim::model::K;
+use gman_host_sim::model::{load_model, NavModel};
 use gman_host_sim::sim::spatial::MapGrid;
 use gman_host_sim::sim::{Env, EpisodeLimits, RewardKind, Split, World};
 

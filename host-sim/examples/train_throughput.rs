@@ -20,12 +20,13 @@ use anyhow::{bail, Context, Result};
 use gman_core::memory::AdaptMode;
 use gman_core::rng::Xoshiro128;
 use gman_core::Dims;
-use gman_host_sim::nav::model::{Method, NavModel};
-use gman_host_sim::nav::trainer::{train, RunSettings, TrainOptions, TrainState};
+use gman_host_sim::model::{Method, NavModel};
 use gman_host_sim::optim::adam::AdamConfig;
 use gman_host_sim::pretrain::generator::init_generator;
 use gman_host_sim::sim::types::Split;
 use gman_host_sim::sim::{World, DEFAULT_WORLD_SEED};
+use gman_host_sim::train::state::{RunSettings, TrainState};
+use gman_host_sim::train::trainer::{train, TrainOptions};
 
 struct Args {
     method: Method,

@@ -18,8 +18,7 @@ use gman_core::memory::AdaptMode;
 use gman_core::navigator::{Efficient, Full, Mode, Navigator};
 use serde::Serialize;
 
-use crate::nav::model::NavModel;
-use crate::nav::K;
+use crate::model::{NavModel, K};
 use crate::pretrain::fg::l2 as dist;
 use crate::sim::spatial::MapGrid;
 use crate::sim::{Env, EpisodeLimits, EpisodeSpec, RewardKind, TargetKind, World};

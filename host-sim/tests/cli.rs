@@ -498,7 +498,7 @@ fn ps_variant_blob_evaluates_with_its_ps_module() {
     assert!(ok, "{err}");
     // the PS module the blob's model holds is the one given, bit for bit (a short run's
     // episodes barely depend on it, so the results above alone would not tell)
-    use gman_host_sim::nav::model::{load_model, load_model_with_ps};
+    use gman_host_sim::model::{load_model, load_model_with_ps};
     let w1 = |ps: Option<&PathBuf>, from: &PathBuf| -> Vec<f32> {
         let m = match ps {
             Some(p) => load_model_with_ps(from, None, Some(p)).unwrap(),

@@ -10,7 +10,8 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
-use gman_host_sim::nav::trainer::{checkpoint_path, TrainState};
+use gman_host_sim::train::run_dir::checkpoint_path;
+use gman_host_sim::train::state::TrainState;
 
 fn tmp(name: &str) -> PathBuf {
     let d = std::env::temp_dir().join(format!("gman-mpi-{}-{name}", std::process::id()));

@@ -13,9 +13,8 @@ use std::sync::{Arc, Mutex, MutexGuard, OnceLock};
 use gman_core::blob::Blob;
 use gman_core::navigator::{Efficient, NavWeights, Navigator};
 use gman_core::{Action, Dims, FEATURE_DIM};
-use gman_host_sim::nav::agent::NavAgent;
-use gman_host_sim::nav::model::{load_model, Method, NavModel};
-use gman_host_sim::nav::trainer::{train, RunSettings, TrainOptions, TrainState};
+use gman_host_sim::eval::agent::NavAgent;
+use gman_host_sim::model::{load_model, Method, NavModel};
 use gman_host_sim::optim::adam::AdamConfig;
 use gman_host_sim::pretrain::generator::init_generator;
 use gman_host_sim::sim::offline::fixture::{write_fixture, write_fixture_named, FixtureInfo};
@@ -25,6 +24,8 @@ use gman_host_sim::sim::{
     evaluate, AgentState, Env, EpisodeLimits, EvalConfig, OracleAgent, RewardKind, Split, World,
     WorldSource,
 };
+use gman_host_sim::train::state::{RunSettings, TrainState};
+use gman_host_sim::train::trainer::{train, TrainOptions};
 use serde_json::Value;
 
 /// One test at a time: HDF5 locks every file it opens (flock), and a `gman` child process

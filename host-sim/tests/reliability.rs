@@ -547,7 +547,7 @@ fn case11_second_trainer_on_a_run_dir_is_refused() {
     // A writer in this process holds the lock: the binary is refused, the files untouched.
     let before = std::fs::read(run.join("metrics.csv")).unwrap();
     {
-        let _lock = gman_host_sim::nav::trainer::lock_run_dir(&run).unwrap();
+        let _lock = gman_host_sim::train::run_dir::lock_run_dir(&run).unwrap();
         let (ok, e) = resume(&run, 3, &[]);
         assert!(!ok && e.contains("in use by another trainer"), "{e}");
         assert_eq!(std::fs::read(run.join("metrics.csv")).unwrap(), before);
@@ -663,8 +663,8 @@ fn case12_13_14_metrics_repair_atomic_rewrite_and_stale_temporaries() {
 /// worker thread or two.
 #[test]
 fn eval_results_do_not_depend_on_the_thread_count() {
-    use gman_host_sim::nav::agent::NavAgent;
-    use gman_host_sim::nav::model::load_model;
+    use gman_host_sim::eval::agent::NavAgent;
+    use gman_host_sim::model::load_model;
     use gman_host_sim::sim::{evaluate, EvalConfig};
     let world = World::synthetic(gman_host_sim::sim::DEFAULT_WORLD_SEED);
     let episodes = world.episodes(Split::Val, Some(3)).unwrap();

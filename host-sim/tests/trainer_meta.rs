@@ -1,4 +1,4 @@
-//! The typed trainer settings of a training checkpoint (`nav::state::TrainerMeta`) against
+//! The typed trainer settings of a training checkpoint (`train::state::TrainerMeta`) against
 //! the untyped `trainer` object of format version 1 (no `version` key):
 //!
 //! * the version-1 metadata of
@@ -12,15 +12,16 @@ use std::path::{Path, PathBuf};
 
 use gman_core::memory::AdaptMode;
 use gman_core::Dims;
-use gman_host_sim::nav::model::{Method, NavModel};
-use gman_host_sim::nav::trainer::{
-    checkpoint_path, train, RunSettings, TrainOptions, TrainState, TrainerMeta, WorldId,
-    TRAINER_META_VERSION,
-};
+use gman_host_sim::model::{Method, NavModel};
 use gman_host_sim::optim::adam::AdamConfig;
 use gman_host_sim::optim::checkpoint::Checkpoint;
 use gman_host_sim::pretrain::generator::init_generator;
 use gman_host_sim::sim::{RewardKind, World};
+use gman_host_sim::train::run_dir::checkpoint_path;
+use gman_host_sim::train::state::{
+    RunSettings, TrainState, TrainerMeta, WorldId, TRAINER_META_VERSION,
+};
+use gman_host_sim::train::trainer::{train, TrainOptions};
 
 const FIXTURE: &str = include_str!("fixtures/base-0460aca-gman-tiny.meta.json");
 

@@ -8,7 +8,7 @@
 //!   gradients summed in that order exactly, and within a float tolerance of the batch-1 sum),
 //!   and a run is reproducible and resumes bit for bit;
 //! * the same for the methods with an inner loop (`gman`, ...: one navigator per episode,
-//!   per-row adapted heads and θ_i, [`gman_host_sim::nav::vec_adapt`]): `B = 1` is the
+//!   per-row adapted heads and θ_i, [`gman_host_sim::train::vec_adapt`]): `B = 1` is the
 //!   batch-1 update bit for bit, with `B > 1` each episode (actions, inner updates, D after
 //!   it) is the episode run alone, the gradient is the per-episode sum within float rounding,
 //!   runs are reproducible and resume bit for bit; `--meta-order 2` refuses `B > 1`.
@@ -16,17 +16,18 @@
 use gman_core::memory::AdaptMode;
 use gman_core::navigator::NoiseMode;
 use gman_core::Dims;
-use gman_host_sim::nav::a3c::{A3cConfig, Objective};
-use gman_host_sim::nav::lockstep::VecSettings;
-use gman_host_sim::nav::model::{Method, NavModel};
-use gman_host_sim::nav::rollout::{EpisodeStats, Worker};
-use gman_host_sim::nav::trainer::train_episode;
-use gman_host_sim::nav::trainer::{train, RunSettings, TrainOptions, TrainState};
-use gman_host_sim::nav::vec_rollout::run_worker;
+use gman_host_sim::model::{Method, NavModel};
 use gman_host_sim::optim::adam::AdamConfig;
 use gman_host_sim::optim::params::ParamSet;
 use gman_host_sim::pretrain::generator::init_generator;
 use gman_host_sim::sim::{EpisodeLimits, EpisodeSpec, RewardKind, World};
+use gman_host_sim::train::a3c::{A3cConfig, Objective};
+use gman_host_sim::train::lockstep::VecSettings;
+use gman_host_sim::train::rollout::{EpisodeStats, Worker};
+use gman_host_sim::train::state::{RunSettings, TrainState};
+use gman_host_sim::train::trainer::train_episode;
+use gman_host_sim::train::trainer::{train, TrainOptions};
+use gman_host_sim::train::vec_rollout::run_worker;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
@@ -350,7 +351,7 @@ fn batched_runs_are_reproducible_and_resume_bit_for_bit() {
     let b = tmp("resumed");
     let mut sb = state(Method::GmanNoemd);
     train(&world, &opts(b.clone(), 2, 3), &mut sb).unwrap();
-    let ck = gman_host_sim::nav::trainer::checkpoint_path(&b);
+    let ck = gman_host_sim::train::run_dir::checkpoint_path(&b);
     let (mut sb, t) = TrainState::load_with_settings(&ck).unwrap();
     assert_eq!(t.run.batch_envs, 3, "B is stored in the checkpoint");
     train(&world, &opts(b.clone(), 4, 3), &mut sb).unwrap();
@@ -634,7 +635,7 @@ fn adapting_batched_runs_are_reproducible_and_resume_bit_for_bit() {
         let b = tmp("adapt-resumed");
         let mut sb = st();
         train(&world, &opts(b.clone(), 2, 3), &mut sb).unwrap();
-        let ck = gman_host_sim::nav::trainer::checkpoint_path(&b);
+        let ck = gman_host_sim::train::run_dir::checkpoint_path(&b);
         let (mut sb, t) = TrainState::load_with_settings(&ck).unwrap();
         assert_eq!(t.run.batch_envs, 3, "B is stored in the checkpoint");
         train(&world, &opts(b.clone(), 4, 3), &mut sb).unwrap();

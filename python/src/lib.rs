@@ -13,9 +13,8 @@ use std::sync::{Arc, Mutex, OnceLock};
 
 use gman_core::navigator::{Efficient, Full, Navigator};
 use gman_core::{Action, ATTR_DIM, FEATURE_DIM, NUM_ACTIONS};
-use gman_host_sim::nav::agent::NavAgent;
-use gman_host_sim::nav::model::{load_model, model_from_blob, NavModel};
-use gman_host_sim::nav::K;
+use gman_host_sim::eval::agent::NavAgent;
+use gman_host_sim::model::{load_model, model_from_blob, NavModel, K};
 use gman_host_sim::sim::eval::AgentFactory;
 use gman_host_sim::sim::spatial::MapGrid;
 use gman_host_sim::sim::{
@@ -942,7 +941,7 @@ impl PyNavigator {
     fn from_blob(blob: &Bound<'_, PyBytes>) -> PyResult<PyNavigator> {
         let model =
             model_from_blob(blob.as_bytes(), None).map_err(|e| chain_err(e.context("blob")))?;
-        let efficient = gman_host_sim::nav::rollout::eval_mode_is_efficient(&model);
+        let efficient = gman_host_sim::model::episode::eval_mode_is_efficient(&model);
         let method = model.method.name();
         let dims = model.dims;
         let arena = vec![0.0; model.arena_len()];

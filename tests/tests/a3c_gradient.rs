@@ -1,4 +1,4 @@
-//! The A3C loss gradient of the trainer (`gman_host_sim::nav::bptt::segment_backward`, BPTT
+//! The A3C loss gradient of the trainer (`gman_host_sim::train::bptt::segment_backward`, BPTT
 //! through gman-core's policy and generator kernels) against central finite differences of
 //! the same loss computed by the independent f64 reference, on a tiny network.
 
@@ -7,10 +7,10 @@ use gman_core::matrix::MatRef;
 use gman_core::navigator::{Full, NavConfig, NavWeights, Navigator, Schedule, Selection};
 use gman_core::rng::{fill_gaussian, uniform, Xoshiro128};
 use gman_core::Dims;
-use gman_host_sim::nav::a3c::{output_grads, A3cConfig};
-use gman_host_sim::nav::bptt::segment_backward;
-use gman_host_sim::nav::step::StepRec;
 use gman_host_sim::optim::params::{Param, ParamSet};
+use gman_host_sim::train::a3c::{output_grads, A3cConfig};
+use gman_host_sim::train::bptt::segment_backward;
+use gman_host_sim::train::step::StepRec;
 use gman_tests::reference::{finite_diff, lrelu, rel_err, Dense64, Gen64, Lstm64};
 
 const TINY: Dims = Dims {

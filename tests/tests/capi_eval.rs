@@ -8,8 +8,8 @@ use std::ptr::{null, null_mut};
 use std::sync::Arc;
 
 use gman_ffi::*;
-use gman_host_sim::nav::agent::NavAgent;
-use gman_host_sim::nav::model::load_model;
+use gman_host_sim::eval::agent::NavAgent;
+use gman_host_sim::model::load_model;
 use gman_host_sim::sim::spatial::MapGrid;
 use gman_host_sim::sim::{
     evaluate, Agent, Env, EpisodeSpec, EvalConfig, Split, TargetInfo, World, DEFAULT_WORLD_SEED,

@@ -1,4 +1,4 @@
-//! The second-order meta-gradient (`gman_host_sim::nav::meta`, `--meta-order 2`) against
+//! The second-order meta-gradient (`gman_host_sim::train::meta`, `--meta-order 2`) against
 //! central finite differences of the whole inner-then-outer computation on a tiny model.
 //!
 //! A K = 3 navigator (Full mode, Manual schedule) runs three segments of three steps with two
@@ -21,13 +21,13 @@ use gman_core::matrix::MatRef;
 use gman_core::navigator::{Full, NavConfig, NavWeights, Navigator, Schedule, Selection};
 use gman_core::rng::{fill_gaussian, uniform, Xoshiro128};
 use gman_core::{Dims, NUM_ACTIONS};
-use gman_host_sim::nav::a3c::{output_grads, A3cConfig};
-use gman_host_sim::nav::bptt::segment_backward;
-use gman_host_sim::nav::meta::{
+use gman_host_sim::optim::params::{Param, ParamSet};
+use gman_host_sim::train::a3c::{output_grads, A3cConfig};
+use gman_host_sim::train::bptt::segment_backward;
+use gman_host_sim::train::meta::{
     inner_grads, meta_backward, take_adapted, InnerSetup, InnerStep, PHI, THETA,
 };
-use gman_host_sim::nav::step::StepRec;
-use gman_host_sim::optim::params::{Param, ParamSet};
+use gman_host_sim::train::step::StepRec;
 use gman_tests::reference::{
     adapt_loss, finite_diff, lrelu, rel_err, Dense64, Disc64, Gen64, Lstm64,
 };

@@ -9,13 +9,13 @@ use gman_core::memory::AdaptMode;
 use gman_core::navigator::StepRule;
 use gman_core::navigator::{Efficient, Full, Mode, Navigator, Selection};
 use gman_core::schema::AdaptLossKind;
-use gman_host_sim::nav::model::{InnerRule, Method, NavModel};
-use gman_host_sim::nav::rollout::Worker;
-use gman_host_sim::nav::trainer::train_episode;
-use gman_host_sim::nav::K;
+use gman_host_sim::model::K;
+use gman_host_sim::model::{InnerRule, Method, NavModel};
 use gman_host_sim::optim::params::{Init, ParamSet};
 use gman_host_sim::sim::spatial::MapGrid;
 use gman_host_sim::sim::{Env, EpisodeSpec, RewardKind, World};
+use gman_host_sim::train::rollout::Worker;
+use gman_host_sim::train::trainer::train_episode;
 use rand::SeedableRng;
 
 /// A GMAN model with a random (not zero) generator and a fast inner loop, so adaptation

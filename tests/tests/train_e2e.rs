@@ -9,15 +9,16 @@ use gman_core::blob::Blob;
 use gman_core::memory::Footprint;
 use gman_core::navigator::{Efficient, NavConfig, NavWeights, Navigator, NoiseMode, Selection};
 use gman_core::Dims;
-use gman_host_sim::nav::agent::NavAgent;
-use gman_host_sim::nav::model::{load_model, Method, NavModel};
-use gman_host_sim::nav::trainer::{train, RunSettings, TrainOptions, TrainState};
+use gman_host_sim::eval::agent::NavAgent;
+use gman_host_sim::model::{load_model, Method, NavModel};
 use gman_host_sim::optim::adam::AdamConfig;
 use gman_host_sim::pretrain::fg::{self, FgCollectConfig, FgTrainConfig};
 use gman_host_sim::pretrain::generator::init_generator;
 use gman_host_sim::sim::{
     evaluate, Env, EpisodeLimits, EvalConfig, EvalReport, RandomAgent, RewardKind, Split, World,
 };
+use gman_host_sim::train::state::{RunSettings, TrainState};
+use gman_host_sim::train::trainer::{train, TrainOptions};
 
 fn tmp(name: &str) -> PathBuf {
     let d = std::env::temp_dir().join(format!("gman-e2e-{}-{name}", std::process::id()));
@@ -276,7 +277,7 @@ fn exported_int8_blob_host_path_and_core_api_agree() {
 
     // The host path reads the blob in place in the device's mode: probabilities agree bit for
     // bit with the bare navigator (a dequantised f32 copy in Full mode would not).
-    assert!(gman_host_sim::nav::rollout::eval_mode_is_efficient(&host));
+    assert!(gman_host_sim::model::episode::eval_mode_is_efficient(&host));
     let blob = Blob::parse(&blob_bytes).unwrap();
     // The host's fast layout against the device's compact one.
     let (mut a1, mut a2) = (
@@ -334,7 +335,7 @@ fn blob_carries_the_inner_loop_settings_to_the_device_config() {
             (lr, lr, cap),
             "{method:?}"
         );
-        let back = gman_host_sim::nav::model::model_from_blob(&bytes, None).unwrap();
+        let back = gman_host_sim::model::model_from_blob(&bytes, None).unwrap();
         assert_eq!(
             (back.inner_lr, back.max_inner, back.noise),
             (lr, cap, noise)
@@ -374,8 +375,8 @@ fn blob_carries_the_inner_loop_settings_to_the_device_config() {
 /// a short order-2 run trains to finite parameters and records its order.
 #[test]
 fn meta_order_two_changes_only_the_generator_gradient() {
-    use gman_host_sim::nav::rollout::Worker;
-    use gman_host_sim::nav::trainer::train_episode;
+    use gman_host_sim::train::rollout::Worker;
+    use gman_host_sim::train::trainer::train_episode;
     use rand::SeedableRng;
     let world = World::synthetic(7);
     let model = gman_model(1);
@@ -458,8 +459,8 @@ fn meta_order_two_changes_only_the_generator_gradient() {
 /// separate "θ is trained" from "the EMD adapts".
 #[test]
 fn gman_noemd_trains_the_generator_without_adapting() {
-    use gman_host_sim::nav::rollout::Worker;
-    use gman_host_sim::nav::trainer::train_episode;
+    use gman_host_sim::train::rollout::Worker;
+    use gman_host_sim::train::trainer::train_episode;
     use rand::SeedableRng;
     let world = World::synthetic(7);
     let mut rng = gman_core::rng::Xoshiro128::seed_from_u64(5);

@@ -7,9 +7,8 @@ use std::time::Instant;
 
 use anyhow::{Context, Result};
 use clap::Args;
-use gman_host_sim::nav::agent::NavAgent;
-use gman_host_sim::nav::model::{Method, NavModel};
-use gman_host_sim::nav::trainer::{checkpoint_path, train, RunSettings, TrainOptions, TrainState};
+use gman_host_sim::eval::agent::NavAgent;
+use gman_host_sim::model::{Method, NavModel};
 use gman_host_sim::optim::adam::AdamConfig;
 use gman_host_sim::pretrain::fg::{self};
 use gman_host_sim::sim::eval::drive;
@@ -18,6 +17,9 @@ use gman_host_sim::sim::{
     mean_interval, wilson_interval, Agent, EpisodeResult, EpisodeSpec, EvalReport, RewardKind,
     TargetKind, World,
 };
+use gman_host_sim::train::run_dir::checkpoint_path;
+use gman_host_sim::train::state::{RunSettings, TrainState};
+use gman_host_sim::train::trainer::{train, TrainOptions};
 use serde::Serialize;
 
 use super::args::{PresetArg, WorldArgs};

@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use anyhow::{bail, Context, Result};
 use clap::Args;
 use gman_host_sim::emd_report::{self, Summary};
-use gman_host_sim::nav::model::{load_model, NavModel};
+use gman_host_sim::model::{load_model, NavModel};
 use gman_host_sim::sim::{Split, TargetKind, World};
 use serde::Serialize;
 
@@ -24,7 +24,7 @@ pub struct EmdReportArgs {
     /// Treat the model as this method (e.g. measure an `a3c-fg` checkpoint as
     /// `gman-nometa`: the pre-trained G, adapted at test time only).
     #[arg(long, value_name = "METHOD")]
-    pub method: Option<gman_host_sim::nav::model::Method>,
+    pub method: Option<gman_host_sim::model::Method>,
     /// Split whose official episodes are run (val or test).
     #[arg(long, default_value = "val")]
     pub split: String,
@@ -71,7 +71,7 @@ struct Report<'a> {
     split: &'a str,
     inner_lr: f32,
     max_inner: u32,
-    inner_rule: gman_host_sim::nav::model::InnerRule,
+    inner_rule: gman_host_sim::model::InnerRule,
     mode: &'a str,
     seen: Summary,
     unseen: Summary,

@@ -29,7 +29,7 @@ pub struct EvalArgs {
     /// Treat a model file as this method (e.g. evaluate an `a3c-fg` checkpoint as
     /// `gman-nometa`: adversarial adaptation at test time only).
     #[arg(long, value_enum)]
-    pub method: Option<gman_host_sim::nav::model::Method>,
+    pub method: Option<gman_host_sim::model::Method>,
     /// Override the model's inner-loop rate α (α1 = α2) at evaluation (checkpoints store the
     /// rate they were trained with; blobs do not and default to the paper's 1e-4).
     #[arg(long, value_name = "ALPHA")]

@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use anyhow::{bail, Context, Result};
 use clap::{Args, ValueEnum};
 use gman_host_sim::blob_edit::reencode_with_activations;
-use gman_host_sim::nav::model::load_model;
+use gman_host_sim::model::load_model;
 
 use super::args::PresetArg;
 

@@ -5,8 +5,8 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use anyhow::{bail, Context, Result};
-use gman_host_sim::nav::agent::NavAgent;
-use gman_host_sim::nav::model::{load_model_with_ps, Method};
+use gman_host_sim::eval::agent::NavAgent;
+use gman_host_sim::model::{load_model_with_ps, Method};
 use gman_host_sim::sim::eval::AgentFactory;
 use gman_host_sim::sim::{OracleAgent, RandomAgent};
 

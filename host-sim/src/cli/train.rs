@@ -4,15 +4,15 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{anyhow, bail, Context, Result};
-use gman_host_sim::nav::dist::{Group, Single};
-use gman_host_sim::nav::model::NavModel;
-use gman_host_sim::nav::trainer::{
-    checkpoint_path, train_in, Distributed, RunSettings, TrainState, WorldId,
-};
+use gman_host_sim::model::NavModel;
 use gman_host_sim::optim::adam::AdamConfig;
 use gman_host_sim::pretrain::fg::{self, FgCollectConfig, FgTrainConfig};
 use gman_host_sim::pretrain::ps::{self, PsDataConfig, PsModule, PsTrainConfig};
 use gman_host_sim::sim::World;
+use gman_host_sim::train::dist::{Group, Single};
+use gman_host_sim::train::run_dir::checkpoint_path;
+use gman_host_sim::train::state::{RunSettings, TrainState, WorldId};
+use gman_host_sim::train::trainer::{train_in, Distributed};
 
 use super::args::{PresetArg, WorldArgs};
 use super::train_config::{
@@ -120,8 +120,8 @@ fn world_identity(w: &WorldArgs, world: &World) -> Result<WorldId> {
 /// `--workers` per rank (see `docs/distributed.md`).
 pub fn cmd_train(a: TrainArgs, explicit: &dyn Fn(&str) -> bool) -> Result<()> {
     #[cfg(feature = "mpi")]
-    if gman_host_sim::nav::mpi::launched_by_mpi() {
-        let mut g = gman_host_sim::nav::mpi::MpiGroup::init()?;
+    if gman_host_sim::train::mpi::launched_by_mpi() {
+        let mut g = gman_host_sim::train::mpi::MpiGroup::init()?;
         let r = train_on(a, explicit, &mut g);
         if let Err(e) = &r {
             if g.size() > 1 {
@@ -175,7 +175,7 @@ fn train_on(
     }
     let run_dir = a.resume.clone().or_else(|| a.out.clone());
     let _lock = match (&run_dir, lead) {
-        (Some(d), true) => Some(gman_host_sim::nav::trainer::lock_run_dir(d)?),
+        (Some(d), true) => Some(gman_host_sim::train::run_dir::lock_run_dir(d)?),
         _ => None,
     };
     let world = load_world(&a)?;

@@ -12,11 +12,12 @@ use clap::{Args, ValueEnum};
 use gman_core::memory::AdaptMode;
 use gman_core::navigator::{NoiseMode, StepRule};
 use gman_core::schema::AdaptLossKind;
-use gman_host_sim::nav::a3c::{A3cConfig, Objective};
-use gman_host_sim::nav::model::{InnerRule, Method, ModelSpec, NavModel};
-use gman_host_sim::nav::trainer::{RunSettings, TrainOptions};
+use gman_host_sim::model::{InnerRule, Method, ModelSpec, NavModel};
 use gman_host_sim::optim::adam::AdamConfig;
 use gman_host_sim::sim::RewardKind;
+use gman_host_sim::train::a3c::{A3cConfig, Objective};
+use gman_host_sim::train::state::RunSettings;
+use gman_host_sim::train::trainer::TrainOptions;
 
 use super::args::{named, PresetArg, WorldArgs};
 
@@ -89,7 +90,7 @@ pub struct TrainArgs {
     #[arg(help_heading = "Inner loop (adaptation)", long, default_value_t = 1e-4)]
     pub inner_lr: f32,
     /// At most this many inner updates per episode (GMAN variants).
-    #[arg(help_heading = "Inner loop (adaptation)", long, default_value_t = gman_host_sim::nav::model::DEFAULT_MAX_INNER)]
+    #[arg(help_heading = "Inner loop (adaptation)", long, default_value_t = gman_host_sim::model::DEFAULT_MAX_INNER)]
     pub max_inner: u32,
     /// α1 alone, D's ascent rate on L_D (default: --inner-lr, the paper's α1 = α2).
     #[arg(help_heading = "Inner loop (adaptation)", long, value_name = "ALPHA1")]
@@ -482,7 +483,7 @@ impl RunConfig {
         if r.workers == 0 || r.workers > MAX_WORKERS {
             bail!("--workers {} must be in 1..={MAX_WORKERS}", r.workers);
         }
-        let max_b = gman_host_sim::nav::lockstep::MAX_BATCH_ENVS;
+        let max_b = gman_host_sim::train::lockstep::MAX_BATCH_ENVS;
         if r.batch_envs == 0 || r.batch_envs > max_b {
             bail!("--batch-envs {} must be in 1..={max_b}", r.batch_envs);
         }

@@ -8,7 +8,7 @@
 //! * [`parallel`]: fixed-chunk, order-deterministic gradient accumulation on rayon.
 //!
 //! The pre-training stages live in [`crate::pretrain`], the navigation trainer (`gman
-//! train`) in [`crate::nav`].
+//! train`) in [`crate::train`].
 
 pub mod adam;
 pub mod checkpoint;

@@ -191,26 +191,10 @@ pub fn appearance_box(
         (lower - pitch).abs().min((upper - pitch).abs())
     };
     let in_fov = h_eff <= half && v_eff <= half;
-    if !in_fov {
-        return Appearance {
-            footprint_distance: fd,
-            in_fov,
-            weight: 0.0,
-        };
-    }
-    let dc = ((b.center[0] - px).powi(2) + (b.center[2] - pz).powi(2)).sqrt();
-    let d3 = (dc * dc + (b.center[1] - CAMERA_HEIGHT).powi(2))
-        .sqrt()
-        .max(0.2);
-    let hc = h_eff / half;
-    let vc = v_eff / half;
-    let centrality = (1.0 - 0.6 * hc * hc).max(0.0) * (1.0 - 0.6 * vc * vc).max(0.0);
-    let weight = (0.8 * props.size / d3).min(1.0) * centrality;
-    Appearance {
-        footprint_distance: fd,
-        in_fov,
-        weight,
-    }
+    Appearance::seen(fd, in_fov, || {
+        let dc = ((b.center[0] - px).powi(2) + (b.center[2] - pz).powi(2)).sqrt();
+        (dc, b.center[1], props.size, h_eff / half, v_eff / half)
+    })
 }
 
 /// How an object appears from a camera pose (ignoring occlusion).
@@ -222,6 +206,32 @@ pub struct Appearance {
     pub in_fov: bool,
     /// Share of the view the object fills, in [0, 1] (0 when outside the field of view).
     pub weight: f32,
+}
+
+impl Appearance {
+    /// The appearance of an object at footprint distance `fd`: outside the field of view
+    /// (`in_fov` false) no share of the view; inside it, `view()`'s `(dc, y, size, hc, vc)`
+    /// (horizontal distance to the centre, the centre's height, the category's size, the
+    /// angular offsets in half fields of view) give the share: the size over the 3-D
+    /// distance (at least 0.2 m), at most 1, times the offsets' centrality.
+    fn seen(fd: f32, in_fov: bool, view: impl FnOnce() -> (f32, f32, f32, f32, f32)) -> Self {
+        if !in_fov {
+            return Appearance {
+                footprint_distance: fd,
+                in_fov,
+                weight: 0.0,
+            };
+        }
+        let (dc, y, size, hc, vc) = view();
+        let d3 = (dc * dc + (y - CAMERA_HEIGHT).powi(2)).sqrt().max(0.2);
+        let centrality = (1.0 - 0.6 * hc * hc).max(0.0) * (1.0 - 0.6 * vc * vc).max(0.0);
+        let weight = (0.8 * size / d3).min(1.0) * centrality;
+        Appearance {
+            footprint_distance: fd,
+            in_fov,
+            weight,
+        }
+    }
 }
 
 /// Where `obj` (centre, category props) appears from position (px, pz) with `heading`/`horizon`.
@@ -255,23 +265,11 @@ pub fn appearance(
     let pitch = -(horizon as f32) * HORIZON_STEP_DEG;
     let v_off = (elev - pitch).abs();
     let in_fov = h_off <= half + ext && v_off <= half + ext;
-    if !in_fov {
-        return Appearance {
-            footprint_distance: fd,
-            in_fov,
-            weight: 0.0,
-        };
-    }
-    let d3 = (dc * dc + (obj[1] - CAMERA_HEIGHT).powi(2)).sqrt().max(0.2);
-    let hc = (h_off - ext).max(0.0) / half;
-    let vc = (v_off - ext).max(0.0) / half;
-    let centrality = (1.0 - 0.6 * hc * hc).max(0.0) * (1.0 - 0.6 * vc * vc).max(0.0);
-    let weight = (0.8 * props.size / d3).min(1.0) * centrality;
-    Appearance {
-        footprint_distance: fd,
-        in_fov,
-        weight,
-    }
+    Appearance::seen(fd, in_fov, || {
+        let hc = (h_off - ext).max(0.0) / half;
+        let vc = (v_off - ext).max(0.0) / half;
+        (dc, obj[1], props.size, hc, vc)
+    })
 }
 
 /// Line of sight over the grid from (px, pz) to the object centre (ox, oz).

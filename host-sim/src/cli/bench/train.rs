@@ -9,7 +9,7 @@
 //! every row of a preset (an update holds at least `B` episodes per worker) and at least
 //! [`MIN_TIMED_SECS`] seconds. Each row runs in `gman train`'s default adaptation mode for its preset (`efficient` for `mcu`, `full` for
 //! `paper`); `gman`'s `B > 1` rows (`mcu` only) run one navigator per episode
-//! (`gman_host_sim::nav::vec_adapt`).
+//! (`gman_host_sim::train::vec_adapt`).
 
 use std::time::Instant;
 
@@ -17,11 +17,12 @@ use anyhow::{Context, Result};
 use gman_core::memory::AdaptMode;
 use gman_core::rng::Xoshiro128;
 use gman_core::Dims;
-use gman_host_sim::nav::model::{Method, NavModel};
-use gman_host_sim::nav::trainer::{train, RunSettings, TrainOptions, TrainState};
+use gman_host_sim::model::{Method, NavModel};
 use gman_host_sim::optim::adam::AdamConfig;
 use gman_host_sim::pretrain::generator::init_generator;
 use gman_host_sim::sim::{World, DEFAULT_WORLD_SEED};
+use gman_host_sim::train::state::{RunSettings, TrainState};
+use gman_host_sim::train::trainer::{train, TrainOptions};
 use serde_json::{json, Value};
 
 /// The batched settings the bench measures next to `--batch-envs 1` (an update holds at least

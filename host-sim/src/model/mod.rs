@@ -1,4 +1,9 @@
-//! Navigation models: the methods of the paper's tables and their parameters.
+//! Navigation models: the methods of the paper's tables and their parameters, what a
+//! checkpoint or blob holds of them, and what every episode of a model does first
+//! ([`episode`]: the navigator started on a target, the PS input, the map grid), in training
+//! ([`crate::train`]) and in evaluation ([`crate::eval`]) alike.
+//!
+//! This folder imports neither: training and evaluation build on it.
 
 use std::path::Path;
 
@@ -19,6 +24,11 @@ use serde::{Deserialize, Serialize};
 use crate::optim::checkpoint::Checkpoint;
 use crate::optim::params::{Init, Param, ParamSet};
 use crate::pretrain::ps::PsModule;
+
+pub mod episode;
+
+/// Capacity k of the navigation buffer Ψ (the paper's k = 20).
+pub const K: usize = 20;
 
 /// When the inner loop of Algorithm 1 (the EMD's adaptation) runs.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -784,17 +794,13 @@ pub fn load_model_with_ps(
     Ok(m)
 }
 
-/// Floats of a navigator arena (capacity [`super::K`]) that fits `dims` in either adaptation
+/// Floats of a navigator arena (capacity [`K`]) that fits `dims` in either adaptation
 /// mode with the host's [`Footprint::Fast`].
 pub fn host_arena_len(dims: &Dims) -> usize {
     use gman_core::navigator::{Efficient, Full, Navigator};
-    Navigator::<Full, { super::K }>::arena_len_for(dims, Footprint::Fast).max(Navigator::<
-        Efficient,
-        { super::K },
-    >::arena_len_for(
-        dims,
-        Footprint::Fast,
-    ))
+    Navigator::<Full, { K }>::arena_len_for(dims, Footprint::Fast).max(
+        Navigator::<Efficient, { K }>::arena_len_for(dims, Footprint::Fast),
+    )
 }
 
 /// The model settings of a checkpoint's metadata: every top-level key but `trainer`.

@@ -16,9 +16,8 @@ use anyhow::{anyhow, Result};
 use gman_core::navigator::{Efficient, Full, Mode, Navigator};
 use gman_core::Action;
 
-use super::model::NavModel;
-use super::rollout::{begin_on, eval_mode_is_efficient, map_grid, ps_input};
-use super::K;
+use crate::model::episode::{begin_on, eval_mode_is_efficient, map_grid, ps_input};
+use crate::model::{NavModel, K};
 use crate::pretrain::ps::PsBuffers;
 use crate::sim::{Agent, Env, TargetInfo};
 

@@ -50,7 +50,7 @@
 //!   like GMAN does, so comparing it with `gman` isolates what the inner loop (the EMD) adds
 //!   and comparing it with `a3c-fg` what training θ adds (README "Results").
 //! * **Adaptation mode.** The inner loop runs in the mode the model will run in on the
-//!   device ([`NavModel::adapt_mode`](super::model::NavModel::adapt_mode), `--adapt-mode`,
+//!   device ([`NavModel::adapt_mode`](crate::model::NavModel::adapt_mode), `--adapt-mode`,
 //!   Efficient by default for `mcu`): in `Efficient` the segment gradients of θ and of the
 //!   actor head are taken through the adapted per-unit gains, exactly the parameters the
 //!   robot adapts. The exported blob records the mode.
@@ -82,23 +82,18 @@ use super::dist::{
 use super::inner::{finish_stats, inner_update, InnerTally};
 use super::lockstep::{check_batch_envs, VecSettings};
 use super::meta::{add_adapted, meta_backward, take_adapted, InnerSetup, InnerStep};
-use super::model::NavModel;
 use super::rollout::{
-    begin, bootstrap_value, disc_after_episode, expert_distribution, map_grid, ps_input,
-    EpisodeStats, Worker,
+    bootstrap_value, disc_after_episode, expert_distribution, EpisodeStats, Worker,
 };
-use super::run_dir::open_csv;
+use super::run_dir::{checkpoint_path, lock_run_dir, open_csv};
+use super::state::{RunSettings, TrainState};
 use super::step::StepRec;
 use super::vec_rollout;
-use super::K;
+use crate::model::episode::{begin, map_grid, ps_input};
+use crate::model::{NavModel, K};
 use crate::optim::params::ParamSet;
 use crate::sim::spatial::MapGrid;
 use crate::sim::{Env, EpisodeLimits, EpisodeSpec, RewardKind, World};
-
-pub use super::run_dir::{
-    checkpoint_path, lock_run_dir, repair_csv, CsvRepair, RunLock, LOCK_FILE,
-};
-pub use super::state::{RunSettings, TrainState, TrainerMeta, WorldId, TRAINER_META_VERSION};
 
 /// Options of one training invocation: the run's stored settings and what only this
 /// invocation decides.

@@ -96,11 +96,10 @@ use super::lockstep::{
     lockstep, put_row, BackwardCtx, Finished, PendingSeg, Recording, RowState, SegQueue, Share,
     StepInputs, VecSettings,
 };
-use super::model::NavModel;
-use super::rollout::Worker;
-use super::rollout::{begin, disc_after_episode, expert_distribution, map_grid, EpisodeStats};
+use super::rollout::{disc_after_episode, expert_distribution, EpisodeStats, Worker};
 use super::step::StepRec;
-use super::K;
+use crate::model::episode::{begin, map_grid};
+use crate::model::{NavModel, K};
 use crate::optim::params::ParamSet;
 use crate::pretrain::ps::PsBuffers;
 use crate::sim::spatial::MapGrid;
@@ -788,10 +787,10 @@ fn bootstrap<M: Mode>(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::nav::a3c::A3cConfig;
-    use crate::nav::model::Method;
+    use crate::model::Method;
     use crate::pretrain::generator::init_generator;
     use crate::sim::RewardKind;
+    use crate::train::a3c::A3cConfig;
     use gman_core::dense::Dense;
     use gman_core::generator::Generator;
     use gman_core::matrix::MatRef;

@@ -1,6 +1,6 @@
 //! What a training run's checkpoint holds besides the model: the counters, Adam's state and
 //! the run's settings, typed and serde-serialised ([`TrainerMeta`], the `trainer` object of
-//! the checkpoint's metadata, beside the model's [`ModelMeta`](super::model::ModelMeta)).
+//! the checkpoint's metadata, beside the model's [`ModelMeta`](crate::model::ModelMeta)).
 //!
 //! # Versions of the `trainer` object
 //! * **1** (no `version` key): written by every build before the settings were typed. The
@@ -18,7 +18,7 @@ use anyhow::{anyhow, bail, Result};
 use serde::{Deserialize, Serialize};
 
 use super::a3c::{A3cConfig, Objective};
-use super::model::{Method, NavModel};
+use crate::model::{Method, NavModel};
 use crate::optim::adam::{Adam, AdamConfig};
 use crate::optim::checkpoint::Checkpoint;
 use crate::sim::{ObjectLayout, RewardKind};
@@ -310,7 +310,7 @@ pub struct TrainerMeta {
     /// A copy of the model's settings as the checkpoint was written (the metadata's top-level
     /// keys other than `trainer`), so that settings the tensors cannot show (a 3 x 3 map
     /// relabelled 1 x 9, the adaptation mode) are not changed unnoticed
-    /// ([`check_model_record`](super::model::check_model_record)); absent in checkpoints of older builds.
+    /// ([`check_model_record`](crate::model::check_model_record)); absent in checkpoints of older builds.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub model: Option<serde_json::Value>,
 }

@@ -1,20 +1,18 @@
-//! Running episodes with gman-core's navigator: the per-worker buffers and the pieces the
-//! training episode ([`super::trainer::train_episode`], [`super::vec_rollout`]) shares with
-//! evaluation ([`super::agent::NavAgent`], the device's schedule).
+//! A training episode's pieces around gman-core's navigator: the per-worker buffers, an
+//! episode's summary, the oracle's action distribution, the bootstrap value of a segment
+//! and D's carry-over to the next episode (what every episode of a model does first, in
+//! training and in evaluation, is in [`crate::model::episode`]).
 
 use anyhow::Result;
-use gman_core::memory::AdaptMode;
 use gman_core::navigator::{Mode, Navigator};
 use gman_core::policy::PolicyInput;
 use gman_core::{Action, NUM_ACTIONS};
 
 use super::a3c::SegmentLoss;
 use super::bptt::{Rows, Widths};
-use super::model::NavModel;
-use super::K;
+use crate::model::{NavModel, K};
 use crate::pretrain::ps::PsBuffers;
-use crate::sim::spatial::MapGrid;
-use crate::sim::{CategoryId, Env, EpisodeSpec, SceneId, World};
+use crate::sim::Env;
 
 /// Summary of a training episode.
 #[derive(Clone, Debug, Default)]
@@ -58,42 +56,6 @@ pub fn expert_distribution(env: &Env<'_>) -> [f32; NUM_ACTIONS] {
     e
 }
 
-/// Starts `nav` on `spec`'s target: SE(y) and the episode seed, and for the
-/// privileged-feature bound the target's true feature in the scene as x_t.
-pub(crate) fn begin<M: Mode>(
-    nav: &mut Navigator<'_, M, K>,
-    world: &World,
-    spec: &EpisodeSpec,
-    model: &NavModel,
-) -> Result<()> {
-    begin_on(nav, world, spec.scene, spec.target, spec.seed, model)
-}
-
-/// [`begin`] on the episode towards `target` in `scene` with seed `seed`, whoever holds
-/// the navigator's arena.
-pub(crate) fn begin_on<M: Mode, S: AsRef<[f32]> + AsMut<[f32]>>(
-    nav: &mut Navigator<'_, M, K, S>,
-    world: &World,
-    scene: SceneId,
-    target: CategoryId,
-    seed: u64,
-    model: &NavModel,
-) -> Result<()> {
-    nav.reset(world.attributes(target), seed)?;
-    if model.privileged {
-        nav.fix_generated_feature(&world.object_feature(scene, target))?;
-    }
-    Ok(())
-}
-
-/// The map grid of `model` (empty without a map).
-pub(crate) fn map_grid(model: &NavModel) -> MapGrid {
-    MapGrid {
-        rows: model.dims.map_rows,
-        cols: model.dims.map_cols,
-    }
-}
-
 /// Per-worker buffers reused across episodes.
 pub struct Worker {
     /// The navigator's arena.
@@ -116,20 +78,6 @@ impl Worker {
             map: vec![0.0; model.dims.map_len()],
             arenas: Vec::new(),
         }
-    }
-}
-
-pub(crate) fn ps_input(
-    model: &NavModel,
-    buf: &mut Option<PsBuffers>,
-    obs: &[f32],
-) -> Result<Vec<f32>> {
-    match (&model.ps, buf) {
-        (Some(ps), Some(b)) => {
-            ps.forward_buf(obs, b)?;
-            Ok(b.y.clone())
-        }
-        _ => Ok(Vec::new()),
     }
 }
 
@@ -176,9 +124,4 @@ pub(crate) fn disc_after_episode<M: Mode>(nav: &Navigator<'_, M, K>) -> Result<V
         }
     }
     Ok(vec![w1, d.l1.b.to_vec(), d.w2.to_vec(), vec![d.b2]])
-}
-
-/// True when `model` runs in the `Efficient` adaptation mode (what the microcontroller runs).
-pub fn eval_mode_is_efficient(model: &NavModel) -> bool {
-    model.adapt_mode == AdaptMode::Efficient
 }

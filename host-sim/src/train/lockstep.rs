@@ -12,10 +12,10 @@ use gman_core::{Dims, NUM_ACTIONS};
 
 use super::a3c::{A3cConfig, Objective, SegmentLoss};
 use super::bptt::{Adapted, Backward, GenBufs, Rows, Segment, StepAct, Widths};
-use super::model::NavModel;
-use super::rollout::{ps_input, EpisodeStats, Worker};
+use super::rollout::{EpisodeStats, Worker};
 use super::step::StepRec;
-use super::K;
+use crate::model::episode::ps_input;
+use crate::model::{NavModel, K};
 use crate::optim::params::ParamSet;
 use crate::pretrain::ps::PsBuffers;
 use crate::sim::spatial::MapGrid;

@@ -10,7 +10,7 @@
 //! workers. Rank 0 writes `metrics.csv` and the checkpoints.
 //!
 //! [`Single`] is the one-process group; the MPI group (`--features mpi`) is
-//! `nav::mpi::MpiGroup`.
+//! `train::mpi::MpiGroup`.
 
 use anyhow::{bail, Result};
 

@@ -6,7 +6,7 @@ use gman_core::navigator::{Mode, Navigator};
 
 use super::meta::InnerStep;
 use super::rollout::EpisodeStats;
-use super::K;
+use crate::model::K;
 use crate::sim::Env;
 
 /// What the inner updates of an episode did: `E[D(s)] − E[D(x)]` and L_ad summed over them.

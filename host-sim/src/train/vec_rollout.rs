@@ -68,10 +68,9 @@ use super::lockstep::{
     without_inner_loop, BackwardCtx, Finished, PendingSeg, Recording, RowState, SegQueue, Share,
     StepInputs, VecSettings,
 };
-use super::model::NavModel;
 use super::rollout::{disc_after_episode, expert_distribution, EpisodeStats, Worker};
 use super::step::StepRec;
-use super::K;
+use crate::model::{NavModel, K};
 use crate::optim::params::ParamSet;
 use crate::pretrain::ps::PsBuffers;
 use crate::sim::spatial::MapGrid;
@@ -640,10 +639,10 @@ fn finish(sl: Slot<'_>, disc: Vec<Vec<f32>>) -> Finished {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::nav::a3c::A3cConfig;
-    use crate::nav::bptt::Segment;
-    use crate::nav::model::Method;
+    use crate::model::Method;
     use crate::pretrain::generator::init_generator;
+    use crate::train::a3c::A3cConfig;
+    use crate::train::bptt::Segment;
     use gman_core::rng::Xoshiro128;
     use rand::SeedableRng;
     use rand_chacha::ChaCha8Rng;
@@ -707,7 +706,7 @@ mod tests {
             // The documented order, computed here.
             segs.sort_by_key(|p| (std::cmp::Reverse(p.steps.len()), p.seq));
             let weights = model.weights().unwrap();
-            let mut arena = vec![0.0; crate::nav::model::host_arena_len(&d)];
+            let mut arena = vec![0.0; crate::model::host_arena_len(&d)];
             let mut nav: Navigator<'_, Efficient, K> =
                 Navigator::new(weights, &mut arena, model.nav_config(true)).unwrap();
             nav.reset(&vec![0.0; d.attr], 0).unwrap();
@@ -745,7 +744,7 @@ mod tests {
             let own: Vec<Segment<'_>> = segs
                 .iter()
                 .map(|p| Segment {
-                    own: Some(crate::nav::bptt::Adapted {
+                    own: Some(crate::train::bptt::Adapted {
                         actor: policy.actor,
                         gen,
                     }),
