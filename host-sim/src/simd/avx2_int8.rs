@@ -252,6 +252,9 @@ pub(super) unsafe fn dots_i16(q: &[u8], cols: usize, col0: usize, x: &[i16], out
 /// Most columns of a layer [`matvec_int8`] takes (its quantised input is a stack buffer of
 /// this many bytes); wider layers, or more than [`MV_SEGS`] segments, run gman-core's driver.
 const MV_COLS: usize = 16384;
+/// Weight bytes from which [`matvec_int8`] prefetches the next rows (a layer of this size
+/// is not expected to stay in the L2 cache between steps).
+const PREFETCH_BYTES: usize = 1 << 18;
 /// Most input segments [`matvec_int8`] takes.
 const MV_SEGS: usize = 16;
 
@@ -469,6 +472,7 @@ pub(super) unsafe fn matvec_int8(w: &MatRef<'_>, x: &[&[f32]], y: &mut [f32]) ->
     let segs = &segs[..nseg];
     let (qp, xp) = (q.as_ptr(), xq.as_ptr());
     let rows4 = rows - rows % 4;
+    let prefetch = rows * cols >= PREFETCH_BYTES;
     let mut r = 0;
     while r < rows4 {
         // SAFETY: rows r..r + 4 < rows of `cols` bytes are within `q` (checked above), the
@@ -482,6 +486,17 @@ pub(super) unsafe fn matvec_int8(w: &MatRef<'_>, x: &[&[f32]], y: &mut [f32]) ->
             let mut b = 0;
             while b < len {
                 let n = (len - b).min(QCOLS);
+                // A large layer (not resident in L2): the next four rows' lines of this block
+                // (a hint: it never faults, and the address is formed with `wrapping_add`, so
+                // past the last row is harmless).
+                let next = wr.wrapping_add(4 * cols + off + b);
+                for k in 0..if prefetch { 4 } else { 0 } {
+                    let mut l = 0;
+                    while l < n {
+                        _mm_prefetch::<_MM_HINT_T0>(next.wrapping_add(k * cols + l) as *const i8);
+                        l += 64;
+                    }
+                }
                 let acc = dots4(wr.add(off + b), cols, xp.add(off + b), n);
                 yv = _mm_add_ps(yv, _mm_mul_ps(_mm_cvtepi32_ps(acc), f));
                 b += QCOLS;
