@@ -343,15 +343,38 @@ unsafe fn quantize(x: &[f32], inv: f32, out: &mut [i8]) {
     }
 }
 
+/// [`mac32`] with AVX-VNNI: `vpdpbusd` multiplies the same unsigned `|w|` by the signed
+/// `sign(w) x` and adds each four products into an i32 lane (at most `4 * 128 * 127` per
+/// step, no int16 intermediate; the sums wrap only past i32, far above `QCOLS` columns).
+#[target_feature(enable = "avx2,avxvnni")]
+#[inline]
+unsafe fn mac32_vnni(acc: __m256i, x: __m256i, w: *const u8) -> __m256i {
+    let w = _mm256_loadu_si256(w as *const __m256i);
+    _mm256_dpbusd_avx_epi32(acc, _mm256_abs_epi8(w), _mm256_sign_epi8(x, w))
+}
+
+/// One 32-column step of a row: [`mac32_vnni`] when `VNNI` (the caller's CPU has AVX-VNNI),
+/// else [`mac32`]; the same integers.
+///
+/// # Safety
+/// AVX2 (and AVX-VNNI when `VNNI`); 32 readable bytes at `w`.
+#[inline(always)]
+unsafe fn step32<const VNNI: bool>(acc: __m256i, x: __m256i, w: *const u8) -> __m256i {
+    if VNNI {
+        mac32_vnni(acc, x, w)
+    } else {
+        mac32(acc, x, w, _mm256_set1_epi16(1))
+    }
+}
+
 /// The integer dot products of four rows (`w`, `w + stride`, ..) with `n <= QCOLS` inputs
 /// in `-127..=127` (the quantisation's range), as `[s0, s1, s2, s3]`.
 ///
 /// # Safety
-/// The CPU must support AVX2; the four rows' `n` bytes and the `n` inputs must be readable.
-#[target_feature(enable = "avx2")]
-#[inline]
-unsafe fn dots4(w: *const u8, stride: usize, x: *const i8, n: usize) -> __m128i {
-    let ones = _mm256_set1_epi16(1);
+/// The CPU must support AVX2 (and AVX-VNNI when `VNNI`); the four rows' `n` bytes and the
+/// `n` inputs must be readable.
+#[inline(always)]
+unsafe fn dots4<const VNNI: bool>(w: *const u8, stride: usize, x: *const i8, n: usize) -> __m128i {
     let (w0, w1, w2, w3) = (w, w.add(stride), w.add(2 * stride), w.add(3 * stride));
     let (mut a0, mut a1, mut a2, mut a3) = (
         _mm256_setzero_si256(),
@@ -362,10 +385,10 @@ unsafe fn dots4(w: *const u8, stride: usize, x: *const i8, n: usize) -> __m128i 
     let mut j = 0;
     while j + 32 <= n {
         let xv = _mm256_loadu_si256(x.add(j) as *const __m256i);
-        a0 = mac32(a0, xv, w0.add(j), ones);
-        a1 = mac32(a1, xv, w1.add(j), ones);
-        a2 = mac32(a2, xv, w2.add(j), ones);
-        a3 = mac32(a3, xv, w3.add(j), ones);
+        a0 = step32::<VNNI>(a0, xv, w0.add(j));
+        a1 = step32::<VNNI>(a1, xv, w1.add(j));
+        a2 = step32::<VNNI>(a2, xv, w2.add(j));
+        a3 = step32::<VNNI>(a3, xv, w3.add(j));
         j += 32;
     }
     if j + 16 <= n {
@@ -396,19 +419,12 @@ unsafe fn dots4(w: *const u8, stride: usize, x: *const i8, n: usize) -> __m128i 
 ///
 /// # Safety
 /// As [`dots4`], for one row.
-#[target_feature(enable = "avx2")]
-#[inline]
-unsafe fn dots1(w: *const u8, x: *const i8, n: usize) -> i32 {
-    let ones = _mm256_set1_epi16(1);
+#[inline(always)]
+unsafe fn dots1<const VNNI: bool>(w: *const u8, x: *const i8, n: usize) -> i32 {
     let mut a = _mm256_setzero_si256();
     let mut j = 0;
     while j + 32 <= n {
-        a = mac32(
-            a,
-            _mm256_loadu_si256(x.add(j) as *const __m256i),
-            w.add(j),
-            ones,
-        );
+        a = step32::<VNNI>(a, _mm256_loadu_si256(x.add(j) as *const __m256i), w.add(j));
         j += 32;
     }
     if j + 16 <= n {
@@ -436,6 +452,24 @@ unsafe fn dots1(w: *const u8, x: *const i8, n: usize) -> i32 {
 /// The CPU must support AVX2.
 #[target_feature(enable = "avx2")]
 pub(super) unsafe fn matvec_int8(w: &MatRef<'_>, x: &[&[f32]], y: &mut [f32]) -> bool {
+    matvec_body::<false>(w, x, y)
+}
+
+/// [`matvec_int8`] with AVX-VNNI's `vpdpbusd` in the 32-column steps (the same integers).
+///
+/// # Safety
+/// The CPU must support AVX2 and AVX-VNNI.
+#[target_feature(enable = "avx2,avxvnni")]
+pub(super) unsafe fn matvec_int8_vnni(w: &MatRef<'_>, x: &[&[f32]], y: &mut [f32]) -> bool {
+    matvec_body::<true>(w, x, y)
+}
+
+/// The body of [`matvec_int8`] and [`matvec_int8_vnni`].
+///
+/// # Safety
+/// The CPU must support AVX2 (and AVX-VNNI when `VNNI`).
+#[inline(always)]
+unsafe fn matvec_body<const VNNI: bool>(w: &MatRef<'_>, x: &[&[f32]], y: &mut [f32]) -> bool {
     let (rows, cols) = (w.rows(), w.cols());
     let Weights::I8 { q, scales } = w.weights() else {
         return false;
@@ -497,7 +531,7 @@ pub(super) unsafe fn matvec_int8(w: &MatRef<'_>, x: &[&[f32]], y: &mut [f32]) ->
                         l += 64;
                     }
                 }
-                let acc = dots4(wr.add(off + b), cols, xp.add(off + b), n);
+                let acc = dots4::<VNNI>(wr.add(off + b), cols, xp.add(off + b), n);
                 yv = _mm_add_ps(yv, _mm_mul_ps(_mm_cvtepi32_ps(acc), f));
                 b += QCOLS;
             }
@@ -514,7 +548,7 @@ pub(super) unsafe fn matvec_int8(w: &MatRef<'_>, x: &[&[f32]], y: &mut [f32]) ->
             let mut b = 0;
             while b < len {
                 let n = (len - b).min(QCOLS);
-                let acc = dots1(wr.add(off + b), xp.add(off + b), n);
+                let acc = dots1::<VNNI>(wr.add(off + b), xp.add(off + b), n);
                 yi += (acc as f32) * (sx * si);
                 b += QCOLS;
             }

@@ -59,6 +59,14 @@ pub fn host_kernels() -> Option<&'static dyn Kernels> {
     avx2()
 }
 
+/// `GMAN_KERNELS=avx2` in the environment: the AVX2 table without its AVX-VNNI form of the
+/// integer kernel (the same integers; to compare speeds). Read once.
+#[cfg(target_arch = "x86_64")]
+fn no_vnni() -> bool {
+    static NO: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+    *NO.get_or_init(|| std::env::var("GMAN_KERNELS").is_ok_and(|v| v == "avx2"))
+}
+
 /// Name of what [`host_kernels`] selects, for reports.
 pub fn host_kernels_name() -> &'static str {
     if host_kernels().is_some() {
@@ -114,6 +122,10 @@ impl Kernels for Avx2 {
     }
 
     fn matvec_int8(&self, w: &MatRef<'_>, x: &[&[f32]], y: &mut [f32]) -> bool {
+        if std::is_x86_feature_detected!("avxvnni") && !no_vnni() {
+            // SAFETY: AVX2 as above, AVX-VNNI detected just now.
+            return unsafe { avx2_int8::matvec_int8_vnni(w, x, y) };
+        }
         // SAFETY: as above.
         unsafe { avx2_int8::matvec_int8(w, x, y) }
     }
@@ -329,7 +341,7 @@ mod tests {
             &[1000, 24, 1],
             &[4096],
         ];
-        let mut checked = 0;
+        let (mut checked, mut vnni) = (0, 0);
         for (si, segs) in seg_sets.iter().enumerate() {
             let cols: usize = segs.iter().sum();
             for &rows in &[1usize, 2, 3, 4, 5, 7, 8, 9, 63, 64, 65, 67, 130] {
@@ -389,12 +401,29 @@ mod tests {
                         let mut c = y0.clone();
                         assert!(k.matvec_int8(&w, &x, &mut c), "set {si} rows {rows}");
                         assert_eq!(bits(&a), bits(&c), "set {si} rows {rows} kind {kind}");
+                        // Both forms whatever the table picks: plain AVX2 and AVX-VNNI.
+                        let mut c = y0.clone();
+                        // SAFETY: `avx2()` said this CPU has AVX2.
+                        assert!(unsafe { super::avx2_int8::matvec_int8(&w, &x, &mut c) });
+                        assert_eq!(bits(&a), bits(&c), "avx2: set {si} rows {rows} kind {kind}");
+                        if std::is_x86_feature_detected!("avxvnni") {
+                            let mut c = y0.clone();
+                            // SAFETY: AVX2 as above, AVX-VNNI detected just now.
+                            assert!(unsafe { super::avx2_int8::matvec_int8_vnni(&w, &x, &mut c) });
+                            assert_eq!(
+                                bits(&a),
+                                bits(&c),
+                                "vnni: set {si} rows {rows} kind {kind}"
+                            );
+                            vnni += 1;
+                        }
                         checked += 1;
                     }
                 }
             }
         }
         assert!(checked > 500, "{checked}");
+        eprintln!("{checked} layers compared, {vnni} with the AVX-VNNI form too");
     }
 
     #[test]
