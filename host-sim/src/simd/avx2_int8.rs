@@ -313,21 +313,22 @@ unsafe fn quant8(v: __m256, inv: __m256) -> __m256i {
     _mm256_sub_epi32(_mm256_xor_si256(m, s), s)
 }
 
-/// `gman_core::qkernel::quantize_act` of `x` into `out` (the same length): 32 values per
-/// step, narrowed with `vpackssdw` / `vpacksswb` (values within +-127: no saturation) and
-/// put back in order with `vpermd`; the last `len % 32` with `quantize_one`.
+/// `gman_core::qkernel::quantize_act` of `x` into the `x.len()` bytes at `out`: 32 values
+/// per step, narrowed with `vpackssdw` / `vpacksswb` (values within +-127: no saturation)
+/// and put back in order with `vpermd`; the last `len % 32` with `quantize_one`. `out` may
+/// be uninitialised memory (it is only written).
 ///
 /// # Safety
-/// The CPU must support AVX2.
+/// The CPU must support AVX2; `out` must be valid for writes of `x.len()` bytes.
 #[target_feature(enable = "avx2")]
-unsafe fn quantize(x: &[f32], inv: f32, out: &mut [i8]) {
-    let n = x.len().min(out.len());
+unsafe fn quantize(x: &[f32], inv: f32, out: *mut i8) {
+    let n = x.len();
     let n32 = n - n % 32;
     let vinv = _mm256_set1_ps(inv);
     let order = _mm256_setr_epi32(0, 4, 1, 5, 2, 6, 3, 7);
     let mut i = 0;
     while i < n32 {
-        // SAFETY: i + 32 <= n32 <= n, within both slices.
+        // SAFETY: i + 32 <= n32 <= n, within `x` and the `n` bytes at `out`.
         let p = x.as_ptr().add(i);
         let q0 = quant8(_mm256_loadu_ps(p), vinv);
         let q1 = quant8(_mm256_loadu_ps(p.add(8)), vinv);
@@ -335,11 +336,12 @@ unsafe fn quantize(x: &[f32], inv: f32, out: &mut [i8]) {
         let q3 = quant8(_mm256_loadu_ps(p.add(24)), vinv);
         let b = _mm256_packs_epi16(_mm256_packs_epi32(q0, q1), _mm256_packs_epi32(q2, q3));
         let b = _mm256_permutevar8x32_epi32(b, order);
-        _mm256_storeu_si256(out.as_mut_ptr().add(i) as *mut __m256i, b);
+        _mm256_storeu_si256(out.add(i) as *mut __m256i, b);
         i += 32;
     }
-    for (o, &v) in out[n32..n].iter_mut().zip(&x[n32..n]) {
-        *o = quantize_one(v, inv) as i8;
+    for (j, &v) in x.iter().enumerate().skip(n32) {
+        // SAFETY: j < n, within the `n` bytes at `out`.
+        out.add(j).write(quantize_one(v, inv) as i8);
     }
 }
 
@@ -490,21 +492,26 @@ unsafe fn matvec_body<const VNNI: bool>(w: &MatRef<'_>, x: &[&[f32]], y: &mut [f
     {
         return false;
     }
-    let mut xq = [0i8; MV_COLS];
+    // The quantised input, written by `quantize` before it is read: only the columns of the
+    // segments in `segs` are read, and `quantize` wrote all of those (no zeroing of 16 KiB
+    // per call).
+    let mut xq = core::mem::MaybeUninit::<[i8; MV_COLS]>::uninit();
+    let xw = xq.as_mut_ptr() as *mut i8;
     let mut segs = [(0usize, 0usize, 0.0f32); MV_SEGS];
     let mut nseg = 0;
     let mut off = 0;
     for seg in x {
         let (sx, inv) = act_scale(seg);
         if sx > 0.0 {
-            quantize(seg, inv, &mut xq[off..off + seg.len()]);
+            // SAFETY: off + seg.len() <= cols <= MV_COLS bytes of `xq`.
+            quantize(seg, inv, xw.add(off));
             segs[nseg] = (off, seg.len(), sx);
             nseg += 1;
         }
         off += seg.len();
     }
     let segs = &segs[..nseg];
-    let (qp, xp) = (q.as_ptr(), xq.as_ptr());
+    let (qp, xp) = (q.as_ptr(), xw as *const i8);
     let rows4 = rows - rows % 4;
     let prefetch = rows * cols >= PREFETCH_BYTES;
     let mut r = 0;
