@@ -126,6 +126,17 @@ pub trait Kernels: Sync + core::fmt::Debug {
     fn dots_i16(&self, q: &[u8], cols: usize, col0: usize, x: &[i16], out: &mut [i32]) {
         dots_i16(q, cols, col0, x, out)
     }
+
+    /// The whole of [`crate::qkernel::matvec_acc_int8`] (`y += W x` on int8 activations, its
+    /// canonical computation: the same bits) in one call, for a table that can run the
+    /// quantisation, the integer products and the requantisation of a layer together. `w`
+    /// is int8 and the lengths are checked by the caller. Returns `false` (having written
+    /// nothing) when it does not take the shapes; then the driver runs its blocks through
+    /// [`Kernels::dots_i8`]. The default takes none.
+    fn matvec_int8(&self, w: &MatRef<'_>, x: &[&[f32]], y: &mut [f32]) -> bool {
+        let _ = (w, x, y);
+        false
+    }
 }
 
 /// A read-only `rows x cols` row-major matrix view. Construct with [`MatRef::f32`] or

@@ -332,6 +332,12 @@ fn matvec_int8_with(w: &MatRef<'_>, x: &[&[f32]], y: &mut [f32], dots: Dots) -> 
     if cols == 0 {
         return Ok(());
     }
+    // A host's table may run the whole layer at once (same bits); a DSP target never has one.
+    if let (false, Dots::Table(k)) = (gman_dsp::HAS_DSP, dots) {
+        if k.matvec_int8(w, x, y) {
+            return Ok(());
+        }
+    }
     let mut xq = [0i8; QCOLS];
     let mut xp = [0u32; QWORDS];
     let mut acc = [0i32; QROWS];

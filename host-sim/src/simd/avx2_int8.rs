@@ -19,7 +19,10 @@
 
 use core::arch::x86_64::*;
 
-use gman_core::qkernel::{dots_i16 as dots_i16_portable, dots_i8_body, QCOLS};
+use gman_core::matrix::{seg_len, MatRef, Scales, Weights};
+use gman_core::qkernel::{
+    act_range, dots_i16 as dots_i16_portable, dots_i8_body, quantize_one, QCOLS,
+};
 
 /// The four i32 lanes' sums of four accumulators, as `[s(a), s(b), s(c), s(d)]`.
 #[target_feature(enable = "avx2")]
@@ -244,4 +247,321 @@ pub(super) unsafe fn dots_i16(q: &[u8], cols: usize, col0: usize, x: &[i16], out
         out[r] = sum1(a0) + tail(w0);
         r += 1;
     }
+}
+
+/// Most columns of a layer [`matvec_int8`] takes (its quantised input is a stack buffer of
+/// this many bytes); wider layers, or more than [`MV_SEGS`] segments, run gman-core's driver.
+const MV_COLS: usize = 16384;
+/// Weight bytes from which [`matvec_int8`] prefetches the next rows (a layer of this size
+/// is not expected to stay in the L2 cache between steps).
+const PREFETCH_BYTES: usize = 1 << 18;
+/// Most input segments [`matvec_int8`] takes.
+const MV_SEGS: usize = 16;
+
+/// `gman_core::qkernel::act_range`'s `(s_x, inv)`: the largest magnitude on the bit patterns
+/// (`vpmaxud` of `bits & 0x7fff_ffff`, the integer order of finite magnitudes is their
+/// numeric order), then the same two divisions. A segment holding an infinity or a NaN
+/// takes gman-core's own function (its second pass skips them).
+///
+/// # Safety
+/// The CPU must support AVX2.
+#[target_feature(enable = "avx2")]
+unsafe fn act_scale(x: &[f32]) -> (f32, f32) {
+    let n8 = x.len() - x.len() % 8;
+    let mask = _mm256_set1_epi32(0x7fff_ffff);
+    let mut m = _mm256_setzero_si256();
+    let mut i = 0;
+    while i < n8 {
+        // SAFETY: i + 8 <= n8 <= x.len().
+        let b = _mm256_loadu_si256(x.as_ptr().add(i) as *const __m256i);
+        m = _mm256_max_epu32(m, _mm256_and_si256(b, mask));
+        i += 8;
+    }
+    let h = _mm_max_epu32(_mm256_castsi256_si128(m), _mm256_extracti128_si256(m, 1));
+    let h = _mm_max_epu32(h, _mm_shuffle_epi32(h, 0b01_00_11_10));
+    let h = _mm_max_epu32(h, _mm_shuffle_epi32(h, 0b10_11_00_01));
+    let mut mx = _mm_cvtsi128_si32(h) as u32;
+    for &v in &x[n8..] {
+        mx = mx.max(v.to_bits() & 0x7fff_ffff);
+    }
+    if mx >= 0x7f80_0000 {
+        let (sx, inv, _) = act_range(x);
+        return (sx, inv);
+    }
+    let a = f32::from_bits(mx);
+    if a > 0.0 {
+        (a / 127.0, 127.0 / a)
+    } else {
+        (0.0, 0.0)
+    }
+}
+
+/// Eight values quantised as `gman_core::qkernel::quantize_one` does: `t = v * inv`,
+/// `m = min(trunc(|t| + 0.5), 127)` with the sign of `t` put back. The clamp runs on the
+/// float before the conversion, `vminps(127, u)`, which returns `u` when it is a NaN, and
+/// `vcvttps2dq` of a NaN is `i32::MIN`, which the `max(.., 0)` makes 0, as `as i32` does;
+/// an infinite `u` becomes 127, as the saturating `as i32` and the clamp do.
+#[target_feature(enable = "avx2")]
+#[inline]
+unsafe fn quant8(v: __m256, inv: __m256) -> __m256i {
+    let t = _mm256_mul_ps(v, inv);
+    let abs = _mm256_castsi256_ps(_mm256_set1_epi32(0x7fff_ffff));
+    let u = _mm256_add_ps(_mm256_and_ps(t, abs), _mm256_set1_ps(0.5));
+    let u = _mm256_min_ps(_mm256_set1_ps(127.0), u);
+    let m = _mm256_max_epi32(_mm256_cvttps_epi32(u), _mm256_setzero_si256());
+    let s = _mm256_srai_epi32::<31>(_mm256_castps_si256(t));
+    _mm256_sub_epi32(_mm256_xor_si256(m, s), s)
+}
+
+/// `gman_core::qkernel::quantize_act` of `x` into the `x.len()` bytes at `out`: 32 values
+/// per step, narrowed with `vpackssdw` / `vpacksswb` (values within +-127: no saturation)
+/// and put back in order with `vpermd`; the last `len % 32` with `quantize_one`. `out` may
+/// be uninitialised memory (it is only written).
+///
+/// # Safety
+/// The CPU must support AVX2; `out` must be valid for writes of `x.len()` bytes.
+#[target_feature(enable = "avx2")]
+unsafe fn quantize(x: &[f32], inv: f32, out: *mut i8) {
+    let n = x.len();
+    let n32 = n - n % 32;
+    let vinv = _mm256_set1_ps(inv);
+    let order = _mm256_setr_epi32(0, 4, 1, 5, 2, 6, 3, 7);
+    let mut i = 0;
+    while i < n32 {
+        // SAFETY: i + 32 <= n32 <= n, within `x` and the `n` bytes at `out`.
+        let p = x.as_ptr().add(i);
+        let q0 = quant8(_mm256_loadu_ps(p), vinv);
+        let q1 = quant8(_mm256_loadu_ps(p.add(8)), vinv);
+        let q2 = quant8(_mm256_loadu_ps(p.add(16)), vinv);
+        let q3 = quant8(_mm256_loadu_ps(p.add(24)), vinv);
+        let b = _mm256_packs_epi16(_mm256_packs_epi32(q0, q1), _mm256_packs_epi32(q2, q3));
+        let b = _mm256_permutevar8x32_epi32(b, order);
+        _mm256_storeu_si256(out.add(i) as *mut __m256i, b);
+        i += 32;
+    }
+    for (j, &v) in x.iter().enumerate().skip(n32) {
+        // SAFETY: j < n, within the `n` bytes at `out`.
+        out.add(j).write(quantize_one(v, inv) as i8);
+    }
+}
+
+/// [`mac32`] with AVX-VNNI: `vpdpbusd` multiplies the same unsigned `|w|` by the signed
+/// `sign(w) x` and adds each four products into an i32 lane (at most `4 * 128 * 127` per
+/// step, no int16 intermediate; the sums wrap only past i32, far above `QCOLS` columns).
+#[target_feature(enable = "avx2,avxvnni")]
+#[inline]
+unsafe fn mac32_vnni(acc: __m256i, x: __m256i, w: *const u8) -> __m256i {
+    let w = _mm256_loadu_si256(w as *const __m256i);
+    _mm256_dpbusd_avx_epi32(acc, _mm256_abs_epi8(w), _mm256_sign_epi8(x, w))
+}
+
+/// One 32-column step of a row: [`mac32_vnni`] when `VNNI` (the caller's CPU has AVX-VNNI),
+/// else [`mac32`]; the same integers.
+///
+/// # Safety
+/// AVX2 (and AVX-VNNI when `VNNI`); 32 readable bytes at `w`.
+#[inline(always)]
+unsafe fn step32<const VNNI: bool>(acc: __m256i, x: __m256i, w: *const u8) -> __m256i {
+    if VNNI {
+        mac32_vnni(acc, x, w)
+    } else {
+        mac32(acc, x, w, _mm256_set1_epi16(1))
+    }
+}
+
+/// The integer dot products of four rows (`w`, `w + stride`, ..) with `n <= QCOLS` inputs
+/// in `-127..=127` (the quantisation's range), as `[s0, s1, s2, s3]`.
+///
+/// # Safety
+/// The CPU must support AVX2 (and AVX-VNNI when `VNNI`); the four rows' `n` bytes and the
+/// `n` inputs must be readable.
+#[inline(always)]
+unsafe fn dots4<const VNNI: bool>(w: *const u8, stride: usize, x: *const i8, n: usize) -> __m128i {
+    let (w0, w1, w2, w3) = (w, w.add(stride), w.add(2 * stride), w.add(3 * stride));
+    let (mut a0, mut a1, mut a2, mut a3) = (
+        _mm256_setzero_si256(),
+        _mm256_setzero_si256(),
+        _mm256_setzero_si256(),
+        _mm256_setzero_si256(),
+    );
+    let mut j = 0;
+    while j + 32 <= n {
+        let xv = _mm256_loadu_si256(x.add(j) as *const __m256i);
+        a0 = step32::<VNNI>(a0, xv, w0.add(j));
+        a1 = step32::<VNNI>(a1, xv, w1.add(j));
+        a2 = step32::<VNNI>(a2, xv, w2.add(j));
+        a3 = step32::<VNNI>(a3, xv, w3.add(j));
+        j += 32;
+    }
+    if j + 16 <= n {
+        let xv = _mm_loadu_si128(x.add(j) as *const __m128i);
+        a0 = mac16(a0, xv, w0.add(j));
+        a1 = mac16(a1, xv, w1.add(j));
+        a2 = mac16(a2, xv, w2.add(j));
+        a3 = mac16(a3, xv, w3.add(j));
+        j += 16;
+    }
+    let s = sum4(a0, a1, a2, a3);
+    if j == n {
+        return s;
+    }
+    let mut t = [0i32; 4];
+    while j < n {
+        let xj = *x.add(j) as i32;
+        t[0] += (*w0.add(j) as i8 as i32) * xj;
+        t[1] += (*w1.add(j) as i8 as i32) * xj;
+        t[2] += (*w2.add(j) as i8 as i32) * xj;
+        t[3] += (*w3.add(j) as i8 as i32) * xj;
+        j += 1;
+    }
+    _mm_add_epi32(s, _mm_loadu_si128(t.as_ptr() as *const __m128i))
+}
+
+/// [`dots4`] of one row.
+///
+/// # Safety
+/// As [`dots4`], for one row.
+#[inline(always)]
+unsafe fn dots1<const VNNI: bool>(w: *const u8, x: *const i8, n: usize) -> i32 {
+    let mut a = _mm256_setzero_si256();
+    let mut j = 0;
+    while j + 32 <= n {
+        a = step32::<VNNI>(a, _mm256_loadu_si256(x.add(j) as *const __m256i), w.add(j));
+        j += 32;
+    }
+    if j + 16 <= n {
+        a = mac16(a, _mm_loadu_si128(x.add(j) as *const __m128i), w.add(j));
+        j += 16;
+    }
+    let mut s = sum1(a);
+    while j < n {
+        s += (*w.add(j) as i8 as i32) * (*x.add(j) as i32);
+        j += 1;
+    }
+    s
+}
+
+/// `gman_core::qkernel::matvec_acc_int8` in one call (`Kernels::matvec_int8`): every
+/// segment's scale ([`act_scale`]) and quantisation ([`quantize`]) first, into one buffer,
+/// then four rows at a time, each row read once from its first column to its last: per
+/// segment whose scale is not 0 and per block of `QCOLS` columns of it, in order, the four
+/// integer sums ([`dots4`]) and `y_i += (acc_i as f32) * (s_x * s_i)` on four lanes
+/// (`vcvtdq2ps` rounds to nearest like `as f32`; then `vmulps`, `vmulps`, `vaddps`: the
+/// driver's operations in its order, for each `y_i`). The same bits as the driver; `false`
+/// (nothing written) for shapes it does not take.
+///
+/// # Safety
+/// The CPU must support AVX2.
+#[target_feature(enable = "avx2")]
+pub(super) unsafe fn matvec_int8(w: &MatRef<'_>, x: &[&[f32]], y: &mut [f32]) -> bool {
+    matvec_body::<false>(w, x, y)
+}
+
+/// [`matvec_int8`] with AVX-VNNI's `vpdpbusd` in the 32-column steps (the same integers).
+///
+/// # Safety
+/// The CPU must support AVX2 and AVX-VNNI.
+#[target_feature(enable = "avx2,avxvnni")]
+pub(super) unsafe fn matvec_int8_vnni(w: &MatRef<'_>, x: &[&[f32]], y: &mut [f32]) -> bool {
+    matvec_body::<true>(w, x, y)
+}
+
+/// The body of [`matvec_int8`] and [`matvec_int8_vnni`].
+///
+/// # Safety
+/// The CPU must support AVX2 (and AVX-VNNI when `VNNI`).
+#[inline(always)]
+unsafe fn matvec_body<const VNNI: bool>(w: &MatRef<'_>, x: &[&[f32]], y: &mut [f32]) -> bool {
+    let (rows, cols) = (w.rows(), w.cols());
+    let Weights::I8 { q, scales } = w.weights() else {
+        return false;
+    };
+    // The scales as f32 at `sp` (little-endian bytes are the f32 of an x86 CPU), read with
+    // unaligned loads only.
+    let (sp, ns) = match scales {
+        Scales::F32(s) => (s.as_ptr(), s.len()),
+        Scales::Le(b) => (b.as_ptr() as *const f32, b.len() / 4),
+    };
+    if cols == 0
+        || cols > MV_COLS
+        || x.len() > MV_SEGS
+        || seg_len(x) != cols
+        || y.len() != rows
+        || ns < rows
+        || q.len() / cols < rows
+    {
+        return false;
+    }
+    // The quantised input, written by `quantize` before it is read: only the columns of the
+    // segments in `segs` are read, and `quantize` wrote all of those (no zeroing of 16 KiB
+    // per call).
+    let mut xq = core::mem::MaybeUninit::<[i8; MV_COLS]>::uninit();
+    let xw = xq.as_mut_ptr() as *mut i8;
+    let mut segs = [(0usize, 0usize, 0.0f32); MV_SEGS];
+    let mut nseg = 0;
+    let mut off = 0;
+    for seg in x {
+        let (sx, inv) = act_scale(seg);
+        if sx > 0.0 {
+            // SAFETY: off + seg.len() <= cols <= MV_COLS bytes of `xq`.
+            quantize(seg, inv, xw.add(off));
+            segs[nseg] = (off, seg.len(), sx);
+            nseg += 1;
+        }
+        off += seg.len();
+    }
+    let segs = &segs[..nseg];
+    let (qp, xp) = (q.as_ptr(), xw as *const i8);
+    let rows4 = rows - rows % 4;
+    let prefetch = rows * cols >= PREFETCH_BYTES;
+    let mut r = 0;
+    while r < rows4 {
+        // SAFETY: rows r..r + 4 < rows of `cols` bytes are within `q` (checked above), the
+        // scales r..r + 4 within the `ns >= rows` at `sp`, y[r..r + 4] within `y`; every
+        // block (off + b, n) lies within its segment's columns, within `cols` and `xq`.
+        let wr = qp.add(r * cols);
+        let mut yv = _mm_loadu_ps(y.as_ptr().add(r));
+        let s4 = _mm_loadu_ps(sp.add(r));
+        for &(off, len, sx) in segs {
+            let f = _mm_mul_ps(_mm_set1_ps(sx), s4);
+            let mut b = 0;
+            while b < len {
+                let n = (len - b).min(QCOLS);
+                // A large layer (not resident in L2): the next four rows' lines of this block
+                // (a hint: it never faults, and the address is formed with `wrapping_add`, so
+                // past the last row is harmless).
+                let next = wr.wrapping_add(4 * cols + off + b);
+                for k in 0..if prefetch { 4 } else { 0 } {
+                    let mut l = 0;
+                    while l < n {
+                        _mm_prefetch::<_MM_HINT_T0>(next.wrapping_add(k * cols + l) as *const i8);
+                        l += 64;
+                    }
+                }
+                let acc = dots4::<VNNI>(wr.add(off + b), cols, xp.add(off + b), n);
+                yv = _mm_add_ps(yv, _mm_mul_ps(_mm_cvtepi32_ps(acc), f));
+                b += QCOLS;
+            }
+        }
+        _mm_storeu_ps(y.as_mut_ptr().add(r), yv);
+        r += 4;
+    }
+    while r < rows {
+        // SAFETY: as above, for the one row r < rows.
+        let wr = qp.add(r * cols);
+        let si = sp.add(r).read_unaligned();
+        let mut yi = y[r];
+        for &(off, len, sx) in segs {
+            let mut b = 0;
+            while b < len {
+                let n = (len - b).min(QCOLS);
+                let acc = dots1::<VNNI>(wr.add(off + b), xp.add(off + b), n);
+                yi += (acc as f32) * (sx * si);
+                b += QCOLS;
+            }
+        }
+        y[r] = yi;
+        r += 1;
+    }
+    true
 }

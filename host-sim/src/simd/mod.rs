@@ -59,6 +59,14 @@ pub fn host_kernels() -> Option<&'static dyn Kernels> {
     avx2()
 }
 
+/// `GMAN_KERNELS=avx2` in the environment: the AVX2 table without its AVX-VNNI form of the
+/// integer kernel (the same integers; to compare speeds). Read once.
+#[cfg(target_arch = "x86_64")]
+fn no_vnni() -> bool {
+    static NO: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+    *NO.get_or_init(|| std::env::var("GMAN_KERNELS").is_ok_and(|v| v == "avx2"))
+}
+
 /// Name of what [`host_kernels`] selects, for reports.
 pub fn host_kernels_name() -> &'static str {
     if host_kernels().is_some() {
@@ -111,6 +119,15 @@ impl Kernels for Avx2 {
     fn dots_i16(&self, q: &[u8], cols: usize, col0: usize, x: &[i16], out: &mut [i32]) {
         // SAFETY: as above.
         unsafe { avx2_int8::dots_i16(q, cols, col0, x, out) }
+    }
+
+    fn matvec_int8(&self, w: &MatRef<'_>, x: &[&[f32]], y: &mut [f32]) -> bool {
+        if std::is_x86_feature_detected!("avxvnni") && !no_vnni() {
+            // SAFETY: AVX2 as above, AVX-VNNI detected just now.
+            return unsafe { avx2_int8::matvec_int8_vnni(w, x, y) };
+        }
+        // SAFETY: as above.
+        unsafe { avx2_int8::matvec_int8(w, x, y) }
     }
 }
 
@@ -288,6 +305,125 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// The whole-layer call (`Kernels::matvec_int8`, reached through
+    /// `qkernel::matvec_acc_int8` of a view with the AVX2 table) against gman-core's portable
+    /// driver, bit for bit: row counts around the four-row passes and gman-core's 64-row
+    /// chunks, segments of every kind of length (0, under 16, 16-, 32-column steps with
+    /// tails, one and several `QCOLS` blocks), signed, non-negative, all-zero, tiny
+    /// (subnormal scales), infinite and NaN segments, values on the rounding ties, F32 and
+    /// little-endian scales, and a `y` that already holds values.
+    #[test]
+    fn avx2_whole_layer_int8_equals_the_portable_driver() {
+        use gman_core::matrix::{MatRef, Scales};
+        use gman_core::qkernel::{matvec_acc_int8, matvec_acc_int8_portable};
+        let Some(k) = super::avx2() else {
+            eprintln!("SKIPPED: no AVX2 on this CPU");
+            return;
+        };
+        let mut state = 0x1234_5678u32;
+        let mut next = move || {
+            state ^= state << 13;
+            state ^= state >> 17;
+            state ^= state << 5;
+            state
+        };
+        let seg_sets: &[&[usize]] = &[
+            &[1],
+            &[5, 0, 7],
+            &[16, 31, 33],
+            &[45, 45],
+            &[64, 64],
+            &[256],
+            &[257, 3],
+            &[600, 70, 512],
+            &[1000, 24, 1],
+            &[4096],
+        ];
+        let (mut checked, mut vnni) = (0, 0);
+        for (si, segs) in seg_sets.iter().enumerate() {
+            let cols: usize = segs.iter().sum();
+            for &rows in &[1usize, 2, 3, 4, 5, 7, 8, 9, 63, 64, 65, 67, 130] {
+                if rows * cols > 600_000 {
+                    continue;
+                }
+                for kind in 0..8 {
+                    let q: Vec<u8> = (0..rows * cols)
+                        .map(|i| match (kind + i) % 9 {
+                            0 => 127u8,
+                            1 => (-127i8) as u8,
+                            2 => 0x80,
+                            _ => next() as u8,
+                        })
+                        .collect();
+                    let sc: Vec<f32> = (0..rows)
+                        .map(|i| (1 + next() % 1000) as f32 * 1e-4 + i as f32 * 1e-7)
+                        .collect();
+                    let le: Vec<u8> = sc.iter().flat_map(|v| v.to_le_bytes()).collect();
+                    let data: Vec<Vec<f32>> = segs
+                        .iter()
+                        .enumerate()
+                        .map(|(s, &len)| {
+                            (0..len)
+                                .map(|j| {
+                                    let u = (next() % 20001) as f32 / 10000.0 - 1.0;
+                                    match (kind + s) % 8 {
+                                        0 => u,
+                                        1 => u.abs(),
+                                        2 => 0.0,
+                                        3 => u * 1e-41,
+                                        4 if j % 37 == 5 => f32::INFINITY,
+                                        4 => u,
+                                        5 if j % 11 == 2 => f32::NAN,
+                                        5 if j % 11 == 3 => -f32::INFINITY,
+                                        5 => -u.abs(),
+                                        // ties of the rounding: k + 0.5 of 127 / max
+                                        6 => [127.0, -0.5, 0.5, 1.5, -2.5, 63.5, -0.0][j % 7],
+                                        _ => [3.0, -3.0, 1.0 / 3.0][j % 3] * u,
+                                    }
+                                })
+                                .collect()
+                        })
+                        .collect();
+                    let x: Vec<&[f32]> = data.iter().map(|v| v.as_slice()).collect();
+                    for scales in [Scales::F32(&sc), Scales::Le(&le)] {
+                        let w = MatRef::i8(rows, cols, &q, scales)
+                            .unwrap()
+                            .with_int8_activations();
+                        let y0: Vec<f32> = (0..rows).map(|i| (i as f32 - 3.0) * 0.25).collect();
+                        let mut a = y0.clone();
+                        let mut b = y0.clone();
+                        matvec_acc_int8_portable(&w, &x, &mut a).unwrap();
+                        matvec_acc_int8(&w.with_kernels(k), &x, &mut b).unwrap();
+                        let bits = |v: &[f32]| v.iter().map(|f| f.to_bits()).collect::<Vec<_>>();
+                        assert_eq!(bits(&a), bits(&b), "set {si} rows {rows} kind {kind}");
+                        let mut c = y0.clone();
+                        assert!(k.matvec_int8(&w, &x, &mut c), "set {si} rows {rows}");
+                        assert_eq!(bits(&a), bits(&c), "set {si} rows {rows} kind {kind}");
+                        // Both forms whatever the table picks: plain AVX2 and AVX-VNNI.
+                        let mut c = y0.clone();
+                        // SAFETY: `avx2()` said this CPU has AVX2.
+                        assert!(unsafe { super::avx2_int8::matvec_int8(&w, &x, &mut c) });
+                        assert_eq!(bits(&a), bits(&c), "avx2: set {si} rows {rows} kind {kind}");
+                        if std::is_x86_feature_detected!("avxvnni") {
+                            let mut c = y0.clone();
+                            // SAFETY: AVX2 as above, AVX-VNNI detected just now.
+                            assert!(unsafe { super::avx2_int8::matvec_int8_vnni(&w, &x, &mut c) });
+                            assert_eq!(
+                                bits(&a),
+                                bits(&c),
+                                "vnni: set {si} rows {rows} kind {kind}"
+                            );
+                            vnni += 1;
+                        }
+                        checked += 1;
+                    }
+                }
+            }
+        }
+        assert!(checked > 500, "{checked}");
+        eprintln!("{checked} layers compared, {vnni} with the AVX-VNNI form too");
     }
 
     #[test]
