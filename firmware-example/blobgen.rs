@@ -8,7 +8,7 @@ use gman_core::blob::{
     encode_model_scratch_len, encoded_model_len_bound, reencode_with_flags, reencoded_len_bound,
     AdaptSettings, Blob, Quant,
 };
-use gman_core::schema::{FLAG_ADAPT, FLAG_INT8_ACTIVATIONS};
+use gman_core::schema::{FLAG_ADAPT, FLAG_COMPACT_PSI, FLAG_INT8_ACTIVATIONS};
 use gman_core::seeded::encode_seeded;
 use gman_core::Dims;
 
@@ -49,11 +49,12 @@ pub fn default_blob_in(base: &std::path::Path) -> Vec<u8> {
     std::fs::read(base.join(TRAINED)).unwrap_or_else(|_| seeded_blob(&FIRMWARE_DIMS, 1))
 }
 
-/// `bytes` (an int8 weight blob) re-emitted with [`FLAG_INT8_ACTIVATIONS`] set: every tensor,
-/// the other flags and the inner-loop settings kept (the bytes `gman export --activations
-/// int8` writes; the parity test compares the two).
+/// `bytes` (an int8 weight blob) re-emitted with [`FLAG_INT8_ACTIVATIONS`] and
+/// [`FLAG_COMPACT_PSI`] set (Ψ's observations as int16, for the firmware's
+/// `Footprint::Minimal` arena): every tensor, the other flags and the inner-loop settings
+/// kept (the bytes `gman export --activations int8` writes; the parity test compares the two).
 pub fn with_int8_activations(bytes: &[u8]) -> Result<Vec<u8>, gman_core::BlobError> {
-    let flags = Blob::parse(bytes)?.header().flags() | FLAG_INT8_ACTIVATIONS;
+    let flags = Blob::parse(bytes)?.header().flags() | FLAG_INT8_ACTIVATIONS | FLAG_COMPACT_PSI;
     let mut out = vec![0u8; reencoded_len_bound(bytes)];
     let n = reencode_with_flags(bytes, flags, &mut out)?;
     out.truncate(n);

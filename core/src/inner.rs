@@ -177,6 +177,27 @@ pub fn generate(
     Ok(())
 }
 
+/// G's forward pass for the `nb` noise rows `z` (`nb x Z`) with SE(y) `attr` into the first
+/// `nb x F` floats of `w.mix`: the x_t of a batch of Ψ's entries, the bits [`generate`]
+/// gives them (the pass L_ad's scores and L_D's pass run when Ψ holds no x_t). For
+/// `1 <= nb <= w.b` (its callers' batches).
+pub(crate) fn generate_mix(
+    gen: &Generator<'_>,
+    z: &[f32],
+    attr: &[f32],
+    nb: usize,
+    w: &mut InnerWork<'_>,
+) -> Result<()> {
+    if w.b > 1 {
+        w.fill_attr(attr)?;
+    }
+    // (`z`'s length is checked by G's first layer.)
+    let zd = gen.in_dim().saturating_sub(attr.len());
+    with_rows(w, nb, (Some(z), attr, zd), |w, r| {
+        gen_forward_mix(gen, r, nb, w)
+    })
+}
+
 /// G's first layer for `nb` rows: noise `z` (`nb x Z`) and attribute rows `ar` (`nb x A`)
 /// into `w.u1`, `w.h1` (after the LeakyReLU).
 fn gen_hidden(
@@ -633,10 +654,7 @@ pub fn adapt_scores_part(
     while t0 < t_end {
         let nb = w.b.min(t_end - t0);
         if xs.is_none() {
-            let z = rows(zs, zd, t0, nb)?;
-            with_rows(w, nb, (Some(z), attr, zd), |w, r| {
-                gen_forward_mix(gen, r, nb, w)
-            })?;
+            generate_mix(gen, rows(zs, zd, t0, nb)?, attr, nb, w)?;
         }
         let mix = core::mem::take(&mut w.mix);
         let x = match xs {

@@ -41,6 +41,13 @@ pub enum Footprint {
     /// 512 KiB for `paper` (`cargo run -p gman-core --example memory_table`). In Full mode
     /// the two layouts are the same.
     Fast,
+    /// The smallest layout, for blobs with [`FLAG_COMPACT_PSI`](crate::schema::FLAG_COMPACT_PSI)
+    /// in [`AdaptMode::Efficient`]: [`Footprint::Compact`] without Ψ_x (the inner update
+    /// regenerates each entry's x_t from its noise, batch by batch: the same bits, more
+    /// work) and with Ψ's observations as int16 with one scale per entry (two per f32 of
+    /// the arena). A navigator refuses it for other blobs, for `Full` mode and for CosSim
+    /// models that adapt ([`crate::Error::Config`]).
+    Minimal,
 }
 
 /// Sizes (in f32 elements) of every RAM region of the navigator.
@@ -162,7 +169,7 @@ pub(crate) enum Part {
 /// length of every region in carve order (`region_lens`) and the [`NavLayout`] field each
 /// counts towards. The navigator generates its `Ram` struct and carve from the same table.
 macro_rules! arena_lens {
-    (|$d:ident, $full:ident, $g:ident, $k:ident, $b:ident, $map:ident, $gen_in:ident, $fast:ident|
+    (|$d:ident, $full:ident, $g:ident, $k:ident, $b:ident, $map:ident, $gen_in:ident, $fast:ident, $min:ident|
      $($field:ident $(: $kind:ident)? in $part:ident
         $({ $($sub:ident = $sl:expr;)* })? $(= $len:expr;)?)*) => {
         /// The [`NavLayout`] field of every region, in carve order.
@@ -181,6 +188,7 @@ macro_rules! arena_lens {
         ) -> Option<[usize; NUM_REGIONS]> {
             let $full = matches!(mode, AdaptMode::Full);
             let $fast = matches!(fp, Footprint::Fast);
+            let $min = matches!(fp, Footprint::Minimal);
             // With gains (Efficient) some buffers exist, otherwise they are empty.
             let $g: usize = if $full { 0 } else { 1 };
             let $map = tri!($d.map_rows.checked_mul($d.map_cols)) > 0;
@@ -226,6 +234,15 @@ pub const fn adapt_batch(mode: AdaptMode, k: usize) -> usize {
 pub const fn adapt_batch_with(mode: AdaptMode, k: usize, fp: Footprint) -> usize {
     match (mode, fp) {
         (AdaptMode::Full, _) | (_, Footprint::Fast) => k,
+        // One entry at a time: the smallest buffers, and slices of the delayed update half
+        // as long (the passes over Ψ regenerate x_t, so each entry costs more).
+        (AdaptMode::Efficient, Footprint::Minimal) => {
+            if k < 1 {
+                k
+            } else {
+                1
+            }
+        }
         (AdaptMode::Efficient, Footprint::Compact) => {
             if k < EFFICIENT_ADAPT_BATCH {
                 k
@@ -240,7 +257,7 @@ pub const fn adapt_batch_with(mode: AdaptMode, k: usize, fp: Footprint) -> usize
 /// [`NavLayout`] field it counts towards and its length in f32 (an expression of `d`, the
 /// dims; `full`, Full mode; `g`, 1 with gains (Efficient) else 0; `k`, Ψ's capacity; `b`,
 /// the entries of Ψ the inner update processes at a time; `map`, a spatial map; `gen_in`,
-/// G's input width; `fast`, [`Footprint::Fast`]). The one statement of the arena: a region
+/// G's input width; `fast`, [`Footprint::Fast`]; `min`, [`Footprint::Minimal`]). The one statement of the arena: a region
 /// is named here only. `field in Part = len;` is a region of its own; `field: Kind in Part
 /// { sub = len; .. }` groups regions into one struct of the navigator (`LayerRam`, an
 /// adapted layer; `LayerGrad`, its gradient; `InnerWorkOf`, the batched inner update's
@@ -248,7 +265,7 @@ pub const fn adapt_batch_with(mode: AdaptMode, k: usize, fp: Footprint) -> usize
 /// navigator generates its `Ram` struct and carve from it with `arena_ram`.
 macro_rules! arena_table {
     ($gen:ident) => {
-        $gen! { |d, full, g, k, b, map, gen_in, fast|
+        $gen! { |d, full, g, k, b, map, gen_in, fast, min|
             // Adapted G (θ, or its gains and biases): weights in Full, gains in Efficient,
             // biases.
             gen1: LayerRam in GenParams {
@@ -299,15 +316,17 @@ macro_rules! arena_table {
                 a = if full { tri!(d.lstm_hidden.checked_mul(NUM_ACTIONS)) } else { NUM_ACTIONS };
                 b = NUM_ACTIONS;
             }
-            // Ψ: k observations, noises, action probabilities and LSTM hidden states.
-            psi_s in Psi = tri!(k.checked_mul(d.feat));
+            // Ψ: k observations, noises, action probabilities and LSTM hidden states (the
+            // Minimal footprint: the observations as int16, two per float, and their scales).
+            psi_s in Psi = tri!(k.checked_mul(if min { d.feat.div_ceil(2) } else { d.feat }));
+            psi_sc in Psi = if min { k } else { 0 };
             psi_z in Psi = tri!(k.checked_mul(d.noise));
             psi_p in Psi = tri!(k.checked_mul(NUM_ACTIONS));
             psi_h in Psi = tri!(k.checked_mul(d.lstm_hidden));
             // Ψ_x: the generated feature of every entry, made once per inner update (G is
             // fixed within an adaptation window, so these are the bits each entry's forward
             // pass gives).
-            psi_x in Psi = tri!(k.checked_mul(d.feat));
+            psi_x in Psi = if min { 0 } else { tri!(k.checked_mul(d.feat)) };
             // Fast footprint, Efficient mode: G's pre-gain output `W2 h1` of every entry,
             // recorded at its step, so that L_ad's backward pass needs no forward pass of G
             // (`inner`).

@@ -213,6 +213,11 @@ pub struct NavConfig {
     /// default): the update runs inside the step that fills Ψ. At most
     /// [`MAX_COMMIT_DELAY`](crate::schema::MAX_COMMIT_DELAY).
     pub commit_delay: u32,
+    /// Ψ keeps its observations as int16 with one scale per entry
+    /// ([`crate::schema::FLAG_COMPACT_PSI`]: a blob records it; default false), so that the
+    /// inner update sees those values in every [`Footprint`];
+    /// [`Footprint::Minimal`] needs it.
+    pub compact_psi: bool,
 }
 
 impl NavConfig {
@@ -243,7 +248,8 @@ impl NavConfig {
     ///
     /// * the inner rule's levers (`disc_steps`, `step_rule`, `disc_head_reset`, `head_only`), the form of
     ///   L_ad (`adapt_loss`) and the scale of L_D's critic terms (`ld.critic_scale`, 1 or 10)
-    ///   from [`ModelFlags`].
+    ///   from [`ModelFlags`];
+    /// * `compact_psi` = the header has [`FLAG_COMPACT_PSI`](crate::schema::FLAG_COMPACT_PSI).
     ///
     /// Everything else keeps its default: [`Schedule::Auto`], [`Selection::Greedy`], L_D's
     /// λ and the default loss bound. These are
@@ -255,7 +261,10 @@ impl NavConfig {
     /// [`Blob::parse`]), so the result is accepted by [`Navigator::new`] as far as the rates
     /// are concerned. See also [`Blob::nav_config`].
     pub fn from_header(header: &Header) -> NavConfig {
-        NavConfig::from_flags(header.model_flags(), header.adapt_settings())
+        NavConfig {
+            compact_psi: header.flags() & crate::schema::FLAG_COMPACT_PSI != 0,
+            ..NavConfig::from_flags(header.model_flags(), header.adapt_settings())
+        }
     }
 
     /// [`NavConfig::from_flags`] of a model's switches (gman-core's one declaration of them,
@@ -338,6 +347,7 @@ impl Default for NavConfig {
             mode: None,
             footprint: Footprint::Compact,
             commit_delay: 0,
+            compact_psi: false,
         }
     }
 }
@@ -693,6 +703,62 @@ fn ok_update(p: &[f32], g: &[f32], step: f32) -> bool {
     p.iter().zip(g).all(|(a, b)| (a + step * b).is_finite())
 }
 
+/// The int16 range of Ψ's compact observations ([`crate::schema::FLAG_COMPACT_PSI`]).
+const PSI_Q: f32 = 32767.0;
+
+/// One observation `s` into Ψ's compact form: `q_j = round(s_j * (32767 / a))` (halves
+/// away from zero, to the f32 rounding of `|t| + 0.5`, at most 32767 in magnitude) with
+/// `a = max |s_j|` (all `q_j` 0 when `a` is 0),
+/// read back as `q_j * (a / 32767)`. With `scale` (the [`Footprint::Minimal`] arena) `out`
+/// gets the `q_j` as int16, two per float (entry `2i` in the low half of float `i`'s bits),
+/// and `scale` the scale; without, `out` gets the values read back ([`psi_load`] gives the
+/// same bits from the packed form). `s` is finite (the step checked it).
+fn psi_store(s: &[f32], out: &mut [f32], scale: Option<&mut f32>) {
+    let mut a = 0.0f32;
+    for &v in s {
+        let m = libm::fabsf(v);
+        if m > a {
+            a = m;
+        }
+    }
+    // (All zeros: `inv` is infinite, `0 * inv` NaN, which `as` turns into 0.)
+    let (sc, inv) = (a / PSI_Q, PSI_Q / a);
+    let packed = scale.is_some();
+    if let Some(dst) = scale {
+        *dst = sc;
+    }
+    for (j, &v) in s.iter().enumerate() {
+        let t = v * inv;
+        let m = ((libm::fabsf(t) + 0.5) as i32).min(PSI_Q as i32);
+        let q = if t < 0.0 { -m } else { m };
+        let (i, hi) = if packed {
+            (j / 2, j % 2 == 1)
+        } else {
+            (j, false)
+        };
+        if let Some(o) = out.get_mut(i) {
+            *o = if !packed {
+                q as f32 * sc
+            } else if hi {
+                f32::from_bits(o.to_bits() & 0xffff | (q as u16 as u32) << 16)
+            } else {
+                f32::from_bits(q as u16 as u32)
+            };
+        }
+    }
+}
+
+/// The observation [`psi_store`] packed into `packed` with scale `sc`, read back into `out`.
+fn psi_load(packed: &[f32], sc: f32, out: &mut [f32]) {
+    for (o, p) in out.chunks_mut(2).zip(packed) {
+        let b = p.to_bits();
+        o[0] = (b as u16 as i16) as f32 * sc;
+        if let Some(v) = o.get_mut(1) {
+            *v = ((b >> 16) as u16 as i16) as f32 * sc;
+        }
+    }
+}
+
 fn axpy_inplace(p: &mut [f32], g: &[f32], step: f32) {
     for (a, b) in p.iter_mut().zip(g) {
         *a += step * b;
@@ -752,7 +818,7 @@ macro_rules! ram_field {
 /// Generates, from the arena table ([`crate::memory`]'s `arena_table`), the `Ram` struct
 /// (one field per region or group of regions, in table order) and its carve.
 macro_rules! arena_ram {
-    (|$d:ident, $full:ident, $g:ident, $k:ident, $b:ident, $map:ident, $gen_in:ident, $fast:ident|
+    (|$d:ident, $full:ident, $g:ident, $k:ident, $b:ident, $map:ident, $gen_in:ident, $fast:ident, $min:ident|
      $($field:ident $(: $kind:ident)? in $part:ident
         $({ $($sub:ident = $sl:expr;)* })? $(= $len:expr;)?)*) => {
         /// All RAM regions of the navigator, carved from its arena: `T` is `&mut [f32]`, or
@@ -883,6 +949,8 @@ pub struct Navigator<'w, M: Mode, const K: usize, S = &'w mut [f32]> {
     /// Every entry of Ψ recorded its x_t (and, where Ψ keeps it, G's pre-gain output) at its
     /// step, from G at the current θ: the inner update need not regenerate Ψ_x.
     psi_recorded: bool,
+    /// [`Footprint::Minimal`]: no Ψ_x (regenerated batch by batch), Ψ's observations packed.
+    lean: bool,
     last: AdaptReport,
     /// The inner update in progress (between Ψ filling and its commit when
     /// [`NavConfig::commit_delay`] > 0).
@@ -897,8 +965,6 @@ pub struct Navigator<'w, M: Mode, const K: usize, S = &'w mut [f32]> {
 /// Ψ's entries a batch ([`InnerWork::b`](crate::inner::InnerWork::b) entries) per slice.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum Phase {
-    /// Ψ_x regenerated (only when the steps did not record it).
-    Generate,
     /// ∇_ω L_D over Ψ, then D's ascent (`disc_steps` times).
     Disc,
     /// Pass 1 of L_ad: the scores, then L_ad and its output gradients.
@@ -1019,6 +1085,16 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
                 what: "Schedule::Background needs a commit_delay of at least 1 step",
             });
         }
+        let lean = cfg.footprint == Footprint::Minimal;
+        if lean
+            && (M::MODE != AdaptMode::Efficient
+                || !cfg.compact_psi
+                || (cfg.adapt && cfg.emd == Emd::CosSim))
+        {
+            return Err(Error::Config {
+                what: "Footprint::Minimal: compact Ψ, Efficient, D only",
+            });
+        }
         let dims = weights.dims;
         if crate::memory::try_arena_len_with(&dims, M::MODE, K, cfg.footprint).is_none() {
             return Err(Error::Config {
@@ -1045,6 +1121,7 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
             x_fixed: false,
             u2_valid: false,
             psi_recorded: false,
+            lean,
             last: AdaptReport::default(),
             upd: None,
             upd_rng: Xoshiro128::seed_from_u64(0),
@@ -1259,10 +1336,7 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
     /// it, so that D, which persists across episodes, learns from every buffer that filled,
     /// whenever the episode ended; a host that reads D after an episode calls it first.
     pub fn settle(&mut self) -> Result<()> {
-        while self
-            .upd
-            .is_some_and(|u| matches!(u.phase, Phase::Generate | Phase::Disc))
-        {
+        while self.upd.is_some_and(|u| u.phase == Phase::Disc) {
             self.run_slice()?;
         }
         self.upd = None;
@@ -1279,7 +1353,11 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
     pub fn buffer(&self) -> BufferView<'_> {
         let (d, n, r) = (&self.w.dims, self.n_buf, self.arena.view());
         BufferView {
-            obs: &r.psi_s[..n * d.feat],
+            obs: if self.lean {
+                &[]
+            } else {
+                &r.psi_s[..n * d.feat]
+            },
             noise: &r.psi_z[..n * d.noise],
             probs: &r.psi_p[..n * NUM_ACTIONS],
             hidden: &r.psi_h[..n * d.lstm_hidden],
@@ -1578,8 +1656,14 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
         let window = self.upd.is_some();
         if !window {
             let (f, z, lh, n) = (d.feat, d.noise, d.lstm_hidden, self.n_buf);
+            let (compact, lean) = (self.cfg.compact_psi, self.lean);
             let r = self.arena.ram();
-            r.psi_s[n * f..(n + 1) * f].copy_from_slice(obs);
+            if compact {
+                let w = if lean { f.div_ceil(2) } else { f };
+                psi_store(obs, &mut r.psi_s[n * w..(n + 1) * w], r.psi_sc.get_mut(n));
+            } else {
+                r.psi_s[n * f..(n + 1) * f].copy_from_slice(obs);
+            }
             r.psi_z[n * z..(n + 1) * z].copy_from_slice(r.z);
             r.psi_p[n * NUM_ACTIONS..(n + 1) * NUM_ACTIONS].copy_from_slice(r.probs);
             r.psi_h[n * lh..(n + 1) * lh].copy_from_slice(r.h);
@@ -1778,11 +1862,9 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
         if forked {
             self.upd_rng = Xoshiro128::seed_from_u64(rand_core::RngCore::next_u64(&mut self.rng));
         }
-        // Ψ_x once: G is fixed until the descent step of line 20 (recorded by the steps when
-        // they ran G at this θ, which gives the same bits).
-        let phase = if !self.psi_recorded {
-            Phase::Generate
-        } else if disc_steps > 0 {
+        // Ψ_x as the steps recorded it when they ran G at this θ (G is fixed until the
+        // descent step of line 20), else each pass regenerates its batch's x_t: the same bits.
+        let phase = if disc_steps > 0 {
             Phase::Disc
         } else {
             Phase::Scores
@@ -1812,13 +1894,24 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
         let (f, dh, h, zin) = (d.feat, d.disc_hidden, d.gen_hidden, d.noise + d.attr);
         let full = (M::MODE == AdaptMode::Full) as usize;
         let keep_u2 = !self.arena.view().psi_u2.is_empty() && self.psi_recorded;
+        // Without Ψ_x, the Disc and Scores passes run G first.
+        let g_pass = if self.psi_recorded {
+            0
+        } else {
+            h * zin + f * h
+        };
+        // The transposed products (gradients) stay f32: with int8 activations they cost
+        // about twice as much per multiply-add as the forward ones (`docs/kernels.md`).
+        let tw = 1 + self.w.get(TensorId::GenW2).int8_activations() as usize;
         let per = match phase {
-            Phase::Generate => h * zin + f * h,
-            // D on real, fake, interpolate; its input gradient, W1 g; W1's outer products.
-            Phase::Disc => f * dh * (5 + 3 * full),
-            Phase::Scores => f * dh,
+            // D on real, fake, interpolate and W1 g; its input gradient; W1's outer products.
+            Phase::Disc => f * dh * (4 + tw * (1 + 3 * full)) + g_pass,
+            Phase::Scores => f * dh + g_pass,
             Phase::Backward => {
-                h * zin + 2 * f * dh + f * h * (1 + full + !keep_u2 as usize) + full * h * zin
+                h * zin
+                    + f * dh
+                    + f * h * !keep_u2 as usize
+                    + tw * (f * dh + f * h * (1 + full) + full * h * zin)
             }
             Phase::Head => d.lstm_hidden * NUM_ACTIONS * 2,
             Phase::Done => 0,
@@ -1829,11 +1922,7 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
     /// Upper bound of the update's estimated work, from the phase `u` starts in.
     fn cost_bound(&self, u: &Update) -> u64 {
         let n = self.n_buf;
-        let mut c = 0;
-        if u.phase == Phase::Generate {
-            c += self.slice_cost(Phase::Generate, n);
-        }
-        c += u.disc_steps as u64 * self.slice_cost(Phase::Disc, n);
+        let mut c = u.disc_steps as u64 * self.slice_cost(Phase::Disc, n);
         c += self.slice_cost(Phase::Scores, n);
         if !self.cfg.head_only {
             c += self.slice_cost(Phase::Backward, n);
@@ -1845,9 +1934,8 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
     fn slice_bound(&self) -> u32 {
         let Some(u) = self.upd else { return 0 };
         let per = self.n_buf.div_ceil(self.arena.b) as u32;
-        let gen = if self.psi_recorded { 0 } else { per };
         let back = if self.cfg.head_only { 0 } else { per };
-        gen + u.disc_steps * per + per + back + 1
+        u.disc_steps * per + per + back + 1
     }
 
     /// One slice of the pending update: one batch of entries of its current phase (and the
@@ -1863,18 +1951,6 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
         u.done = u.done.saturating_add(self.slice_cost(phase, t1 - t0));
         u.slices += 1;
         match phase {
-            Phase::Generate => {
-                self.generate_psi_x(t0, t1)?;
-                u.t = t1;
-                if t1 >= n {
-                    u.t = 0;
-                    u.phase = if u.disc_steps > 0 {
-                        Phase::Disc
-                    } else {
-                        Phase::Scores
-                    };
-                }
-            }
             Phase::Disc => {
                 if t0 == 0 {
                     u.report.ld = LdValue::default();
@@ -1959,7 +2035,7 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
         let f = self.w.dims.feat;
         let r = self.arena.ram();
         let keep_u2 = !r.psi_u2.is_empty();
-        let ok = !self.x_fixed && (!keep_u2 || self.u2_valid);
+        let ok = !self.lean && !self.x_fixed && (!keep_u2 || self.u2_valid);
         if ok {
             r.psi_x[n * f..(n + 1) * f].copy_from_slice(r.x);
             if keep_u2 {
@@ -1967,30 +2043,6 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
             }
         }
         self.psi_recorded = (n == 0 || self.psi_recorded) && ok;
-    }
-
-    /// Ψ_x: `x_t = G(z_t, attr)` for the entries `t0 .. t1` of Ψ, once per inner update (G
-    /// is not changed before the descent step, so every pass reads these bits).
-    fn generate_psi_x(&mut self, t0: usize, t1: usize) -> Result<()> {
-        let d = self.w.dims;
-        let w = self.w;
-        let Ram {
-            gen1,
-            gen2,
-            psi_z,
-            psi_x,
-            attr,
-            iw,
-            ..
-        } = &mut self.arena.ram();
-        let gen = gen_view(gen1, gen2, &w)?;
-        inner::generate(
-            &gen,
-            &psi_z[t0 * d.noise..t1 * d.noise],
-            attr,
-            &mut psi_x[t0 * d.feat..t1 * d.feat],
-            iw,
-        )
     }
 
     /// ∇_ω L_D (Eq. 1, WGAN-GP) over the entries `t0 .. t1` of Ψ added into D's gradient
@@ -2006,9 +2058,12 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
         let n = self.n_buf;
         let d = self.w.dims;
         let cfg = self.cfg;
-        let f = d.feat;
+        let (f, zd) = (d.feat, d.noise);
         let w = self.w;
+        let (recorded, lean) = (self.psi_recorded, self.lean);
         let Ram {
+            gen1,
+            gen2,
             disc1,
             disc_w2,
             disc_b2,
@@ -2016,7 +2071,10 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
             g_disc_w2,
             g_disc_b2,
             psi_s,
+            psi_sc,
+            psi_z,
             psi_x,
+            attr,
             eps,
             iw,
             ..
@@ -2041,17 +2099,53 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
             b2: &mut g_disc_b2[0],
         };
         let inv = 1.0 / n as f32;
-        inner::ld_grad_sum_from(
-            &disc,
-            &psi_s[t0 * f..t1 * f],
-            &psi_x[t0 * f..t1 * f],
-            &eps[t0..t1],
-            cfg.ld,
-            inv,
-            iw,
-            &mut grads,
-            ld,
-        )
+        // Unless the steps recorded Ψ_x, the batch's x_t regenerated (into `mix`, then
+        // swapped with `dpre2`, G's backward scratch); with Footprint::Minimal its s_t read
+        // back into `u2` (G's pre-gain scratch, free once G ran). L_D's pass uses neither.
+        let (nb, hf) = (t1 - t0, f.div_ceil(2));
+        let mut xs: &mut [f32] = &mut [];
+        let mut sb: &mut [f32] = &mut [];
+        let r = (|| {
+            let fake: &[f32] = if recorded {
+                &psi_x[t0 * f..t1 * f]
+            } else {
+                let gen = gen_view(gen1, gen2, &w)?;
+                inner::generate_mix(&gen, &psi_z[t0 * zd..t1 * zd], attr, nb, iw)?;
+                core::mem::swap(&mut iw.mix, &mut iw.dpre2);
+                xs = core::mem::take(&mut iw.dpre2);
+                xs.get(..nb * f).ok_or(ARENA_TOO_SMALL)?
+            };
+            let real: &[f32] = if lean {
+                sb = core::mem::take(&mut iw.u2);
+                let s = sb.get_mut(..nb * f).ok_or(ARENA_TOO_SMALL)?;
+                for (i, o) in s.chunks_exact_mut(f).enumerate() {
+                    let t = t0 + i;
+                    psi_load(&psi_s[t * hf..(t + 1) * hf], psi_sc[t], o);
+                }
+                s
+            } else {
+                &psi_s[t0 * f..t1 * f]
+            };
+            inner::ld_grad_sum_from(
+                &disc,
+                real,
+                fake,
+                &eps[t0..t1],
+                cfg.ld,
+                inv,
+                iw,
+                &mut grads,
+                ld,
+            )
+        })();
+        if !xs.is_empty() {
+            iw.dpre2 = core::mem::take(&mut iw.mix);
+            iw.mix = xs;
+        }
+        if iw.u2.is_empty() {
+            iw.u2 = sb;
+        }
+        r
     }
 
     /// The mean over Ψ of D's gradient (after its last entry).
@@ -2110,7 +2204,7 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
         let cfg = self.cfg;
         let (f, zd) = (d.feat, d.noise);
         let w = self.w;
-        let recorded = self.psi_recorded;
+        let (recorded, lean) = (self.psi_recorded, self.lean);
         let Ram {
             gen1,
             gen2,
@@ -2142,9 +2236,9 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
         let inp = inner::AdaptInputs {
             attr,
             zs: &psi_z[..n * zd],
-            xs: Some(&psi_x[..n * f]),
+            xs: recorded.then(|| &psi_x[..n * f]),
             u2s: (recorded && !psi_u2.is_empty()).then(|| &psi_u2[..n * f]),
-            obs: &psi_s[..n * f],
+            obs: if lean { &[] } else { &psi_s[..n * f] },
         };
         let outs = (
             &mut dvals[..n],
@@ -2164,7 +2258,7 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
         let d = self.w.dims;
         let (f, zd) = (d.feat, d.noise);
         let w = self.w;
-        let recorded = self.psi_recorded;
+        let (recorded, lean) = (self.psi_recorded, self.lean);
         let Ram {
             gen1,
             gen2,
@@ -2187,9 +2281,9 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
         let inp = inner::AdaptInputs {
             attr,
             zs: &psi_z[..n * zd],
-            xs: Some(&psi_x[..n * f]),
+            xs: recorded.then(|| &psi_x[..n * f]),
             u2s: (recorded && !psi_u2.is_empty()).then(|| &psi_u2[..n * f]),
-            obs: &psi_s[..n * f],
+            obs: if lean { &[] } else { &psi_s[..n * f] },
         };
         inner::score_backward_part(
             &gen,

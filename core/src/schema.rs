@@ -321,6 +321,15 @@ pub const FLAG_HEAD_ONLY: u32 = 1 << 21;
 /// does). It changes no other setting, so it is not part of [`ModelFlags`].
 pub const FLAG_INT8_ACTIVATIONS: u32 = 1 << 24;
 
+/// Bit of the blob header's flags: the navigator keeps Ψ's observations s_t in a compact
+/// form, int16 with one scale per entry (`q_j = round(s_j * (32767 / max|s|))`, read back
+/// as `q_j * (max|s| / 32767)`), so that the inner update sees those values instead of the
+/// f32 ones; the firmware's [`crate::memory::Footprint::Minimal`] arena needs it. `gman
+/// export` sets it with int8 activations. Like [`FLAG_INT8_ACTIVATIONS`] it says how a
+/// blob is run ([`crate::navigator::NavWeights::from_blob`] reads it), so it is not part
+/// of [`ModelFlags`]; without it every path computes what it computed before the flag.
+pub const FLAG_COMPACT_PSI: u32 = 1 << 23;
+
 /// Bits 8..16 of the blob header's flags: D's ascent steps per inner update minus one
 /// ([`ModelFlags::disc_steps`], 1..=256; 0 in every blob written before the setting, i.e. the
 /// paper's one step).

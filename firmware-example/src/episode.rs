@@ -42,8 +42,10 @@ use core::fmt;
 
 use gman_core::blob::Blob;
 use gman_core::crc32::crc32_update;
-use gman_core::memory::{arena_len, AdaptMode};
-use gman_core::navigator::{Counters, Efficient, NavConfig, NavWeights, Navigator};
+use gman_core::memory::{arena_len_with, AdaptMode, Footprint};
+use gman_core::navigator::{
+    Counters, Efficient, Emd, NavConfig, NavWeights, Navigator, NoiseMode, Schedule,
+};
 use gman_core::{Action, Dims};
 
 /// The model size the firmware runs: the `Mcu` preset with the 3 x 3 spatial map and the
@@ -57,8 +59,22 @@ pub const K: usize = 20;
 /// end of the 20th, so no step carries more than about a twentieth of it (see
 /// `docs/device.md`; `gman eval --commit-delay 20` runs the same schedule on the host).
 pub const COMMIT_DELAY: u32 = 20;
-/// Floats of RAM the navigator needs ([`arena_len`] for [`DIMS`], `Efficient`, [`K`]).
-pub const ARENA_LEN: usize = arena_len(&DIMS, AdaptMode::Efficient, K);
+/// The navigator's arena layout: with the feature `int8-activations`, whose build embeds a
+/// blob with [`FLAG_COMPACT_PSI`](gman_core::schema::FLAG_COMPACT_PSI), the smallest,
+/// [`Footprint::Minimal`] (no Ψ_x, Ψ's observations as int16; a blob without the flag is
+/// refused with a typed error), else [`Footprint::Compact`]. (The host's run of this file
+/// in the parity test has no such feature: it runs `Compact`, which gives the same bits.)
+#[allow(unexpected_cfgs)] // (the parity test's crate has no such feature)
+pub const FOOTPRINT: Footprint = if cfg!(feature = "int8-activations") {
+    Footprint::Minimal
+} else {
+    Footprint::Compact
+};
+// The `navigator:` line names the map and K as literals (no formatting code for them).
+const _: () = assert!(DIMS.map_rows == 3 && DIMS.map_cols == 3 && K == 20);
+/// Floats of RAM the navigator needs ([`arena_len_with`] for [`DIMS`], `Efficient`, [`K`],
+/// [`FOOTPRINT`]).
+pub const ARENA_LEN: usize = arena_len_with(&DIMS, AdaptMode::Efficient, K, FOOTPRINT);
 /// Magic bytes of an episode file.
 pub const MAGIC: [u8; 4] = *b"GMEP";
 /// Version of the episode file format.
@@ -304,6 +320,7 @@ pub fn run(
     if cfg.commit_delay == 0 {
         cfg.commit_delay = COMMIT_DELAY;
     }
+    cfg.footprint = FOOTPRINT;
     probe.line(format_args!(
         "episode: {} ({} steps, seed {})",
         ep.label(),
@@ -311,22 +328,33 @@ pub fn run(
         ep.seed
     ));
     probe.line(format_args!(
-        "navigator: Mcu, {}x{} map, Efficient, K={}, max_inner_updates={}, arena {} floats",
-        DIMS.map_rows, DIMS.map_cols, K, cfg.max_inner_updates, ARENA_LEN
+        "navigator: Mcu, 3x3 map, Efficient, K=20, max_inner_updates={}",
+        cfg.max_inner_updates
     ));
-    // Rates as f32 bits: exact, and no float formatting code in flash.
+    // Rates as f32 bits: exact, and no float formatting code in flash. The enums by the
+    // names their `Debug` prints, without linking those impls (flash).
     probe.line(format_args!(
-        "config from blob v{}: adapt={} emd={:?} noise={:?} alpha_disc={:08x} alpha_adapt={:08x}",
-        blob.header().version(),
-        cfg.adapt as u8,
-        cfg.emd,
-        cfg.noise,
+        "config from blob v{}: adapt={} emd={} noise={} alpha_disc={:08x} alpha_adapt={:08x}",
+        blob.header().version() as u32,
+        cfg.adapt as u32,
+        match cfg.emd {
+            Emd::Discriminator => "Discriminator",
+            Emd::CosSim => "CosSim",
+        },
+        match cfg.noise {
+            NoiseMode::Gaussian => "Gaussian",
+            NoiseMode::Zero => "Zero",
+        },
         cfg.alpha_disc.to_bits(),
         cfg.alpha_adapt.to_bits(),
     ));
     probe.line(format_args!(
-        "schedule: {:?}, commit_delay={} (blob: {})",
-        cfg.schedule,
+        "schedule: {}, commit_delay={} (blob: {})",
+        match cfg.schedule {
+            Schedule::Auto => "Auto",
+            Schedule::Manual => "Manual",
+            Schedule::Background => "Background",
+        },
         cfg.commit_delay,
         blob.header().model_flags().commit_delay
     ));
@@ -372,7 +400,7 @@ pub fn run(
             p[4],
             p[5],
             out.value.to_bits(),
-            out.adapted as u8,
+            out.adapted as u32,
             c.adaptations,
             c.rollbacks,
             ep.scripted_action(src, t).map_or("?", Action::name),

@@ -344,7 +344,7 @@ fn run() -> Result<(), Failure> {
 
     hprintln!(
         "# int8 kernel: dsp_smlad={} (1: SXTB16 + SMLAD, gman-dsp)",
-        gman_core::qkernel::DSP_KERNEL as u8
+        gman_core::qkernel::DSP_KERNEL as u32
     );
 
     let mut dev = Device {
@@ -413,7 +413,7 @@ fn run() -> Result<(), Failure> {
         "# model: macs_per_step={} map_cells={} int8_activations={}",
         episode::DIMS.macs_per_step(),
         episode::DIMS.map_cells(),
-        act8 as u8
+        act8 as u32
     );
     let stack = stack_selftest.max(stack_navigator);
     let (flash, stat) = (measure::flash_bytes(), measure::static_ram_bytes());

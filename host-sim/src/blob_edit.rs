@@ -3,15 +3,27 @@
 
 use anyhow::{anyhow, bail, Result};
 use gman_core::blob::{reencode_with_flags, reencoded_len_bound, Blob, Quant};
-use gman_core::schema::FLAG_INT8_ACTIVATIONS;
+use gman_core::schema::{FLAG_COMPACT_PSI, FLAG_INT8_ACTIVATIONS};
+
+/// `bytes` (a weight blob) emitted again with [`FLAG_INT8_ACTIVATIONS`] and
+/// [`FLAG_COMPACT_PSI`] set (`int8`) or both cleared: [`reencode_with_flags_of`] with Ψ's
+/// compact form exactly when the activations are int8 (what `gman export` and the
+/// firmware's build write).
+pub fn reencode_with_activations(bytes: &[u8], int8: bool) -> Result<Vec<u8>> {
+    reencode_with_flags_of(bytes, int8, int8)
+}
 
 /// `bytes` (a weight blob) emitted again with [`FLAG_INT8_ACTIVATIONS`] set (`int8`) or
-/// cleared; every tensor, the other flags and the inner-loop settings are kept. int8
-/// activations need at least one int8 weight matrix.
-pub fn reencode_with_activations(bytes: &[u8], int8: bool) -> Result<Vec<u8>> {
+/// cleared and [`FLAG_COMPACT_PSI`] set (`compact_psi`) or cleared; every tensor, the other
+/// flags and the inner-loop settings are kept. int8 activations need at least one int8
+/// weight matrix.
+pub fn reencode_with_flags_of(bytes: &[u8], int8: bool, compact_psi: bool) -> Result<Vec<u8>> {
     let blob = Blob::parse(bytes).map_err(|e| anyhow!("{e}"))?;
     let h = blob.header();
-    let mut flags = h.flags() & !FLAG_INT8_ACTIVATIONS;
+    let mut flags = h.flags() & !(FLAG_INT8_ACTIVATIONS | FLAG_COMPACT_PSI);
+    if compact_psi {
+        flags |= FLAG_COMPACT_PSI;
+    }
     if int8 {
         if !blob.tensors().any(|t| t.quant == Quant::I8) {
             bail!("the blob has no int8 weights; int8 activations need int8 weights (export with --quant int8)");
@@ -44,7 +56,7 @@ mod tests {
         let (a, b) = (Blob::parse(&orig).unwrap(), Blob::parse(&q).unwrap());
         assert_eq!(
             b.header().flags(),
-            a.header().flags() | FLAG_INT8_ACTIVATIONS
+            a.header().flags() | FLAG_INT8_ACTIVATIONS | FLAG_COMPACT_PSI
         );
         assert_eq!(a.header().adapt_settings(), b.header().adapt_settings());
         let ta: Vec<_> = a.tensors().map(|t| (t.id, t.data, t.scales)).collect();

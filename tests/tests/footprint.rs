@@ -204,3 +204,121 @@ fn fast_footprint_costs_only_ram_and_compact_is_the_default() {
     };
     assert!(Navigator::<Efficient, K>::new(w, &mut arena, cfg).is_err());
 }
+
+/// Ψ's compact observations (`FLAG_COMPACT_PSI`, int16 with one scale per entry): the
+/// firmware's [`Footprint::Minimal`] (no Ψ_x, the observations packed two per float) gives
+/// the bits of the hosts' [`Footprint::Fast`] and of [`Footprint::Compact`], which keep the
+/// observations read back as f32, with f32 weights and with an int8-activation blob.
+#[test]
+fn compact_psi_gives_the_same_episode_in_every_footprint() {
+    let dims = Dims::MCU;
+    let t: &'static [Vec<f32>] = Vec::leak(f32_weights(&dims, 2));
+    let f32w = move || {
+        NavWeights::from_fn(&dims, |id| {
+            let (r, c) = id.shape(&dims);
+            MatRef::f32(r, c, &t[id as usize]).unwrap()
+        })
+        .unwrap()
+    };
+    let bytes = gman_host_sim::seeded::int8_blob(&dims, 3, 0.05).unwrap();
+    let bytes = gman_host_sim::blob_edit::reencode_with_activations(&bytes, true).unwrap();
+    let bytes: &'static [u8] = Vec::leak(bytes);
+    let blob: &'static Blob<'static> = Box::leak(Box::new(Blob::parse(bytes).unwrap()));
+    let i8w = move || NavWeights::from_blob(blob, &dims).unwrap();
+    assert!(blob.nav_config().compact_psi);
+    for (what, w) in [
+        ("f32", &f32w as &dyn Fn() -> NavWeights<'static>),
+        ("int8", &i8w),
+    ] {
+        for noise in [NoiseMode::Gaussian, NoiseMode::Zero] {
+            for disc_steps in [1, 2] {
+                let cfg = NavConfig {
+                    alpha_disc: 0.05,
+                    alpha_adapt: 0.1,
+                    max_inner_updates: 3,
+                    noise,
+                    disc_steps,
+                    compact_psi: true,
+                    ..NavConfig::default()
+                };
+                let base = episode::<Efficient>(w(), cfg, false);
+                assert_eq!(base.adaptations, 3, "{what}: the episode adapts");
+                for (fp, probe) in [
+                    (Footprint::Compact, true),
+                    (Footprint::Fast, false),
+                    (Footprint::Minimal, false),
+                    (Footprint::Minimal, true),
+                ] {
+                    let cfg = NavConfig {
+                        footprint: fp,
+                        ..cfg
+                    };
+                    let got = episode::<Efficient>(w(), cfg, probe);
+                    assert_eq!(got, base, "{what} {noise:?} {fp:?} probes {probe}");
+                    let owned = episode_owned::<Efficient>(w(), cfg, probe);
+                    assert_eq!(owned, base, "{what}: owned arena, {fp:?}");
+                }
+                // The compact form changes what the inner update sees, not the steps
+                // before the first update.
+                let plain = episode::<Efficient>(
+                    w(),
+                    NavConfig {
+                        compact_psi: false,
+                        ..cfg
+                    },
+                    false,
+                );
+                assert_eq!(plain.steps[..K], base.steps[..K], "{what}");
+            }
+        }
+    }
+}
+
+#[test]
+fn minimal_footprint_is_smaller_and_refuses_what_it_cannot_run() {
+    let d = Dims::MCU.with_map(3, 3, 8);
+    let c = NavLayout::new_with(&d, AdaptMode::Efficient, 20, Footprint::Compact);
+    let m = NavLayout::new_with(&d, AdaptMode::Efficient, 20, Footprint::Minimal);
+    // No Ψ_x (20 x 512 floats), the observations in half the floats, 20 scales.
+    assert_eq!(c.psi - m.psi, 20 * 512 + 20 * 256 - 20);
+    assert_eq!(c.work, m.work);
+    let dims = Dims::MCU;
+    let t = f32_weights(&dims, 1);
+    let w = || {
+        NavWeights::from_fn(&dims, |id| {
+            let (r, c) = id.shape(&dims);
+            MatRef::f32(r, c, &t[id as usize]).unwrap()
+        })
+        .unwrap()
+    };
+    let cfg = NavConfig {
+        footprint: Footprint::Minimal,
+        compact_psi: true,
+        ..NavConfig::default()
+    };
+    let n = Navigator::<Efficient, K>::arena_len_for(&dims, Footprint::Minimal);
+    let mut arena = vec![0.0f32; n];
+    assert!(Navigator::<Efficient, K>::new(w(), &mut arena, cfg).is_ok());
+    // Without the compact observations, in Full mode, with CosSim: a typed error.
+    let plain = NavConfig {
+        compact_psi: false,
+        ..cfg
+    };
+    let e = Navigator::<Efficient, K>::new(w(), &mut arena, plain).err();
+    assert!(matches!(e, Some(gman_core::Error::Config { .. })), "{e:?}");
+    let cos = NavConfig {
+        emd: Emd::CosSim,
+        ..cfg
+    };
+    let e = Navigator::<Efficient, K>::new(w(), &mut arena, cos).err();
+    assert!(matches!(e, Some(gman_core::Error::Config { .. })), "{e:?}");
+    let mut big = vec![0.0f32; Navigator::<Full, K>::arena_len_for(&dims, Footprint::Minimal)];
+    let e = Navigator::<Full, K>::new(w(), &mut big, cfg).err();
+    assert!(matches!(e, Some(gman_core::Error::Config { .. })), "{e:?}");
+    // A Minimal-sized arena is too small for the other footprints.
+    let compact = NavConfig {
+        footprint: Footprint::Compact,
+        ..cfg
+    };
+    assert!(Navigator::<Efficient, K>::new(w(), &mut arena, compact).is_err());
+}

@@ -4,7 +4,7 @@ use std::path::PathBuf;
 
 use anyhow::{bail, Context, Result};
 use clap::{Args, ValueEnum};
-use gman_host_sim::blob_edit::reencode_with_activations;
+use gman_host_sim::blob_edit::reencode_with_flags_of;
 use gman_host_sim::model::load_model;
 
 use super::args::PresetArg;
@@ -37,6 +37,11 @@ pub struct ExportArgs {
     /// `--quant int8`).
     #[arg(long, value_enum, default_value = "f32")]
     pub activations: ActArg,
+    /// How the navigator keeps Ψ's observations: `auto` (int16 with int8 activations, else
+    /// f32), `f32`, or `int16` (`FLAG_COMPACT_PSI`: one scale per entry; the firmware's
+    /// smallest arena, `Footprint::Minimal`, needs it).
+    #[arg(long, value_enum, default_value = "auto")]
+    pub psi: PsiArg,
     /// Output blob.
     #[arg(long, value_name = "MODEL.gman")]
     pub out: PathBuf,
@@ -49,6 +54,17 @@ pub enum ActArg {
     F32,
     /// int8 activations, i32 accumulators (`FLAG_INT8_ACTIVATIONS`).
     Int8,
+}
+
+/// How an exported blob's navigator keeps Ψ's observations.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum PsiArg {
+    /// int16 with int8 activations, else f32.
+    Auto,
+    /// f32.
+    F32,
+    /// int16 with one scale per entry (`FLAG_COMPACT_PSI`).
+    Int16,
 }
 
 /// Weight format of an exported blob.
@@ -68,11 +84,16 @@ pub fn cmd_export(a: ExportArgs) -> Result<()> {
         }
     }
     let int8_act = a.activations == ActArg::Int8;
+    let compact = match a.psi {
+        PsiArg::Auto => int8_act,
+        PsiArg::F32 => false,
+        PsiArg::Int16 => true,
+    };
     let (bytes, method) = match (&a.ckpt, &a.blob) {
         (_, Some(path)) => {
             let bytes = std::fs::read(path)
                 .with_context(|| format!("reading the blob {}", path.display()))?;
-            let out = reencode_with_activations(&bytes, int8_act)
+            let out = reencode_with_flags_of(&bytes, int8_act, compact)
                 .with_context(|| format!("re-emitting the blob {}", path.display()))?;
             (out, "(from blob)".to_string())
         }
@@ -88,8 +109,8 @@ pub fn cmd_export(a: ExportArgs) -> Result<()> {
                 );
             }
             let bytes = model.to_blob(a.quant == QuantArg::Int8)?;
-            let bytes = if int8_act {
-                reencode_with_activations(&bytes, true)?
+            let bytes = if int8_act || compact {
+                reencode_with_flags_of(&bytes, int8_act, compact)?
             } else {
                 bytes
             };
@@ -101,11 +122,12 @@ pub fn cmd_export(a: ExportArgs) -> Result<()> {
         std::io::Write::write_all(f, &bytes)
     })?;
     eprintln!(
-        "wrote {} ({} bytes, {:?} weights, {:?} activations, method {})",
+        "wrote {} ({} bytes, {:?} weights, {:?} activations, Ψ observations {}, method {})",
         a.out.display(),
         bytes.len(),
         a.quant,
         a.activations,
+        if compact { "int16" } else { "f32" },
         method
     );
     Ok(())

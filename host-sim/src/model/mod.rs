@@ -347,6 +347,9 @@ pub struct NavModel {
     pub adapt_mode: AdaptMode,
     /// The inner rule's levers beyond `inner_lr` and `max_inner` (default: the paper's).
     pub inner_rule: InnerRule,
+    /// Ψ's observations kept as int16 (a blob with
+    /// [`FLAG_COMPACT_PSI`](gman_core::schema::FLAG_COMPACT_PSI); [`NavConfig::compact_psi`]).
+    pub compact_psi: bool,
 }
 
 impl NavModel {
@@ -417,6 +420,7 @@ impl NavModel {
             privileged: false,
             adapt_mode: AdaptMode::Full,
             inner_rule: InnerRule::PAPER,
+            compact_psi: false,
         })
     }
 
@@ -479,6 +483,7 @@ impl NavModel {
             // A host has the RAM: Ψ as one batch and G's pre-gain outputs kept (the same
             // bits as the device's compact layout).
             footprint: Footprint::Fast,
+            compact_psi: self.compact_psi,
             ..NavConfig::from_spec(
                 &self.spec(),
                 self.method.adapts_at_eval(),
@@ -603,6 +608,7 @@ impl NavModel {
             privileged: m.privileged,
             adapt_mode: AdaptMode::Full,
             inner_rule: InnerRule::PAPER,
+            compact_psi: false,
         };
         model.set_spec(m.spec);
         Ok(model)
@@ -740,6 +746,7 @@ pub fn model_from_blob_with_ps(
         privileged: false,
         adapt_mode: spec.adapt_mode,
         inner_rule: spec.inner_rule,
+        compact_psi: blob.header().flags() & gman_core::schema::FLAG_COMPACT_PSI != 0,
     })
 }
 
