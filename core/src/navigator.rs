@@ -1035,10 +1035,9 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
     /// fixed biases are loaded from `weights`; call [`Navigator::reset`] before the first
     /// step.
     pub fn with_storage(weights: NavWeights<'w>, mut arena: S, cfg: NavConfig) -> Result<Self> {
+        let bad = |what: &'static str| Err(Error::Config { what });
         if K == 0 {
-            return Err(Error::Config {
-                what: "buffer capacity K must be at least 1",
-            });
+            return bad("buffer capacity K must be at least 1");
         }
         // The blob parser's checks, for weights and settings from any source.
         let rates = AdaptSettings {
@@ -1047,43 +1046,29 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
             max_inner: cfg.max_inner_updates,
         };
         if rates.validate().is_err() {
-            return Err(Error::Config {
-                what: "alpha_disc and alpha_adapt must be finite, non-negative and at most blob::MAX_INNER_RATE",
-            });
+            return bad("alpha_disc and alpha_adapt must be finite, non-negative and at most blob::MAX_INNER_RATE");
         }
         if cfg.loss_bound.is_nan() || cfg.loss_bound <= 0.0 {
-            return Err(Error::Config {
-                what: "loss_bound must be > 0",
-            });
+            return bad("loss_bound must be > 0");
         }
         match crate::blob::check_model_dims(&weights.dims) {
             Ok(()) => {}
             Err(BlobError::DegenerateDims { .. }) => {
-                return Err(Error::Config {
-                    what: "degenerate dims: a width is zero or the map's dims are inconsistent (see Dims::degenerate_field)",
-                })
+                return bad("degenerate dims: a width is zero or the map's dims are inconsistent (see Dims::degenerate_field)")
             }
             Err(_) => {
-                return Err(Error::Config {
-                    what: "dims too large: a size derived from them overflows usize",
-                })
+                return bad("dims too large: a size derived from them overflows usize")
             }
         }
         // (A model that does not adapt runs identically in both modes.)
         if cfg.adapt && cfg.mode.is_some_and(|m| m != M::MODE) {
-            return Err(Error::Config {
-                what: "these weights were meta-trained in the other adaptation mode (see NavConfig::mode): run them with that Navigator mode",
-            });
+            return bad("these weights were meta-trained in the other adaptation mode (see NavConfig::mode): run them with that Navigator mode");
         }
         if cfg.commit_delay > crate::schema::MAX_COMMIT_DELAY {
-            return Err(Error::Config {
-                what: "commit_delay above MAX_COMMIT_DELAY (63)",
-            });
+            return bad("commit_delay above MAX_COMMIT_DELAY (63)");
         }
         if cfg.schedule == Schedule::Background && cfg.commit_delay == 0 {
-            return Err(Error::Config {
-                what: "Schedule::Background needs a commit_delay of at least 1 step",
-            });
+            return bad("Schedule::Background needs a commit_delay of at least 1 step");
         }
         let lean = cfg.footprint == Footprint::Minimal;
         if lean
@@ -1091,15 +1076,11 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
                 || !cfg.compact_psi
                 || (cfg.adapt && cfg.emd == Emd::CosSim))
         {
-            return Err(Error::Config {
-                what: "Footprint::Minimal: compact Ψ, Efficient, D only",
-            });
+            return bad("Footprint::Minimal: compact Ψ, Efficient, D only");
         }
         let dims = weights.dims;
         if crate::memory::try_arena_len_with(&dims, M::MODE, K, cfg.footprint).is_none() {
-            return Err(Error::Config {
-                what: "dims too large: the arena size for these dims, mode and K overflows",
-            });
+            return bad("dims too large: the arena size for these dims, mode and K overflows");
         }
         let (lens, _used) = carve_check(arena.as_mut(), &dims, M::MODE, K, cfg.footprint)?;
         let mut nav = Navigator {
