@@ -176,9 +176,6 @@ const char *ep_run(const uint8_t *blob, size_t blob_len, void *arena, size_t are
     put_u64(&l, info.buffer_capacity, 0);
     put_s(&l, ", max_inner_updates=");
     put_u64(&l, info.max_inner_updates, 0);
-    put_s(&l, ", arena ");
-    put_u64(&l, (info.arena_bytes - GMAN_ARENA_ALIGN - GMAN_HANDLE_BYTES) / 4, 0);
-    put_s(&l, " floats");
     emit(io, &l);
 
     put_s(&l, "config from blob v");
