@@ -281,7 +281,8 @@ fn minimal_footprint_is_smaller_and_refuses_what_it_cannot_run() {
     let m = NavLayout::new_with(&d, AdaptMode::Efficient, 20, Footprint::Minimal);
     // No Ψ_x (20 x 512 floats), the observations in half the floats, 20 scales.
     assert_eq!(c.psi - m.psi, 20 * 512 + 20 * 256 - 20);
-    assert_eq!(c.work, m.work);
+    // The inner update's batch scratch: Minimal runs the update one entry at a time.
+    assert!(m.work < c.work, "{} vs {}", m.work, c.work);
     let dims = Dims::MCU;
     let t = f32_weights(&dims, 1);
     let w = || {
