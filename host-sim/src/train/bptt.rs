@@ -1,8 +1,8 @@
 //! The gradient of the A3C loss L_nav ([`super::a3c`]) over rollout segments, by
 //! back-propagation through time on gman-core's batched policy kernels — the one BPTT of the
-//! trainer, used by the vectorised rollout (many segments at once, [`super::vec_rollout`])
-//! and by the navigator's episode runner (one segment at the navigator's current, possibly
-//! adapted, parameters: [`segment_backward`]).
+//! trainer, used by the rollout engine (many segments at once, [`super::engine`]); one
+//! segment at a navigator's current, possibly adapted, parameters is [`segment_backward`]
+//! (the gradient checks' entry).
 //!
 //! ```text
 //! for each segment: (∂L/∂logits_t, ∂L/∂V_t) from the returns and GAE     (a3c::output_grads)

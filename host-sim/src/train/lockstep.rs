@@ -1,5 +1,4 @@
-//! The rollout engine's frame, shared by its two paths ([`super::vec_rollout`] without an
-//! inner loop, [`super::vec_adapt`] with one): a worker's share of an update ([`Share`]), the
+//! The rollout engine's frame ([`super::engine`]): the settings of a worker's update, the
 //! loop over `B` slots (`lockstep`: free slots take new episodes while the step budget
 //! lasts, every tick runs the episodes in the slots), an episode's step inputs and their row
 //! in the batched pass, the segment being recorded (`Recording`), the batched bootstrap
@@ -12,14 +11,14 @@ use gman_core::{Dims, NUM_ACTIONS};
 
 use super::a3c::{A3cConfig, Objective, SegmentLoss};
 use super::bptt::{Adapted, Backward, GenBufs, Rows, Segment, StepAct, Widths};
-use super::rollout::{EpisodeStats, Worker};
+use super::rollout::EpisodeStats;
 use super::step::StepRec;
 use crate::model::episode::ps_input;
 use crate::model::{NavModel, K};
 use crate::optim::params::ParamSet;
 use crate::pretrain::ps::PsBuffers;
 use crate::sim::spatial::MapGrid;
-use crate::sim::{Env, EpisodeSpec, RewardKind, World};
+use crate::sim::{Env, EpisodeSpec, RewardKind};
 use gman_core::generator::Generator;
 
 /// Most environments a worker steps in lockstep.
@@ -42,24 +41,8 @@ pub struct VecSettings<'a> {
     pub a3c: &'a A3cConfig,
     /// Objective.
     pub objective: Objective,
-}
-
-/// One worker's share of an update, as the engine takes it: the world, the model, the
-/// settings, the worker's buffers, the gradient its segments accumulate into, and
-/// `sample(e)`, the spec and step limit of its episode `e`.
-pub struct Share<'a, 'w, F> {
-    /// The world.
-    pub world: &'w World,
-    /// The model at the update's parameters.
-    pub model: &'a NavModel,
-    /// The settings.
-    pub s: &'a VecSettings<'a>,
-    /// The worker's buffers.
-    pub worker: &'a mut Worker,
-    /// The worker's gradient.
-    pub grads: &'a mut ParamSet,
-    /// Episode `e`'s spec and step limit.
-    pub sample: F,
+    /// Meta-gradient order (2: `B = 1` and an inner loop, see [`super::meta`]).
+    pub meta_order: u8,
 }
 
 /// One finished episode of a worker's update: its index, statistics and D after it. Without
@@ -72,8 +55,8 @@ pub type Finished = (u32, EpisodeStats, Vec<Vec<f32>>);
 /// A segment's loss, with its episode and completion number: `(e, seq, loss)`.
 pub(super) type SegLoss = (u32, u32, SegmentLoss);
 
-/// True when `model`'s method runs without an inner loop in training (the vectorised path of
-/// [`super::vec_rollout`] serves it; the others run through [`super::vec_adapt`]).
+/// True when `model`'s method runs without an inner loop in training (the engine's shared
+/// lanes serve it; the others run one navigator per episode).
 pub fn without_inner_loop(model: &NavModel) -> bool {
     !model.method.adapts_in_training()
 }

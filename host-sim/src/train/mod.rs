@@ -6,9 +6,10 @@
 //! | module | holds |
 //! | --- | --- |
 //! | [`trainer`] | the training loop, top to bottom (Algorithm 1) |
-//! | [`vec_rollout`] | the rollout engine's entry: `B` training episodes in lockstep (`--batch-envs`) |
-//! | [`vec_adapt`] | the same for the methods with an inner loop: one navigator per episode |
-//! | [`lockstep`] | what the vectorised episodes share: settings, slots, inputs, bootstrap, batched BPTT |
+//! | [`engine`] | the rollout engine: `B` training episodes in lockstep (`--batch-envs`), `B = 1`, the baselines and `--meta-order 2` included |
+//! | `lanes_shared` | the engine's lanes without an inner loop: one set of parameter views |
+//! | `lanes_nav` | the engine's lanes with an inner loop: one navigator per episode |
+//! | [`lockstep`] | the engine's frame: settings, slots, inputs, bootstrap, the waiting segments and their batched BPTT |
 //! | [`rollout`] | worker buffers, an episode's summary, bootstrap values, D's carry-over |
 //! | [`step`] | what a rollout records of a step |
 //! | `inner` | the inner update when Ψ is full, its tally, an episode's closing statistics |
@@ -27,7 +28,10 @@
 pub mod a3c;
 pub mod bptt;
 pub mod dist;
+pub mod engine;
 mod inner;
+mod lanes_nav;
+mod lanes_shared;
 pub mod lockstep;
 pub mod meta;
 #[cfg(feature = "mpi")]
@@ -37,5 +41,3 @@ pub mod run_dir;
 pub mod state;
 pub mod step;
 pub mod trainer;
-pub mod vec_adapt;
-pub mod vec_rollout;

@@ -5,11 +5,9 @@
 
 use anyhow::Result;
 use gman_core::navigator::{Mode, Navigator};
-use gman_core::policy::PolicyInput;
 use gman_core::{Action, NUM_ACTIONS};
 
 use super::a3c::SegmentLoss;
-use super::bptt::{Rows, Widths};
 use crate::model::{NavModel, K};
 use crate::pretrain::ps::PsBuffers;
 use crate::sim::Env;
@@ -65,7 +63,7 @@ pub struct Worker {
     /// The spatial map of the current step (empty for a model without a map).
     pub map: Vec<f32>,
     /// One arena per environment slot of the vectorised episodes of a method with an inner
-    /// loop ([`super::vec_adapt`]), grown on first use.
+    /// loop ([`super::engine`]), grown on first use.
     pub arenas: Vec<Vec<f32>>,
 }
 
@@ -79,31 +77,6 @@ impl Worker {
             arenas: Vec::new(),
         }
     }
-}
-
-/// The critic's value of the next observation at the navigator's current state, for
-/// bootstrapping a segment that did not end the episode.
-pub(crate) fn bootstrap_value<M: Mode>(
-    nav: &Navigator<'_, M, K>,
-    obs: &[f32],
-    map: &[f32],
-    ps: &[f32],
-) -> Result<f32> {
-    let p = nav.policy()?;
-    let w = Widths::of(&p, nav.dims());
-    let inp = PolicyInput {
-        obs,
-        feat: nav.generated_feature(),
-        attr: nav.attr(),
-        prev_probs: nav.prev_probs(),
-        ps,
-        map,
-    };
-    let mut rows = Rows::default();
-    rows.resize(1, &w);
-    rows.put_inputs(0, &w, &inp, nav.hidden_state(), nav.cell_state());
-    rows.forward(&p, 1, &w)?;
-    Ok(rows.value[0])
 }
 
 /// ω after an episode, to carry to the next one (in the order `DiscW1`, `DiscB1`, `DiscW2`,

@@ -35,7 +35,7 @@ pub struct RunSettings {
     pub seed: u64,
     /// Parallel workers.
     pub workers: usize,
-    /// Environments each worker steps in lockstep (`B`, see [`super::vec_rollout`]); 1 is
+    /// Environments each worker steps in lockstep (`B`, see [`super::engine`]); 1 is
     /// one episode at a time. Absent in checkpoints from before vectorised episodes: 1.
     #[serde(default = "one_usize")]
     pub batch_envs: usize,

@@ -1,5 +1,5 @@
 //! What a rollout records of one step for back-propagation ([`StepRec`]): the data shared by
-//! the rollouts ([`super::rollout`], [`super::vec_rollout`]), the loss ([`super::a3c`]) and
+//! the rollouts ([`super::rollout`], [`super::engine`]), the loss ([`super::a3c`]) and
 //! its gradient ([`super::bptt`]).
 
 use gman_core::NUM_ACTIONS;

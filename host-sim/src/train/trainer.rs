@@ -4,18 +4,15 @@
 //! 1. [`train`] — the outer loop (lines 1-3, 21-22): the workers' updates in parallel, then
 //!    `outer_step`: Adam on the summed ∇L_nav (Eq. 4), ω carried across episodes;
 //! 2. `worker_update` — a worker's tasks τ_i, seeded by `(seed, update, worker, episode)`;
-//! 3. the worker's episodes, `B` in lockstep ([`super::vec_rollout::run_worker`], `B = 1`
-//!    included): each segment's ∇L_nav (the loss in [`super::a3c`], one batched BPTT in
+//! 3. the worker's episodes (lines 4-20), `B` in lockstep in the rollout engine
+//!    ([`super::engine::run_worker`]; `B = 1`, the baselines and `--meta-order 2` are its
+//!    cases): each segment's ∇L_nav (the loss in [`super::a3c`], one batched BPTT in
 //!    [`super::bptt`]) and the inner update (lines 14-20: Eq. 1 ascent, Eq. 3 descent, in
 //!    gman-core);
 //! 4. `Log` — one `metrics.csv` row per update.
 //!
-//! [`train_episode`] runs one task (lines 4-20) with one navigator: `rollout_segment`
-//! (lines 5-13), the segment's ∇L_nav ([`super::bptt::segment_backward`]), the inner update
-//! and [`super::meta`]'s reverse recursion; it serves `--meta-order 2`, whose recursion runs
-//! over one episode's inner steps, and is the reference the vectorised engine is tested
-//! against. The checkpoint ([`super::state`]) and the run directory ([`super::run_dir`])
-//! live beside.
+//! [`train_episode`] runs one task through the same engine (one slot, one episode). The
+//! checkpoint ([`super::state`]) and the run directory ([`super::run_dir`]) live beside.
 //!
 //! ```text
 //! for update u = 1, 2, ...                                   (Algorithm 1, line 1)
@@ -41,9 +38,9 @@
 //!   and a resumed run continues exactly where the checkpoint left off.
 //! * **Vectorised episodes** (`--batch-envs B`, default 16 in `gman train`): each worker
 //!   steps `B` environments in lockstep with the policy's passes over them as matrices, see
-//!   [`super::vec_rollout`] (and [`super::vec_adapt`] for the methods with an inner loop:
-//!   one navigator per episode, each with its own inner loop; first-order meta-gradient
-//!   only). `B = 1` runs in the same engine and gives [`train_episode`]'s update bit for bit.
+//!   [`super::engine`] (for the methods with an inner loop one navigator per episode, each
+//!   with its own inner loop; `B > 1` with the first-order meta-gradient only). With `B = 1`
+//!   an update is its episodes run one at a time by [`train_episode`], bit for bit.
 //! * **Baselines** run the same loop with the inner loop off (`a3c`, `a3c-fg`, `gman-nometa`):
 //!   plain synchronous advantage actor-critic, with G's θ frozen at its pre-trained value.
 //! * **The `gman-noemd` control** runs the loop with the inner loop off but lets Adam train θ
@@ -68,32 +65,22 @@ use std::time::Instant;
 
 use anyhow::{anyhow, bail, Context, Result};
 use gman_core::blob::TensorId;
-use gman_core::memory::AdaptMode;
-use gman_core::navigator::{Efficient, Full, Mode, Navigator};
 use indicatif::{ProgressBar, ProgressStyle};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
 use super::a3c::{A3cConfig, Objective, SegmentLoss};
-use super::bptt::segment_backward;
 use super::dist::{
     decode_shares, encode_shares, fnv1a, params_hash, CommStats, Group, Single, WorkerShare,
 };
-use super::inner::{finish_stats, inner_update, InnerTally};
+use super::engine;
 use super::lockstep::{check_batch_envs, VecSettings};
-use super::meta::{add_adapted, meta_backward, take_adapted, InnerSetup, InnerStep};
-use super::rollout::{
-    bootstrap_value, disc_after_episode, expert_distribution, EpisodeStats, Worker,
-};
+use super::rollout::{EpisodeStats, Worker};
 use super::run_dir::{checkpoint_path, lock_run_dir, open_csv};
 use super::state::{RunSettings, TrainState};
-use super::step::StepRec;
-use super::vec_rollout;
-use crate::model::episode::{begin, map_grid, ps_input};
-use crate::model::{NavModel, K};
+use crate::model::NavModel;
 use crate::optim::params::ParamSet;
-use crate::sim::spatial::MapGrid;
-use crate::sim::{Env, EpisodeLimits, EpisodeSpec, RewardKind, World};
+use crate::sim::{EpisodeLimits, EpisodeSpec, RewardKind, World};
 
 /// Options of one training invocation: the run's stored settings and what only this
 /// invocation decides.
@@ -388,8 +375,7 @@ fn check_options(run: &RunSettings, model: &NavModel) -> Result<()> {
 /// Worker `w`'s share of update `u` (Algorithm 1, lines 2-3): whole episodes (tasks)
 /// `e = 0, 1, ..`, each sampled from the training scenes with the seed `(seed, u, w, e)`,
 /// until the worker has taken at least `min_steps` steps; their ∇L_nav summed into `grads`
-/// (zeroed first), `B` episodes in lockstep (see [`super::vec_rollout`]); with the
-/// second-order meta-gradient one episode at a time ([`train_episode`]).
+/// (zeroed first), `B` episodes in lockstep (see [`super::engine`]).
 fn worker_update(
     world: &World,
     model: &NavModel,
@@ -407,40 +393,16 @@ fn worker_update(
         let max = run.max_steps.unwrap_or_else(|| limits.for_room(spec.room));
         Ok((spec, max))
     };
-    // Every update runs in the vectorised engine (B = 1 is its case of one slot), except the
-    // second-order meta-gradient, whose reverse recursion runs over one episode's inner steps.
-    if !(run.meta_order == 2 && model.method.adapts_in_training()) {
-        let settings = VecSettings {
-            batch_envs: run.batch_envs,
-            min_steps: run.min_steps,
-            reward: run.reward,
-            a3c: &run.a3c,
-            objective: run.objective,
-        };
-        let done = vec_rollout::run_worker(world, model, &settings, worker, grads, sample)?;
-        return Ok(done.into_iter().map(|(_, st, d)| (st, d)).collect());
-    }
-    let mut out = Vec::new();
-    let (mut steps, mut e) = (0u32, 0u32);
-    while e == 0 || steps < run.min_steps {
-        let (spec, max) = sample(e)?;
-        let (st, disc) = train_episode(
-            world,
-            &spec,
-            model,
-            run.reward,
-            max,
-            &run.a3c,
-            run.objective,
-            run.meta_order,
-            worker,
-            grads,
-        )?;
-        steps += st.steps;
-        e += 1;
-        out.push((st, disc));
-    }
-    Ok(out)
+    let settings = VecSettings {
+        batch_envs: run.batch_envs,
+        min_steps: run.min_steps,
+        reward: run.reward,
+        a3c: &run.a3c,
+        objective: run.objective,
+        meta_order: run.meta_order,
+    };
+    let done = engine::run_worker(world, model, &settings, worker, grads, sample)?;
+    Ok(done.into_iter().map(|(_, st, d)| (st, d)).collect())
 }
 
 /// The outer step (Algorithm 1, lines 21-22): the workers' gradients summed in worker order
@@ -528,21 +490,17 @@ fn episode_seed(seed: u64, u: u64, w: usize, e: u32) -> u64 {
 // One task τ_i (Algorithm 1, lines 4-20)
 // ---------------------------------------------------------------------------------------
 
-/// Runs one training episode: every `K` steps (or at the end) the segment's A3C gradient is
-/// accumulated into `grads` at the parameters the segment ran with, then — for the methods
-/// that adapt — the navigator's inner update (Algorithm 1, lines 15-20) runs. Returns the
-/// episode's statistics and D's parameters after the episode (in the order `DiscW1`,
-/// `DiscB1`, `DiscW2`, `DiscB2`), since ω learns across episodes.
+/// Runs one training episode: the rollout engine ([`super::engine`]) with one slot and one
+/// episode. Every `K` steps (or at the end) the segment's A3C gradient is accumulated into
+/// `grads` at the parameters the segment ran with, then, for the methods that adapt, the
+/// navigator's inner update (Algorithm 1, lines 15-20) runs. Returns the episode's
+/// statistics and D's parameters after the episode (in the order `DiscW1`, `DiscB1`,
+/// `DiscW2`, `DiscB2`; empty when they are the model's ω), since ω learns across episodes.
 ///
 /// `meta_order` 1 sums the segments' gradients at the adapted parameters (first-order MAML);
 /// 2 (for the methods that adapt) back-propagates the θ and φ parts through the inner SGD
 /// steps instead (see [`super::meta`]); the fusion, LSTM and critic gradients are the same
 /// sum in both.
-///
-/// The inner loop runs in the model's adaptation mode ([`NavModel::adapt_mode`]), the mode
-/// its blob will record and the device will run: in `Efficient`, the segment gradients of θ
-/// and of the actor head are taken through the adapted per-unit gains and biases, and D's
-/// adapted gains are folded into its first layer when ω is carried to the next episode.
 #[allow(clippy::too_many_arguments)]
 pub fn train_episode(
     world: &World,
@@ -556,189 +514,29 @@ pub fn train_episode(
     worker: &mut Worker,
     grads: &mut ParamSet,
 ) -> Result<(EpisodeStats, Vec<Vec<f32>>)> {
-    let ep = EpisodeSetup {
-        world,
-        spec,
-        model,
+    let settings = VecSettings {
+        batch_envs: 1,
+        min_steps: 0,
         reward,
-        max_steps,
         a3c,
         objective,
         meta_order,
     };
-    match model.adapt_mode {
-        AdaptMode::Full => train_episode_in::<Full>(&ep, worker, grads),
-        AdaptMode::Efficient => train_episode_in::<Efficient>(&ep, worker, grads),
-    }
-}
-
-/// The arguments of [`train_episode`].
-struct EpisodeSetup<'a> {
-    world: &'a World,
-    spec: &'a EpisodeSpec,
-    model: &'a NavModel,
-    reward: RewardKind,
-    max_steps: u32,
-    a3c: &'a A3cConfig,
-    objective: Objective,
-    meta_order: u8,
-}
-
-/// The worker's observation buffers (PS activations, the spatial map), beside its arena.
-struct ObsBufs<'a> {
-    ps: &'a mut Option<crate::pretrain::ps::PsBuffers>,
-    map: &'a mut Vec<f32>,
-}
-
-fn train_episode_in<M: Mode>(
-    ep: &EpisodeSetup<'_>,
-    worker: &mut Worker,
-    grads: &mut ParamSet,
-) -> Result<(EpisodeStats, Vec<Vec<f32>>)> {
-    let model = ep.model;
-    if !(1..=2).contains(&ep.meta_order) {
-        return Err(anyhow!("meta order must be 1 or 2, not {}", ep.meta_order));
-    }
-    if model.privileged && model.method.adapts_in_training() {
-        return Err(anyhow!(
-            "the privileged-feature bound replaces G's output and cannot adapt G; use it with a method without inner loop (a3c-fg)"
-        ));
-    }
-    let train_generator = model.method.trains_generator() && !model.privileged;
-    let second = ep.meta_order == 2 && model.method.adapts_in_training();
-    if second && M::MODE != AdaptMode::Full {
-        return Err(anyhow!(
-            "the second-order meta-gradient is implemented for the Full adaptation mode; use --adapt-mode full or --meta-order 1"
-        ));
-    }
-    // Order 2: each segment's gradient goes to `seg_g` first; its θ, φ parts are kept per
-    // segment (with the inner steps) for the reverse recursion at the end of the episode.
-    let mut seg_g = second.then(|| grads.zeros_like());
-    let mut seg_grads: Vec<(Vec<f32>, Vec<f32>)> = Vec::new();
-    let mut inner_steps: Vec<Option<InnerStep>> = Vec::new();
-    // Line 4: θ_i ← θ, φ_i ← φ (the navigator's arena holds θ_i, φ_i and Ψ).
-    let weights = model.weights()?;
-    let Worker { arena, ps, map, .. } = worker;
-    let mut obs_bufs = ObsBufs { ps, map };
-    let mut nav: Navigator<'_, M, K> = Navigator::new(weights, arena, model.nav_config(true))?;
-    begin(&mut nav, ep.world, ep.spec, model)?;
-    let mut env = Env::new(ep.world, ep.spec, ep.reward, ep.max_steps);
-    let mut stats = EpisodeStats::default();
-    let mut tally = InnerTally::default();
-    let mut seg: Vec<StepRec> = Vec::with_capacity(K);
-    let grid = map_grid(model);
-    // Line 5: until the termination action (or the step limit).
-    loop {
-        // Lines 6-13: k steps with θ_i, φ_i, recorded in Ψ (by the navigator) and in `seg`.
-        rollout_segment(
-            &mut nav,
-            &mut env,
-            model,
-            ep.objective,
-            grid,
-            &mut obs_bufs,
-            &mut seg,
-            &mut stats.actions,
-        )?;
-        // ∇L_nav of the segment at (θ_i, φ_i), for lines 21-22 (A3C loss, Sec. 3.2).
-        let bootstrap = if env.is_done() {
-            0.0
-        } else {
-            next_value(&nav, &env, model, grid, &mut obs_bufs)?
-        };
-        let l = match seg_g.as_mut() {
-            Some(g) => {
-                g.zero();
-                let l = segment_backward(&nav, &seg, bootstrap, ep.a3c, train_generator, g)?;
-                seg_grads.push(take_adapted(g)?);
-                grads.add_assign(g)?;
-                l
-            }
-            None => segment_backward(&nav, &seg, bootstrap, ep.a3c, train_generator, grads)?,
-        };
-        stats.loss.add(&l);
-        if env.is_done() {
-            break;
+    let mut done = engine::run_worker(world, model, &settings, worker, grads, |_| {
+        Ok((spec.clone(), max_steps))
+    })?;
+    match (done.pop(), done.is_empty()) {
+        (Some((_, stats, disc)), true) if disc.is_empty() => {
+            // D after the episode is the model's ω (see `Finished`): a copy of it.
+            let omega = TensorId::DISCRIMINATOR
+                .iter()
+                .map(|id| Ok(model.params.tensor(id.name())?.data.clone()))
+                .collect::<Result<_>>()?;
+            Ok((stats, omega))
         }
-        // Lines 14-20: the inner update on Ψ, then Ψ emptied.
-        let step = inner_update(&mut nav, second, &mut tally)?;
-        if second {
-            inner_steps.push(step);
-        }
+        (Some((_, stats, disc)), true) => Ok((stats, disc)),
+        _ => bail!("one training episode ran as {} episodes", done.len() + 1),
     }
-    if second {
-        let (mt, mp) = meta_backward(&InnerSetup::of(&nav), &inner_steps, &seg_grads)?;
-        add_adapted(grads, &mt, &mp)?;
-    }
-    finish_stats(&mut stats, &env, &nav, &tally);
-    // D learns from a buffer whose delayed update had not committed yet.
-    nav.settle()?;
-    Ok((stats, disc_after_episode(&nav)?))
-}
-
-/// Algorithm 1, lines 6-13: up to `K` steps (fewer when the episode ends; `K + d` with a
-/// commit delay `d`, whose last `d` steps run before the update and are not in Ψ), each observed
-/// (s_t, the PS input, the map), stepped by the navigator (x_t = G_θi(SE(y), z_t), the
-/// action from π, the step recorded in Ψ) and recorded in `seg` for the backward pass.
-#[allow(clippy::too_many_arguments)]
-fn rollout_segment<M: Mode>(
-    nav: &mut Navigator<'_, M, K>,
-    env: &mut Env<'_>,
-    model: &NavModel,
-    objective: Objective,
-    grid: MapGrid,
-    worker: &mut ObsBufs<'_>,
-    seg: &mut Vec<StepRec>,
-    actions: &mut Vec<u8>,
-) -> Result<()> {
-    seg.clear();
-    // k steps recorded in Ψ, then the steps of a delayed update's commit window.
-    while (seg.len() < K || nav.in_commit_window()) && !env.is_done() {
-        let obs = env.observe();
-        let ps = ps_input(model, worker.ps, &obs.features)?;
-        if !grid.is_empty() {
-            env.observe_map(grid, worker.map);
-        }
-        let h_prev = nav.hidden_state().to_vec();
-        let c_prev = nav.cell_state().to_vec();
-        let prev_probs = nav.prev_probs().to_vec();
-        let expert = (objective == Objective::Dagger).then(|| expert_distribution(env));
-        let out = nav.step_map(&obs.features, worker.map, &ps)?;
-        actions.push(out.action.index() as u8);
-        let o = env.step(out.action);
-        seg.push(StepRec {
-            obs: obs.features.to_vec(),
-            ps,
-            map: worker.map.clone(),
-            x: nav.generated_feature().to_vec(),
-            z: nav.noise().to_vec(),
-            h_prev,
-            c_prev,
-            prev_probs,
-            action: out.action.index(),
-            reward: o.reward,
-            probs: out.probs,
-            expert,
-        });
-    }
-    Ok(())
-}
-
-/// The critic's value of the next observation, bootstrapping a segment that did not end the
-/// episode.
-fn next_value<M: Mode>(
-    nav: &Navigator<'_, M, K>,
-    env: &Env<'_>,
-    model: &NavModel,
-    grid: MapGrid,
-    worker: &mut ObsBufs<'_>,
-) -> Result<f32> {
-    let obs = env.observe();
-    let ps = ps_input(model, worker.ps, &obs.features)?;
-    if !grid.is_empty() {
-        env.observe_map(grid, worker.map);
-    }
-    bootstrap_value(nav, &obs.features, worker.map, &ps)
 }
 
 // ---------------------------------------------------------------------------------------

@@ -9,7 +9,7 @@
 //! every row of a preset (an update holds at least `B` episodes per worker) and at least
 //! [`MIN_TIMED_SECS`] seconds. Each row runs in `gman train`'s default adaptation mode for its preset (`efficient` for `mcu`, `full` for
 //! `paper`); `gman`'s `B > 1` rows (`mcu` only) run one navigator per episode
-//! (`gman_host_sim::train::vec_adapt`).
+//! (`gman_host_sim::train::engine`).
 
 use std::time::Instant;
 

@@ -1,33 +1,37 @@
-//! Vectorised training episodes (`--batch-envs B`) against the batch-1 episode runner:
+//! The rollout engine's training episodes (`--batch-envs B`) against one episode at a time
+//! (`train_episode`) and against gman-core's navigator run alone:
 //!
-//! * with `B = 1` a worker's update (gradient, episode statistics) is bit for bit the batch-1
-//!   trainer's, for every configuration the vectorised path serves (FG or not, Full or
-//!   Efficient mode, θ trained, spatial map, DAgger, the privileged feature, PS input);
+//! * with `B = 1` a worker's update (gradient, episode statistics) is bit for bit the sum of
+//!   its episodes run one at a time, for every configuration (FG or not, Full or Efficient
+//!   mode, θ trained, spatial map, DAgger, the privileged feature, PS input);
+//! * every episode of the methods without an inner loop takes the actions a gman-core
+//!   navigator takes alone over the model (its own `step_map`; the shared lanes compute
+//!   the step from its views);
 //! * with `B > 1` every episode is bit for bit the episode the navigator runs alone, the
 //!   gradient is the same sum in the new, pinned order (checked against the per-episode
 //!   gradients summed in that order exactly, and within a float tolerance of the batch-1 sum),
 //!   and a run is reproducible and resumes bit for bit;
 //! * the same for the methods with an inner loop (`gman`, ...: one navigator per episode,
-//!   per-row adapted heads and θ_i, [`gman_host_sim::train::vec_adapt`]): `B = 1` is the
-//!   batch-1 update bit for bit, with `B > 1` each episode (actions, inner updates, D after
+//!   per-row adapted heads and θ_i): `B = 1` is the one-at-a-time update bit for bit, with `B > 1` each episode (actions, inner updates, D after
 //!   it) is the episode run alone, the gradient is the per-episode sum within float rounding,
 //!   runs are reproducible and resume bit for bit; `--meta-order 2` refuses `B > 1`.
 
 use gman_core::memory::AdaptMode;
-use gman_core::navigator::NoiseMode;
+use gman_core::navigator::{Efficient, Full, Mode, Navigator, NoiseMode};
 use gman_core::Dims;
-use gman_host_sim::model::{Method, NavModel};
+use gman_host_sim::model::{Method, NavModel, K};
 use gman_host_sim::optim::adam::AdamConfig;
 use gman_host_sim::optim::params::ParamSet;
 use gman_host_sim::pretrain::generator::init_generator;
-use gman_host_sim::sim::{EpisodeLimits, EpisodeSpec, RewardKind, World};
+use gman_host_sim::sim::spatial::MapGrid;
+use gman_host_sim::sim::{Env, EpisodeLimits, EpisodeSpec, RewardKind, World};
 use gman_host_sim::train::a3c::{A3cConfig, Objective};
+use gman_host_sim::train::engine::run_worker;
 use gman_host_sim::train::lockstep::VecSettings;
 use gman_host_sim::train::rollout::{EpisodeStats, Worker};
 use gman_host_sim::train::state::{RunSettings, TrainState};
 use gman_host_sim::train::trainer::train_episode;
 use gman_host_sim::train::trainer::{train, TrainOptions};
-use gman_host_sim::train::vec_rollout::run_worker;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
@@ -285,6 +289,12 @@ fn batched_episodes_are_the_episodes_run_alone() {
             )
             .unwrap();
             same_episode(s, &alone, &format!("{} episode {k}", c.name));
+            assert_eq!(
+                s.actions,
+                navigator_actions(&world, &m, &spec, max),
+                "{} episode {k}: the navigator alone",
+                c.name
+            );
             sum.add_assign(&ge).unwrap();
         }
         // The batched sum adds the same terms in another order: equal within float rounding.
@@ -303,6 +313,48 @@ fn batched_episodes_are_the_episodes_run_alone() {
         let (g2, _) = vectorised(&world, &m, c.objective, 60, 4, b);
         same_bits(&g, &g2, c.name);
     }
+}
+
+/// The actions of the episode `spec` run by a gman-core navigator alone over the model (its
+/// own `step_map`, no training): what every training lane must reproduce.
+fn navigator_actions(world: &World, m: &NavModel, spec: &EpisodeSpec, max: u32) -> Vec<u8> {
+    match m.adapt_mode {
+        AdaptMode::Full => navigator_actions_in::<Full>(world, m, spec, max),
+        AdaptMode::Efficient => navigator_actions_in::<Efficient>(world, m, spec, max),
+    }
+}
+
+fn navigator_actions_in<M: Mode>(
+    world: &World,
+    m: &NavModel,
+    spec: &EpisodeSpec,
+    max: u32,
+) -> Vec<u8> {
+    let mut arena = vec![0.0; m.arena_len()];
+    let mut nav: Navigator<'_, M, K> =
+        Navigator::new(m.weights().unwrap(), &mut arena, m.nav_config(true)).unwrap();
+    nav.reset(world.attributes(spec.target), spec.seed).unwrap();
+    if m.privileged {
+        nav.fix_generated_feature(&world.object_feature(spec.scene, spec.target))
+            .unwrap();
+    }
+    let mut env = Env::new(world, spec, RewardKind::Mixed, max);
+    let grid = MapGrid {
+        rows: m.dims.map_rows,
+        cols: m.dims.map_cols,
+    };
+    let mut map = vec![0.0; m.dims.map_len()];
+    let mut actions = Vec::new();
+    while !env.is_done() {
+        let obs = env.observe();
+        if !grid.is_empty() {
+            env.observe_map(grid, &mut map);
+        }
+        let out = nav.step_map(&obs.features, &map, &[]).unwrap();
+        actions.push(out.action.index() as u8);
+        env.step(out.action);
+    }
+    actions
 }
 
 fn opts(out: std::path::PathBuf, updates: u64, b: usize) -> TrainOptions {
@@ -372,7 +424,7 @@ fn batched_runs_are_reproducible_and_resume_bit_for_bit() {
 }
 
 // ---------------------------------------------------------------------------------------
-// The methods with an inner loop (vec_adapt)
+// The methods with an inner loop (one navigator per episode)
 // ---------------------------------------------------------------------------------------
 
 fn sampler_max(
@@ -451,6 +503,7 @@ fn vectorised_adapt(
         reward: RewardKind::Mixed,
         a3c: &a3c,
         objective,
+        meta_order: 1,
     };
     let sample = sampler_max(world, seed, max);
     let done = run_worker(world, m, &s, &mut worker, &mut grads, sample).unwrap();
