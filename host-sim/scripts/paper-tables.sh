@@ -137,9 +137,15 @@ for s in ${SEEDS:-1 2 3 4 5}; do
   main_rows "$s"
   case " $EXTRA_SEEDS " in *" $s "*) extra_rows "$s" ;; esac
 done
-$G table --runs "$R"/gman "$R"/gman-adaptoff "$R"/gman-noemd "$R"/a3c-fg "$R"/gman-nometa "$R"/a3c "$R"/random
-$G table --runs "$R"/privileged "$R"/gman-cossim "$R"/gman-cossim-adaptoff "$R"/gman-ps \
-  "$R"/gman-ps-adaptoff "$R"/gman-noemd-ps "$R"/a3c-ps "$R"/a3c-fg-ps
+# table ROW...: the table of the rows that have results so far (a partial sweep has not
+# made every row's folder yet).
+table() {
+  local have=()
+  for r in "$@"; do [ -d "$R/$r" ] && have+=("$R/$r"); done
+  [ ${#have[@]} -eq 0 ] || $G table --runs "${have[@]}"
+}
+table gman gman-adaptoff gman-noemd a3c-fg gman-nometa a3c random
+table privileged gman-cossim gman-cossim-adaptoff gman-ps gman-ps-adaptoff gman-noemd-ps a3c-ps a3c-fg-ps
 for g in gman gman-noemd a3c-fg a3c privileged gman-cossim gman-ps gman-noemd-ps a3c-ps a3c-fg-ps; do
   if ls -d "$R"/runs/$g-s[0-9]* >/dev/null 2>&1; then printf '%s\n' "$R"/runs/$g-s[0-9]*; fi
 done | xargs $G plot --by-method --png "$R/curves.png" --run
