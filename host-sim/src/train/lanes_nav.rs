@@ -34,18 +34,15 @@
 //! holds a copy of G and D, 1.9 MiB for `mcu`), plus the waiting segments.
 
 use anyhow::{bail, Result};
-use gman_core::blob::TensorId;
-use gman_core::dense::Dense;
 use gman_core::generator::Generator;
-use gman_core::matrix::{MatRef, Weights};
 use gman_core::memory::AdaptMode;
 use gman_core::navigator::{Mode, NavConfig, NavWeights, Navigator, NoiseMode};
 use gman_core::policy::Policy;
 use gman_core::{Action, Dims, NUM_ACTIONS};
 
 use super::bptt::{take_act, Adapted, GenBufs, Rows, Widths};
-use super::engine::{drive, Job, LaneStep, Lanes, Running};
 use super::inner::{finish_stats, inner_update, InnerTally};
+use super::lanes::{drive, Job, LaneStep, Lanes, OwnCopy, Running};
 use super::lockstep::{Finished, RowState};
 use super::meta::{add_adapted, meta_backward, take_adapted, InnerSetup, InnerStep};
 use super::rollout::{disc_after_episode, Worker};
@@ -359,59 +356,4 @@ fn row_heads<M: Mode>(
         bail!("vectorised episode: the row's heads differ from the navigator's step");
     }
     Ok(())
-}
-
-/// A copy of an episode's adapted parameters in the Efficient mode: the per-unit gains and
-/// biases of its actor head and of G's two layers (their matrices are the model's).
-pub(super) struct OwnCopy {
-    layers: [(Option<Vec<f32>>, Vec<f32>); 3],
-}
-
-impl OwnCopy {
-    /// The copy of `nav`'s adapted parameters; refused unless its views' matrices are the
-    /// model's `weights` (only gains and biases adapted).
-    fn of<M: Mode>(nav: &Navigator<'_, M, K>, weights: &NavWeights<'_>) -> Result<OwnCopy> {
-        let (p, g) = (nav.policy()?, nav.generator()?);
-        let mut layers: [(Option<Vec<f32>>, Vec<f32>); 3] = Default::default();
-        for (k, (l, id)) in [
-            (p.actor, TensorId::ActorW),
-            (g.l1, TensorId::GenW1),
-            (g.l2, TensorId::GenW2),
-        ]
-        .into_iter()
-        .enumerate()
-        {
-            if !same_matrix(&l.w, &weights.get(id)) {
-                bail!("a waiting segment needs the model's matrices (Efficient mode)");
-            }
-            layers[k] = (l.gain.map(|v| v.to_vec()), l.b.to_vec());
-        }
-        Ok(OwnCopy { layers })
-    }
-
-    /// Views over the copy and the model's matrices.
-    fn views<'a>(&'a self, weights: &NavWeights<'a>) -> Adapted<'a> {
-        let d = |k: usize, id: TensorId| Dense {
-            w: weights.get(id),
-            b: &self.layers[k].1,
-            gain: self.layers[k].0.as_deref(),
-        };
-        Adapted {
-            actor: d(0, TensorId::ActorW),
-            gen: Generator {
-                l1: d(1, TensorId::GenW1),
-                l2: d(2, TensorId::GenW2),
-            },
-        }
-    }
-}
-
-/// True when two views read the same f32 matrix.
-fn same_matrix(a: &MatRef<'_>, b: &MatRef<'_>) -> bool {
-    match (a.weights(), b.weights()) {
-        (Weights::F32(x), Weights::F32(y)) => {
-            x.as_ptr() == y.as_ptr() && x.len() == y.len() && a.rows() == b.rows()
-        }
-        _ => false,
-    }
 }

@@ -21,8 +21,7 @@ use gman_core::rng::{fill_gaussian, Xoshiro128};
 use gman_core::{Action, Dims, NUM_ACTIONS};
 
 use super::bptt::{take_act, Adapted, GenBufs, Rows, Widths};
-use super::engine::{drive, Job, LaneStep, Lanes, Running};
-use super::lanes_nav::OwnCopy;
+use super::lanes::{drive, Job, LaneStep, Lanes, OwnCopy, Running};
 use super::lockstep::{Finished, RowState};
 use super::rollout::{disc_after_episode, Worker};
 use crate::model::{NavModel, K};

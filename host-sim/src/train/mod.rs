@@ -7,6 +7,7 @@
 //! | --- | --- |
 //! | [`trainer`] | the training loop, top to bottom (Algorithm 1) |
 //! | [`engine`] | the rollout engine: `B` training episodes in lockstep (`--batch-envs`), `B = 1`, the baselines and `--meta-order 2` included |
+//! | `lanes` | the engine's loop over its lanes: the `Lanes` trait, the ticks, the segments' backward |
 //! | `lanes_shared` | the engine's lanes without an inner loop: one set of parameter views |
 //! | `lanes_nav` | the engine's lanes with an inner loop: one navigator per episode |
 //! | [`lockstep`] | the engine's frame: settings, slots, inputs, bootstrap, the waiting segments and their batched BPTT |
@@ -30,6 +31,7 @@ pub mod bptt;
 pub mod dist;
 pub mod engine;
 mod inner;
+mod lanes;
 mod lanes_nav;
 mod lanes_shared;
 pub mod lockstep;
