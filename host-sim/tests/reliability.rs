@@ -659,6 +659,36 @@ fn case12_13_14_metrics_repair_atomic_rewrite_and_stale_temporaries() {
     assert!(ok, "{e}");
 }
 
+/// `gman plot` reads a run's curve from `metrics.csv.gz` when there is no `metrics.csv` (what
+/// the results folder keeps of a finished run), and names the file when it is not gzip.
+#[test]
+fn plot_reads_a_compressed_curve_and_names_a_corrupt_one() {
+    use std::io::Write;
+    let d = tmp("plotgz");
+    let run = d.join("run");
+    train_run(&run, 3);
+    let csv = run.join("metrics.csv");
+    let text = std::fs::read(&csv).unwrap();
+    let mut enc = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::default());
+    enc.write_all(&text).unwrap();
+    let gz = run.join("metrics.csv.gz");
+    std::fs::write(&gz, enc.finish().unwrap()).unwrap();
+    std::fs::remove_file(&csv).unwrap();
+    let png = d.join("p.png");
+    let (ok, _, e) = gman(&["plot", "--run", s(&run), "--png", s(&png)]);
+    assert!(ok, "{e}");
+    assert!(std::fs::metadata(&png).unwrap().len() > 1000);
+    std::fs::write(&gz, b"not gzip").unwrap();
+    let (ok, _, e) = gman(&["plot", "--run", s(&run), "--png", s(&png)]);
+    assert!(!ok && e.contains("metrics.csv.gz"), "{e}");
+    std::fs::remove_file(&gz).unwrap();
+    let (ok, _, e) = gman(&["plot", "--run", s(&run), "--png", s(&png)]);
+    assert!(
+        !ok && e.contains("metrics.csv") && e.contains("metrics.csv.gz"),
+        "{e}"
+    );
+}
+
 /// `gman eval` runs on every core: the results are the same, in the same order, with one
 /// worker thread or two.
 #[test]

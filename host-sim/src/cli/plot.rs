@@ -2,6 +2,7 @@
 //! `metrics.csv` and, where the run has them, the val success rates measured during training
 //! (`RUN/curve/kN.json` beside `kN.at`, as `host-sim/scripts/paper-tables.sh` writes them).
 
+use std::io::Read;
 use std::path::{Path, PathBuf};
 
 use anyhow::{anyhow, bail, Context, Result};
@@ -10,7 +11,7 @@ use clap::Args;
 /// `gman plot`.
 #[derive(Debug, Args)]
 pub struct PlotArgs {
-    /// Run directories (each with metrics.csv); one colour per run.
+    /// Run directories (each with metrics.csv, or metrics.csv.gz); one colour per run.
     #[arg(long = "run", value_name = "RUN_DIR", required = true, num_args = 1..)]
     pub runs: Vec<PathBuf>,
     /// Output PNG.
@@ -142,11 +143,28 @@ fn average(label: String, runs: &[Curve], smooth_w: usize) -> Curve {
 /// One row of a run's metrics: (env_steps, success_rate, mean_reward).
 type MetricRow = (f64, f64, f64);
 
-/// Reads `metrics.csv` of a run.
-fn read_metrics(run: &Path) -> Result<Vec<MetricRow>> {
+/// The text of a run's `metrics.csv`, or of its gzip-compressed `metrics.csv.gz` (what
+/// `host-sim/scripts/paper-keep.sh` keeps of a finished run), and the path it came from.
+fn metrics_text(run: &Path) -> Result<(PathBuf, String)> {
     let path = run.join("metrics.csv");
-    let text =
-        std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
+    let gz = run.join("metrics.csv.gz");
+    if !path.exists() && gz.exists() {
+        let mut text = String::new();
+        flate2::read::GzDecoder::new(
+            std::fs::File::open(&gz).with_context(|| format!("reading {}", gz.display()))?,
+        )
+        .read_to_string(&mut text)
+        .with_context(|| format!("reading {} (gzip)", gz.display()))?;
+        return Ok((gz, text));
+    }
+    let text = std::fs::read_to_string(&path)
+        .with_context(|| format!("reading {} (nor is there a metrics.csv.gz)", path.display()))?;
+    Ok((path, text))
+}
+
+/// Reads `metrics.csv` (or `metrics.csv.gz`) of a run.
+fn read_metrics(run: &Path) -> Result<Vec<MetricRow>> {
+    let (path, text) = metrics_text(run)?;
     let mut lines = text.lines();
     let header: Vec<&str> = lines
         .next()
