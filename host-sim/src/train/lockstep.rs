@@ -62,8 +62,8 @@ pub fn without_inner_loop(model: &NavModel) -> bool {
 }
 
 /// Refuses a `B` out of `1..=MAX_BATCH_ENVS`, and `B > 1` for a method with an inner loop
-/// in training with the second-order meta-gradient (its reverse recursion runs per episode
-/// in [`super::trainer::train_episode`]).
+/// in training with the second-order meta-gradient (its reverse recursion runs over one
+/// episode's inner steps, so the engine runs those episodes one at a time).
 pub fn check_batch_envs(model: &NavModel, batch_envs: usize, meta_order: u8) -> Result<()> {
     if !(1..=MAX_BATCH_ENVS).contains(&batch_envs) {
         bail!("--batch-envs must be in 1..={MAX_BATCH_ENVS}, got {batch_envs}");
