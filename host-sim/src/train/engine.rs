@@ -38,7 +38,7 @@
 //! **When a segment's backward runs.** A segment's A3C gradient is taken at the parameters
 //! it ran with (first-order meta-gradient: the gradient at the adapted parameters is summed
 //! into that of the pre-adaptation ones).
-//! * It **waits** (`Lanes::defer`, `B > 1`) when the parameters cannot change under it or
+//! * It **waits** (`B > 1` and `Lanes::segments_can_wait`) when the parameters cannot change under it or
 //!   can be copied cheaply: without an inner loop (one set of parameters), and in the
 //!   Efficient mode (the adapted parameters are the per-unit gains and biases of the actor
 //!   head and of G, ~1.5k floats for `mcu`; a waiting segment keeps a copy, `OwnCopy`).

@@ -6,11 +6,10 @@
 
 use anyhow::{anyhow, bail, Result};
 use gman_core::activation::all_finite;
-use gman_core::blob::TensorId;
 use gman_core::dense::Dense;
 use gman_core::generator::Generator;
 use gman_core::matrix::{MatRef, Weights};
-use gman_core::navigator::{Mode, NavWeights, Navigator};
+use gman_core::navigator::{Mode, Navigator};
 use gman_core::policy::Policy;
 use gman_core::{Action, Dims, NUM_ACTIONS};
 
@@ -93,12 +92,14 @@ pub(super) trait Lanes<'w> {
     ) -> Result<LaneStep>;
     /// True while slot `i`'s delayed inner update is in its commit window.
     fn in_commit_window(&self, i: usize) -> bool;
-    /// True when complete segments wait for one batched BPTT over the update.
-    fn defer(&self) -> bool;
-    /// What a waiting segment of slot `i` keeps of its parameters.
+    /// True when a complete segment's backward may wait for the update's one batched BPTT:
+    /// the parameters it ran at do not change under it, or it keeps a copy ([`Lanes::own`]).
+    /// Whether segments do wait is decided once, in [`drive`]: they wait when this holds and
+    /// more than one episode runs at a time.
+    fn segments_can_wait(&self) -> bool;
+    /// What a waiting segment of slot `i` keeps of its parameters (`None`: it ran at
+    /// [`Lanes::fixed`]).
     fn own(&self, i: usize) -> Result<Option<OwnCopy>>;
-    /// Views over a waiting segment's copy.
-    fn own_views<'s>(&'s self, own: &'s OwnCopy) -> Result<Adapted<'s>>;
     /// The parameters of the waiting segments' backward (those no segment adapted).
     fn fixed(&self) -> Result<(Policy<'_>, Generator<'_>)>;
     /// Slot `i`'s live parameters: trunk, G, and the row's own heads and G (if its own).
@@ -155,6 +156,8 @@ struct Bufs<'b, 'l> {
     rows: Rows,
     bw: Backward,
     gbuf: GenBufs,
+    /// True when complete segments wait for one batched BPTT over the update.
+    defer: bool,
     /// The waiting segments, and the losses of those whose backward ran.
     queue: SegQueue<Option<OwnCopy>>,
     /// Second order: one segment's gradient, before it joins the worker's.
@@ -189,6 +192,7 @@ pub(super) fn drive<'w, L: Lanes<'w>>(
         rows: Rows::default(),
         bw: Backward::default(),
         gbuf,
+        defer: s.batch_envs > 1 && lanes.segments_can_wait(),
         queue: SegQueue::new(),
         seg_g: lanes.second_order().then(|| grads.zeros_like()),
         hooks,
@@ -326,11 +330,11 @@ fn close_ready<'w, L: Lanes<'w>>(
         if ep.rec.is_empty() {
             continue;
         }
-        let own = if lanes.defer() { lanes.own(i)? } else { None };
+        let own = if b.defer { lanes.own(i)? } else { None };
         let attr = lanes.row(i, ep).attr.to_vec();
         fresh.push(b.queue.complete(i, ep.e, &mut ep.rec, attr, v, own));
     }
-    if lanes.defer() {
+    if b.defer {
         for seg in fresh {
             b.queue.wait(seg);
         }
@@ -449,7 +453,7 @@ fn flush<'w, L: Lanes<'w>>(
     backward_logged(
         &bx,
         &mut pend,
-        |p| p.own.as_ref().map(|o| lanes.own_views(o)).transpose(),
+        |p| Ok(p.own.as_ref().map(|o| o.views(&policy, &gen))),
         b,
         grads,
     )
@@ -534,29 +538,27 @@ fn tick_log(_: &[Segment<'_>]) -> TickLog {
 }
 
 /// A copy of an episode's adapted parameters in the Efficient mode: the per-unit gains and
-/// biases of its actor head and of G's two layers (their matrices are the model's).
+/// biases of its actor head and of G's two layers (their matrices are those of
+/// [`Lanes::fixed`]).
 pub(super) struct OwnCopy {
     layers: [(Option<Vec<f32>>, Vec<f32>); 3],
 }
 
 impl OwnCopy {
-    /// The copy of `nav`'s adapted parameters; refused unless its views' matrices are the
-    /// model's `weights` (only gains and biases adapted).
+    /// The copy of `nav`'s adapted parameters; refused unless its matrices are those of the
+    /// fixed trunk `policy` and generator `gen` (only gains and biases adapted).
     pub(super) fn of<M: Mode>(
         nav: &Navigator<'_, M, K>,
-        weights: &NavWeights<'_>,
+        policy: &Policy<'_>,
+        gen: &Generator<'_>,
     ) -> Result<OwnCopy> {
         let (p, g) = (nav.policy()?, nav.generator()?);
         let mut layers: [(Option<Vec<f32>>, Vec<f32>); 3] = Default::default();
-        for (k, (l, id)) in [
-            (p.actor, TensorId::ActorW),
-            (g.l1, TensorId::GenW1),
-            (g.l2, TensorId::GenW2),
-        ]
-        .into_iter()
-        .enumerate()
+        for (k, (l, fixed)) in [(p.actor, policy.actor), (g.l1, gen.l1), (g.l2, gen.l2)]
+            .into_iter()
+            .enumerate()
         {
-            if !same_matrix(&l.w, &weights.get(id)) {
+            if !same_matrix(&l.w, &fixed.w) {
                 bail!("a waiting segment needs the model's matrices (Efficient mode)");
             }
             layers[k] = (l.gain.map(|v| v.to_vec()), l.b.to_vec());
@@ -564,24 +566,23 @@ impl OwnCopy {
         Ok(OwnCopy { layers })
     }
 
-    /// Views over the copy and the model's matrices.
-    pub(super) fn views<'a>(&'a self, weights: &NavWeights<'a>) -> Adapted<'a> {
-        let d = |k: usize, id: TensorId| Dense {
-            w: weights.get(id),
+    /// Views over the copy and the matrices of the fixed trunk `policy` and generator `gen`.
+    pub(super) fn views<'a>(&'a self, policy: &Policy<'a>, gen: &Generator<'a>) -> Adapted<'a> {
+        let d = |k: usize, w| Dense {
+            w,
             b: &self.layers[k].1,
             gain: self.layers[k].0.as_deref(),
         };
         Adapted {
-            actor: d(0, TensorId::ActorW),
+            actor: d(0, policy.actor.w),
             gen: Generator {
-                l1: d(1, TensorId::GenW1),
-                l2: d(2, TensorId::GenW2),
+                l1: d(1, gen.l1.w),
+                l2: d(2, gen.l2.w),
             },
         }
     }
 }
 
-/// True when two views read the same f32 matrix.
 fn same_matrix(a: &MatRef<'_>, b: &MatRef<'_>) -> bool {
     match (a.weights(), b.weights()) {
         (Weights::F32(x), Weights::F32(y)) => {

@@ -68,14 +68,12 @@ pub(super) struct NavEp {
 struct PerNav<'a, 'f, M: Mode> {
     model: &'a NavModel,
     navs: Vec<Navigator<'a, M, K>>,
-    weights: NavWeights<'a>,
     /// The trunk and G of a navigator over the model's weights that does not adapt, for the
     /// waiting segments' backward.
     trunk: Policy<'f>,
     gen: Generator<'f>,
     w: Widths,
     d: Dims,
-    defer: bool,
     second: bool,
     /// G ran in every begin_step (a new z_t each step): its activations are the step's.
     ran_g: bool,
@@ -137,12 +135,10 @@ pub(super) fn run<M: Mode, F: FnMut(u32) -> Result<(EpisodeSpec, u32)>>(
     let mut lanes = PerNav {
         model,
         navs,
-        weights,
         trunk: fixed_nav.policy()?,
         gen: fixed_nav.generator()?,
         w,
         d,
-        defer: M::MODE == AdaptMode::Efficient && s.batch_envs > 1,
         second,
         ran_g: model.noise == NoiseMode::Gaussian && !model.privileged,
         pending: Vec::new(),
@@ -253,16 +249,12 @@ impl<'w, M: Mode> Lanes<'w> for PerNav<'_, '_, M> {
         self.navs[i].in_commit_window()
     }
 
-    fn defer(&self) -> bool {
-        self.defer
+    fn segments_can_wait(&self) -> bool {
+        M::MODE == AdaptMode::Efficient
     }
 
     fn own(&self, i: usize) -> Result<Option<OwnCopy>> {
-        OwnCopy::of(&self.navs[i], &self.weights).map(Some)
-    }
-
-    fn own_views<'s>(&'s self, own: &'s OwnCopy) -> Result<Adapted<'s>> {
-        Ok(own.views(&self.weights))
+        OwnCopy::of(&self.navs[i], &self.trunk, &self.gen).map(Some)
     }
 
     fn fixed(&self) -> Result<(Policy<'_>, Generator<'_>)> {

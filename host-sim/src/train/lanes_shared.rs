@@ -51,7 +51,6 @@ struct Shared<'a> {
     gb: GenBatch,
     /// D after every episode (empty when it is the model's ω, see [`Finished`]).
     disc: Vec<Vec<f32>>,
-    defer: bool,
 }
 
 /// The engine over shared lanes in the adaptation mode `M`.
@@ -86,7 +85,6 @@ pub(super) fn run<M: Mode, F: FnMut(u32) -> Result<(EpisodeSpec, u32)>>(
             ..GenBatch::default()
         },
         disc,
-        defer: job.s.batch_envs > 1,
         policy,
         gen,
     };
@@ -210,16 +208,12 @@ impl<'w> Lanes<'w> for Shared<'_> {
         false
     }
 
-    fn defer(&self) -> bool {
-        self.defer
+    fn segments_can_wait(&self) -> bool {
+        true
     }
 
     fn own(&self, _: usize) -> Result<Option<OwnCopy>> {
         Ok(None)
-    }
-
-    fn own_views<'s>(&'s self, _: &'s OwnCopy) -> Result<Adapted<'s>> {
-        bail!("shared lanes keep no per-episode parameters")
     }
 
     fn fixed(&self) -> Result<(Policy<'_>, Generator<'_>)> {
