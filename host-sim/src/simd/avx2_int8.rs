@@ -70,94 +70,19 @@ unsafe fn mac(acc: __m256i, xv: __m256i, w: *const u8) -> __m256i {
 }
 
 /// `gman_core::qkernel::dots_i8` (see the module docs). `out.len()` rows of `q` (rows of
-/// `cols` bytes), columns `col0 .. col0 + xq.len()`.
+/// `cols` bytes), columns `col0 .. col0 + xq.len()`: [`dots4`] four rows per pass.
 ///
 /// # Safety
 /// The CPU must support AVX2.
 #[target_feature(enable = "avx2")]
 pub(super) unsafe fn dots_i8(q: &[u8], cols: usize, col0: usize, xq: &[i8], out: &mut [i32]) {
-    let n = xq.len();
-    let end = col0 + n;
-    let rows = out.len();
-    if cols == 0 || end > cols || n > QCOLS || q.len() / cols < rows {
+    if !rows_fit(q, cols, col0, xq.len(), out.len()) {
         return dots_i8_body(q, cols, col0, xq, out);
     }
     if xq.contains(&i8::MIN) {
         return dots_i8_wide(q, cols, col0, xq, out);
     }
-    let n32 = n - n % 32;
-    let n16 = n - n % 16;
-    // x per 32 columns, loaded once for every row.
-    let mut xv = [_mm256_setzero_si256(); QCOLS / 32];
-    for (c, v) in xv.iter_mut().enumerate().take(n32 / 32) {
-        // SAFETY: 32 (c + 1) <= n32 <= xq.len().
-        *v = _mm256_loadu_si256(xq.as_ptr().add(32 * c) as *const __m256i);
-    }
-    let x16 = if n16 > n32 {
-        // SAFETY: n32 + 16 = n16 <= xq.len().
-        _mm_loadu_si128(xq.as_ptr().add(n32) as *const __m128i)
-    } else {
-        _mm_setzero_si128()
-    };
-    let ones = _mm256_set1_epi16(1);
-    let tail = |row: &[u8]| -> i32 {
-        let mut t = 0i32;
-        for (&w, &x) in row[n16..].iter().zip(&xq[n16..]) {
-            t += (w as i8 as i32) * (x as i32);
-        }
-        t
-    };
-    let rows4 = rows - rows % 4;
-    let mut r = 0;
-    while r < rows4 {
-        // Checked row slices: every load below stays inside them (j + 32 <= n32 <= n).
-        let w0 = &q[r * cols + col0..r * cols + end];
-        let w1 = &q[(r + 1) * cols + col0..(r + 1) * cols + end];
-        let w2 = &q[(r + 2) * cols + col0..(r + 2) * cols + end];
-        let w3 = &q[(r + 3) * cols + col0..(r + 3) * cols + end];
-        let (mut a0, mut a1, mut a2, mut a3) = (
-            _mm256_setzero_si256(),
-            _mm256_setzero_si256(),
-            _mm256_setzero_si256(),
-            _mm256_setzero_si256(),
-        );
-        for (c, &x) in xv.iter().enumerate().take(n32 / 32) {
-            let j = 32 * c;
-            a0 = mac32(a0, x, w0.as_ptr().add(j), ones);
-            a1 = mac32(a1, x, w1.as_ptr().add(j), ones);
-            a2 = mac32(a2, x, w2.as_ptr().add(j), ones);
-            a3 = mac32(a3, x, w3.as_ptr().add(j), ones);
-        }
-        if n16 > n32 {
-            a0 = mac16(a0, x16, w0.as_ptr().add(n32));
-            a1 = mac16(a1, x16, w1.as_ptr().add(n32));
-            a2 = mac16(a2, x16, w2.as_ptr().add(n32));
-            a3 = mac16(a3, x16, w3.as_ptr().add(n32));
-        }
-        let s = sum4(a0, a1, a2, a3);
-        let mut v = [0i32; 4];
-        _mm_storeu_si128(v.as_mut_ptr() as *mut __m128i, s);
-        if n16 < n {
-            v[0] += tail(w0);
-            v[1] += tail(w1);
-            v[2] += tail(w2);
-            v[3] += tail(w3);
-        }
-        out[r..r + 4].copy_from_slice(&v);
-        r += 4;
-    }
-    while r < rows {
-        let w0 = &q[r * cols + col0..r * cols + end];
-        let mut a0 = _mm256_setzero_si256();
-        for (c, &x) in xv.iter().enumerate().take(n32 / 32) {
-            a0 = mac32(a0, x, w0.as_ptr().add(32 * c), ones);
-        }
-        if n16 > n32 {
-            a0 = mac16(a0, x16, w0.as_ptr().add(n32));
-        }
-        out[r] = sum1(a0) + tail(w0);
-        r += 1;
-    }
+    dots_rows(q, cols, col0, xq, out)
 }
 
 /// `gman_core::qkernel::dots_i8` for any input byte (-128 included): the input widened to
@@ -180,73 +105,154 @@ pub(super) unsafe fn dots_i8_wide(q: &[u8], cols: usize, col0: usize, xq: &[i8],
 }
 
 /// `gman_core::qkernel::dots_i16`: int8 weights times an int16 input block, four rows per
-/// pass, 16 columns per step (`vpmovsxbw` + `vpmaddwd`), the last `len % 16` one by one.
+/// pass ([`dots4_i16`]), 16 columns per step (`vpmovsxbw` + `vpmaddwd`), the last
+/// `len % 16` one by one.
 ///
 /// # Safety
 /// The CPU must support AVX2.
 #[target_feature(enable = "avx2")]
 pub(super) unsafe fn dots_i16(q: &[u8], cols: usize, col0: usize, x: &[i16], out: &mut [i32]) {
-    let n = x.len();
-    let end = col0 + n;
-    let rows = out.len();
-    if cols == 0 || end > cols || n > QCOLS || q.len() / cols < rows {
+    if !rows_fit(q, cols, col0, x.len(), out.len()) {
         return dots_i16_portable(q, cols, col0, x, out);
     }
-    let n16 = n - n % 16;
-    let tail = |row: &[u8]| -> i32 {
-        let mut t = 0i32;
-        for (&w, &v) in row[n16..].iter().zip(&x[n16..]) {
-            t += (w as i8 as i32) * (v as i32);
-        }
-        t
-    };
-    let rows4 = rows - rows % 4;
-    let mut r = 0;
-    while r < rows4 {
-        // Checked row slices: every load below stays inside them (j + 16 <= n16 <= n).
-        let w0 = &q[r * cols + col0..r * cols + end];
-        let w1 = &q[(r + 1) * cols + col0..(r + 1) * cols + end];
-        let w2 = &q[(r + 2) * cols + col0..(r + 2) * cols + end];
-        let w3 = &q[(r + 3) * cols + col0..(r + 3) * cols + end];
-        let (mut a0, mut a1, mut a2, mut a3) = (
-            _mm256_setzero_si256(),
-            _mm256_setzero_si256(),
-            _mm256_setzero_si256(),
-            _mm256_setzero_si256(),
-        );
+    dots_rows(q, cols, col0, x, out)
+}
+
+/// True when `q` holds `rows` rows of `cols` bytes whose columns `col0 .. col0 + n` exist,
+/// with `n <= QCOLS` (the shapes [`dots_rows`] takes).
+fn rows_fit(q: &[u8], cols: usize, col0: usize, n: usize, rows: usize) -> bool {
+    cols > 0 && col0 + n <= cols && n <= QCOLS && q.len() / cols >= rows
+}
+
+/// An input element of the integer dot products, with its four-row and one-row kernels.
+trait Input: Copy + Into<i32> {
+    /// The dot products of the four rows at `w`, `w + stride`, .. with the `n` inputs at `x`.
+    ///
+    /// # Safety
+    /// AVX2; the four rows' `n` bytes and the `n` inputs readable.
+    unsafe fn dots4(w: *const u8, stride: usize, x: *const Self, n: usize) -> __m128i;
+    /// The same for one row.
+    ///
+    /// # Safety
+    /// As [`Input::dots4`], for one row.
+    unsafe fn dots1(w: *const u8, x: *const Self, n: usize) -> i32;
+}
+
+/// Int8 inputs in `-127..=127` (the caller sends an input holding -128 to
+/// [`dots_i8_wide`]).
+impl Input for i8 {
+    #[inline(always)]
+    unsafe fn dots4(w: *const u8, stride: usize, x: *const i8, n: usize) -> __m128i {
+        dots4::<false>(w, stride, x, n)
+    }
+    #[inline(always)]
+    unsafe fn dots1(w: *const u8, x: *const i8, n: usize) -> i32 {
+        dots1::<false>(w, x, n)
+    }
+}
+
+impl Input for i16 {
+    #[inline(always)]
+    unsafe fn dots4(w: *const u8, stride: usize, x: *const i16, n: usize) -> __m128i {
+        dots4_i16(w, stride, x, n)
+    }
+    #[inline(always)]
+    unsafe fn dots1(w: *const u8, x: *const i16, n: usize) -> i32 {
+        let mut a = _mm256_setzero_si256();
         let mut j = 0;
-        while j < n16 {
-            let xv = _mm256_loadu_si256(x.as_ptr().add(j) as *const __m256i);
-            a0 = mac(a0, xv, w0.as_ptr().add(j));
-            a1 = mac(a1, xv, w1.as_ptr().add(j));
-            a2 = mac(a2, xv, w2.as_ptr().add(j));
-            a3 = mac(a3, xv, w3.as_ptr().add(j));
+        while j + 16 <= n {
+            a = mac(a, _mm256_loadu_si256(x.add(j) as *const __m256i), w.add(j));
             j += 16;
         }
-        let s = sum4(a0, a1, a2, a3);
-        let mut v = [0i32; 4];
-        _mm_storeu_si128(v.as_mut_ptr() as *mut __m128i, s);
-        if n16 < n {
-            v[0] += tail(w0);
-            v[1] += tail(w1);
-            v[2] += tail(w2);
-            v[3] += tail(w3);
-        }
-        out[r..r + 4].copy_from_slice(&v);
+        sum1(a) + tail([w], x, j, n)[0]
+    }
+}
+
+/// `out[r]` = row `r`'s dot product with `x` (columns `col0 ..`), four rows per pass, then
+/// the rest one by one.
+///
+/// # Safety
+/// AVX2, and [`rows_fit`]`(q, cols, col0, x.len(), out.len())`.
+#[inline(always)]
+unsafe fn dots_rows<X: Input>(q: &[u8], cols: usize, col0: usize, x: &[X], out: &mut [i32]) {
+    let (n, rows) = (x.len(), out.len());
+    let mut r = 0;
+    while r + 4 <= rows {
+        // SAFETY: rows r .. r + 4 <= rows of `cols` bytes are in `q`, and their columns
+        // col0 .. col0 + n within each (`rows_fit`); out[r .. r + 4] is in `out`.
+        let s = X::dots4(q.as_ptr().add(r * cols + col0), cols, x.as_ptr(), n);
+        _mm_storeu_si128(out.as_mut_ptr().add(r) as *mut __m128i, s);
         r += 4;
     }
     while r < rows {
-        let w0 = &q[r * cols + col0..r * cols + end];
-        let mut a0 = _mm256_setzero_si256();
-        let mut j = 0;
-        while j < n16 {
-            let xv = _mm256_loadu_si256(x.as_ptr().add(j) as *const __m256i);
-            a0 = mac(a0, xv, w0.as_ptr().add(j));
-            j += 16;
-        }
-        out[r] = sum1(a0) + tail(w0);
+        // SAFETY: as above, for the one row r < rows.
+        out[r] = X::dots1(q.as_ptr().add(r * cols + col0), x.as_ptr(), n);
         r += 1;
     }
+}
+
+/// The `R` rows' products over the last columns `j .. n`, one by one.
+///
+/// # Safety
+/// Columns `j .. n` of the `R` rows at `w` and of the inputs at `x` readable.
+#[inline(always)]
+unsafe fn tail<X: Input, const R: usize>(
+    w: [*const u8; R],
+    x: *const X,
+    mut j: usize,
+    n: usize,
+) -> [i32; R] {
+    let mut t = [0i32; R];
+    while j < n {
+        let xj: i32 = (*x.add(j)).into();
+        for (tk, wk) in t.iter_mut().zip(w) {
+            *tk += (*wk.add(j) as i8 as i32) * xj;
+        }
+        j += 1;
+    }
+    t
+}
+
+/// The four rows' sums: their accumulators' lanes plus their last columns `j .. n` one by
+/// one ([`tail`]).
+///
+/// # Safety
+/// AVX2; columns `j .. n` of the four rows at `w` and of the inputs at `x` readable.
+#[inline(always)]
+unsafe fn finish4<X: Input>(
+    a: [__m256i; 4],
+    w: [*const u8; 4],
+    x: *const X,
+    j: usize,
+    n: usize,
+) -> __m128i {
+    let s = sum4(a[0], a[1], a[2], a[3]);
+    if j == n {
+        return s;
+    }
+    let t = tail(w, x, j, n);
+    _mm_add_epi32(s, _mm_loadu_si128(t.as_ptr() as *const __m128i))
+}
+
+/// [`Input::dots4`] of int16 inputs: 16 columns per step (`vpmovsxbw` + `vpmaddwd`, exact
+/// for any int16), the last `n % 16` one by one.
+///
+/// # Safety
+/// As [`Input::dots4`].
+#[inline(always)]
+unsafe fn dots4_i16(w: *const u8, stride: usize, x: *const i16, n: usize) -> __m128i {
+    let (w0, w1, w2, w3) = (w, w.add(stride), w.add(2 * stride), w.add(3 * stride));
+    let [mut a0, mut a1, mut a2, mut a3] = [_mm256_setzero_si256(); 4];
+    let mut j = 0;
+    while j + 16 <= n {
+        let xv = _mm256_loadu_si256(x.add(j) as *const __m256i);
+        a0 = mac(a0, xv, w0.add(j));
+        a1 = mac(a1, xv, w1.add(j));
+        a2 = mac(a2, xv, w2.add(j));
+        a3 = mac(a3, xv, w3.add(j));
+        j += 16;
+    }
+    finish4([a0, a1, a2, a3], [w0, w1, w2, w3], x, j, n)
 }
 
 /// Most columns of a layer [`matvec_int8`] takes (its quantised input is a stack buffer of
@@ -378,12 +384,7 @@ unsafe fn step32<const VNNI: bool>(acc: __m256i, x: __m256i, w: *const u8) -> __
 #[inline(always)]
 unsafe fn dots4<const VNNI: bool>(w: *const u8, stride: usize, x: *const i8, n: usize) -> __m128i {
     let (w0, w1, w2, w3) = (w, w.add(stride), w.add(2 * stride), w.add(3 * stride));
-    let (mut a0, mut a1, mut a2, mut a3) = (
-        _mm256_setzero_si256(),
-        _mm256_setzero_si256(),
-        _mm256_setzero_si256(),
-        _mm256_setzero_si256(),
-    );
+    let [mut a0, mut a1, mut a2, mut a3] = [_mm256_setzero_si256(); 4];
     let mut j = 0;
     while j + 32 <= n {
         let xv = _mm256_loadu_si256(x.add(j) as *const __m256i);
@@ -401,20 +402,7 @@ unsafe fn dots4<const VNNI: bool>(w: *const u8, stride: usize, x: *const i8, n: 
         a3 = mac16(a3, xv, w3.add(j));
         j += 16;
     }
-    let s = sum4(a0, a1, a2, a3);
-    if j == n {
-        return s;
-    }
-    let mut t = [0i32; 4];
-    while j < n {
-        let xj = *x.add(j) as i32;
-        t[0] += (*w0.add(j) as i8 as i32) * xj;
-        t[1] += (*w1.add(j) as i8 as i32) * xj;
-        t[2] += (*w2.add(j) as i8 as i32) * xj;
-        t[3] += (*w3.add(j) as i8 as i32) * xj;
-        j += 1;
-    }
-    _mm_add_epi32(s, _mm_loadu_si128(t.as_ptr() as *const __m128i))
+    finish4([a0, a1, a2, a3], [w0, w1, w2, w3], x, j, n)
 }
 
 /// [`dots4`] of one row.
@@ -433,12 +421,7 @@ unsafe fn dots1<const VNNI: bool>(w: *const u8, x: *const i8, n: usize) -> i32 {
         a = mac16(a, _mm_loadu_si128(x.add(j) as *const __m128i), w.add(j));
         j += 16;
     }
-    let mut s = sum1(a);
-    while j < n {
-        s += (*w.add(j) as i8 as i32) * (*x.add(j) as i32);
-        j += 1;
-    }
-    s
+    sum1(a) + tail([w], x, j, n)[0]
 }
 
 /// `gman_core::qkernel::matvec_acc_int8` in one call (`Kernels::matvec_int8`): every
