@@ -680,16 +680,8 @@ pub unsafe extern "C" fn gman_inspect(
     len: usize,
     out: *mut gman_info,
 ) -> gman_status {
-    guard(|| {
-        // SAFETY: forwarded from the caller.
-        let r = unsafe { out_ref(out) }.and_then(|o| {
-            // SAFETY: forwarded from the caller.
-            let (_, info) = unsafe { parse_blob(blob, len) }?;
-            *o = info;
-            Ok(())
-        });
-        r.err().unwrap_or(GMAN_OK)
-    })
+    // SAFETY: forwarded from the caller.
+    unsafe { describe(blob, len, out, Ok) }
 }
 
 /// The number of arena bytes a navigator over this blob needs, in `*out` (the blob is
@@ -703,12 +695,31 @@ pub unsafe extern "C" fn gman_arena_size(
     len: usize,
     out: *mut usize,
 ) -> gman_status {
+    // SAFETY: forwarded from the caller.
+    unsafe {
+        describe(blob, len, out, |info| {
+            usize::try_from(info.arena_bytes).map_err(|_| GMAN_ERR_CONFIG)
+        })
+    }
+}
+
+/// `*out = f(info)` of the validated blob's description `info`, as a status: the body of
+/// [`gman_inspect`] and [`gman_arena_size`].
+///
+/// # Safety
+/// `blob` readable for `len` bytes; `out` writable (both may be null: an error).
+unsafe fn describe<T>(
+    blob: *const u8,
+    len: usize,
+    out: *mut T,
+    f: impl FnOnce(gman_info) -> Result<T, gman_status>,
+) -> gman_status {
     guard(|| {
         // SAFETY: forwarded from the caller.
         let r = unsafe { out_ref(out) }.and_then(|o| {
             // SAFETY: forwarded from the caller.
             let (_, info) = unsafe { parse_blob(blob, len) }?;
-            *o = usize::try_from(info.arena_bytes).map_err(|_| GMAN_ERR_CONFIG)?;
+            *o = f(info)?;
             Ok(())
         });
         r.err().unwrap_or(GMAN_OK)
