@@ -107,9 +107,10 @@ run() {
         --method gman-nometa --inner-lr 0.01 --json "$R/gman-nometa/s$s.json" --quiet ;;
   esac
   # the int8 blob of the run (gman eval runs it through gman-core; a PS row's blob needs the
-  # PS input from outside, `gman export` says so)
+  # PS input from outside, `gman export` says so); a privileged-feature model reads the
+  # simulator's true target feature, which no device has: it has no blob
   mkdir -p "$R/models"
-  [ -f "$R/models/$row-s$s.gman" ] ||
+  [ "$row" = privileged ] || [ -f "$R/models/$row-s$s.gman" ] ||
     $G export --ckpt "$dir/checkpoint.ckpt" --preset mcu --quant int8 --out "$R/models/$row-s$s.gman" >/dev/null
   cp "$dir/curve/k$STEPS.json" "$R/$row/s$s.json"
   [ -z "$KEEP" ] || bash "$KEEPER" save "$R" "$KEEP"
