@@ -38,10 +38,11 @@
 //! **When a segment's backward runs.** A segment's A3C gradient is taken at the parameters
 //! it ran with (first-order meta-gradient: the gradient at the adapted parameters is summed
 //! into that of the pre-adaptation ones).
-//! * It **waits** (`B > 1` and `Lanes::segments_can_wait`) when the parameters cannot change under it or
-//!   can be copied cheaply: without an inner loop (one set of parameters), and in the
-//!   Efficient mode (the adapted parameters are the per-unit gains and biases of the actor
-//!   head and of G, ~1.5k floats for `mcu`; a waiting segment keeps a copy, `OwnCopy`).
+//! * It **waits** (`B > 1` and `Lanes::segments_can_wait`) when the parameters cannot
+//!   change under it or can be copied cheaply: without an inner loop (one set of
+//!   parameters), and in the Efficient mode (the adapted parameters are the per-unit gains
+//!   and biases of the actor head and of G, ~1.5k floats for `mcu`; a waiting segment keeps
+//!   a copy, `OwnCopy`).
 //!   All the update's waiting segments then join one batched BPTT at its end (or earlier,
 //!   whenever [`MAX_PENDING_STEPS`] steps wait), longest first, then in the order they
 //!   completed (tick, then slot).

@@ -583,6 +583,7 @@ impl OwnCopy {
     }
 }
 
+/// True when two views read the same f32 matrix.
 fn same_matrix(a: &MatRef<'_>, b: &MatRef<'_>) -> bool {
     match (a.weights(), b.weights()) {
         (Weights::F32(x), Weights::F32(y)) => {
