@@ -40,7 +40,7 @@ pub fn seeded_blob(dims: &Dims, seed: u64) -> Vec<u8> {
 pub const FIRMWARE_DIMS: Dims = Dims::MCU.with_map(3, 3, 8);
 
 /// The trained GMAN model shipped in the repository (relative to `firmware-example/`).
-pub const TRAINED: &str = "../host-sim/models/gman-map3-b16-mcu-int8-seed5.gman";
+pub const TRAINED: &str = "../host-sim/models/gman-thor5-map3-b16-mcu-int8-seed3.gman";
 
 /// The blob the firmware embeds by default: the shipped trained GMAN map model when it is
 /// present, else the seeded one. `base` is the `firmware-example/` directory.

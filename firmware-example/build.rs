@@ -2,7 +2,7 @@
 //!
 //! In order of preference: the file named by `GMAN_FIRMWARE_BLOB` (e.g. one written by
 //! `gman export`); the trained GMAN model shipped in the repository
-//! (`host-sim/models/gman-map3-b16-mcu-int8-seed5.gman`, see `blobgen::TRAINED`); otherwise a
+//! (`host-sim/models/gman-thor5-map3-b16-mcu-int8-seed3.gman`, see `blobgen::TRAINED`); otherwise a
 //! deterministic int8 blob of the same shapes (`Mcu` with the 3 x 3 map) made here from seeded
 //! random weights with gman-core's
 //! own encoder. With the feature `int8-activations` (the default) the shipped or seeded blob
