@@ -356,6 +356,98 @@ impl Bufs {
     }
 }
 
+/// The buffers of an [`AdaptWork`] for `n`'s shapes and `k` steps (see [`adapt_work`]).
+fn adapt_bufs(n: &Nets, k: usize) -> Bufs {
+    let (h, f, dh) = (n.h, n.f, n.dh);
+    Bufs::new(&[h, h, f, f, f, h, h, h.max(f), dh, dh, dh, dh, f, f, k, k, f])
+}
+
+/// `b` (made by [`adapt_bufs`]) as the L_ad gradient's workspace.
+fn adapt_work(b: &mut Bufs) -> AdaptWork<'_> {
+    let [u1, h1, u2, x, dpre2, dh1, dpre1, tmp, du, dhh, dv, dw1g, dg, dmix, d, dd, dx] =
+        &mut b.v[..]
+    else {
+        unreachable!()
+    };
+    AdaptWork {
+        gen: GeneratorCache { u1, h1, u2, x },
+        gen_scratch: GeneratorScratch {
+            dpre2,
+            dh1,
+            dpre1,
+            tmp,
+        },
+        disc: DiscScratch {
+            u: du,
+            h: dhh,
+            v: dv,
+            w1g: dw1g,
+            g: dg,
+            mix: dmix,
+        },
+        d,
+        dd,
+        dx,
+    }
+}
+
+/// `k` random six-action distributions, one after another.
+fn random_probs(rng: &mut Xoshiro128, k: usize) -> Vec<f32> {
+    let mut probs = vec![0.0f32; k * 6];
+    for t in 0..k {
+        let l = rnd(rng, 6, 1.0);
+        gman_core::activation::softmax(&l, &mut probs[t * 6..(t + 1) * 6]).unwrap();
+    }
+    probs
+}
+
+/// Checks G's analytic gradients `grads` (layers 1 and 2: the gains in gain mode, else the
+/// weights, and the biases) against central differences of `loss` around `g64`.
+fn check_generator_grads(
+    name: &str,
+    g64: &Gen64,
+    gain: bool,
+    grads: [&DG; 2],
+    loss: impl Fn(&Gen64) -> f64,
+) {
+    for (layer, gr) in [(1, grads[0]), (2, grads[1])] {
+        let base = if layer == 1 { &g64.l1 } else { &g64.l2 };
+        let set = |d: Dense64| {
+            let mut g = g64.clone();
+            if layer == 1 {
+                g.l1 = d
+            } else {
+                g.l2 = d
+            }
+            loss(&g)
+        };
+        let fd_a = if gain {
+            finite_diff(base.gain.as_ref().unwrap(), H, |v| {
+                set(Dense64 {
+                    gain: Some(v.to_vec()),
+                    ..base.clone()
+                })
+            })
+        } else {
+            finite_diff(&base.w, H, |v| {
+                set(Dense64 {
+                    w: v.to_vec(),
+                    ..base.clone()
+                })
+            })
+        };
+        let a = if gain { "gain" } else { "w" };
+        check(&format!("{name}.l{layer}.{a}"), &gr.a, &fd_a);
+        let fd_b = finite_diff(&base.b, H, |v| {
+            set(Dense64 {
+                b: v.to_vec(),
+                ..base.clone()
+            })
+        });
+        check(&format!("{name}.l{layer}.b"), &gr.b, &fd_b);
+    }
+}
+
 #[test]
 fn generator_backward_matches_finite_differences() {
     for gain in [false, true] {
@@ -400,45 +492,7 @@ fn generator_backward_matches_finite_differences() {
                 .map(|(a, b)| a * b)
                 .sum::<f64>()
         };
-        for (layer, gr) in [(1, &gr1), (2, &gr2)] {
-            let base = if layer == 1 { &g64.l1 } else { &g64.l2 };
-            let set = |d: Dense64| {
-                let mut g = g64.clone();
-                if layer == 1 {
-                    g.l1 = d
-                } else {
-                    g.l2 = d
-                }
-                loss(&g)
-            };
-            let fd_a = if gain {
-                finite_diff(base.gain.as_ref().unwrap(), H, |v| {
-                    set(Dense64 {
-                        gain: Some(v.to_vec()),
-                        ..base.clone()
-                    })
-                })
-            } else {
-                finite_diff(&base.w, H, |v| {
-                    set(Dense64 {
-                        w: v.to_vec(),
-                        ..base.clone()
-                    })
-                })
-            };
-            check(
-                &format!("gen.l{layer}.{}", if gain { "gain" } else { "w" }),
-                &gr.a,
-                &fd_a,
-            );
-            let fd_b = finite_diff(&base.b, H, |v| {
-                set(Dense64 {
-                    b: v.to_vec(),
-                    ..base.clone()
-                })
-            });
-            check(&format!("gen.l{layer}.b"), &gr.b, &fd_b);
-        }
+        check_generator_grads("gen", &g64, gain, [&gr1, &gr2], loss);
     }
 }
 
@@ -582,55 +636,9 @@ fn adaptation_loss_gradients_match_finite_differences() {
         } else {
             rnd(&mut rng, k * n.z, 1.0)
         };
-        let mut probs = vec![0.0f32; k * 6];
-        for t in 0..k {
-            let l = rnd(&mut rng, 6, 1.0);
-            gman_core::activation::softmax(&l, &mut probs[t * 6..(t + 1) * 6]).unwrap();
-        }
-        let mut b = Bufs::new(&[
-            n.h,
-            n.h,
-            n.f,
-            n.f,
-            n.f,
-            n.h,
-            n.h,
-            n.h.max(n.f),
-            n.dh,
-            n.dh,
-            n.dh,
-            n.dh,
-            n.f,
-            n.f,
-            k,
-            k,
-            n.f,
-        ]);
-        let [u1, h1, u2, x, dpre2, dh1, dpre1, tmp, du, dhh, dv, dw1g, dg, dmix, d, dd, dx] =
-            &mut b.v[..]
-        else {
-            unreachable!()
-        };
-        let mut w = AdaptWork {
-            gen: GeneratorCache { u1, h1, u2, x },
-            gen_scratch: GeneratorScratch {
-                dpre2,
-                dh1,
-                dpre1,
-                tmp,
-            },
-            disc: DiscScratch {
-                u: du,
-                h: dhh,
-                v: dv,
-                w1g: dw1g,
-                g: dg,
-                mix: dmix,
-            },
-            d,
-            dd,
-            dx,
-        };
+        let probs = random_probs(&mut rng, k);
+        let mut b = adapt_bufs(&n, k);
+        let mut w = adapt_work(&mut b);
         let mut gr1 = DG::new(&n.g1, gain);
         let mut gr2 = DG::new(&n.g2, gain);
         let mut dprobs = vec![0.0f32; k * 6];
@@ -665,45 +673,13 @@ fn adaptation_loss_gradients_match_finite_differences() {
             &dprobs,
             &finite_diff(&p64, H, |v| total(&g64, v)),
         );
-        for (layer, gr) in [(1, &gr1), (2, &gr2)] {
-            let base = if layer == 1 { &g64.l1 } else { &g64.l2 };
-            let set = |dl: Dense64| {
-                let mut g = g64.clone();
-                if layer == 1 {
-                    g.l1 = dl
-                } else {
-                    g.l2 = dl
-                }
-                total(&g, &p64)
-            };
-            let fd_a = if gain {
-                finite_diff(base.gain.as_ref().unwrap(), H, |v| {
-                    set(Dense64 {
-                        gain: Some(v.to_vec()),
-                        ..base.clone()
-                    })
-                })
-            } else {
-                finite_diff(&base.w, H, |v| {
-                    set(Dense64 {
-                        w: v.to_vec(),
-                        ..base.clone()
-                    })
-                })
-            };
-            check(
-                &format!("ladapt.gen.l{layer}.a ({kind:?}, gain={gain}, same={same_noise})"),
-                &gr.a,
-                &fd_a,
-            );
-            let fd_b = finite_diff(&base.b, H, |v| {
-                set(Dense64 {
-                    b: v.to_vec(),
-                    ..base.clone()
-                })
-            });
-            check(&format!("ladapt.gen.l{layer}.b ({kind:?})"), &gr.b, &fd_b);
-        }
+        check_generator_grads(
+            &format!("ladapt.gen ({kind:?}, gain={gain}, same={same_noise})"),
+            &g64,
+            gain,
+            [&gr1, &gr2],
+            |g| total(g, &p64),
+        );
     }
 }
 
@@ -721,55 +697,9 @@ fn cossim_adaptation_gradients_match_finite_differences() {
         let attr = rnd(&mut rng, n.a, 1.0);
         let zs = rnd(&mut rng, k * n.z, 1.0);
         let obs: Vec<f32> = (0..k * n.f).map(|_| uniform(&mut rng)).collect();
-        let mut probs = vec![0.0f32; k * 6];
-        for t in 0..k {
-            let l = rnd(&mut rng, 6, 1.0);
-            gman_core::activation::softmax(&l, &mut probs[t * 6..(t + 1) * 6]).unwrap();
-        }
-        let mut b = Bufs::new(&[
-            n.h,
-            n.h,
-            n.f,
-            n.f,
-            n.f,
-            n.h,
-            n.h,
-            n.h.max(n.f),
-            n.dh,
-            n.dh,
-            n.dh,
-            n.dh,
-            n.f,
-            n.f,
-            k,
-            k,
-            n.f,
-        ]);
-        let [u1, h1, u2, x, dpre2, dh1, dpre1, tmp, du, dhh, dv, dw1g, dg, dmix, d, dd, dx] =
-            &mut b.v[..]
-        else {
-            unreachable!()
-        };
-        let mut w = AdaptWork {
-            gen: GeneratorCache { u1, h1, u2, x },
-            gen_scratch: GeneratorScratch {
-                dpre2,
-                dh1,
-                dpre1,
-                tmp,
-            },
-            disc: DiscScratch {
-                u: du,
-                h: dhh,
-                v: dv,
-                w1g: dw1g,
-                g: dg,
-                mix: dmix,
-            },
-            d,
-            dd,
-            dx,
-        };
+        let probs = random_probs(&mut rng, k);
+        let mut b = adapt_bufs(&n, k);
+        let mut w = adapt_work(&mut b);
         let mut gr1 = DG::new(&n.g1, gain);
         let mut gr2 = DG::new(&n.g2, gain);
         let mut dprobs = vec![0.0f32; k * 6];
@@ -807,40 +737,12 @@ fn cossim_adaptation_gradients_match_finite_differences() {
             &dprobs,
             &finite_diff(&p64, H, |v| total(&g64, v)),
         );
-        for (layer, gr) in [(1, &gr1), (2, &gr2)] {
-            let base = if layer == 1 { &g64.l1 } else { &g64.l2 };
-            let set = |dl: Dense64| {
-                let mut g = g64.clone();
-                if layer == 1 {
-                    g.l1 = dl
-                } else {
-                    g.l2 = dl
-                }
-                total(&g, &p64)
-            };
-            let fd_a = if gain {
-                finite_diff(base.gain.as_ref().unwrap(), H, |v| {
-                    set(Dense64 {
-                        gain: Some(v.to_vec()),
-                        ..base.clone()
-                    })
-                })
-            } else {
-                finite_diff(&base.w, H, |v| {
-                    set(Dense64 {
-                        w: v.to_vec(),
-                        ..base.clone()
-                    })
-                })
-            };
-            check(&format!("cossim.gen.l{layer}.a"), &gr.a, &fd_a);
-            let fd_b = finite_diff(&base.b, H, |v| {
-                set(Dense64 {
-                    b: v.to_vec(),
-                    ..base.clone()
-                })
-            });
-            check(&format!("cossim.gen.l{layer}.b"), &gr.b, &fd_b);
-        }
+        check_generator_grads(
+            &format!("cossim.gen ({kind:?}, gain={gain})"),
+            &g64,
+            gain,
+            [&gr1, &gr2],
+            |g| total(g, &p64),
+        );
     }
 }
