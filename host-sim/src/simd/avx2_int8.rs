@@ -87,21 +87,18 @@ pub(super) unsafe fn dots_i8(q: &[u8], cols: usize, col0: usize, xq: &[i8], out:
 
 /// `gman_core::qkernel::dots_i8` for any input byte (-128 included): the input widened to
 /// i16 once, then per row 16 weights at a time sign-extended (`vpmovsxbw`) and multiplied
-/// pairwise into i32 (`vpmaddwd`).
+/// pairwise into i32 (`vpmaddwd`). Reached only from [`dots_i8`] after [`rows_fit`], so
+/// `xq.len() <= QCOLS`; [`dots_i16`] checks the shapes again.
 ///
 /// # Safety
 /// The CPU must support AVX2.
 #[target_feature(enable = "avx2")]
-pub(super) unsafe fn dots_i8_wide(q: &[u8], cols: usize, col0: usize, xq: &[i8], out: &mut [i32]) {
-    let n = xq.len();
-    if cols == 0 || col0 + n > cols || n > QCOLS {
-        return dots_i8_body(q, cols, col0, xq, out);
-    }
+unsafe fn dots_i8_wide(q: &[u8], cols: usize, col0: usize, xq: &[i8], out: &mut [i32]) {
     let mut xw = [0i16; QCOLS];
     for (d, &s) in xw.iter_mut().zip(xq) {
         *d = s as i16;
     }
-    dots_i16(q, cols, col0, &xw[..n], out)
+    dots_i16(q, cols, col0, &xw[..xq.len()], out)
 }
 
 /// `gman_core::qkernel::dots_i16`: int8 weights times an int16 input block, four rows per
