@@ -513,3 +513,86 @@ fn ps_variant_blob_evaluates_with_its_ps_module() {
     assert_ne!(w1(Some(&other.join("ps.ckpt")), &blob), trained);
     let _ = std::fs::remove_dir_all(&d);
 }
+
+/// Writes an evaluation JSON with SR `u` / `s` (unseen / seen) and fixed other metrics.
+fn eval_json(path: &std::path::Path, u: f64, s: f64) {
+    let split =
+        |sr: f64| serde_json::json!({"episodes": 4, "sr": sr, "spl": 1.0, "epa": 2.0, "dts": 0.5});
+    let j = serde_json::json!({"split": "val", "results": {"unseen": split(u), "seen": split(s)}});
+    std::fs::write(path, j.to_string()).unwrap();
+}
+
+/// `gman table`: mean ± std per row, Welch's and the paired t against the first row, the
+/// Markdown form, the spread picture, and clear errors on bad input.
+#[test]
+fn table_summarises_rows_and_draws_their_spread() {
+    let d = tmp("table");
+    let (a, b) = (d.join("a"), d.join("b"));
+    std::fs::create_dir_all(&a).unwrap();
+    std::fs::create_dir_all(&b).unwrap();
+    // a: unseen 1, 2, 3 (mean 2, std 1); b: 3, 5, 7 (mean 5, std 2); Welch's t of a - b is
+    // -3 / sqrt(1/3 + 4/3) = -2.32; the differences -2, -3, -4 give a paired t of -5.20.
+    for (i, (x, y)) in [(1.0, 3.0), (2.0, 5.0), (3.0, 7.0)].into_iter().enumerate() {
+        eval_json(&a.join(format!("s{}.json", i + 1)), x, 10.0 + x);
+        eval_json(&b.join(format!("s{}.json", i + 1)), y, 10.0 + y);
+    }
+    let png = d.join("spread.png");
+    let (ok, stdout, err) = gman(&[
+        "table",
+        "--runs",
+        a.to_str().unwrap(),
+        b.to_str().unwrap(),
+        "--png",
+        png.to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    assert!(
+        stdout.contains("a [val x3]") && stdout.contains("2.00±1.00"),
+        "{stdout}"
+    );
+    assert!(stdout.contains("5.00±2.00"), "{stdout}");
+    assert!(
+        stdout.contains("unseen  -3.00 (t -2.32, paired t -5.20)"),
+        "{stdout}"
+    );
+    let bytes = std::fs::read(&png).unwrap();
+    assert_eq!(&bytes[..8], b"\x89PNG\r\n\x1a\n", "not a PNG");
+    assert!(
+        stdout.contains(&format!("wrote {}", png.display())),
+        "{stdout}"
+    );
+
+    let (ok, stdout, err) = gman(&["table", "--markdown", "--runs", a.to_str().unwrap()]);
+    assert!(ok, "{err}");
+    assert!(stdout.contains("| a [val x3] | 2.00±1.00 |"), "{stdout}");
+
+    // Bad input: a malformed file, a missing metric, an empty directory, an unwritable PNG.
+    let bad = d.join("bad.json");
+    std::fs::write(&bad, "{ not json").unwrap();
+    let (ok, _, err) = gman(&["table", "--runs", bad.to_str().unwrap()]);
+    assert!(!ok && err.contains("bad.json"), "{err}");
+    let partial = d.join("partial.json");
+    std::fs::write(
+        &partial,
+        r#"{"split": "val", "results": {"unseen": {"sr": 1}}}"#,
+    )
+    .unwrap();
+    let (ok, _, err) = gman(&["table", "--runs", partial.to_str().unwrap()]);
+    assert!(
+        !ok && err.contains("partial.json") && err.contains("results.unseen.spl"),
+        "{err}"
+    );
+    let empty = d.join("empty");
+    std::fs::create_dir_all(&empty).unwrap();
+    let (ok, _, err) = gman(&["table", "--runs", empty.to_str().unwrap()]);
+    assert!(!ok && err.contains("no .json"), "{err}");
+    let nowhere = d.join("no-such-dir").join("x.png");
+    let (ok, _, err) = gman(&[
+        "table",
+        "--runs",
+        a.to_str().unwrap(),
+        "--png",
+        nowhere.to_str().unwrap(),
+    ]);
+    assert!(!ok && err.contains("x.png"), "{err}");
+}

@@ -15,6 +15,10 @@ pub struct TableArgs {
     /// Print the table and the comparisons as Markdown (for the results document).
     #[arg(long)]
     pub markdown: bool,
+    /// Also draw every file's SR as a dot, with each row's mean ± std, unseen and seen targets
+    /// side by side, into this PNG (the seed-to-seed spread at a glance).
+    #[arg(long, value_name = "FILE")]
+    pub png: Option<PathBuf>,
 }
 
 fn json_files(p: &Path) -> Result<Vec<PathBuf>> {
@@ -202,6 +206,76 @@ pub fn cmd_table(a: TableArgs) -> Result<()> {
     } else {
         print_text(&rows);
     }
+    if let Some(png) = &a.png {
+        draw_spread(&rows, png).with_context(|| format!("writing {}", png.display()))?;
+        println!(
+            "wrote {}: SR (%) of every file as a dot, each row's mean as a bar with ± one sample \
+             std, unseen targets left, seen right",
+            png.display()
+        );
+    }
+    Ok(())
+}
+
+/// The row's label without its `[split xN]` suffix.
+fn short_name(r: &Row) -> &str {
+    r.name.split(" [").next().unwrap_or(&r.name)
+}
+
+/// The picture of `--png`: one panel per split, one line per row (the first on top), its
+/// files' SR as dots, its mean as a vertical bar and ± one sample std as a horizontal one.
+fn draw_spread(rows: &[Row], png: &Path) -> Result<()> {
+    use plotters::prelude::*;
+    let labels = gman_host_sim::sim::render::register_plot_font();
+    let n = rows.len();
+    let xmax = rows
+        .iter()
+        .flat_map(|r| r.vals.iter().flat_map(|v| [v[0], v[4]]))
+        .filter(|v| v.is_finite())
+        .fold(10.0, f64::max)
+        * 1.1;
+    let root = BitMapBackend::new(png, (1000, 90 + 55 * n as u32)).into_drawing_area();
+    root.fill(&WHITE)?;
+    for (area, (col, title)) in root.split_evenly((1, 2)).iter().zip([
+        (0, "val SR (%), unseen targets"),
+        (4, "val SR (%), seen targets"),
+    ]) {
+        let mut b = ChartBuilder::on(area);
+        b.margin(12);
+        if labels {
+            b.caption(title, ("sans-serif", 18)).x_label_area_size(30);
+        }
+        let mut chart = b.build_cartesian_2d(0.0..xmax, -0.6..(n as f64 - 0.4))?;
+        let mut mesh = chart.configure_mesh();
+        mesh.x_labels(8).disable_y_axis().disable_y_mesh();
+        if labels {
+            mesh.label_style(("sans-serif", 13));
+        } else {
+            mesh.disable_x_axis();
+        }
+        mesh.draw()?;
+        for (i, r) in rows.iter().enumerate() {
+            let y = (n - 1 - i) as f64;
+            let v: Vec<f64> = r.vals.iter().map(|v| v[col]).collect();
+            let (m, sd) = mean_std(&v);
+            if labels {
+                chart.draw_series([Text::new(
+                    short_name(r).to_string(),
+                    (xmax * 0.01, y + 0.42),
+                    ("sans-serif", 13),
+                )])?;
+            }
+            let k = v.len().max(2) as f64 - 1.0;
+            chart.draw_series(v.iter().enumerate().map(|(j, &x)| {
+                Circle::new((x, y - 0.15 + 0.3 * j as f64 / k), 4, BLUE.filled())
+            }))?;
+            chart.draw_series([
+                PathElement::new(vec![(m, y - 0.3), (m, y + 0.3)], RED.stroke_width(3)),
+                PathElement::new(vec![(m - sd, y), (m + sd, y)], RED.stroke_width(2)),
+            ])?;
+        }
+    }
+    root.present()?;
     Ok(())
 }
 
