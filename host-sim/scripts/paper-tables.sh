@@ -7,7 +7,7 @@
 # (the learning curve, RUN/curve/*.json) and at the end; a run with an inner loop also with
 # adaptation off, and every a3c-fg run also as gman-nometa (the EMD at test time only); the
 # privileged-feature ceiling at the same budget; the learning curves, seeds averaged, in
-# $OUT/curves.png.
+# $OUT/curves.png, and every seed's SR in $OUT/seeds-main.png and $OUT/seeds-other.png.
 #
 #   DATA=../shared/data/gman OUT=runs/paper nice -n 19 bash host-sim/scripts/paper-tables.sh
 #
@@ -142,15 +142,16 @@ for s in ${SEEDS:-1 2 3 4 5}; do
   main_rows "$s"
   case " $EXTRA_SEEDS " in *" $s "*) extra_rows "$s" ;; esac
 done
-# table ROW...: the table of the rows that have results so far (a partial sweep has not
-# made every row's folder yet).
+# table PNG ROW...: the table of the rows that have results so far (a partial sweep has not
+# made every row's folder yet), and every seed's SR with each row's mean ± std in PNG.
 table() {
-  local have=()
+  local png=$1 have=()
+  shift
   for r in "$@"; do [ -d "$R/$r" ] && have+=("$R/$r"); done
-  [ ${#have[@]} -eq 0 ] || $G table --runs "${have[@]}"
+  [ ${#have[@]} -eq 0 ] || $G table --runs "${have[@]}" --png "$png"
 }
-table gman gman-adaptoff gman-noemd a3c-fg gman-nometa a3c random
-table privileged gman-cossim gman-cossim-adaptoff gman-ps gman-ps-adaptoff gman-noemd-ps a3c-ps a3c-fg-ps
+table "$R/seeds-main.png" gman gman-adaptoff gman-noemd a3c-fg gman-nometa a3c random
+table "$R/seeds-other.png" privileged gman-cossim gman-cossim-adaptoff gman-ps gman-ps-adaptoff gman-noemd-ps a3c-ps a3c-fg-ps
 for g in gman gman-noemd a3c-fg a3c privileged gman-cossim gman-ps gman-noemd-ps a3c-ps a3c-fg-ps; do
   if ls -d "$R"/runs/$g-s[0-9]* >/dev/null 2>&1; then printf '%s\n' "$R"/runs/$g-s[0-9]*; fi
 done | xargs $G plot --by-method --png "$R/curves.png" --run
