@@ -134,27 +134,7 @@ fn dense_backward_matches_finite_differences() {
                 .map(|(a, b)| a * b)
                 .sum::<f64>()
         };
-        if gain_mode {
-            let fd = finite_diff(base.gain.as_ref().unwrap(), H, |v| {
-                let mut d = base.clone();
-                d.gain = Some(v.to_vec());
-                loss(&d, &x)
-            });
-            check("dense.gain", &g.a, &fd);
-        } else {
-            let fd = finite_diff(&base.w, H, |v| {
-                let mut d = base.clone();
-                d.w = v.to_vec();
-                loss(&d, &x)
-            });
-            check("dense.w", &g.a, &fd);
-        }
-        let fd = finite_diff(&base.b, H, |v| {
-            let mut d = base.clone();
-            d.b = v.to_vec();
-            loss(&d, &x)
-        });
-        check("dense.b", &g.b, &fd);
+        check_dense("dense", &base, gain_mode, &g, |d| loss(&d, &x));
         let fd = finite_diff(&x, H, |v| loss(&base, v));
         let dx: Vec<f32> = dx1.iter().chain(&dx2).copied().collect();
         check("dense.x", &dx, &fd);
@@ -412,7 +392,7 @@ fn check_generator_grads(
 ) {
     for (layer, gr) in [(1, grads[0]), (2, grads[1])] {
         let base = if layer == 1 { &g64.l1 } else { &g64.l2 };
-        let set = |d: Dense64| {
+        check_dense(&format!("{name}.l{layer}"), base, gain, gr, |d| {
             let mut g = g64.clone();
             if layer == 1 {
                 g.l1 = d
@@ -420,32 +400,37 @@ fn check_generator_grads(
                 g.l2 = d
             }
             loss(&g)
-        };
-        let fd_a = if gain {
-            finite_diff(base.gain.as_ref().unwrap(), H, |v| {
-                set(Dense64 {
-                    gain: Some(v.to_vec()),
-                    ..base.clone()
-                })
-            })
-        } else {
-            finite_diff(&base.w, H, |v| {
-                set(Dense64 {
-                    w: v.to_vec(),
-                    ..base.clone()
-                })
-            })
-        };
-        let a = if gain { "gain" } else { "w" };
-        check(&format!("{name}.l{layer}.{a}"), &gr.a, &fd_a);
-        let fd_b = finite_diff(&base.b, H, |v| {
-            set(Dense64 {
-                b: v.to_vec(),
+        });
+    }
+}
+
+/// Checks a dense layer's analytic gradient `gr` (its gains in gain mode, else its weights,
+/// and its biases) against central differences of `loss` as a function of the layer.
+fn check_dense(name: &str, base: &Dense64, gain: bool, gr: &DG, loss: impl Fn(Dense64) -> f64) {
+    let fd_a = if gain {
+        finite_diff(base.gain.as_ref().unwrap(), H, |v| {
+            loss(Dense64 {
+                gain: Some(v.to_vec()),
                 ..base.clone()
             })
-        });
-        check(&format!("{name}.l{layer}.b"), &gr.b, &fd_b);
-    }
+        })
+    } else {
+        finite_diff(&base.w, H, |v| {
+            loss(Dense64 {
+                w: v.to_vec(),
+                ..base.clone()
+            })
+        })
+    };
+    let a = if gain { "gain" } else { "w" };
+    check(&format!("{name}.{a}"), &gr.a, &fd_a);
+    let fd_b = finite_diff(&base.b, H, |v| {
+        loss(Dense64 {
+            b: v.to_vec(),
+            ..base.clone()
+        })
+    });
+    check(&format!("{name}.b"), &gr.b, &fd_b);
 }
 
 #[test]
@@ -545,38 +530,9 @@ fn discriminator_ld_with_gradient_penalty_matches_finite_differences() {
             "L_D value"
         );
         assert!(val.penalty > 0.0);
-        let fd_a = if gain {
-            finite_diff(d64.l1.gain.as_ref().unwrap(), H, |v| {
-                ld(&Disc64 {
-                    l1: Dense64 {
-                        gain: Some(v.to_vec()),
-                        ..d64.l1.clone()
-                    },
-                    ..d64.clone()
-                })
-            })
-        } else {
-            finite_diff(&d64.l1.w, H, |v| {
-                ld(&Disc64 {
-                    l1: Dense64 {
-                        w: v.to_vec(),
-                        ..d64.l1.clone()
-                    },
-                    ..d64.clone()
-                })
-            })
-        };
-        check("ld.l1.w_or_gain", &g1.a, &fd_a);
-        let fd_b = finite_diff(&d64.l1.b, H, |v| {
-            ld(&Disc64 {
-                l1: Dense64 {
-                    b: v.to_vec(),
-                    ..d64.l1.clone()
-                },
-                ..d64.clone()
-            })
+        check_dense("ld.l1", &d64.l1, gain, &g1, |l1| {
+            ld(&Disc64 { l1, ..d64.clone() })
         });
-        check("ld.l1.b", &g1.b, &fd_b);
         let fd_w2 = finite_diff(&d64.w2, H, |v| {
             ld(&Disc64 {
                 w2: v.to_vec(),
