@@ -357,6 +357,9 @@ where
     DB::ErrorType: 'static,
 {
     use plotters::prelude::*;
+    // One legend, on the training curves' top left (empty while they start near zero): the
+    // colours are the same in every panel, and a legend over the val panels hid their ends.
+    let legend = labels && *series == Series::TrainSr;
     let colors = [
         RED,
         BLUE,
@@ -392,16 +395,16 @@ where
             chart.draw_series(pts.iter().map(|&p| Circle::new(p, 3, col.filled())))?;
         }
         let s = chart.draw_series(LineSeries::new(pts, col.stroke_width(2)))?;
-        if labels {
+        if legend {
             s.label(c.label.clone()).legend(move |(x, y)| {
                 PathElement::new(vec![(x, y), (x + 20, y)], col.stroke_width(2))
             });
         }
     }
-    if labels {
+    if legend {
         chart
             .configure_series_labels()
-            .position(SeriesLabelPosition::LowerRight)
+            .position(SeriesLabelPosition::UpperLeft)
             .background_style(WHITE.mix(0.8))
             .border_style(BLACK)
             .label_font(("sans-serif", 13))
