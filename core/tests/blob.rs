@@ -788,21 +788,28 @@ fn v4_checksum_covers_every_header_bit() {
     ));
 }
 
-/// Every model shipped in `host-sim/models/` (format v2/v3, written before v4) still
-/// parses, by the payload-only rule.
+/// Every model shipped in `host-sim/models/` parses by its own format's rule: the ones
+/// written before v4 (v2/v3) by the payload-only checksum, the v4 ones by the whole blob's.
 #[test]
 fn shipped_models_still_parse_by_their_own_rule() {
     let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../host-sim/models");
-    let mut n = 0;
+    let (mut old, mut v4) = (0, 0);
     for e in std::fs::read_dir(&dir).unwrap() {
         let p = e.unwrap().path();
         if p.extension().is_some_and(|x| x == "gman") {
             let bytes = std::fs::read(&p).unwrap();
             let b = Blob::parse(&bytes).unwrap_or_else(|e| panic!("{}: {e}", p.display()));
-            assert!(b.header().version() <= 3);
-            assert_eq!(b.header().checksum_scope(), ChecksumScope::Payload);
-            n += 1;
+            let (version, scope) = (b.header().version(), b.header().checksum_scope());
+            if version <= 3 {
+                assert_eq!(scope, ChecksumScope::Payload, "{}", p.display());
+                old += 1;
+            } else {
+                assert_eq!(version, 4, "{}", p.display());
+                assert_eq!(scope, ChecksumScope::HeaderAndPayload, "{}", p.display());
+                v4 += 1;
+            }
         }
     }
-    assert!(n > 0, "no shipped model found in {}", dir.display());
+    assert!(old > 0, "no pre-v4 model found in {}", dir.display());
+    assert!(v4 > 0, "no v4 model found in {}", dir.display());
 }
