@@ -405,14 +405,10 @@ fn panic(_: &core::panic::PanicInfo<'_>) -> ! {
     }
 }
 
-/// A slice from a C pointer and length: null is allowed only with length 0.
-///
-/// # Safety
-/// A non-null `p` must be valid for reads of `len` elements for `'a`.
-unsafe fn slice_in<'a, T>(p: *const T, len: usize) -> Result<&'a [T], gman_status> {
-    if len == 0 {
-        return Ok(&[]);
-    }
+/// What can be checked of a C span of `len > 0` elements without reading it: `p` is non-null
+/// and aligned for `T`, and the byte length fits `isize` (`core::slice::from_raw_parts`'s
+/// preconditions other than validity, which only the caller can promise).
+fn check_span<T>(p: *const T, len: usize) -> Result<(), gman_status> {
     if p.is_null() {
         return Err(GMAN_ERR_NULL);
     }
@@ -425,8 +421,20 @@ unsafe fn slice_in<'a, T>(p: *const T, len: usize) -> Result<&'a [T], gman_statu
     {
         return Err(GMAN_ERR_SHAPE);
     }
-    // SAFETY: non-null, aligned, the caller guarantees `len` readable elements, and the byte
-    // length fits `isize`.
+    Ok(())
+}
+
+/// A slice from a C pointer and length: null is allowed only with length 0.
+///
+/// # Safety
+/// A non-null `p` must be valid for reads of `len` elements for `'a`.
+unsafe fn slice_in<'a, T>(p: *const T, len: usize) -> Result<&'a [T], gman_status> {
+    if len == 0 {
+        return Ok(&[]);
+    }
+    check_span(p, len)?;
+    // SAFETY: `check_span` saw `p` non-null, aligned and of a byte length that fits `isize`;
+    // the caller guarantees `len` readable elements.
     Ok(unsafe { core::slice::from_raw_parts(p, len) })
 }
 
@@ -438,18 +446,7 @@ unsafe fn slice_out<'a, T>(p: *mut T, len: usize) -> Result<&'a mut [T], gman_st
     if len == 0 {
         return Ok(&mut []);
     }
-    if p.is_null() {
-        return Err(GMAN_ERR_NULL);
-    }
-    if !p.is_aligned() {
-        return Err(GMAN_ERR_ALIGNMENT);
-    }
-    if len
-        .checked_mul(size_of::<T>())
-        .is_none_or(|b| b > isize::MAX as usize)
-    {
-        return Err(GMAN_ERR_SHAPE);
-    }
+    check_span(p.cast_const(), len)?;
     // SAFETY: as in `slice_in`, plus exclusive access guaranteed by the caller.
     Ok(unsafe { core::slice::from_raw_parts_mut(p, len) })
 }
