@@ -527,7 +527,8 @@ fn eval_json(path: &std::path::Path, u: f64, s: f64) {
 #[test]
 fn table_summarises_rows_and_draws_their_spread() {
     let d = tmp("table");
-    let (a, b) = (d.join("a"), d.join("b"));
+    // b's name is longer than the method column's default width
+    let (a, b) = (d.join("a"), d.join("b-a-row-whose-name-is-long"));
     std::fs::create_dir_all(&a).unwrap();
     std::fs::create_dir_all(&b).unwrap();
     // a: unseen 1, 2, 3 (mean 2, std 1); b: 3, 5, 7 (mean 5, std 2); Welch's t of a - b is
@@ -555,6 +556,17 @@ fn table_summarises_rows_and_draws_their_spread() {
         stdout.contains("unseen  -3.00 (t -2.32, paired t -5.20)"),
         "{stdout}"
     );
+    // the header and every row put their column bars at the same places
+    let bars = |l: &str| -> Vec<usize> {
+        l.chars()
+            .enumerate()
+            .filter(|&(_, c)| c == '|')
+            .map(|(i, _)| i)
+            .collect()
+    };
+    let lines: Vec<&str> = stdout.lines().take_while(|l| !l.starts_with('(')).collect();
+    assert_eq!(lines.len(), 4, "{stdout}");
+    assert!(lines.iter().all(|l| bars(l) == bars(lines[0])), "{stdout}");
     let bytes = std::fs::read(&png).unwrap();
     assert_eq!(&bytes[..8], b"\x89PNG\r\n\x1a\n", "not a PNG");
     assert!(

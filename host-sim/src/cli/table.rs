@@ -280,19 +280,26 @@ fn draw_spread(rows: &[Row], png: &Path) -> Result<()> {
 }
 
 fn print_text(rows: &[Row]) {
+    // the method column fits the longest row name
+    let w = rows
+        .iter()
+        .map(|r| r.name.chars().count())
+        .max()
+        .unwrap_or(0)
+        .max(28);
     println!(
-        "{:<28} | {:^47} | {:^47}",
+        "{:<w$} | {:^47} | {:^47}",
         "Method", "Unseen Objects", "Seen Objects"
     );
     let heads = format!(
         "{:>11} {:>11} {:>11} {:>11}",
         METRICS[0], METRICS[1], METRICS[2], METRICS[3]
     );
-    println!("{:<28} | {heads} | {heads}", "");
+    println!("{:<w$} | {heads} | {heads}", "");
     for r in rows {
         let c = cells(r);
         println!(
-            "{:<28} | {} | {}",
+            "{:<w$} | {} | {}",
             r.name,
             c[..4].join(" "),
             c[4..].join(" ")
