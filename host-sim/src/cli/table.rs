@@ -164,6 +164,7 @@ fn comparisons(rows: &[Row]) -> Vec<String> {
         return Vec::new();
     };
     let col = |v: &[[f64; 8]], i: usize| v.iter().map(|r| r[i]).collect::<Vec<_>>();
+    let w = name_width(rows);
     rest.iter()
         .map(|r| {
             let paired = r.files == first.files;
@@ -181,7 +182,7 @@ fn comparisons(rows: &[Row]) -> Vec<String> {
                 }
             };
             format!(
-                "{:<26} unseen {du:+6.2} (t {}{})  seen {ds:+6.2} (t {}{})",
+                "{:<w$} unseen {du:+6.2} (t {}{})  seen {ds:+6.2} (t {}{})",
                 r.name,
                 t_cell(tu),
                 pcell(pu),
@@ -279,14 +280,17 @@ fn draw_spread(rows: &[Row], png: &Path) -> Result<()> {
     Ok(())
 }
 
-fn print_text(rows: &[Row]) {
-    // the method column fits the longest row name
-    let w = rows
-        .iter()
+/// The width of the text form's method column: 28, or the longest row name.
+fn name_width(rows: &[Row]) -> usize {
+    rows.iter()
         .map(|r| r.name.chars().count())
         .max()
         .unwrap_or(0)
-        .max(28);
+        .max(28)
+}
+
+fn print_text(rows: &[Row]) {
+    let w = name_width(rows);
     println!(
         "{:<w$} | {:^47} | {:^47}",
         "Method", "Unseen Objects", "Seen Objects"
