@@ -2,7 +2,9 @@
 # The paper's Tables 2 and 3 at the reference implementation's training budget (8.77 M
 # environment steps per run), on the AI2-THOR 5.0 object positions: a3c, a3c-fg, gman and its
 # no-inner-loop control gman-noemd over SEEDS (default 5); gman-cossim and the dagger rows
-# (a3c-ps, a3c-fg-ps, gman-ps and its control gman-noemd-ps) over EXTRA_SEEDS (default 3).
+# (a3c-ps, a3c-fg-ps, gman-ps and its control gman-noemd-ps) over EXTRA_SEEDS (default 3); the
+# rows gman-zero, gman-noemd-zero and a3c-fg-zero are gman, gman-noemd and a3c-fg with G's noise
+# z = 0 (`--noise zero`) over SEEDS.
 # Every run is evaluated on all 8000 val episodes after every CHUNK environment steps
 # (the learning curve, RUN/curve/*.json) and at the end; a run with an inner loop also with
 # adaptation off, and every a3c-fg run also as gman-nometa (the EMD at test time only); the
@@ -99,7 +101,7 @@ run() {
     [ "$target" -ge "$STEPS" ] && break
   done
   case $row in
-    gman | gman-cossim | gman-ps)
+    gman | gman-cossim | gman-ps | gman-zero)
       local off=gman-noemd
       [ "$method" = gman-ps ] && off=gman-noemd-ps
       mkdir -p "$R/$row-adaptoff"
@@ -127,6 +129,11 @@ main_rows() {
   run gman-noemd gman-noemd "$1"
   run a3c-fg a3c-fg "$1"
   run a3c a3c "$1"
+  # the same rows with G's noise z = 0 at navigation (the reference's choice; G's output is
+  # then constant between inner updates, which the device caches)
+  run gman-zero gman "$1" --inner-lr 0.01 --noise zero
+  run gman-noemd-zero gman-noemd "$1" --noise zero
+  run a3c-fg-zero a3c-fg "$1" --noise zero
 }
 extra_rows() {
   run gman-ps gman-ps "$1" --inner-lr 0.01 --ps "$R/ps/ps.ckpt"
@@ -151,7 +158,8 @@ table() {
   [ ${#have[@]} -eq 0 ] || $G table --runs "${have[@]}" --png "$png"
 }
 table "$R/seeds-main.png" gman gman-adaptoff gman-noemd a3c-fg gman-nometa a3c random
+table "$R/seeds-zero.png" gman-zero gman-zero-adaptoff gman-noemd-zero a3c-fg-zero gman gman-noemd a3c-fg
 table "$R/seeds-other.png" privileged gman-cossim gman-cossim-adaptoff gman-ps gman-ps-adaptoff gman-noemd-ps a3c-ps a3c-fg-ps
-for g in gman gman-noemd a3c-fg a3c privileged gman-cossim gman-ps gman-noemd-ps a3c-ps a3c-fg-ps; do
+for g in gman gman-noemd a3c-fg a3c gman-zero gman-noemd-zero a3c-fg-zero privileged gman-cossim gman-ps gman-noemd-ps a3c-ps a3c-fg-ps; do
   if ls -d "$R"/runs/$g-s[0-9]* >/dev/null 2>&1; then printf '%s\n' "$R"/runs/$g-s[0-9]*; fi
 done | xargs $G plot --by-method --png "$R/curves.png" --run
