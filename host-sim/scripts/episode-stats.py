@@ -67,12 +67,12 @@ def main(paths):
         except (OSError, ValueError) as e:
             print(f"{p}: {e}", file=sys.stderr)
             return 1
-        for kind in ("Seen", "Unseen"):
+        for kind in ("seen", "unseen"):
             s = stats([r for r in rows if r.get("kind") == kind])
             if s is None:
                 continue
             cells = " | ".join(f"{s[k]:.1f}" for k, _ in COLS)
-            print(f"| {p} | {kind.lower()} | {cells} |")
+            print(f"| {p} | {kind} | {cells} |")
     return 0
 
 
