@@ -306,6 +306,10 @@ class ObjectNavEnv(gymnasium.Env):
     ``reset(seed=s)`` seeds the training sampler with ``s`` (slot 0 of a VecEnv seeded with
     ``s``); on an evaluation split each ``reset()`` takes the next official episode.
     ``render_mode="rgb_array"``: :meth:`render` returns the top-down view of the episode.
+
+    ``gymnasium.make("gman/ObjectNav-v0")`` wraps it in ``TimeLimit(200)``
+    (``spec.max_episode_steps``, the longest default episode); with ``max_steps`` above 200
+    also pass ``max_episode_steps=`` (or ``-1`` for no wrapper), or the wrapper truncates first.
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": RENDER_FPS}
@@ -317,7 +321,6 @@ class ObjectNavEnv(gymnasium.Env):
             kwargs.pop(k, None)
         self._vec = VecEnv(1, copy=True, **kwargs)
         self.render_mode = self._vec.render_mode
-        self._limit = max(_args.max_steps(kwargs.get("max_steps")))
         self.observation_space = self._vec.single_observation_space
         self.action_space = self._vec.single_action_space
         self._done = True
@@ -335,7 +338,6 @@ class ObjectNavEnv(gymnasium.Env):
         core = self._core()
         seed = _args.seed("seed", seed)
         _args.reset_options(options)
-        self._check_time_limit()
         super().reset(seed=seed)
         if seed is None and self._fresh:
             seed = self._vec._seed
@@ -370,17 +372,6 @@ class ObjectNavEnv(gymnasium.Env):
         if not self._closed:
             self._vec.close()
             self._closed = True
-
-    def _check_time_limit(self) -> None:
-        # gymnasium.make wraps the env in TimeLimit(spec.max_episode_steps); a longer
-        # max_steps would be cut there without a word, so it is refused instead.
-        spec = self.spec
-        cap = getattr(spec, "max_episode_steps", None) if spec is not None else None
-        if cap is not None and self._limit > cap:
-            raise ValueError(
-                f"max_steps = {self._limit} exceeds gymnasium's TimeLimit of {cap} steps "
-                f"(spec.max_episode_steps): pass max_episode_steps={self._limit} to gymnasium.make"
-            )
 
 
 def _unbatch(d: Dict[str, np.ndarray]) -> Dict[str, Any]:

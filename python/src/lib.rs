@@ -1133,7 +1133,8 @@ fn host_evaluate_inner(
     let world = world_of(py, data.as_deref(), world_seed)?;
     let factory: AgentFactory = match (agent, blob) {
         (_, Some(bytes)) => {
-            let m = model_from_blob(&bytes, None).map_err(|e| chain_err(e.context("blob")))?;
+            let m = model_from_blob(&bytes, None)
+                .map_err(|e| chain_err(e.context("policy (blob bytes)")))?;
             check_model_map(&m, map, world, "blob")?;
             let m = Arc::new(m);
             Box::new(move |_| Box::new(NavAgent::new(m.clone())))
@@ -1143,7 +1144,7 @@ fn host_evaluate_inner(
         (path, None) => {
             if !Path::new(path).exists() {
                 return Err(PyFileNotFoundError::new_err(format!(
-                    "agent {path:?}: not \"random\" or \"oracle\", and no such model file"
+                    "policy = {path:?}: not \"random\" or \"oracle\", and no such model file"
                 )));
             }
             let m: NavModel = load_model(Path::new(path), None).map_err(chain_err)?;
