@@ -125,6 +125,9 @@ class VecEnv(_GymVectorEnv):
     The arrays are allocated once and refilled in place by every ``step``/``reset`` (no
     per-step Python objects per environment); pass ``copy=True`` to receive copies.
 
+    ``max_episode_steps`` (what ``gymnasium.make_vec`` passes from the spec, 200) caps both
+    step limits, as gymnasium's ``TimeLimit`` caps a single env.
+
     ``split="train"`` samples training tasks (slot i's sampler is seeded with ``seed + i``);
     ``split="val"`` / ``"test"`` hands out the official episodes in file order (slot by slot,
     wrapping around after the last).
@@ -151,6 +154,7 @@ class VecEnv(_GymVectorEnv):
         oracle: bool = False,
         copy: bool = False,
         render_mode: Optional[str] = None,
+        max_episode_steps: Optional[int] = None,
     ) -> None:
         # Every argument checked before anything is built (gman._args: one rule each).
         n = _args.num_envs(num_envs)
@@ -160,6 +164,10 @@ class VecEnv(_GymVectorEnv):
         world_seed = _args.integer("world_seed", world_seed, 0, _args.MAX_SEED, "a u64 seed")
         rows, cols = _args.map_grid(map)
         living, other = _args.max_steps(max_steps)
+        if max_episode_steps is not None:
+            # gymnasium.make_vec passes the spec's max_episode_steps (TimeLimit's cap).
+            cap = _args.integer("max_episode_steps", max_episode_steps, 1, _args.MAX_STEPS)
+            living, other = min(living, cap), min(other, cap)
         reward = _args.choice("reward", reward, _args.REWARDS)
         episodes = _args.episodes(episodes)
         oracle = _args.boolean("oracle", oracle)
@@ -315,10 +323,10 @@ class ObjectNavEnv(gymnasium.Env):
     metadata = {"render_modes": ["rgb_array"], "render_fps": RENDER_FPS}
 
     def __init__(self, **kwargs: Any) -> None:
-        for k, fixed in (("num_envs", 1), ("copy", True)):
-            if k in kwargs and kwargs[k] is not fixed and kwargs[k] != fixed:
-                raise ValueError(f"{k}: ObjectNavEnv is one environment with {k}={fixed!r}, got {kwargs[k]!r}")
-            kwargs.pop(k, None)
+        if "num_envs" in kwargs and _args.num_envs(kwargs.pop("num_envs")) != 1:
+            raise ValueError("num_envs: ObjectNavEnv is one environment (use VecEnv for more)")
+        if "copy" in kwargs and not _args.boolean("copy", kwargs.pop("copy")):
+            raise ValueError("copy: ObjectNavEnv always returns copies (copy=True)")
         self._vec = VecEnv(1, copy=True, **kwargs)
         self.render_mode = self._vec.render_mode
         self.observation_space = self._vec.single_observation_space

@@ -43,6 +43,7 @@ PARAMS: Dict[str, Tuple[str, str]] = {
     "world_seed": ("int", f"0..={MAX_SEED} (u64)"),
     "map": ("None or (int, int)", f"rows, cols in 1..={MAX_MAP_SIDE}; <= 7 on offline data"),
     "max_steps": ("None, int or (int, int)", f"1..={MAX_STEPS} (info['steps'] is int32)"),
+    "max_episode_steps": ("None or int", f"1..={MAX_STEPS}: caps both step limits (gymnasium's TimeLimit)"),
     "reward": ("str", '"mixed", "navigation", "distance" or "similarity"'),
     "episodes": ("None or int", f"1..={MAX_EPISODES} per episode file (usize)"),
     "oracle": ("bool", "True or False"),
@@ -79,7 +80,7 @@ def integer(name: str, value: Any, lo: int, hi: int, why: str = "") -> int:
     else:
         try:
             v = operator.index(value)
-        except TypeError:
+        except (TypeError, ValueError):
             raise TypeError(
                 f"{name} must be an integer, got {type(value).__name__} {_show(value)}"
             ) from None

@@ -127,6 +127,24 @@ def test_make_vec_env_parameters(name):
     prop()
 
 
+@pytest.mark.parametrize(
+    "cls,name",
+    [("VecEnv", "max_episode_steps"), ("ObjectNavEnv", "num_envs"), ("ObjectNavEnv", "copy")],
+)
+def test_class_only_parameters(cls, name):
+    @IN_PROCESS
+    @given(hostile())
+    def prop(v):
+        def call():
+            env = getattr(gman, cls)(**{name: v})
+            env.reset(seed=0)
+            env.close()
+
+        check_outcome(call, name, v)
+
+    prop()
+
+
 def oracle_policy(obs, info):
     return info["oracle_action"]
 
