@@ -75,9 +75,8 @@ fn guard<T>(what: &str, f: impl FnOnce() -> PyResult<T>) -> PyResult<T> {
 /// of a failed allocation).
 fn try_filled<T: Clone>(n: usize, v: T, what: &str) -> PyResult<Vec<T>> {
     let mut out = Vec::new();
-    out.try_reserve_exact(n).map_err(|_| {
-        PyMemoryError::new_err(format!("{what}: cannot allocate {n} elements"))
-    })?;
+    out.try_reserve_exact(n)
+        .map_err(|_| PyMemoryError::new_err(format!("{what}: cannot allocate {n} elements")))?;
     out.resize(n, v);
     Ok(out)
 }
@@ -786,8 +785,13 @@ impl VecCore {
             let split = parse_split(split)?;
             let reward = parse_reward(reward)?;
             let world = world_of(py, data.as_deref(), world_seed)?;
-            check_grid_for_world(world, map_rows, map_cols, &format!("map = ({map_rows}, {map_cols})"))
-                .map_err(chain_err)?;
+            check_grid_for_world(
+                world,
+                map_rows,
+                map_cols,
+                &format!("map = ({map_rows}, {map_cols})"),
+            )
+            .map_err(chain_err)?;
             let episodes = if split == Split::Train {
                 Vec::new()
             } else {
@@ -812,7 +816,9 @@ impl VecCore {
             };
             let mut slots = Vec::new();
             slots.try_reserve_exact(num_envs).map_err(|_| {
-                PyMemoryError::new_err(format!("num_envs = {num_envs}: cannot allocate the environments"))
+                PyMemoryError::new_err(format!(
+                    "num_envs = {num_envs}: cannot allocate the environments"
+                ))
             })?;
             slots.extend((0..num_envs).map(|i| Slot {
                 env: Env::new(world, &spec0, reward, limits.for_room(spec0.room)),
