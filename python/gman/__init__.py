@@ -296,9 +296,10 @@ def _actions(actions: Any, n: int) -> np.ndarray:
         raise TypeError(f"actions must be integers (0..={NUM_ACTIONS - 1}), got dtype {a.dtype}")
     if a.shape != (n,):
         raise ValueError(f"actions must have shape ({n},), got {a.shape}")
-    bad = np.flatnonzero((a < 0) | (a >= NUM_ACTIONS))
-    if bad.size:
-        i = int(bad[0])
+    # The native step checks the range; uint64 values above int64's range would wrap in the
+    # conversion below, so they are refused here with their own value.
+    if a.dtype == np.uint64 and a.size and a.max() >= NUM_ACTIONS:
+        i = int(np.flatnonzero(a >= NUM_ACTIONS)[0])
         raise ValueError(
             f"actions[{i}] = {a[i]} is not an action (0..={NUM_ACTIONS - 1}: "
             + ", ".join(ACTIONS) + ")"
