@@ -1018,20 +1018,22 @@ impl VecCore {
     /// `gman eval`'s JSON report (and the per-episode results as JSON) of the finished
     /// official episodes; an error unless every episode finished.
     fn report(&self, agent: &str) -> PyResult<(String, String)> {
-        if self.sim.split == Split::Train {
-            return Err(value_err(
-                "the train split has no official episodes to report",
-            ));
-        }
-        if self.sim.recorded < self.sim.results.len() {
-            return Err(PyRuntimeError::new_err(format!(
-                "{} of {} episodes finished; step until all have",
-                self.sim.recorded,
-                self.sim.results.len()
-            )));
-        }
-        let results: Vec<EpisodeResult> = self.sim.results.iter().flatten().cloned().collect();
-        report_json(self.sim.split, agent, &results)
+        guard("report", || {
+            if self.sim.split == Split::Train {
+                return Err(value_err(
+                    "the train split has no official episodes to report",
+                ));
+            }
+            if self.sim.recorded < self.sim.results.len() {
+                return Err(PyRuntimeError::new_err(format!(
+                    "{} of {} episodes finished; step until all have",
+                    self.sim.recorded,
+                    self.sim.results.len()
+                )));
+            }
+            let results: Vec<EpisodeResult> = self.sim.results.iter().flatten().cloned().collect();
+            report_json(self.sim.split, agent, &results)
+        })
     }
 }
 

@@ -369,6 +369,17 @@ def test_navigator_constructors(value):
     check_outcome(lambda: gman.Navigator.from_file(value), "path", value)
 
 
+@IN_PROCESS
+@given(hostile())
+def test_report_agent(agent):
+    env = gman.make_vec_env(split="val", num_envs=4, episodes=1, oracle=True)
+    obs, info = env.reset()
+    while env.completed_episodes < env.num_episodes:
+        obs, _, _, _, info = env.step(info["oracle_action"])
+    if check_outcome(lambda: env.report(agent), "agent", agent):
+        assert env.report(agent)["agent"] == agent
+
+
 def test_the_table_of_parameters_is_in_the_docs():
     text = (REPO / "docs" / "python.md").read_text()
     for name in _args.PARAMS:
