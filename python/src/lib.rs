@@ -674,6 +674,39 @@ fn check_batch(num_envs: usize, grid: MapGrid) -> PyResult<()> {
     Ok(())
 }
 
+/// `num_envs` slots holding a placeholder episode until the first reset (a real episode of
+/// the world: the split's first, or a sampled training task), allocated fallibly.
+fn placeholder_slots(
+    world: &'static World,
+    split: Split,
+    episodes: &[EpisodeSpec],
+    reward: RewardKind,
+    limits: EpisodeLimits,
+    num_envs: usize,
+) -> PyResult<Vec<Slot>> {
+    let mut rng0 = ChaCha8Rng::seed_from_u64(0);
+    let spec0 = if split == Split::Train {
+        world
+            .try_sample_train_episode_min(&mut rng0, 0)
+            .map_err(chain_err)?
+    } else {
+        episodes[0].clone()
+    };
+    let mut slots = Vec::new();
+    slots.try_reserve_exact(num_envs).map_err(|_| {
+        PyMemoryError::new_err(format!(
+            "num_envs = {num_envs}: cannot allocate the environments"
+        ))
+    })?;
+    slots.extend((0..num_envs).map(|i| Slot {
+        env: Env::new(world, &spec0, reward, limits.for_room(spec0.room)),
+        spec: spec0.clone(),
+        rng: ChaCha8Rng::seed_from_u64(i as u64),
+        needs_reset: true,
+    }));
+    Ok(slots)
+}
+
 impl Bufs {
     /// The output arrays of `b` environments with `cells` map cells, allocated fallibly.
     fn new(py: Python<'_>, b: usize, cells: usize) -> PyResult<Bufs> {
@@ -805,27 +838,7 @@ impl VecCore {
                     split.name()
                 )));
             }
-            // Placeholder episodes until the first reset (a real episode of the world).
-            let mut rng0 = ChaCha8Rng::seed_from_u64(0);
-            let spec0 = if split == Split::Train {
-                world
-                    .try_sample_train_episode_min(&mut rng0, 0)
-                    .map_err(chain_err)?
-            } else {
-                episodes[0].clone()
-            };
-            let mut slots = Vec::new();
-            slots.try_reserve_exact(num_envs).map_err(|_| {
-                PyMemoryError::new_err(format!(
-                    "num_envs = {num_envs}: cannot allocate the environments"
-                ))
-            })?;
-            slots.extend((0..num_envs).map(|i| Slot {
-                env: Env::new(world, &spec0, reward, limits.for_room(spec0.room)),
-                spec: spec0.clone(),
-                rng: ChaCha8Rng::seed_from_u64(i as u64),
-                needs_reset: true,
-            }));
+            let slots = placeholder_slots(world, split, &episodes, reward, limits, num_envs)?;
             let bufs = Bufs::new(py, num_envs, grid.cells())?;
             let n = episodes.len();
             Ok(VecCore {
