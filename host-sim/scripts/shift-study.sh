@@ -19,7 +19,7 @@
 set -euo pipefail
 cd "${REPO:-$(dirname "$0")/../..}"
 repo=$(pwd)
-LEVELS=${LEVELS:-2 1 0 0.5 0.25}
+LEVELS=${LEVELS:-2 1 0 0.5 0.25 0.75}
 SEEDS=${SEEDS:-1 2 3}
 PRIVILEGED_SEEDS=${PRIVILEGED_SEEDS:-1}
 ROWS=${ROWS:-a3c a3c-fg gman gman-noemd gman-ref}

@@ -147,6 +147,7 @@ class VecEnv(_GymVectorEnv):
         split: str = "train",
         seed: Optional[int] = None,
         world_seed: int = 2022,
+        domain_shift: float = 1.0,
         map: Optional[Tuple[int, int]] = None,
         max_steps: MaxSteps = None,
         reward: str = "mixed",
@@ -162,6 +163,7 @@ class VecEnv(_GymVectorEnv):
         split = _args.choice("split", split, _args.SPLITS)
         seed = _args.seed("seed", seed)
         world_seed = _args.integer("world_seed", world_seed, 0, _args.MAX_SEED, "a u64 seed")
+        domain_shift = _args.domain_shift(domain_shift)
         rows, cols = _args.map_grid(map)
         living, other = _args.max_steps(max_steps)
         if max_episode_steps is not None:
@@ -175,7 +177,7 @@ class VecEnv(_GymVectorEnv):
         self.render_mode = _args.choice("render_mode", render_mode, _args.RENDER_MODES)
         self._core = _gman.VecCore(
             data_dir, world_seed, split, n, reward, living, other, rows, cols, oracle, episodes,
-            self.render_mode is not None,
+            self.render_mode is not None, domain_shift,
         )
         self._seed = seed
         self._copy = copy
@@ -399,6 +401,7 @@ def make_vec_env(
     *,
     reward: str = "mixed",
     world_seed: int = 2022,
+    domain_shift: float = 1.0,
     episodes: Optional[int] = None,
     oracle: bool = False,
     copy: bool = False,
@@ -423,6 +426,9 @@ def make_vec_env(
             default 200 / 100.
         reward: ``"mixed"`` (the paper's), ``"navigation"``, ``"distance"`` or ``"similarity"``.
         world_seed: world seed (``gman --world-seed``), 0..=2**64-1.
+        domain_shift: strength S of every scene's style (``gman --domain-shift``), 0..=3:
+            1 is the simulator's default, 0 makes every object look the same in every scene
+            (``host-sim/SIMULATOR.md``, "Domain shift").
         episodes: at most this many episodes per episode file (``gman eval --episodes``).
         oracle: add ``info["oracle_action"]`` (a shortest-path action, for scripted agents).
         copy: return copies instead of the arrays refilled in place.
@@ -435,6 +441,7 @@ def make_vec_env(
         split=split,
         seed=seed,
         world_seed=world_seed,
+        domain_shift=domain_shift,
         map=map,
         max_steps=max_steps,
         reward=reward,
@@ -456,6 +463,7 @@ def evaluate(
     max_steps: MaxSteps = None,
     reward: str = "mixed",
     world_seed: int = 2022,
+    domain_shift: float = 1.0,
     seed: Optional[int] = None,
     agent_name: Optional[str] = None,
     return_episodes: bool = False,
@@ -491,6 +499,7 @@ def evaluate(
     living, other = _args.max_steps(max_steps)
     reward = _args.choice("reward", reward, _args.REWARDS)
     world_seed = _args.integer("world_seed", world_seed, 0, _args.MAX_SEED, "a u64 seed")
+    domain_shift = _args.domain_shift(domain_shift)
     seed = _args.seed("seed", seed)
     agent_name = _args.text("agent_name", agent_name, optional=True)
     return_episodes = _args.boolean("return_episodes", return_episodes)
@@ -514,13 +523,13 @@ def evaluate(
     if isinstance(policy, (bytes, bytearray, memoryview)):
         r, e = _gman.host_evaluate(
             data_dir, world_seed, split, agent_name or "blob", bytes(policy), 0, episodes,
-            reward, living, other, grid,
+            reward, living, other, grid, domain_shift,
         )
     elif isinstance(policy, (str, os.PathLike)):
         name = _args.path("policy", policy)
         r, e = _gman.host_evaluate(
             data_dir, world_seed, split, name, None, seed or 0, episodes, reward, living, other,
-            grid,
+            grid, domain_shift,
         )
         if agent_name:
             r = json.dumps({**json.loads(r), "agent": agent_name})
@@ -532,7 +541,7 @@ def evaluate(
             )
         n = 16 if n is None else n
         env = VecEnv(
-            n, data=data_dir, split=split, world_seed=world_seed, map=map,
+            n, data=data_dir, split=split, world_seed=world_seed, domain_shift=domain_shift, map=map,
             max_steps=(living, other), reward=reward, episodes=episodes, oracle=True,
         )
         try:

@@ -28,6 +28,7 @@ MAX_STEPS: int = _gman.MAX_STEPS
 MAX_MAP_SIDE: int = _gman.MAX_MAP_SIDE
 MAX_EPISODES: int = _gman.MAX_EPISODES
 MAX_BATCH_FLOATS: int = _gman.MAX_BATCH_FLOATS
+MAX_DOMAIN_SHIFT: float = _gman.MAX_DOMAIN_SHIFT
 
 SPLITS = ("train", "val", "test")
 REWARDS = ("mixed", "navigation", "distance", "similarity")
@@ -41,6 +42,7 @@ PARAMS: Dict[str, Tuple[str, str]] = {
     "num_envs": ("int", f"1..={MAX_ENVS}, and num_envs x floats per environment <= 2**28"),
     "seed": ("None or int", f"0..={MAX_SEED} (u64)"),
     "world_seed": ("int", f"0..={MAX_SEED} (u64)"),
+    "domain_shift": ("float", f"0..={MAX_DOMAIN_SHIFT} (1: the default; host-sim/SIMULATOR.md)"),
     "map": ("None or (int, int)", f"rows, cols in 1..={MAX_MAP_SIDE}; <= 7 on offline data"),
     "max_steps": ("None, int or (int, int)", f"1..={MAX_STEPS} (info['steps'] is int32)"),
     "max_episode_steps": ("None or int", f"1..={MAX_STEPS}: caps both step limits (gymnasium's TimeLimit)"),
@@ -88,6 +90,22 @@ def integer(name: str, value: Any, lo: int, hi: int, why: str = "") -> int:
         rule = f" ({why})" if why else ""
         raise ValueError(f"{name} = {v} is out of range: it must be in {lo}..={hi}{rule}")
     return v
+
+
+def domain_shift(value: Any) -> float:
+    """The domain shift S, a finite real in ``0..=MAX_DOMAIN_SHIFT`` (the native check is the
+    simulator's own ``DomainShift::new``; this one names the parameter first)."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(
+        value, (int, float, np.integer, np.floating)
+    ):
+        raise TypeError(f"domain_shift must be a number, got {_show(value)}")
+    f = float(value)
+    if not (math.isfinite(f) and 0.0 <= f <= MAX_DOMAIN_SHIFT):
+        raise ValueError(
+            f"domain_shift = {_show(value)} is out of range: a number in 0..={MAX_DOMAIN_SHIFT} "
+            "(1: the simulator's default)"
+        )
+    return f
 
 
 def seed(name: str, value: Any) -> Optional[int]:

@@ -16,6 +16,7 @@ use gman_core::{Action, ATTR_DIM, FEATURE_DIM, NUM_ACTIONS};
 use gman_host_sim::eval::agent::NavAgent;
 use gman_host_sim::model::{load_model, model_from_blob, NavModel, K};
 use gman_host_sim::sim::eval::AgentFactory;
+use gman_host_sim::sim::features::DomainShift;
 use gman_host_sim::sim::render::draw_scene_rgb;
 use gman_host_sim::sim::spatial::{check_grid, check_grid_for_world, MapGrid, MAX_GRID_SIDE};
 use gman_host_sim::sim::{
@@ -140,7 +141,8 @@ fn _panic_for_tests() -> PyResult<()> {
 // Worlds: loaded once per (data directory, world seed) and shared for the process.
 // ---------------------------------------------------------------------------------------
 
-type WorldKey = (Option<PathBuf>, u64);
+/// (data directory, world seed, domain shift's bits).
+type WorldKey = (Option<PathBuf>, u64, u32);
 
 fn worlds() -> &'static Mutex<HashMap<WorldKey, &'static World>> {
     static W: OnceLock<Mutex<HashMap<WorldKey, &'static World>>> = OnceLock::new();
@@ -150,10 +152,18 @@ fn worlds() -> &'static Mutex<HashMap<WorldKey, &'static World>> {
 /// The world of `data` (None: the built-in synthetic world) and `seed`. Worlds are immutable
 /// after loading (their per-scene tables are built lazily behind `OnceLock`s), so one copy
 /// per key serves every environment of the process; it lives until the process ends.
-fn world_of(py: Python<'_>, data: Option<&str>, seed: u64) -> PyResult<&'static World> {
+fn world_of(
+    py: Python<'_>,
+    data: Option<&str>,
+    seed: u64,
+    domain_shift: f32,
+) -> PyResult<&'static World> {
+    let shift = DomainShift::new(domain_shift)
+        .map_err(|e| value_err(format!("domain_shift = {domain_shift}: {e}")))?;
     let key: WorldKey = (
         data.map(|d| std::fs::canonicalize(d).unwrap_or_else(|_| PathBuf::from(d))),
         seed,
+        shift.get().to_bits(),
     );
     if let Some(w) = worlds().lock().expect("world cache").get(&key) {
         return Ok(w);
@@ -167,10 +177,18 @@ fn world_of(py: Python<'_>, data: Option<&str>, seed: u64) -> PyResult<&'static 
                 )));
             }
             let dir = dir.clone();
-            py.detach(move || World::load_with_seed(&dir, seed))
-                .map_err(|e| chain_err(e.context(format!("loading data {}", data.unwrap_or("")))))?
+            py.detach(move || {
+                let mut w = World::load_with_seed(&dir, seed)?;
+                w.set_domain_shift(shift)?;
+                Ok::<World, anyhow::Error>(w)
+            })
+            .map_err(|e| chain_err(e.context(format!("loading data {}", data.unwrap_or("")))))?
         }
-        None => py.detach(move || World::synthetic(seed)),
+        None => py.detach(move || {
+            let mut w = World::synthetic(seed);
+            w.set_domain_shift(shift).map(|()| w)
+        })
+        .map_err(chain_err)?,
     };
     let leaked: &'static World = Box::leak(Box::new(world));
     worlds()
@@ -778,7 +796,7 @@ impl VecCore {
 #[pymethods]
 impl VecCore {
     #[new]
-    #[pyo3(signature = (data, world_seed, split, num_envs, reward, max_steps_living_room, max_steps_other, map_rows, map_cols, oracle, episodes_per_file, record=false))]
+    #[pyo3(signature = (data, world_seed, split, num_envs, reward, max_steps_living_room, max_steps_other, map_rows, map_cols, oracle, episodes_per_file, record=false, domain_shift=1.0))]
     #[allow(clippy::too_many_arguments)]
     fn new(
         py: Python<'_>,
@@ -794,6 +812,7 @@ impl VecCore {
         oracle: bool,
         episodes_per_file: Option<usize>,
         record: bool,
+        domain_shift: f32,
     ) -> PyResult<VecCore> {
         guard("VecEnv", || {
             let grid = MapGrid {
@@ -817,7 +836,7 @@ impl VecCore {
             }
             let split = parse_split(split)?;
             let reward = parse_reward(reward)?;
-            let world = world_of(py, data.as_deref(), world_seed)?;
+            let world = world_of(py, data.as_deref(), world_seed, domain_shift)?;
             check_grid_for_world(
                 world,
                 map_rows,
@@ -1066,7 +1085,7 @@ fn report_json(split: Split, agent: &str, results: &[EpisodeResult]) -> PyResult
 /// JSON report and the per-episode results as JSON.
 /// `map`, when given, must be the model's own map grid (`(0, 0)`: none).
 #[pyfunction]
-#[pyo3(signature = (data, world_seed, split, agent, blob, seed, episodes_per_file, reward, max_steps_living_room, max_steps_other, map=None))]
+#[pyo3(signature = (data, world_seed, split, agent, blob, seed, episodes_per_file, reward, max_steps_living_room, max_steps_other, map=None, domain_shift=1.0))]
 #[allow(clippy::too_many_arguments)]
 fn host_evaluate(
     py: Python<'_>,
@@ -1081,12 +1100,13 @@ fn host_evaluate(
     max_steps_living_room: u32,
     max_steps_other: u32,
     map: Option<(usize, usize)>,
+    domain_shift: f32,
 ) -> PyResult<(String, String)> {
     guard("evaluate", || {
         host_evaluate_inner(
             py,
             data,
-            world_seed,
+            (world_seed, domain_shift),
             split,
             agent,
             blob,
@@ -1131,7 +1151,7 @@ fn check_model_map(
 fn host_evaluate_inner(
     py: Python<'_>,
     data: Option<String>,
-    world_seed: u64,
+    (world_seed, domain_shift): (u64, f32),
     split: &str,
     agent: &str,
     blob: Option<Vec<u8>>,
@@ -1151,7 +1171,7 @@ fn host_evaluate_inner(
         return Err(value_err("episodes must be at least 1 (or None for all)"));
     }
     let reward = parse_reward(reward)?;
-    let world = world_of(py, data.as_deref(), world_seed)?;
+    let world = world_of(py, data.as_deref(), world_seed, domain_shift)?;
     let factory: AgentFactory = match (agent, blob) {
         (_, Some(bytes)) => {
             let m = model_from_blob(&bytes, None)
@@ -1391,6 +1411,7 @@ fn _gman(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("MAX_STEPS", MAX_STEPS)?;
     m.add("MAX_MAP_SIDE", MAX_GRID_SIDE)?;
     m.add("MAX_SEED", u64::MAX)?;
+    m.add("MAX_DOMAIN_SHIFT", DomainShift::MAX)?;
     m.add("MAX_EPISODES", usize::MAX)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     Ok(())

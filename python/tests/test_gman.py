@@ -283,3 +283,21 @@ def test_the_docs_examples_run_as_written(capsys):
     out = capsys.readouterr().out
     assert "100.0" in out  # the ten lines' oracle
     assert out.rstrip().endswith("True"), out  # the per-environment navigators equal gman eval
+
+
+def test_domain_shift_one_is_the_default_and_other_levels_change_what_the_agent_sees():
+    def first_obs(**kw):
+        env = gman.make_vec_env(num_envs=2, seed=3, copy=True, **kw)
+        obs, _ = env.reset()
+        env.close()
+        return obs["features"]
+
+    base = first_obs()
+    assert np.array_equal(base, first_obs(domain_shift=1.0))
+    assert np.array_equal(base, first_obs(domain_shift=1))
+    assert not np.array_equal(base, first_obs(domain_shift=0.0))
+    for bad, kind in [(-0.5, ValueError), (3.5, ValueError), (float("nan"), ValueError), ("1", TypeError), (True, TypeError)]:
+        with pytest.raises(kind, match="domain_shift"):
+            gman.make_vec_env(domain_shift=bad)
+    with pytest.raises(ValueError, match="domain_shift"):
+        gman.evaluate("random", split="val", domain_shift=4.0)

@@ -241,6 +241,7 @@ def size_values() -> st.SearchStrategy:
         ("make_vec_env", "num_envs", {}),
         ("make_vec_env", "map", {}),
         ("make_vec_env", "world_seed", {}),
+        ("make_vec_env", "domain_shift", {}),
         ("evaluate", "num_envs", {"policy": "callable", "episodes": 1}),
         ("evaluate", "map", {"policy": "callable", "episodes": 1}),
     ],

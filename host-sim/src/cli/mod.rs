@@ -22,6 +22,7 @@ pub mod plot;
 pub mod pretrain_fg;
 pub mod pretrain_ps;
 pub mod scene;
+pub mod shift_report;
 pub mod table;
 pub mod train;
 pub mod train_config;
@@ -67,6 +68,9 @@ pub enum Commands {
     EmdReport(emd_report::EmdReportArgs),
     /// Print the paper's table layout (mean ± std) from evaluation JSON files.
     Table(table::TableArgs),
+    /// The domain-shift study's table and picture: SR of every row at every domain shift S,
+    /// GMAN against its control and adaptation on against off, with t statistics.
+    ShiftReport(shift_report::ShiftReportArgs),
     /// Quick start: pre-train G, train A3C+FG and GMAN briefly, evaluate them against random.
     Demo(demo::DemoArgs),
     /// Single-thread benchmarks: navigator step/adaptation latency against this machine's
@@ -97,6 +101,7 @@ pub fn run(cli: Cli, matches: &clap::ArgMatches) -> Result<()> {
         Commands::Plot(a) => plot::cmd_plot(a),
         Commands::EmdReport(a) => emd_report::cmd_emd_report(a),
         Commands::Table(a) => table::cmd_table(a),
+        Commands::ShiftReport(a) => shift_report::cmd_shift_report(a),
         Commands::Demo(a) => demo::cmd_demo(a),
         Commands::Bench(a) => bench::cmd_bench(a),
         #[cfg(feature = "offline")]

@@ -39,7 +39,7 @@ fn json_files(p: &Path) -> Result<Vec<PathBuf>> {
 }
 
 /// Mean and sample standard deviation.
-fn mean_std(v: &[f64]) -> (f64, f64) {
+pub(super) fn mean_std(v: &[f64]) -> (f64, f64) {
     let n = v.len() as f64;
     let m = v.iter().sum::<f64>() / n;
     let s = if v.len() > 1 {
@@ -52,7 +52,7 @@ fn mean_std(v: &[f64]) -> (f64, f64) {
 
 /// Welch's t of `mean(a) − mean(b)` (unequal variances); NaN with fewer than two values on a
 /// side or no spread at all.
-fn welch_t(a: &[f64], b: &[f64]) -> f64 {
+pub(super) fn welch_t(a: &[f64], b: &[f64]) -> f64 {
     if a.len() < 2 || b.len() < 2 {
         return f64::NAN;
     }
@@ -67,7 +67,7 @@ fn welch_t(a: &[f64], b: &[f64]) -> f64 {
 
 /// Paired t of the differences `a[i] − b[i]` (the same seeds on both sides); NaN with fewer
 /// than two pairs or no spread.
-fn paired_t(a: &[f64], b: &[f64]) -> f64 {
+pub(super) fn paired_t(a: &[f64], b: &[f64]) -> f64 {
     if a.len() != b.len() || a.len() < 2 {
         return f64::NAN;
     }

@@ -32,8 +32,8 @@
 
 use gman_core::{ATTR_DIM, FEATURE_DIM};
 use rand::{Rng, SeedableRng};
-use serde::{Deserialize, Serialize};
 use rand_chacha::ChaCha8Rng;
+use serde::{Deserialize, Serialize};
 
 use super::types::{Category, NUM_HEADINGS};
 use super::util::{hash2, mix64, unit_f32};

@@ -41,8 +41,7 @@ pub mod world;
 
 pub use env::{Env, EpisodeLimits, OracleView, StepOutcome};
 pub use eval::{
-    evaluate, Agent, EvalConfig, EvalReport, OracleAgent, OtherTargetAgent, RandomAgent,
-    TargetInfo,
+    evaluate, Agent, EvalConfig, EvalReport, OracleAgent, OtherTargetAgent, RandomAgent, TargetInfo,
 };
 pub use metrics::{mean_interval, wilson_interval, EpisodeMetrics, EpisodeResult, Summary};
 pub use reward::RewardKind;

@@ -230,10 +230,7 @@ impl WorldId {
             (
                 WorldId::Synthetic { world_seed: a, .. },
                 WorldId::Synthetic { world_seed: b, .. },
-            ) if a == b =>
-            {
-                Ok(None)
-            }
+            ) if a == b => Ok(None),
             (
                 WorldId::Data {
                     world_seed: a,
