@@ -352,6 +352,56 @@ fn case07_resume_refuses_another_world() {
     assert!(ok, "{e}");
 }
 
+/// The domain shift is part of the world: recorded in the checkpoint (only when it is not
+/// the default), and a resume under another level is refused naming the flag to give.
+#[test]
+fn resume_refuses_another_domain_shift() {
+    let d = tmp("shift");
+    let run = d.join("run");
+    let (ok, _, err) = gman(&[
+        "train",
+        "--method",
+        "a3c",
+        "--config",
+        "tiny",
+        "--min-steps",
+        "12",
+        "--workers",
+        "1",
+        "--updates",
+        "1",
+        "--domain-shift",
+        "0.5",
+        "--quiet",
+        "--out",
+        s(&run),
+    ]);
+    assert!(ok, "{err}");
+    let v = Checkpoint::load(&run.join("checkpoint.ckpt"))
+        .unwrap()
+        .metadata;
+    assert_eq!(v["trainer"]["world"]["domain_shift"], 0.5);
+    let (ok, e) = resume(&run, 2, &[]);
+    assert!(
+        !ok && e.contains("domain shift 0.5") && e.contains("--domain-shift 0.5"),
+        "{e}"
+    );
+    let (ok, e) = resume(&run, 2, &["--domain-shift", "0.5"]);
+    assert!(ok, "{e}");
+    // the default level is not written: checkpoints at S = 1 are what they were
+    let plain = d.join("plain");
+    train_run(&plain, 1);
+    let v = Checkpoint::load(&plain.join("checkpoint.ckpt"))
+        .unwrap()
+        .metadata;
+    assert!(v["trainer"]["world"].get("domain_shift").is_none(), "{v}");
+    for bad in ["-1", "3.5", "nan", "x"] {
+        let flag = format!("--domain-shift={bad}");
+        let (ok, _, e) = gman(&["eval", "--episodes", "1", &flag, "--quiet"]);
+        assert!(!ok && e.contains("domain shift"), "{bad}: {e}");
+    }
+}
+
 /// Case 9: data files accepted without a message. Each malformed copy of a small piece of the
 /// official data is refused with the file (and line) named; the unmodified copy loads.
 #[test]
