@@ -23,7 +23,8 @@ Block parts, one marker line before and `<!-- /gen -->` after:
 
 Inline figures: `<!-- fig:RUN:SPLIT:METRIC[:pm|mean|std|n] -->18.09 ± 1.94<!-- /fig -->`
 (RUN as above, SPLIT `unseen` or `seen`, METRIC `sr`, `spl`, `epa` or `dts`; `pm` (default)
-writes `mean ± std`, two decimals).
+writes `mean ± std`, `mean`, `std`, `n` the number of files; `diff=RUN2`, `welch=RUN2` and
+`paired=RUN2` the difference of the means to RUN2's, Welch's t and the paired t; two decimals).
 
 RUN paths are relative to the repository root. Files scanned: README.md, ARCHITECTURE.md,
 docs/*.md and every crate's README.md.
@@ -214,11 +215,24 @@ def gen_fig(root, spec):
     run, split, metric = parts[:3]
     form = parts[3] if len(parts) == 4 else "pm"
     files = load_run(root, run)
-    m, s = mean_std(column(files, split, metric))
+    a = column(files, split, metric)
+    m, s = mean_std(a)
+    kind, _, other = form.partition("=")
+    if other:  # against another run: difference of the means, Welch's t, paired t
+        files2 = load_run(root, other)
+        b = column(files2, split, metric)
+        if kind == "diff":
+            return f"{m - mean_std(b)[0]:+.2f}"
+        if kind == "welch":
+            return t_cell(welch_t(a, b))
+        if kind == "paired":
+            same = [f for f, _, _ in files] == [f for f, _, _ in files2]
+            return t_cell(paired_t(a, b) if same else math.nan)
     forms = {"pm": f"{m:.2f} ± {s:.2f}", "mean": f"{m:.2f}", "std": f"{s:.2f}",
              "n": str(len(files))}
     if form not in forms:
-        raise GenError(f"fig:{spec}: unknown form {form} (pm, mean, std, n)")
+        raise GenError(f"fig:{spec}: unknown form {form} (pm, mean, std, n, diff=RUN, "
+                       "welch=RUN, paired=RUN)")
     return forms[form]
 
 

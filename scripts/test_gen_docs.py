@@ -79,6 +79,11 @@ class Check(unittest.TestCase):
             self.assertIn("GMAN: <!-- fig:results/paper/gman:unseen:sr -->18.00 ± 2.00<!-- /fig -->",
                           text)
             self.assertEqual(gen_docs.run(t, write=False, files=[p]), [])
+            g, a3c = "results/paper/gman", "results/paper/a3c"
+            self.assertEqual(gen_docs.gen_fig(t, f"{g}:unseen:sr:diff={a3c}"), "+7.00")
+            self.assertEqual(gen_docs.gen_fig(t, f"{g}:unseen:sr:welch={a3c}"), "5.42")
+            self.assertEqual(gen_docs.gen_fig(t, f"{g}:unseen:sr:paired={a3c}"), "4.58")
+            self.assertEqual(gen_docs.gen_fig(t, f"{g}:seen:spl:n"), "3")
             # A table cell edited by hand: named with the file, the line, the cell's line.
             _doc(t, text.replace("18.00±2.00", "18.10±2.00", 1))
             problems = gen_docs.run(t, write=False, files=[p])
