@@ -26,8 +26,8 @@ Inline figures: `<!-- fig:RUN:SPLIT:METRIC[:pm|mean|std|n] -->18.09 ± 1.94<!-- 
 writes `mean ± std`, `mean`, `std`, `n` the number of files; `diff=RUN2`, `welch=RUN2` and
 `paired=RUN2` the difference of the means to RUN2's, Welch's t and the paired t; two decimals).
 
-RUN paths are relative to the repository root. Files scanned: README.md, ARCHITECTURE.md,
-docs/*.md and every crate's README.md.
+RUN paths are relative to the repository root. Files scanned: ARCHITECTURE.md, docs/*.md and
+every README.md of the repository (outside `target/` and hidden directories).
 """
 
 import argparse
@@ -324,11 +324,15 @@ def _first_diff(old, new):
 
 
 def doc_files(root):
-    pats = ["README.md", "ARCHITECTURE.md", "docs/*.md", "*/README.md", "*/*/README.md"]
-    found = set()
-    for p in pats:
-        found.update(glob.glob(os.path.join(root, p)))
-    return sorted(f for f in found if os.sep + "target" + os.sep not in f)
+    """README.md, ARCHITECTURE.md, docs/*.md and every README.md below the root (outside
+    build and hidden directories)."""
+    found = {os.path.join(root, "ARCHITECTURE.md")}
+    found.update(glob.glob(os.path.join(root, "docs", "*.md")))
+    for d, dirs, files in os.walk(root):
+        dirs[:] = [x for x in dirs if x not in ("target", "node_modules") and not x.startswith(".")]
+        if "README.md" in files:
+            found.add(os.path.join(d, "README.md"))
+    return sorted(f for f in found if os.path.isfile(f))
 
 
 def run(root, write, files=None):

@@ -99,6 +99,17 @@ class Check(unittest.TestCase):
                                 for q in problems), problems)
             self.assertEqual(gen_docs.main(["check", p, "--root", t]), 1)
 
+    def test_every_readme_is_scanned(self):
+        with tempfile.TemporaryDirectory() as t:
+            for d in ["results/paper/models", "target/x", ".git/y", "docs"]:
+                os.makedirs(os.path.join(t, d))
+                _doc(t, "")
+                with open(os.path.join(t, d, "README.md"), "w") as f:
+                    f.write("")
+            rel = [os.path.relpath(f, t) for f in gen_docs.doc_files(t)]
+            self.assertEqual(rel, ["README.md", "docs/README.md",
+                                   "results/paper/models/README.md"])
+
     def test_seeds_results_and_models_parts(self):
         with tempfile.TemporaryDirectory() as t:
             _tree(t)
