@@ -30,7 +30,12 @@ fn gman(args: &[&str]) -> String {
 /// The Markdown files whose commands a user is told to run.
 fn doc_files() -> Vec<PathBuf> {
     let r = root();
-    let mut v = vec![r.join("README.md"), r.join("results/paper/README.md")];
+    let mut v = vec![
+        r.join("README.md"),
+        r.join("results/paper/README.md"),
+        r.join("results/paper/models/README.md"),
+        r.join("host-sim/models/README.md"),
+    ];
     for dir in ["docs", "."] {
         let base = r.join(dir);
         for e in std::fs::read_dir(&base).unwrap().flatten() {
@@ -55,8 +60,8 @@ fn shell_commands(text: &str) -> Vec<String> {
     let mut pending = String::new();
     for line in text.lines() {
         let t = line.trim();
-        if t.starts_with("```") {
-            in_block = !in_block && matches!(&t[3..], "sh" | "bash" | "shell" | "console");
+        if let Some(lang) = t.strip_prefix("```") {
+            in_block = !in_block && matches!(lang, "sh" | "bash" | "shell" | "console");
             continue;
         }
         if !in_block || t.is_empty() || t.starts_with('#') {
@@ -74,8 +79,8 @@ fn shell_commands(text: &str) -> Vec<String> {
     out
 }
 
-/// Why each documented command is not run as written by the tests, by the start of its line,
-/// or the test that runs it. Longest match first is not needed: the prefixes do not overlap.
+/// Each documented command, by the start of its line: the test that runs it, or why the tests
+/// do not run it as written. A command must start with one of these prefixes.
 const CLASSIFIED: &[(&str, &str)] = &[
     // Run by tests.
     ("cargo run --release -p gman-host-sim --bin gman -- demo", "run: host-sim/tests/cli.rs runs `gman demo` on a short budget; the full demo takes 1-2 min in a release build"),
