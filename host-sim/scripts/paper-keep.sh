@@ -42,7 +42,9 @@ case $mode in
       for f in "$run"/curve/k*.json "$run"/curve/k*.at; do
         [ -e "$f" ] && copy "$f" "$dst/runs/$name/curve/$(basename "$f")"
       done
-      [ -f "$src/models/$name.gman" ] && copy "$src/models/$name.gman" "$dst/models/$name.gman"
+      # KEEP_MODELS=PREFIX keeps the blob as PREFIX$name.gman (the domain-shift study's
+      # results/shift/models/S-ROW-sN.gman) instead of KEEP/models/$name.gman
+      [ -f "$src/models/$name.gman" ] && copy "$src/models/$name.gman" "${KEEP_MODELS:-$dst/models/}$name.gman"
       out=$dst/runs/$name/metrics.csv.gz
       if [ ! -f "$out" ] || [ "$run/metrics.csv" -nt "$out" ]; then
         cut -d, -f1-5 "$run/metrics.csv" | gzip -9n >"$out"

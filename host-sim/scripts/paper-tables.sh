@@ -32,6 +32,9 @@ set -euo pipefail
 cd "${REPO:-$(dirname "$0")/../..}"
 D=${DATA:-../shared/data/gman}
 LAYOUT=${LAYOUT:-thor5}
+# the world of every command: the data, the object layout and the domain shift (SHIFT, default 1,
+# host-sim/SIMULATOR.md "Domain shift")
+W=(--data "$D" --object-layout "$LAYOUT" --domain-shift "${SHIFT:-1}")
 R=${OUT:-runs/paper}
 STEPS=${STEPS:-8770000}
 CHUNK=${CHUNK:-1000000}
@@ -43,13 +46,20 @@ if [ ! -x "$R/bin/gman" ]; then
 fi
 G=$R/bin/gman
 KEEP=${KEEP:-}
-KEEPER=$(pwd)/host-sim/scripts/paper-keep.sh
+KEEPER=${KEEPER:-$(pwd)/host-sim/scripts/paper-keep.sh}
 [ -z "$KEEP" ] || [ ! -d "$KEEP" ] || bash "$KEEPER" restore "$KEEP" "$R"
 log() { echo "[$(date +%H:%M:%S)] $*"; }
-[ -f "$R/fg/fg.ckpt" ] || $G pretrain-fg --data "$D" --object-layout "$LAYOUT" --preset mcu --seed 1 --out "$R/fg" --quiet
-[ -f "$R/ps/ps.ckpt" ] || $G pretrain-ps --data "$D" --object-layout "$LAYOUT" --seed 1 --out "$R/ps" --quiet
+[ -f "$R/fg/fg.ckpt" ] || $G pretrain-fg "${W[@]}" --preset mcu --seed 1 --out "$R/fg" --quiet
+# the PS module, when a PS row is selected
+ps_rows=" gman-ps gman-noemd-ps a3c-ps a3c-fg-ps "
+needs_ps=1
+if [ -n "${ONLY:-}" ]; then
+  needs_ps=0
+  for r in $ONLY; do case $ps_rows in *" $r "*) needs_ps=1 ;; esac; done
+fi
+[ "$needs_ps" = 0 ] || [ -f "$R/ps/ps.ckpt" ] || $G pretrain-ps "${W[@]}" --seed 1 --out "$R/ps" --quiet
 mkdir -p "$R/random"
-[ -f "$R/random/s1.json" ] || $G eval --data "$D" --object-layout "$LAYOUT" --split val --agent random \
+[ -f "$R/random/s1.json" ] || $G eval "${W[@]}" --split val --agent random \
   --json "$R/random/s1.json" --quiet
 
 # The last row of a run's metrics.csv: "update env_steps".
@@ -68,7 +78,7 @@ advance() {
     # at most 1000 updates per launch until 1000 are done (a curve point past its target
     # is measured where the run is, which the `.at` file records).
     [ "$u" -ge 1000 ] || [ "$n" -le 1000 ] || n=1000
-    $G train --data "$D" --object-layout "$LAYOUT" --resume "$dir" --updates $((u + n)) --quiet
+    $G train "${W[@]}" --resume "$dir" --updates $((u + n)) --quiet
     read -r u s < <(last "$dir")
   done
 }
@@ -83,7 +93,7 @@ run() {
   mkdir -p "$R/$row" "$dir/curve"
   if [ ! -f "$dir/checkpoint.ckpt" ]; then
     log "start $row seed $s"
-    $G train --data "$D" --object-layout "$LAYOUT" --preset mcu --fg "$R/fg/fg.ckpt" --batch-envs "$B" \
+    $G train "${W[@]}" --preset mcu --fg "$R/fg/fg.ckpt" --batch-envs "$B" \
       --map 3x3 --method "$method" --updates 100 --seed "$s" --out "$dir" --quiet "$@"
   fi
   for ((k = CHUNK; ; k += CHUNK)); do
@@ -91,7 +101,7 @@ run() {
     [ -f "$dir/curve/k$target.json" ] || {
       advance "$dir" "$target"
       read -r u st < <(last "$dir")
-      $G eval --data "$D" --object-layout "$LAYOUT" --split val --agent "$dir/checkpoint.ckpt" \
+      $G eval "${W[@]}" --split val --agent "$dir/checkpoint.ckpt" \
         --json "$dir/curve/k$target.tmp" --quiet
       # the update and step count the point was measured at, beside the evaluation
       echo "$u,$st" >"$dir/curve/k$target.at"
@@ -101,15 +111,15 @@ run() {
     [ "$target" -ge "$STEPS" ] && break
   done
   case $row in
-    gman | gman-cossim | gman-ps | gman-zero)
+    gman | gman-cossim | gman-ps | gman-zero | gman-ref)
       local off=gman-noemd
       [ "$method" = gman-ps ] && off=gman-noemd-ps
       mkdir -p "$R/$row-adaptoff"
-      $G eval --data "$D" --object-layout "$LAYOUT" --split val --agent "$dir/checkpoint.ckpt" \
+      $G eval "${W[@]}" --split val --agent "$dir/checkpoint.ckpt" \
         --method "$off" --json "$R/$row-adaptoff/s$s.json" --quiet ;;
     a3c-fg)
       mkdir -p "$R/gman-nometa"
-      $G eval --data "$D" --object-layout "$LAYOUT" --split val --agent "$dir/checkpoint.ckpt" \
+      $G eval "${W[@]}" --split val --agent "$dir/checkpoint.ckpt" \
         --method gman-nometa --inner-lr 0.01 --json "$R/gman-nometa/s$s.json" --quiet ;;
   esac
   # the int8 blob of the run (gman eval runs it through gman-core; a PS row's blob needs the
@@ -134,6 +144,12 @@ main_rows() {
   run gman-zero gman "$1" --inner-lr 0.01 --noise zero
   run gman-noemd-zero gman-noemd "$1" --noise zero
   run a3c-fg-zero a3c-fg "$1" --noise zero
+  # the reference implementation as released (../shared/notes/gman-reference-facts.md): z = 0,
+  # G frozen (outer and inner loop), D at its pre-trained weights (its ascent rate α1 = 0), the
+  # inner step on the actor head only, on the reference's loss ‖Σ_t a_t (−D(x_t))‖₂; the inner
+  # rate of the gman row
+  run gman-ref gman-fixed-g "$1" --inner-lr 0.01 --disc-lr 0 --noise zero --adapt-head-only \
+    --adapt-loss reference
 }
 extra_rows() {
   run gman-ps gman-ps "$1" --inner-lr 0.01 --ps "$R/ps/ps.ckpt"

@@ -3,6 +3,7 @@
 mod common;
 
 use gman_core::FEATURE_DIM;
+use gman_host_sim::sim::features::DomainShift;
 use gman_host_sim::sim::{CategoryId, Split, World};
 
 fn dist2(a: &[f32; FEATURE_DIM], b: &[f32; FEATURE_DIM]) -> f32 {
@@ -125,5 +126,88 @@ fn object_filling_the_view_is_close_to_object_feature() {
                 world.category_name(c)
             );
         }
+    }
+}
+
+/// Recognition at each domain shift S (host-sim/SIMULATOR.md, "Domain shift"), printed for
+/// the docs: (S, style known, generic prototype, views).
+fn recognition_by_shift(mut world: World, levels: &[f32]) -> Vec<(f32, f64, f64, usize)> {
+    levels
+        .iter()
+        .map(|&s| {
+            world.set_domain_shift(DomainShift::new(s).unwrap()).unwrap();
+            let (styled, generic, n) = recognition(&world);
+            eprintln!(
+                "domain shift {s}: recognition over {n} dominant views: scene style known {styled:.3}, generic prototypes {generic:.3}"
+            );
+            (s, styled, generic, n)
+        })
+        .collect()
+}
+
+/// S = 0 leaves nothing for adaptation to close (the generic prototype is the true one); the
+/// gap between knowing the scene's style and not knowing it widens with S.
+fn check_shift_levels(world: World) {
+    let r = recognition_by_shift(world, &[0.0, 0.5, 1.0, 2.0]);
+    let (_, styled0, generic0, _) = r[0];
+    assert!(
+        (styled0 - generic0).abs() < 0.02,
+        "at S = 0 the style cannot matter: {styled0} vs {generic0}"
+    );
+    for w in r.windows(2) {
+        assert!(
+            w[1].2 <= w[0].2 + 0.02,
+            "generic recognition rises with the shift: {w:?}"
+        );
+    }
+    assert!(r[3].2 < r[1].2 - 0.1, "S = 2 not harder than 0.5: {r:?}");
+}
+
+#[test]
+fn domain_shift_widens_the_style_gap_synthetic() {
+    check_shift_levels(World::synthetic(5));
+}
+
+#[test]
+fn domain_shift_widens_the_style_gap_real() {
+    if common::real_world().is_none() {
+        return;
+    }
+    let dir = common::data_dir().unwrap();
+    let world = World::load(&dir).unwrap();
+    check_shift_levels(world);
+}
+
+/// S = 1 is the simulator without the knob, bit for bit; S = 0 makes an object's feature the
+/// same in every scene.
+#[test]
+fn domain_shift_one_is_the_default_and_zero_removes_the_style() {
+    let base = World::synthetic(3);
+    let mut one = World::synthetic(3);
+    one.set_domain_shift(DomainShift::new(1.0).unwrap()).unwrap();
+    let mut zero = World::synthetic(3);
+    zero.set_domain_shift(DomainShift::new(0.0).unwrap()).unwrap();
+    let mut half = World::synthetic(3);
+    half.set_domain_shift(DomainShift::new(0.5).unwrap()).unwrap();
+    for s in 0..base.scenes.len().min(6) {
+        let st = (s * 100) % base.tables(s).obs.len();
+        let (a, b) = (base.observation(s, st), one.observation(s, st));
+        assert_eq!(
+            a.features.map(f32::to_bits),
+            b.features.map(f32::to_bits),
+            "scene {s}"
+        );
+        assert_ne!(a.features, half.observation(s, st).features, "scene {s}");
+        for c in 0..4 {
+            assert_eq!(
+                zero.object_feature(s, c).map(f32::to_bits),
+                zero.object_feature(0, c).map(f32::to_bits),
+                "scene {s}, category {c}"
+            );
+        }
+    }
+    for bad in [-0.1f32, 3.5, f32::NAN, f32::INFINITY] {
+        let e = DomainShift::new(bad).unwrap_err();
+        assert!(e.contains("[0, 3]"), "{e}");
     }
 }

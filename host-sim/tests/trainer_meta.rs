@@ -82,7 +82,10 @@ fn the_base_builds_trainer_object_parses_as_version_1() {
     assert_eq!(t.version, 1);
     assert_eq!((t.update, t.episodes, t.env_steps), (3, 18, 139));
     assert_eq!(t.method, Some(Method::Gman));
-    assert_eq!(t.world, Some(WorldId::Synthetic { world_seed: 2022 }));
+    assert_eq!(t.world, Some(WorldId::Synthetic {
+            world_seed: 2022,
+            domain_shift: Default::default()
+        }));
     let r = &t.run;
     assert_eq!(
         (r.seed, r.workers, r.batch_envs, r.min_steps),

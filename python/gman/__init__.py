@@ -34,19 +34,24 @@ from gymnasium import spaces
 from gymnasium.vector import AutoresetMode, VectorEnv as _GymVectorEnv
 from gymnasium.vector.utils import batch_space
 
-from . import _gman
+from . import _args, _gman
 
 __all__ = [
     "ACTIONS",
     "ATTR_DIM",
+    "ClosedEnvironmentError",
     "FEATURE_DIM",
     "NUM_ACTIONS",
     "Navigator",
     "ObjectNavEnv",
     "VecEnv",
+    "__version__",
     "evaluate",
     "make_vec_env",
 ]
+
+__version__: str = _gman.__version__
+"""The package's version (the Rust crate's, which is the wheel's)."""
 
 FEATURE_DIM: int = _gman.FEATURE_DIM
 """Length of the pooled observation embedding (512)."""
@@ -60,54 +65,17 @@ ACTIONS: Tuple[str, ...] = ("MoveAhead", "RotateLeft", "RotateRight", "LookUp", 
 MaxSteps = Union[None, int, Tuple[int, int]]
 Policy = Callable[[Dict[str, np.ndarray], Dict[str, np.ndarray]], Any]
 
-
-def _limits(max_steps: MaxSteps) -> Tuple[int, int]:
-    """(living room, other rooms) step limits; None: the reference 200 / 100."""
-    if max_steps is None:
-        return 200, 100
-    if isinstance(max_steps, (bool, np.bool_)):
-        raise TypeError("max_steps must be an int or a (living_room, other) pair, got a bool")
-    if isinstance(max_steps, (int, np.integer)):
-        m = int(max_steps)
-        pair = (m, m)
-    else:
-        try:
-            a, b = max_steps  # type: ignore[misc]
-        except (TypeError, ValueError):
-            raise TypeError(
-                f"max_steps must be an int or a (living_room, other) pair, got {max_steps!r}"
-            ) from None
-        pair = (int(a), int(b))
-    if min(pair) < 1:
-        raise ValueError(f"max_steps must be at least 1, got {max_steps!r}")
-    return pair
+#: Frames per second of a recorded video (``render_mode="rgb_array"`` with gymnasium's
+#: ``RecordVideo``): one frame per action.
+RENDER_FPS = 4
 
 
-def _map_grid(map: Optional[Tuple[int, int]]) -> Tuple[int, int]:
-    if map is None:
-        return 0, 0
-    try:
-        r, c = map
-        r, c = int(r), int(c)
-    except (TypeError, ValueError):
-        raise TypeError(f"map must be None or a (rows, cols) pair, got {map!r}") from None
-    if r < 1 or c < 1:
-        raise ValueError(f"map must have at least one row and one column, got {map!r}")
-    return r, c
+class ClosedEnvironmentError(gymnasium.error.ClosedEnvironmentError, RuntimeError):
+    """A call on a closed environment (both gymnasium's error and a ``RuntimeError``)."""
 
 
-def _data_arg(data: Union[None, str, "os.PathLike[str]"]) -> Optional[str]:
-    return None if data is None else os.fspath(data)
-
-
-def _seed_arg(seed: Optional[int]) -> Optional[int]:
-    if seed is None:
-        return None
-    if not isinstance(seed, (int, np.integer)) or isinstance(seed, (bool, np.bool_)):
-        raise TypeError(f"seed must be an int or None, got {seed!r}")
-    if seed < 0:
-        raise ValueError(f"seed must be non-negative, got {seed}")
-    return int(seed)
+def _closed() -> ClosedEnvironmentError:
+    return ClosedEnvironmentError("the environment is closed")
 
 
 def _observation_space(map_rows: int, map_cols: int) -> spaces.Dict:
@@ -157,12 +125,19 @@ class VecEnv(_GymVectorEnv):
     The arrays are allocated once and refilled in place by every ``step``/``reset`` (no
     per-step Python objects per environment); pass ``copy=True`` to receive copies.
 
+    ``max_episode_steps`` (what ``gymnasium.make_vec`` passes from the spec, 200) caps both
+    step limits, as gymnasium's ``TimeLimit`` caps a single env.
+
     ``split="train"`` samples training tasks (slot i's sampler is seeded with ``seed + i``);
     ``split="val"`` / ``"test"`` hands out the official episodes in file order (slot by slot,
     wrapping around after the last).
     """
 
-    metadata = {"autoreset_mode": AutoresetMode.NEXT_STEP, "render_modes": []}
+    metadata = {
+        "autoreset_mode": AutoresetMode.NEXT_STEP,
+        "render_modes": ["rgb_array"],
+        "render_fps": RENDER_FPS,
+    }
 
     def __init__(
         self,
@@ -178,37 +153,40 @@ class VecEnv(_GymVectorEnv):
         episodes: Optional[int] = None,
         oracle: bool = False,
         copy: bool = False,
+        render_mode: Optional[str] = None,
+        max_episode_steps: Optional[int] = None,
     ) -> None:
-        if not isinstance(num_envs, (int, np.integer)) or isinstance(num_envs, bool):
-            raise TypeError(f"num_envs must be an int, got {num_envs!r}")
-        if num_envs < 1:
-            raise ValueError(f"num_envs must be at least 1, got {num_envs}")
-        living, other = _limits(max_steps)
-        rows, cols = _map_grid(map)
+        # Every argument checked before anything is built (gman._args: one rule each).
+        n = _args.num_envs(num_envs)
+        data_dir = _args.path("data", data, optional=True)
+        split = _args.choice("split", split, _args.SPLITS)
+        seed = _args.seed("seed", seed)
+        world_seed = _args.integer("world_seed", world_seed, 0, _args.MAX_SEED, "a u64 seed")
+        rows, cols = _args.map_grid(map)
+        living, other = _args.max_steps(max_steps)
+        if max_episode_steps is not None:
+            # gymnasium.make_vec passes the spec's max_episode_steps (TimeLimit's cap).
+            cap = _args.integer("max_episode_steps", max_episode_steps, 1, _args.MAX_STEPS)
+            living, other = min(living, cap), min(other, cap)
+        reward = _args.choice("reward", reward, _args.REWARDS)
+        episodes = _args.episodes(episodes)
+        oracle = _args.boolean("oracle", oracle)
+        copy = _args.boolean("copy", copy)
+        self.render_mode = _args.choice("render_mode", render_mode, _args.RENDER_MODES)
         self._core = _gman.VecCore(
-            _data_arg(data),
-            int(world_seed),
-            str(split),
-            int(num_envs),
-            str(reward),
-            living,
-            other,
-            rows,
-            cols,
-            bool(oracle),
-            episodes,
+            data_dir, world_seed, split, n, reward, living, other, rows, cols, oracle, episodes,
+            self.render_mode is not None,
         )
-        self._seed = _seed_arg(seed)
-        self._copy = bool(copy)
-        self._oracle = bool(oracle)
+        self._seed = seed
+        self._copy = copy
+        self._oracle = oracle
         self._has_map = rows > 0
-        self.num_envs = int(num_envs)
+        self.num_envs = n
         self.single_observation_space = _observation_space(rows, cols)
         self.single_action_space = spaces.Discrete(NUM_ACTIONS)
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
-        self.split = str(split)
-        self.render_mode = None
+        self.split = split
         a = self._core.arrays()
         self._arrays = a
         self._obs = {"features": a["features"], "target": a["target"], "ps_target": a["ps_target"]}
@@ -217,31 +195,59 @@ class VecEnv(_GymVectorEnv):
         self._info_keys = _INFO_KEYS + (("oracle_action",) if self._oracle else ())
         self._started = False
 
+    def _live(self) -> "_gman.VecCore":
+        """The native batch, or :class:`ClosedEnvironmentError` after :meth:`close`."""
+        if self._core is None:
+            raise _closed()
+        return self._core
+
     # -- gymnasium API -------------------------------------------------------------------
 
     def reset(
         self, *, seed: Optional[int] = None, options: Optional[Dict[str, Any]] = None
     ) -> Tuple[Dict[str, np.ndarray], Dict[str, np.ndarray]]:
-        """Starts a new episode in every environment (the official list from its start)."""
-        seed = _seed_arg(seed)
+        """Starts a new episode in every environment (the official list from its start).
+
+        ``seed`` (0..2**64-1) reseeds slot i's training sampler with ``seed + i``; this
+        environment takes no ``options`` (None or ``{}``).
+        """
+        core = self._live()
+        seed = _args.seed("seed", seed)
+        _args.reset_options(options)
         if seed is None and not self._started:
             seed = self._seed
-        self._core.reset(seed, True)
+        core.reset(seed, True)
         self._started = True
         return self._observation(), self._info()
 
     def step(
         self, actions: Any
     ) -> Tuple[Dict[str, np.ndarray], np.ndarray, np.ndarray, np.ndarray, Dict[str, np.ndarray]]:
-        """Steps every environment with ``actions`` (integers in 0..6, one per environment)."""
+        """Steps every environment with ``actions`` (integers in 0..=5, one per environment).
+
+        A refused call (``TypeError`` / ``ValueError``) steps no environment.
+        """
+        core = self._live()
         if not self._started:
             raise RuntimeError("call reset() before step()")
-        self._core.step(_actions(actions, self.num_envs))
+        core.step(_actions(actions, self.num_envs))
         a = self._arrays
         rew, term, trunc = a["reward"], a["terminated"], a["truncated"]
         if self._copy:
             rew, term, trunc = rew.copy(), term.copy(), trunc.copy()
         return self._observation(), rew, term, trunc, self._info()
+
+    def render(self) -> Optional[Tuple[np.ndarray, ...]]:
+        """With ``render_mode="rgb_array"``: one top-down RGB view per environment (``uint8``,
+        ``(height, width, 3)``, the size depending on the scene): the floor plan, the objects,
+        the target's instances outlined, the episode's path so far and the agent's heading.
+        None without a render mode."""
+        core = self._live()
+        if self.render_mode is None:
+            return None
+        if not self._started:
+            raise RuntimeError("call reset() before render()")
+        return tuple(core.render(i) for i in range(self.num_envs))
 
     def close_extras(self, **kwargs: Any) -> None:
         self._core = None  # type: ignore[assignment]
@@ -250,25 +256,26 @@ class VecEnv(_GymVectorEnv):
 
     def scene_names(self) -> Sequence[str]:
         """Scene names by the ids of ``info["scene"]``."""
-        return self._core.scene_names()
+        return self._live().scene_names()
 
     def category_names(self) -> Sequence[str]:
         """Category names by the ids of ``info["target_category"]``."""
-        return self._core.category_names()
+        return self._live().category_names()
 
     @property
     def num_episodes(self) -> int:
         """Official episodes of the split (0 for train)."""
-        return self._core.num_episodes
+        return self._live().num_episodes
 
     @property
     def completed_episodes(self) -> int:
         """Official episodes finished at least once since the last reset."""
-        return self._core.completed
+        return self._live().completed
 
     def report(self, agent: str = "python") -> Dict[str, Any]:
         """``gman eval --json``'s report of the official episodes once all have finished."""
-        r, _ = self._core.report(agent)
+        core = self._live()
+        r, _ = core.report(_args.text("agent", agent))
         return json.loads(r)
 
     def _observation(self) -> Dict[str, np.ndarray]:
@@ -286,53 +293,94 @@ class VecEnv(_GymVectorEnv):
 def _actions(actions: Any, n: int) -> np.ndarray:
     a = np.asarray(actions)
     if a.dtype.kind not in "iu":
-        raise TypeError(f"actions must be integers (0..{NUM_ACTIONS - 1}), got dtype {a.dtype}")
+        raise TypeError(f"actions must be integers (0..={NUM_ACTIONS - 1}), got dtype {a.dtype}")
     if a.shape != (n,):
         raise ValueError(f"actions must have shape ({n},), got {a.shape}")
+    # The native step checks the range; uint64 values above int64's range would wrap in the
+    # conversion below, so they are refused here with their own value.
+    if a.dtype == np.uint64 and a.size and a.max() >= NUM_ACTIONS:
+        i = int(np.flatnonzero(a >= NUM_ACTIONS)[0])
+        raise ValueError(
+            f"actions[{i}] = {a[i]} is not an action (0..={NUM_ACTIONS - 1}: "
+            + ", ".join(ACTIONS) + ")"
+        )
     return np.ascontiguousarray(a, dtype=np.int64)
 
 
 class ObjectNavEnv(gymnasium.Env):
     """One GMAN episode at a time (``gman/ObjectNav-v0``): a :class:`VecEnv` of one.
 
-    The same observations, rewards and info as :class:`VecEnv` (without the batch axis).
+    The same observations, rewards and info as :class:`VecEnv` (without the batch axis) and
+    the same arguments except ``num_envs`` and ``copy`` (observations are always copies).
     ``reset(seed=s)`` seeds the training sampler with ``s`` (slot 0 of a VecEnv seeded with
     ``s``); on an evaluation split each ``reset()`` takes the next official episode.
+    ``render_mode="rgb_array"``: :meth:`render` returns the top-down view of the episode.
+
+    ``gymnasium.make("gman/ObjectNav-v0")`` wraps it in ``TimeLimit(200)``
+    (``spec.max_episode_steps``, the longest default episode); with ``max_steps`` above 200
+    also pass ``max_episode_steps=`` (or ``-1`` for no wrapper), or the wrapper truncates first.
     """
 
-    metadata = {"render_modes": []}
+    metadata = {"render_modes": ["rgb_array"], "render_fps": RENDER_FPS}
 
     def __init__(self, **kwargs: Any) -> None:
-        kwargs.pop("num_envs", None)
-        kwargs["copy"] = True
-        self._vec = VecEnv(1, **kwargs)
+        if "num_envs" in kwargs and _args.num_envs(kwargs.pop("num_envs")) != 1:
+            raise ValueError("num_envs: ObjectNavEnv is one environment (use VecEnv for more)")
+        if "copy" in kwargs and not _args.boolean("copy", kwargs.pop("copy")):
+            raise ValueError("copy: ObjectNavEnv always returns copies (copy=True)")
+        self._vec = VecEnv(1, copy=True, **kwargs)
+        self.render_mode = self._vec.render_mode
         self.observation_space = self._vec.single_observation_space
         self.action_space = self._vec.single_action_space
         self._done = True
         self._fresh = True
+        self._closed = False
+
+    def _core(self) -> "_gman.VecCore":
+        if self._closed:
+            raise _closed()
+        return self._vec._live()
 
     def reset(
         self, *, seed: Optional[int] = None, options: Optional[Dict[str, Any]] = None
     ) -> Tuple[Dict[str, np.ndarray], Dict[str, Any]]:
+        core = self._core()
+        seed = _args.seed("seed", seed)
+        _args.reset_options(options)
         super().reset(seed=seed)
-        seed = _seed_arg(seed)
         if seed is None and self._fresh:
             seed = self._vec._seed
-        self._vec._core.reset(seed, self._fresh or seed is not None)
+        core.reset(seed, self._fresh or seed is not None)
         self._vec._started = True
         self._fresh = False
         self._done = False
         return _unbatch(self._vec._observation()), _unbatch(self._vec._info())
 
     def step(self, action: Any):
+        self._core()
         if self._done:
             raise RuntimeError("the episode is over: call reset()")
         a = np.asarray(action)
         if a.dtype.kind not in "iu" or a.shape != ():
-            raise TypeError(f"action must be one integer in 0..{NUM_ACTIONS - 1}, got {action!r}")
+            raise TypeError(f"action must be one integer in 0..={NUM_ACTIONS - 1}, got {action!r}")
+        if not 0 <= int(a) < NUM_ACTIONS:
+            raise ValueError(f"action = {int(a)} is not an action (0..={NUM_ACTIONS - 1}: " + ", ".join(ACTIONS) + ")")
         obs, rew, term, trunc, info = self._vec.step(a.reshape(1))
         self._done = bool(term[0] or trunc[0])
         return _unbatch(obs), float(rew[0]), bool(term[0]), bool(trunc[0]), _unbatch(info)
+
+    def render(self) -> Optional[np.ndarray]:
+        """The top-down RGB view (``uint8``, ``(height, width, 3)``) with
+        ``render_mode="rgb_array"``; None without a render mode."""
+        self._core()
+        frames = self._vec.render()
+        return None if frames is None else frames[0]
+
+    def close(self) -> None:
+        """Releases the environment; a second call does nothing."""
+        if not self._closed:
+            self._vec.close()
+            self._closed = True
 
 
 def _unbatch(d: Dict[str, np.ndarray]) -> Dict[str, Any]:
@@ -354,22 +402,32 @@ def make_vec_env(
     episodes: Optional[int] = None,
     oracle: bool = False,
     copy: bool = False,
+    render_mode: Optional[str] = None,
 ) -> VecEnv:
     """A :class:`VecEnv` of ``num_envs`` environments.
+
+    Every argument is checked before anything is built: a wrong type raises ``TypeError``, a
+    value out of range ``ValueError`` naming the argument and its range (the table in
+    ``docs/python.md``).
 
     Args:
         data: GMAN data directory (``attributes.json``, ``scenes/``, ``episodes/``); None for
             the built-in synthetic world.
         split: ``"train"`` (sampled tasks), ``"val"`` or ``"test"`` (official episodes in order).
-        num_envs: batch size B.
-        seed: seed of the training sampler used by the first ``reset()`` (slot i: seed + i).
-        map: ``(rows, cols)`` adds the spatial map observation ``obs["map"]``.
-        max_steps: step limit, one int or ``(living_room, other)``; default 200 / 100.
+        num_envs: batch size B, 1..=65536 (and at most 2**28 observation floats per batch).
+        seed: seed of the training sampler used by the first ``reset()`` (slot i: seed + i),
+            0..=2**64-1.
+        map: ``(rows, cols)``, each 1..=16 (at most 7 on offline data), adds the spatial map
+            observation ``obs["map"]``.
+        max_steps: step limit, one int or ``(living_room, other)``, each 1..=2**31-1;
+            default 200 / 100.
         reward: ``"mixed"`` (the paper's), ``"navigation"``, ``"distance"`` or ``"similarity"``.
-        world_seed: world seed (``gman --world-seed``).
+        world_seed: world seed (``gman --world-seed``), 0..=2**64-1.
         episodes: at most this many episodes per episode file (``gman eval --episodes``).
         oracle: add ``info["oracle_action"]`` (a shortest-path action, for scripted agents).
         copy: return copies instead of the arrays refilled in place.
+        render_mode: None or ``"rgb_array"`` (``render()`` returns each environment's
+            top-down view).
     """
     return VecEnv(
         num_envs,
@@ -383,6 +441,7 @@ def make_vec_env(
         episodes=episodes,
         oracle=oracle,
         copy=copy,
+        render_mode=render_mode,
     )
 
 
@@ -391,13 +450,13 @@ def evaluate(
     data: Union[None, str, "os.PathLike[str]"] = None,
     split: str = "val",
     *,
-    num_envs: int = 16,
+    num_envs: Optional[int] = None,
     episodes: Optional[int] = None,
     map: Optional[Tuple[int, int]] = None,
     max_steps: MaxSteps = None,
     reward: str = "mixed",
     world_seed: int = 2022,
-    seed: int = 0,
+    seed: Optional[int] = None,
     agent_name: Optional[str] = None,
     return_episodes: bool = False,
 ) -> Any:
@@ -405,49 +464,88 @@ def evaluate(
 
     ``policy`` is one of:
 
-    * ``"random"`` or ``"oracle"``: the built-in agents (``seed`` seeds the random one);
+    * ``"random"`` or ``"oracle"``: the built-in agents (``seed`` seeds the random one,
+      default 0);
     * a path to a model file (training checkpoint or ``*.gman`` blob), or a blob's ``bytes``:
       evaluated by ``gman eval``'s evaluator (gman-core's navigator, the device's bits);
     * a callable ``policy(obs, info) -> actions`` over batches of a :class:`VecEnv` of
-      ``num_envs`` environments: ``info["episode_start"]`` marks each new episode,
-      ``info["ended"]`` the environments whose episode ended at the last step (they reset at
-      this step and their action is ignored), ``info["oracle_action"]`` is a shortest-path
-      action.
+      ``num_envs`` environments (default 16): ``info["episode_start"]`` marks each new
+      episode, ``info["ended"]`` the environments whose episode ended at the last step (they
+      reset at this step and their action is ignored), ``info["oracle_action"]`` is a
+      shortest-path action.
+
+    Options that do not apply to a kind of policy are refused (``ValueError`` saying why), not
+    ignored: ``num_envs`` applies only to a callable; ``seed`` only to ``"random"``; ``map``
+    to a callable (the environment's map) and to a model, where it must equal the model's own
+    grid (``map=None`` takes the model's); the built-in agents take no map.
 
     Returns the report dict (``results.seen`` / ``results.unseen`` with ``sr``, ``spl``,
     ``epa`` in percent and ``dts`` in metres, ``by_room``, ``episodes``), the same numbers
     ``gman eval`` writes; with ``return_episodes=True`` also the list of per-episode results.
     """
-    living, other = _limits(max_steps)
+    data_dir = _args.path("data", data, optional=True)
+    split = _args.choice("split", split, _args.SPLITS)
+    if split == "train":
+        raise ValueError('split = "train" has no official episodes; use split="val" or "test"')
+    episodes = _args.episodes(episodes)
+    living, other = _args.max_steps(max_steps)
+    reward = _args.choice("reward", reward, _args.REWARDS)
+    world_seed = _args.integer("world_seed", world_seed, 0, _args.MAX_SEED, "a u64 seed")
+    seed = _args.seed("seed", seed)
+    agent_name = _args.text("agent_name", agent_name, optional=True)
+    return_episodes = _args.boolean("return_episodes", return_episodes)
+    grid = None if map is None else _args.map_grid(map)
+    n = None if num_envs is None else _args.num_envs(num_envs)
+    if isinstance(policy, (bytes, bytearray, memoryview, str, os.PathLike)):
+        builtin = isinstance(policy, str) and policy in ("random", "oracle")
+        kind = f"the built-in {policy!r} agent" if builtin else "a model"
+        if n is not None:
+            raise ValueError(
+                f"num_envs = {n} applies only to a callable policy: {kind} is evaluated by "
+                "gman eval's evaluator, which steps every episode itself"
+            )
+        if seed is not None and policy != "random":
+            raise ValueError(
+                f"seed = {seed} seeds only the built-in \"random\" agent, not {kind} "
+                "(a model's episodes are seeded by the episode list)"
+            )
+        if grid is not None and builtin:
+            raise ValueError(f"map = {map!r}: {kind} takes no map")
     if isinstance(policy, (bytes, bytearray, memoryview)):
         r, e = _gman.host_evaluate(
-            _data_arg(data), int(world_seed), str(split), agent_name or "blob", bytes(policy),
-            int(seed), episodes, str(reward), living, other,
+            data_dir, world_seed, split, agent_name or "blob", bytes(policy), 0, episodes,
+            reward, living, other, grid,
         )
     elif isinstance(policy, (str, os.PathLike)):
-        name = os.fspath(policy)
+        name = _args.path("policy", policy)
         r, e = _gman.host_evaluate(
-            _data_arg(data), int(world_seed), str(split), name, None, int(seed), episodes,
-            str(reward), living, other,
+            data_dir, world_seed, split, name, None, seed or 0, episodes, reward, living, other,
+            grid,
         )
         if agent_name:
             r = json.dumps({**json.loads(r), "agent": agent_name})
     elif callable(policy):
-        if split == "train":
-            raise ValueError("split train has no official episodes; use split=\"val\" or \"test\"")
+        if seed is not None:
+            raise ValueError(
+                f"seed = {seed} seeds only the built-in \"random\" agent; a callable policy "
+                "seeds itself (the episodes' seeds are in info[\"episode_seed\"])"
+            )
+        n = 16 if n is None else n
         env = VecEnv(
-            num_envs, data=data, split=split, world_seed=world_seed, map=map,
+            n, data=data_dir, split=split, world_seed=world_seed, map=map,
             max_steps=(living, other), reward=reward, episodes=episodes, oracle=True,
         )
-        obs, info = env.reset()
-        info["ended"] = np.zeros(num_envs, bool)
-        core = env._core
-        total = core.num_episodes
-        while core.completed < total:
-            obs, _, term, trunc, info = env.step(policy(obs, info))
-            info["ended"] = term | trunc
-        r, e = core.report(agent_name or getattr(policy, "__name__", "python"))
-        env.close()
+        try:
+            obs, info = env.reset()
+            info["ended"] = np.zeros(n, bool)
+            core = env._core
+            total = core.num_episodes
+            while core.completed < total:
+                obs, _, term, trunc, info = env.step(policy(obs, info))
+                info["ended"] = term | trunc
+            r, e = core.report(agent_name or getattr(policy, "__name__", "python"))
+        finally:
+            env.close()
     else:
         raise TypeError(
             "policy must be \"random\", \"oracle\", a model path, blob bytes or a callable "
@@ -457,26 +555,19 @@ def evaluate(
     return (report, json.loads(e)) if return_episodes else report
 
 
-def _float_vector(x: Any, name: str, length: Optional[int]) -> np.ndarray:
-    a = np.asarray(x)
-    if a.dtype.kind != "f":
-        raise TypeError(f"{name} must be a float array, got dtype {a.dtype}")
-    a = np.ascontiguousarray(a, dtype=np.float32).reshape(-1)
-    if length is not None and a.size != length:
-        raise ValueError(f"{name} must have {length} floats, got shape {np.shape(x)}")
-    return a
-
-
 class Navigator:
     """gman-core's navigator over a weight blob, as ``gman eval --agent BLOB`` runs it.
 
     ``reset(attr, seed)`` starts an episode; ``step(obs, map=None, ps=None)`` returns
     ``(action, probs, value, adapted)`` and buffers the step; every ``k`` steps (the blob's
     schedule) the inner update (Algorithm 1, lines 15-20) runs inside ``step``; ``adapt()``
-    runs it now. Same bits as the CLI and the firmware.
+    runs it now. Same bits as the CLI and the firmware. Arguments are checked before the
+    navigator is touched (``TypeError`` / ``ValueError`` naming the argument).
     """
 
     def __init__(self, core: "_gman.NavigatorCore") -> None:
+        if not isinstance(core, _gman.NavigatorCore):
+            raise TypeError("use Navigator.from_blob(bytes) or Navigator.from_file(path)")
         self._core = core
 
     @classmethod
@@ -489,7 +580,10 @@ class Navigator:
     @classmethod
     def from_file(cls, path: Union[str, "os.PathLike[str]"]) -> "Navigator":
         """Reads and parses a blob file."""
-        with open(path, "rb") as f:
+        p = _args.path("path", path)
+        if not os.path.isfile(p):
+            raise FileNotFoundError(f"path {p!r}: no such blob file")
+        with open(p, "rb") as f:
             return cls.from_blob(f.read())
 
     @property
@@ -513,22 +607,30 @@ class Navigator:
         return self._core.buffered
 
     def reset(self, attr: Any, seed: int) -> None:
-        """Starts an episode with target attribute vector ``attr`` (45 floats) and ``seed``."""
-        s = _seed_arg(seed)
-        if s is None:
-            raise TypeError("seed must be an int")
-        self._core.reset(_float_vector(attr, "attr", self._core.attr_dim), s)
+        """Starts an episode with target attribute vector ``attr`` (45 floats) and ``seed``
+        (0..=2**64-1)."""
+        if seed is None:
+            raise TypeError("seed must be an integer, got None")
+        s = _args.seed("seed", seed)
+        self._core.reset(_args.float_vector("attr", attr, self._core.attr_dim), s)
 
     def step(
         self, obs: Any, map: Any = None, ps: Any = None
     ) -> Tuple[int, np.ndarray, float, bool]:
         """One control step: ``(action, probs, value, adapted)``."""
-        o = _float_vector(obs, "obs", FEATURE_DIM)
+        o = _args.float_vector("obs", obs, FEATURE_DIM)
         n = self._core.map_len
-        m = None if map is None else _float_vector(map, "map", n)
-        if n and m is None:
-            raise ValueError(f"this model takes a spatial map {self.map_shape}: pass map=")
-        p = None if ps is None else _float_vector(ps, "ps", None)
+        if n and map is None:
+            raise ValueError(f"map: this model takes a spatial map {self.map_shape}: pass map=")
+        if not n and map is not None:
+            raise ValueError("map: this model takes no spatial map: pass map=None")
+        m = None if map is None else _args.float_vector("map", map, n)
+        k = self._core.ps_dim
+        if k and ps is None:
+            raise ValueError(f"ps: this model takes a PS input of {k} floats: pass ps=")
+        if not k and ps is not None:
+            raise ValueError("ps: this model takes no PS input: pass ps=None")
+        p = None if ps is None else _args.float_vector("ps", ps, k)
         return self._core.step(o, m, p)
 
     def adapt(self) -> bool:
@@ -540,4 +642,6 @@ gymnasium.register(
     id="gman/ObjectNav-v0",
     entry_point="gman:ObjectNavEnv",
     vector_entry_point="gman:VecEnv",
+    # The longest default episode (living rooms; 100 elsewhere, ended by the env itself).
+    max_episode_steps=200,
 )

@@ -16,13 +16,14 @@ use gman_core::{Action, ATTR_DIM, FEATURE_DIM, NUM_ACTIONS};
 use gman_host_sim::eval::agent::NavAgent;
 use gman_host_sim::model::{load_model, model_from_blob, NavModel, K};
 use gman_host_sim::sim::eval::AgentFactory;
-use gman_host_sim::sim::spatial::MapGrid;
+use gman_host_sim::sim::render::draw_scene_rgb;
+use gman_host_sim::sim::spatial::{check_grid, check_grid_for_world, MapGrid, MAX_GRID_SIDE};
 use gman_host_sim::sim::{
     evaluate, Env, EpisodeLimits, EpisodeMetrics, EpisodeResult, EpisodeSpec, EvalConfig,
     EvalReport, OracleAgent, RandomAgent, RewardKind, Split, World,
 };
-use numpy::{PyArray1, PyArray2, PyArray3, PyArrayMethods, PyReadonlyArray1};
-use pyo3::exceptions::{PyFileNotFoundError, PyRuntimeError, PyValueError};
+use numpy::{Element, PyArray1, PyArray2, PyArray3, PyArrayMethods, PyReadonlyArray1};
+use pyo3::exceptions::{PyFileNotFoundError, PyMemoryError, PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict};
 use rand::SeedableRng;
@@ -41,6 +42,98 @@ fn value_err(e: impl std::fmt::Display) -> PyErr {
 /// `anyhow` chain as one message.
 fn chain_err(e: anyhow::Error) -> PyErr {
     PyValueError::new_err(format!("{e:#}"))
+}
+
+/// Most environments in one batch (`num_envs`).
+const MAX_ENVS: usize = 1 << 16;
+/// Most floats of one batch's observation arrays, `num_envs * (512 + 2 * 45 + map cells *
+/// 512)`: 2^28 floats, 1 GiB.
+const MAX_BATCH_FLOATS: usize = 1 << 28;
+/// Longest episode (`max_steps`): `info["steps"]` is an int32.
+const MAX_STEPS: u32 = i32::MAX as u32;
+
+/// The text of a caught panic's payload.
+fn panic_text(p: &(dyn std::any::Any + Send)) -> String {
+    p.downcast_ref::<&str>()
+        .map(|s| s.to_string())
+        .or_else(|| p.downcast_ref::<String>().cloned())
+        .unwrap_or_else(|| "a panic without a message".to_string())
+}
+
+/// Runs `f`, turning a Rust panic into a `RuntimeError` naming `what`. A last resort: the
+/// argument checks are meant to make every panic unreachable, so one is a bug of gman.
+fn guard<T>(what: &str, f: impl FnOnce() -> PyResult<T>) -> PyResult<T> {
+    std::panic::catch_unwind(std::panic::AssertUnwindSafe(f)).unwrap_or_else(|p| {
+        Err(PyRuntimeError::new_err(format!(
+            "{what}: internal error in gman (a Rust panic: {}); please report it",
+            panic_text(p.as_ref())
+        )))
+    })
+}
+
+/// A zeroed vector of `n` elements, or a `MemoryError` naming `what` (instead of the abort
+/// of a failed allocation).
+fn try_filled<T: Clone>(n: usize, v: T, what: &str) -> PyResult<Vec<T>> {
+    let mut out = Vec::new();
+    out.try_reserve_exact(n)
+        .map_err(|_| PyMemoryError::new_err(format!("{what}: cannot allocate {n} elements")))?;
+    out.resize(n, v);
+    Ok(out)
+}
+
+/// A 1-d numpy array of `n` copies of `v`, allocated fallibly (see [`try_filled`]).
+fn arr1<'py, T: Element + Clone>(
+    py: Python<'py>,
+    n: usize,
+    v: T,
+    what: &str,
+) -> PyResult<Bound<'py, PyArray1<T>>> {
+    Ok(PyArray1::from_vec(py, try_filled(n, v, what)?))
+}
+
+/// A 2-d numpy array of `a x b` copies of `v`, allocated fallibly.
+fn arr2<'py, T: Element + Clone>(
+    py: Python<'py>,
+    [a, b]: [usize; 2],
+    v: T,
+    what: &str,
+) -> PyResult<Bound<'py, PyArray2<T>>> {
+    let n = a.checked_mul(b).ok_or_else(|| too_large(what))?;
+    arr1(py, n, v, what)?.reshape([a, b])
+}
+
+/// A 3-d numpy array of `a x b x c` copies of `v`, allocated fallibly.
+fn arr3<'py, T: Element + Clone>(
+    py: Python<'py>,
+    [a, b, c]: [usize; 3],
+    v: T,
+    what: &str,
+) -> PyResult<Bound<'py, PyArray3<T>>> {
+    let n = a
+        .checked_mul(b)
+        .and_then(|n| n.checked_mul(c))
+        .ok_or_else(|| too_large(what))?;
+    arr1(py, n, v, what)?.reshape([a, b, c])
+}
+
+fn too_large(what: &str) -> PyErr {
+    PyMemoryError::new_err(format!("{what}: the array's size overflows"))
+}
+
+/// The map grid rule of the Python argument `map` (`(0, 0)`: no map): the grid rule a
+/// model's map obeys ([`check_grid`]), as a `ValueError` naming the argument.
+#[pyfunction]
+fn check_map(rows: usize, cols: usize) -> PyResult<()> {
+    if (rows, cols) == (0, 0) {
+        return Ok(());
+    }
+    check_grid(rows, cols, &format!("map = ({rows}, {cols})")).map_err(chain_err)
+}
+
+/// Panics inside a guarded call: the tests check that a panic surfaces as a `RuntimeError`.
+#[pyfunction]
+fn _panic_for_tests() -> PyResult<()> {
+    guard("_panic_for_tests", || panic!("a panic raised on purpose"))
 }
 
 // ---------------------------------------------------------------------------------------
@@ -127,6 +220,8 @@ struct Sim {
     limits: EpisodeLimits,
     grid: MapGrid,
     oracle: bool,
+    /// Slots keep their episode's states (for `render`).
+    record: bool,
     slots: Vec<Slot>,
     results: Vec<Option<EpisodeResult>>,
     recorded: usize,
@@ -165,6 +260,7 @@ struct Ctx {
     limits: EpisodeLimits,
     grid: MapGrid,
     oracle: bool,
+    record: bool,
 }
 
 /// Splits every array of an [`Out`] after `mid` slots (a map of `map_len` floats per slot).
@@ -236,12 +332,16 @@ macro_rules! split_out {
 
 impl Ctx {
     fn new_env(&self, spec: &EpisodeSpec) -> Env<'static> {
-        Env::new(
+        let mut env = Env::new(
             self.world,
             spec,
             self.reward,
             self.limits.for_room(spec.room),
-        )
+        );
+        if self.record {
+            env.record_trajectory(true);
+        }
+        env
     }
 
     /// Starts `spec` in slot `s` (index `i` of `out`) and writes its per-episode outputs and
@@ -351,6 +451,7 @@ impl Sim {
             limits: self.limits,
             grid: self.grid,
             oracle: self.oracle,
+            record: self.record,
         }
     }
 
@@ -547,12 +648,137 @@ macro_rules! with_out {
 struct VecCore {
     sim: Sim,
     bufs: Bufs,
+    /// An earlier call panicked (a bug): the state may be inconsistent, every call refuses.
+    poisoned: bool,
+}
+
+/// The batch's sizes checked before anything is allocated: `num_envs` in 1..=[`MAX_ENVS`],
+/// the map grid by [`check_map`]'s rule, the observation arrays within [`MAX_BATCH_FLOATS`].
+fn check_batch(num_envs: usize, grid: MapGrid) -> PyResult<()> {
+    if !(1..=MAX_ENVS).contains(&num_envs) {
+        return Err(value_err(format!(
+            "num_envs = {num_envs} is out of range: a batch has 1..={MAX_ENVS} environments"
+        )));
+    }
+    check_map(grid.rows, grid.cols)?;
+    let per_env = FEATURE_DIM + 2 * ATTR_DIM + grid.len();
+    if num_envs.saturating_mul(per_env) > MAX_BATCH_FLOATS {
+        return Err(value_err(format!(
+            "num_envs = {num_envs} with map = ({}, {}): the observations would take {} floats per environment, and a batch holds at most {MAX_BATCH_FLOATS} floats (1 GiB): at most {} environments with this map",
+            grid.rows,
+            grid.cols,
+            per_env,
+            MAX_BATCH_FLOATS / per_env
+        )));
+    }
+    Ok(())
+}
+
+/// `num_envs` slots holding a placeholder episode until the first reset (a real episode of
+/// the world: the split's first, or a sampled training task), allocated fallibly.
+fn placeholder_slots(
+    world: &'static World,
+    split: Split,
+    episodes: &[EpisodeSpec],
+    reward: RewardKind,
+    limits: EpisodeLimits,
+    num_envs: usize,
+) -> PyResult<Vec<Slot>> {
+    let mut rng0 = ChaCha8Rng::seed_from_u64(0);
+    let spec0 = if split == Split::Train {
+        world
+            .try_sample_train_episode_min(&mut rng0, 0)
+            .map_err(chain_err)?
+    } else {
+        episodes[0].clone()
+    };
+    let mut slots = Vec::new();
+    slots.try_reserve_exact(num_envs).map_err(|_| {
+        PyMemoryError::new_err(format!(
+            "num_envs = {num_envs}: cannot allocate the environments"
+        ))
+    })?;
+    slots.extend((0..num_envs).map(|i| Slot {
+        env: Env::new(world, &spec0, reward, limits.for_room(spec0.room)),
+        spec: spec0.clone(),
+        rng: ChaCha8Rng::seed_from_u64(i as u64),
+        needs_reset: true,
+    }));
+    Ok(slots)
+}
+
+impl Bufs {
+    /// The output arrays of `b` environments with `cells` map cells, allocated fallibly.
+    fn new(py: Python<'_>, b: usize, cells: usize) -> PyResult<Bufs> {
+        let w = &format!("num_envs = {b}");
+        Ok(Bufs {
+            features: arr2(py, [b, FEATURE_DIM], 0f32, w)?.unbind(),
+            target: arr2(py, [b, ATTR_DIM], 0f32, w)?.unbind(),
+            ps_target: arr2(py, [b, ATTR_DIM], 0f32, w)?.unbind(),
+            map: arr3(py, [b, cells, FEATURE_DIM], 0f32, w)?.unbind(),
+            reward: arr1(py, b, 0f32, w)?.unbind(),
+            terminated: arr1(py, b, false, w)?.unbind(),
+            truncated: arr1(py, b, false, w)?.unbind(),
+            success: arr1(py, b, false, w)?.unbind(),
+            episode_start: arr1(py, b, false, w)?.unbind(),
+            shortest_path: arr1(py, b, 0i32, w)?.unbind(),
+            target_category: arr1(py, b, 0i32, w)?.unbind(),
+            scene: arr1(py, b, 0i32, w)?.unbind(),
+            episode_index: arr1(py, b, 0i64, w)?.unbind(),
+            episode_seed: arr1(py, b, 0u64, w)?.unbind(),
+            steps: arr1(py, b, 0i32, w)?.unbind(),
+            oracle_action: arr1(py, b, -1i64, w)?.unbind(),
+        })
+    }
+}
+
+impl VecCore {
+    /// [`VecCore::step`] after the copy of the actions: checks them, then steps.
+    fn step_checked(&mut self, py: Python<'_>, a: &[i64]) -> PyResult<()> {
+        let b = self.sim.slots.len();
+        if a.len() != b {
+            return Err(value_err(format!(
+                "actions has {} entries, the batch has {b} environments",
+                a.len()
+            )));
+        }
+        if let Some((i, &v)) = a
+            .iter()
+            .enumerate()
+            .find(|(_, &v)| !(0..NUM_ACTIONS as i64).contains(&v))
+        {
+            return Err(value_err(format!(
+                "actions[{i}] = {v} is not an action (0..={}: MoveAhead, RotateLeft, RotateRight, LookUp, LookDown, Done)",
+                NUM_ACTIONS - 1
+            )));
+        }
+        let sim = &mut self.sim;
+        with_out!(py, &self.bufs, |out| sim.step_all(a, &mut out))
+    }
+
+    /// Runs `f` on the batch unless an earlier call panicked; a panic of `f` marks the batch
+    /// unusable and surfaces as a `RuntimeError` (see [`guard`]).
+    fn run<T>(&mut self, what: &str, f: impl FnOnce(&mut Self) -> PyResult<T>) -> PyResult<T> {
+        if self.poisoned {
+            return Err(PyRuntimeError::new_err(format!(
+                "{what}: an earlier internal error left this environment inconsistent; create a new one"
+            )));
+        }
+        let r = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| f(self)));
+        r.unwrap_or_else(|p| {
+            self.poisoned = true;
+            Err(PyRuntimeError::new_err(format!(
+                "{what}: internal error in gman (a Rust panic: {}); please report it",
+                panic_text(p.as_ref())
+            )))
+        })
+    }
 }
 
 #[pymethods]
 impl VecCore {
     #[new]
-    #[pyo3(signature = (data, world_seed, split, num_envs, reward, max_steps_living_room, max_steps_other, map_rows, map_cols, oracle, episodes_per_file))]
+    #[pyo3(signature = (data, world_seed, split, num_envs, reward, max_steps_living_room, max_steps_other, map_rows, map_cols, oracle, episodes_per_file, record=false))]
     #[allow(clippy::too_many_arguments)]
     fn new(
         py: Python<'_>,
@@ -567,92 +793,72 @@ impl VecCore {
         map_cols: usize,
         oracle: bool,
         episodes_per_file: Option<usize>,
+        record: bool,
     ) -> PyResult<VecCore> {
-        if num_envs == 0 {
-            return Err(value_err("num_envs must be at least 1"));
-        }
-        if max_steps_living_room == 0 || max_steps_other == 0 {
-            return Err(value_err("max_steps must be at least 1"));
-        }
-        if episodes_per_file == Some(0) {
-            return Err(value_err("episodes must be at least 1 (or None for all)"));
-        }
-        let split = parse_split(split)?;
-        let reward = parse_reward(reward)?;
-        let world = world_of(py, data.as_deref(), world_seed)?;
-        let episodes = if split == Split::Train {
-            Vec::new()
-        } else {
-            world
-                .episodes(split, episodes_per_file)
-                .map_err(chain_err)?
-        };
-        if split != Split::Train && episodes.is_empty() {
-            return Err(value_err(format!(
-                "split {} has no episodes in this world",
-                split.name()
-            )));
-        }
-        let grid = MapGrid {
-            rows: map_rows,
-            cols: map_cols,
-        };
-        let limits = EpisodeLimits {
-            living_room: max_steps_living_room,
-            other: max_steps_other,
-        };
-        // Placeholder episodes until the first reset (a real episode of the world).
-        let mut rng0 = ChaCha8Rng::seed_from_u64(0);
-        let spec0 = if split == Split::Train {
-            world
-                .try_sample_train_episode_min(&mut rng0, 0)
-                .map_err(chain_err)?
-        } else {
-            episodes[0].clone()
-        };
-        let slots = (0..num_envs)
-            .map(|i| Slot {
-                env: Env::new(world, &spec0, reward, limits.for_room(spec0.room)),
-                spec: spec0.clone(),
-                rng: ChaCha8Rng::seed_from_u64(i as u64),
-                needs_reset: true,
-            })
-            .collect();
-        let b = num_envs;
-        let bufs = Bufs {
-            features: PyArray2::zeros(py, [b, FEATURE_DIM], false).unbind(),
-            target: PyArray2::zeros(py, [b, ATTR_DIM], false).unbind(),
-            ps_target: PyArray2::zeros(py, [b, ATTR_DIM], false).unbind(),
-            map: PyArray3::zeros(py, [b, grid.cells(), FEATURE_DIM], false).unbind(),
-            reward: PyArray1::zeros(py, b, false).unbind(),
-            terminated: PyArray1::from_vec(py, vec![false; b]).unbind(),
-            truncated: PyArray1::from_vec(py, vec![false; b]).unbind(),
-            success: PyArray1::from_vec(py, vec![false; b]).unbind(),
-            episode_start: PyArray1::from_vec(py, vec![false; b]).unbind(),
-            shortest_path: PyArray1::zeros(py, b, false).unbind(),
-            target_category: PyArray1::zeros(py, b, false).unbind(),
-            scene: PyArray1::zeros(py, b, false).unbind(),
-            episode_index: PyArray1::zeros(py, b, false).unbind(),
-            episode_seed: PyArray1::zeros(py, b, false).unbind(),
-            steps: PyArray1::zeros(py, b, false).unbind(),
-            oracle_action: PyArray1::from_vec(py, vec![-1i64; b]).unbind(),
-        };
-        let n = episodes.len();
-        Ok(VecCore {
-            sim: Sim {
+        guard("VecEnv", || {
+            let grid = MapGrid {
+                rows: map_rows,
+                cols: map_cols,
+            };
+            check_batch(num_envs, grid)?;
+            let limits = EpisodeLimits {
+                living_room: max_steps_living_room,
+                other: max_steps_other,
+            };
+            for (name, v) in [("living_room", limits.living_room), ("other", limits.other)] {
+                if !(1..=MAX_STEPS).contains(&v) {
+                    return Err(value_err(format!(
+                        "max_steps ({name}) = {v} is out of range: 1..={MAX_STEPS}"
+                    )));
+                }
+            }
+            if episodes_per_file == Some(0) {
+                return Err(value_err("episodes must be at least 1 (or None for all)"));
+            }
+            let split = parse_split(split)?;
+            let reward = parse_reward(reward)?;
+            let world = world_of(py, data.as_deref(), world_seed)?;
+            check_grid_for_world(
                 world,
-                split,
-                episodes,
-                next_episode: 0,
-                reward,
-                limits,
-                grid,
-                oracle,
-                slots,
-                results: vec![None; n],
-                recorded: 0,
-            },
-            bufs,
+                map_rows,
+                map_cols,
+                &format!("map = ({map_rows}, {map_cols})"),
+            )
+            .map_err(chain_err)?;
+            let episodes = if split == Split::Train {
+                Vec::new()
+            } else {
+                world
+                    .episodes(split, episodes_per_file)
+                    .map_err(chain_err)?
+            };
+            if split != Split::Train && episodes.is_empty() {
+                return Err(value_err(format!(
+                    "split {} has no episodes in this world",
+                    split.name()
+                )));
+            }
+            let slots = placeholder_slots(world, split, &episodes, reward, limits, num_envs)?;
+            let bufs = Bufs::new(py, num_envs, grid.cells())?;
+            let n = episodes.len();
+            Ok(VecCore {
+                sim: Sim {
+                    world,
+                    split,
+                    episodes,
+                    next_episode: 0,
+                    reward,
+                    limits,
+                    grid,
+                    oracle,
+                    record,
+                    slots,
+                    results: vec![None; n],
+                    recorded: 0,
+                },
+                bufs,
+                poisoned: false,
+            })
         })
     }
 
@@ -684,8 +890,10 @@ impl VecCore {
     /// episode (and forgets the finished ones), without it the slots take the next episodes.
     #[pyo3(signature = (seed=None, restart=true))]
     fn reset(&mut self, py: Python<'_>, seed: Option<u64>, restart: bool) -> PyResult<()> {
-        let sim = &mut self.sim;
-        with_out!(py, &self.bufs, |out| sim.reset_all(seed, restart, &mut out))
+        self.run("reset", |c| {
+            let sim = &mut c.sim;
+            with_out!(py, &c.bufs, |out| sim.reset_all(seed, restart, &mut out))
+        })
     }
 
     /// Steps every slot with `actions` (int64, one per slot, in 0..6); a slot whose episode
@@ -694,25 +902,42 @@ impl VecCore {
         // A copy: the actions may be one of the output arrays (`info["oracle_action"]`).
         let a: Vec<i64> = actions.as_slice()?.to_vec();
         drop(actions);
-        let a = a.as_slice();
-        let b = self.sim.slots.len();
-        if a.len() != b {
-            return Err(value_err(format!(
-                "actions has {} entries, the batch has {b} environments",
-                a.len()
-            )));
-        }
-        if let Some((i, &v)) = a
-            .iter()
-            .enumerate()
-            .find(|(_, &v)| !(0..NUM_ACTIONS as i64).contains(&v))
-        {
-            return Err(value_err(format!(
-                "actions[{i}] = {v} is not an action (0..{NUM_ACTIONS}: MoveAhead, RotateLeft, RotateRight, LookUp, LookDown, Done)"
-            )));
-        }
-        let sim = &mut self.sim;
-        with_out!(py, &self.bufs, |out| sim.step_all(a, &mut out))
+        self.run("step", |c| c.step_checked(py, &a))
+    }
+
+    /// The top-down RGB view of slot `i`'s scene with its episode's path so far (`uint8`,
+    /// `(height, width, 3)`; the size depends on the scene). Needs `record=True`.
+    fn render<'py>(&mut self, py: Python<'py>, i: usize) -> PyResult<Bound<'py, PyArray3<u8>>> {
+        self.run("render", |c| {
+            let b = c.sim.slots.len();
+            if i >= b {
+                return Err(value_err(format!("render: slot {i} of a batch of {b}")));
+            }
+            if !c.sim.record {
+                return Err(PyRuntimeError::new_err(
+                    "render: this environment was made without render_mode=\"rgb_array\"",
+                ));
+            }
+            let s = &c.sim.slots[i];
+            let world = c.sim.world;
+            let title = format!(
+                "{}: find {}",
+                world.scenes[s.spec.scene].name,
+                world.category_name(s.spec.target)
+            );
+            let (px, w, h) = py
+                .detach(|| {
+                    draw_scene_rgb(
+                        world,
+                        s.spec.scene,
+                        Some(s.spec.target),
+                        s.env.trajectory(),
+                        Some(&title),
+                    )
+                })
+                .map_err(chain_err)?;
+            PyArray1::from_vec(py, px).reshape([h as usize, w as usize, 3])
+        })
     }
 
     /// Builds the world's lazily cached tables a long run would touch (every scene of the
@@ -806,20 +1031,22 @@ impl VecCore {
     /// `gman eval`'s JSON report (and the per-episode results as JSON) of the finished
     /// official episodes; an error unless every episode finished.
     fn report(&self, agent: &str) -> PyResult<(String, String)> {
-        if self.sim.split == Split::Train {
-            return Err(value_err(
-                "the train split has no official episodes to report",
-            ));
-        }
-        if self.sim.recorded < self.sim.results.len() {
-            return Err(PyRuntimeError::new_err(format!(
-                "{} of {} episodes finished; step until all have",
-                self.sim.recorded,
-                self.sim.results.len()
-            )));
-        }
-        let results: Vec<EpisodeResult> = self.sim.results.iter().flatten().cloned().collect();
-        report_json(self.sim.split, agent, &results)
+        guard("report", || {
+            if self.sim.split == Split::Train {
+                return Err(value_err(
+                    "the train split has no official episodes to report",
+                ));
+            }
+            if self.sim.recorded < self.sim.results.len() {
+                return Err(PyRuntimeError::new_err(format!(
+                    "{} of {} episodes finished; step until all have",
+                    self.sim.recorded,
+                    self.sim.results.len()
+                )));
+            }
+            let results: Vec<EpisodeResult> = self.sim.results.iter().flatten().cloned().collect();
+            report_json(self.sim.split, agent, &results)
+        })
     }
 }
 
@@ -837,8 +1064,9 @@ fn report_json(split: Split, agent: &str, results: &[EpisodeResult]) -> PyResult
 /// Evaluates a built-in agent (`"random"`, `"oracle"`), a model file (`path`) or a blob
 /// (`blob` bytes) on the official episodes of `split` with `gman eval`'s code: returns its
 /// JSON report and the per-episode results as JSON.
+/// `map`, when given, must be the model's own map grid (`(0, 0)`: none).
 #[pyfunction]
-#[pyo3(signature = (data, world_seed, split, agent, blob, seed, episodes_per_file, reward, max_steps_living_room, max_steps_other))]
+#[pyo3(signature = (data, world_seed, split, agent, blob, seed, episodes_per_file, reward, max_steps_living_room, max_steps_other, map=None))]
 #[allow(clippy::too_many_arguments)]
 fn host_evaluate(
     py: Python<'_>,
@@ -852,6 +1080,66 @@ fn host_evaluate(
     reward: &str,
     max_steps_living_room: u32,
     max_steps_other: u32,
+    map: Option<(usize, usize)>,
+) -> PyResult<(String, String)> {
+    guard("evaluate", || {
+        host_evaluate_inner(
+            py,
+            data,
+            world_seed,
+            split,
+            agent,
+            blob,
+            seed,
+            episodes_per_file,
+            reward,
+            EpisodeLimits {
+                living_room: max_steps_living_room,
+                other: max_steps_other,
+            },
+            map,
+        )
+    })
+}
+
+/// Refuses a `map` argument that differs from `model`'s map grid, and a model whose grid
+/// `world` cannot serve.
+fn check_model_map(
+    model: &NavModel,
+    map: Option<(usize, usize)>,
+    world: &World,
+    name: &str,
+) -> PyResult<()> {
+    let own = (model.dims.map_rows, model.dims.map_cols);
+    if let Some(m) = map.filter(|&m| m != own) {
+        let grid = |(r, c): (usize, usize)| {
+            if r == 0 {
+                "no map".to_string()
+            } else {
+                format!("a {r} x {c} map")
+            }
+        };
+        return Err(value_err(format!(
+            "map = {m:?} contradicts the model {name}, which takes {} (pass map=None or map={own:?})",
+            grid(own)
+        )));
+    }
+    check_grid_for_world(world, own.0, own.1, &format!("model {name}")).map_err(chain_err)
+}
+
+#[allow(clippy::too_many_arguments)]
+fn host_evaluate_inner(
+    py: Python<'_>,
+    data: Option<String>,
+    world_seed: u64,
+    split: &str,
+    agent: &str,
+    blob: Option<Vec<u8>>,
+    seed: u64,
+    episodes_per_file: Option<usize>,
+    reward: &str,
+    limits: EpisodeLimits,
+    map: Option<(usize, usize)>,
 ) -> PyResult<(String, String)> {
     let split = parse_split(split)?;
     if split == Split::Train {
@@ -863,9 +1151,12 @@ fn host_evaluate(
         return Err(value_err("episodes must be at least 1 (or None for all)"));
     }
     let reward = parse_reward(reward)?;
+    let world = world_of(py, data.as_deref(), world_seed)?;
     let factory: AgentFactory = match (agent, blob) {
         (_, Some(bytes)) => {
-            let m = model_from_blob(&bytes, None).map_err(|e| chain_err(e.context("blob")))?;
+            let m = model_from_blob(&bytes, None)
+                .map_err(|e| chain_err(e.context("policy (blob bytes)")))?;
+            check_model_map(&m, map, world, "blob")?;
             let m = Arc::new(m);
             Box::new(move |_| Box::new(NavAgent::new(m.clone())))
         }
@@ -874,24 +1165,21 @@ fn host_evaluate(
         (path, None) => {
             if !Path::new(path).exists() {
                 return Err(PyFileNotFoundError::new_err(format!(
-                    "agent {path:?}: not \"random\" or \"oracle\", and no such model file"
+                    "policy = {path:?}: not \"random\" or \"oracle\", and no such model file"
                 )));
             }
             let m: NavModel = load_model(Path::new(path), None).map_err(chain_err)?;
+            check_model_map(&m, map, world, path)?;
             let m = Arc::new(m);
             Box::new(move |_| Box::new(NavAgent::new(m.clone())))
         }
     };
-    let world = world_of(py, data.as_deref(), world_seed)?;
     let episodes = world
         .episodes(split, episodes_per_file)
         .map_err(chain_err)?;
     let cfg = EvalConfig {
         reward,
-        limits: EpisodeLimits {
-            living_room: max_steps_living_room,
-            other: max_steps_other,
-        },
+        limits,
         progress: false,
     };
     let results = py.detach(|| evaluate(world, &episodes, |w| factory(w), &cfg));
@@ -927,20 +1215,17 @@ struct PyNavigator {
     method: &'static str,
     efficient: bool,
     attr: usize,
+    ps: usize,
     map_len: usize,
     map_rows: usize,
     map_cols: usize,
 }
 
-#[pymethods]
 impl PyNavigator {
-    /// Parses `blob` and builds the navigator (the blob's method, inner-loop settings and
-    /// adaptation mode, sampled actions: what `gman eval --agent BLOB` runs).
-    #[staticmethod]
+    /// Parses `blob` and builds the navigator ([`PyNavigator::from_blob`]).
     #[allow(clippy::borrowed_box)] // the builder's signature (ouroboros) takes the owner's Box
-    fn from_blob(blob: &Bound<'_, PyBytes>) -> PyResult<PyNavigator> {
-        let model =
-            model_from_blob(blob.as_bytes(), None).map_err(|e| chain_err(e.context("blob")))?;
+    fn build(blob: &[u8]) -> PyResult<PyNavigator> {
+        let model = model_from_blob(blob, None).map_err(|e| chain_err(e.context("blob")))?;
         let efficient = gman_host_sim::model::episode::eval_mode_is_efficient(&model);
         let method = model.method.name();
         let dims = model.dims;
@@ -964,24 +1249,38 @@ impl PyNavigator {
             method,
             efficient,
             attr: dims.attr,
+            ps: dims.ps,
             map_len: dims.map_len(),
             map_rows: dims.map_rows,
             map_cols: dims.map_cols,
         })
     }
+}
+
+#[pymethods]
+impl PyNavigator {
+    /// Parses `blob` and builds the navigator (the blob's method, inner-loop settings and
+    /// adaptation mode, sampled actions: what `gman eval --agent BLOB` runs).
+    #[staticmethod]
+    fn from_blob(blob: &Bound<'_, PyBytes>) -> PyResult<PyNavigator> {
+        guard("Navigator.from_blob", || Self::build(blob.as_bytes()))
+    }
 
     /// Starts an episode: target attribute vector `attr` (float32, 45) and the episode seed.
     fn reset(&mut self, attr: PyReadonlyArray1<'_, f32>, seed: u64) -> PyResult<()> {
         let a = attr.as_slice()?;
-        self.cell
-            .with_nav_mut(|nav| match nav {
-                AnyNav::Full(n) => n.reset(a, seed),
-                AnyNav::Efficient(n) => n.reset(a, seed),
-            })
-            .map_err(core_err)
+        guard("Navigator.reset", || {
+            self.cell
+                .with_nav_mut(|nav| match nav {
+                    AnyNav::Full(n) => n.reset(a, seed),
+                    AnyNav::Efficient(n) => n.reset(a, seed),
+                })
+                .map_err(core_err)
+        })
     }
 
-    /// One control step: returns (action, probabilities, value, adapted).
+    /// One control step: returns (action, probabilities, value, adapted). The binding reads
+    /// its inputs before gman-core's `step_map` runs and writes nothing of the navigator.
     #[pyo3(signature = (obs, map=None, ps=None))]
     fn step<'py>(
         &mut self,
@@ -999,13 +1298,14 @@ impl PyNavigator {
             Some(p) => p.as_slice()?,
             None => &[],
         };
-        let out = self
-            .cell
-            .with_nav_mut(|nav| match nav {
-                AnyNav::Full(n) => n.step_map(o, m, p),
-                AnyNav::Efficient(n) => n.step_map(o, m, p),
-            })
-            .map_err(core_err)?;
+        let out = guard("Navigator.step", || {
+            self.cell
+                .with_nav_mut(|nav| match nav {
+                    AnyNav::Full(n) => n.step_map(o, m, p),
+                    AnyNav::Efficient(n) => n.step_map(o, m, p),
+                })
+                .map_err(core_err)
+        })?;
         Ok((
             out.action.index(),
             PyArray1::from_slice(py, &out.probs),
@@ -1016,12 +1316,20 @@ impl PyNavigator {
 
     /// Runs the inner update on the buffered steps now; True if it ran.
     fn adapt(&mut self) -> PyResult<bool> {
-        self.cell
-            .with_nav_mut(|nav| match nav {
-                AnyNav::Full(n) => n.adapt_now(),
-                AnyNav::Efficient(n) => n.adapt_now(),
-            })
-            .map_err(core_err)
+        guard("Navigator.adapt", || {
+            self.cell
+                .with_nav_mut(|nav| match nav {
+                    AnyNav::Full(n) => n.adapt_now(),
+                    AnyNav::Efficient(n) => n.adapt_now(),
+                })
+                .map_err(core_err)
+        })
+    }
+
+    /// Length of the PS input the model takes (0: none).
+    #[getter]
+    fn ps_dim(&self) -> usize {
+        self.ps
     }
 
     /// Steps buffered for the next inner update.
@@ -1076,5 +1384,14 @@ fn _gman(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("FEATURE_DIM", FEATURE_DIM)?;
     m.add("ATTR_DIM", ATTR_DIM)?;
     m.add("NUM_ACTIONS", NUM_ACTIONS)?;
+    m.add_function(wrap_pyfunction!(check_map, m)?)?;
+    m.add_function(wrap_pyfunction!(_panic_for_tests, m)?)?;
+    m.add("MAX_ENVS", MAX_ENVS)?;
+    m.add("MAX_BATCH_FLOATS", MAX_BATCH_FLOATS)?;
+    m.add("MAX_STEPS", MAX_STEPS)?;
+    m.add("MAX_MAP_SIDE", MAX_GRID_SIDE)?;
+    m.add("MAX_SEED", u64::MAX)?;
+    m.add("MAX_EPISODES", usize::MAX)?;
+    m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     Ok(())
 }

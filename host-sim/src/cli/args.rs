@@ -9,6 +9,7 @@ use clap::builder::{PossibleValue, PossibleValuesParser, TypedValueParser};
 use clap::{Args, ValueEnum};
 use gman_core::spec::Named;
 use gman_core::Dims;
+use gman_host_sim::sim::features::DomainShift;
 use gman_host_sim::sim::{ObjectLayout, World, DEFAULT_WORLD_SEED};
 
 /// Network size preset.
@@ -85,11 +86,23 @@ pub struct WorldArgs {
     /// a resumed run must use the layout it was trained with.
     #[arg(long, value_enum, default_value = "auto")]
     pub object_layout: LayoutArg,
+    /// Domain shift S in [0, 3]: the strength of every scene's style (how differently one
+    /// object looks from scene to scene; host-sim/SIMULATOR.md, "Domain shift"). 1: the
+    /// simulator's default; 0: every object looks the same in every scene. Part of the world: a
+    /// resumed run must use the level it was trained with
+    #[arg(long, value_name = "S", default_value_t = DomainShift::DEFAULT)]
+    pub domain_shift: DomainShift,
 }
 
 impl WorldArgs {
     /// Loads the chosen world.
     pub fn load(&self) -> Result<World> {
+        let mut world = self.load_default_shift()?;
+        world.set_domain_shift(self.domain_shift)?;
+        Ok(world)
+    }
+
+    fn load_default_shift(&self) -> Result<World> {
         match &self.data {
             Some(dir) => {
                 if self.visible_file.contains(['/', '\\']) {

@@ -73,9 +73,28 @@ pub struct EvalArgs {
     /// Step limit in other rooms.
     #[arg(long, default_value_t = 100)]
     pub max_steps_other: u32,
+    /// Write every episode's result here, one JSON object per line (scene, room, kind,
+    /// target, success, path length, whether Done was called, the step the target was first
+    /// visible at, DTS, ...), for analyses the summary does not hold.
+    #[arg(long, value_name = "OUT.jsonl")]
+    pub episodes_out: Option<PathBuf>,
+    /// What the agent is told the target is: `true` (the episode's target) or `other` (a probe:
+    /// another evaluation target of the same room type and kind, while success is judged on
+    /// the true one; an agent that uses its target input loses success rate under it).
+    #[arg(long, value_enum, default_value = "true")]
+    pub target_input: TargetInput,
     /// No progress bar.
     #[arg(long)]
     pub quiet: bool,
+}
+
+/// `gman eval --target-input`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum TargetInput {
+    /// The episode's target.
+    True,
+    /// Another evaluation target of the same room type and kind (a probe).
+    Other,
 }
 
 impl EvalArgs {
@@ -183,10 +202,28 @@ pub fn cmd_eval(a: EvalArgs) -> Result<()> {
             super::args::refuse_output_over_inputs("--json", json, &[("--agent", Path::new(p))])?;
         }
     }
+    if let Some(out) = &a.episodes_out {
+        super::args::refuse_output_over_inputs(
+            "--episodes-out",
+            out,
+            &[("--agent", Path::new(&a.agent))],
+        )?;
+    }
     if !a.seeds.is_empty() {
+        if a.episodes_out.is_some() || a.target_input != TargetInput::True {
+            bail!("--episodes-out and --target-input apply to one model; evaluate each seed on its own");
+        }
         return eval_seeds(a, split);
     }
     let factory = agent_factory(&a.agent, a.seed, &a.overrides())?;
+    let probe = a.target_input == TargetInput::Other;
+    let factory = move |w: usize| -> Box<dyn gman_host_sim::sim::Agent + Send> {
+        if probe {
+            Box::new(gman_host_sim::sim::OtherTargetAgent::new(factory(w)))
+        } else {
+            factory(w)
+        }
+    };
     let t0 = Instant::now();
     let world = a.world.load()?;
     models::check_agent_for_world(&a.agent, &world, &a.overrides())?;
@@ -206,7 +243,24 @@ pub fn cmd_eval(a: EvalArgs) -> Result<()> {
         std::fs::write(path, text + "\n")
             .with_context(|| format!("cannot write {}", path.display()))?;
     }
+    if let Some(path) = &a.episodes_out {
+        write_episodes(path, &results)?;
+    }
     check_failures(&report)
+}
+
+/// Writes every episode's result to `path`, one JSON object per line.
+fn write_episodes(path: &Path, results: &[gman_host_sim::sim::EpisodeResult]) -> Result<()> {
+    use std::io::Write;
+    let file =
+        std::fs::File::create(path).with_context(|| format!("cannot write {}", path.display()))?;
+    let mut w = std::io::BufWriter::new(file);
+    for r in results {
+        serde_json::to_writer(&mut w, r)?;
+        w.write_all(b"\n")?;
+    }
+    w.flush()
+        .with_context(|| format!("cannot write {}", path.display()))
 }
 
 /// Reads the episodes' scenes now (an offline feature file with bad values is an error

@@ -113,9 +113,16 @@ fn ensure_ps(world: &World, given: Option<&Path>, dir: &Path, seed: u64) -> Resu
 /// layout reads (the path may change, the data must not).
 fn world_identity(w: &WorldArgs, world: &World) -> Result<WorldId> {
     Ok(match &w.data {
-        Some(dir) => WorldId::of_data_dir(dir, w.world_seed, &w.visible_file, world.layout)?,
+        Some(dir) => WorldId::of_data_dir(
+            dir,
+            w.world_seed,
+            &w.visible_file,
+            world.layout,
+            world.domain_shift(),
+        )?,
         None => WorldId::Synthetic {
             world_seed: w.world_seed,
+            domain_shift: world.domain_shift(),
         },
     })
 }

@@ -123,6 +123,8 @@ pub struct Env<'w> {
     steps: u32,
     done: bool,
     success: bool,
+    done_called: bool,
+    first_visible: Option<u32>,
     total_reward: f32,
     visited: Vec<u64>,
     visited_count: u32,
@@ -161,6 +163,8 @@ impl<'w> Env<'w> {
             steps: 0,
             done: false,
             success: false,
+            done_called: false,
+            first_visible: None,
             total_reward: 0.0,
             visited: vec![0; words],
             visited_count: 0,
@@ -168,7 +172,15 @@ impl<'w> Env<'w> {
             record: false,
         };
         env.visit(state);
+        env.note_visible();
         env
+    }
+
+    /// Records the step at which the target first became visible.
+    fn note_visible(&mut self) {
+        if self.first_visible.is_none() && self.goal.dist[self.state] == 0 {
+            self.first_visible = Some(self.steps);
+        }
     }
 
     /// Keep the list of visited states (for drawing paths); off by default.
@@ -275,6 +287,7 @@ impl<'w> Env<'w> {
         self.steps += 1;
         let (reward, moved) = if action == Action::Done {
             self.done = true;
+            self.done_called = true;
             self.success = self.observe().is_visible(self.target);
             let sim = if self.reward_kind.has_similarity() && !self.success {
                 self.similarity_now()
@@ -288,6 +301,7 @@ impl<'w> Env<'w> {
             let moved = next != self.state;
             self.state = next;
             self.visit(next);
+            self.note_visible();
             if self.record {
                 self.trajectory.push(self.scene.state(next));
             }
@@ -322,6 +336,8 @@ impl<'w> Env<'w> {
                 0.0
             },
             total_reward: self.total_reward,
+            done_called: self.done_called,
+            target_first_visible: self.first_visible,
         }
     }
 }

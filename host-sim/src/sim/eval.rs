@@ -83,6 +83,57 @@ pub trait Agent {
     }
 }
 
+/// A probe of what an agent does with the target's attributes: runs `inner` on every episode
+/// as if the target were [`other_target`] (another evaluation target of the same room type and
+/// kind: its attributes, name and category are what the agent is given), while success is
+/// still judged on the episode's true target. An agent whose success rate does not drop under
+/// it does not use the target input (`gman eval --target-input other`).
+pub struct OtherTargetAgent {
+    inner: Box<dyn Agent + Send>,
+}
+
+impl OtherTargetAgent {
+    /// Wraps `inner`.
+    pub fn new(inner: Box<dyn Agent + Send>) -> OtherTargetAgent {
+        OtherTargetAgent { inner }
+    }
+}
+
+impl Agent for OtherTargetAgent {
+    fn begin_episode(&mut self, env: &Env<'_>, target: &TargetInfo) {
+        self.inner.begin_episode(env, target)
+    }
+    fn act(&mut self, env: &Env<'_>) -> Action {
+        self.inner.act(env)
+    }
+    fn run_episode(&mut self, env: &mut Env<'_>, spec: &EpisodeSpec) {
+        let mut other = spec.clone();
+        other.target = other_target(env.world(), spec);
+        self.inner.run_episode(env, &other)
+    }
+    fn take_error(&mut self) -> Option<String> {
+        self.inner.take_error()
+    }
+}
+
+/// The next evaluation target after `spec`'s in its room type's list of the same kind (seen
+/// or unseen), wrapping around; the room's targets of the other kind when the list has one
+/// category only; the target itself when the room has no other target at all.
+pub fn other_target(world: &World, spec: &EpisodeSpec) -> CategoryId {
+    let (seen, unseen) = &world.eval_targets[spec.room.index()];
+    let (same, rest) = match spec.kind {
+        TargetKind::Seen => (seen, unseen),
+        TargetKind::Unseen => (unseen, seen),
+    };
+    let pick = |list: &Vec<CategoryId>| {
+        let i = list.iter().position(|&c| c == spec.target)?;
+        (list.len() > 1).then(|| list[(i + 1) % list.len()])
+    };
+    pick(same)
+        .or_else(|| rest.first().copied().filter(|&c| c != spec.target))
+        .unwrap_or(spec.target)
+}
+
 /// A factory of agents, called once per evaluation worker with the worker index.
 pub type AgentFactory = Box<dyn Fn(usize) -> Box<dyn Agent + Send> + Sync>;
 
@@ -380,6 +431,8 @@ mod tests {
                 epa: 10.0,
                 dts: 0.0,
                 total_reward: 0.0,
+                done_called: true,
+                target_first_visible: Some(2),
             },
             error: None,
         };

@@ -32,6 +32,7 @@
 
 use gman_core::{ATTR_DIM, FEATURE_DIM};
 use rand::{Rng, SeedableRng};
+use serde::{Deserialize, Serialize};
 use rand_chacha::ChaCha8Rng;
 
 use super::types::{Category, NUM_HEADINGS};
@@ -51,6 +52,92 @@ pub const STYLE_TRANSFORM: f32 = 2.0;
 pub const STYLE_HIDDEN_SHIFT: f32 = 0.3;
 /// Std of a scene's per-dimension logit shift.
 pub const STYLE_LOGIT_SHIFT: f32 = 0.3;
+
+/// The strength S of the scene style (`--domain-shift`, `host-sim/SIMULATOR.md`): S multiplies
+/// every per-scene deviation of the style from the identity (the hidden-code transform and
+/// shift, the logit shift, the contrast's and gains' logarithms, the offsets, the lighting's
+/// distance from 1), drawn from the same seeds at every S. 1 is the simulator's default and
+/// bit for bit what it was before the knob existed; 0 makes every object look the same in
+/// every scene.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(try_from = "f32", into = "f32")]
+pub struct DomainShift(f32);
+
+impl DomainShift {
+    /// The largest S: at 3 the lighting factor spans U(0.1, 1.9); beyond it, it would turn
+    /// negative.
+    pub const MAX: f32 = 3.0;
+    /// S = 1, the default.
+    pub const DEFAULT: DomainShift = DomainShift(1.0);
+
+    /// S, refused unless finite and in [0, [`DomainShift::MAX`]].
+    pub fn new(s: f32) -> Result<DomainShift, String> {
+        if s.is_finite() && (0.0..=Self::MAX).contains(&s) {
+            // -0.0 and 0.0 are one level
+            Ok(DomainShift(s + 0.0))
+        } else {
+            Err(format!(
+                "the domain shift must be a number in [0, {}] (1: the default), got {s}",
+                Self::MAX
+            ))
+        }
+    }
+
+    /// The value of S.
+    pub fn get(self) -> f32 {
+        self.0
+    }
+
+    /// Whether S is the default 1.
+    pub fn is_default(&self) -> bool {
+        *self == Self::DEFAULT
+    }
+
+    /// `x · S`, exact at S = 1.
+    #[inline]
+    fn scale(self, x: f32) -> f32 {
+        x * self.0
+    }
+}
+
+// Every value `new` accepts is finite, so equality is an equivalence.
+impl Eq for DomainShift {}
+
+impl Default for DomainShift {
+    fn default() -> Self {
+        Self::DEFAULT
+    }
+}
+
+impl TryFrom<f32> for DomainShift {
+    type Error = String;
+    fn try_from(s: f32) -> Result<Self, String> {
+        DomainShift::new(s)
+    }
+}
+
+impl From<DomainShift> for f32 {
+    fn from(s: DomainShift) -> f32 {
+        s.0
+    }
+}
+
+impl std::fmt::Display for DomainShift {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}", self.0)
+    }
+}
+
+impl std::str::FromStr for DomainShift {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        let v: f32 = s
+            .trim()
+            .parse()
+            .map_err(|_| format!("the domain shift must be a number, got {s:?}"))?;
+        DomainShift::new(v)
+    }
+}
 
 fn normal(rng: &mut ChaCha8Rng) -> f32 {
     let u1: f32 = rng.random_range(1e-7f32..1.0);
@@ -166,26 +253,41 @@ pub struct SceneStyle {
 }
 
 impl SceneStyle {
-    /// Style and styled background of the scene with seed `scene_seed`.
+    /// Style and styled background of the scene with seed `scene_seed`, at the default
+    /// domain shift.
     pub fn new(model: &FeatureModel, scene_seed: u64) -> SceneStyle {
+        Self::with_shift(model, scene_seed, DomainShift::DEFAULT)
+    }
+
+    /// Style and styled background of the scene with seed `scene_seed`, every deviation from
+    /// the identity scaled by `shift` (the same draws at every level).
+    pub fn with_shift(model: &FeatureModel, scene_seed: u64, shift: DomainShift) -> SceneStyle {
         let mut rng = ChaCha8Rng::seed_from_u64(mix64(scene_seed ^ 0x57E1));
         let tscale = STYLE_TRANSFORM / (HIDDEN as f32).sqrt();
         let transform = (0..HIDDEN * HIDDEN)
-            .map(|_| tscale * normal(&mut rng))
+            .map(|_| shift.scale(tscale * normal(&mut rng)))
             .collect();
         let mut hidden_shift = [0f32; HIDDEN];
         hidden_shift
             .iter_mut()
-            .for_each(|v| *v = STYLE_HIDDEN_SHIFT * normal(&mut rng));
+            .for_each(|v| *v = shift.scale(STYLE_HIDDEN_SHIFT * normal(&mut rng)));
         let logit_shift = (0..FEATURE_DIM)
-            .map(|_| STYLE_LOGIT_SHIFT * normal(&mut rng))
+            .map(|_| shift.scale(STYLE_LOGIT_SHIFT * normal(&mut rng)))
             .collect();
-        let contrast = (0.15 * normal(&mut rng)).exp();
+        let contrast = shift.scale(0.15 * normal(&mut rng)).exp();
         let gain = (0..FEATURE_DIM)
-            .map(|_| (0.25 * normal(&mut rng)).exp())
+            .map(|_| shift.scale(0.25 * normal(&mut rng)).exp())
             .collect();
-        let offset = (0..FEATURE_DIM).map(|_| 0.05 * normal(&mut rng)).collect();
+        let offset = (0..FEATURE_DIM)
+            .map(|_| shift.scale(0.05 * normal(&mut rng)))
+            .collect();
         let light = rng.random_range(0.7f32..1.3);
+        // 1 + S (l - 1), and l itself at S = 1 (bit for bit)
+        let light = if shift.is_default() {
+            light
+        } else {
+            1.0 + shift.scale(light - 1.0)
+        };
         let mut style = SceneStyle {
             transform,
             hidden_shift,

@@ -31,6 +31,13 @@ pub struct EpisodeMetrics {
     pub dts: f32,
     /// Sum of rewards.
     pub total_reward: f32,
+    /// The episode ended with Done (successful or not), not at the step limit.
+    #[serde(default)]
+    pub done_called: bool,
+    /// The step after which the target was first visible (0: from the start), `None` if it
+    /// never was.
+    #[serde(default)]
+    pub target_first_visible: Option<u32>,
 }
 
 /// SPL of one episode.
@@ -185,6 +192,8 @@ mod tests {
             epa: 10.0,
             dts: 0.0,
             total_reward: 0.0,
+            done_called: true,
+            target_first_visible: Some(1),
         };
         let b = EpisodeMetrics {
             success: false,

@@ -40,7 +40,10 @@ pub mod util;
 pub mod world;
 
 pub use env::{Env, EpisodeLimits, OracleView, StepOutcome};
-pub use eval::{evaluate, Agent, EvalConfig, EvalReport, OracleAgent, RandomAgent, TargetInfo};
+pub use eval::{
+    evaluate, Agent, EvalConfig, EvalReport, OracleAgent, OtherTargetAgent, RandomAgent,
+    TargetInfo,
+};
 pub use metrics::{mean_interval, wilson_interval, EpisodeMetrics, EpisodeResult, Summary};
 pub use reward::RewardKind;
 pub use tables::{InView, Observation};

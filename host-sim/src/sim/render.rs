@@ -145,6 +145,48 @@ pub fn draw_scene(
     Ok(())
 }
 
+/// [`draw_scene`] into memory instead of a PNG file (a video frame): returns the RGB pixels
+/// (row-major, 3 bytes a pixel) with the picture's width and height, which depend on the
+/// scene only. A black tick from the end marker shows the last state's heading (the
+/// direction the agent faces now).
+pub fn draw_scene_rgb(
+    world: &World,
+    scene: SceneId,
+    goal: Option<CategoryId>,
+    path: &[AgentState],
+    title: Option<&str>,
+) -> Result<(Vec<u8>, u32, u32)> {
+    static LABELS: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+    let labels = *LABELS.get_or_init(register_plot_font);
+    let sc = &world.scenes[scene];
+    let (frame, w, h) = Frame::of(sc, |c| world.categories[c as usize].props.radius);
+    let mut buf = vec![0u8; w as usize * h as usize * 3];
+    let err = |e: &dyn std::fmt::Display| anyhow!("drawing scene {}: {e}", sc.name);
+    {
+        let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
+        root.fill(&WHITE).map_err(|e| err(&e))?;
+        let name = title.unwrap_or(sc.name.as_str());
+        let legend = Legend::of(sc, goal, path);
+        draw_header(&root, w, name, &legend, labels).map_err(|e| err(&e))?;
+        draw_lattice(&root, &frame).map_err(|e| err(&e))?;
+        draw_cells(&root, sc, &frame).map_err(|e| err(&e))?;
+        draw_objects(&root, world, sc, goal, &frame).map_err(|e| err(&e))?;
+        draw_path(&root, path, &frame).map_err(|e| err(&e))?;
+        if let Some(s) = path.last() {
+            let (x, z) = (s.x as f32 * GRID, s.z as f32 * GRID);
+            let (dx, dz) = heading_dir(s.heading);
+            let tick = vec![
+                frame.px(x, z),
+                frame.px(x + dx * GRID * 1.2, z + dz * GRID * 1.2),
+            ];
+            root.draw(&PathElement::new(tick, BLACK.stroke_width(3)))
+                .map_err(|e| err(&e))?;
+        }
+        root.present().map_err(|e| err(&e))?;
+    }
+    Ok((buf, w, h))
+}
+
 /// What the picture shows, so that the legend lists only that.
 struct Legend {
     swatches: Vec<(RGBColor, &'static str)>,

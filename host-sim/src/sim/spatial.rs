@@ -187,6 +187,28 @@ pub fn view_map(world: &World, scene: SceneId, state: usize, grid: MapGrid, out:
 /// Side of the reference's ResNet18 feature map (7 x 7 cells).
 pub const RESNET_SIDE: usize = 7;
 
+/// Most rows (and most columns) of a model's map grid, the bound of `gman train --map`.
+pub const MAX_GRID_SIDE: usize = 16;
+
+/// Refuses a `rows x cols` map grid no model takes: gman-core's rule for a map's dims
+/// ([`gman_core::Dims::degenerate_field`]: rows and columns both non-zero) and at most
+/// [`MAX_GRID_SIDE`] rows and columns. `what` names the argument in the error.
+pub fn check_grid(rows: usize, cols: usize, what: &str) -> anyhow::Result<()> {
+    if rows == 0 || cols == 0 {
+        let d = gman_core::Dims::MCU.with_map(rows, cols, usize::from(rows.max(cols) > 0));
+        let field = d.degenerate_field().unwrap_or("map_rows");
+        anyhow::bail!(
+            "{what}: a {rows}x{cols} map grid ({field} is 0): a map grid has at least one row and one column"
+        );
+    }
+    if rows > MAX_GRID_SIDE || cols > MAX_GRID_SIDE {
+        anyhow::bail!(
+            "{what}: a {rows}x{cols} map grid, but a map grid has at most {MAX_GRID_SIDE} rows and {MAX_GRID_SIDE} columns"
+        );
+    }
+    Ok(())
+}
+
 /// Refuses a model's `rows x cols` map grid that `world` cannot serve: offline data stores
 /// 7 x 7 feature maps, so a grid there has at most 7 rows and 7 columns (the simulator's
 /// own worlds render any grid). `what` names the model or flag in the error.

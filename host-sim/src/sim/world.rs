@@ -11,7 +11,7 @@ use rand::Rng;
 
 use super::catalog::props_of;
 use super::data;
-use super::features::{FeatureModel, SceneStyle};
+use super::features::{DomainShift, FeatureModel, SceneStyle};
 use super::offline::{self, OfflineScene};
 use super::scene::{thor5_category_name, Scene, SceneSource, Thor5Object};
 use super::tables::{GoalTable, Observation, SceneTables, UNREACHABLE};
@@ -107,6 +107,7 @@ pub struct World {
     split_scenes: BTreeMap<Split, Vec<SceneId>>,
     scene_by_name: HashMap<String, SceneId>,
     model: FeatureModel,
+    domain_shift: DomainShift,
     styles: Vec<SceneStyle>,
     tables: Vec<OnceLock<SceneTables>>,
     goals: Vec<Vec<OnceLock<GoalTable>>>,
@@ -495,6 +496,7 @@ impl World {
             split_scenes,
             scene_by_name,
             model,
+            domain_shift: DomainShift::DEFAULT,
             styles,
             tables: (0..n).map(|_| OnceLock::new()).collect(),
             goals: (0..n)
@@ -503,6 +505,37 @@ impl World {
             generated_episodes,
             offline: (0..n).map(|_| None).collect(),
         }
+    }
+
+    /// The strength of the scene style (`--domain-shift`, [`DomainShift`]).
+    pub fn domain_shift(&self) -> DomainShift {
+        self.domain_shift
+    }
+
+    /// Rebuilds every scene's style at domain shift `shift` (and drops the feature tables
+    /// built so far). The AI2THOR offline data's real features have no synthetic style: any
+    /// level but the default is refused there.
+    pub fn set_domain_shift(&mut self, shift: DomainShift) -> Result<()> {
+        if shift == self.domain_shift {
+            return Ok(());
+        }
+        if matches!(self.source, WorldSource::Offline(_)) {
+            bail!(
+                "--domain-shift {shift}: the AI2THOR offline data carries real ResNet features, which have no synthetic scene style to scale (only the default 1 applies)"
+            );
+        }
+        self.styles = self
+            .scenes
+            .iter()
+            .map(|s| SceneStyle::with_shift(&self.model, s.seed, shift))
+            .collect();
+        self.tables = (0..self.scenes.len()).map(|_| OnceLock::new()).collect();
+        let nc = self.categories.len();
+        self.goals = (0..self.scenes.len())
+            .map(|_| (0..nc).map(|_| OnceLock::new()).collect())
+            .collect();
+        self.domain_shift = shift;
+        Ok(())
     }
 
     pub(crate) fn set_generated_episodes(&mut self, split: Split, episodes: Vec<EpisodeSpec>) {

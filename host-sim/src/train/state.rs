@@ -21,6 +21,7 @@ use super::a3c::{A3cConfig, Objective};
 use crate::model::{Method, NavModel};
 use crate::optim::adam::{Adam, AdamConfig};
 use crate::optim::checkpoint::Checkpoint;
+use crate::sim::features::DomainShift;
 use crate::sim::{ObjectLayout, RewardKind};
 
 /// Version of the `trainer` object written by this build (see the module docs).
@@ -114,6 +115,9 @@ pub enum WorldId {
     Synthetic {
         /// `--world-seed`.
         world_seed: u64,
+        /// `--domain-shift` (absent: the default 1, the only level of older builds).
+        #[serde(default, skip_serializing_if = "DomainShift::is_default")]
+        domain_shift: DomainShift,
     },
     /// A data directory.
     Data {
@@ -139,6 +143,9 @@ pub enum WorldId {
         /// existed, which were all `rule`).
         #[serde(default, skip_serializing_if = "is_rule")]
         object_layout: ObjectLayout,
+        /// `--domain-shift` (absent: the default 1, the only level of older builds).
+        #[serde(default, skip_serializing_if = "DomainShift::is_default")]
+        domain_shift: DomainShift,
     },
 }
 
@@ -162,6 +169,7 @@ impl WorldId {
         world_seed: u64,
         visible_file: &str,
         layout: ObjectLayout,
+        domain_shift: DomainShift,
     ) -> Result<WorldId> {
         let f = crate::sim::fingerprint::of_dir(dir, visible_file, layout)?;
         Ok(WorldId::Data {
@@ -172,7 +180,17 @@ impl WorldId {
             files: Some(f.files),
             rule1: Some(f.rule1),
             object_layout: layout,
+            domain_shift,
         })
+    }
+
+    /// The domain shift the world was built with.
+    pub fn domain_shift(&self) -> DomainShift {
+        match self {
+            WorldId::Synthetic { domain_shift, .. } | WorldId::Data { domain_shift, .. } => {
+                *domain_shift
+            }
+        }
     }
 
     /// Refuses to resume a run trained on `self` on `now`, in words a user can act on: which
@@ -187,6 +205,12 @@ impl WorldId {
                 now.describe()
             )
         };
+        let (sa, sb) = (self.domain_shift(), now.domain_shift());
+        if sa != sb {
+            bail!(
+                "the run was trained at domain shift {sa}, but this resume selects {sb}; resume with --domain-shift {sa}"
+            );
+        }
         if let (
             WorldId::Data {
                 object_layout: a, ..
@@ -203,8 +227,10 @@ impl WorldId {
             }
         }
         match (self, now) {
-            (WorldId::Synthetic { world_seed: a }, WorldId::Synthetic { world_seed: b })
-                if a == b =>
+            (
+                WorldId::Synthetic { world_seed: a, .. },
+                WorldId::Synthetic { world_seed: b, .. },
+            ) if a == b =>
             {
                 Ok(None)
             }
@@ -274,7 +300,7 @@ impl WorldId {
             } => format!(
                 "the data directory {path} (content fingerprint {fingerprint}) with --world-seed {world_seed} and --object-layout {object_layout}"
             ),
-            WorldId::Synthetic { world_seed } => {
+            WorldId::Synthetic { world_seed, .. } => {
                 format!("the synthetic world (no --data) with --world-seed {world_seed}")
             }
         }
