@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The claim on the 3x3 map (docs/results.md): GMAN (Efficient mode,
+# The claim on the 3x3 map (docs/results-earlier.md): GMAN (Efficient mode,
 # α = 1e-2) against its controls — gman-noemd (θ trained by the outer loop, no inner loop),
 # A3C+FG and A3C — over SEEDS at UPDATES each, all 8000 val episodes per run, GMAN also with
 # adaptation off at test time; then the table with Welch's t against GMAN. Re-running skips

@@ -245,7 +245,15 @@ pub fn cmd_demo(a: DemoArgs) -> Result<()> {
     let t0 = Instant::now();
     let world = a.world.load()?;
     std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
-    let fg_path = ensure_fg(&world, PresetArg::Mcu, None, &a.out.join("fg"), true, 1)?;
+    let fg_path = ensure_fg(
+        &world,
+        PresetArg::Mcu,
+        None,
+        &a.out.join("fg"),
+        true,
+        1,
+        true,
+    )?;
     let gen = fg::load_generator(&fg_path, &gman_core::Dims::MCU)?;
     let split = gman_host_sim::sim::Split::Val;
     let episodes = world.episodes(split, a.episodes)?;

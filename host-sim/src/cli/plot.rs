@@ -345,6 +345,20 @@ fn panels(curves: &[Curve]) -> Vec<Panel> {
     }
 }
 
+/// The step axis' unit for a run of `xmax` steps: thousands below 2 M steps (a demo's 94 k
+/// steps read 0, 10, 20, ... k), else millions with one decimal; every tick then differs.
+fn step_axis(xmax: f64) -> (&'static str, fn(f64) -> String) {
+    if xmax < 2e6 {
+        ("environment steps (thousands)", |x| {
+            format!("{:.0}k", x / 1e3)
+        })
+    } else {
+        ("environment steps (millions)", |x| {
+            format!("{:.1}M", x / 1e6)
+        })
+    }
+}
+
 /// Draws one panel with every curve in it.
 fn draw_panel<DB: plotters::prelude::DrawingBackend>(
     area: &plotters::prelude::DrawingArea<DB, plotters::coord::Shift>,
@@ -380,9 +394,11 @@ where
     let mut chart = b.build_cartesian_2d(0.0..xmax, range.0..range.1)?;
     let mut mesh = chart.configure_mesh();
     mesh.x_labels(8).y_labels(6);
+    let (x_desc, x_fmt) = step_axis(xmax);
+    let x_fmt = |x: &f64| x_fmt(*x);
     if labels {
-        mesh.x_desc("environment steps (millions)")
-            .x_label_formatter(&|x| format!("{:.1}", x / 1e6))
+        mesh.x_desc(x_desc)
+            .x_label_formatter(&x_fmt)
             .label_style(("sans-serif", 14));
     } else {
         mesh.disable_x_axis().disable_y_axis();
@@ -468,6 +484,22 @@ pub fn cmd_plot(a: PlotArgs) -> Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn step_axis_labels_of_a_short_run_are_distinct_thousands() {
+        let (desc, f) = super::step_axis(93_988.0);
+        assert_eq!(desc, "environment steps (thousands)");
+        let ticks: Vec<String> = (0..10).map(|i| f(i as f64 * 10_000.0)).collect();
+        assert_eq!(ticks[..3], ["0k", "10k", "20k"]);
+        let mut dedup = ticks.clone();
+        dedup.dedup();
+        assert_eq!(dedup, ticks);
+        let (desc, f) = super::step_axis(8.77e6);
+        assert_eq!(
+            (desc, f(2.5e6).as_str()),
+            ("environment steps (millions)", "2.5M")
+        );
+    }
 
     #[test]
     fn method_of_strips_only_a_seed_suffix() {

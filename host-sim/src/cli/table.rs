@@ -361,6 +361,36 @@ mod tests {
         assert!(super::paired_t(&[2.0, 3.0], &[1.0, 2.0]).is_nan());
     }
 
+    /// The values `gman eval --json` writes read back exactly: a3c's five unseen SRs of the
+    /// reference-budget sweep average to 11.935000000000000497..., which prints 11.94 (a
+    /// reader off by one unit in the last place printed 11.93, and the table disagreed with
+    /// its JSON files).
+    #[test]
+    fn eval_json_numbers_read_back_exactly() {
+        let dir = std::env::temp_dir().join(format!("gman-table-exact-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        for (i, sr) in [
+            "10.225000000000001",
+            "13.475000000000001",
+            "12.600000000000001",
+            "10.600000000000001",
+            "12.775",
+        ]
+        .iter()
+        .enumerate()
+        {
+            let row =
+                format!(r#"{{"episodes": 4000, "sr": {sr}, "spl": 1.0, "epa": 1.0, "dts": 1.0}}"#);
+            let text =
+                format!(r#"{{"split": "val", "results": {{"unseen": {row}, "seen": {row}}}}}"#);
+            std::fs::write(dir.join(format!("s{}.json", i + 1)), text).unwrap();
+        }
+        let row = super::load_row(&dir).unwrap();
+        std::fs::remove_dir_all(&dir).unwrap();
+        assert_eq!(row.vals[0][0], 10.225000000000001);
+        assert_eq!(super::cells(&row)[0].trim(), "11.94±1.43");
+    }
+
     #[test]
     fn welch_t_matches_a_hand_computation() {
         // means 2 and 5, variances 1 and 4, n = 3 each: t = -3 / sqrt(1/3 + 4/3).

@@ -35,7 +35,8 @@ pub(super) fn preset_matches(model: &NavModel, preset: PresetArg) -> Result<()> 
     Ok(())
 }
 
-/// Pre-trains G into `dir` unless `given` names a checkpoint; returns its path.
+/// Pre-trains G into `dir` unless `given` names a checkpoint; returns its path. The report
+/// goes to stderr as the table of `gman pretrain-fg`, or with `plain` in plain words (`gman demo`).
 pub(super) fn ensure_fg(
     world: &World,
     preset: PresetArg,
@@ -43,6 +44,7 @@ pub(super) fn ensure_fg(
     dir: &Path,
     tiny: bool,
     seed: u64,
+    plain: bool,
 ) -> Result<PathBuf> {
     if let Some(p) = given {
         return Ok(p.to_path_buf());
@@ -71,7 +73,11 @@ pub(super) fn ensure_fg(
         ..FgCollectConfig::default()
     };
     let r = fg::run_pretrain_fg(world, preset.name(), &preset.dims(), &collect, &cfg, dir)?;
-    eprint!("{}", fg::report_table(&r));
+    if plain {
+        eprint!("{}", fg::report_plain(&r));
+    } else {
+        eprint!("{}", fg::report_table(&r));
+    }
     Ok(path)
 }
 
@@ -313,6 +319,7 @@ fn new_run(a: &TrainArgs, world: &World, out: &Path, world_id: WorldId) -> Resul
             &out.join("fg"),
             tiny,
             a.seed,
+            false,
         )?;
         Some(
             fg::load_generator(&p, &a.preset.dims())

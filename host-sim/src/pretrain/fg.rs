@@ -918,6 +918,40 @@ pub fn load_fg_state(path: &Path, dims: &Dims) -> Result<FgState> {
     })
 }
 
+/// The report in plain words, for a first screen (`gman demo`): how often a view's nearest
+/// generated feature is its own category's, before and after pre-training, against chance.
+pub fn report_plain(r: &FgReport) -> String {
+    let line = |what: &str, after: &GroupEval, before: &GroupEval| {
+        format!(
+            "  {what}: {:.1}% (chance {:.1}%, before pre-training {:.1}%)\n",
+            100.0 * after.nearest_acc,
+            100.0 * after.chance,
+            100.0 * before.nearest_acc
+        )
+    };
+    let mut s = format!(
+        "pre-trained G, the feature generator: from a category's attribute vector it imagines \
+         what that category looks like to the camera ({} steps on {} views of {} seen \
+         categories).\nHow often the category whose imagined feature is closest to a camera view \
+         is the view's own:\n",
+        r.train.iters,
+        r.dataset.train_views,
+        r.dataset.seen_categories.len()
+    );
+    s.push_str(&line(
+        "views of seen categories it did not train on",
+        &r.after.seen_heldout,
+        &r.before.seen_heldout,
+    ));
+    s.push_str(&line(
+        "views of unseen categories (never in training)",
+        &r.after.unseen_val,
+        &r.before.unseen_val,
+    ));
+    s.push_str("(every measure, per group: `gman pretrain-fg`)\n");
+    s
+}
+
 /// The report as a text table.
 pub fn report_table(r: &FgReport) -> String {
     let mut s = String::new();

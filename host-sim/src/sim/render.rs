@@ -2,12 +2,15 @@
 //! title, the legend and a 1 m scale bar; the text needs a system font
 //! ([`register_plot_font`]), the scale bar and the colour swatches do not.
 //!
-//! Legend: light grey squares are reachable cells from the data, light blue squares cells added
-//! by gap filling; tinted rectangles are objects with an AI2-THOR 5.0 box (the `thor5` layout,
-//! the box seen from above), filled discs other objects with known positions, rings objects
-//! placed by the seeded rule (colour per category, disc size from the footprint radius); goal
-//! instances have a thick black outline. A path is drawn in red from a green start marker (with a heading tick)
-//! to a blue end marker. +x points right, +z up.
+//! The map: a faint 0.25 m lattice over the whole floor the picture covers (the reachable
+//! cells, the objects and their footprints), light grey squares the reachable cells from the
+//! data, light blue squares cells added by gap filling; tinted rectangles are objects with an
+//! AI2-THOR 5.0 box (the `thor5` layout, the box seen from above), filled discs other objects
+//! with known positions, rings objects placed by the seeded rule (colour per category, disc
+//! size from the footprint radius); goal instances have a thick black outline. A path is drawn
+//! in red from a green start marker to a blue end marker, with a dark tick at every step
+//! pointing where the agent faces (a turn in place adds a tick at the same cell, so every
+//! action shows). The legend lists only what the picture shows. +x points right, +z up.
 
 use std::path::Path;
 
@@ -21,9 +24,13 @@ use super::world::World;
 use super::SceneId;
 
 const CELL_PX: f32 = 28.0;
-const MARGIN_M: f32 = 0.6;
+const MARGIN_M: f32 = 0.3;
 /// Height of the band above the map (title, legend, scale bar), pixels.
-const HEADER_PX: i32 = 78;
+const HEADER_PX: i32 = 110;
+/// The picture is at least this wide, so that the legend fits.
+const MIN_WIDTH_PX: f32 = 620.0;
+/// Smallest drawn disc or ring radius, metres (4 px).
+const MIN_RING_M: f32 = 4.0 / (CELL_PX / GRID);
 
 fn category_color(name: &str) -> RGBColor {
     let h = hash_str(7, name);
@@ -42,11 +49,14 @@ struct Frame {
     z1: f32,
     /// Pixels per metre.
     scale: f32,
+    /// The floor the lattice covers: (min x, min z, max x, max z), metres, on cell edges.
+    floor: [f32; 4],
 }
 
 impl Frame {
-    /// The frame of `sc`'s cells and objects with a margin, and the picture's size.
-    fn of(sc: &super::scene::Scene) -> (Frame, u32, u32) {
+    /// The frame of `sc`'s cells and objects (with their footprints, `radius` of a category)
+    /// with a margin, and the picture's size.
+    fn of(sc: &super::scene::Scene, radius: impl Fn(CategoryId) -> f32) -> (Frame, u32, u32) {
         let mut min = (f32::INFINITY, f32::INFINITY);
         let mut max = (f32::NEG_INFINITY, f32::NEG_INFINITY);
         let mut extend = |x: f32, z: f32| {
@@ -54,21 +64,46 @@ impl Frame {
             max = (max.0.max(x), max.1.max(z));
         };
         for &(x, z) in &sc.positions {
-            extend(x as f32 * GRID, z as f32 * GRID);
+            let (cx, cz) = (x as f32 * GRID, z as f32 * GRID);
+            extend(cx - GRID * 0.5, cz - GRID * 0.5);
+            extend(cx + GRID * 0.5, cz + GRID * 0.5);
         }
         for o in &sc.objects {
-            extend(o.pos[0], o.pos[2]);
             if let Some(b) = o.aabb {
                 extend(b.center[0] - b.size[0] * 0.5, b.center[2] - b.size[2] * 0.5);
                 extend(b.center[0] + b.size[0] * 0.5, b.center[2] + b.size[2] * 0.5);
+            } else {
+                let r = radius(o.category).max(MIN_RING_M);
+                extend(o.pos[0] - r, o.pos[2] - r);
+                extend(o.pos[0] + r, o.pos[2] + r);
             }
         }
-        let (x0, z0) = (min.0 - MARGIN_M, min.1 - MARGIN_M);
-        let (x1, z1) = (max.0 + MARGIN_M, max.1 + MARGIN_M);
+        // The floor on cell edges (cells are centred on multiples of GRID).
+        let edge = |v: f32, up: bool| {
+            let k = (v / GRID - 0.5) + if up { 0.999 } else { 0.0 };
+            (k.floor() + 0.5) * GRID
+        };
+        let floor = [
+            edge(min.0, false),
+            edge(min.1, false),
+            edge(max.0, true),
+            edge(max.1, true),
+        ];
+        let (x0, z0) = (floor[0] - MARGIN_M, floor[1] - MARGIN_M);
+        let (x1, z1) = (floor[2] + MARGIN_M, floor[3] + MARGIN_M);
         let scale = CELL_PX / GRID;
-        let w = ((x1 - x0) * scale).ceil().max(560.0) as u32;
+        let w = ((x1 - x0) * scale).ceil().max(MIN_WIDTH_PX) as u32;
         let h = ((z1 - z0) * scale).ceil().max(1.0) as u32 + HEADER_PX as u32;
-        (Frame { x0, z1, scale }, w, h)
+        (
+            Frame {
+                x0,
+                z1,
+                scale,
+                floor,
+            },
+            w,
+            h,
+        )
     }
 
     /// The pixel of the point (x, z) metres.
@@ -94,13 +129,15 @@ pub fn draw_scene(
     title: Option<&str>,
 ) -> Result<()> {
     let sc = &world.scenes[scene];
-    let (frame, w, h) = Frame::of(sc);
+    let (frame, w, h) = Frame::of(sc, |c| world.categories[c as usize].props.radius);
     let err = |e: &dyn std::fmt::Display| anyhow!("drawing {}: {e}", png.display());
     let labels = register_plot_font();
     let root = BitMapBackend::new(png, (w, h)).into_drawing_area();
     root.fill(&WHITE).map_err(|e| err(&e))?;
     let name = title.unwrap_or(sc.name.as_str());
-    draw_header(&root, w, name, labels).map_err(|e| err(&e))?;
+    let legend = Legend::of(sc, goal, path);
+    draw_header(&root, w, name, &legend, labels).map_err(|e| err(&e))?;
+    draw_lattice(&root, &frame).map_err(|e| err(&e))?;
     draw_cells(&root, sc, &frame).map_err(|e| err(&e))?;
     draw_objects(&root, world, sc, goal, &frame).map_err(|e| err(&e))?;
     draw_path(&root, path, &frame).map_err(|e| err(&e))?;
@@ -122,14 +159,16 @@ pub fn draw_scene_rgb(
     static LABELS: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
     let labels = *LABELS.get_or_init(register_plot_font);
     let sc = &world.scenes[scene];
-    let (frame, w, h) = Frame::of(sc);
+    let (frame, w, h) = Frame::of(sc, |c| world.categories[c as usize].props.radius);
     let mut buf = vec![0u8; w as usize * h as usize * 3];
     let err = |e: &dyn std::fmt::Display| anyhow!("drawing scene {}: {e}", sc.name);
     {
         let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
         root.fill(&WHITE).map_err(|e| err(&e))?;
         let name = title.unwrap_or(sc.name.as_str());
-        draw_header(&root, w, name, labels).map_err(|e| err(&e))?;
+        let legend = Legend::of(sc, goal, path);
+        draw_header(&root, w, name, &legend, labels).map_err(|e| err(&e))?;
+        draw_lattice(&root, &frame).map_err(|e| err(&e))?;
         draw_cells(&root, sc, &frame).map_err(|e| err(&e))?;
         draw_objects(&root, world, sc, goal, &frame).map_err(|e| err(&e))?;
         draw_path(&root, path, &frame).map_err(|e| err(&e))?;
@@ -148,12 +187,83 @@ pub fn draw_scene_rgb(
     Ok((buf, w, h))
 }
 
+/// What the picture shows, so that the legend lists only that.
+struct Legend {
+    swatches: Vec<(RGBColor, &'static str)>,
+    /// What the path's steps did, in words (empty without a path).
+    steps: String,
+    /// The object kinds drawn: "rectangle = AI2-THOR 5.0 box" and the like.
+    objects: Vec<&'static str>,
+}
+
+impl Legend {
+    fn of(sc: &super::scene::Scene, goal: Option<CategoryId>, path: &[AgentState]) -> Legend {
+        let mut swatches = vec![(RGBColor(215, 215, 215), "reachable")];
+        if sc.filled.iter().any(|&f| f) {
+            swatches.push((RGBColor(170, 205, 240), "gap-filled"));
+        }
+        if !path.is_empty() {
+            swatches.push((GREEN, "start"));
+            swatches.push((RED, "path"));
+            swatches.push((TICK, "facing, per step"));
+            swatches.push((BLUE, "end"));
+        }
+        if goal.is_some_and(|g| sc.objects.iter().any(|o| o.category == g)) {
+            swatches.push((BLACK, "goal (outlined)"));
+        }
+        let mut objects = Vec::new();
+        if sc.objects.iter().any(|o| o.aabb.is_some()) {
+            objects.push("rectangle = AI2-THOR 5.0 box");
+        }
+        if sc.objects.iter().any(|o| o.aabb.is_none() && o.known) {
+            objects.push("disc = known position");
+        }
+        if sc.objects.iter().any(|o| o.aabb.is_none() && !o.known) {
+            objects.push("ring = placed by rule (size: footprint)");
+        }
+        Legend {
+            swatches,
+            objects,
+            steps: step_summary(path),
+        }
+    }
+}
+
+/// The path's steps in words: how many moved, turned, tilted the camera or left the pose
+/// unchanged (a blocked move, or the final Done where the path records it).
+fn step_summary(path: &[AgentState]) -> String {
+    let (mut moves, mut turns, mut tilts, mut still) = (0, 0, 0, 0);
+    for w in path.windows(2) {
+        let (a, b) = (&w[0], &w[1]);
+        if (a.x, a.z) != (b.x, b.z) {
+            moves += 1;
+        } else if a.heading != b.heading {
+            turns += 1;
+        } else if a.horizon != b.horizon {
+            tilts += 1;
+        } else {
+            still += 1;
+        }
+    }
+    if path.len() < 2 {
+        return String::new();
+    }
+    format!(
+        "along the path: {moves} moves ahead, {turns} turns, {tilts} camera tilts, {still} steps \
+         in place (a blocked move, or a recorded Done)"
+    )
+}
+
+/// Colour of the per-step facing ticks.
+const TICK: RGBColor = RGBColor(110, 0, 0);
+
 /// The band above the map: the 1 m scale bar, the legend's swatches and, with `labels`, the
 /// title and the legend's words.
 fn draw_header<DB: DrawingBackend>(
     root: &DrawingArea<DB, plotters::coord::Shift>,
     w: u32,
     title: &str,
+    legend: &Legend,
     labels: bool,
 ) -> Drawn<DB> {
     // Scale bar: 1 m, with end ticks, at the top right of the band.
@@ -166,17 +276,11 @@ fn draw_header<DB: DrawingBackend>(
     ] {
         root.draw(&PathElement::new(seg, BLACK.stroke_width(2)))?;
     }
-    let swatches: [(RGBColor, &str); 6] = [
-        (RGBColor(215, 215, 215), "reachable"),
-        (RGBColor(170, 205, 240), "gap-filled"),
-        (GREEN, "start"),
-        (RED, "path"),
-        (BLUE, "end"),
-        (BLACK, "goal (black outline)"),
-    ];
-    for (i, (c, _)) in swatches.iter().enumerate() {
-        let x = 10 + 92 * i as i32;
-        root.draw(&Rectangle::new([(x, 50), (x + 12, 62)], c.filled()))?;
+    // Swatches in rows of four, 150 px apart.
+    let at = |i: usize| (10 + 150 * (i % 4) as i32, 50 + 20 * (i / 4) as i32);
+    for (i, (c, _)) in legend.swatches.iter().enumerate() {
+        let (x, y) = at(i);
+        root.draw(&Rectangle::new([(x, y), (x + 12, y + 12)], c.filled()))?;
     }
     if labels {
         let font = ("sans-serif", 15).into_font();
@@ -187,18 +291,58 @@ fn draw_header<DB: DrawingBackend>(
             font,
         ))?;
         let small = ("sans-serif", 12).into_font();
-        for (i, (_, l)) in swatches.iter().enumerate() {
-            let x = 10 + 92 * i as i32;
-            root.draw(&Text::new(l.to_string(), (x + 16, 49), small.clone()))?;
+        for (i, (_, l)) in legend.swatches.iter().enumerate() {
+            let (x, y) = at(i);
+            root.draw(&Text::new(l.to_string(), (x + 16, y - 1), small.clone()))?;
         }
-        root.draw(&Text::new(
-            "objects: rectangle = AI2-THOR 5.0 box, disc = known position, ring = placed by rule"
-                .to_string(),
-            (10, 30),
-            small,
-        ))?;
+        if !legend.steps.is_empty() {
+            let y = at(legend.swatches.len() - 1).1 + 20;
+            root.draw(&Text::new(legend.steps.clone(), (10, y), small.clone()))?;
+        }
+        if !legend.objects.is_empty() {
+            root.draw(&Text::new(
+                format!(
+                    "objects (colour per category): {}",
+                    legend.objects.join(", ")
+                ),
+                (10, 30),
+                small,
+            ))?;
+        }
     }
     Ok(())
+}
+
+/// A faint 0.25 m lattice over the floor the picture covers, outlined: the space the cells,
+/// the objects and their footprints lie in.
+fn draw_lattice<DB: DrawingBackend>(
+    root: &DrawingArea<DB, plotters::coord::Shift>,
+    frame: &Frame,
+) -> Drawn<DB> {
+    let [x0, z0, x1, z1] = frame.floor;
+    let faint = RGBColor(232, 232, 232).stroke_width(1);
+    let (nx, nz) = (
+        ((x1 - x0) / GRID).round() as i32,
+        ((z1 - z0) / GRID).round() as i32,
+    );
+    for i in 0..=nx {
+        let x = x0 + i as f32 * GRID;
+        root.draw(&PathElement::new(
+            vec![frame.px(x, z0), frame.px(x, z1)],
+            faint,
+        ))?;
+    }
+    for i in 0..=nz {
+        let z = z0 + i as f32 * GRID;
+        root.draw(&PathElement::new(
+            vec![frame.px(x0, z), frame.px(x1, z)],
+            faint,
+        ))?;
+    }
+    root.draw(&Rectangle::new(
+        [frame.px(x0, z1), frame.px(x1, z0)],
+        RGBColor(150, 150, 150).stroke_width(1),
+    ))
 }
 
 /// The reachable cells: grey from the data, light blue added by gap filling.
@@ -284,7 +428,8 @@ fn draw_box<DB: DrawingBackend>(
     Ok(())
 }
 
-/// The path in red, from a green start marker with a heading tick to a blue end marker.
+/// The path in red from a green start marker to a blue end marker, and a tick at every step
+/// pointing where the agent faces.
 fn draw_path<DB: DrawingBackend>(
     root: &DrawingArea<DB, plotters::coord::Shift>,
     path: &[AgentState],
@@ -300,12 +445,17 @@ fn draw_path<DB: DrawingBackend>(
         .collect();
     root.draw(&PathElement::new(pts, RED.stroke_width(3)))?;
     let (sx, sz) = (first.x as f32 * GRID, first.z as f32 * GRID);
-    let (dx, dz) = heading_dir(first.heading);
-    root.draw(&PathElement::new(
-        vec![px(sx, sz), px(sx + dx * GRID * 1.2, sz + dz * GRID * 1.2)],
-        GREEN.stroke_width(4),
-    ))?;
-    root.draw(&Circle::new(px(sx, sz), 7, GREEN.filled()))?;
+    // Where the agent faces at every step: a turn in place adds a tick at the same cell.
+    for s in path {
+        let (cx, cz) = (s.x as f32 * GRID, s.z as f32 * GRID);
+        let (dx, dz) = heading_dir(s.heading);
+        let len = GRID * 0.45;
+        root.draw(&PathElement::new(
+            vec![px(cx, cz), px(cx + dx * len, cz + dz * len)],
+            TICK.stroke_width(2),
+        ))?;
+    }
+    root.draw(&Circle::new(px(sx, sz), 6, GREEN.filled()))?;
     root.draw(&Circle::new(
         px(last.x as f32 * GRID, last.z as f32 * GRID),
         6,
@@ -337,4 +487,38 @@ pub fn register_plot_font() -> bool {
         }
     }
     false
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{step_summary, AgentState};
+
+    fn st(x: i32, z: i32, heading: u8, horizon: u8) -> AgentState {
+        AgentState {
+            x,
+            z,
+            heading,
+            horizon,
+        }
+    }
+
+    /// Turns in place and a tilt count as steps of their own, so a path that turns at its
+    /// start says so (its line on the map is one cell long).
+    #[test]
+    fn step_summary_counts_turns_tilts_and_steps_in_place() {
+        let path = [
+            st(0, 0, 0, 0),
+            st(0, 0, 1, 0),
+            st(0, 0, 2, 0),
+            st(0, 0, 2, 1),
+            st(1, 0, 2, 1),
+            st(1, 0, 2, 1),
+        ];
+        assert_eq!(
+            step_summary(&path),
+            "along the path: 1 moves ahead, 2 turns, 1 camera tilts, 1 steps in place (a blocked \
+             move, or a recorded Done)"
+        );
+        assert_eq!(step_summary(&path[..1]), "");
+    }
 }

@@ -1,0 +1,221 @@
+//! The documentation's commands against the product: every shell block in README.md, docs/ and
+//! the crates' READMEs is either run by a test or listed here with the reason it is not (a new
+//! command fails until it is one or the other); the tables that `scripts/gen_docs.py` generates
+//! are what `gman table` prints; the README's random row is what its command prints.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
+}
+
+fn gman(args: &[&str]) -> String {
+    let out = Command::new(env!("CARGO_BIN_EXE_gman"))
+        .args(args)
+        .current_dir(root())
+        .output()
+        .expect("run gman");
+    assert!(
+        out.status.success(),
+        "gman {}: {}",
+        args.join(" "),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+/// The Markdown files whose commands a user is told to run.
+fn doc_files() -> Vec<PathBuf> {
+    let r = root();
+    let mut v = vec![
+        r.join("README.md"),
+        r.join("results/paper/README.md"),
+        r.join("results/paper/models/README.md"),
+        r.join("host-sim/models/README.md"),
+    ];
+    for dir in ["docs", "."] {
+        let base = r.join(dir);
+        for e in std::fs::read_dir(&base).unwrap().flatten() {
+            let p = e.path();
+            if dir == "docs" && p.extension().is_some_and(|x| x == "md") {
+                v.push(p);
+            } else if dir == "." && p.is_dir() && p.join("README.md").is_file() {
+                v.push(p.join("README.md"));
+            }
+        }
+    }
+    v.sort();
+    v.dedup();
+    v
+}
+
+/// The logical command lines (continuations joined, comments and blank lines dropped) of every
+/// `sh`/`bash` block of `text`.
+fn shell_commands(text: &str) -> Vec<String> {
+    let mut out = Vec::new();
+    let mut in_block = false;
+    let mut pending = String::new();
+    for line in text.lines() {
+        let t = line.trim();
+        if let Some(lang) = t.strip_prefix("```") {
+            in_block = !in_block && matches!(lang, "sh" | "bash" | "shell" | "console");
+            continue;
+        }
+        if !in_block || t.is_empty() || t.starts_with('#') {
+            continue;
+        }
+        let t = t.split(" # ").next().unwrap_or(t).trim_end();
+        if let Some(head) = t.strip_suffix('\\') {
+            pending.push_str(head.trim_end());
+            pending.push(' ');
+        } else {
+            pending.push_str(t);
+            out.push(std::mem::take(&mut pending));
+        }
+    }
+    out
+}
+
+/// Each documented command, by the start of its line: the test that runs it, or why the tests
+/// do not run it as written. A command must start with one of these prefixes.
+const CLASSIFIED: &[(&str, &str)] = &[
+    // Run by tests.
+    ("cargo run --release -p gman-host-sim --bin gman -- demo", "run: host-sim/tests/cli.rs runs `gman demo` on a short budget; the full demo takes 1-2 min in a release build"),
+    ("cargo test --workspace", "run: CI's test step"),
+    ("python3 scripts/import_data.py build", "run on fixtures: scripts/test_import_data.py (the clones need the network)"),
+    ("python/ci.sh", "run: CI's Python step"),
+    ("pip install ./python", "run: python/ci.sh"),
+    ("cargo run --release -p gman-host-sim --features offline --bin gman -- make-offline-fixture", "run: host-sim/tests/offline.rs (make-offline-fixture in both namings)"),
+    ("cargo run --release -p gman-host-sim --features offline --bin gman -- eval --data /tmp/", "run: host-sim/tests/offline.rs (the oracle scores 100 on each fixture)"),
+    // Too long for CI.
+    ("gman train ", "too long for CI: minutes to hours of training (the trainer is tested on short runs)"),
+    ("mpirun ", "too long for CI: training under MPI (CI's MPI step runs short runs)"),
+    ("srun ", "a cluster's job script"),
+    ("./gman train", "a cluster's job script"),
+    ("KEEP=results/paper DATA=", "too long for CI: the whole reference-budget sweep (hours per run on 2 cores)"),
+    ("target/release/gman train", "too long for CI: training on the offline data"),
+    ("nice -n 5 gman eval", "too long for CI: 8000 episodes x 3 seeds per blob (`gman eval` is tested on fewer)"),
+    ("gman bench", "a benchmark: minutes, and its numbers are the machine's"),
+    // Need what CI does not have.
+    ("git clone ", "needs the network"),
+    ("apt-get install", "a system package"),
+    ("module load", "a cluster's environment"),
+    ("target/release/gman eval --data thor", "needs the AI2THOR offline data (a download)"),
+    ("mkdir thor", "needs the AI2THOR offline data (a download)"),
+    ("ln -s /path/to/your/copy", "needs the AI2THOR offline data (a download)"),
+    // The device's and the kernels' commands: the firmware tests build and run the firmware.
+    ("(cd firmware-example", "device: tests/tests/firmware_qemu.rs builds and runs the firmware"),
+    ("cd firmware-example", "device: tests/tests/firmware_qemu.rs"),
+    ("cargo run --release", "device: tests/tests/firmware_qemu.rs"),
+    ("cargo build", "a build step of the commands around it"),
+    ("GMAN_FIRMWARE_BLOB=", "device: tests/tests/firmware_qemu.rs"),
+    ("qemu-system-arm ", "device: tests/tests/firmware_qemu.rs"),
+    ("gman export ", "export: host-sim's export tests; the blob it reads comes from training"),
+    ("for s in 1 2 3; do", "a loop of exports and evaluations of three blobs (too long for CI)"),
+    ("--out /tmp/psi", "part of the loop above"),
+    ("done", "part of the loop above"),
+    // Shell syntax of the job scripts.
+    ("RUN=", "a cluster's job script"),
+    ("if ", "a cluster's job script"),
+    ("else", "a cluster's job script"),
+    ("fi", "a cluster's job script"),
+    ("M=(", "a cluster's job script"),
+    ("m=", "a cluster's job script"),
+    ("ps=(", "a cluster's job script"),
+];
+
+#[test]
+fn every_documented_shell_command_is_run_by_a_test_or_says_why_not() {
+    let mut unclassified = Vec::new();
+    let mut n = 0;
+    for f in doc_files() {
+        let text = std::fs::read_to_string(&f).unwrap();
+        for cmd in shell_commands(&text) {
+            n += 1;
+            if !CLASSIFIED.iter().any(|(p, _)| cmd.starts_with(p)) {
+                unclassified.push(format!(
+                    "{}: {cmd}",
+                    f.strip_prefix(root()).unwrap_or(&f).display()
+                ));
+            }
+        }
+    }
+    assert!(n > 30, "only {n} documented commands found");
+    assert!(
+        unclassified.is_empty(),
+        "documented commands neither run by a test nor listed with a reason in \
+         host-sim/tests/docs.rs:\n{}",
+        unclassified.join("\n")
+    );
+}
+
+#[test]
+fn shell_commands_join_continuations_and_drop_comments() {
+    let text = "x\n```sh\n# a comment\ngman eval \\\n  --agent random   # trailing\n\n```\n```text\ngman no\n```\n";
+    assert_eq!(shell_commands(text), ["gman eval --agent random"]);
+}
+
+/// Every `<!-- gen:table RUNS -->` part of the docs is what `gman table --markdown --runs RUNS`
+/// prints (the Python generator and the Rust table agree, to the last digit).
+#[test]
+fn generated_tables_are_what_gman_table_prints() {
+    let mut checked = 0;
+    for f in doc_files() {
+        let text = std::fs::read_to_string(&f).unwrap();
+        let mut rest = text.as_str();
+        while let Some(i) = rest.find("<!-- gen:table ") {
+            let after = &rest[i + "<!-- gen:table ".len()..];
+            let end = after.find(" -->\n").expect("marker end");
+            let runs: Vec<&str> = after[..end].split_whitespace().collect();
+            let body_start = end + " -->\n".len();
+            let body_end = after.find("<!-- /gen -->").expect("part end");
+            let body = &after[body_start..body_end];
+            let mut args = vec!["table", "--markdown", "--runs"];
+            args.extend(&runs);
+            assert_eq!(
+                gman(&args),
+                body,
+                "{}: gen:table {}",
+                f.display(),
+                runs.join(" ")
+            );
+            checked += 1;
+            rest = &after[body_end..];
+        }
+    }
+    assert!(checked >= 2, "only {checked} generated tables found");
+}
+
+/// The README's random row: `gman eval --data ../shared/data/gman --split val --agent random`
+/// gives the figures of `results/paper/random/s1.json`, which the README's table quotes.
+#[test]
+fn readme_random_row_command_gives_the_kept_figures() {
+    let Some(data) = common::data_dir() else {
+        return;
+    };
+    let readme = std::fs::read_to_string(root().join("README.md")).unwrap();
+    assert!(
+        readme.contains("`gman eval\n--data ../shared/data/gman --split val --agent random`"),
+        "the README no longer shows the random row's command"
+    );
+    let dir = std::env::temp_dir().join(format!("gman-docs-random-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let json = dir.join("random.json");
+    let d = data.display().to_string();
+    let j = json.display().to_string();
+    gman(&[
+        "eval", "--data", &d, "--split", "val", "--agent", "random", "--json", &j, "--quiet",
+    ]);
+    let got: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let kept: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(root().join("results/paper/random/s1.json")).unwrap(),
+    )
+    .unwrap();
+    std::fs::remove_dir_all(&dir).unwrap();
+    assert_eq!(got["results"], kept["results"]);
+    assert_eq!(got["by_room"], kept["by_room"]);
+}
