@@ -33,6 +33,12 @@
 //! `reset`, which both empty Ψ), so the update uses the recorded x_t and runs no forward
 //! pass of G over Ψ (unless the caller fixed x_t, `Navigator::fix_generated_feature`).
 //!
+//! With [`NoiseMode::Zero`] x_t = G_θi(SE(y), 0) is the same at every step between two
+//! inner updates: the step runs G once after `reset` and after each commit and keeps x_t;
+//! Ψ keeps no z_t and one x_t for all its entries (in every [`Footprint`]), and the
+//! update's backward pass runs G and D once for all of Ψ (its entries share one noise, so
+//! they form one group whose coefficients are summed, `inner::score_backward_part`).
+//!
 //! Algorithm 1 as printed records a step only when `t` is not a multiple of `k` (lines
 //! 10-13), so its buffer would hold `k − 1` samples at each update. Here every step is
 //! recorded and the update runs when Ψ holds `k` samples, i.e. every `k` steps.
@@ -434,7 +440,8 @@ pub struct AdaptReport {
 pub struct BufferView<'a> {
     /// Observations s_t (`n x feat`).
     pub obs: &'a [f32],
-    /// Noise z_t (`n x noise`).
+    /// Noise z_t (`n x noise`; empty with [`NoiseMode::Zero`], where every z_t is zero and
+    /// Ψ keeps none).
     pub noise: &'a [f32],
     /// Action probabilities a_t (`n x 6`).
     pub probs: &'a [f32],
@@ -818,7 +825,7 @@ macro_rules! ram_field {
 /// Generates, from the arena table ([`crate::memory`]'s `arena_table`), the `Ram` struct
 /// (one field per region or group of regions, in table order) and its carve.
 macro_rules! arena_ram {
-    (|$d:ident, $full:ident, $g:ident, $k:ident, $b:ident, $map:ident, $gen_in:ident, $fast:ident, $min:ident|
+    (|$d:ident, $full:ident, $g:ident, $k:ident, $b:ident, $map:ident, $gen_in:ident, $fast:ident, $min:ident, $zero:ident|
      $($field:ident $(: $kind:ident)? in $part:ident
         $({ $($sub:ident = $sl:expr;)* })? $(= $len:expr;)?)*) => {
         /// All RAM regions of the navigator, carved from its arena: `T` is `&mut [f32]`, or
@@ -877,17 +884,17 @@ macro_rules! arena_ram {
 
 arena_table!(arena_ram);
 
-/// The lengths of the regions of [`crate::memory`]'s arena table for `d`, `mode`, `k` and
-/// `fp`, checked against `arena` (too short: an error); returns them and the floats used.
+/// The lengths of the regions of [`crate::memory`]'s arena table for `d`, `mode`, `k`,
+/// `fp` and zero noise or not, checked against `arena` (too short: an error); returns them and the floats used.
 fn carve_check(
     arena: &mut [f32],
     d: &Dims,
     mode: AdaptMode,
     k: usize,
-    fp: Footprint,
+    (fp, zero): (Footprint, bool),
 ) -> Result<([usize; NUM_REGIONS], usize)> {
     let total = arena.len();
-    let lens = region_lens(d, mode, k, fp).ok_or(ARENA_TOO_SMALL)?;
+    let lens = region_lens(d, mode, k, fp, zero).ok_or(ARENA_TOO_SMALL)?;
     let (_, rest, short) = Ram::carve_lens(arena, &lens, mode == AdaptMode::Full, 1);
     if short {
         return Err(ARENA_TOO_SMALL);
@@ -1079,10 +1086,14 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
             return bad("Footprint::Minimal: compact Ψ, Efficient, D only");
         }
         let dims = weights.dims;
-        if crate::memory::try_arena_len_with(&dims, M::MODE, K, cfg.footprint).is_none() {
+        if crate::memory::try_arena_len_noise(&dims, M::MODE, K, cfg.footprint, cfg.noise)
+            .is_none()
+        {
             return bad("dims too large: the arena size for these dims, mode and K overflows");
         }
-        let (lens, _used) = carve_check(arena.as_mut(), &dims, M::MODE, K, cfg.footprint)?;
+        let zero = cfg.noise == NoiseMode::Zero;
+        let (lens, _used) =
+            carve_check(arena.as_mut(), &dims, M::MODE, K, (cfg.footprint, zero))?;
         let mut nav = Navigator {
             w: weights,
             cfg,
@@ -1339,7 +1350,11 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
             } else {
                 &r.psi_s[..n * d.feat]
             },
-            noise: &r.psi_z[..n * d.noise],
+            noise: if self.cfg.noise == NoiseMode::Zero {
+                &[]
+            } else {
+                &r.psi_z[..n * d.noise]
+            },
             probs: &r.psi_p[..n * NUM_ACTIONS],
             hidden: &r.psi_h[..n * d.lstm_hidden],
         }
@@ -1645,7 +1660,9 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
             } else {
                 r.psi_s[n * f..(n + 1) * f].copy_from_slice(obs);
             }
-            r.psi_z[n * z..(n + 1) * z].copy_from_slice(r.z);
+            if self.cfg.noise == NoiseMode::Gaussian {
+                r.psi_z[n * z..(n + 1) * z].copy_from_slice(r.z);
+            }
             r.psi_p[n * NUM_ACTIONS..(n + 1) * NUM_ACTIONS].copy_from_slice(r.probs);
             r.psi_h[n * lh..(n + 1) * lh].copy_from_slice(r.h);
             self.record_psi_features(n);
@@ -1689,7 +1706,7 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
             match sched {
                 Schedule::Manual => {
                     if can && delay > 0 {
-                        self.start_update(true);
+                        self.start_update(true)?;
                     }
                 }
                 _ if can && delay == 0 => {
@@ -1697,7 +1714,7 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
                     adapted = true;
                     self.n_buf = 0;
                 }
-                _ if can => self.start_update(true),
+                _ if can => self.start_update(true)?,
                 _ => self.n_buf = 0,
             }
         }
@@ -1822,16 +1839,45 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
     /// is not finite or exceeds the loss bound is not applied (rolled back). All at once:
     /// the slices of [`Navigator::run_slice`] back to back, then the commit.
     fn inner_update(&mut self) -> Result<()> {
-        self.start_update(false);
+        self.start_update(false)?;
         while self.upd.is_some_and(|u| u.phase != Phase::Done) {
             self.run_slice()?;
         }
         self.commit_update()
     }
 
+    /// With zero noise and Ψ's one row of x_t not recorded by its first entry (the caller
+    /// fixed x_t, or a probe overwrote G's activations first): G(0, SE(y)) at the current θ,
+    /// once, into that row (the bits the steps' G pass gives).
+    fn generate_shared_x(&mut self) -> Result<()> {
+        if self.cfg.noise != NoiseMode::Zero || self.psi_recorded {
+            return Ok(());
+        }
+        self.u2_valid = false;
+        let f = self.w.dims.feat;
+        let r = self.arena.ram();
+        r.z.fill(0.0);
+        let gen = gen_view(&r.gen1, &r.gen2, &self.w)?;
+        let u2 = if r.psi_u2.is_empty() {
+            r.u2
+        } else {
+            &mut r.psi_u2[..f]
+        };
+        let mut cache = GeneratorCache {
+            u1: r.u1,
+            h1: r.h1,
+            u2,
+            x: &mut r.psi_x[..f],
+        };
+        gen.forward(r.z, r.attr, &mut cache)?;
+        self.psi_recorded = true;
+        Ok(())
+    }
+
     /// Starts the inner update on the `n_buf` entries of Ψ (`forked`: with the update's own
     /// generator, forked from the navigator's by one draw).
-    fn start_update(&mut self, forked: bool) {
+    fn start_update(&mut self, forked: bool) -> Result<()> {
+        self.generate_shared_x()?;
         // Lines 15-16: D ascends L_D over Ψ_s and Ψ_x, `disc_steps` times (the paper: once;
         // not with the CosSim variant, which has no D).
         let use_d = self.cfg.emd == Emd::Discriminator;
@@ -1866,6 +1912,7 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
         };
         u.total = self.cost_bound(&u);
         self.upd = Some(u);
+        Ok(())
     }
 
     /// Estimated multiply-adds of one slice (a batch of `nb` entries) of `phase`: what the
@@ -1897,6 +1944,14 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
             Phase::Head => d.lstm_hidden * NUM_ACTIONS * 2,
             Phase::Done => 0,
         };
+        // With zero noise (and D) every entry shares one z_t: the backward pass is one
+        // group, one pass of G and D for all of Ψ (`inner::score_backward_part`).
+        if phase == Phase::Backward
+            && self.cfg.noise == NoiseMode::Zero
+            && self.cfg.emd == Emd::Discriminator
+        {
+            return per as u64;
+        }
         (per * nb) as u64
     }
 
@@ -2016,6 +2071,21 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
         let f = self.w.dims.feat;
         let r = self.arena.ram();
         let keep_u2 = !r.psi_u2.is_empty();
+        if self.cfg.noise == NoiseMode::Zero {
+            // One row for every entry: the first entry's (G's output is the same until the
+            // commit, which empties Ψ).
+            if n == 0 {
+                let ok = !self.x_fixed && (!keep_u2 || self.u2_valid);
+                if ok {
+                    r.psi_x[..f].copy_from_slice(r.x);
+                    if keep_u2 {
+                        r.psi_u2[..f].copy_from_slice(r.u2);
+                    }
+                }
+                self.psi_recorded = ok;
+            }
+            return;
+        }
         let ok = !self.lean && !self.x_fixed && (!keep_u2 || self.u2_valid);
         if ok {
             r.psi_x[n * f..(n + 1) * f].copy_from_slice(r.x);
@@ -2042,6 +2112,7 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
         let (f, zd) = (d.feat, d.noise);
         let w = self.w;
         let (recorded, lean) = (self.psi_recorded, self.lean);
+        let zero = self.cfg.noise == NoiseMode::Zero;
         let Ram {
             gen1,
             gen2,
@@ -2086,8 +2157,15 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
         let (nb, hf) = (t1 - t0, f.div_ceil(2));
         let mut xs: &mut [f32] = &mut [];
         let mut sb: &mut [f32] = &mut [];
+        // With zero noise Ψ's one x_t, copied for a batch of more than one entry into `dpre2`.
+        let mut xz: &mut [f32] = &mut [];
         let r = (|| {
-            let fake: &[f32] = if recorded {
+            let fake: &[f32] = if recorded && zero {
+                if nb > 1 {
+                    xz = core::mem::take(&mut iw.dpre2);
+                }
+                inner::x_rows(psi_x, true, f, (t0, nb), xz)?
+            } else if recorded {
                 &psi_x[t0 * f..t1 * f]
             } else {
                 let gen = gen_view(gen1, gen2, &w)?;
@@ -2122,6 +2200,9 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
         if !xs.is_empty() {
             iw.dpre2 = core::mem::take(&mut iw.mix);
             iw.mix = xs;
+        }
+        if !xz.is_empty() {
+            iw.dpre2 = xz;
         }
         if iw.u2.is_empty() {
             iw.u2 = sb;
@@ -2186,6 +2267,7 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
         let (f, zd) = (d.feat, d.noise);
         let w = self.w;
         let (recorded, lean) = (self.psi_recorded, self.lean);
+        let zero = self.cfg.noise == NoiseMode::Zero;
         let Ram {
             gen1,
             gen2,
@@ -2195,6 +2277,7 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
             g_gen1,
             g_gen2,
             g_actor,
+            z: z0,
             psi_s,
             psi_z,
             psi_p,
@@ -2214,12 +2297,15 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
         }
         let gen = gen_view(gen1, gen2, &w)?;
         let disc = disc_view(disc1, disc_w2, disc_b2, &w)?;
+        // With zero noise one row of z (the step's, zero), x_t and `W2 h1` for every entry.
+        let (shared, nr) = if zero { (true, 1) } else { (false, n) };
         let inp = inner::AdaptInputs {
             attr,
-            zs: &psi_z[..n * zd],
-            xs: recorded.then(|| &psi_x[..n * f]),
-            u2s: (recorded && !psi_u2.is_empty()).then(|| &psi_u2[..n * f]),
+            zs: if zero { z0 } else { &psi_z[..n * zd] },
+            xs: recorded.then(|| &psi_x[..nr * f]),
+            u2s: (recorded && !psi_u2.is_empty()).then(|| &psi_u2[..nr * f]),
             obs: if lean { &[] } else { &psi_s[..n * f] },
+            shared,
         };
         let outs = (
             &mut dvals[..n],
@@ -2240,6 +2326,7 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
         let (f, zd) = (d.feat, d.noise);
         let w = self.w;
         let (recorded, lean) = (self.psi_recorded, self.lean);
+        let zero = self.cfg.noise == NoiseMode::Zero;
         let Ram {
             gen1,
             gen2,
@@ -2248,6 +2335,7 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
             disc_b2,
             g_gen1,
             g_gen2,
+            z: z0,
             psi_s,
             psi_z,
             psi_x,
@@ -2259,12 +2347,15 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
         } = &mut self.arena.ram();
         let gen = gen_view(gen1, gen2, &w)?;
         let disc = disc_view(disc1, disc_w2, disc_b2, &w)?;
+        // With zero noise one row of z (the step's, zero), x_t and `W2 h1` for every entry.
+        let (shared, nr) = if zero { (true, 1) } else { (false, n) };
         let inp = inner::AdaptInputs {
             attr,
-            zs: &psi_z[..n * zd],
-            xs: recorded.then(|| &psi_x[..n * f]),
-            u2s: (recorded && !psi_u2.is_empty()).then(|| &psi_u2[..n * f]),
+            zs: if zero { z0 } else { &psi_z[..n * zd] },
+            xs: recorded.then(|| &psi_x[..nr * f]),
+            u2s: (recorded && !psi_u2.is_empty()).then(|| &psi_u2[..nr * f]),
             obs: if lean { &[] } else { &psi_s[..n * f] },
+            shared,
         };
         inner::score_backward_part(
             &gen,
@@ -2383,7 +2474,7 @@ mod tests {
                     let n = arena_len_with(&d, mode, k, fp);
                     let mut arena = vec![0.0f32; n + 7];
                     let base = arena.as_ptr() as usize;
-                    let (lens, used) = carve_check(&mut arena, &d, mode, k, fp).unwrap();
+                    let (lens, used) = carve_check(&mut arena, &d, mode, k, (fp, false)).unwrap();
                     let full = mode == AdaptMode::Full;
                     let (ram, _, short) = Ram::carve_lens(&mut arena[..], &lens, full, 1);
                     assert!(!short);
@@ -2396,7 +2487,7 @@ mod tests {
                     assert_eq!(at(ram.gen1.w), 0);
                     assert_eq!(at(ram.cell_prod) + ram.cell_prod.len(), n);
                     let mut small = vec![0.0f32; n - 1];
-                    assert!(carve_check(&mut small, &d, mode, k, fp).is_err());
+                    assert!(carve_check(&mut small, &d, mode, k, (fp, false)).is_err());
                 }
             }
         }

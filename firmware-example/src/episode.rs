@@ -93,6 +93,8 @@ pub enum Failure {
     Episode(&'static str),
     /// gman-core returned an error.
     Core(gman_core::Error),
+    /// The embedded blob does not fit this image (what to export instead).
+    Blob(&'static str),
 }
 
 impl From<gman_core::Error> for Failure {
@@ -112,6 +114,7 @@ impl fmt::Display for Failure {
         match self {
             Failure::Episode(what) => write!(f, "episode file: {what}"),
             Failure::Core(e) => write!(f, "gman-core: {e}"),
+            Failure::Blob(what) => write!(f, "blob: {what}"),
         }
     }
 }
@@ -321,6 +324,11 @@ pub fn run(
         cfg.commit_delay = COMMIT_DELAY;
     }
     cfg.footprint = FOOTPRINT;
+    if FOOTPRINT == Footprint::Minimal && !cfg.compact_psi {
+        return Err(Failure::Blob(
+            "Ψ's observations are f32; this image's Footprint::Minimal arena needs them int16: export with `gman export --psi int16` (the default for --preset mcu), or build with --no-default-features",
+        ));
+    }
     probe.line(format_args!(
         "episode: {} ({} steps, seed {})",
         ep.label(),

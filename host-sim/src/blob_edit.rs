@@ -13,6 +13,13 @@ pub fn reencode_with_activations(bytes: &[u8], int8: bool) -> Result<Vec<u8>> {
     reencode_with_flags_of(bytes, int8, int8)
 }
 
+/// Whether `gman export --psi auto` keeps Ψ's observations as int16 ([`FLAG_COMPACT_PSI`]):
+/// for the `mcu` preset (the default firmware's `Footprint::Minimal` arena needs it) and with
+/// int8 activations; f32 otherwise.
+pub fn default_compact_psi(mcu_preset: bool, int8_activations: bool) -> bool {
+    mcu_preset || int8_activations
+}
+
 /// `bytes` (a weight blob) emitted again with [`FLAG_INT8_ACTIVATIONS`] set (`int8`) or
 /// cleared and [`FLAG_COMPACT_PSI`] set (`compact_psi`) or cleared; every tensor, the other
 /// flags and the inner-loop settings are kept. int8 activations need at least one int8

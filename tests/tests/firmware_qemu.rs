@@ -322,6 +322,73 @@ fn f32_activation_firmware_under_qemu_matches_host_bit_for_bit() {
     assert!(m.contains_key("mean_insns"));
 }
 
+/// `blob` with G's noise set to zero ([`FLAG_ZERO_NOISE`]), re-emitted by gman-core's
+/// encoder (every tensor and the other flags kept, the CRC recomputed).
+///
+/// [`FLAG_ZERO_NOISE`]: gman_core::schema::FLAG_ZERO_NOISE
+fn zero_noise_blob(blob: &[u8]) -> Vec<u8> {
+    use gman_core::blob::{reencode_with_flags, reencoded_len_bound, Blob};
+    let flags = Blob::parse(blob).expect("blob").header().flags()
+        | gman_core::schema::FLAG_ZERO_NOISE;
+    let mut out = vec![0u8; reencoded_len_bound(blob)];
+    let n = reencode_with_flags(blob, flags, &mut out).expect("re-encode");
+    out.truncate(n);
+    out
+}
+
+#[test]
+fn zero_noise_firmware_under_qemu_matches_host_bit_for_bit() {
+    if !qemu_available() {
+        return;
+    }
+    // The default image (int8 activations, `Footprint::Minimal`) on the shipped model with
+    // G's noise z = 0: x_t is cached between inner updates and Ψ keeps no z_t or x_t.
+    let target_dir = fw_dir().join("target/zero-noise");
+    std::fs::create_dir_all(&target_dir).expect("target dir");
+    let blob = zero_noise_blob(&int8_activation_blob());
+    let file = target_dir.join("model-zero-noise.gman");
+    std::fs::write(&file, &blob).expect("write the zero-noise blob");
+    let (host, _) = host_lines(&blob, &checked_in_episode());
+    assert!(
+        host.iter().any(|l| l.contains("noise=Zero")),
+        "the blob does not run with zero noise"
+    );
+    let m = run_and_compare(
+        &target_dir,
+        Some(&file),
+        &blob,
+        "qemu-measurements-zero-noise.txt",
+        &[],
+    );
+    assert!(m.contains_key("mean_insns"));
+}
+
+#[test]
+fn exported_blob_runs_on_the_default_firmware() {
+    if !qemu_available() {
+        return;
+    }
+    // What README's device sequence flashes: `gman export --preset mcu --quant int8` (int8
+    // weights, f32 activations, Ψ as that export's default keeps it), on the default image
+    // (int8 activations, `Footprint::Minimal`).
+    let shipped = blobgen::default_blob_in(&fw_dir());
+    let compact = gman_host_sim::blob_edit::default_compact_psi(true, false);
+    assert!(compact, "the mcu export must fit the default firmware's arena");
+    let blob = gman_host_sim::blob_edit::reencode_with_flags_of(&shipped, false, compact)
+        .expect("gman export --preset mcu --quant int8");
+    let target_dir = fw_dir().join("target/exported");
+    std::fs::create_dir_all(&target_dir).expect("target dir");
+    let file = target_dir.join("model-exported.gman");
+    std::fs::write(&file, &blob).expect("write the exported blob");
+    run_and_compare(
+        &target_dir,
+        Some(&file),
+        &blob,
+        "qemu-measurements-exported.txt",
+        &[],
+    );
+}
+
 #[test]
 fn firmware_int8_blob_is_what_gman_export_writes() {
     let blob = blobgen::default_blob_in(&fw_dir());

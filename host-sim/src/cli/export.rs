@@ -4,7 +4,7 @@ use std::path::PathBuf;
 
 use anyhow::{bail, Context, Result};
 use clap::{Args, ValueEnum};
-use gman_host_sim::blob_edit::reencode_with_flags_of;
+use gman_host_sim::blob_edit::{default_compact_psi, reencode_with_flags_of};
 use gman_host_sim::model::load_model;
 
 use super::args::PresetArg;
@@ -37,9 +37,9 @@ pub struct ExportArgs {
     /// `--quant int8`).
     #[arg(long, value_enum, default_value = "f32")]
     pub activations: ActArg,
-    /// How the navigator keeps Ψ's observations: `auto` (int16 with int8 activations, else
-    /// f32), `f32`, or `int16` (`FLAG_COMPACT_PSI`: one scale per entry; the firmware's
-    /// smallest arena, `Footprint::Minimal`, needs it).
+    /// How the navigator keeps Ψ's observations: `auto` (int16 for `--preset mcu` or with
+    /// int8 activations, else f32), `f32`, or `int16` (`FLAG_COMPACT_PSI`: one scale per
+    /// entry; the firmware's smallest arena, `Footprint::Minimal`, needs it).
     #[arg(long, value_enum, default_value = "auto")]
     pub psi: PsiArg,
     /// Output blob.
@@ -59,7 +59,7 @@ pub enum ActArg {
 /// How an exported blob's navigator keeps Ψ's observations.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
 pub enum PsiArg {
-    /// int16 with int8 activations, else f32.
+    /// int16 for the `mcu` preset or with int8 activations, else f32.
     Auto,
     /// f32.
     F32,
@@ -85,7 +85,7 @@ pub fn cmd_export(a: ExportArgs) -> Result<()> {
     }
     let int8_act = a.activations == ActArg::Int8;
     let compact = match a.psi {
-        PsiArg::Auto => int8_act,
+        PsiArg::Auto => default_compact_psi(a.preset == PresetArg::Mcu, int8_act),
         PsiArg::F32 => false,
         PsiArg::Int16 => true,
     };
