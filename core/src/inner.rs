@@ -144,11 +144,13 @@ pub(crate) fn x_rows<'a>(
         return Ok(x);
     }
     let len = mix.len();
-    let m = mix.get_mut(..nb * f).ok_or(crate::Error::Shape(crate::ShapeError {
-        what: "inner.mix",
-        expected: nb * f,
-        actual: len,
-    }))?;
+    let m = mix
+        .get_mut(..nb * f)
+        .ok_or(crate::Error::Shape(crate::ShapeError {
+            what: "inner.mix",
+            expected: nb * f,
+            actual: len,
+        }))?;
     for r in m.chunks_exact_mut(f.max(1)) {
         r.copy_from_slice(x);
     }
@@ -914,11 +916,75 @@ fn group_backward(
     gen: &Generator<'_>,
     disc: Option<&Discriminator<'_>>,
     rows: (&[f32], &[f32]),
-    (xs, u2s, obs): (Option<&[f32]>, Option<&[f32]>, &[f32]),
+    inputs: (Option<&[f32]>, Option<&[f32]>, &[f32]),
     groups: Groups<'_>,
     nb: usize,
     w: &mut InnerWork<'_>,
     (grads1, grads2): (&mut DenseGrads<'_>, &mut DenseGrads<'_>),
+) -> Result<()> {
+    group_forward(gen, disc, rows, inputs, groups, nb, w)?;
+    gen_backward(gen, rows, nb, w, grads1, grads2)
+}
+
+/// The score backward pass of shared inputs ([`AdaptInputs::shared`]) with D, in two halves
+/// the sliced update runs as two slices: `first` runs G's forward pass and D's input
+/// gradient for the one group all entries form (into `w`'s activations, `mix` and `g`,
+/// which nothing else writes between the two), the other half G's backward pass into the
+/// gradients. Together the bits of [`score_backward_part`] on the same inputs.
+pub(crate) fn shared_backward_half(
+    gen: &Generator<'_>,
+    disc: &Discriminator<'_>,
+    inp: AdaptInputs<'_>,
+    coef: &[f32],
+    w: &mut InnerWork<'_>,
+    (grads1, grads2): (&mut DenseGrads<'_>, &mut DenseGrads<'_>),
+    first: bool,
+) -> Result<()> {
+    w.check()?;
+    gen.validate()?;
+    let f = gen.feat();
+    let zd = gen.in_dim().saturating_sub(inp.attr.len());
+    if !inp.shared || coef.is_empty() {
+        return Err(crate::Error::Config {
+            what: "adapt: the two-half backward pass needs shared inputs and entries",
+        });
+    }
+    check_len("adapt.zs", zd, inp.zs.len())?;
+    check_len("inner.mix", w.b * f, w.mix.len())?;
+    check_len("inner.g", w.b * f, w.g.len())?;
+    let rows = (inp.zs, inp.attr);
+    if !first {
+        return gen_backward(gen, rows, 1, w, grads1, grads2);
+    }
+    let groups = Groups {
+        zs: inp.zs,
+        coef,
+        zd,
+        t: 0,
+        grouped: true,
+        shared: true,
+    };
+    group_forward(
+        gen,
+        Some(disc),
+        rows,
+        (inp.xs, inp.u2s, inp.obs),
+        groups,
+        1,
+        w,
+    )
+}
+
+/// The first part of [`group_backward`]: G's forward pass (or the features `xs`) and
+/// `∂L/∂x` from D's input gradient or the cosine's, into `w.g`.
+fn group_forward(
+    gen: &Generator<'_>,
+    disc: Option<&Discriminator<'_>>,
+    rows: (&[f32], &[f32]),
+    (xs, u2s, obs): (Option<&[f32]>, Option<&[f32]>, &[f32]),
+    groups: Groups<'_>,
+    nb: usize,
+    w: &mut InnerWork<'_>,
 ) -> Result<()> {
     let f = gen.feat();
     match xs {
@@ -959,7 +1025,7 @@ fn group_backward(
             }
         }
     }
-    gen_backward(gen, rows, nb, w, grads1, grads2)
+    Ok(())
 }
 
 /// G's backward pass for the `nb` batch rows (`rows` = noise and attribute rows, the

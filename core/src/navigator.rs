@@ -1005,6 +1005,8 @@ struct Update {
     total: u64,
     /// Slices run and upper bound of the slices in all.
     slices: u32,
+    /// The first half of a two-half backward pass ran ([`Navigator::split_backward`]).
+    half: bool,
     report: AdaptReport,
 }
 
@@ -1086,14 +1088,12 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
             return bad("Footprint::Minimal: compact Ψ, Efficient, D only");
         }
         let dims = weights.dims;
-        if crate::memory::try_arena_len_noise(&dims, M::MODE, K, cfg.footprint, cfg.noise)
-            .is_none()
+        if crate::memory::try_arena_len_noise(&dims, M::MODE, K, cfg.footprint, cfg.noise).is_none()
         {
             return bad("dims too large: the arena size for these dims, mode and K overflows");
         }
         let zero = cfg.noise == NoiseMode::Zero;
-        let (lens, _used) =
-            carve_check(arena.as_mut(), &dims, M::MODE, K, (cfg.footprint, zero))?;
+        let (lens, _used) = carve_check(arena.as_mut(), &dims, M::MODE, K, (cfg.footprint, zero))?;
         let mut nav = Navigator {
             w: weights,
             cfg,
@@ -1908,6 +1908,7 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
             done: 0,
             total: 0,
             slices: 0,
+            half: false,
             report: AdaptReport::default(),
         };
         u.total = self.cost_bound(&u);
@@ -1945,14 +1946,28 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
             Phase::Done => 0,
         };
         // With zero noise (and D) every entry shares one z_t: the backward pass is one
-        // group, one pass of G and D for all of Ψ (`inner::score_backward_part`).
-        if phase == Phase::Backward
-            && self.cfg.noise == NoiseMode::Zero
-            && self.cfg.emd == Emd::Discriminator
-        {
+        // group, one pass of G and D for all of Ψ, run in two halves (`split_backward`).
+        if phase == Phase::Backward && self.split_backward() {
             return per as u64;
         }
         (per * nb) as u64
+    }
+
+    /// With zero noise and D, Ψ's entries form one group of the backward pass, which runs
+    /// as two slices (`inner::shared_backward_half`): G's and D's forward part, then G's
+    /// backward pass.
+    fn split_backward(&self) -> bool {
+        self.cfg.noise == NoiseMode::Zero && self.cfg.emd == Emd::Discriminator
+    }
+
+    /// Estimated multiply-adds of the first half of a split backward pass (the rest of
+    /// [`Navigator::slice_cost`]'s `Backward` is the second).
+    fn backward_first_half_cost(&self) -> u64 {
+        let d = self.w.dims;
+        let (f, dh, h, zin) = (d.feat, d.disc_hidden, d.gen_hidden, d.noise + d.attr);
+        let keep_u2 = !self.arena.view().psi_u2.is_empty() && self.psi_recorded;
+        let tw = 1 + self.w.get(TensorId::GenW2).int8_activations() as usize;
+        (h * zin + f * dh + f * h * !keep_u2 as usize + tw * f * dh) as u64
     }
 
     /// Upper bound of the update's estimated work, from the phase `u` starts in.
@@ -1970,7 +1985,13 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
     fn slice_bound(&self) -> u32 {
         let Some(u) = self.upd else { return 0 };
         let per = self.n_buf.div_ceil(self.arena.b) as u32;
-        let back = if self.cfg.head_only { 0 } else { per };
+        let back = if self.cfg.head_only {
+            0
+        } else if self.split_backward() {
+            per.max(2)
+        } else {
+            per
+        };
         u.disc_steps * per + per + back + 1
     }
 
@@ -1984,7 +2005,19 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
         let b = self.arena.b;
         let (t0, t1) = (u.t, (u.t + b).min(n));
         let phase = u.phase;
-        u.done = u.done.saturating_add(self.slice_cost(phase, t1 - t0));
+        let split = phase == Phase::Backward && self.split_backward();
+        let cost = if split {
+            let first = self.backward_first_half_cost();
+            let all = self.slice_cost(phase, n);
+            if u.half {
+                all.saturating_sub(first)
+            } else {
+                first
+            }
+        } else {
+            self.slice_cost(phase, t1 - t0)
+        };
+        u.done = u.done.saturating_add(cost);
         u.slices += 1;
         match phase {
             Phase::Disc => {
@@ -2017,7 +2050,13 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
                 }
             }
             Phase::Backward => {
-                u.t = self.score_backward(t0, u.use_d)?;
+                if split {
+                    self.score_backward_half(!u.half)?;
+                    u.t = if u.half { n } else { 0 };
+                    u.half = !u.half;
+                } else {
+                    u.t = self.score_backward(t0, u.use_d)?;
+                }
                 if u.t >= n {
                     u.t = 0;
                     u.phase = Phase::Head;
@@ -2365,6 +2404,51 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
             iw,
             (&mut g_gen1.grads(), &mut g_gen2.grads()),
             (t, 1),
+        )
+    }
+
+    /// One half of pass 2 of L_ad with zero noise and D (`first`: G's and D's forward part;
+    /// else G's backward pass into θ's gradient), see [`Navigator::split_backward`].
+    fn score_backward_half(&mut self, first: bool) -> Result<()> {
+        let n = self.n_buf;
+        let f = self.w.dims.feat;
+        let w = self.w;
+        let lean = self.lean;
+        let Ram {
+            gen1,
+            gen2,
+            disc1,
+            disc_w2,
+            disc_b2,
+            g_gen1,
+            g_gen2,
+            z: z0,
+            psi_s,
+            psi_x,
+            psi_u2,
+            dd,
+            attr,
+            iw,
+            ..
+        } = &mut self.arena.ram();
+        let gen = gen_view(gen1, gen2, &w)?;
+        let disc = disc_view(disc1, disc_w2, disc_b2, &w)?;
+        let inp = inner::AdaptInputs {
+            attr,
+            zs: z0,
+            xs: Some(&psi_x[..f]),
+            u2s: (!psi_u2.is_empty()).then(|| &psi_u2[..f]),
+            obs: if lean { &[] } else { &psi_s[..n * f] },
+            shared: true,
+        };
+        inner::shared_backward_half(
+            &gen,
+            &disc,
+            inp,
+            &dd[..n],
+            iw,
+            (&mut g_gen1.grads(), &mut g_gen2.grads()),
+            first,
         )
     }
 

@@ -370,7 +370,13 @@ fn zero_noise_psi_keeps_no_noise_and_one_feature() {
         noise: NoiseMode::Zero,
         ..NavConfig::default()
     };
-    let n = arena_len_noise(&dims, AdaptMode::Efficient, 20, Footprint::Minimal, NoiseMode::Zero);
+    let n = arena_len_noise(
+        &dims,
+        AdaptMode::Efficient,
+        20,
+        Footprint::Minimal,
+        NoiseMode::Zero,
+    );
     let mut arena = vec![0.0f32; n];
     assert!(Navigator::<Efficient, 20>::new(w(), &mut arena, cfg).is_ok());
     let gauss = NavConfig {
