@@ -326,7 +326,7 @@ pub fn run(
     cfg.footprint = FOOTPRINT;
     if FOOTPRINT == Footprint::Minimal && !cfg.compact_psi {
         return Err(Failure::Blob(
-            "Ψ's observations are f32; this image's Footprint::Minimal arena needs them int16: export with `gman export --psi int16` (the default for --preset mcu), or build with --no-default-features",
+            "Ψ's observations are f32; this image's Footprint::Minimal arena needs them int16: export with `gman export --preset mcu --quant int8` (its default --activations auto writes int8 activations and Ψ int16) or add `--psi int16`, or build with --no-default-features",
         ));
     }
     probe.line(format_args!(

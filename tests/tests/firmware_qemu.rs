@@ -379,31 +379,20 @@ fn zero_noise_firmware_under_qemu_matches_host_bit_for_bit() {
 }
 
 #[test]
-fn exported_blob_runs_on_the_default_firmware() {
-    if !qemu_available() {
-        return;
-    }
-    // What README's device sequence flashes: `gman export --preset mcu --quant int8` (int8
-    // weights, f32 activations, Ψ as that export's default keeps it), on the default image
-    // (int8 activations, `Footprint::Minimal`).
+fn exported_blob_is_what_the_default_firmware_runs() {
+    // What README's device sequence flashes: `gman export --preset mcu --quant int8` with its
+    // defaults for that preset (int8 activations, Ψ's observations int16) writes the bytes
+    // the default image embeds, which `firmware_under_qemu_matches_host_bit_for_bit` runs
+    // (a checkpoint's blob is the shipped model's kind: int8 weights, f32 activations).
+    let act8 = gman_host_sim::blob_edit::default_int8_activations(true, true);
+    assert!(act8, "the mcu export must fit the default firmware");
     let shipped = blobgen::default_blob_in(&fw_dir());
-    let compact = gman_host_sim::blob_edit::default_compact_psi(true, false);
-    assert!(
-        compact,
-        "the mcu export must fit the default firmware's arena"
-    );
-    let blob = gman_host_sim::blob_edit::reencode_with_flags_of(&shipped, false, compact)
+    // (`--psi auto`: int16 with int8 activations.)
+    let blob = gman_host_sim::blob_edit::reencode_with_activations(&shipped, act8)
         .expect("gman export --preset mcu --quant int8");
-    let target_dir = fw_dir().join("target/exported");
-    std::fs::create_dir_all(&target_dir).expect("target dir");
-    let file = target_dir.join("model-exported.gman");
-    std::fs::write(&file, &blob).expect("write the exported blob");
-    run_and_compare(
-        &target_dir,
-        Some(&file),
-        &blob,
-        "qemu-measurements-exported.txt",
-        &[],
+    assert!(
+        blob == int8_activation_blob(),
+        "the mcu export's defaults differ from the blob the default firmware runs"
     );
 }
 
