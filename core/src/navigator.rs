@@ -1407,6 +1407,59 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
         self.commit_step(obs, value)
     }
 
+    /// [`Navigator::step_map`] with the map as the camera quantised it: `map[j] * scale` is
+    /// the value of feature `j` (`map_cells x feat` u8 codes, cell-major, one `scale` for
+    /// the map, finite and positive). On the integer path (an int8-activation blob) the
+    /// map's cells are quantised straight from the codes, with no f32 pass over the map
+    /// ([`crate::qkernel::cell_layer_int8_u8`]); otherwise each cell is expanded to f32
+    /// (`map[j] as f32 * scale`) as it is used. Its results are its own (the integer path
+    /// quantises the codes, not their f32 values), the same on every target.
+    pub fn step_map_u8(
+        &mut self,
+        obs: &[f32],
+        map: &[u8],
+        scale: f32,
+        ps: &[f32],
+    ) -> Result<StepOutput> {
+        if !scale.is_finite() {
+            return Err(Error::NonFiniteInput { what: "map scale" });
+        }
+        if scale <= 0.0 {
+            return Err(Error::Config {
+                what: "step_map_u8: the map's scale must be positive",
+            });
+        }
+        self.begin_step_with(obs, (&[], map.len()), ps)?;
+        let r = self.arena.ram();
+        let biases = [&*r.fuse_b, &*r.lstm_b, &*r.critic_b, &*r.cell_b];
+        let actor = r.actor.view(self.w.get(TensorId::ActorW))?;
+        let policy = policy_view(&self.w, biases, actor)?;
+        let inp = PolicyInput {
+            obs,
+            feat: r.x,
+            attr: r.attr,
+            prev_probs: r.prev_probs,
+            ps: r.ps,
+            map: &[],
+        };
+        let mut value = [0.0f32];
+        let mut cache = PolicyCache {
+            prod: r.prod,
+            fuse: r.fuse,
+            gates: r.gates,
+            c: r.c,
+            h: r.h,
+            actor_u: r.actor_u,
+            logits: r.logits,
+            probs: r.probs,
+            value: &mut value,
+            cell: r.cell,
+            cell_prod: r.cell_prod,
+        };
+        policy.forward_map_u8(&inp, (map, scale), r.h_state, r.c_state, &mut cache)?;
+        self.commit_step(obs, value[0])
+    }
+
     /// Lines 5-7 of a step, for a host that runs the policies of many navigators as one
     /// batch: checks the inputs, keeps `ps` and generates x_t = G_θi(SE(y), z_t). The
     /// policy's inputs are then [`Navigator::generated_feature`], [`Navigator::attr`],
@@ -1415,7 +1468,18 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
     /// navigator adapts) on them and pass its new `(h, c)` to [`Navigator::finish_step`], with
     /// the same `obs`. `begin_step` again before `finish_step` draws a new x_t.
     pub fn begin_step(&mut self, obs: &[f32], map: &[f32], ps: &[f32]) -> Result<()> {
-        self.begin_checks(obs, map, ps)?;
+        self.begin_step_with(obs, (map, map.len()), ps)
+    }
+
+    /// [`Navigator::begin_step`] with a map of `map_len` values, of which `map` (f32) is
+    /// checked for finite values (empty when the map comes as u8 codes).
+    fn begin_step_with(
+        &mut self,
+        obs: &[f32],
+        (map, map_len): (&[f32], usize),
+        ps: &[f32],
+    ) -> Result<()> {
+        self.begin_checks(obs, (map, map_len), ps)?;
         // Line 7: x_t = G_θi(SE(y), z_t) (unless the caller fixed x_t for this episode).
         match self.cfg.noise {
             _ if self.x_fixed => {}
@@ -1437,7 +1501,12 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
     }
 
     /// The checks of a step's inputs, and `ps` into RAM.
-    fn begin_checks(&mut self, obs: &[f32], map: &[f32], ps: &[f32]) -> Result<()> {
+    fn begin_checks(
+        &mut self,
+        obs: &[f32],
+        (map, map_len): (&[f32], usize),
+        ps: &[f32],
+    ) -> Result<()> {
         if !self.ready {
             return Err(Error::Config {
                 what: "call reset() before step()",
@@ -1468,7 +1537,7 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
         let d = self.w.dims;
         check_len("step.obs", d.feat, obs.len())?;
         check_len("step.ps", d.ps, ps.len())?;
-        check_len("step.map", d.map_len(), map.len())?;
+        check_len("step.map", d.map_len(), map_len)?;
         if !all_finite(obs) {
             return Err(Error::NonFiniteInput { what: "obs" });
         }
@@ -1507,7 +1576,7 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
             self.begin_step(obs, map, ps)?;
             return Ok(false);
         }
-        self.begin_checks(obs, map, ps)?;
+        self.begin_checks(obs, (map, map.len()), ps)?;
         fill_gaussian(&mut self.rng, self.arena.ram().z);
         self.g_pending = true;
         self.begun = true;

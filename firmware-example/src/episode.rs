@@ -166,6 +166,9 @@ fn u16_at(b: &[u8], at: usize) -> u16 {
     u16::from_le_bytes([b[at], b[at + 1]])
 }
 
+/// The scale of the map's u8 codes: feature `v` is stored as `round(v * 255)`.
+pub const MAP_SCALE: f32 = 1.0 / 255.0;
+
 /// Bytes of one step's observations: the pooled vector and the map.
 const STEP_BYTES: usize = (1 + DIMS.map_cells()) * DIMS.feat;
 
@@ -256,27 +259,26 @@ impl Episode {
         &self.attr
     }
 
-    /// The observations of step `t` read from `src` and dequantised: the pooled vector into
-    /// `obs` (`feat` floats) and the map into `map` (`map_len` floats).
+    /// The observations of step `t` read from `src`: the pooled vector dequantised into
+    /// `obs` (`feat` floats), the map as the file stores it into `map` (`map_len` u8 codes of
+    /// scale [`MAP_SCALE`], what [`Navigator::step_map_u8`] takes, as from a camera).
     pub fn observation(
         &self,
         src: &mut dyn Source,
         t: usize,
         obs: &mut [f32],
-        map: &mut [f32],
+        map: &mut [u8],
     ) -> Result<(), Failure> {
         if t >= self.steps {
             return Err(Failure::Episode("step out of range"));
         }
         let mut chunk = [0u8; CHUNK];
         let at = self.obs_at + t * STEP_BYTES;
-        let outs = core::iter::once(obs).chain(map.chunks_mut(DIMS.feat));
-        for (i, out) in outs.enumerate() {
-            src.read_at(at + i * DIMS.feat, &mut chunk)?;
-            for (o, &q) in out.iter_mut().zip(&chunk) {
-                *o = q as f32 / 255.0;
-            }
+        src.read_at(at, &mut chunk)?;
+        for (o, &q) in obs.iter_mut().zip(&chunk) {
+            *o = q as f32 / 255.0;
         }
+        src.read_at(at + DIMS.feat, map)?;
         Ok(())
     }
 
@@ -377,14 +379,14 @@ pub fn run(
         Fixed6(norm_from(&g0, None))
     ));
     let mut obs = [0.0f32; DIMS.feat];
-    let mut map = [0.0f32; DIMS.map_len()];
+    let mut map = [0u8; DIMS.map_len()];
     // The step whose Ψ filled, while its update is pending.
     let mut filled_at: Option<usize> = None;
     for t in 0..ep.steps() {
         ep.observation(src, t, &mut obs, &mut map)?;
         let working = nav.update_pending();
         probe.step_begin();
-        let out = nav.step_map(&obs, &map, &[])?;
+        let out = nav.step_map_u8(&obs, &map, MAP_SCALE, &[])?;
         probe.step_end(out.adapted, working || out.adapted);
         if out.adapted {
             let after = filled_at.take().map_or(1, |f| (t - f) as u32);

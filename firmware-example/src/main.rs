@@ -7,7 +7,8 @@
 //!    gradient of L_D straight from the embedded `Mcu` int8 blob.
 //! 3. Runs the navigator ([`episode`]): a `Navigator<Efficient, 20>` over the same blob (read in
 //!    place from flash) and a statically sized arena, `reset` with the recorded target's
-//!    attributes, then `step_map` on each of the 40 observations (pooled vector and 3 x 3 map)
+//!    attributes, then `step_map_u8` on each of the 40 observations (pooled vector and 3 x 3 map
+//!    of u8 codes)
 //!    of an episode recorded by the host simulator (`data/episode.gmep`, read from the host
 //!    through semihosting step by step, as a robot reads its camera); two inner updates of
 //!    Algorithm 1 happen, at steps 20 and 40. Every action, the probabilities' bits and the

@@ -540,7 +540,7 @@ fn episode_file_is_checked() {
     // Reads past the end are errors, not panics.
     let mut src = episode::Bytes(&ep);
     let mut obs = [0.0f32; 512];
-    let mut map = vec![0.0f32; episode::DIMS.map_len()];
+    let mut map = vec![0u8; episode::DIMS.map_len()];
     assert!(parsed
         .observation(&mut src, 40, &mut obs, &mut map)
         .is_err());
