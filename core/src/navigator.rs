@@ -2214,6 +2214,9 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
         ld: LdValue,
         forked: bool,
     ) -> Result<LdValue> {
+        if t0 == 0 {
+            self.start_disc_gradient(forked);
+        }
         let n = self.n_buf;
         let d = self.w.dims;
         let cfg = self.cfg;
@@ -2239,19 +2242,6 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
             iw,
             ..
         } = &mut self.arena.ram();
-        if t0 == 0 {
-            g_disc1.zero();
-            g_disc_w2.fill(0.0);
-            g_disc_b2.fill(0.0);
-            let rng = if forked {
-                &mut self.upd_rng
-            } else {
-                &mut self.rng
-            };
-            for e in eps[..n].iter_mut() {
-                *e = uniform(rng);
-            }
-        }
         let disc = disc_view(disc1, disc_w2, disc_b2, &w)?;
         let mut grads = DiscGrads {
             l1: g_disc1.grads(),
@@ -2316,6 +2306,30 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
             iw.u2 = sb;
         }
         r
+    }
+
+    /// D's gradient buffers zeroed and fresh interpolation weights ε for all of Ψ (from the
+    /// update's own generator when `forked`): the start of [`Navigator::disc_gradient`].
+    fn start_disc_gradient(&mut self, forked: bool) {
+        let n = self.n_buf;
+        let Ram {
+            g_disc1,
+            g_disc_w2,
+            g_disc_b2,
+            eps,
+            ..
+        } = &mut self.arena.ram();
+        g_disc1.zero();
+        g_disc_w2.fill(0.0);
+        g_disc_b2.fill(0.0);
+        let rng = if forked {
+            &mut self.upd_rng
+        } else {
+            &mut self.rng
+        };
+        for e in eps[..n].iter_mut() {
+            *e = uniform(rng);
+        }
     }
 
     /// The mean over Ψ of D's gradient (after its last entry).
