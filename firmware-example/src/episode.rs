@@ -315,6 +315,29 @@ pub fn run(
     arena: &mut [f32],
     probe: &mut dyn Probe,
 ) -> Result<Counters, Failure> {
+    run_with::<true>(blob_bytes, src, arena, probe)
+}
+
+/// [`run`] with the map given to [`Navigator::step_map`] as f32 values (`code as f32 /
+/// 255.0`), as a program on the C API does (`tests/tests/firmware_c_qemu.rs` compares its
+/// lines with these).
+#[allow(dead_code)]
+pub fn run_f32_map(
+    blob_bytes: &[u8],
+    src: &mut dyn Source,
+    arena: &mut [f32],
+    probe: &mut dyn Probe,
+) -> Result<Counters, Failure> {
+    run_with::<false>(blob_bytes, src, arena, probe)
+}
+
+/// [`run`] (`U8`: the map as u8 codes, [`Navigator::step_map_u8`]) or [`run_f32_map`].
+fn run_with<const U8: bool>(
+    blob_bytes: &[u8],
+    src: &mut dyn Source,
+    arena: &mut [f32],
+    probe: &mut dyn Probe,
+) -> Result<Counters, Failure> {
     let ep = Episode::parse(src)?;
     let blob = Blob::parse(blob_bytes)?;
     let weights = NavWeights::from_blob(&blob, &DIMS)?;
@@ -386,7 +409,15 @@ pub fn run(
         ep.observation(src, t, &mut obs, &mut map)?;
         let working = nav.update_pending();
         probe.step_begin();
-        let out = nav.step_map_u8(&obs, &map, MAP_SCALE, &[])?;
+        let out = if U8 {
+            nav.step_map_u8(&obs, &map, MAP_SCALE, &[])?
+        } else {
+            let mut mf = [0.0f32; DIMS.map_len()];
+            for (o, &q) in mf.iter_mut().zip(&map) {
+                *o = q as f32 / 255.0;
+            }
+            nav.step_map(&obs, &mf, &[])?
+        };
         probe.step_end(out.adapted, working || out.adapted);
         if out.adapted {
             let after = filled_at.take().map_or(1, |f| (t - f) as u32);
