@@ -123,6 +123,7 @@ fn adapt_one_by_one(
         xs: None,
         u2s: None,
         obs,
+        shared: false,
     };
     let AdaptWork { d, dd, .. } = w;
     let (d, dd) = (core::mem::take(d), core::mem::take(dd));
@@ -167,6 +168,7 @@ pub fn generator_score_backward(
         xs: None,
         u2s: None,
         obs: &[],
+        shared: false,
     };
     inner::score_backward(gen, Some(disc), inp, coef, &mut w.inner(), grads1, grads2)
 }

@@ -99,6 +99,62 @@ pub struct AdaptInputs<'a> {
     pub u2s: Option<&'a [f32]>,
     /// `n x F` observations (CosSim).
     pub obs: &'a [f32],
+    /// Every entry has the same noise, feature and pre-gain output (G's noise is zero and
+    /// θ is fixed within the update): `zs`, `xs` and `u2s` then hold that one row (`Z`,
+    /// `F`, `F` floats) for all `n` entries, with the bits `n` copies of it give.
+    pub shared: bool,
+}
+
+impl AdaptInputs<'_> {
+    /// The row of `zs`, `xs` and `u2s` that holds entry `t`'s.
+    #[inline]
+    fn row(&self, t: usize) -> usize {
+        if self.shared {
+            0
+        } else {
+            t
+        }
+    }
+
+    /// Rows (entries) `zs`, `xs` and `u2s` hold for `n` entries.
+    #[inline]
+    fn rows_for(&self, n: usize) -> usize {
+        if self.shared {
+            1
+        } else {
+            n
+        }
+    }
+}
+
+/// The features of entries `t0 .. t0 + nb` as `nb x F` rows: `xs`'s own rows, or for
+/// `shared` inputs its one row, as is for one entry, else copied `nb` times into `mix`.
+pub(crate) fn x_rows<'a>(
+    xs: &'a [f32],
+    shared: bool,
+    f: usize,
+    (t0, nb): (usize, usize),
+    mix: &'a mut [f32],
+) -> Result<&'a [f32]> {
+    if !shared {
+        return rows(xs, f, t0, nb);
+    }
+    let x = rows(xs, f, 0, 1)?;
+    if nb == 1 {
+        return Ok(x);
+    }
+    let len = mix.len();
+    let m = mix
+        .get_mut(..nb * f)
+        .ok_or(crate::Error::Shape(crate::ShapeError {
+            what: "inner.mix",
+            expected: nb * f,
+            actual: len,
+        }))?;
+    for r in m.chunks_exact_mut(f.max(1)) {
+        r.copy_from_slice(x);
+    }
+    Ok(m)
 }
 
 /// The first `n` floats of `s` (all of it when shorter: the kernels then report the
@@ -630,16 +686,28 @@ pub fn adapt_scores_part(
     (t_begin, t_end): (usize, usize),
 ) -> Result<Option<f32>> {
     let AdaptInputs {
-        attr, zs, xs, obs, ..
+        attr,
+        zs,
+        xs,
+        obs,
+        shared,
+        ..
     } = inp;
     w.check()?;
     gen.validate()?;
     let (n, f) = (d.len(), gen.feat());
     let zd = gen.in_dim().saturating_sub(attr.len());
-    check_len("adapt.zs", n * zd, zs.len())?;
+    let nr = inp.rows_for(n);
+    check_len("adapt.zs", nr * zd, zs.len())?;
     check_len("adapt.dd", n, dd.len())?;
-    if let Some(xs) = xs {
-        check_len("adapt.xs", n * f, xs.len())?;
+    match xs {
+        Some(xs) => check_len("adapt.xs", nr * f, xs.len())?,
+        None if shared => {
+            return Err(crate::Error::Config {
+                what: "adapt: shared inputs need their feature (xs)",
+            })
+        }
+        None => {}
     }
     match disc {
         Some(dc) => check_len("adapt.disc_in", f, dc.in_dim())?,
@@ -658,7 +726,7 @@ pub fn adapt_scores_part(
         }
         let mix = core::mem::take(&mut w.mix);
         let x = match xs {
-            Some(xs) => rows(xs, f, t0, nb),
+            Some(xs) => x_rows(xs, shared, f, (t0, nb), &mut *mix),
             None => rows(mix, f, 0, nb),
         };
         let r = x.and_then(|x| {
@@ -727,14 +795,19 @@ pub fn score_backward_part(
         xs,
         u2s,
         obs,
+        shared,
     } = inp;
     w.check()?;
     gen.validate()?;
     let (n, f) = (coef.len(), gen.feat());
     let zd = gen.in_dim().saturating_sub(attr.len());
-    check_len("adapt.zs", n * zd, zs.len())?;
+    let nr = inp.rows_for(n);
+    check_len("adapt.zs", nr * zd, zs.len())?;
+    if let Some(xs) = xs {
+        check_len("adapt.xs", nr * f, xs.len())?;
+    }
     if let Some(u2s) = u2s {
-        check_len("adapt.u2s", n * f, u2s.len())?;
+        check_len("adapt.u2s", nr * f, u2s.len())?;
         if xs.is_none() {
             return Err(crate::Error::Config {
                 what: "adapt: G's pre-gain outputs (u2s) need the features (xs)",
@@ -756,18 +829,21 @@ pub fn score_backward_part(
         let (t_first, mut nb) = (t, 0);
         while nb < w.b && t < n {
             if w.b > 1 {
-                w.z[nb * zd..(nb + 1) * zd].copy_from_slice(&zs[t * zd..(t + 1) * zd]);
+                let r = inp.row(t);
+                w.z[nb * zd..(nb + 1) * zd].copy_from_slice(&zs[r * zd..(r + 1) * zd]);
             }
-            t = group_end(zs, zd, t, n, grouped);
+            t = group_end(zs, zd, t, n, (grouped, shared));
             nb += 1;
         }
-        let z1 = (nb == 1).then(|| &zs[t_first * zd..(t_first + 1) * zd]);
+        let r1 = inp.row(t_first);
+        let z1 = (nb == 1).then(|| &zs[r1 * zd..(r1 + 1) * zd]);
         let groups = Groups {
             zs,
             coef,
             zd,
             t: t_first,
             grouped,
+            shared,
         };
         with_rows(w, nb, (z1, attr, zd), |w, r| {
             group_backward(
@@ -786,8 +862,12 @@ pub fn score_backward_part(
 }
 
 /// The end of the group starting at entry `t`: with `grouped`, the run of entries whose
-/// noise has the bits of entry `t`'s; else `t + 1`.
-fn group_end(zs: &[f32], zd: usize, t: usize, n: usize, grouped: bool) -> usize {
+/// noise has the bits of entry `t`'s (with `shared` noise, every entry from `t` on); else
+/// `t + 1`.
+fn group_end(zs: &[f32], zd: usize, t: usize, n: usize, (grouped, shared): (bool, bool)) -> usize {
+    if shared {
+        return if grouped { n } else { t + 1 };
+    }
     let z = &zs[t * zd..(t + 1) * zd];
     let mut end = t + 1;
     while grouped && end < n && same_bits(&zs[end * zd..(end + 1) * zd], z) {
@@ -804,6 +884,7 @@ struct Groups<'a> {
     zd: usize,
     t: usize,
     grouped: bool,
+    shared: bool,
 }
 
 impl<'a> Groups<'a> {
@@ -816,7 +897,7 @@ impl<'a> Groups<'a> {
             if t >= n {
                 return None;
             }
-            let end = group_end(self.zs, self.zd, t, n, self.grouped);
+            let end = group_end(self.zs, self.zd, t, n, (self.grouped, self.shared));
             let mut c = self.coef[t];
             for &ce in &self.coef[t + 1..end] {
                 c += ce;
@@ -835,11 +916,75 @@ fn group_backward(
     gen: &Generator<'_>,
     disc: Option<&Discriminator<'_>>,
     rows: (&[f32], &[f32]),
-    (xs, u2s, obs): (Option<&[f32]>, Option<&[f32]>, &[f32]),
+    inputs: (Option<&[f32]>, Option<&[f32]>, &[f32]),
     groups: Groups<'_>,
     nb: usize,
     w: &mut InnerWork<'_>,
     (grads1, grads2): (&mut DenseGrads<'_>, &mut DenseGrads<'_>),
+) -> Result<()> {
+    group_forward(gen, disc, rows, inputs, groups, nb, w)?;
+    gen_backward(gen, rows, nb, w, grads1, grads2)
+}
+
+/// The score backward pass of shared inputs ([`AdaptInputs::shared`]) with D, in two halves
+/// the sliced update runs as two slices: `first` runs G's forward pass and D's input
+/// gradient for the one group all entries form (into `w`'s activations, `mix` and `g`,
+/// which nothing else writes between the two), the other half G's backward pass into the
+/// gradients. Together the bits of [`score_backward_part`] on the same inputs.
+pub(crate) fn shared_backward_half(
+    gen: &Generator<'_>,
+    disc: &Discriminator<'_>,
+    inp: AdaptInputs<'_>,
+    coef: &[f32],
+    w: &mut InnerWork<'_>,
+    (grads1, grads2): (&mut DenseGrads<'_>, &mut DenseGrads<'_>),
+    first: bool,
+) -> Result<()> {
+    w.check()?;
+    gen.validate()?;
+    let f = gen.feat();
+    let zd = gen.in_dim().saturating_sub(inp.attr.len());
+    if !inp.shared || coef.is_empty() {
+        return Err(crate::Error::Config {
+            what: "adapt: the two-half backward pass needs shared inputs and entries",
+        });
+    }
+    check_len("adapt.zs", zd, inp.zs.len())?;
+    check_len("inner.mix", w.b * f, w.mix.len())?;
+    check_len("inner.g", w.b * f, w.g.len())?;
+    let rows = (inp.zs, inp.attr);
+    if !first {
+        return gen_backward(gen, rows, 1, w, grads1, grads2);
+    }
+    let groups = Groups {
+        zs: inp.zs,
+        coef,
+        zd,
+        t: 0,
+        grouped: true,
+        shared: true,
+    };
+    group_forward(
+        gen,
+        Some(disc),
+        rows,
+        (inp.xs, inp.u2s, inp.obs),
+        groups,
+        1,
+        w,
+    )
+}
+
+/// The first part of [`group_backward`]: G's forward pass (or the features `xs`) and
+/// `∂L/∂x` from D's input gradient or the cosine's, into `w.g`.
+fn group_forward(
+    gen: &Generator<'_>,
+    disc: Option<&Discriminator<'_>>,
+    rows: (&[f32], &[f32]),
+    (xs, u2s, obs): (Option<&[f32]>, Option<&[f32]>, &[f32]),
+    groups: Groups<'_>,
+    nb: usize,
+    w: &mut InnerWork<'_>,
 ) -> Result<()> {
     let f = gen.feat();
     match xs {
@@ -848,9 +993,10 @@ fn group_backward(
         Some(xs) if gen.l2.gain.is_none() || u2s.is_some() => {
             gen_hidden(gen, rows, nb, w)?;
             for (i, (t, _)) in groups.each().take(nb).enumerate() {
-                w.mix[i * f..(i + 1) * f].copy_from_slice(&xs[t * f..(t + 1) * f]);
+                let r = if groups.shared { 0 } else { t };
+                w.mix[i * f..(i + 1) * f].copy_from_slice(&xs[r * f..(r + 1) * f]);
                 if let Some(u2s) = u2s.filter(|_| gen.l2.gain.is_some()) {
-                    w.u2[i * f..(i + 1) * f].copy_from_slice(&u2s[t * f..(t + 1) * f]);
+                    w.u2[i * f..(i + 1) * f].copy_from_slice(&u2s[r * f..(r + 1) * f]);
                 }
             }
         }
@@ -879,7 +1025,7 @@ fn group_backward(
             }
         }
     }
-    gen_backward(gen, rows, nb, w, grads1, grads2)
+    Ok(())
 }
 
 /// G's backward pass for the `nb` batch rows (`rows` = noise and attribute rows, the

@@ -22,6 +22,7 @@ use crate::preset::{sat, tri, Dims};
 use crate::NUM_ACTIONS;
 
 pub use crate::schema::AdaptMode;
+use crate::schema::NoiseMode;
 
 /// How much RAM the navigator trades for speed. **Never the bits**: every footprint gives
 /// every step, score, gradient and adapted parameter the same bits (the batched kernels'
@@ -44,9 +45,10 @@ pub enum Footprint {
     /// The smallest layout, for blobs with [`FLAG_COMPACT_PSI`](crate::schema::FLAG_COMPACT_PSI)
     /// in [`AdaptMode::Efficient`]: [`Footprint::Compact`] without Ψ_x (the inner update
     /// regenerates each entry's x_t from its noise, batch by batch: the same bits, more
-    /// work) and with Ψ's observations as int16 with one scale per entry (two per f32 of
-    /// the arena). A navigator refuses it for other blobs, for `Full` mode and for CosSim
-    /// models that adapt ([`crate::Error::Config`]).
+    /// work; with zero noise Ψ keeps the one x_t every entry shares, as every footprint does)
+    /// and with Ψ's observations as int16 with one scale per entry (two per f32 of the
+    /// arena). A navigator refuses it for other blobs, for `Full` mode and for CosSim models
+    /// that adapt ([`crate::Error::Config`]).
     Minimal,
 }
 
@@ -108,7 +110,20 @@ impl NavLayout {
         k: usize,
         fp: Footprint,
     ) -> Option<NavLayout> {
-        let lens = tri!(region_lens(d, mode, k, fp));
+        NavLayout::try_new_noise(d, mode, k, fp, NoiseMode::Gaussian)
+    }
+
+    /// [`NavLayout::try_new_with`] for G's noise mode: with [`NoiseMode::Zero`] Ψ keeps no
+    /// noise and one row of Ψ_x (every entry's x_t is the same).
+    pub const fn try_new_noise(
+        d: &Dims,
+        mode: AdaptMode,
+        k: usize,
+        fp: Footprint,
+        noise: NoiseMode,
+    ) -> Option<NavLayout> {
+        let zero = matches!(noise, NoiseMode::Zero);
+        let lens = tri!(region_lens(d, mode, k, fp, zero));
         let mut sums = [0usize; 7];
         let mut i = 0;
         while i < NUM_REGIONS {
@@ -169,7 +184,7 @@ pub(crate) enum Part {
 /// length of every region in carve order (`region_lens`) and the [`NavLayout`] field each
 /// counts towards. The navigator generates its `Ram` struct and carve from the same table.
 macro_rules! arena_lens {
-    (|$d:ident, $full:ident, $g:ident, $k:ident, $b:ident, $map:ident, $gen_in:ident, $fast:ident, $min:ident|
+    (|$d:ident, $full:ident, $g:ident, $k:ident, $b:ident, $map:ident, $gen_in:ident, $fast:ident, $min:ident, $zero:ident|
      $($field:ident $(: $kind:ident)? in $part:ident
         $({ $($sub:ident = $sl:expr;)* })? $(= $len:expr;)?)*) => {
         /// The [`NavLayout`] field of every region, in carve order.
@@ -179,12 +194,14 @@ macro_rules! arena_lens {
         pub(crate) const NUM_REGIONS: usize = REGION_PART.len();
 
         /// Length in f32 of every region, in carve order, for `d`, `mode`, buffer
-        /// capacity `k` and footprint `fp` (`None` when one overflows `usize`).
+        /// capacity `k`, footprint `fp` and G's noise (`zero`: [`NoiseMode::Zero`]) (`None`
+        /// when one overflows `usize`).
         pub(crate) const fn region_lens(
             $d: &Dims,
             mode: AdaptMode,
             $k: usize,
             fp: Footprint,
+            $zero: bool,
         ) -> Option<[usize; NUM_REGIONS]> {
             let $full = matches!(mode, AdaptMode::Full);
             let $fast = matches!(fp, Footprint::Fast);
@@ -265,7 +282,7 @@ pub const fn adapt_batch_with(mode: AdaptMode, k: usize, fp: Footprint) -> usize
 /// navigator generates its `Ram` struct and carve from it with `arena_ram`.
 macro_rules! arena_table {
     ($gen:ident) => {
-        $gen! { |d, full, g, k, b, map, gen_in, fast, min|
+        $gen! { |d, full, g, k, b, map, gen_in, fast, min, zero|
             // Adapted G (θ, or its gains and biases): weights in Full, gains in Efficient,
             // biases.
             gen1: LayerRam in GenParams {
@@ -320,17 +337,29 @@ macro_rules! arena_table {
             // Minimal footprint: the observations as int16, two per float, and their scales).
             psi_s in Psi = tri!(k.checked_mul(if min { d.feat.div_ceil(2) } else { d.feat }));
             psi_sc in Psi = if min { k } else { 0 };
-            psi_z in Psi = tri!(k.checked_mul(d.noise));
+            // (With zero noise every z_t is zero: Ψ keeps none.)
+            psi_z in Psi = if zero { 0 } else { tri!(k.checked_mul(d.noise)) };
             psi_p in Psi = tri!(k.checked_mul(NUM_ACTIONS));
             psi_h in Psi = tri!(k.checked_mul(d.lstm_hidden));
             // Ψ_x: the generated feature of every entry, made once per inner update (G is
             // fixed within an adaptation window, so these are the bits each entry's forward
-            // pass gives).
-            psi_x in Psi = if min { 0 } else { tri!(k.checked_mul(d.feat)) };
+            // pass gives). With zero noise one row in every footprint: every entry's x_t is
+            // G(0, SE(y)) at the update's θ.
+            psi_x in Psi = if zero {
+                d.feat
+            } else if min {
+                0
+            } else {
+                tri!(k.checked_mul(d.feat))
+            };
             // Fast footprint, Efficient mode: G's pre-gain output `W2 h1` of every entry,
             // recorded at its step, so that L_ad's backward pass needs no forward pass of G
-            // (`inner`).
-            psi_u2 in Psi = if fast { g * tri!(k.checked_mul(d.feat)) } else { 0 };
+            // (`inner`); one row with zero noise.
+            psi_u2 in Psi = if fast {
+                g * if zero { d.feat } else { tri!(k.checked_mul(d.feat)) }
+            } else {
+                0
+            };
             // G activations of the step.
             u1 in Work = g * d.gen_hidden;
             h1 in Work = d.gen_hidden;
@@ -407,9 +436,37 @@ pub const fn arena_len(d: &Dims, mode: AdaptMode, k: usize) -> usize {
     sat(try_arena_len(d, mode, k))
 }
 
-/// [`arena_len`] for a [`Footprint`].
+/// [`arena_len`] for a [`Footprint`]: enough for a navigator of either noise mode (the
+/// larger of [`arena_len_noise`]'s two).
 pub const fn arena_len_with(d: &Dims, mode: AdaptMode, k: usize, fp: Footprint) -> usize {
     sat(try_arena_len_with(d, mode, k, fp))
+}
+
+/// [`arena_len_with`] for one noise mode of G ([`NavConfig::noise`](crate::navigator::NavConfig::noise)):
+/// with [`NoiseMode::Zero`] Ψ keeps no noise and one x_t, so a firmware that knows its blob's
+/// mode can size the arena exactly.
+pub const fn arena_len_noise(
+    d: &Dims,
+    mode: AdaptMode,
+    k: usize,
+    fp: Footprint,
+    noise: NoiseMode,
+) -> usize {
+    sat(try_arena_len_noise(d, mode, k, fp, noise))
+}
+
+/// [`arena_len_noise`], or `None` when it overflows `usize`.
+pub const fn try_arena_len_noise(
+    d: &Dims,
+    mode: AdaptMode,
+    k: usize,
+    fp: Footprint,
+    noise: NoiseMode,
+) -> Option<usize> {
+    match NavLayout::try_new_noise(d, mode, k, fp, noise) {
+        Some(l) => l.checked_total_floats(),
+        None => None,
+    }
 }
 
 /// [`arena_len`], or `None` when it overflows `usize`.
@@ -424,10 +481,9 @@ pub const fn try_arena_len_with(
     k: usize,
     fp: Footprint,
 ) -> Option<usize> {
-    match NavLayout::try_new_with(d, mode, k, fp) {
-        Some(l) => l.checked_total_floats(),
-        None => None,
-    }
+    let g = tri!(try_arena_len_noise(d, mode, k, fp, NoiseMode::Gaussian));
+    let z = tri!(try_arena_len_noise(d, mode, k, fp, NoiseMode::Zero));
+    Some(if g > z { g } else { z })
 }
 
 /// Bytes of flash the int8 weights of `dims` take (values plus one f32 scale per row; biases

@@ -33,6 +33,12 @@
 //! `reset`, which both empty Ψ), so the update uses the recorded x_t and runs no forward
 //! pass of G over Ψ (unless the caller fixed x_t, `Navigator::fix_generated_feature`).
 //!
+//! With [`NoiseMode::Zero`] x_t = G_θi(SE(y), 0) is the same at every step between two
+//! inner updates: the step runs G once after `reset` and after each commit and keeps x_t;
+//! Ψ keeps no z_t and one x_t for all its entries (in every [`Footprint`]), and the
+//! update's backward pass runs G and D once for all of Ψ (its entries share one noise, so
+//! they form one group whose coefficients are summed, `inner::score_backward_part`).
+//!
 //! Algorithm 1 as printed records a step only when `t` is not a multiple of `k` (lines
 //! 10-13), so its buffer would hold `k − 1` samples at each update. Here every step is
 //! recorded and the update runs when Ψ holds `k` samples, i.e. every `k` steps.
@@ -434,7 +440,8 @@ pub struct AdaptReport {
 pub struct BufferView<'a> {
     /// Observations s_t (`n x feat`).
     pub obs: &'a [f32],
-    /// Noise z_t (`n x noise`).
+    /// Noise z_t (`n x noise`; empty with [`NoiseMode::Zero`], where every z_t is zero and
+    /// Ψ keeps none).
     pub noise: &'a [f32],
     /// Action probabilities a_t (`n x 6`).
     pub probs: &'a [f32],
@@ -818,7 +825,7 @@ macro_rules! ram_field {
 /// Generates, from the arena table ([`crate::memory`]'s `arena_table`), the `Ram` struct
 /// (one field per region or group of regions, in table order) and its carve.
 macro_rules! arena_ram {
-    (|$d:ident, $full:ident, $g:ident, $k:ident, $b:ident, $map:ident, $gen_in:ident, $fast:ident, $min:ident|
+    (|$d:ident, $full:ident, $g:ident, $k:ident, $b:ident, $map:ident, $gen_in:ident, $fast:ident, $min:ident, $zero:ident|
      $($field:ident $(: $kind:ident)? in $part:ident
         $({ $($sub:ident = $sl:expr;)* })? $(= $len:expr;)?)*) => {
         /// All RAM regions of the navigator, carved from its arena: `T` is `&mut [f32]`, or
@@ -877,17 +884,17 @@ macro_rules! arena_ram {
 
 arena_table!(arena_ram);
 
-/// The lengths of the regions of [`crate::memory`]'s arena table for `d`, `mode`, `k` and
-/// `fp`, checked against `arena` (too short: an error); returns them and the floats used.
+/// The lengths of the regions of [`crate::memory`]'s arena table for `d`, `mode`, `k`,
+/// `fp` and zero noise or not, checked against `arena` (too short: an error); returns them and the floats used.
 fn carve_check(
     arena: &mut [f32],
     d: &Dims,
     mode: AdaptMode,
     k: usize,
-    fp: Footprint,
+    (fp, zero): (Footprint, bool),
 ) -> Result<([usize; NUM_REGIONS], usize)> {
     let total = arena.len();
-    let lens = region_lens(d, mode, k, fp).ok_or(ARENA_TOO_SMALL)?;
+    let lens = region_lens(d, mode, k, fp, zero).ok_or(ARENA_TOO_SMALL)?;
     let (_, rest, short) = Ram::carve_lens(arena, &lens, mode == AdaptMode::Full, 1);
     if short {
         return Err(ARENA_TOO_SMALL);
@@ -998,6 +1005,8 @@ struct Update {
     total: u64,
     /// Slices run and upper bound of the slices in all.
     slices: u32,
+    /// The first half of a two-half backward pass ran ([`Navigator::split_backward`]).
+    half: bool,
     report: AdaptReport,
 }
 
@@ -1079,10 +1088,12 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
             return bad("Footprint::Minimal: compact Ψ, Efficient, D only");
         }
         let dims = weights.dims;
-        if crate::memory::try_arena_len_with(&dims, M::MODE, K, cfg.footprint).is_none() {
+        if crate::memory::try_arena_len_noise(&dims, M::MODE, K, cfg.footprint, cfg.noise).is_none()
+        {
             return bad("dims too large: the arena size for these dims, mode and K overflows");
         }
-        let (lens, _used) = carve_check(arena.as_mut(), &dims, M::MODE, K, cfg.footprint)?;
+        let zero = cfg.noise == NoiseMode::Zero;
+        let (lens, _used) = carve_check(arena.as_mut(), &dims, M::MODE, K, (cfg.footprint, zero))?;
         let mut nav = Navigator {
             w: weights,
             cfg,
@@ -1339,7 +1350,11 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
             } else {
                 &r.psi_s[..n * d.feat]
             },
-            noise: &r.psi_z[..n * d.noise],
+            noise: if self.cfg.noise == NoiseMode::Zero {
+                &[]
+            } else {
+                &r.psi_z[..n * d.noise]
+            },
             probs: &r.psi_p[..n * NUM_ACTIONS],
             hidden: &r.psi_h[..n * d.lstm_hidden],
         }
@@ -1392,6 +1407,59 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
         self.commit_step(obs, value)
     }
 
+    /// [`Navigator::step_map`] with the map as the camera quantised it: `map[j] * scale` is
+    /// the value of feature `j` (`map_cells x feat` u8 codes, cell-major, one `scale` for
+    /// the map, finite and positive). On the integer path (an int8-activation blob) the
+    /// map's cells are quantised straight from the codes, with no f32 pass over the map
+    /// ([`crate::qkernel::cell_layer_int8_u8`]); otherwise each cell is expanded to f32
+    /// (`map[j] as f32 * scale`) as it is used. Its results are its own (the integer path
+    /// quantises the codes, not their f32 values), the same on every target.
+    pub fn step_map_u8(
+        &mut self,
+        obs: &[f32],
+        map: &[u8],
+        scale: f32,
+        ps: &[f32],
+    ) -> Result<StepOutput> {
+        if !scale.is_finite() {
+            return Err(Error::NonFiniteInput { what: "map scale" });
+        }
+        if scale <= 0.0 {
+            return Err(Error::Config {
+                what: "step_map_u8: the map's scale must be positive",
+            });
+        }
+        self.begin_step_with(obs, (&[], map.len()), ps)?;
+        let r = self.arena.ram();
+        let biases = [&*r.fuse_b, &*r.lstm_b, &*r.critic_b, &*r.cell_b];
+        let actor = r.actor.view(self.w.get(TensorId::ActorW))?;
+        let policy = policy_view(&self.w, biases, actor)?;
+        let inp = PolicyInput {
+            obs,
+            feat: r.x,
+            attr: r.attr,
+            prev_probs: r.prev_probs,
+            ps: r.ps,
+            map: &[],
+        };
+        let mut value = [0.0f32];
+        let mut cache = PolicyCache {
+            prod: r.prod,
+            fuse: r.fuse,
+            gates: r.gates,
+            c: r.c,
+            h: r.h,
+            actor_u: r.actor_u,
+            logits: r.logits,
+            probs: r.probs,
+            value: &mut value,
+            cell: r.cell,
+            cell_prod: r.cell_prod,
+        };
+        policy.forward_map_u8(&inp, (map, scale), r.h_state, r.c_state, &mut cache)?;
+        self.commit_step(obs, value[0])
+    }
+
     /// Lines 5-7 of a step, for a host that runs the policies of many navigators as one
     /// batch: checks the inputs, keeps `ps` and generates x_t = G_θi(SE(y), z_t). The
     /// policy's inputs are then [`Navigator::generated_feature`], [`Navigator::attr`],
@@ -1400,7 +1468,18 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
     /// navigator adapts) on them and pass its new `(h, c)` to [`Navigator::finish_step`], with
     /// the same `obs`. `begin_step` again before `finish_step` draws a new x_t.
     pub fn begin_step(&mut self, obs: &[f32], map: &[f32], ps: &[f32]) -> Result<()> {
-        self.begin_checks(obs, map, ps)?;
+        self.begin_step_with(obs, (map, map.len()), ps)
+    }
+
+    /// [`Navigator::begin_step`] with a map of `map_len` values, of which `map` (f32) is
+    /// checked for finite values (empty when the map comes as u8 codes).
+    fn begin_step_with(
+        &mut self,
+        obs: &[f32],
+        (map, map_len): (&[f32], usize),
+        ps: &[f32],
+    ) -> Result<()> {
+        self.begin_checks(obs, (map, map_len), ps)?;
         // Line 7: x_t = G_θi(SE(y), z_t) (unless the caller fixed x_t for this episode).
         match self.cfg.noise {
             _ if self.x_fixed => {}
@@ -1422,7 +1501,12 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
     }
 
     /// The checks of a step's inputs, and `ps` into RAM.
-    fn begin_checks(&mut self, obs: &[f32], map: &[f32], ps: &[f32]) -> Result<()> {
+    fn begin_checks(
+        &mut self,
+        obs: &[f32],
+        (map, map_len): (&[f32], usize),
+        ps: &[f32],
+    ) -> Result<()> {
         if !self.ready {
             return Err(Error::Config {
                 what: "call reset() before step()",
@@ -1453,7 +1537,7 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
         let d = self.w.dims;
         check_len("step.obs", d.feat, obs.len())?;
         check_len("step.ps", d.ps, ps.len())?;
-        check_len("step.map", d.map_len(), map.len())?;
+        check_len("step.map", d.map_len(), map_len)?;
         if !all_finite(obs) {
             return Err(Error::NonFiniteInput { what: "obs" });
         }
@@ -1492,7 +1576,7 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
             self.begin_step(obs, map, ps)?;
             return Ok(false);
         }
-        self.begin_checks(obs, map, ps)?;
+        self.begin_checks(obs, (map, map.len()), ps)?;
         fill_gaussian(&mut self.rng, self.arena.ram().z);
         self.g_pending = true;
         self.begun = true;
@@ -1645,7 +1729,9 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
             } else {
                 r.psi_s[n * f..(n + 1) * f].copy_from_slice(obs);
             }
-            r.psi_z[n * z..(n + 1) * z].copy_from_slice(r.z);
+            if self.cfg.noise == NoiseMode::Gaussian {
+                r.psi_z[n * z..(n + 1) * z].copy_from_slice(r.z);
+            }
             r.psi_p[n * NUM_ACTIONS..(n + 1) * NUM_ACTIONS].copy_from_slice(r.probs);
             r.psi_h[n * lh..(n + 1) * lh].copy_from_slice(r.h);
             self.record_psi_features(n);
@@ -1689,7 +1775,7 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
             match sched {
                 Schedule::Manual => {
                     if can && delay > 0 {
-                        self.start_update(true);
+                        self.start_update(true)?;
                     }
                 }
                 _ if can && delay == 0 => {
@@ -1697,7 +1783,7 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
                     adapted = true;
                     self.n_buf = 0;
                 }
-                _ if can => self.start_update(true),
+                _ if can => self.start_update(true)?,
                 _ => self.n_buf = 0,
             }
         }
@@ -1822,16 +1908,45 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
     /// is not finite or exceeds the loss bound is not applied (rolled back). All at once:
     /// the slices of [`Navigator::run_slice`] back to back, then the commit.
     fn inner_update(&mut self) -> Result<()> {
-        self.start_update(false);
+        self.start_update(false)?;
         while self.upd.is_some_and(|u| u.phase != Phase::Done) {
             self.run_slice()?;
         }
         self.commit_update()
     }
 
+    /// With zero noise and Ψ's one row of x_t not recorded by its first entry (the caller
+    /// fixed x_t, or a probe overwrote G's activations first): G(0, SE(y)) at the current θ,
+    /// once, into that row (the bits the steps' G pass gives).
+    fn generate_shared_x(&mut self) -> Result<()> {
+        if self.cfg.noise != NoiseMode::Zero || self.psi_recorded {
+            return Ok(());
+        }
+        self.u2_valid = false;
+        let f = self.w.dims.feat;
+        let r = self.arena.ram();
+        r.z.fill(0.0);
+        let gen = gen_view(&r.gen1, &r.gen2, &self.w)?;
+        let u2 = if r.psi_u2.is_empty() {
+            r.u2
+        } else {
+            &mut r.psi_u2[..f]
+        };
+        let mut cache = GeneratorCache {
+            u1: r.u1,
+            h1: r.h1,
+            u2,
+            x: &mut r.psi_x[..f],
+        };
+        gen.forward(r.z, r.attr, &mut cache)?;
+        self.psi_recorded = true;
+        Ok(())
+    }
+
     /// Starts the inner update on the `n_buf` entries of Ψ (`forked`: with the update's own
     /// generator, forked from the navigator's by one draw).
-    fn start_update(&mut self, forked: bool) {
+    fn start_update(&mut self, forked: bool) -> Result<()> {
+        self.generate_shared_x()?;
         // Lines 15-16: D ascends L_D over Ψ_s and Ψ_x, `disc_steps` times (the paper: once;
         // not with the CosSim variant, which has no D).
         let use_d = self.cfg.emd == Emd::Discriminator;
@@ -1862,10 +1977,12 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
             done: 0,
             total: 0,
             slices: 0,
+            half: false,
             report: AdaptReport::default(),
         };
         u.total = self.cost_bound(&u);
         self.upd = Some(u);
+        Ok(())
     }
 
     /// Estimated multiply-adds of one slice (a batch of `nb` entries) of `phase`: what the
@@ -1897,7 +2014,29 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
             Phase::Head => d.lstm_hidden * NUM_ACTIONS * 2,
             Phase::Done => 0,
         };
+        // With zero noise (and D) every entry shares one z_t: the backward pass is one
+        // group, one pass of G and D for all of Ψ, run in two halves (`split_backward`).
+        if phase == Phase::Backward && self.split_backward() {
+            return per as u64;
+        }
         (per * nb) as u64
+    }
+
+    /// With zero noise and D, Ψ's entries form one group of the backward pass, which runs
+    /// as two slices (`inner::shared_backward_half`): G's and D's forward part, then G's
+    /// backward pass.
+    fn split_backward(&self) -> bool {
+        self.cfg.noise == NoiseMode::Zero && self.cfg.emd == Emd::Discriminator
+    }
+
+    /// Estimated multiply-adds of the first half of a split backward pass (the rest of
+    /// [`Navigator::slice_cost`]'s `Backward` is the second).
+    fn backward_first_half_cost(&self) -> u64 {
+        let d = self.w.dims;
+        let (f, dh, h, zin) = (d.feat, d.disc_hidden, d.gen_hidden, d.noise + d.attr);
+        let keep_u2 = !self.arena.view().psi_u2.is_empty() && self.psi_recorded;
+        let tw = 1 + self.w.get(TensorId::GenW2).int8_activations() as usize;
+        (h * zin + f * dh + f * h * !keep_u2 as usize + tw * f * dh) as u64
     }
 
     /// Upper bound of the update's estimated work, from the phase `u` starts in.
@@ -1915,7 +2054,13 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
     fn slice_bound(&self) -> u32 {
         let Some(u) = self.upd else { return 0 };
         let per = self.n_buf.div_ceil(self.arena.b) as u32;
-        let back = if self.cfg.head_only { 0 } else { per };
+        let back = if self.cfg.head_only {
+            0
+        } else if self.split_backward() {
+            per.max(2)
+        } else {
+            per
+        };
         u.disc_steps * per + per + back + 1
     }
 
@@ -1929,7 +2074,19 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
         let b = self.arena.b;
         let (t0, t1) = (u.t, (u.t + b).min(n));
         let phase = u.phase;
-        u.done = u.done.saturating_add(self.slice_cost(phase, t1 - t0));
+        let split = phase == Phase::Backward && self.split_backward();
+        let cost = if split {
+            let first = self.backward_first_half_cost();
+            let all = self.slice_cost(phase, n);
+            if u.half {
+                all.saturating_sub(first)
+            } else {
+                first
+            }
+        } else {
+            self.slice_cost(phase, t1 - t0)
+        };
+        u.done = u.done.saturating_add(cost);
         u.slices += 1;
         match phase {
             Phase::Disc => {
@@ -1962,7 +2119,13 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
                 }
             }
             Phase::Backward => {
-                u.t = self.score_backward(t0, u.use_d)?;
+                if split {
+                    self.score_backward_half(!u.half)?;
+                    u.t = if u.half { n } else { 0 };
+                    u.half = !u.half;
+                } else {
+                    u.t = self.score_backward(t0, u.use_d)?;
+                }
                 if u.t >= n {
                     u.t = 0;
                     u.phase = Phase::Head;
@@ -2016,6 +2179,21 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
         let f = self.w.dims.feat;
         let r = self.arena.ram();
         let keep_u2 = !r.psi_u2.is_empty();
+        if self.cfg.noise == NoiseMode::Zero {
+            // One row for every entry: the first entry's (G's output is the same until the
+            // commit, which empties Ψ).
+            if n == 0 {
+                let ok = !self.x_fixed && (!keep_u2 || self.u2_valid);
+                if ok {
+                    r.psi_x[..f].copy_from_slice(r.x);
+                    if keep_u2 {
+                        r.psi_u2[..f].copy_from_slice(r.u2);
+                    }
+                }
+                self.psi_recorded = ok;
+            }
+            return;
+        }
         let ok = !self.lean && !self.x_fixed && (!keep_u2 || self.u2_valid);
         if ok {
             r.psi_x[n * f..(n + 1) * f].copy_from_slice(r.x);
@@ -2036,12 +2214,16 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
         ld: LdValue,
         forked: bool,
     ) -> Result<LdValue> {
+        if t0 == 0 {
+            self.start_disc_gradient(forked);
+        }
         let n = self.n_buf;
         let d = self.w.dims;
         let cfg = self.cfg;
         let (f, zd) = (d.feat, d.noise);
         let w = self.w;
         let (recorded, lean) = (self.psi_recorded, self.lean);
+        let zero = self.cfg.noise == NoiseMode::Zero;
         let Ram {
             gen1,
             gen2,
@@ -2060,19 +2242,6 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
             iw,
             ..
         } = &mut self.arena.ram();
-        if t0 == 0 {
-            g_disc1.zero();
-            g_disc_w2.fill(0.0);
-            g_disc_b2.fill(0.0);
-            let rng = if forked {
-                &mut self.upd_rng
-            } else {
-                &mut self.rng
-            };
-            for e in eps[..n].iter_mut() {
-                *e = uniform(rng);
-            }
-        }
         let disc = disc_view(disc1, disc_w2, disc_b2, &w)?;
         let mut grads = DiscGrads {
             l1: g_disc1.grads(),
@@ -2086,8 +2255,15 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
         let (nb, hf) = (t1 - t0, f.div_ceil(2));
         let mut xs: &mut [f32] = &mut [];
         let mut sb: &mut [f32] = &mut [];
+        // With zero noise Ψ's one x_t, copied for a batch of more than one entry into `dpre2`.
+        let mut xz: &mut [f32] = &mut [];
         let r = (|| {
-            let fake: &[f32] = if recorded {
+            let fake: &[f32] = if recorded && zero {
+                if nb > 1 {
+                    xz = core::mem::take(&mut iw.dpre2);
+                }
+                inner::x_rows(psi_x, true, f, (t0, nb), xz)?
+            } else if recorded {
                 &psi_x[t0 * f..t1 * f]
             } else {
                 let gen = gen_view(gen1, gen2, &w)?;
@@ -2123,10 +2299,37 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
             iw.dpre2 = core::mem::take(&mut iw.mix);
             iw.mix = xs;
         }
+        if !xz.is_empty() {
+            iw.dpre2 = xz;
+        }
         if iw.u2.is_empty() {
             iw.u2 = sb;
         }
         r
+    }
+
+    /// D's gradient buffers zeroed and fresh interpolation weights ε for all of Ψ (from the
+    /// update's own generator when `forked`): the start of [`Navigator::disc_gradient`].
+    fn start_disc_gradient(&mut self, forked: bool) {
+        let n = self.n_buf;
+        let Ram {
+            g_disc1,
+            g_disc_w2,
+            g_disc_b2,
+            eps,
+            ..
+        } = &mut self.arena.ram();
+        g_disc1.zero();
+        g_disc_w2.fill(0.0);
+        g_disc_b2.fill(0.0);
+        let rng = if forked {
+            &mut self.upd_rng
+        } else {
+            &mut self.rng
+        };
+        for e in eps[..n].iter_mut() {
+            *e = uniform(rng);
+        }
     }
 
     /// The mean over Ψ of D's gradient (after its last entry).
@@ -2186,6 +2389,7 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
         let (f, zd) = (d.feat, d.noise);
         let w = self.w;
         let (recorded, lean) = (self.psi_recorded, self.lean);
+        let zero = self.cfg.noise == NoiseMode::Zero;
         let Ram {
             gen1,
             gen2,
@@ -2195,6 +2399,7 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
             g_gen1,
             g_gen2,
             g_actor,
+            z: z0,
             psi_s,
             psi_z,
             psi_p,
@@ -2214,12 +2419,15 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
         }
         let gen = gen_view(gen1, gen2, &w)?;
         let disc = disc_view(disc1, disc_w2, disc_b2, &w)?;
+        // With zero noise one row of z (the step's, zero), x_t and `W2 h1` for every entry.
+        let (shared, nr) = if zero { (true, 1) } else { (false, n) };
         let inp = inner::AdaptInputs {
             attr,
-            zs: &psi_z[..n * zd],
-            xs: recorded.then(|| &psi_x[..n * f]),
-            u2s: (recorded && !psi_u2.is_empty()).then(|| &psi_u2[..n * f]),
+            zs: if zero { z0 } else { &psi_z[..n * zd] },
+            xs: recorded.then(|| &psi_x[..nr * f]),
+            u2s: (recorded && !psi_u2.is_empty()).then(|| &psi_u2[..nr * f]),
             obs: if lean { &[] } else { &psi_s[..n * f] },
+            shared,
         };
         let outs = (
             &mut dvals[..n],
@@ -2240,6 +2448,7 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
         let (f, zd) = (d.feat, d.noise);
         let w = self.w;
         let (recorded, lean) = (self.psi_recorded, self.lean);
+        let zero = self.cfg.noise == NoiseMode::Zero;
         let Ram {
             gen1,
             gen2,
@@ -2248,6 +2457,7 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
             disc_b2,
             g_gen1,
             g_gen2,
+            z: z0,
             psi_s,
             psi_z,
             psi_x,
@@ -2259,12 +2469,15 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
         } = &mut self.arena.ram();
         let gen = gen_view(gen1, gen2, &w)?;
         let disc = disc_view(disc1, disc_w2, disc_b2, &w)?;
+        // With zero noise one row of z (the step's, zero), x_t and `W2 h1` for every entry.
+        let (shared, nr) = if zero { (true, 1) } else { (false, n) };
         let inp = inner::AdaptInputs {
             attr,
-            zs: &psi_z[..n * zd],
-            xs: recorded.then(|| &psi_x[..n * f]),
-            u2s: (recorded && !psi_u2.is_empty()).then(|| &psi_u2[..n * f]),
+            zs: if zero { z0 } else { &psi_z[..n * zd] },
+            xs: recorded.then(|| &psi_x[..nr * f]),
+            u2s: (recorded && !psi_u2.is_empty()).then(|| &psi_u2[..nr * f]),
             obs: if lean { &[] } else { &psi_s[..n * f] },
+            shared,
         };
         inner::score_backward_part(
             &gen,
@@ -2274,6 +2487,51 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
             iw,
             (&mut g_gen1.grads(), &mut g_gen2.grads()),
             (t, 1),
+        )
+    }
+
+    /// One half of pass 2 of L_ad with zero noise and D (`first`: G's and D's forward part;
+    /// else G's backward pass into θ's gradient), see [`Navigator::split_backward`].
+    fn score_backward_half(&mut self, first: bool) -> Result<()> {
+        let n = self.n_buf;
+        let f = self.w.dims.feat;
+        let w = self.w;
+        let lean = self.lean;
+        let Ram {
+            gen1,
+            gen2,
+            disc1,
+            disc_w2,
+            disc_b2,
+            g_gen1,
+            g_gen2,
+            z: z0,
+            psi_s,
+            psi_x,
+            psi_u2,
+            dd,
+            attr,
+            iw,
+            ..
+        } = &mut self.arena.ram();
+        let gen = gen_view(gen1, gen2, &w)?;
+        let disc = disc_view(disc1, disc_w2, disc_b2, &w)?;
+        let inp = inner::AdaptInputs {
+            attr,
+            zs: z0,
+            xs: Some(&psi_x[..f]),
+            u2s: (!psi_u2.is_empty()).then(|| &psi_u2[..f]),
+            obs: if lean { &[] } else { &psi_s[..n * f] },
+            shared: true,
+        };
+        inner::shared_backward_half(
+            &gen,
+            &disc,
+            inp,
+            &dd[..n],
+            iw,
+            (&mut g_gen1.grads(), &mut g_gen2.grads()),
+            first,
         )
     }
 
@@ -2383,7 +2641,7 @@ mod tests {
                     let n = arena_len_with(&d, mode, k, fp);
                     let mut arena = vec![0.0f32; n + 7];
                     let base = arena.as_ptr() as usize;
-                    let (lens, used) = carve_check(&mut arena, &d, mode, k, fp).unwrap();
+                    let (lens, used) = carve_check(&mut arena, &d, mode, k, (fp, false)).unwrap();
                     let full = mode == AdaptMode::Full;
                     let (ram, _, short) = Ram::carve_lens(&mut arena[..], &lens, full, 1);
                     assert!(!short);
@@ -2396,7 +2654,7 @@ mod tests {
                     assert_eq!(at(ram.gen1.w), 0);
                     assert_eq!(at(ram.cell_prod) + ram.cell_prod.len(), n);
                     let mut small = vec![0.0f32; n - 1];
-                    assert!(carve_check(&mut small, &d, mode, k, fp).is_err());
+                    assert!(carve_check(&mut small, &d, mode, k, (fp, false)).is_err());
                 }
             }
         }

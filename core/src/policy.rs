@@ -212,6 +212,58 @@ impl<'a> Policy<'a> {
         self.forward_tail(1, wd, inp, h_prev, c_prev, cache)
     }
 
+    /// [`Policy::forward`] with the map given as the camera quantised it: `map[j] * scale`
+    /// is the value of feature `j` (u8 codes, one scale for the map; `inp.map` is not read).
+    /// On the integer path the cells are quantised straight from the codes
+    /// ([`crate::qkernel::cell_layer_int8_u8`]); otherwise each cell is expanded to f32
+    /// (`map[j] as f32 * scale`) in `cache.prod`, free before the fusion layer, and runs as
+    /// in [`Policy::forward`].
+    pub fn forward_map_u8(
+        &self,
+        inp: &PolicyInput<'_>,
+        (map, scale): (&[u8], f32),
+        h_prev: &[f32],
+        c_prev: &[f32],
+        cache: &mut PolicyCache<'_>,
+    ) -> Result<()> {
+        self.validate()?;
+        let wd = self.batch_widths_map(inp, 1, cache.cell.len(), map.len())?;
+        let (f, cells, ce) = (wd.f, wd.cells, wd.ce);
+        match &self.cell {
+            Some(cell) if int8_cells(cell) => {
+                let out = &mut cache.cell[..cells * ce];
+                if ce > 0 {
+                    for o in out.chunks_exact_mut(ce) {
+                        o.copy_from_slice(cell.b);
+                    }
+                    crate::qkernel::cell_layer_int8_u8(&cell.w, map, scale, inp.feat, out)?;
+                    leaky_relu_inplace(out);
+                }
+            }
+            Some(cell) => {
+                check_len("policy.cell_prod", f, cache.cell_prod.len())?;
+                check_len("policy.prod", f, cache.prod.len())?;
+                for c in 0..cells {
+                    let m = &map[c * f..(c + 1) * f];
+                    for ((v, p), (&q, &x)) in cache
+                        .prod
+                        .iter_mut()
+                        .zip(cache.cell_prod.iter_mut())
+                        .zip(m.iter().zip(inp.feat))
+                    {
+                        *v = q as f32 * scale;
+                        *p = *v * x;
+                    }
+                    let out = &mut cache.cell[c * ce..(c + 1) * ce];
+                    cell.forward(&[cache.prod, cache.cell_prod], &mut [], out)?;
+                    leaky_relu_inplace(out);
+                }
+            }
+            None => {}
+        }
+        self.forward_tail(1, wd, inp, h_prev, c_prev, cache)
+    }
+
     /// The map's cells one at a time through a single cell's scratch (`cache.cell_prod`).
     fn cells_f32(
         &self,
@@ -350,6 +402,17 @@ impl<'a> Policy<'a> {
         n: usize,
         cell_out: usize,
     ) -> Result<BatchWidths> {
+        self.batch_widths_map(inp, n, cell_out, inp.map.len())
+    }
+
+    /// [`Policy::batch_widths`] with a map of `map_len` values given apart from `inp`.
+    fn batch_widths_map(
+        &self,
+        inp: &PolicyInput<'_>,
+        n: usize,
+        cell_out: usize,
+        map_len: usize,
+    ) -> Result<BatchWidths> {
         let per = |what: &'static str, len: usize| -> Result<usize> {
             let w = len / n;
             check_len(what, n * w, len)?;
@@ -362,15 +425,15 @@ impl<'a> Policy<'a> {
         check_len("policy.prev_probs", n * NUM_ACTIONS, inp.prev_probs.len())?;
         let (cells, ce) = match &self.cell {
             None => {
-                check_len("policy.map", 0, inp.map.len())?;
+                check_len("policy.map", 0, map_len)?;
                 check_len("policy.cell_out", 0, cell_out)?;
                 (0, 0)
             }
             Some(cell) => {
                 check_len("policy.cell.in", 2 * f, cell.in_dim())?;
                 let ce = cell.out_dim();
-                let cells = (inp.map.len() / n).checked_div(f).unwrap_or(0);
-                check_len("policy.map", n * cells * f, inp.map.len())?;
+                let cells = (map_len / n).checked_div(f).unwrap_or(0);
+                check_len("policy.map", n * cells * f, map_len)?;
                 check_len("policy.cell_out", n * cells * ce, cell_out)?;
                 (cells, ce)
             }

@@ -136,7 +136,12 @@ fn quantize_pack(x: &[f32], inv: f32, nonneg: bool, xq: &mut [i8], xp: &mut [u32
 }
 
 #[inline(always)]
-fn quantize_pack_with(x: &[f32], xq: &mut [i8], xp: &mut [u32], f: impl Fn(f32) -> i32) -> usize {
+fn quantize_pack_with<T: Copy>(
+    x: &[T],
+    xq: &mut [i8],
+    xp: &mut [u32],
+    f: impl Fn(T) -> i32,
+) -> usize {
     let mut packed = 0;
     for (xs, ps) in x
         .chunks_exact(4)
@@ -388,6 +393,103 @@ const CELL_GROUP: usize = 16;
 /// per step instead of nine products per cell. The DSP kernel runs the int16 products as
 /// they are (`SMLAD` multiplies int16 halves; [`dots_i16_dsp`]).
 pub fn cell_layer_int8(w: &MatRef<'_>, map: &[f32], x: &[f32], out: &mut [f32]) -> Result<()> {
+    cell_layer_in(w, CellIn::F32(map), x, out)
+}
+
+/// [`cell_layer_int8`] on a map given as the camera quantised it: `map[j] * scale` is the
+/// value of feature `j` (u8 codes with one scale for the whole map). Each cell is quantised
+/// to int8 in integers, not through f32: with `a = max_j map_j` over the cell (a cell of
+/// zeros adds nothing), `s_m = (a as f32 * scale) / 127` and `p_j = (map_j r + 2^15) >> 16`
+/// with `r = (127 · 2^16 + a / 2) / a` (so `p_j <= 127`); the rest is
+/// [`cell_layer_int8`]'s computation with these `p_j` and `s_m`. `scale` must be finite and
+/// positive (the caller checks).
+pub fn cell_layer_int8_u8(
+    w: &MatRef<'_>,
+    map: &[u8],
+    scale: f32,
+    x: &[f32],
+    out: &mut [f32],
+) -> Result<()> {
+    cell_layer_in(w, CellIn::U8(map, scale), x, out)
+}
+
+/// A map as the cell layer's integer form takes it.
+#[derive(Clone, Copy)]
+enum CellIn<'a> {
+    /// f32 values, each cell quantised by [`act_range`] and [`quantize_act`].
+    F32(&'a [f32]),
+    /// u8 codes and their one scale ([`cell_layer_int8_u8`]).
+    U8(&'a [u8], f32),
+}
+
+/// A cell's quantisation: its scale `s_m`, the f32 form's `inv` and sign, the u8 form's `r`.
+type CellScale = (f32, f32, bool, u32);
+
+impl CellIn<'_> {
+    fn len(&self) -> usize {
+        match self {
+            CellIn::F32(m) => m.len(),
+            CellIn::U8(m, _) => m.len(),
+        }
+    }
+
+    /// The quantisation of cell `c` (`f` values).
+    fn range(&self, c: usize, f: usize) -> CellScale {
+        match *self {
+            CellIn::F32(m) => {
+                let (s, inv, nonneg) = act_range(&m[c * f..(c + 1) * f]);
+                (s, inv, nonneg, 0)
+            }
+            CellIn::U8(m, scale) => {
+                let a = m[c * f..(c + 1) * f].iter().copied().max().unwrap_or(0) as u32;
+                if a == 0 {
+                    return (0.0, 0.0, true, 0);
+                }
+                let r = ((127u32 << 16) + a / 2) / a;
+                ((a as f32 * scale) / 127.0, 0.0, true, r)
+            }
+        }
+    }
+
+    /// Quantises columns `c0 .. c0 + len` of cell `c` into `mq` (and, for the DSP kernel,
+    /// packed into `mw`); returns the number of inputs packed.
+    #[inline(always)]
+    fn quantize(
+        &self,
+        (c, f, c0, len): (usize, usize, usize, usize),
+        (_, inv, nonneg, r): CellScale,
+        dsp: bool,
+        mq: &mut [i8],
+        mw: &mut [u32],
+    ) -> usize {
+        match *self {
+            CellIn::F32(m) => {
+                let mb = &m[c * f + c0..c * f + c0 + len];
+                if dsp {
+                    quantize_pack(mb, inv, nonneg, mq, mw)
+                } else {
+                    quantize_act(mb, inv, mq);
+                    0
+                }
+            }
+            CellIn::U8(m, _) => {
+                let mb = &m[c * f + c0..c * f + c0 + len];
+                let qf = |v: u8| ((v as u32 * r + (1 << 15)) >> 16) as i32;
+                if dsp {
+                    quantize_pack_with(mb, mq, mw, qf)
+                } else {
+                    for (o, &v) in mq.iter_mut().zip(mb) {
+                        *o = qf(v) as i8;
+                    }
+                    0
+                }
+            }
+        }
+    }
+}
+
+/// [`cell_layer_int8`] or [`cell_layer_int8_u8`] with the target's kernel.
+fn cell_layer_in(w: &MatRef<'_>, map: CellIn<'_>, x: &[f32], out: &mut [f32]) -> Result<()> {
     if gman_dsp::HAS_DSP {
         return cell_layer_with::<true>(w, map, x, out, Dots::Dsp);
     }
@@ -401,12 +503,12 @@ pub fn cell_layer_int8_portable(
     x: &[f32],
     out: &mut [f32],
 ) -> Result<()> {
-    cell_layer_with::<false>(w, map, x, out, Dots::Portable)
+    cell_layer_with::<false>(w, CellIn::F32(map), x, out, Dots::Portable)
 }
 
 /// [`cell_layer_int8`] with the DSP kernels whatever the target (on a host: their model).
 pub fn cell_layer_int8_dsp(w: &MatRef<'_>, map: &[f32], x: &[f32], out: &mut [f32]) -> Result<()> {
-    cell_layer_with::<true>(w, map, x, out, Dots::Dsp)
+    cell_layer_with::<true>(w, CellIn::F32(map), x, out, Dots::Dsp)
 }
 
 /// Multiplies the int16 halves of two words packed by [`gman_dsp::pair_words`]: the packed
@@ -422,7 +524,7 @@ fn mul_halves(a: u32, b: u32) -> u32 {
 #[inline(never)]
 fn cell_layer_with<const DSP: bool>(
     w: &MatRef<'_>,
-    map: &[f32],
+    map: CellIn<'_>,
     x: &[f32],
     out: &mut [f32],
     dots: Dots,
@@ -449,13 +551,11 @@ fn cell_layer_with<const DSP: bool>(
     let mut mw = [0u32; QWORDS];
     let mut pq = [0i16; QCOLS];
     let mut acc = [0i32; QROWS];
-    let mut sc = [(0.0f32, 0.0f32, false); CELL_GROUP];
-    for (mg, og) in map
-        .chunks(CELL_GROUP * f)
-        .zip(out.chunks_mut(CELL_GROUP * rows))
-    {
-        for (s, m) in sc.iter_mut().zip(mg.chunks_exact(f)) {
-            *s = act_range(m);
+    let mut sc: [CellScale; CELL_GROUP] = [(0.0, 0.0, false, 0); CELL_GROUP];
+    for (gi, og) in out.chunks_mut(CELL_GROUP * rows).enumerate() {
+        let g0 = gi * CELL_GROUP;
+        for (i, s) in sc.iter_mut().enumerate().take(og.len() / rows) {
+            *s = map.range(g0 + i, f);
         }
         for c0 in (0..f).step_by(QCOLS) {
             let len = (f - c0).min(QCOLS);
@@ -468,19 +568,12 @@ fn cell_layer_with<const DSP: bool>(
                     quantize_act(&x[c0..c0 + len], xinv, xq);
                 }
             }
-            for ((m, o), &(sm, minv, mnonneg)) in
-                mg.chunks_exact(f).zip(og.chunks_exact_mut(rows)).zip(&sc)
-            {
+            for (i, (o, &cs)) in og.chunks_exact_mut(rows).zip(&sc).enumerate() {
+                let sm = cs.0;
                 if sm <= 0.0 {
                     continue;
                 }
-                let mb = &m[c0..c0 + len];
-                let packed = if dsp {
-                    quantize_pack(mb, minv, mnonneg, mq, &mut mw)
-                } else {
-                    quantize_act(mb, minv, mq);
-                    0
-                };
+                let packed = map.quantize((g0 + i, f, c0, len), cs, dsp, mq, &mut mw);
                 let words = &mut mw[..packed / 2];
                 block(q, &scales, cols, c0, &*mq, words, sm, &mut acc, o, dots);
                 if sx > 0.0 {

@@ -93,6 +93,8 @@ pub enum Failure {
     Episode(&'static str),
     /// gman-core returned an error.
     Core(gman_core::Error),
+    /// The embedded blob does not fit this image (what to export instead).
+    Blob(&'static str),
 }
 
 impl From<gman_core::Error> for Failure {
@@ -112,6 +114,7 @@ impl fmt::Display for Failure {
         match self {
             Failure::Episode(what) => write!(f, "episode file: {what}"),
             Failure::Core(e) => write!(f, "gman-core: {e}"),
+            Failure::Blob(what) => write!(f, "blob: {what}"),
         }
     }
 }
@@ -162,6 +165,9 @@ pub struct Episode {
 fn u16_at(b: &[u8], at: usize) -> u16 {
     u16::from_le_bytes([b[at], b[at + 1]])
 }
+
+/// The scale of the map's u8 codes: feature `v` is stored as `round(v * 255)`.
+pub const MAP_SCALE: f32 = 1.0 / 255.0;
 
 /// Bytes of one step's observations: the pooled vector and the map.
 const STEP_BYTES: usize = (1 + DIMS.map_cells()) * DIMS.feat;
@@ -253,27 +259,26 @@ impl Episode {
         &self.attr
     }
 
-    /// The observations of step `t` read from `src` and dequantised: the pooled vector into
-    /// `obs` (`feat` floats) and the map into `map` (`map_len` floats).
+    /// The observations of step `t` read from `src`: the pooled vector dequantised into
+    /// `obs` (`feat` floats), the map as the file stores it into `map` (`map_len` u8 codes of
+    /// scale [`MAP_SCALE`], what [`Navigator::step_map_u8`] takes, as from a camera).
     pub fn observation(
         &self,
         src: &mut dyn Source,
         t: usize,
         obs: &mut [f32],
-        map: &mut [f32],
+        map: &mut [u8],
     ) -> Result<(), Failure> {
         if t >= self.steps {
             return Err(Failure::Episode("step out of range"));
         }
         let mut chunk = [0u8; CHUNK];
         let at = self.obs_at + t * STEP_BYTES;
-        let outs = core::iter::once(obs).chain(map.chunks_mut(DIMS.feat));
-        for (i, out) in outs.enumerate() {
-            src.read_at(at + i * DIMS.feat, &mut chunk)?;
-            for (o, &q) in out.iter_mut().zip(&chunk) {
-                *o = q as f32 / 255.0;
-            }
+        src.read_at(at, &mut chunk)?;
+        for (o, &q) in obs.iter_mut().zip(&chunk) {
+            *o = q as f32 / 255.0;
         }
+        src.read_at(at + DIMS.feat, map)?;
         Ok(())
     }
 
@@ -310,6 +315,29 @@ pub fn run(
     arena: &mut [f32],
     probe: &mut dyn Probe,
 ) -> Result<Counters, Failure> {
+    run_with::<true>(blob_bytes, src, arena, probe)
+}
+
+/// [`run`] with the map given to [`Navigator::step_map`] as f32 values (`code as f32 /
+/// 255.0`), as a program on the C API does (`tests/tests/firmware_c_qemu.rs` compares its
+/// lines with these).
+#[allow(dead_code)]
+pub fn run_f32_map(
+    blob_bytes: &[u8],
+    src: &mut dyn Source,
+    arena: &mut [f32],
+    probe: &mut dyn Probe,
+) -> Result<Counters, Failure> {
+    run_with::<false>(blob_bytes, src, arena, probe)
+}
+
+/// [`run`] (`U8`: the map as u8 codes, [`Navigator::step_map_u8`]) or [`run_f32_map`].
+fn run_with<const U8: bool>(
+    blob_bytes: &[u8],
+    src: &mut dyn Source,
+    arena: &mut [f32],
+    probe: &mut dyn Probe,
+) -> Result<Counters, Failure> {
     let ep = Episode::parse(src)?;
     let blob = Blob::parse(blob_bytes)?;
     let weights = NavWeights::from_blob(&blob, &DIMS)?;
@@ -321,6 +349,11 @@ pub fn run(
         cfg.commit_delay = COMMIT_DELAY;
     }
     cfg.footprint = FOOTPRINT;
+    if FOOTPRINT == Footprint::Minimal && !cfg.compact_psi {
+        return Err(Failure::Blob(
+            "Ψ's observations are f32; this image's Footprint::Minimal arena needs them int16: export with `gman export --preset mcu --quant int8` (its default --activations auto writes int8 activations and Ψ int16) or add `--psi int16`, or build with --no-default-features",
+        ));
+    }
     probe.line(format_args!(
         "episode: {} ({} steps, seed {})",
         ep.label(),
@@ -369,14 +402,22 @@ pub fn run(
         Fixed6(norm_from(&g0, None))
     ));
     let mut obs = [0.0f32; DIMS.feat];
-    let mut map = [0.0f32; DIMS.map_len()];
+    let mut map = [0u8; DIMS.map_len()];
     // The step whose Ψ filled, while its update is pending.
     let mut filled_at: Option<usize> = None;
     for t in 0..ep.steps() {
         ep.observation(src, t, &mut obs, &mut map)?;
         let working = nav.update_pending();
         probe.step_begin();
-        let out = nav.step_map(&obs, &map, &[])?;
+        let out = if U8 {
+            nav.step_map_u8(&obs, &map, MAP_SCALE, &[])?
+        } else {
+            let mut mf = [0.0f32; DIMS.map_len()];
+            for (o, &q) in mf.iter_mut().zip(&map) {
+                *o = q as f32 / 255.0;
+            }
+            nav.step_map(&obs, &mf, &[])?
+        };
         probe.step_end(out.adapted, working || out.adapted);
         if out.adapted {
             let after = filled_at.take().map_or(1, |f| (t - f) as u32);

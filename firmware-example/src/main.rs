@@ -3,11 +3,12 @@
 //!
 //! 1. Paints the stack (for the peak-stack measurement) and starts SysTick as an instruction
 //!    counter (see [`measure`]).
-//! 2. Runs the kernel self-test ([`selftest`]): G, D and one gradient of L_D straight from the
-//!    embedded `Mcu` int8 blob.
+//! 2. With the feature `selftest`, runs the kernel self-test (`selftest.rs`): G, D and one
+//!    gradient of L_D straight from the embedded `Mcu` int8 blob.
 //! 3. Runs the navigator ([`episode`]): a `Navigator<Efficient, 20>` over the same blob (read in
 //!    place from flash) and a statically sized arena, `reset` with the recorded target's
-//!    attributes, then `step_map` on each of the 40 observations (pooled vector and 3 x 3 map)
+//!    attributes, then `step_map_u8` on each of the 40 observations (pooled vector and 3 x 3 map
+//!    of u8 codes)
 //!    of an episode recorded by the host simulator (`data/episode.gmep`, read from the host
 //!    through semihosting step by step, as a robot reads its camera); two inner updates of
 //!    Algorithm 1 happen, at steps 20 and 40. Every action, the probabilities' bits and the
@@ -29,6 +30,7 @@ use panic_semihosting as _;
 
 mod episode;
 mod measure;
+#[cfg(feature = "selftest")]
 mod selftest;
 
 use episode::{Failure, Probe, Source, ARENA_LEN};
@@ -188,14 +190,21 @@ fn with_arena<R>(f: impl FnOnce(&mut [f32]) -> R) -> Option<R> {
     Some(f(&mut arena))
 }
 
-/// The kernel self-test. Not inlined, so its stack frame is gone before the navigator runs
-/// and the two peaks are measured separately.
+/// The kernel self-test (feature `selftest`). Not inlined, so its stack frame is gone before
+/// the navigator runs and the two peaks are measured separately.
 /// Its sample buffers live in the navigator's arena, which is not in use yet.
+#[cfg(feature = "selftest")]
 #[inline(never)]
 fn selftest_phase(arena: &mut [f32]) -> Result<(), Failure> {
     Ok(selftest::run(BLOB, arena, &mut |line| {
         hprintln!("{}", line)
     })?)
+}
+
+/// Without the feature `selftest` the image goes straight to the navigator.
+#[cfg(not(feature = "selftest"))]
+fn selftest_phase(_arena: &mut [f32]) -> Result<(), Failure> {
+    Ok(())
 }
 
 /// The scripted navigator episode (not inlined, for the same reason).

@@ -13,6 +13,14 @@ pub fn reencode_with_activations(bytes: &[u8], int8: bool) -> Result<Vec<u8>> {
     reencode_with_flags_of(bytes, int8, int8)
 }
 
+/// Whether `gman export --activations auto` writes int8 activations
+/// ([`FLAG_INT8_ACTIVATIONS`]) for a checkpoint: for the `mcu` preset with int8 weights, the
+/// blob the default firmware runs (its integer path keeps a step within the 25 Hz cadence);
+/// f32 otherwise.
+pub fn default_int8_activations(mcu_preset: bool, int8_weights: bool) -> bool {
+    mcu_preset && int8_weights
+}
+
 /// `bytes` (a weight blob) emitted again with [`FLAG_INT8_ACTIVATIONS`] set (`int8`) or
 /// cleared and [`FLAG_COMPACT_PSI`] set (`compact_psi`) or cleared; every tensor, the other
 /// flags and the inner-loop settings are kept. int8 activations need at least one int8

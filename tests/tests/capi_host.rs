@@ -30,7 +30,9 @@ impl episode::Probe for Lines {
 fn rust_lines(blob: &[u8], ep: &[u8]) -> Vec<String> {
     let mut out = Lines(Vec::new());
     let mut arena = vec![0.0f32; episode::ARENA_LEN];
-    episode::run(blob, &mut episode::Bytes(ep), &mut arena, &mut out).expect("Rust episode");
+    // The C program gives the navigator the map as f32 values (`gman_step_map`).
+    episode::run_f32_map(blob, &mut episode::Bytes(ep), &mut arena, &mut out)
+        .expect("Rust episode");
     out.0
 }
 

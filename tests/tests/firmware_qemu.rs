@@ -95,10 +95,22 @@ impl episode::Probe for Lines {
 
 /// What the firmware prints (minus the `# ` measurement lines), computed on the host.
 fn host_lines(blob: &[u8], ep: &[u8]) -> (Vec<String>, gman_core::navigator::Counters) {
+    host_lines_with(blob, ep, true)
+}
+
+/// [`host_lines`] of an image with (`selftest`) or without the feature `selftest`.
+fn host_lines_with(
+    blob: &[u8],
+    ep: &[u8],
+    selftest: bool,
+) -> (Vec<String>, gman_core::navigator::Counters) {
     let mut out = Lines(Vec::new());
     // The firmware lends the self-test the navigator's arena; so does the host.
     let mut arena = vec![0.0f32; episode::ARENA_LEN];
-    selftest::run(blob, &mut arena, &mut |a| out.0.push(a.to_string())).expect("host self-test");
+    if selftest {
+        selftest::run(blob, &mut arena, &mut |a| out.0.push(a.to_string()))
+            .expect("host self-test");
+    }
     let counters =
         episode::run(blob, &mut episode::Bytes(ep), &mut arena, &mut out).expect("host episode");
     out.0.push("OK".into());
@@ -204,7 +216,8 @@ fn run_and_compare(
         .filter(|l| !l.starts_with("# "))
         .collect();
 
-    let (host, counters) = host_lines(blob, &checked_in_episode());
+    let selftest = cargo_args.iter().any(|a| a.contains("selftest"));
+    let (host, counters) = host_lines_with(blob, &checked_in_episode(), selftest);
     // At the firmware's commit delay (20) the 40-step episode fills Ψ at step 20 and commits
     // its update at step 40, computed in slices inside the 20 steps between.
     assert!(
@@ -232,8 +245,9 @@ fn run_and_compare(
     );
     assert!(get("mean_insns") > 0);
     let (flash, ram) = (get("flash_bytes"), get("ram_bytes"));
+    // The flash budget is the controller's image (the self-test is a bench feature).
     assert!(
-        flash < FLASH_BUDGET,
+        selftest || flash < FLASH_BUDGET,
         "flash {flash} B over the {FLASH_BUDGET} B budget"
     );
     assert!(
@@ -298,8 +312,7 @@ fn firmware_under_qemu_matches_host_bit_for_bit() {
         "qemu-measurements.txt",
         &[],
     );
-    // The device ran gman-dsp's SXTB16 / SMLAD kernel (its self-test compared it with the
-    // portable one), not the model.
+    // The device ran gman-dsp's SXTB16 / SMLAD kernel, not the model.
     assert_eq!(m.get("dsp_smlad"), Some(&1), "the DSP kernel is not in use");
 }
 
@@ -317,9 +330,70 @@ fn f32_activation_firmware_under_qemu_matches_host_bit_for_bit() {
         None,
         &blobgen::default_blob_in(&fw_dir()),
         "qemu-measurements-f32-activations.txt",
-        &["--no-default-features"],
+        &["--no-default-features", "--features", "selftest"],
     );
     assert!(m.contains_key("mean_insns"));
+}
+
+/// `blob` with G's noise set to zero ([`FLAG_ZERO_NOISE`]), re-emitted by gman-core's
+/// encoder (every tensor and the other flags kept, the CRC recomputed).
+///
+/// [`FLAG_ZERO_NOISE`]: gman_core::schema::FLAG_ZERO_NOISE
+fn zero_noise_blob(blob: &[u8]) -> Vec<u8> {
+    use gman_core::blob::{reencode_with_flags, reencoded_len_bound, Blob};
+    let flags =
+        Blob::parse(blob).expect("blob").header().flags() | gman_core::schema::FLAG_ZERO_NOISE;
+    let mut out = vec![0u8; reencoded_len_bound(blob)];
+    let n = reencode_with_flags(blob, flags, &mut out).expect("re-encode");
+    out.truncate(n);
+    out
+}
+
+#[test]
+fn zero_noise_firmware_under_qemu_matches_host_bit_for_bit() {
+    if !qemu_available() {
+        return;
+    }
+    // The default image (int8 activations, `Footprint::Minimal`) on the shipped model with
+    // G's noise z = 0: x_t is cached between inner updates and Ψ keeps no z_t or x_t.
+    let target_dir = fw_dir().join("target/zero-noise");
+    std::fs::create_dir_all(&target_dir).expect("target dir");
+    let blob = zero_noise_blob(&int8_activation_blob());
+    let file = target_dir.join("model-zero-noise.gman");
+    std::fs::write(&file, &blob).expect("write the zero-noise blob");
+    let (host, _) = host_lines(&blob, &checked_in_episode());
+    assert!(
+        host.iter().any(|l| l.contains("noise=Zero")),
+        "the blob does not run with zero noise"
+    );
+    // With the self-test: on this int8-activation blob it compares the DSP kernels with the
+    // portable ones on the device.
+    let m = run_and_compare(
+        &target_dir,
+        Some(&file),
+        &blob,
+        "qemu-measurements-zero-noise.txt",
+        &["--features", "selftest"],
+    );
+    assert_eq!(m.get("dsp_smlad"), Some(&1), "the DSP kernel is not in use");
+}
+
+#[test]
+fn exported_blob_is_what_the_default_firmware_runs() {
+    // What README's device sequence flashes: `gman export --preset mcu --quant int8` with its
+    // defaults for that preset (int8 activations, Ψ's observations int16) writes the bytes
+    // the default image embeds, which `firmware_under_qemu_matches_host_bit_for_bit` runs
+    // (a checkpoint's blob is the shipped model's kind: int8 weights, f32 activations).
+    let act8 = gman_host_sim::blob_edit::default_int8_activations(true, true);
+    assert!(act8, "the mcu export must fit the default firmware");
+    let shipped = blobgen::default_blob_in(&fw_dir());
+    // (`--psi auto`: int16 with int8 activations.)
+    let blob = gman_host_sim::blob_edit::reencode_with_activations(&shipped, act8)
+        .expect("gman export --preset mcu --quant int8");
+    assert!(
+        blob == int8_activation_blob(),
+        "the mcu export's defaults differ from the blob the default firmware runs"
+    );
 }
 
 #[test]
@@ -466,7 +540,7 @@ fn episode_file_is_checked() {
     // Reads past the end are errors, not panics.
     let mut src = episode::Bytes(&ep);
     let mut obs = [0.0f32; 512];
-    let mut map = vec![0.0f32; episode::DIMS.map_len()];
+    let mut map = vec![0u8; episode::DIMS.map_len()];
     assert!(parsed
         .observation(&mut src, 40, &mut obs, &mut map)
         .is_err());

@@ -323,3 +323,65 @@ fn minimal_footprint_is_smaller_and_refuses_what_it_cannot_run() {
     };
     assert!(Navigator::<Efficient, K>::new(w(), &mut arena, compact).is_err());
 }
+
+/// With zero noise Ψ keeps no z_t and one x_t in every footprint (every entry's x_t is
+/// G(0, SE(y)) at the update's θ), and a navigator runs in an arena of exactly that size.
+#[test]
+fn zero_noise_psi_keeps_no_noise_and_one_feature() {
+    use gman_core::memory::{arena_len_noise, arena_len_with};
+    let d = Dims::MCU.with_map(3, 3, 8);
+    for fp in [Footprint::Compact, Footprint::Fast, Footprint::Minimal] {
+        let g = NavLayout::try_new_noise(&d, AdaptMode::Efficient, 20, fp, NoiseMode::Gaussian)
+            .unwrap();
+        let z =
+            NavLayout::try_new_noise(&d, AdaptMode::Efficient, 20, fp, NoiseMode::Zero).unwrap();
+        let x_rows = |rows: usize| match fp {
+            Footprint::Minimal => 0,
+            Footprint::Fast => 2 * rows * d.feat,
+            Footprint::Compact => rows * d.feat,
+        };
+        // Gaussian: 20 noise rows and 20 x rows (none in Minimal); zero: one x row.
+        let one = d.feat + if fp == Footprint::Fast { d.feat } else { 0 };
+        assert_eq!(g.psi - z.psi + one, 20 * d.noise + x_rows(20), "{fp:?}");
+        assert_eq!(
+            arena_len_with(&d, AdaptMode::Efficient, 20, fp),
+            g.total_floats(),
+            "{fp:?}: the Gaussian layout is the larger"
+        );
+        assert_eq!(
+            arena_len_noise(&d, AdaptMode::Efficient, 20, fp, NoiseMode::Zero),
+            z.total_floats()
+        );
+    }
+    // An arena of the zero-noise size runs a zero-noise navigator, not a Gaussian one (at
+    // k = 20, where Ψ's noise rows outweigh the one x_t row).
+    let dims = Dims::MCU;
+    let t = f32_weights(&dims, 1);
+    let w = || {
+        NavWeights::from_fn(&dims, |id| {
+            let (r, c) = id.shape(&dims);
+            MatRef::f32(r, c, &t[id as usize]).unwrap()
+        })
+        .unwrap()
+    };
+    let cfg = NavConfig {
+        footprint: Footprint::Minimal,
+        compact_psi: true,
+        noise: NoiseMode::Zero,
+        ..NavConfig::default()
+    };
+    let n = arena_len_noise(
+        &dims,
+        AdaptMode::Efficient,
+        20,
+        Footprint::Minimal,
+        NoiseMode::Zero,
+    );
+    let mut arena = vec![0.0f32; n];
+    assert!(Navigator::<Efficient, 20>::new(w(), &mut arena, cfg).is_ok());
+    let gauss = NavConfig {
+        noise: NoiseMode::Gaussian,
+        ..cfg
+    };
+    assert!(Navigator::<Efficient, 20>::new(w(), &mut arena, gauss).is_err());
+}

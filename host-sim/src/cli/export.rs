@@ -4,7 +4,7 @@ use std::path::PathBuf;
 
 use anyhow::{bail, Context, Result};
 use clap::{Args, ValueEnum};
-use gman_host_sim::blob_edit::reencode_with_flags_of;
+use gman_host_sim::blob_edit::{default_int8_activations, reencode_with_flags_of};
 use gman_host_sim::model::load_model;
 
 use super::args::PresetArg;
@@ -32,10 +32,11 @@ pub struct ExportArgs {
     /// Weight format.
     #[arg(long, value_enum, default_value = "int8")]
     pub quant: QuantArg,
-    /// Activations of the int8 weight matrices: `f32` (int8 weights widened to f32), or
-    /// `int8` (int8 activations into i32 accumulators, gman-core's integer kernels; needs
-    /// `--quant int8`).
-    #[arg(long, value_enum, default_value = "f32")]
+    /// Activations of the int8 weight matrices: `auto` (int8 for `--preset mcu --quant int8`,
+    /// what the default firmware runs; with `--blob`, the blob's own), `f32` (int8 weights
+    /// widened to f32), or `int8` (int8 activations into i32 accumulators, gman-core's
+    /// integer kernels; needs `--quant int8`).
+    #[arg(long, value_enum, default_value = "auto")]
     pub activations: ActArg,
     /// How the navigator keeps Ψ's observations: `auto` (int16 with int8 activations, else
     /// f32), `f32`, or `int16` (`FLAG_COMPACT_PSI`: one scale per entry; the firmware's
@@ -50,6 +51,8 @@ pub struct ExportArgs {
 /// Activations of an exported blob's int8 matrices.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
 pub enum ActArg {
+    /// int8 for `--preset mcu --quant int8` (with `--blob`: the blob's own), else f32.
+    Auto,
     /// f32 activations.
     F32,
     /// int8 activations, i32 accumulators (`FLAG_INT8_ACTIVATIONS`).
@@ -83,7 +86,20 @@ pub fn cmd_export(a: ExportArgs) -> Result<()> {
             super::args::refuse_output_over_inputs("--out", &a.out, &[(flag, input)])?;
         }
     }
-    let int8_act = a.activations == ActArg::Int8;
+    let int8_act = match (a.activations, &a.blob) {
+        (ActArg::Int8, _) => true,
+        (ActArg::F32, _) => false,
+        (ActArg::Auto, Some(path)) => {
+            let bytes = std::fs::read(path)
+                .with_context(|| format!("reading the blob {}", path.display()))?;
+            let blob = gman_core::blob::Blob::parse(&bytes)
+                .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+            blob.header().flags() & gman_core::schema::FLAG_INT8_ACTIVATIONS != 0
+        }
+        (ActArg::Auto, None) => {
+            default_int8_activations(a.preset == PresetArg::Mcu, a.quant == QuantArg::Int8)
+        }
+    };
     let compact = match a.psi {
         PsiArg::Auto => int8_act,
         PsiArg::F32 => false,

@@ -214,7 +214,12 @@ impl InnerStep {
         let disc = DiscParams::from_view(&nav.discriminator()?)?;
         Ok(InnerStep {
             theta,
-            noise: buf.noise.to_vec(),
+            // (With zero noise Ψ keeps no z_t: every one is zero.)
+            noise: if buf.noise.is_empty() {
+                vec![0.0; buf.probs.len() / NUM_ACTIONS * nav.dims().noise]
+            } else {
+                buf.noise.to_vec()
+            },
             probs: buf.probs.to_vec(),
             hidden: buf.hidden.to_vec(),
             disc,
