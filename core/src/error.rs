@@ -153,6 +153,13 @@ pub enum BlobError {
         /// Checksum of the bytes as found.
         actual: u32,
     },
+    /// The blob's format (v1-v3) checksums the payload only, not the header, and the parse
+    /// asked for a header-covering format
+    /// ([`ParseOptions::require_header_crc`](crate::blob::ParseOptions::require_header_crc)).
+    HeaderNotCovered {
+        /// The version found in the blob.
+        found: u16,
+    },
     /// The postcard encoding itself is malformed (bad varint, trailing bytes, ...).
     Malformed,
     /// The output buffer given to the encoder is too small.
@@ -238,6 +245,10 @@ impl fmt::Display for BlobError {
             BlobError::HeaderChecksumMismatch { expected, actual } => write!(
                 f,
                 "checksum mismatch over header and payload (header says {expected:#010x}, bytes give {actual:#010x}): the blob was altered"
+            ),
+            BlobError::HeaderNotCovered { found } => write!(
+                f,
+                "blob format v{found} checksums the payload only, not the header (flags, rates, map size), and a header-covering format (v4) is required; rewrite it with `gman upgrade-blob`"
             ),
             BlobError::Malformed => write!(f, "malformed postcard encoding"),
             BlobError::BufferTooSmall => write!(f, "output buffer too small"),
