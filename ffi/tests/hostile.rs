@@ -272,6 +272,7 @@ fn order_shape_nan_alignment_and_dead_handles() {
         selection: 7,
         schedule: 0,
         commit_delay: 0,
+        require_header_crc: 0,
     };
     let s = unsafe {
         gman_init(
@@ -289,6 +290,7 @@ fn order_shape_nan_alignment_and_dead_handles() {
         selection: 0,
         schedule: 0,
         commit_delay: 64,
+        require_header_crc: 0,
     };
     let s = unsafe {
         gman_init(
@@ -381,6 +383,7 @@ fn manual_schedule_runs_the_update_only_on_request() {
         selection: 0,
         schedule: 1,
         commit_delay: 0,
+        require_header_crc: 0,
     };
     let s = unsafe {
         gman_init(
