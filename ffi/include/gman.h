@@ -305,6 +305,13 @@ gman_status gman_reset(struct gman_nav *nav, const float *attr, size_t attr_len,
 // action, the probabilities and the value to `*out`. With the default schedule, every k-th
 // step ends with the inner update (`out->adapted` = 1).
 //
+// Any status but [`GMAN_OK`] changes nothing a later call reads (counters, Ψ, the LSTM
+// state, the previous probabilities, the adapted parameters, the pending update, the
+// random generator): the inputs are checked before anything is written, and a step whose
+// probabilities come out non-finite ([`GMAN_ERR_NUMERICAL`], e.g. an observation entry of
+// 3e38) is undone. Only [`gman_generated_feature`] shows the refused step's x_t until the
+// next step. To recover, step again with a good input.
+//
 // # Safety
 // `nav` a handle; each buffer readable for its length; `out` writable.
 gman_status gman_step(struct gman_nav *nav,
