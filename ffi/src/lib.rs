@@ -570,8 +570,14 @@ fn want_len(
 }
 
 /// The longest blob a caller may give: the header (well under 1 KiB) and a payload, whose
-/// length the header stores as a `u32`. Longer is [`GMAN_ERR_BLOB`] before anything is read.
-const MAX_BLOB_BYTES: usize = (u32::MAX as usize).saturating_add(1024);
+/// length the header stores as a `u32`. Longer is [`GMAN_ERR_BLOB`] before anything is read
+/// (on a 32-bit target no length is longer).
+const MAX_BLOB_BYTES: u64 = u32::MAX as u64 + 1024;
+
+/// True when a blob of `len` bytes is longer than any blob ([`MAX_BLOB_BYTES`]).
+fn blob_too_long(len: usize) -> bool {
+    len as u64 > MAX_BLOB_BYTES
+}
 
 fn blob_info(blob: &Blob<'_>) -> Result<gman_info, gman_status> {
     let h: &Header = blob.header();
@@ -630,7 +636,7 @@ unsafe fn parse_blob<'a>(
     if blob.is_null() {
         return Err(GMAN_ERR_NULL);
     }
-    if len > MAX_BLOB_BYTES {
+    if blob_too_long(len) {
         return Err(GMAN_ERR_BLOB);
     }
     // SAFETY: forwarded from the caller: `blob` is readable for `len` bytes.
@@ -827,7 +833,7 @@ unsafe fn describe<T>(
     f: impl FnOnce(gman_info) -> Result<T, gman_status>,
 ) -> gman_status {
     guard(|| {
-        let r = if len > MAX_BLOB_BYTES {
+        let r = if blob_too_long(len) {
             Err(GMAN_ERR_BLOB)
         } else {
             disjoint(Span::EMPTY, &[Span::of(blob, len)], &[Span::one(out)])
@@ -881,7 +887,7 @@ unsafe fn init(
     opts: *const gman_options,
     out: *mut *mut gman_nav,
 ) -> Result<(), gman_status> {
-    if blob_len > MAX_BLOB_BYTES {
+    if blob_too_long(blob_len) {
         return Err(GMAN_ERR_BLOB);
     }
     let (b, o, p) = (Span::of(blob, blob_len), Span::one(out), Span::one(opts));
