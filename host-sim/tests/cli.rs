@@ -608,3 +608,87 @@ fn table_summarises_rows_and_draws_their_spread() {
     ]);
     assert!(!ok && err.contains("x.png"), "{err}");
 }
+
+/// A blob whose checksum skips its header (format v2 here) loads with a warning naming the
+/// file and the risk (`inspect`, `eval`); `upgrade-blob IN OUT` rewrites it in format v4,
+/// refuses OUT = IN, and the upgraded blob evaluates to the same JSON, without the warning.
+#[test]
+fn legacy_blob_warns_and_upgrade_blob_evaluates_identically() {
+    let old = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/models/gman-mcu-int8-seed1.gman"
+    );
+    let d = tmp("upgrade");
+    let new = d.join("upgraded.gman");
+    let new_s = new.to_str().unwrap();
+    let warned = |stderr: &str, path: &str| {
+        stderr.contains("warning:")
+            && stderr.contains(path)
+            && stderr.contains("checksums the payload only")
+            && stderr.contains("upgrade-blob")
+    };
+    let (ok, out, err) = gman(&["inspect", old]);
+    assert!(ok, "{err}");
+    assert!(out.contains("format v2"), "{out}");
+    assert!(
+        warned(&err, old),
+        "inspect of a v2 blob: no warning:\n{err}"
+    );
+
+    let (ok, _, err) = gman(&["upgrade-blob", old, old]);
+    assert!(!ok && err.contains("same file"), "{err}");
+    let (ok, out, err) = gman(&["upgrade-blob", old, new_s]);
+    assert!(ok, "{err}");
+    assert!(
+        out.contains("format v2") && out.contains("format v4"),
+        "{out}"
+    );
+    let (ok, out, err) = gman(&["inspect", new_s]);
+    assert!(ok, "{err}");
+    assert!(
+        out.contains("format v4") && !err.contains("warning"),
+        "{out}{err}"
+    );
+    // Only the header changed: every tensor record is the old payload's.
+    let (a, b) = (std::fs::read(old).unwrap(), std::fs::read(&new).unwrap());
+    let (pa, pb) = (
+        gman_core::blob::Blob::parse(&a).unwrap(),
+        gman_core::blob::Blob::parse(&b).unwrap(),
+    );
+    let pl = pa.header().payload_len() as usize;
+    assert_eq!(pl, pb.header().payload_len() as usize);
+    assert_eq!(a[a.len() - pl..], b[b.len() - pl..]);
+
+    let eval = |model: &str, json: &std::path::Path| {
+        let (ok, _, err) = gman(&[
+            "eval",
+            "--agent",
+            model,
+            "--episodes",
+            "3",
+            "--quiet",
+            "--json",
+            json.to_str().unwrap(),
+        ]);
+        assert!(ok, "{err}");
+        let mut v: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(json).unwrap()).unwrap();
+        // The agent is named by its path; everything else must be the same.
+        v.as_object_mut().unwrap().remove("agent");
+        (v, err)
+    };
+    let (va, err_a) = eval(old, &d.join("old.json"));
+    let (vb, err_b) = eval(new_s, &d.join("new.json"));
+    assert!(
+        warned(&err_a, old),
+        "eval of a v2 blob: no warning:\n{err_a}"
+    );
+    assert_eq!(
+        err_a.matches("checksums the payload only").count(),
+        1,
+        "one warning:\n{err_a}"
+    );
+    assert!(!err_b.contains("checksums the payload only"), "{err_b}");
+    assert_eq!(va, vb, "the upgraded blob evaluates differently");
+    let _ = std::fs::remove_dir_all(&d);
+}

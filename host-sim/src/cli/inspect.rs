@@ -17,6 +17,9 @@ pub struct InspectArgs {
 pub fn cmd_inspect(a: InspectArgs) -> Result<()> {
     let bytes = std::fs::read(&a.blob).with_context(|| format!("reading {}", a.blob.display()))?;
     let blob = Blob::parse(&bytes).map_err(|e| anyhow!("{}: {e}", a.blob.display()))?;
+    if let Some(w) = gman_host_sim::blob_edit::unprotected_header_warning(&a.blob, &bytes) {
+        eprintln!("{w}");
+    }
     print_header(&a.blob, &blob);
     print_flags(&blob);
     print_tensors(&blob);
