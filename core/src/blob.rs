@@ -410,8 +410,9 @@ impl Header {
     pub fn dims(&self) -> Dims {
         self.dims.to_dims(self.map)
     }
-    /// Model flags ([`FLAG_ADAPT`], [`FLAG_ZERO_NOISE`], [`FLAG_COSSIM`]); unknown bits are
-    /// kept and ignored.
+    /// Model flags ([`FLAG_ADAPT`], [`FLAG_ZERO_NOISE`], [`FLAG_COSSIM`], ...). A v4 blob
+    /// has only bits of [`crate::schema::KNOWN_FLAGS`] (others are refused); a v1-v3 blob's
+    /// unknown bits are kept and ignored, as they always were.
     pub fn flags(&self) -> u32 {
         self.flags
     }
@@ -571,6 +572,8 @@ fn parse_header(bytes: &[u8], opts: ParseOptions) -> Result<(Header, &[u8]), Blo
                     actual,
                 });
             }
+            // After the checksum: these bits were written on purpose, by a newer build.
+            crate::schema::check_known_flags(body.flags)?;
             Ok((body.with_crc(crc).into_header(4)?, payload))
         }
         found => Err(BlobError::UnsupportedVersion { found }),
@@ -981,6 +984,7 @@ impl<'o> Encoder<'o> {
     ) -> Result<Self, BlobError> {
         settings.validate()?;
         check_model_dims(dims)?;
+        crate::schema::check_known_flags(flags)?;
         if out.len() < HEADER_RESERVE {
             return Err(BlobError::BufferTooSmall);
         }

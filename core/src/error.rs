@@ -160,6 +160,15 @@ pub enum BlobError {
         /// The version found in the blob.
         found: u16,
     },
+    /// A format v4 blob (or a blob being encoded) sets a flag bit this build does not know
+    /// ([`crate::schema::KNOWN_FLAGS`]): a setting of a newer build, which this one would
+    /// run as if it were off.
+    UnknownFlagBit {
+        /// The lowest unknown bit (0-31).
+        bit: u8,
+        /// All of the header's flags.
+        flags: u32,
+    },
     /// The postcard encoding itself is malformed (bad varint, trailing bytes, ...).
     Malformed,
     /// The output buffer given to the encoder is too small.
@@ -249,6 +258,10 @@ impl fmt::Display for BlobError {
             BlobError::HeaderNotCovered { found } => write!(
                 f,
                 "blob format v{found} checksums the payload only, not the header (flags, rates, map size), and a header-covering format (v4) is required; rewrite it with `gman upgrade-blob`"
+            ),
+            BlobError::UnknownFlagBit { bit, flags } => write!(
+                f,
+                "unknown model flag bit {bit} (flags {flags:#010x}): a setting this build does not know, from a newer build; refusing to run the model without it"
             ),
             BlobError::Malformed => write!(f, "malformed postcard encoding"),
             BlobError::BufferTooSmall => write!(f, "output buffer too small"),
