@@ -257,11 +257,11 @@ impl fmt::Display for BlobError {
             ),
             BlobError::HeaderNotCovered { found } => write!(
                 f,
-                "blob format v{found} checksums the payload only, not the header (flags, rates, map size), and a header-covering format (v4) is required; rewrite it with `gman upgrade-blob`"
+                "blob format v{found} checksums the payload only; v4 required (gman upgrade-blob)"
             ),
             BlobError::UnknownFlagBit { bit, flags } => write!(
                 f,
-                "unknown model flag bit {bit} (flags {flags:#010x}): a setting this build does not know, from a newer build; refusing to run the model without it"
+                "unknown model flag bit {bit} (flags {flags:#x})"
             ),
             BlobError::Malformed => write!(f, "malformed postcard encoding"),
             BlobError::BufferTooSmall => write!(f, "output buffer too small"),

@@ -961,6 +961,11 @@ pub struct Navigator<'w, M: Mode, const K: usize, S = &'w mut [f32]> {
     _mode: PhantomData<M>,
 }
 
+/// The error of a step whose probabilities or value are not finite.
+const NUMERICAL_PROBS: Error = Error::NumericalFault {
+    what: "action probabilities",
+};
+
 /// What a step changes before it knows whether it will be refused ([`Navigator::step_map`]
 /// puts it back when it is).
 struct StepMarks {
@@ -1421,19 +1426,15 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
     /// behind, in the diagnostic views [`Navigator::generated_feature`],
     /// [`Navigator::noise`] and [`Navigator::generator_activations`] (the next step
     /// overwrites it). Nothing has to be done to recover: step again with a good input.
+    #[inline(never)]
     pub fn step_map(&mut self, obs: &[f32], map: &[f32], ps: &[f32]) -> Result<StepOutput> {
         let marks = self.marks();
-        let checked = self.begin_step(obs, map, ps).and_then(|()| {
-            // Line 8: the policy (trunk and heads in one pass).
-            let value = self.run_policy(obs, map)?;
-            self.check_outputs(value).map(|()| value)
-        });
-        match checked {
-            Ok(value) => self.commit_checked(obs, value),
-            Err(e) => {
-                self.undo(marks);
-                Err(e)
-            }
+        // (Its errors come from checks made before anything is written.)
+        self.begin_step(obs, map, ps)?;
+        // Line 8: the policy (trunk and heads in one pass).
+        match self.run_policy(obs, map) {
+            Ok(v) if self.outputs_finite(v) => self.commit_checked(obs, v),
+            r => Err(self.refused(marks, r.err())),
         }
     }
 
@@ -1448,13 +1449,17 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
         }
     }
 
-    /// Puts back what [`Navigator::marks`] recorded (a refused step).
-    fn undo(&mut self, m: StepMarks) {
+    /// A refused step: puts back what [`Navigator::marks`] recorded and returns the error
+    /// (`None`: the outputs were not finite).
+    #[cold]
+    #[inline(never)]
+    fn refused(&mut self, m: StepMarks, e: Option<Error>) -> Error {
         self.rng = m.rng;
         self.begun = m.begun;
         self.g_pending = m.g_pending;
         self.x_valid = m.x_valid;
         self.u2_valid = m.u2_valid;
+        e.unwrap_or(NUMERICAL_PROBS)
     }
 
     /// Lines 5-7 of a step, for a host that runs the policies of many navigators as one
@@ -1701,12 +1706,16 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
 
     /// [`Error::NumericalFault`] unless the step's probabilities and `value` are finite.
     fn check_outputs(&self, value: f32) -> Result<()> {
-        if !all_finite(self.arena.view().probs) || !value.is_finite() {
-            return Err(Error::NumericalFault {
-                what: "action probabilities",
-            });
+        if self.outputs_finite(value) {
+            Ok(())
+        } else {
+            Err(NUMERICAL_PROBS)
         }
-        Ok(())
+    }
+
+    /// True when the step's probabilities and `value` are finite.
+    fn outputs_finite(&self, value: f32) -> bool {
+        all_finite(self.arena.view().probs) && value.is_finite()
     }
 
     /// [`Navigator::commit_step`] after [`Navigator::check_outputs`].
