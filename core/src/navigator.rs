@@ -255,7 +255,8 @@ impl NavConfig {
     /// λ and the default loss bound. These are
     /// run-time choices of the caller, not properties of the trained weights (the host's
     /// evaluation, for one, samples its actions: it uses this configuration with
-    /// `selection: Selection::Sample`). Unknown flag bits are ignored.
+    /// `selection: Selection::Sample`). A v4 header has no unknown flag bits (the parser
+    /// refuses them); a v1-v3 header's are ignored.
     ///
     /// Never fails: a parsed [`Header`]'s rates are finite and non-negative (checked by
     /// [`Blob::parse`]), so the result is accepted by [`Navigator::new`] as far as the rates

@@ -434,7 +434,8 @@ pub struct ModelFlags {
 }
 
 impl ModelFlags {
-    /// Decodes `bits` (unknown bits are ignored).
+    /// Decodes `bits` (bits outside [`KNOWN_FLAGS`] are ignored here; the blob parser
+    /// refuses them in a format v4 header, [`check_known_flags`]).
     pub const fn from_bits(bits: u32) -> ModelFlags {
         ModelFlags {
             adapt: bits & FLAG_ADAPT != 0,
