@@ -410,8 +410,9 @@ impl Header {
     pub fn dims(&self) -> Dims {
         self.dims.to_dims(self.map)
     }
-    /// Model flags ([`FLAG_ADAPT`], [`FLAG_ZERO_NOISE`], [`FLAG_COSSIM`]); unknown bits are
-    /// kept and ignored.
+    /// Model flags ([`FLAG_ADAPT`], [`FLAG_ZERO_NOISE`], [`FLAG_COSSIM`], ...). A v4 blob
+    /// has only bits of [`crate::schema::KNOWN_FLAGS`] (others are refused); a v1-v3 blob's
+    /// unknown bits are kept and ignored, as they always were.
     pub fn flags(&self) -> u32 {
         self.flags
     }
@@ -492,8 +493,9 @@ pub fn check_model_dims(d: &Dims) -> Result<(), BlobError> {
     }
 }
 
-/// Decodes and checks the header of any supported version; returns it and the bytes after it.
-fn parse_header(bytes: &[u8]) -> Result<(Header, &[u8]), BlobError> {
+/// Decodes and checks the header of any supported version (of a version `opts` accepts);
+/// returns it and the bytes after it.
+fn parse_header(bytes: &[u8], opts: ParseOptions) -> Result<(Header, &[u8]), BlobError> {
     fn map_err(e: postcard::Error) -> BlobError {
         match e {
             postcard::Error::DeserializeUnexpectedEnd => BlobError::Truncated,
@@ -512,6 +514,12 @@ fn parse_header(bytes: &[u8]) -> Result<(Header, &[u8]), BlobError> {
     };
     if prefix.magic != MAGIC {
         return Err(BlobError::BadMagic);
+    }
+    // Before anything in an unprotected header is interpreted.
+    if opts.require_header_crc && (MIN_FORMAT_VERSION..4).contains(&prefix.version) {
+        return Err(BlobError::HeaderNotCovered {
+            found: prefix.version,
+        });
     }
     match prefix.version {
         1 => {
@@ -564,6 +572,8 @@ fn parse_header(bytes: &[u8]) -> Result<(Header, &[u8]), BlobError> {
                     actual,
                 });
             }
+            // After the checksum: these bits were written on purpose, by a newer build.
+            crate::schema::check_known_flags(body.flags)?;
             Ok((body.with_crc(crc).into_header(4)?, payload))
         }
         found => Err(BlobError::UnsupportedVersion { found }),
@@ -636,10 +646,28 @@ pub struct Blob<'a> {
     len: usize,
 }
 
+/// What [`Blob::parse_with`] accepts beyond the checks every parse makes.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct ParseOptions {
+    /// Refuse blobs whose checksum does not cover the header (formats v1-v3, see
+    /// [`ChecksumScope::Payload`]) with [`BlobError::HeaderNotCovered`]: a flipped flag bit,
+    /// rate or map size in such a header goes unnoticed. For integrators who accept only
+    /// blobs where every byte the device interprets is checksummed (format v4 and later);
+    /// `gman upgrade-blob IN OUT` rewrites an older blob in that format.
+    pub require_header_crc: bool,
+}
+
 impl<'a> Blob<'a> {
-    /// Parses and validates `bytes` (see the module docs). Borrows, never copies.
+    /// Parses and validates `bytes` (see the module docs), accepting every supported
+    /// format version ([`ParseOptions::default`]). Borrows, never copies.
     pub fn parse(bytes: &'a [u8]) -> Result<Blob<'a>, BlobError> {
-        let (header, payload) = parse_header(bytes)?;
+        Self::parse_with(bytes, ParseOptions::default())
+    }
+
+    /// [`Blob::parse`] with the options `opts`, e.g.
+    /// `ParseOptions { require_header_crc: true }` to refuse formats v1-v3.
+    pub fn parse_with(bytes: &'a [u8], opts: ParseOptions) -> Result<Blob<'a>, BlobError> {
+        let (header, payload) = parse_header(bytes, opts)?;
         if payload.len() < header.payload_len as usize {
             return Err(BlobError::Truncated);
         }
@@ -956,6 +984,7 @@ impl<'o> Encoder<'o> {
     ) -> Result<Self, BlobError> {
         settings.validate()?;
         check_model_dims(dims)?;
+        crate::schema::check_known_flags(flags)?;
         if out.len() < HEADER_RESERVE {
             return Err(BlobError::BufferTooSmall);
         }

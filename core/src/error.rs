@@ -153,6 +153,22 @@ pub enum BlobError {
         /// Checksum of the bytes as found.
         actual: u32,
     },
+    /// The blob's format (v1-v3) checksums the payload only, not the header, and the parse
+    /// asked for a header-covering format
+    /// ([`ParseOptions::require_header_crc`](crate::blob::ParseOptions::require_header_crc)).
+    HeaderNotCovered {
+        /// The version found in the blob.
+        found: u16,
+    },
+    /// A format v4 blob (or a blob being encoded) sets a flag bit this build does not know
+    /// ([`crate::schema::KNOWN_FLAGS`]): a setting of a newer build, which this one would
+    /// run as if it were off.
+    UnknownFlagBit {
+        /// The lowest unknown bit (0-31).
+        bit: u8,
+        /// All of the header's flags.
+        flags: u32,
+    },
     /// The postcard encoding itself is malformed (bad varint, trailing bytes, ...).
     Malformed,
     /// The output buffer given to the encoder is too small.
@@ -238,6 +254,14 @@ impl fmt::Display for BlobError {
             BlobError::HeaderChecksumMismatch { expected, actual } => write!(
                 f,
                 "checksum mismatch over header and payload (header says {expected:#010x}, bytes give {actual:#010x}): the blob was altered"
+            ),
+            BlobError::HeaderNotCovered { found } => write!(
+                f,
+                "blob format v{found} checksums the payload only; v4 required (gman upgrade-blob)"
+            ),
+            BlobError::UnknownFlagBit { bit, flags } => write!(
+                f,
+                "unknown model flag bit {bit} (flags {flags:#x})"
             ),
             BlobError::Malformed => write!(f, "malformed postcard encoding"),
             BlobError::BufferTooSmall => write!(f, "output buffer too small"),

@@ -261,7 +261,8 @@ impl NavConfig {
     /// λ and the default loss bound. These are
     /// run-time choices of the caller, not properties of the trained weights (the host's
     /// evaluation, for one, samples its actions: it uses this configuration with
-    /// `selection: Selection::Sample`). Unknown flag bits are ignored.
+    /// `selection: Selection::Sample`). A v4 header has no unknown flag bits (the parser
+    /// refuses them); a v1-v3 header's are ignored.
     ///
     /// Never fails: a parsed [`Header`]'s rates are finite and non-negative (checked by
     /// [`Blob::parse`]), so the result is accepted by [`Navigator::new`] as far as the rates
@@ -968,6 +969,21 @@ pub struct Navigator<'w, M: Mode, const K: usize, S = &'w mut [f32]> {
     _mode: PhantomData<M>,
 }
 
+/// The error of a step whose probabilities or value are not finite.
+const NUMERICAL_PROBS: Error = Error::NumericalFault {
+    what: "action probabilities",
+};
+
+/// What a step changes before it knows whether it will be refused ([`Navigator::step_map`]
+/// puts it back when it is).
+struct StepMarks {
+    rng: Xoshiro128,
+    begun: bool,
+    g_pending: bool,
+    x_valid: bool,
+    u2_valid: bool,
+}
+
 /// Where an inner update is: the phases of [`Navigator::inner_update`] in order, each over
 /// Ψ's entries a batch ([`InnerWork::b`](crate::inner::InnerWork::b) entries) per slice.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -1038,12 +1054,12 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
         self.arena.store
     }
 
-    /// A navigator over `weights`, with all mutable state in the storage `arena` (at least
-    /// [`Navigator::arena_len`] floats), which it keeps: [`Navigator::new`] for an arena the
-    /// caller owns, e.g. `Vec<f32>` or `Box<[f32]>` for one the navigator owns. D and the
-    /// fixed biases are loaded from `weights`; call [`Navigator::reset`] before the first
-    /// step.
-    pub fn with_storage(weights: NavWeights<'w>, mut arena: S, cfg: NavConfig) -> Result<Self> {
+    /// Every check [`Navigator::with_storage`] makes of `weights` and `cfg` before it writes
+    /// to the arena: the buffer capacity, the inner-loop rates, the loss bound, the dims, the
+    /// adaptation mode, the commit delay and the schedule, the footprint. A caller that must
+    /// not touch an arena for a navigator that would be refused (the C API's `gman_init` on
+    /// the arena of a live navigator) calls it first.
+    pub fn check_settings(weights: &NavWeights<'_>, cfg: &NavConfig) -> Result<()> {
         let bad = |what: &'static str| Err(Error::Config { what });
         if K == 0 {
             return bad("buffer capacity K must be at least 1");
@@ -1092,6 +1108,18 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
         {
             return bad("dims too large: the arena size for these dims, mode and K overflows");
         }
+        Ok(())
+    }
+
+    /// A navigator over `weights`, with all mutable state in the storage `arena` (at least
+    /// [`Navigator::arena_len`] floats), which it keeps: [`Navigator::new`] for an arena the
+    /// caller owns, e.g. `Vec<f32>` or `Box<[f32]>` for one the navigator owns. D and the
+    /// fixed biases are loaded from `weights`; call [`Navigator::reset`] before the first
+    /// step.
+    pub fn with_storage(weights: NavWeights<'w>, mut arena: S, cfg: NavConfig) -> Result<Self> {
+        Self::check_settings(&weights, &cfg)?;
+        let dims = weights.dims;
+        let lean = cfg.footprint == Footprint::Minimal;
         let zero = cfg.noise == NoiseMode::Zero;
         let (lens, _used) = carve_check(arena.as_mut(), &dims, M::MODE, K, (cfg.footprint, zero))?;
         let mut nav = Navigator {
@@ -1388,7 +1416,8 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
 
     /// One control step on the observation embedding `obs` (`feat` floats) and, for policies
     /// with a PS input, the PS prediction `ps` (`ps` floats; pass `&[]` otherwise). For a
-    /// model with a spatial map use [`Navigator::step_map`].
+    /// model with a spatial map use [`Navigator::step_map`]. An `Err` changes nothing a
+    /// later call reads (see [`Navigator::step_map`]'s Errors).
     pub fn step(&mut self, obs: &[f32], ps: &[f32]) -> Result<StepOutput> {
         self.step_map(obs, &[], ps)
     }
@@ -1400,11 +1429,53 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
     ///
     /// The same as [`Navigator::begin_step`], the policy's trunk on this navigator's state,
     /// then [`Navigator::finish_step`].
+    ///
+    /// # Errors
+    /// An `Err` changes nothing a later call reads: the counters, Ψ, the LSTM state, the
+    /// previous probabilities, the adapted and persistent parameters, the pending inner
+    /// update and the random generator are as before the call, so the next steps give the
+    /// bits of a navigator that never saw it. The inputs are checked before anything is
+    /// written ([`Error::Config`], [`Error::UpdateNotReady`], [`Error::Shape`],
+    /// [`Error::NonFiniteInput`]); a step whose probabilities or value come out non-finite
+    /// ([`Error::NumericalFault`], e.g. an observation entry of 3e38) is undone before
+    /// anything of it is committed. Only the scratch of the refused step's own G pass is left
+    /// behind, in the diagnostic views [`Navigator::generated_feature`],
+    /// [`Navigator::noise`] and [`Navigator::generator_activations`] (the next step
+    /// overwrites it). Nothing has to be done to recover: step again with a good input.
+    #[inline(never)]
     pub fn step_map(&mut self, obs: &[f32], map: &[f32], ps: &[f32]) -> Result<StepOutput> {
+        let marks = self.marks();
+        // (Its errors come from checks made before anything is written.)
         self.begin_step(obs, map, ps)?;
         // Line 8: the policy (trunk and heads in one pass).
-        let value = self.run_policy(obs, map)?;
-        self.commit_step(obs, value)
+        match self.run_policy(obs, map) {
+            Ok(v) if self.outputs_finite(v) => self.commit_checked(obs, v),
+            r => Err(self.refused(marks, r.err())),
+        }
+    }
+
+    /// What a step changes before its outputs are known to be finite.
+    fn marks(&self) -> StepMarks {
+        StepMarks {
+            rng: self.rng.clone(),
+            begun: self.begun,
+            g_pending: self.g_pending,
+            x_valid: self.x_valid,
+            u2_valid: self.u2_valid,
+        }
+    }
+
+    /// A refused step: puts back what [`Navigator::marks`] recorded and returns the error
+    /// (`None`: the outputs were not finite).
+    #[cold]
+    #[inline(never)]
+    fn refused(&mut self, m: StepMarks, e: Option<Error>) -> Error {
+        self.rng = m.rng;
+        self.begun = m.begun;
+        self.g_pending = m.g_pending;
+        self.x_valid = m.x_valid;
+        self.u2_valid = m.u2_valid;
+        e.unwrap_or(NUMERICAL_PROBS)
     }
 
     /// [`Navigator::step_map`] with the map as the camera quantised it: `map[j] * scale` is
@@ -1466,7 +1537,9 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
     /// [`Navigator::prev_probs`], `ps` and the state [`Navigator::hidden_state`] /
     /// [`Navigator::cell_state`]; run the policy's trunk (fusion and LSTM, whose weights no
     /// navigator adapts) on them and pass its new `(h, c)` to [`Navigator::finish_step`], with
-    /// the same `obs`. `begin_step` again before `finish_step` draws a new x_t.
+    /// the same `obs`. `begin_step` again before `finish_step` draws a new x_t. An `Err`
+    /// comes from the checks of the inputs and the call order, made before anything is
+    /// written: nothing changed.
     pub fn begin_step(&mut self, obs: &[f32], map: &[f32], ps: &[f32]) -> Result<()> {
         self.begin_step_with(obs, (map, map.len()), ps)
     }
@@ -1676,7 +1749,10 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
     /// LSTM state `h`, `c` (`lstm_hidden` each) computed by the caller: the actor head (this
     /// navigator's, adapted) and the critic, the action, Ψ and, every k steps, the inner
     /// update. Bit for bit [`Navigator::step_map`] when `(h, c)` are the trunk's output on
-    /// this navigator's inputs (the batched trunk gives each row exactly those bits).
+    /// this navigator's inputs (the batched trunk gives each row exactly those bits). An
+    /// `Err` (a bad length, a non-finite `h`/`c`, or non-finite probabilities from them:
+    /// [`Error::NumericalFault`]) commits nothing and leaves the step begun: `finish_step`
+    /// again with a good state finishes it as if the refused call had not happened.
     pub fn finish_step(&mut self, obs: &[f32], h: &[f32], c: &[f32]) -> Result<StepOutput> {
         if !self.begun {
             return Err(Error::Config {
@@ -1709,13 +1785,28 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
     /// Lines 8-20 after the policy's outputs are in place: the action, Ψ, the state and, every
     /// k steps, the inner update. Its callers have checked `obs` (`feat` floats).
     fn commit_step(&mut self, obs: &[f32], value: f32) -> Result<StepOutput> {
+        self.check_outputs(value)?;
+        self.commit_checked(obs, value)
+    }
+
+    /// [`Error::NumericalFault`] unless the step's probabilities and `value` are finite.
+    fn check_outputs(&self, value: f32) -> Result<()> {
+        if self.outputs_finite(value) {
+            Ok(())
+        } else {
+            Err(NUMERICAL_PROBS)
+        }
+    }
+
+    /// True when the step's probabilities and `value` are finite.
+    fn outputs_finite(&self, value: f32) -> bool {
+        all_finite(self.arena.view().probs) && value.is_finite()
+    }
+
+    /// [`Navigator::commit_step`] after [`Navigator::check_outputs`].
+    fn commit_checked(&mut self, obs: &[f32], value: f32) -> Result<StepOutput> {
         self.begun = false;
         let d = self.w.dims;
-        if !all_finite(self.arena.view().probs) || !value.is_finite() {
-            return Err(Error::NumericalFault {
-                what: "action probabilities",
-            });
-        }
         let action = self.select();
         // Lines 11-13: record in Ψ (not in the commit window of a delayed update).
         let window = self.upd.is_some();

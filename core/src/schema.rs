@@ -346,6 +346,40 @@ pub const COMMIT_DELAY_MASK: u32 = 0x3F << COMMIT_DELAY_SHIFT;
 /// The largest commit delay a blob can record.
 pub const MAX_COMMIT_DELAY: u32 = 63;
 
+/// Every bit of the blob header's flags this build knows (the `FLAG_*` bits and the
+/// [`DISC_STEPS_MASK`] and [`COMMIT_DELAY_MASK`] fields). The others (bits 4-7, 22 and 31)
+/// are refused in a format v4 blob ([`crate::BlobError::UnknownFlagBit`]) and by the
+/// encoder: a blob made by a newer build with a setting this one does not know is not run
+/// as if the setting were off.
+pub const KNOWN_FLAGS: u32 = FLAG_ADAPT
+    | FLAG_ZERO_NOISE
+    | FLAG_COSSIM
+    | FLAG_FULL_ADAPT
+    | DISC_STEPS_MASK
+    | FLAG_NORMALIZED_STEP
+    | FLAG_PER_GROUP_STEP
+    | FLAG_DISC_HEAD_RESET
+    | FLAG_REFERENCE_ADAPT_LOSS
+    | FLAG_REFERENCE_CRITIC_SCALE
+    | FLAG_HEAD_ONLY
+    | FLAG_COMPACT_PSI
+    | FLAG_INT8_ACTIVATIONS
+    | COMMIT_DELAY_MASK;
+
+/// [`crate::BlobError::UnknownFlagBit`] naming the lowest bit of `flags` outside
+/// [`KNOWN_FLAGS`].
+pub const fn check_known_flags(flags: u32) -> Result<(), crate::BlobError> {
+    let unknown = flags & !KNOWN_FLAGS;
+    if unknown == 0 {
+        Ok(())
+    } else {
+        Err(crate::BlobError::UnknownFlagBit {
+            bit: unknown.trailing_zeros() as u8,
+            flags,
+        })
+    }
+}
+
 /// How the inner loop's descent step on L_ad (Eq. 3) is sized.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
 pub enum StepRule {
@@ -400,7 +434,8 @@ pub struct ModelFlags {
 }
 
 impl ModelFlags {
-    /// Decodes `bits` (unknown bits are ignored).
+    /// Decodes `bits` (bits outside [`KNOWN_FLAGS`] are ignored here; the blob parser
+    /// refuses them in a format v4 header, [`check_known_flags`]).
     pub const fn from_bits(bits: u32) -> ModelFlags {
         ModelFlags {
             adapt: bits & FLAG_ADAPT != 0,

@@ -513,7 +513,8 @@ fn nav_config_follows_the_header() {
         max_inner: 2,
     };
     for flags in 0..32u32 {
-        let flags = flags | if flags & 16 != 0 { 1 << 24 } else { 0 }; // unknown bits are ignored
+        // Bit 4 stands for bit 24 (int8 activations: no part of the navigator's settings).
+        let flags = (flags & 15) | if flags & 16 != 0 { 1 << 24 } else { 0 };
         let bytes = blob_with(flags, settings, 15);
         let blob = Blob::parse(&bytes).unwrap();
         let cfg = NavConfig::from_header(blob.header());
@@ -812,4 +813,68 @@ fn shipped_models_still_parse_by_their_own_rule() {
     }
     assert!(old > 0, "no pre-v4 model found in {}", dir.display());
     assert!(v4 > 0, "no v4 model found in {}", dir.display());
+}
+
+/// `v4` with its flags replaced by `flags` and the checksum recomputed (a header written on
+/// purpose, e.g. by a newer build).
+fn v4_with_raw_flags(v4: &[u8], flags: u32) -> Vec<u8> {
+    let b = Blob::parse(v4).unwrap();
+    let (pl, crc) = (b.header().payload_len() as usize, b.header().payload_crc());
+    let mut at = 5; // magic, version 4
+    for _ in 0..11 {
+        read_varint(v4, &mut at); // dims, map
+    }
+    let start = at;
+    read_varint(v4, &mut at);
+    let mut edited = v4[..start].to_vec();
+    edited.extend(varint_bytes(flags.into()));
+    edited.extend_from_slice(&v4[at..]);
+    reseal(&edited, pl, crc)
+}
+
+/// Unknown flag bits (4-7, 22, 31) in a v4 blob are a typed error naming the bit, also with
+/// a valid checksum; the encoder refuses them; a v1-v3 blob's unknown bits are ignored as
+/// before; every known bit parses.
+#[test]
+fn unknown_flag_bits_in_a_v4_blob_are_refused_naming_the_bit() {
+    use gman_core::schema::KNOWN_FLAGS;
+    let v4 = blob_v4_with(FLAG_ADAPT, AdaptSettings::PAPER, 3);
+    assert_eq!(KNOWN_FLAGS, !(0xF0 | 1 << 22 | 1 << 31));
+    for bit in [4u8, 5, 6, 7, 22, 31] {
+        let flags = FLAG_ADAPT | 1 << bit;
+        let e = Blob::parse(&v4_with_raw_flags(&v4, flags)).unwrap_err();
+        assert_eq!(e, BlobError::UnknownFlagBit { bit, flags });
+        assert!(
+            e.to_string()
+                .contains(&format!("unknown model flag bit {bit}")),
+            "{e}"
+        );
+        let t = random_tensors(&SMALL, 3);
+        let specs = f32_specs(&t);
+        let mut out = vec![0u8; encoded_len_bound(&specs)];
+        assert_eq!(
+            encode_with_settings(&SMALL, flags, AdaptSettings::PAPER, &specs, &mut out),
+            Err(BlobError::UnknownFlagBit { bit, flags })
+        );
+    }
+    // Several: the lowest is named.
+    let flags = 1 << 31 | 1 << 22 | 1 << 5;
+    assert_eq!(
+        Blob::parse(&v4_with_raw_flags(&v4, flags)).unwrap_err(),
+        BlobError::UnknownFlagBit { bit: 5, flags }
+    );
+    assert!(Blob::parse(&v4_with_raw_flags(&v4, KNOWN_FLAGS)).is_ok());
+    // The older formats: read as they always were.
+    let old = legacy(&v4);
+    let mut at = 5;
+    for _ in 0..8 {
+        read_varint(&old, &mut at);
+    }
+    let start = at;
+    read_varint(&old, &mut at);
+    let mut edited = old[..start].to_vec();
+    edited.extend(varint_bytes((FLAG_ADAPT | 1 << 22).into()));
+    edited.extend_from_slice(&old[at..]);
+    let b = Blob::parse(&edited).unwrap();
+    assert_eq!(b.header().flags(), FLAG_ADAPT | 1 << 22);
 }

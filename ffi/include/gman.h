@@ -14,7 +14,7 @@
 #include <stdint.h>
 
 // Version of this C API ([`gman_api_version`]); bumped on any incompatible change.
-#define GMAN_API_VERSION 1
+#define GMAN_API_VERSION 2
 
 // Capacity k of the buffer Ψ: an inner update every `GMAN_BUFFER_CAPACITY` steps (the
 // paper's k = 20).
@@ -120,6 +120,12 @@ typedef struct gman_options {
   // value runs at that delay when the blob records 0, and must equal the blob's delay
   // when it records one (else [`GMAN_ERR_CONFIG`], as for a value above 63).
   uint32_t commit_delay;
+  // 1: refuse a blob whose checksum does not cover its header (formats v1-v3, where a
+  // flipped flag bit, rate or map size goes unnoticed) with [`GMAN_ERR_BLOB_VERSION`],
+  // before anything of it is read; `gman upgrade-blob IN OUT` rewrites such a blob in
+  // the current format. 0: accept every format this library reads. Other values are
+  // refused ([`GMAN_ERR_CONFIG`]).
+  uint32_t require_header_crc;
 } gman_options;
 
 // What one step returns ([`gman_step`]).
@@ -190,7 +196,8 @@ typedef struct gman_adapt_report {
 // A required pointer was null (or a null pointer was given with a non-zero length).
 #define GMAN_ERR_NULL 1
 
-// A float buffer is not aligned to 4 bytes.
+// A pointer is not aligned for what it points to: 4 bytes for a float buffer, the
+// struct's alignment for [`gman_options`] and the out-parameters.
 #define GMAN_ERR_ALIGNMENT 2
 
 // The arena is smaller than [`gman_arena_size`].
@@ -205,7 +212,8 @@ typedef struct gman_adapt_report {
 // The blob's CRC-32 does not match its payload (a corrupt or partial download).
 #define GMAN_ERR_BLOB_CRC 6
 
-// The blob's format version is not one this library reads.
+// The blob's format version is not one this library reads, or (with
+// [`gman_options::require_header_crc`]) one whose checksum does not cover the header.
 #define GMAN_ERR_BLOB_VERSION 7
 
 // A buffer has the wrong length for the model's sizes.
@@ -228,6 +236,10 @@ typedef struct gman_adapt_report {
 // inner update whose slices have not all run yet ([`gman_adapt_slice`]). The step changed
 // nothing (no action, no counter, no state): run the remaining slices and step again.
 #define GMAN_ERR_UPDATE_NOT_READY 13
+
+// An output buffer overlaps an input buffer, or a buffer overlaps the navigator's arena
+// (or, for [`gman_init`], the blob overlaps the arena). Nothing was read or written.
+#define GMAN_ERR_OVERLAP 14
 
 #ifdef __cplusplus
 extern "C" {
@@ -292,6 +304,13 @@ gman_status gman_reset(struct gman_nav *nav, const float *attr, size_t attr_len,
 // map) and the PS input `ps` ([`gman_info::ps`] floats; NULL and 0 without one). Writes the
 // action, the probabilities and the value to `*out`. With the default schedule, every k-th
 // step ends with the inner update (`out->adapted` = 1).
+//
+// Any status but [`GMAN_OK`] changes nothing a later call reads (counters, Ψ, the LSTM
+// state, the previous probabilities, the adapted parameters, the pending update, the
+// random generator): the inputs are checked before anything is written, and a step whose
+// probabilities come out non-finite ([`GMAN_ERR_NUMERICAL`], e.g. an observation entry of
+// 3e38) is undone. Only [`gman_generated_feature`] shows the refused step's x_t until the
+// next step. To recover, step again with a good input.
 //
 // # Safety
 // `nav` a handle; each buffer readable for its length; `out` writable.

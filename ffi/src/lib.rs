@@ -22,6 +22,13 @@
 //! and [`gman_last_error`] gives the last failure's message on a handle. Null pointers, short
 //! or misaligned buffers, NaN inputs and corrupt blobs are reported, never undefined
 //! behaviour, as long as the pointers given are either null or valid for the lengths given.
+//! Every length is compared with the model's before a buffer is touched (a blob longer than
+//! a header and a `u32` payload is refused unread). An output buffer that overlaps an input
+//! buffer, or any buffer that overlaps the navigator's arena (for [`gman_init`]: the blob,
+//! the options or `out` inside the arena) is [`GMAN_ERR_OVERLAP`]. A refused call changes
+//! nothing: a refused [`gman_init`] leaves a navigator living in the same arena untouched
+//! (every check runs before the arena is written), and a refused [`gman_step`] leaves the
+//! navigator as it was (see there).
 //! On the host a panic (none is known: gman-core is written not to panic on any input) is
 //! caught at the boundary and returned as [`GMAN_ERR_PANIC`], and the handle is poisoned; on
 //! the device (`no_std` build) a panic executes `udf` and traps into the HardFault handler.
@@ -34,7 +41,7 @@ use core::fmt::{self, Write as _};
 use core::mem::{align_of, size_of};
 use core::ptr;
 
-use gman_core::blob::{Blob, Header};
+use gman_core::blob::{Blob, Header, ParseOptions};
 use gman_core::memory::{try_arena_len_with, AdaptMode, Footprint};
 use gman_core::navigator::{
     Efficient, Emd, Full, NavConfig, NavWeights, Navigator, NoiseMode, Schedule, Selection,
@@ -48,7 +55,7 @@ use gman_core::{BlobError, Dims, Error, NUM_ACTIONS};
 pub struct IntegrationGuide;
 
 /// Version of this C API ([`gman_api_version`]); bumped on any incompatible change.
-pub const GMAN_API_VERSION: u32 = 1;
+pub const GMAN_API_VERSION: u32 = 2;
 
 /// Capacity k of the buffer Ψ: an inner update every `GMAN_BUFFER_CAPACITY` steps (the
 /// paper's k = 20).
@@ -115,7 +122,8 @@ pub type gman_status = i32;
 pub const GMAN_OK: gman_status = 0;
 /// A required pointer was null (or a null pointer was given with a non-zero length).
 pub const GMAN_ERR_NULL: gman_status = 1;
-/// A float buffer is not aligned to 4 bytes.
+/// A pointer is not aligned for what it points to: 4 bytes for a float buffer, the
+/// struct's alignment for [`gman_options`] and the out-parameters.
 pub const GMAN_ERR_ALIGNMENT: gman_status = 2;
 /// The arena is smaller than [`gman_arena_size`].
 pub const GMAN_ERR_ARENA_TOO_SMALL: gman_status = 3;
@@ -125,7 +133,8 @@ pub const GMAN_ERR_BAD_HANDLE: gman_status = 4;
 pub const GMAN_ERR_BLOB: gman_status = 5;
 /// The blob's CRC-32 does not match its payload (a corrupt or partial download).
 pub const GMAN_ERR_BLOB_CRC: gman_status = 6;
-/// The blob's format version is not one this library reads.
+/// The blob's format version is not one this library reads, or (with
+/// [`gman_options::require_header_crc`]) one whose checksum does not cover the header.
 pub const GMAN_ERR_BLOB_VERSION: gman_status = 7;
 /// A buffer has the wrong length for the model's sizes.
 pub const GMAN_ERR_SHAPE: gman_status = 8;
@@ -142,6 +151,9 @@ pub const GMAN_ERR_PANIC: gman_status = 12;
 /// inner update whose slices have not all run yet ([`gman_adapt_slice`]). The step changed
 /// nothing (no action, no counter, no state): run the remaining slices and step again.
 pub const GMAN_ERR_UPDATE_NOT_READY: gman_status = 13;
+/// An output buffer overlaps an input buffer, or a buffer overlaps the navigator's arena
+/// (or, for [`gman_init`], the blob overlaps the arena). Nothing was read or written.
+pub const GMAN_ERR_OVERLAP: gman_status = 14;
 
 /// What a blob holds ([`gman_inspect`]).
 #[repr(C)]
@@ -220,6 +232,12 @@ pub struct gman_options {
     /// value runs at that delay when the blob records 0, and must equal the blob's delay
     /// when it records one (else [`GMAN_ERR_CONFIG`], as for a value above 63).
     pub commit_delay: u32,
+    /// 1: refuse a blob whose checksum does not cover its header (formats v1-v3, where a
+    /// flipped flag bit, rate or map size goes unnoticed) with [`GMAN_ERR_BLOB_VERSION`],
+    /// before anything of it is read; `gman upgrade-blob IN OUT` rewrites such a blob in
+    /// the current format. 0: accept every format this library reads. Other values are
+    /// refused ([`GMAN_ERR_CONFIG`]).
+    pub require_header_crc: u32,
 }
 
 /// What one step returns ([`gman_step`]).
@@ -321,6 +339,8 @@ macro_rules! each {
 #[repr(C)]
 struct Handle {
     magic: u64,
+    /// The bytes of the arena the navigator uses (handle and state), `[lo, hi)`.
+    arena: Span,
     info: gman_info,
     msg: [u8; MSG_LEN],
     nav: Nav,
@@ -329,6 +349,19 @@ struct Handle {
 const _: () = assert!(size_of::<Handle>() <= GMAN_HANDLE_BYTES);
 const _: () = assert!(align_of::<Handle>() <= GMAN_ARENA_ALIGN);
 const _: () = assert!(GMAN_HANDLE_BYTES.is_multiple_of(GMAN_ARENA_ALIGN));
+
+impl Handle {
+    /// [`disjoint`] against this navigator's arena, as a call's error. Called before any
+    /// caller buffer becomes a Rust reference (and after the lengths are checked, so a
+    /// huge length is a shape error, not an overlap).
+    fn disjoint(
+        &self,
+        inputs: &[Span],
+        outputs: &[Span],
+    ) -> Result<(), (gman_status, Option<Error>)> {
+        disjoint(self.arena, inputs, outputs).map_err(ffi_err)
+    }
+}
 
 /// A message buffer written with `core::fmt`, truncated at `MSG_LEN - 1` bytes, always
 /// NUL-terminated.
@@ -362,7 +395,9 @@ fn status_of_blob(e: &BlobError) -> gman_status {
         BlobError::ChecksumMismatch { .. } | BlobError::HeaderChecksumMismatch { .. } => {
             GMAN_ERR_BLOB_CRC
         }
-        BlobError::UnsupportedVersion { .. } => GMAN_ERR_BLOB_VERSION,
+        BlobError::UnsupportedVersion { .. } | BlobError::HeaderNotCovered { .. } => {
+            GMAN_ERR_BLOB_VERSION
+        }
         _ => GMAN_ERR_BLOB,
     }
 }
@@ -467,6 +502,83 @@ unsafe fn out_ref<'a, T>(p: *mut T) -> Result<&'a mut T, gman_status> {
     Ok(unsafe { &mut *p })
 }
 
+/// The bytes `[lo, hi)` of a C span, by address only (nothing is read). A null pointer or a
+/// zero length is empty; a byte length past the address space ends at `usize::MAX` (such a
+/// span is refused by [`check_span`] anyway).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct Span {
+    lo: usize,
+    hi: usize,
+}
+
+impl Span {
+    const EMPTY: Span = Span { lo: 0, hi: 0 };
+
+    fn of<T>(p: *const T, len: usize) -> Span {
+        if p.is_null() || len == 0 {
+            return Span::EMPTY;
+        }
+        let lo = p as usize;
+        let bytes = len.saturating_mul(size_of::<T>());
+        Span {
+            lo,
+            hi: lo.saturating_add(bytes),
+        }
+    }
+
+    fn one<T>(p: *const T) -> Span {
+        Span::of(p, 1)
+    }
+
+    fn overlaps(self, o: Span) -> bool {
+        self.lo < self.hi && o.lo < o.hi && self.lo < o.hi && o.lo < self.hi
+    }
+}
+
+/// [`GMAN_ERR_OVERLAP`] when an output overlaps an input or another output, or any of them
+/// overlaps `arena` (inputs may overlap each other: they are only read).
+fn disjoint(arena: Span, inputs: &[Span], outputs: &[Span]) -> Result<(), gman_status> {
+    let clash = inputs.iter().chain(outputs).any(|s| s.overlaps(arena))
+        || outputs.iter().enumerate().any(|(i, o)| {
+            inputs.iter().any(|s| s.overlaps(*o)) || outputs[..i].iter().any(|s| s.overlaps(*o))
+        });
+    if clash {
+        Err(GMAN_ERR_OVERLAP)
+    } else {
+        Ok(())
+    }
+}
+
+/// [`GMAN_ERR_SHAPE`] (with the core's message) unless a caller's `len` is the model's
+/// `expected` length: checked before a slice is made, so no length a caller gives ever
+/// reaches a Rust slice beyond the model's sizes.
+fn want_len(
+    what: &'static str,
+    expected: u32,
+    len: usize,
+) -> Result<(), (gman_status, Option<Error>)> {
+    let expected = expected as usize;
+    if len == expected {
+        Ok(())
+    } else {
+        Err(core_err(Error::Shape(gman_core::ShapeError {
+            what,
+            expected,
+            actual: len,
+        })))
+    }
+}
+
+/// The longest blob a caller may give: the header (well under 1 KiB) and a payload, whose
+/// length the header stores as a `u32`. Longer is [`GMAN_ERR_BLOB`] before anything is read
+/// (on a 32-bit target no length is longer).
+const MAX_BLOB_BYTES: u64 = u32::MAX as u64 + 1024;
+
+/// True when a blob of `len` bytes is longer than any blob ([`MAX_BLOB_BYTES`]).
+fn blob_too_long(len: usize) -> bool {
+    len as u64 > MAX_BLOB_BYTES
+}
+
 fn blob_info(blob: &Blob<'_>) -> Result<gman_info, gman_status> {
     let h: &Header = blob.header();
     let d = h.dims();
@@ -519,13 +631,17 @@ fn blob_info(blob: &Blob<'_>) -> Result<gman_info, gman_status> {
 unsafe fn parse_blob<'a>(
     blob: *const u8,
     len: usize,
+    opts: ParseOptions,
 ) -> Result<(Blob<'a>, gman_info), gman_status> {
     if blob.is_null() {
         return Err(GMAN_ERR_NULL);
     }
+    if blob_too_long(len) {
+        return Err(GMAN_ERR_BLOB);
+    }
     // SAFETY: forwarded from the caller: `blob` is readable for `len` bytes.
     let bytes = unsafe { slice_in(blob, len) }?;
-    let b = Blob::parse(bytes).map_err(|e| status_of_blob(&e))?;
+    let b = Blob::parse_with(bytes, opts).map_err(|e| status_of_blob(&e))?;
     let info = blob_info(&b)?;
     Ok((b, info))
 }
@@ -611,7 +727,9 @@ fn status_cstr(s: gman_status) -> &'static str {
     match s {
         GMAN_OK => "ok\0",
         GMAN_ERR_NULL => "a required pointer is null\0",
-        GMAN_ERR_ALIGNMENT => "a float buffer is not 4-byte aligned\0",
+        GMAN_ERR_ALIGNMENT => {
+            "a pointer is not aligned for its type (4 bytes for floats, the struct's alignment for gman_options and out-parameters)\0"
+        }
         GMAN_ERR_ARENA_TOO_SMALL => "the arena is smaller than gman_arena_size()\0",
         GMAN_ERR_BAD_HANDLE => {
             "not a live navigator handle (not initialised, overwritten or poisoned)\0"
@@ -619,7 +737,7 @@ fn status_cstr(s: gman_status) -> &'static str {
         GMAN_ERR_BLOB => "the weight blob is truncated or malformed\0",
         GMAN_ERR_BLOB_CRC => "the weight blob's CRC-32 does not match (corrupt or partial copy)\0",
         GMAN_ERR_BLOB_VERSION => {
-            "the weight blob's format version is not supported by this library\0"
+            "the weight blob's format version is not supported by this library, or its checksum does not cover the header and the options require it\0"
         }
         GMAN_ERR_SHAPE => "a buffer has the wrong length for the model\0",
         GMAN_ERR_NON_FINITE => "an input holds NaN or infinity\0",
@@ -628,6 +746,9 @@ fn status_cstr(s: gman_status) -> &'static str {
         GMAN_ERR_PANIC => "internal panic caught at the C boundary (handle poisoned)\0",
         GMAN_ERR_UPDATE_NOT_READY => {
             "the pending inner update has slices left: run gman_adapt_slice() first (nothing changed)\0"
+        }
+        GMAN_ERR_OVERLAP => {
+            "an output buffer overlaps an input buffer or the navigator's arena (nothing changed)\0"
         }
         _ => "unknown status code\0",
     }
@@ -712,10 +833,15 @@ unsafe fn describe<T>(
     f: impl FnOnce(gman_info) -> Result<T, gman_status>,
 ) -> gman_status {
     guard(|| {
+        let r = if blob_too_long(len) {
+            Err(GMAN_ERR_BLOB)
+        } else {
+            disjoint(Span::EMPTY, &[Span::of(blob, len)], &[Span::one(out)])
+        };
         // SAFETY: forwarded from the caller.
-        let r = unsafe { out_ref(out) }.and_then(|o| {
+        let r = r.and_then(|()| unsafe { out_ref(out) }).and_then(|o| {
             // SAFETY: forwarded from the caller.
-            let (_, info) = unsafe { parse_blob(blob, len) }?;
+            let (_, info) = unsafe { parse_blob(blob, len, ParseOptions::default()) }?;
             *o = f(info)?;
             Ok(())
         });
@@ -761,6 +887,12 @@ unsafe fn init(
     opts: *const gman_options,
     out: *mut *mut gman_nav,
 ) -> Result<(), gman_status> {
+    if blob_too_long(blob_len) {
+        return Err(GMAN_ERR_BLOB);
+    }
+    let (b, o, p) = (Span::of(blob, blob_len), Span::one(out), Span::one(opts));
+    // The blob, the options and `*out` must lie outside the arena the caller gives.
+    disjoint(Span::of(arena, arena_len), &[b, p], &[o])?;
     // SAFETY: forwarded from the caller.
     let out = unsafe { out_ref(out) }?;
     *out = ptr::null_mut();
@@ -775,29 +907,32 @@ unsafe fn init(
     if arena.is_null() {
         return Err(GMAN_ERR_NULL);
     }
+    let parse = ParseOptions {
+        require_header_crc: match opts.require_header_crc {
+            0 => false,
+            1 => true,
+            _ => return Err(GMAN_ERR_CONFIG),
+        },
+    };
     // SAFETY: forwarded from the caller. The weights borrow the blob for as long as the
     // caller keeps the handle, which the API's contract makes the caller guarantee ('static
     // stands for "as long as the handle is used").
-    let (blob, mut info) = unsafe { parse_blob::<'static>(blob, blob_len) }?;
+    let (blob, mut info) = unsafe { parse_blob::<'static>(blob, blob_len, parse) }?;
     let need = usize::try_from(info.arena_bytes).map_err(|_| GMAN_ERR_CONFIG)?;
     if arena_len < need {
         return Err(GMAN_ERR_ARENA_TOO_SMALL);
     }
-    let mut cfg = NavConfig::from_header(blob.header());
-    cfg.selection = match opts.selection {
-        0 => Selection::Greedy,
-        1 => Selection::Sample,
-        _ => return Err(GMAN_ERR_CONFIG),
-    };
-    cfg.schedule = match opts.schedule {
-        0 => Schedule::Auto,
-        1 => Schedule::Manual,
-        2 => Schedule::Background,
-        _ => return Err(GMAN_ERR_CONFIG),
-    };
-    cfg.commit_delay = commit_delay(cfg.commit_delay, opts.commit_delay)?;
+    let used = Span::of(arena, need);
+    let cfg = init_config(&blob, &opts)?;
     let dims = blob.dims();
     let weights = NavWeights::from_blob(&blob, &dims).map_err(|e| status_of(&e))?;
+    // Every check of the settings before the arena is written: a refused call leaves a live
+    // navigator in this arena untouched.
+    match info.adapt_mode {
+        0 => Navigator::<'static, Efficient, K>::check_settings(&weights, &cfg),
+        _ => Navigator::<'static, Full, K>::check_settings(&weights, &cfg),
+    }
+    .map_err(|e| status_of(&e))?;
     let pad = (GMAN_ARENA_ALIGN - (arena as usize) % GMAN_ARENA_ALIGN) % GMAN_ARENA_ALIGN;
     let floats = (need - GMAN_ARENA_ALIGN - GMAN_HANDLE_BYTES) / 4;
     // SAFETY: `pad + GMAN_HANDLE_BYTES + 4 * floats <= need <= arena_len`, so both regions
@@ -814,8 +949,19 @@ unsafe fn init(
         core::slice::from_raw_parts_mut(fp, floats)
     };
     let nav = match info.adapt_mode {
-        0 => Nav::Efficient(Navigator::new(weights, ram, cfg).map_err(|e| status_of(&e))?),
-        _ => Nav::Full(Navigator::new(weights, ram, cfg).map_err(|e| status_of(&e))?),
+        0 => Navigator::new(weights, ram, cfg).map(Nav::Efficient),
+        _ => Navigator::new(weights, ram, cfg).map(Nav::Full),
+    };
+    let nav = match nav {
+        Ok(n) => n,
+        Err(e) => {
+            // Not reached (the checks above are Navigator::new's): a navigator that lived in
+            // this arena lost its state, so its handle must not run.
+            // SAFETY: `hp` is aligned and inside the arena, which is ours; only the first
+            // field's 8 bytes are written.
+            unsafe { ptr::write(ptr::addr_of_mut!((*hp).magic), POISONED) };
+            return Err(status_of(&e));
+        }
     };
     info.arena_bytes = need as u64;
     let mut msg = [0u8; MSG_LEN];
@@ -829,6 +975,7 @@ unsafe fn init(
             hp,
             Handle {
                 magic: MAGIC,
+                arena: used,
                 info,
                 msg,
                 nav,
@@ -837,6 +984,24 @@ unsafe fn init(
     };
     *out = hp as *mut gman_nav;
     Ok(())
+}
+
+/// The navigator configuration of `blob` with the run-time options `opts`.
+fn init_config(blob: &Blob<'_>, opts: &gman_options) -> Result<NavConfig, gman_status> {
+    let mut cfg = NavConfig::from_header(blob.header());
+    cfg.selection = match opts.selection {
+        0 => Selection::Greedy,
+        1 => Selection::Sample,
+        _ => return Err(GMAN_ERR_CONFIG),
+    };
+    cfg.schedule = match opts.schedule {
+        0 => Schedule::Auto,
+        1 => Schedule::Manual,
+        2 => Schedule::Background,
+        _ => return Err(GMAN_ERR_CONFIG),
+    };
+    cfg.commit_delay = commit_delay(cfg.commit_delay, opts.commit_delay)?;
+    Ok(cfg)
 }
 
 /// The commit delay a navigator runs at: the blob's `recorded` one, or the `requested` one
@@ -869,6 +1034,8 @@ pub unsafe extern "C" fn gman_reset(
     // SAFETY: forwarded from the caller.
     unsafe {
         with_handle(nav, |h| {
+            want_len("gman_reset.attr", h.info.attr, attr_len)?;
+            h.disjoint(&[Span::of(attr, attr_len)], &[])?;
             let attr = slice_in(attr, attr_len).map_err(ffi_err)?;
             each!(&mut h.nav, n => n.reset(attr, seed)).map_err(core_err)
         })
@@ -880,6 +1047,13 @@ pub unsafe extern "C" fn gman_reset(
 /// map) and the PS input `ps` ([`gman_info::ps`] floats; NULL and 0 without one). Writes the
 /// action, the probabilities and the value to `*out`. With the default schedule, every k-th
 /// step ends with the inner update (`out->adapted` = 1).
+///
+/// Any status but [`GMAN_OK`] changes nothing a later call reads (counters, Ψ, the LSTM
+/// state, the previous probabilities, the adapted parameters, the pending update, the
+/// random generator): the inputs are checked before anything is written, and a step whose
+/// probabilities come out non-finite ([`GMAN_ERR_NUMERICAL`], e.g. an observation entry of
+/// 3e38) is undone. Only [`gman_generated_feature`] shows the refused step's x_t until the
+/// next step. To recover, step again with a good input.
 ///
 /// # Safety
 /// `nav` a handle; each buffer readable for its length; `out` writable.
@@ -896,7 +1070,16 @@ pub unsafe extern "C" fn gman_step(
 ) -> gman_status {
     // SAFETY: forwarded from the caller.
     unsafe {
+        let inputs = [
+            Span::of(obs, obs_len),
+            Span::of(map, map_len),
+            Span::of(ps, ps_len),
+        ];
         with_handle(nav, |h| {
+            want_len("gman_step.obs", h.info.feat, obs_len)?;
+            want_len("gman_step.map", h.info.map_len, map_len)?;
+            want_len("gman_step.ps", h.info.ps, ps_len)?;
+            h.disjoint(&inputs, &[Span::one(out)])?;
             let out = out_ref(out).map_err(ffi_err)?;
             let obs = slice_in(obs, obs_len).map_err(ffi_err)?;
             let map = slice_in(map, map_len).map_err(ffi_err)?;
@@ -926,6 +1109,7 @@ pub unsafe extern "C" fn gman_adapt_now(nav: *mut gman_nav, ran: *mut u32) -> gm
     // SAFETY: forwarded from the caller.
     unsafe {
         with_handle(nav, |h| {
+            h.disjoint(&[], &[Span::one(ran)])?;
             let r = each!(&mut h.nav, n => n.adapt_now()).map_err(core_err)?;
             if !ran.is_null() {
                 *out_ref(ran).map_err(ffi_err)? = r as u32;
@@ -948,6 +1132,7 @@ pub unsafe extern "C" fn gman_adapt_slice(nav: *mut gman_nav, more: *mut u32) ->
     // SAFETY: forwarded from the caller.
     unsafe {
         with_handle(nav, |h| {
+            h.disjoint(&[], &[Span::one(more)])?;
             let more = if more.is_null() {
                 None
             } else {
@@ -991,6 +1176,7 @@ pub unsafe extern "C" fn gman_get_schedule(
     // SAFETY: forwarded from the caller.
     unsafe {
         with_handle(nav, |h| {
+            h.disjoint(&[], &[Span::one(out)])?;
             let o = out_ref(out).map_err(ffi_err)?;
             *o = each!(&h.nav, n => gman_schedule_state {
                 schedule: match n.config().schedule {
@@ -1016,6 +1202,7 @@ pub unsafe extern "C" fn gman_buffered(nav: *mut gman_nav, out: *mut u32) -> gma
     // SAFETY: forwarded from the caller.
     unsafe {
         with_handle(nav, |h| {
+            h.disjoint(&[], &[Span::one(out)])?;
             let o = out_ref(out).map_err(ffi_err)?;
             *o = each!(&h.nav, n => n.buffered()) as u32;
             Ok(())
@@ -1035,6 +1222,7 @@ pub unsafe extern "C" fn gman_get_counters(
     // SAFETY: forwarded from the caller.
     unsafe {
         with_handle(nav, |h| {
+            h.disjoint(&[], &[Span::one(out)])?;
             let o = out_ref(out).map_err(ffi_err)?;
             let c = each!(&h.nav, n => n.counters());
             *o = gman_counters {
@@ -1063,6 +1251,7 @@ pub unsafe extern "C" fn gman_last_adaptation(
     // SAFETY: forwarded from the caller.
     unsafe {
         with_handle(nav, |h| {
+            h.disjoint(&[], &[Span::one(out)])?;
             let o = out_ref(out).map_err(ffi_err)?;
             let r = each!(&h.nav, n => n.last_adaptation());
             *o = gman_adapt_report {
@@ -1088,6 +1277,7 @@ pub unsafe extern "C" fn gman_nav_info(nav: *mut gman_nav, out: *mut gman_info) 
     // SAFETY: forwarded from the caller.
     unsafe {
         with_handle(nav, |h| {
+            h.disjoint(&[], &[Span::one(out)])?;
             *out_ref(out).map_err(ffi_err)? = h.info;
             Ok(())
         })
@@ -1107,15 +1297,10 @@ pub unsafe extern "C" fn gman_generated_feature(
     // SAFETY: forwarded from the caller.
     unsafe {
         with_handle(nav, |h| {
+            want_len("gman_generated_feature.out", h.info.feat, out_len)?;
+            h.disjoint(&[], &[Span::of(out, out_len)])?;
             let out = slice_out(out, out_len).map_err(ffi_err)?;
             let x = each!(&h.nav, n => n.generated_feature());
-            if x.len() != out.len() {
-                return Err(core_err(Error::Shape(gman_core::ShapeError {
-                    what: "gman_generated_feature.out",
-                    expected: x.len(),
-                    actual: out.len(),
-                })));
-            }
             out.copy_from_slice(x);
             Ok(())
         })
@@ -1139,6 +1324,9 @@ pub unsafe extern "C" fn gman_generator_output(
     // SAFETY: forwarded from the caller.
     unsafe {
         with_handle(nav, |h| {
+            want_len("gman_generator_output.z", h.info.noise, z_len)?;
+            want_len("gman_generator_output.out", h.info.feat, out_len)?;
+            h.disjoint(&[Span::of(z, z_len)], &[Span::of(out, out_len)])?;
             let z = slice_in(z, z_len).map_err(ffi_err)?;
             let out = slice_out(out, out_len).map_err(ffi_err)?;
             each!(&mut h.nav, n => n.generator_output(z, out)).map_err(core_err)

@@ -76,14 +76,17 @@ fn step(n: &Nav, i: &gman_info, obs: &[f32], map: &[f32]) -> (gman_status, gman_
 fn status_strings_are_static_and_distinct() {
     let mut seen = std::collections::HashSet::new();
     // The codes are stable: appended, never renumbered.
-    assert_eq!((GMAN_ERR_PANIC, GMAN_ERR_UPDATE_NOT_READY), (12, 13));
-    for s in 0..=GMAN_ERR_UPDATE_NOT_READY {
+    assert_eq!(
+        (GMAN_ERR_PANIC, GMAN_ERR_UPDATE_NOT_READY, GMAN_ERR_OVERLAP),
+        (12, 13, 14)
+    );
+    for s in 0..=GMAN_ERR_OVERLAP {
         let t = unsafe { CStr::from_ptr(gman_status_str(s)) }
             .to_str()
             .unwrap();
         assert!(!t.is_empty() && seen.insert(t.to_string()), "{s}: {t}");
     }
-    for s in [-7, GMAN_ERR_UPDATE_NOT_READY + 1] {
+    for s in [-7, GMAN_ERR_OVERLAP + 1] {
         let t = unsafe { CStr::from_ptr(gman_status_str(s)) };
         assert_eq!(t.to_str().unwrap(), "unknown status code");
     }
@@ -272,6 +275,7 @@ fn order_shape_nan_alignment_and_dead_handles() {
         selection: 7,
         schedule: 0,
         commit_delay: 0,
+        require_header_crc: 0,
     };
     let s = unsafe {
         gman_init(
@@ -289,6 +293,7 @@ fn order_shape_nan_alignment_and_dead_handles() {
         selection: 0,
         schedule: 0,
         commit_delay: 64,
+        require_header_crc: 0,
     };
     let s = unsafe {
         gman_init(
@@ -381,6 +386,7 @@ fn manual_schedule_runs_the_update_only_on_request() {
         selection: 0,
         schedule: 1,
         commit_delay: 0,
+        require_header_crc: 0,
     };
     let s = unsafe {
         gman_init(

@@ -100,6 +100,7 @@ fn opts(schedule: u32, commit_delay: u32) -> gman_options {
         selection: 0,
         schedule,
         commit_delay,
+        require_header_crc: 0,
     }
 }
 

@@ -151,7 +151,7 @@ const char *ep_run(const uint8_t *blob, size_t blob_len, void *arena, size_t are
     if (info.feat != FEAT || info.attr != ATTR || info.map_rows * info.map_cols != CELLS ||
         info.noise > NOISE_MAX)
         return "the blob's sizes are not the episode's (Mcu with a 3 x 3 map)";
-    gman_options opts = {0, schedule, 0}; /* greedy */
+    gman_options opts = {0, schedule, 0, 0}; /* greedy, any blob format */
     opts.commit_delay = info.commit_delay ? info.commit_delay : COMMIT_DELAY;
     TRY(gman_init(blob, blob_len, arena, arena_len, &opts, &nav));
     gman_schedule_state sched;

@@ -41,8 +41,11 @@ for s in $SEEDS; do
     only=$ROWS
     case " $PRIVILEGED_SEEDS " in *" $s "*) only="$only privileged" ;; esac
     echo "[$(date +%H:%M:%S)] domain shift $S, seed $s: $only"
+    # (computed first: a prefix assignment sees the ones before it on its line)
+    keep_level=${KEEP:+$KEEP/$S}
+    keep_models=${KEEP:+$KEEP/models/$S-}
     REPO=$repo KEEPER=$O/scripts/paper-keep.sh SHIFT=$S STEPS=${STEPS:-2000000} SEEDS=$s \
-      EXTRA_SEEDS=$s ONLY="$only" OUT=$O/$S KEEP=${KEEP:+$KEEP/$S} \
-      KEEP_MODELS=${KEEP:+$KEEP/models/$S-} bash "$O/scripts/paper-tables.sh"
+      EXTRA_SEEDS=$s ONLY="$only" OUT=$O/$S KEEP=$keep_level KEEP_MODELS=$keep_models \
+      bash "$O/scripts/paper-tables.sh"
   done
 done

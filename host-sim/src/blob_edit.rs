@@ -1,8 +1,10 @@
 //! Edits of an existing weight blob that keep every tensor's bits (re-emitted through
 //! gman-core's one encoder).
 
+use std::path::Path;
+
 use anyhow::{anyhow, bail, Result};
-use gman_core::blob::{reencode_with_flags, reencoded_len_bound, Blob, Quant};
+use gman_core::blob::{reencode_with_flags, reencoded_len_bound, Blob, ChecksumScope, Quant};
 use gman_core::schema::{FLAG_COMPACT_PSI, FLAG_INT8_ACTIVATIONS};
 
 /// `bytes` (a weight blob) emitted again with [`FLAG_INT8_ACTIVATIONS`] and
@@ -40,6 +42,36 @@ pub fn reencode_with_flags_of(bytes: &[u8], int8: bool, compact_psi: bool) -> Re
     }
     let mut out = vec![0u8; reencoded_len_bound(bytes)];
     let n = reencode_with_flags(bytes, flags, &mut out)
+        .map_err(|e| anyhow!("encoding the blob: {e}"))?;
+    out.truncate(n);
+    Ok(out)
+}
+
+/// The warning for a blob (`bytes`, read from `path`) whose CRC-32 does not cover its header
+/// (formats v1-v3): a flipped flag bit, rate or map size in it loads unnoticed. `None` for a
+/// blob of the current format, or one that does not parse (its error is reported where it
+/// is read).
+pub fn unprotected_header_warning(path: &Path, bytes: &[u8]) -> Option<String> {
+    let blob = Blob::parse(bytes).ok()?;
+    let h = blob.header();
+    (h.checksum_scope() == ChecksumScope::Payload).then(|| {
+        format!(
+            "warning: {}: weight blob format v{} checksums the payload only, not the header: a changed flag, inner rate, cap or map size in it would load unnoticed; `gman upgrade-blob {} OUT.gman` rewrites it in format v{} (checksum over header and payload)",
+            path.display(),
+            h.version(),
+            path.display(),
+            gman_core::blob::FORMAT_VERSION
+        )
+    })
+}
+
+/// `bytes` (a weight blob of any format this build reads) rewritten in the current format:
+/// the dims, flags, inner-loop settings and every tensor record byte for byte, the
+/// checksum over the header and the payload.
+pub fn upgrade_blob(bytes: &[u8]) -> Result<Vec<u8>> {
+    let blob = Blob::parse(bytes).map_err(|e| anyhow!("{e}"))?;
+    let mut out = vec![0u8; reencoded_len_bound(bytes)];
+    let n = reencode_with_flags(bytes, blob.header().flags(), &mut out)
         .map_err(|e| anyhow!("encoding the blob: {e}"))?;
     out.truncate(n);
     Ok(out)

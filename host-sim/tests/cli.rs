@@ -608,3 +608,157 @@ fn table_summarises_rows_and_draws_their_spread() {
     ]);
     assert!(!ok && err.contains("x.png"), "{err}");
 }
+
+/// A blob whose checksum skips its header (format v2 here) loads with a warning naming the
+/// file and the risk (`inspect`, `eval`); `upgrade-blob IN OUT` rewrites it in format v4,
+/// refuses OUT = IN, and the upgraded blob evaluates to the same JSON, without the warning.
+#[test]
+fn legacy_blob_warns_and_upgrade_blob_evaluates_identically() {
+    let old = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/models/gman-mcu-int8-seed1.gman"
+    );
+    let d = tmp("upgrade");
+    let new = d.join("upgraded.gman");
+    let new_s = new.to_str().unwrap();
+    let warned = |stderr: &str, path: &str| {
+        stderr.contains("warning:")
+            && stderr.contains(path)
+            && stderr.contains("checksums the payload only")
+            && stderr.contains("upgrade-blob")
+    };
+    let (ok, out, err) = gman(&["inspect", old]);
+    assert!(ok, "{err}");
+    assert!(out.contains("format v2"), "{out}");
+    assert!(
+        warned(&err, old),
+        "inspect of a v2 blob: no warning:\n{err}"
+    );
+
+    let (ok, _, err) = gman(&["upgrade-blob", old, old]);
+    assert!(!ok && err.contains("same file"), "{err}");
+    let (ok, out, err) = gman(&["upgrade-blob", old, new_s]);
+    assert!(ok, "{err}");
+    assert!(
+        out.contains("format v2") && out.contains("format v4"),
+        "{out}"
+    );
+    let (ok, out, err) = gman(&["inspect", new_s]);
+    assert!(ok, "{err}");
+    assert!(
+        out.contains("format v4") && !err.contains("warning"),
+        "{out}{err}"
+    );
+    for setting in [
+        "D ascent steps per inner update 1",
+        "descent step rule",
+        "D head reset off",
+        "adaptation loss",
+        "L_D critic scale",
+        "head-only adaptation",
+        "commit delay 0 steps",
+        "int8 activations",
+        "compact Ψ",
+    ] {
+        assert!(
+            out.contains(setting),
+            "inspect does not name `{setting}`:\n{out}"
+        );
+    }
+    // A v4 blob with a flag bit this build does not know (checksum recomputed): refused,
+    // naming the bit.
+    let unknown = d.join("unknown-bit.gman");
+    std::fs::write(&unknown, with_flag_bit(&std::fs::read(&new).unwrap(), 22)).unwrap();
+    let (ok, _, err) = gman(&["inspect", unknown.to_str().unwrap()]);
+    assert!(!ok && err.contains("unknown model flag bit 22"), "{err}");
+    // Only the header changed: every tensor record is the old payload's.
+    let (a, b) = (std::fs::read(old).unwrap(), std::fs::read(&new).unwrap());
+    let (pa, pb) = (
+        gman_core::blob::Blob::parse(&a).unwrap(),
+        gman_core::blob::Blob::parse(&b).unwrap(),
+    );
+    let pl = pa.header().payload_len() as usize;
+    assert_eq!(pl, pb.header().payload_len() as usize);
+    assert_eq!(a[a.len() - pl..], b[b.len() - pl..]);
+
+    let eval = |model: &str, json: &std::path::Path| {
+        let (ok, _, err) = gman(&[
+            "eval",
+            "--agent",
+            model,
+            "--episodes",
+            "3",
+            "--quiet",
+            "--json",
+            json.to_str().unwrap(),
+        ]);
+        assert!(ok, "{err}");
+        let mut v: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(json).unwrap()).unwrap();
+        // The agent is named by its path; everything else must be the same.
+        v.as_object_mut().unwrap().remove("agent");
+        (v, err)
+    };
+    let (va, err_a) = eval(old, &d.join("old.json"));
+    let (vb, err_b) = eval(new_s, &d.join("new.json"));
+    assert!(
+        warned(&err_a, old),
+        "eval of a v2 blob: no warning:\n{err_a}"
+    );
+    assert_eq!(
+        err_a.matches("checksums the payload only").count(),
+        1,
+        "one warning:\n{err_a}"
+    );
+    assert!(!err_b.contains("checksums the payload only"), "{err_b}");
+    assert_eq!(va, vb, "the upgraded blob evaluates differently");
+    let _ = std::fs::remove_dir_all(&d);
+}
+
+/// A format v4 blob with flag bit `bit` also set and its checksum recomputed (the header's
+/// fields are LEB128 varints: magic, version, 8 dims, 3 map dims, then the flags; the
+/// checksum is the last field, over every header byte before it and the payload).
+fn with_flag_bit(v4: &[u8], bit: u32) -> Vec<u8> {
+    fn varint(b: &[u8], at: &mut usize) -> u64 {
+        let (mut v, mut shift) = (0u64, 0);
+        loop {
+            let byte = b[*at];
+            *at += 1;
+            v |= u64::from(byte & 0x7f) << shift;
+            if byte & 0x80 == 0 {
+                return v;
+            }
+            shift += 7;
+        }
+    }
+    fn put(mut v: u64, out: &mut Vec<u8>) {
+        while v >= 0x80 {
+            out.push(v as u8 | 0x80);
+            v >>= 7;
+        }
+        out.push(v as u8);
+    }
+    let blob = gman_core::blob::Blob::parse(v4).unwrap();
+    let pl = blob.header().payload_len() as usize;
+    assert_eq!(v4[4], 4, "a v4 blob");
+    let mut at = 5;
+    for _ in 0..11 {
+        varint(v4, &mut at);
+    }
+    let start = at;
+    let flags = varint(v4, &mut at);
+    let mut head = v4[..start].to_vec();
+    put(flags | 1 << bit, &mut head);
+    // The checksum is the last varint before the payload: back over its continuation bytes.
+    let end = v4.len() - pl;
+    let mut crc_at = end - 1;
+    while crc_at > at && v4[crc_at - 1] & 0x80 != 0 {
+        crc_at -= 1;
+    }
+    head.extend_from_slice(&v4[at..crc_at]);
+    let payload = &v4[end..];
+    let crc = gman_core::crc32::crc32_update(gman_core::crc32::crc32(&head), payload);
+    put(crc.into(), &mut head);
+    head.extend_from_slice(payload);
+    head
+}

@@ -58,6 +58,7 @@ impl Agent for CApiAgent {
             selection: 1, // sampled, as `gman eval` runs
             schedule: 0,
             commit_delay: 0,
+            require_header_crc: 0,
         };
         let mut nav = null_mut();
         // SAFETY: the blob and the arena outlive the handle (both owned by self, unmoved

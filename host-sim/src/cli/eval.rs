@@ -30,8 +30,9 @@ pub struct EvalArgs {
     /// `gman-nometa`: adversarial adaptation at test time only).
     #[arg(long, value_enum)]
     pub method: Option<gman_host_sim::model::Method>,
-    /// Override the model's inner-loop rate α (α1 = α2) at evaluation (checkpoints store the
-    /// rate they were trained with; blobs do not and default to the paper's 1e-4).
+    /// Override the model's inner-loop rate α (α1 = α2) at evaluation (default: the rate the
+    /// model was trained with, which checkpoints and blobs store and `gman inspect` shows; a
+    /// blob of format v1, which has no field for it, runs the paper's 1e-4).
     #[arg(long, value_name = "ALPHA")]
     pub inner_lr: Option<f32>,
     /// Override the cap on inner updates per episode at evaluation (default: the model's, 4).

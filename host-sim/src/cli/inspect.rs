@@ -17,6 +17,9 @@ pub struct InspectArgs {
 pub fn cmd_inspect(a: InspectArgs) -> Result<()> {
     let bytes = std::fs::read(&a.blob).with_context(|| format!("reading {}", a.blob.display()))?;
     let blob = Blob::parse(&bytes).map_err(|e| anyhow!("{}: {e}", a.blob.display()))?;
+    if let Some(w) = gman_host_sim::blob_edit::unprotected_header_warning(&a.blob, &bytes) {
+        eprintln!("{w}");
+    }
     print_header(&a.blob, &blob);
     print_flags(&blob);
     print_tensors(&blob);
@@ -76,6 +79,7 @@ fn print_flags(blob: &Blob<'_>) {
             flags.join(", ")
         }
     );
+    print_settings(h);
     let st = h.adapt_settings();
     println!(
         "inner loop: alpha_disc (α1, D ascent) {:e}, alpha_adapt (α2, θ/φ descent) {:e}, \
@@ -96,6 +100,34 @@ fn print_flags(blob: &Blob<'_>) {
     println!(
         "navigator (NavConfig::from_header): adapt {}, emd {:?}, noise {:?}",
         cfg.adapt, cfg.emd, cfg.noise
+    );
+}
+
+/// Every setting the flags hold, named, whether on or off.
+fn print_settings(h: &gman_core::blob::Header) {
+    use gman_core::schema::{AdaptLossKind, StepRule, FLAG_COMPACT_PSI, FLAG_INT8_ACTIVATIONS};
+    let mf = h.model_flags();
+    let on = |b: bool| if b { "on" } else { "off" };
+    println!(
+        "settings: D ascent steps per inner update {}, descent step rule {}, D head reset {}, \
+         adaptation loss {}, L_D critic scale {}, head-only adaptation {}, commit delay {} \
+         steps, int8 activations {}, compact Ψ {}",
+        mf.disc_steps,
+        match mf.step_rule {
+            StepRule::Gradient => "gradient (paper)",
+            StepRule::Normalized => "normalized",
+            StepRule::PerGroup => "per-group normalized",
+        },
+        on(mf.disc_head_reset),
+        match mf.adapt_loss {
+            AdaptLossKind::Paper => "paper (Eq. 3)",
+            AdaptLossKind::Reference => "reference implementation's",
+        },
+        mf.critic_scale(),
+        on(mf.head_only),
+        mf.commit_delay,
+        on(h.flags() & FLAG_INT8_ACTIVATIONS != 0),
+        on(h.flags() & FLAG_COMPACT_PSI != 0),
     );
 }
 

@@ -26,6 +26,7 @@ pub mod shift_report;
 pub mod table;
 pub mod train;
 pub mod train_config;
+pub mod upgrade_blob;
 
 pub use args::PresetArg;
 
@@ -61,6 +62,9 @@ pub enum Commands {
     Export(export::ExportArgs),
     /// Print a weight blob's header, tensors, quantisation and size (validates the checksum).
     Inspect(inspect::InspectArgs),
+    /// Rewrite a weight blob in the current format (v4: the checksum covers the header too);
+    /// for blobs of formats v1-v3, whose checksum covers the payload only.
+    UpgradeBlob(upgrade_blob::UpgradeBlobArgs),
     /// Draw learning curves of training runs into a PNG.
     Plot(plot::PlotArgs),
     /// Fig. 3 as a measurement: how far a GMAN model's inner loop moves G toward the
@@ -98,6 +102,7 @@ pub fn run(cli: Cli, matches: &clap::ArgMatches) -> Result<()> {
         }
         Commands::Export(a) => export::cmd_export(a),
         Commands::Inspect(a) => inspect::cmd_inspect(a),
+        Commands::UpgradeBlob(a) => upgrade_blob::cmd_upgrade_blob(a),
         Commands::Plot(a) => plot::cmd_plot(a),
         Commands::EmdReport(a) => emd_report::cmd_emd_report(a),
         Commands::Table(a) => table::cmd_table(a),

@@ -93,7 +93,26 @@ pub fn model_from_blob_with_ps(
     })
 }
 
-/// Reads a model from a checkpoint (`.ckpt`) or a blob (`.gman`) file.
+/// Prints [`crate::blob_edit::unprotected_header_warning`] to stderr, once per file and
+/// process (a command may load its model more than once).
+fn warn_unprotected_header(path: &Path, bytes: &[u8]) {
+    use std::collections::HashSet;
+    use std::sync::Mutex;
+    static WARNED: Mutex<Option<HashSet<std::path::PathBuf>>> = Mutex::new(None);
+    let Some(text) = crate::blob_edit::unprotected_header_warning(path, bytes) else {
+        return;
+    };
+    let mut warned = WARNED.lock().unwrap_or_else(|e| e.into_inner());
+    if warned
+        .get_or_insert_with(HashSet::new)
+        .insert(path.to_path_buf())
+    {
+        eprintln!("{text}");
+    }
+}
+
+/// Reads a model from a checkpoint (`.ckpt`) or a blob (`.gman`) file; a blob whose
+/// checksum does not cover its header (formats v1-v3) loads with a warning on stderr.
 pub fn load_model(path: &Path, method: Option<Method>) -> Result<NavModel> {
     load_model_with_ps(path, method, None)
 }
@@ -114,6 +133,7 @@ pub fn load_model_with_ps(
             ),
             None => None,
         };
+        warn_unprotected_header(path, &bytes);
         return model_from_blob_with_ps(&bytes, method, ps)
             .with_context(|| format!("blob {}", path.display()));
     }
