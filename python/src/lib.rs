@@ -184,11 +184,12 @@ fn world_of(
             })
             .map_err(|e| chain_err(e.context(format!("loading data {}", data.unwrap_or("")))))?
         }
-        None => py.detach(move || {
-            let mut w = World::synthetic(seed);
-            w.set_domain_shift(shift).map(|()| w)
-        })
-        .map_err(chain_err)?,
+        None => py
+            .detach(move || {
+                let mut w = World::synthetic(seed);
+                w.set_domain_shift(shift).map(|()| w)
+            })
+            .map_err(chain_err)?,
     };
     let leaked: &'static World = Box::leak(Box::new(world));
     worlds()
