@@ -238,7 +238,7 @@ fn draw(study: &Study, png: &Path) -> Result<()> {
         .values()
         .flat_map(|r| r.values().flat_map(|s| s.values().map(|v| v[0])))
         .fold(10.0, f64::max)
-        * 1.15;
+        * 1.6;
     let root = BitMapBackend::new(png, (900, 600)).into_drawing_area();
     root.fill(&WHITE)?;
     let mut b = ChartBuilder::on(&root);
@@ -298,7 +298,7 @@ fn draw(study: &Study, png: &Path) -> Result<()> {
     if labels {
         chart
             .configure_series_labels()
-            .position(SeriesLabelPosition::LowerRight)
+            .position(SeriesLabelPosition::UpperRight)
             .background_style(WHITE.mix(0.85))
             .border_style(BLACK)
             .label_font(("sans-serif", 14))
