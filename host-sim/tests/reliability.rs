@@ -103,8 +103,13 @@ fn s(p: &Path) -> &str {
 
 /// A short synthetic A3C run of `updates` updates (checkpoint every update) in `dir`.
 fn train_run(dir: &Path, updates: u32) {
+    train_run_with(dir, updates, &[]);
+}
+
+/// [`train_run`] with more flags.
+fn train_run_with(dir: &Path, updates: u32, extra: &[&str]) {
     let u = updates.to_string();
-    let (ok, _, err) = gman(&[
+    let mut args = vec![
         "train",
         "--method",
         "a3c",
@@ -121,7 +126,9 @@ fn train_run(dir: &Path, updates: u32) {
         "--quiet",
         "--out",
         s(dir),
-    ]);
+    ];
+    args.extend_from_slice(extra);
+    let (ok, _, err) = gman(&args);
     assert!(ok, "{err}");
 }
 
@@ -358,25 +365,7 @@ fn case07_resume_refuses_another_world() {
 fn resume_refuses_another_domain_shift() {
     let d = tmp("shift");
     let run = d.join("run");
-    let (ok, _, err) = gman(&[
-        "train",
-        "--method",
-        "a3c",
-        "--config",
-        "tiny",
-        "--min-steps",
-        "12",
-        "--workers",
-        "1",
-        "--updates",
-        "1",
-        "--domain-shift",
-        "0.5",
-        "--quiet",
-        "--out",
-        s(&run),
-    ]);
-    assert!(ok, "{err}");
+    train_run_with(&run, 1, &["--domain-shift", "0.5"]);
     let v = Checkpoint::load(&run.join("checkpoint.ckpt"))
         .unwrap()
         .metadata;
