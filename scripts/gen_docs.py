@@ -18,6 +18,9 @@ Block parts, one marker line before and `<!-- /gen -->` after:
   (`results/paper/ROW/sS.json`), with the paper's SR for the rows the paper has.
 * `<!-- gen:results ROW[=LABEL] | ... -->`: the paper's and this implementation's SR / SPL
   (mean ± std of the SR, mean of the SPL) side by side, and the number of seeds.
+* `<!-- gen:gman ARGS -->`: what `gman ARGS` prints (a read-only command such as
+  `shift-report --markdown`); not generated here: host-sim/tests/docs.rs runs the binary and
+  compares (`GMAN_UPDATE_DOCS=1` rewrites the part).
 * `<!-- gen:models DIR -->`: every `ROW-sS.gman` blob of DIR with its size, its `gman train`
   flags (from the `run` lines of host-sim/scripts/paper-tables.sh) and its run's val figures.
 
@@ -287,6 +290,9 @@ def process(root, text, where):
     def block(m):
         kind, args, old = m.group(1), m.group(2), m.group(3)
         line = text[:m.start()].count("\n") + 1
+        if kind == "gman":
+            # What `gman ARGS` prints: host-sim/tests/docs.rs runs the binary and compares.
+            return m.group(0)
         if kind not in GENERATORS:
             raise GenError(f"{where}:{line}: unknown generated part gen:{kind}")
         try:

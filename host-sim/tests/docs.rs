@@ -189,6 +189,54 @@ fn generated_tables_are_what_gman_table_prints() {
     assert!(checked >= 2, "only {checked} generated tables found");
 }
 
+/// Every `<!-- gen:gman ARGS -->` part of the docs is what `gman ARGS` prints now (read-only
+/// commands over kept result files, e.g. `shift-report --markdown`). `GMAN_UPDATE_DOCS=1`
+/// rewrites the parts instead of failing.
+#[test]
+fn generated_command_outputs_are_what_gman_prints() {
+    const OPEN: &str = "<!-- gen:gman ";
+    const CLOSE: &str = "<!-- /gen -->";
+    let update = std::env::var_os("GMAN_UPDATE_DOCS").is_some_and(|v| v == "1");
+    let mut checked = 0;
+    let mut stale = Vec::new();
+    for f in doc_files() {
+        let text = std::fs::read_to_string(&f).unwrap();
+        let mut out = String::new();
+        let mut rest = text.as_str();
+        while let Some(i) = rest.find(OPEN) {
+            let after = &rest[i + OPEN.len()..];
+            let end = after.find(" -->\n").expect("marker end");
+            let args: Vec<&str> = after[..end].split_whitespace().collect();
+            let body_start = end + " -->\n".len();
+            let body_end = after.find(CLOSE).expect("part end");
+            let body = &after[body_start..body_end];
+            let now = gman(&args);
+            if now != body {
+                stale.push(format!(
+                    "{}: gen:gman {}\n--- documented\n{body}--- printed now\n{now}",
+                    f.display(),
+                    args.join(" ")
+                ));
+            }
+            out.push_str(&rest[..i + OPEN.len() + body_start]);
+            out.push_str(&now);
+            rest = &after[body_end..];
+            checked += 1;
+        }
+        out.push_str(rest);
+        if update && out != text {
+            std::fs::write(&f, out).unwrap();
+        }
+    }
+    assert!(checked >= 1, "no gen:gman parts found");
+    assert!(
+        update || stale.is_empty(),
+        "documented command output differs from what the command prints now \
+         (GMAN_UPDATE_DOCS=1 rewrites it):\n{}",
+        stale.join("\n")
+    );
+}
+
 /// The README's random row: `gman eval --data ../shared/data/gman --split val --agent random`
 /// gives the figures of `results/paper/random/s1.json`, which the README's table quotes.
 #[test]

@@ -150,6 +150,10 @@ fn fmt_cell(seeds: Option<&Seeds>) -> String {
             let (u, us) = mean_std(&col(s, 0));
             let (se, ss) = mean_std(&col(s, 1));
             let (p, _) = mean_std(&col(s, 2));
+            if s.len() < 2 {
+                // One seed has no spread.
+                return format!("{u:.2} / {se:.2} / {p:.2} (1)");
+            }
             format!("{u:.2}±{us:.2} / {se:.2}±{ss:.2} / {p:.2} ({})", s.len())
         }
     }
@@ -165,11 +169,20 @@ fn compare(a: Option<&Seeds>, b: Option<&Seeds>, paired: bool) -> String {
         let x: Vec<f64> = common.iter().map(|k| a[*k][0]).collect();
         let y: Vec<f64> = common.iter().map(|k| b[*k][0]).collect();
         let d = mean_std(&x).0 - mean_std(&y).0;
-        format!("{d:+.2} (paired t {:.2}, {})", paired_t(&x, &y), x.len())
+        format!("{d:+.2} (paired t {}, {})", fmt_t(paired_t(&x, &y)), x.len())
     } else {
         let (x, y) = (col(a, 0), col(b, 0));
         let d = mean_std(&x).0 - mean_std(&y).0;
-        format!("{d:+.2} (Welch t {:.2})", welch_t(&x, &y))
+        format!("{d:+.2} (Welch t {})", fmt_t(welch_t(&x, &y)))
+    }
+}
+
+/// A t statistic, or `n/a` where it has no value (one seed, or no spread at all).
+fn fmt_t(t: f64) -> String {
+    if t.is_finite() {
+        format!("{t:.2}")
+    } else {
+        "n/a".into()
     }
 }
 
@@ -351,6 +364,13 @@ mod tests {
         let cmp = compare(c.get("gman"), c.get("gman-adaptoff"), true);
         assert!(cmp.starts_with("+1.50 (paired t 3.00, 2)"), "{cmp}");
         assert_eq!(compare(c.get("gman"), None, false), "");
+        // One seed: no spread, no t.
+        let one = &s.cells["0.25"]["a3c"];
+        assert_eq!(fmt_cell(Some(one)), "10.00 / 20.00 / 1.00 (1)");
+        assert_eq!(
+            compare(Some(one), Some(one), false),
+            "+0.00 (Welch t n/a)"
+        );
         let _ = std::fs::remove_dir_all(&d);
         assert!(read_study(&d).is_err());
     }
