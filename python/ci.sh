@@ -16,6 +16,6 @@ python3 -m venv "$venv"
 # The root workspace's target directory: the host crates' dependencies are shared with the
 # Rust build instead of compiled a second time.
 export CARGO_TARGET_DIR=${CARGO_TARGET_DIR:-$root/target}
-"$venv/bin/pip" install -q ./python pytest gymnasium numpy hypothesis
+"$venv/bin/pip" install -q ./python pytest gymnasium numpy hypothesis moviepy
 cd "$root/python/tests"
 "$venv/bin/pytest" -q -p no:cacheprovider .
