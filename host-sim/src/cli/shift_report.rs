@@ -169,7 +169,11 @@ fn compare(a: Option<&Seeds>, b: Option<&Seeds>, paired: bool) -> String {
         let x: Vec<f64> = common.iter().map(|k| a[*k][0]).collect();
         let y: Vec<f64> = common.iter().map(|k| b[*k][0]).collect();
         let d = mean_std(&x).0 - mean_std(&y).0;
-        format!("{d:+.2} (paired t {}, {})", fmt_t(paired_t(&x, &y)), x.len())
+        format!(
+            "{d:+.2} (paired t {}, {})",
+            fmt_t(paired_t(&x, &y)),
+            x.len()
+        )
     } else {
         let (x, y) = (col(a, 0), col(b, 0));
         let d = mean_std(&x).0 - mean_std(&y).0;
@@ -367,10 +371,7 @@ mod tests {
         // One seed: no spread, no t.
         let one = &s.cells["0.25"]["a3c"];
         assert_eq!(fmt_cell(Some(one)), "10.00 / 20.00 / 1.00 (1)");
-        assert_eq!(
-            compare(Some(one), Some(one), false),
-            "+0.00 (Welch t n/a)"
-        );
+        assert_eq!(compare(Some(one), Some(one), false), "+0.00 (Welch t n/a)");
         let _ = std::fs::remove_dir_all(&d);
         assert!(read_study(&d).is_err());
     }
