@@ -1,4 +1,5 @@
-//! Host side of gman-rs: the simulator ([`sim`]), pre-training ([`pretrain`]), the
+//! Host side of gman-rs: the simulator ([`sim`]: the gman-sim crate with the evaluator and
+//! the renderer), pre-training ([`pretrain`]), the
 //! navigation models ([`model`]), their training ([`train`]) and evaluation ([`eval`]), the
 //! optimiser and checkpoints ([`optim`]), the PS network ([`ps`]), Fig. 3 as a measurement
 //! ([`emd_report`]) and the AVX2 kernels ([`simd`]). The `gman` binary's commands are in

@@ -26,7 +26,7 @@ pub struct InView {
 /// What the agent observes in one state.
 #[derive(Clone, Debug)]
 pub struct Observation {
-    /// Synthetic ResNet-like embedding s_t, values in [0, 1] (see [`crate::sim::features`]).
+    /// Synthetic ResNet-like embedding s_t, values in [0, 1] (see [`crate::features`]).
     pub features: [f32; FEATURE_DIM],
     /// PS module target: mean attribute vector of the distinct categories in view
     /// ([`Observation::in_view`]); zeros when nothing is in view.
@@ -204,7 +204,7 @@ impl SceneTables {
 
     /// Tables from successors, observations and visible instances (one entry per state);
     /// computes the reverse graph. Used by [`SceneTables::build`] and the offline data
-    /// ([`crate::sim::offline`]).
+    /// ([`crate::offline`]).
     pub fn from_parts(
         next: Vec<[u32; NUM_ACTIONS]>,
         obs: Vec<Observation>,

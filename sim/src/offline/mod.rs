@@ -65,7 +65,7 @@
 //! a link loop, a broken link, a directory or a device says so ([`check_file`]). A scene
 //! folder named with a leading zero (`FloorPlan022`) is refused, and so is one floor plan in
 //! two folders. `train` and `eval` build the tables of the scenes they use before they start
-//! ([`crate::sim::World::prepare_scenes`]), so that a bad feature file is an error; reading
+//! ([`crate::World::prepare_scenes`]), so that a bad feature file is an error; reading
 //! one that changed or broke later panics with that error.
 
 use std::collections::{BTreeMap, HashMap, HashSet};
@@ -949,7 +949,7 @@ mod tests {
         fs::write(sd.join(VISIBLE_FILE), "{}").unwrap();
         fs::write(sd.join(FEATURE_FILE), b"not read").unwrap();
         assert!(is_offline_dir(&d));
-        let e = format!("{:#}", crate::sim::World::load(&d).unwrap_err());
+        let e = format!("{:#}", crate::World::load(&d).unwrap_err());
         assert!(
             e.contains("--features offline") && e.contains(FEATURE_FILE),
             "{e}"

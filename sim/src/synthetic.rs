@@ -9,7 +9,7 @@
 //! * **Floor plans**: per room type 8 training and 3 val scenes: a rectangle (living rooms
 //!   largest, bathrooms smallest) with 1-3 rectangular furniture blocks cut out, keeping the
 //!   largest 4-connected region. Objects are placed by the same boundary rule as the real
-//!   scenes' unknown objects ([`crate::sim::scene`]). Unseen categories only occur in val scenes.
+//!   scenes' unknown objects ([`crate::scene`]). Unseen categories only occur in val scenes.
 //! * **Val episodes**: per room type and kind (seen/unseen) `episodes_per_group` episodes
 //!   (default 250): a random val scene, a random target of that kind present in it, a random
 //!   start (horizon 0) from which the target can be reached but is not yet visible.

@@ -51,7 +51,7 @@ pub enum WorldSource {
     /// A data directory with the GMAN/iTHOR layout.
     Data(PathBuf),
     /// A data directory with the AI2THOR offline scene folders of SAVN/GMAN
-    /// ([`crate::sim::offline`]).
+    /// ([`crate::offline`]).
     Offline(PathBuf),
     /// The built-in procedurally generated demo world.
     Synthetic,
@@ -361,7 +361,7 @@ impl World {
     /// `episodes/<split>/`) with [`DEFAULT_WORLD_SEED`] and the object layout [`auto_layout`]
     /// chooses. Every split directory present under `scenes/` is loaded; at least one must
     /// exist. A directory without `scenes/` but with `FloorPlanN/` folders is read as AI2THOR
-    /// offline data ([`crate::sim::offline`]).
+    /// offline data ([`crate::offline`]).
     pub fn load(dir: &Path) -> Result<World> {
         World::load_with_seed(dir, DEFAULT_WORLD_SEED)
     }
@@ -716,30 +716,30 @@ impl World {
         &self.tables(scene).obs[state]
     }
 
-    /// The spatial map of a state (the view as `grid` sectors, see [`crate::sim::spatial`])
+    /// The spatial map of a state (the view as `grid` sectors, see [`crate::spatial`])
     /// into `out` (`grid.len()` floats, cell-major). For offline data, the stored 512 x 7 x 7
-    /// ResNet map average-pooled to the grid ([`crate::sim::spatial::pool_map`]); a stored
+    /// ResNet map average-pooled to the grid ([`crate::spatial::pool_map`]); a stored
     /// map that fails to read after loading panics with the file named, as the tables do.
     pub fn view_map(
         &self,
         scene: SceneId,
         state: usize,
-        grid: crate::sim::spatial::MapGrid,
+        grid: crate::spatial::MapGrid,
         out: &mut [f32],
     ) {
         match &self.offline[scene] {
-            Some(o) => crate::sim::spatial::pool_map(
+            Some(o) => crate::spatial::pool_map(
                 &o.feature_map(state).unwrap_or_else(|e| panic!("{e:#}")),
                 grid,
                 out,
             ),
-            None => crate::sim::spatial::view_map(self, scene, state, grid, out),
+            None => crate::spatial::view_map(self, scene, state, grid, out),
         }
     }
 
     /// The ideal target feature of `category` in `scene`: its appearance rendered with the
     /// scene's style, what a view filled by the object looks like (minus noise). See
-    /// [`crate::sim::features`].
+    /// [`crate::features`].
     pub fn object_feature(&self, scene: SceneId, category: CategoryId) -> [f32; FEATURE_DIM] {
         self.styles[scene].render(&self.model, self.model.category_code(category as usize))
     }

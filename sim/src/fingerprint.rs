@@ -5,8 +5,8 @@
 //!
 //! * **Rule 1** (directories of the `scenes/` layout, and what every checkpoint of an older
 //!   build stored): 64-bit FNV-1a over `attributes.json` and every `scenes/<split>/*.json`
-//!   ([`crate::sim::data::fingerprint`]).
-//! * **Rule 2** (offline data, [`crate::sim::offline`]): FNV-1a over one digest per file
+//!   ([`crate::data::fingerprint`]).
+//! * **Rule 2** (offline data, [`crate::offline`]): FNV-1a over one digest per file
 //!   the world is built from: `attributes.json`, and per scene (by scene name, so either
 //!   folder naming gives the same digests) `graph.json`, `grid.json`, the chosen visibility
 //!   file (all bytes), `resnet18_featuremap.hdf5` and, if present, `att_in_view_v2.hdf5`.
@@ -95,7 +95,7 @@ fn h5_digest(path: &Path) -> Result<String> {
 /// The fingerprint of `dir` by the rule of its layout, for the visibility file
 /// `visible_file` of offline data; under the object layout [`ObjectLayout::Thor5`] rule 1
 /// also covers the `objects_thor5/*.json` sidecar files
-/// ([`crate::sim::data::fingerprint_for`]).
+/// ([`crate::data::fingerprint_for`]).
 pub fn of_dir(dir: &Path, visible_file: &str, layout: ObjectLayout) -> Result<DataFingerprint> {
     let rule1 = super::data::fingerprint(dir)?;
     let mut files = BTreeMap::new();

@@ -2,7 +2,7 @@
 //! `episodes/<split>/*.jsonl`, the optional sidecar `objects_thor5/FloorPlanN.json`), parsed
 //! with serde. Every error names the offending file.
 //!
-//! These are the files' contents as written; [`crate::sim::world::World`] turns them into
+//! These are the files' contents as written; [`crate::world::World`] turns them into
 //! simulator scenes and episodes.
 
 use std::collections::BTreeMap;

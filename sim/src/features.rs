@@ -23,12 +23,12 @@
 //!    same network from random pseudo-attributes.
 //! 4. **A view** mixes the styled features of the objects in view, each weighted by the share
 //!    of the view it fills (apparent size from distance and position in the view, see
-//!    [`crate::sim::geometry::appearance`]; at most 0.95 in total), with the background, adds
+//!    [`crate::geometry::appearance`]; at most 0.95 in total), with the background, adds
 //!    +-0.02 noise that is a hash of (scene, state, dimension), and clamps to [0, 1]. Same
 //!    state, same features, so they are cached per scene.
 //!
 //! An object that fills the view yields nearly its styled feature: this is
-//! [`crate::sim::World::object_feature`], the ideal generated target feature for the scene.
+//! [`crate::World::object_feature`], the ideal generated target feature for the scene.
 
 use gman_core::{ATTR_DIM, FEATURE_DIM};
 use rand::{Rng, SeedableRng};

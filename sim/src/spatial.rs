@@ -1,7 +1,7 @@
 //! Spatial observation maps: the view split into a grid of sectors, one embedding per sector,
 //! the counterpart of the reference's 512 x 7 x 7 ResNet18 feature map.
 //!
-//! The pooled embedding of a view ([`crate::sim::Observation::features`], what D, Ψ, G's
+//! The pooled embedding of a view ([`crate::Observation::features`], what D, Ψ, G's
 //! target and the PS module see) mixes every object in view by the share of the view it
 //! fills. The map keeps *where* those objects are:
 //!
@@ -17,7 +17,7 @@
 //!    number of cells: `w_c = w · R C · overlap_c / Σ overlap`. So the map's average share
 //!    equals the pooled share, and a small object dominates the one sector it is in.
 //! 3. **Mixing.** Each cell mixes the scene's styled object features with its styled
-//!    background exactly as a pooled view does ([`crate::sim::features::SceneStyle`]:
+//!    background exactly as a pooled view does ([`crate::features::SceneStyle`]:
 //!    shares scaled to at most 0.95 per cell, the same background in every cell), plus
 //!    ±0.02 noise drawn per (scene, state, cell, dimension), clamped to [0, 1].
 //!

@@ -1,4 +1,4 @@
-//! A small data directory in exactly the offline format ([`crate::sim::offline`]), made by
+//! A small data directory in exactly the offline format ([`crate::offline`]), made by
 //! the project (no copied data): `attributes.json` with 7 made-up attribute vectors (real
 //! AI2THOR category names, so the catalog's sizes apply), three kitchens (`FloorPlan1`,
 //! `FloorPlan2` train, `FloorPlan22` val) with real HDF5 feature files, and official-format
@@ -35,10 +35,10 @@ use gman_core::{Action, ATTR_DIM, FEATURE_DIM};
 use serde_json::{json, Value};
 
 use super::{h5, state_key, ATT_FILE, FEATURE_FILE, GRAPH_FILE, GRID_FILE, MAP_LEN, VISIBLE_FILE};
-use crate::sim::catalog::props_of;
-use crate::sim::geometry::{heading_dir, heading_step, turn, GRID};
-use crate::sim::types::{AgentState, NUM_HEADINGS};
-use crate::sim::util::{hash2, hash_str, unit_f32};
+use crate::catalog::props_of;
+use crate::geometry::{heading_dir, heading_step, turn, GRID};
+use crate::types::{AgentState, NUM_HEADINGS};
+use crate::util::{hash2, hash_str, unit_f32};
 
 /// Categories of the fixture: (name, unseen).
 pub const CATEGORIES: [(&str, bool); 7] = [

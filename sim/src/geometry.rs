@@ -70,7 +70,7 @@ pub fn footprint_distance(px: f32, pz: f32, obj: [f32; 3], props: &CategoryProps
 }
 
 /// An axis-aligned bounding box (metres): the extent of an object of the `thor5` object
-/// layout ([`crate::sim::types::ObjectLayout`]).
+/// layout ([`crate::types::ObjectLayout`]).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Aabb {
     /// Centre (x, y, z).

@@ -1,7 +1,7 @@
 //! One navigation episode: `observe`, `step`, rewards and end-of-episode metrics.
 //!
 //! A step is a few table lookups: successor, observation, goal distance (all cached per scene
-//! in [`crate::sim::World`]).
+//! in [`crate::World`]).
 
 use gman_core::Action;
 
@@ -214,8 +214,8 @@ impl<'w> Env<'w> {
     }
 
     /// The spatial map of the current state (`grid` sectors) into `out` (`grid.len()`
-    /// floats; computed on demand, see [`crate::sim::spatial`]).
-    pub fn observe_map(&self, grid: crate::sim::spatial::MapGrid, out: &mut [f32]) {
+    /// floats; computed on demand, see [`crate::spatial`]).
+    pub fn observe_map(&self, grid: crate::spatial::MapGrid, out: &mut [f32]) {
         self.world.view_map(self.scene_id, self.state, grid, out);
     }
 

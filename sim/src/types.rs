@@ -6,9 +6,9 @@ use anyhow::{bail, Result};
 use gman_core::ATTR_DIM;
 use serde::{Deserialize, Serialize};
 
-/// Index of a category in [`crate::sim::World::categories`].
+/// Index of a category in [`crate::World::categories`].
 pub type CategoryId = u16;
-/// Index of a scene in [`crate::sim::World::scenes`].
+/// Index of a scene in [`crate::World::scenes`].
 pub type SceneId = usize;
 
 /// The four AI2THOR room types.
@@ -150,7 +150,7 @@ pub struct Category {
     pub props: CategoryProps,
 }
 
-/// Physical properties of a category (typical values; see [`crate::sim::scene`]).
+/// Physical properties of a category (typical values; see [`crate::scene`]).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct CategoryProps {
     /// Typical height of the object's centre above the floor (metres).
@@ -196,7 +196,7 @@ pub const STATES_PER_POSITION: usize = NUM_HEADINGS * NUM_HORIZONS;
 #[serde(rename_all = "snake_case")]
 pub enum ObjectLayout {
     /// Every present category without a 2.x position is placed by the seeded rule against the
-    /// walls ([`crate::sim::scene`]); distances are measured to a footprint circle.
+    /// walls ([`crate::scene`]); distances are measured to a footprint circle.
     #[default]
     Rule,
     /// The AI2-THOR 5.0 objects of `objects_thor5/FloorPlanN.json`: their positions and

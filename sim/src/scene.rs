@@ -31,7 +31,7 @@
 //!   vertically), shifted by the 2.x-to-5.0 position offset; one without a match keeps the
 //!   footprint circle of its category.
 //!
-//! Instances with a box are seen and measured by it ([`crate::sim::geometry::appearance_box`]);
+//! Instances with a box are seen and measured by it ([`crate::geometry::appearance_box`]);
 //! the others, and every instance under `rule`, by the footprint circle of their category.
 
 use std::collections::{BTreeSet, HashMap};
@@ -108,7 +108,7 @@ pub struct SceneSource {
     /// Instances with known positions: (id, category, centre).
     pub known: Vec<(String, CategoryId, [f32; 3])>,
     /// Take the reachable cells and the instances exactly as given (the AI2THOR offline data,
-    /// [`crate::sim::offline`]): no gap filling, no merging of nearby instances, no placed
+    /// [`crate::offline`]): no gap filling, no merging of nearby instances, no placed
     /// instances. The unseen categories are still removed from training scenes.
     pub exact: bool,
     /// The `thor5` layout's AI2-THOR 5.0 objects (the 40 categories only); `None`: the
@@ -514,7 +514,7 @@ impl Scene {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::sim::catalog::props_of;
+    use crate::catalog::props_of;
 
     fn cats() -> Vec<Category> {
         ["Mug", "Toilet"]
