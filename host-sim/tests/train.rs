@@ -315,7 +315,7 @@ fn pretrain_ps_short_run_beats_the_mean_predictor() {
         h.mse_mean_baseline
     );
     // (No claim about val scenes here: their unseen scene styles are a different question,
-    // reported in TRAINING.md.)
+    // reported in docs/training.md.)
     assert!(r.before.train_heldout.mse > h.mse);
     let m = PsModule::load(&d.join("ps.ckpt")).unwrap();
     let o = world.observation(world.split_scenes(Split::Val).unwrap()[0], 0);

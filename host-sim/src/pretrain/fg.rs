@@ -198,7 +198,7 @@ pub fn collect_fg_data(world: &World, cfg: &FgCollectConfig) -> Result<FgDataset
 }
 
 /// Default weight of the feature-regression term: pure WGAN-GP (`reg = 0`) had not reached
-/// the class-mean reference in 1500 steps on either world (see `host-sim/TRAINING.md`).
+/// the class-mean reference in 1500 steps on either world (see `docs/training.md`).
 pub const DEFAULT_REG: f32 = 100.0;
 
 /// Hyper-parameters of [`train_fg`].
