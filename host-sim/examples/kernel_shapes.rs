@@ -1,6 +1,6 @@
 //! Times gman-core's blocked dense kernels for a few block shapes, compiled for AVX2 and for
 //! AVX2 with AVX-512VL's 32 vector registers (same operations, same bits), on the layer
-//! shapes of the `mcu` trainer. A measurement aid for `host-sim/src/simd.rs`.
+//! shapes of the `mcu` trainer. A measurement aid for `train/src/simd.rs`.
 //!
 //! ```sh
 //! cargo run --release -p gman-host-sim --example kernel_shapes

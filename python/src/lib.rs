@@ -1,7 +1,7 @@
 //! `gman._gman`: the native half of the `gman` Python package.
 //!
 //! A thin layer over the host crate's public API: [`VecCore`] steps a batch of
-//! [`gman_host_sim::sim::Env`]s with the GIL released and writes observations, rewards and
+//! [`gman_train::sim::Env`]s with the GIL released and writes observations, rewards and
 //! flags into numpy arrays it owns (allocated once); [`PyNavigator`] runs gman-core's
 //! navigator over a weight blob exactly as `gman eval` does; [`host_evaluate`] is
 //! `gman eval`'s evaluator. The Python wrapper (`gman/__init__.py`) adds gymnasium's classes
@@ -13,13 +13,13 @@ use std::sync::{Arc, Mutex, OnceLock};
 
 use gman_core::navigator::{Efficient, Full, Navigator};
 use gman_core::{Action, ATTR_DIM, FEATURE_DIM, NUM_ACTIONS};
-use gman_host_sim::eval::agent::NavAgent;
-use gman_host_sim::model::{load_model, model_from_blob, NavModel, K};
-use gman_host_sim::sim::eval::AgentFactory;
-use gman_host_sim::sim::features::DomainShift;
-use gman_host_sim::sim::render::draw_scene_rgb;
-use gman_host_sim::sim::spatial::{check_grid, check_grid_for_world, MapGrid, MAX_GRID_SIDE};
-use gman_host_sim::sim::{
+use gman_train::eval::agent::NavAgent;
+use gman_train::model::{load_model, model_from_blob, NavModel, K};
+use gman_train::sim::eval::AgentFactory;
+use gman_train::sim::features::DomainShift;
+use gman_train::sim::render::draw_scene_rgb;
+use gman_train::sim::spatial::{check_grid, check_grid_for_world, MapGrid, MAX_GRID_SIDE};
+use gman_train::sim::{
     evaluate, Env, EpisodeLimits, EpisodeMetrics, EpisodeResult, EpisodeSpec, EvalConfig,
     EvalReport, OracleAgent, RandomAgent, RewardKind, Split, World,
 };
@@ -1247,7 +1247,7 @@ impl PyNavigator {
     #[allow(clippy::borrowed_box)] // the builder's signature (ouroboros) takes the owner's Box
     fn build(blob: &[u8]) -> PyResult<PyNavigator> {
         let model = model_from_blob(blob, None).map_err(|e| chain_err(e.context("blob")))?;
-        let efficient = gman_host_sim::model::episode::eval_mode_is_efficient(&model);
+        let efficient = gman_train::model::episode::eval_mode_is_efficient(&model);
         let method = model.method.name();
         let dims = model.dims;
         let arena = vec![0.0; model.arena_len()];

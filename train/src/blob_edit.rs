@@ -84,7 +84,7 @@ mod tests {
     fn shipped() -> Vec<u8> {
         let p = concat!(
             env!("CARGO_MANIFEST_DIR"),
-            "/models/gman-map3-b16-mcu-int8-seed5.gman"
+            "/../host-sim/models/gman-map3-b16-mcu-int8-seed5.gman"
         );
         std::fs::read(p).expect("shipped model")
     }
