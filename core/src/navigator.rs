@@ -104,7 +104,7 @@ use crate::memory::{
     adapt_batch_with, arena_len_with, arena_table, first, region_lens, AdaptMode, Footprint,
     NUM_REGIONS,
 };
-use crate::policy::{Policy, PolicyCache, PolicyInput};
+use crate::policy::{FuseBlocks, FuseTerms, Policy, PolicyCache, PolicyInput};
 use crate::preset::Dims;
 use crate::rng::{fill_gaussian, uniform, Xoshiro128};
 pub use crate::schema::{Emd, NoiseMode};
@@ -959,6 +959,9 @@ pub struct Navigator<'w, M: Mode, const K: usize, S = &'w mut [f32]> {
     psi_recorded: bool,
     /// [`Footprint::Minimal`]: no Ψ_x (regenerated batch by batch), Ψ's observations packed.
     lean: bool,
+    /// With zero noise: the fusion layer's terms of x_t and SE(y) in `fuse_terms` are those
+    /// of the current x_t and SE(y) (`Policy::fuse_terms`'s blocks), or `None`.
+    fuse_blocks: Option<FuseBlocks>,
     last: AdaptReport,
     /// The inner update in progress (between Ψ filling and its commit when
     /// [`NavConfig::commit_delay`] > 0).
@@ -982,6 +985,7 @@ struct StepMarks {
     g_pending: bool,
     x_valid: bool,
     u2_valid: bool,
+    fuse_blocks: Option<FuseBlocks>,
 }
 
 /// Where an inner update is: the phases of [`Navigator::inner_update`] in order, each over
@@ -1142,6 +1146,7 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
             u2_valid: false,
             psi_recorded: false,
             lean,
+            fuse_blocks: None,
             last: AdaptReport::default(),
             upd: None,
             upd_rng: Xoshiro128::seed_from_u64(0),
@@ -1208,6 +1213,7 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
         self.n_buf = 0;
         self.x_valid = false;
         self.x_fixed = false;
+        self.fuse_blocks = None;
         self.ready = true;
         self.begun = false;
         self.g_pending = false;
@@ -1215,6 +1221,25 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
         c.steps = 0;
         c.adaptations = 0;
         c.rollbacks = 0;
+        if self.cfg.noise == NoiseMode::Zero {
+            self.prepare_zero_noise()?;
+        }
+        Ok(())
+    }
+
+    /// With zero noise, what stays the same until the next commit or reset: x_t = G_θi(SE(y),
+    /// 0) and the fusion layer's terms of x_t and SE(y) ([`Policy::fuse_terms`]), computed
+    /// here at the reset so that the episode's first step is a plain one (after a commit the
+    /// next step computes them).
+    fn prepare_zero_noise(&mut self) -> Result<()> {
+        self.arena.ram().z.fill(0.0);
+        self.run_generator(None)?;
+        self.x_valid = true;
+        let r = self.arena.ram();
+        let biases = [&*r.fuse_b, &*r.lstm_b, &*r.critic_b, &*r.cell_b];
+        let actor = r.actor.view(self.w.get(TensorId::ActorW))?;
+        let policy = policy_view(&self.w, biases, actor)?;
+        self.fuse_blocks = policy.fuse_terms(r.x, r.attr, r.fuse_terms)?;
         Ok(())
     }
 
@@ -1238,6 +1263,7 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
         r.x.copy_from_slice(x);
         r.z.fill(0.0);
         self.x_fixed = true;
+        self.fuse_blocks = None;
         Ok(())
     }
 
@@ -1442,16 +1468,8 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
     /// behind, in the diagnostic views [`Navigator::generated_feature`],
     /// [`Navigator::noise`] and [`Navigator::generator_activations`] (the next step
     /// overwrites it). Nothing has to be done to recover: step again with a good input.
-    #[inline(never)]
     pub fn step_map(&mut self, obs: &[f32], map: &[f32], ps: &[f32]) -> Result<StepOutput> {
-        let marks = self.marks();
-        // (Its errors come from checks made before anything is written.)
-        self.begin_step(obs, map, ps)?;
-        // Line 8: the policy (trunk and heads in one pass).
-        match self.run_policy(obs, map) {
-            Ok(v) if self.outputs_finite(v) => self.commit_checked(obs, v),
-            r => Err(self.refused(marks, r.err())),
-        }
+        self.step_with(obs, map, None, ps)
     }
 
     /// What a step changes before its outputs are known to be finite.
@@ -1462,6 +1480,7 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
             g_pending: self.g_pending,
             x_valid: self.x_valid,
             u2_valid: self.u2_valid,
+            fuse_blocks: self.fuse_blocks,
         }
     }
 
@@ -1475,6 +1494,7 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
         self.g_pending = m.g_pending;
         self.x_valid = m.x_valid;
         self.u2_valid = m.u2_valid;
+        self.fuse_blocks = m.fuse_blocks;
         e.unwrap_or(NUMERICAL_PROBS)
     }
 
@@ -1500,35 +1520,29 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
                 what: "step_map_u8: the map's scale must be positive",
             });
         }
-        self.begin_step_with(obs, (&[], map.len()), ps)?;
-        let r = self.arena.ram();
-        let biases = [&*r.fuse_b, &*r.lstm_b, &*r.critic_b, &*r.cell_b];
-        let actor = r.actor.view(self.w.get(TensorId::ActorW))?;
-        let policy = policy_view(&self.w, biases, actor)?;
-        let inp = PolicyInput {
-            obs,
-            feat: r.x,
-            attr: r.attr,
-            prev_probs: r.prev_probs,
-            ps: r.ps,
-            map: &[],
-        };
-        let mut value = [0.0f32];
-        let mut cache = PolicyCache {
-            prod: r.prod,
-            fuse: r.fuse,
-            gates: r.gates,
-            c: r.c,
-            h: r.h,
-            actor_u: r.actor_u,
-            logits: r.logits,
-            probs: r.probs,
-            value: &mut value,
-            cell: r.cell,
-            cell_prod: r.cell_prod,
-        };
-        policy.forward_map_u8(&inp, (map, scale), r.h_state, r.c_state, &mut cache)?;
-        self.commit_step(obs, value[0])
+        self.step_with(obs, &[], Some((map, scale)), ps)
+    }
+
+    /// [`Navigator::step_map`] (`map_u8` `None`) and [`Navigator::step_map_u8`] (the map as
+    /// u8 codes with their scale, `map` empty): the checks and G (line 7), the policy (line
+    /// 8), then the commit of the step, or its refusal.
+    #[inline(never)]
+    fn step_with(
+        &mut self,
+        obs: &[f32],
+        map: &[f32],
+        map_u8: Option<(&[u8], f32)>,
+        ps: &[f32],
+    ) -> Result<StepOutput> {
+        let marks = self.marks();
+        let map_len = map_u8.map_or(map.len(), |(m, _)| m.len());
+        // (Its errors come from checks made before anything is written.)
+        self.begin_step_with(obs, (map, map_len), ps)?;
+        // Line 8: the policy (trunk and heads in one pass).
+        match self.run_policy(obs, map, map_u8) {
+            Ok(v) if self.outputs_finite(v) => self.commit_checked(obs, v),
+            r => Err(self.refused(marks, r.err())),
+        }
     }
 
     /// Lines 5-7 of a step, for a host that runs the policies of many navigators as one
@@ -1925,11 +1939,28 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
         gen.forward(z, r.attr, &mut cache)
     }
 
-    fn run_policy(&mut self, obs: &[f32], map: &[f32]) -> Result<f32> {
+    /// Line 8, the policy on this step's inputs: the map as f32 values (`map`) or as u8
+    /// codes with their scale (`map_u8`). With zero noise the fusion layer's terms of x_t
+    /// and SE(y) are computed at the first step after a reset or a commit and kept
+    /// (where the policy runs the integer path, [`Policy::keeps_fuse_terms`]). Returns the
+    /// value; the rest is in RAM.
+    fn run_policy(
+        &mut self,
+        obs: &[f32],
+        map: &[f32],
+        map_u8: Option<(&[u8], f32)>,
+    ) -> Result<f32> {
+        let (d, zero) = (self.w.dims, self.cfg.noise == NoiseMode::Zero);
         let r = self.arena.ram();
         let biases = [&*r.fuse_b, &*r.lstm_b, &*r.critic_b, &*r.cell_b];
         let actor = r.actor.view(self.w.get(TensorId::ActorW))?;
         let policy = policy_view(&self.w, biases, actor)?;
+        if zero && self.fuse_blocks.is_none() {
+            self.fuse_blocks = policy.fuse_terms(r.x, r.attr, r.fuse_terms)?;
+        }
+        let terms = (self.fuse_blocks)
+            .filter(|_| zero)
+            .map(|b| FuseTerms::new(r.fuse_terms, d.embed, d.feat, b));
         let inp = PolicyInput {
             obs,
             feat: r.x,
@@ -1952,7 +1983,8 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
             cell: r.cell,
             cell_prod: r.cell_prod,
         };
-        policy.forward(&inp, r.h_state, r.c_state, &mut cache)?;
+        let (h, c) = (&*r.h_state, &*r.c_state);
+        policy.forward_step(&inp, map_u8, terms.as_ref(), h, c, &mut cache)?;
         Ok(value[0])
     }
 
@@ -2256,6 +2288,7 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
         c.adaptations = c.adaptations.saturating_add(1);
         c.total_adaptations = c.total_adaptations.saturating_add(1);
         self.x_valid = false;
+        self.fuse_blocks = None;
         self.last = report;
         self.n_buf = 0;
         Ok(())
