@@ -106,7 +106,7 @@ use crate::memory::{
 };
 use crate::policy::{FuseBlocks, FuseTerms, Policy, PolicyCache, PolicyInput};
 use crate::preset::Dims;
-use crate::rng::{fill_gaussian, uniform, Xoshiro128};
+use crate::rng::{uniform, Xoshiro128};
 pub use crate::schema::{Emd, NoiseMode};
 use crate::schema::{ModelFlags, TensorId, NUM_TENSORS};
 use crate::spec::ModelSpec;
@@ -972,6 +972,19 @@ pub struct Navigator<'w, M: Mode, const K: usize, S = &'w mut [f32]> {
     _mode: PhantomData<M>,
 }
 
+/// z_t ~ N(0, I) into `z` (gman-core's feature `gaussian-noise`; without it a navigator
+/// with Gaussian noise is refused by [`Navigator::check_settings`], so nothing calls this).
+#[inline]
+fn draw_noise(rng: &mut Xoshiro128, z: &mut [f32]) {
+    #[cfg(feature = "gaussian-noise")]
+    crate::rng::fill_gaussian(rng, z);
+    #[cfg(not(feature = "gaussian-noise"))]
+    let _ = (rng, z);
+}
+
+/// The error of a navigator with Gaussian noise in a build without it.
+pub const NO_GAUSSIAN_NOISE: &str = "the model's G draws Gaussian noise (no FLAG_ZERO_NOISE) and this build has none: enable gman-core's feature `gaussian-noise` (the firmware's `gaussian-noise`), or run a zero-noise model (`gman train --noise zero`)";
+
 /// The error of a step whose probabilities or value are not finite.
 const NUMERICAL_PROBS: Error = Error::NumericalFault {
     what: "action probabilities",
@@ -1098,6 +1111,9 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
         }
         if cfg.schedule == Schedule::Background && cfg.commit_delay == 0 {
             return bad("Schedule::Background needs a commit_delay of at least 1 step");
+        }
+        if cfg.noise == NoiseMode::Gaussian && !cfg!(feature = "gaussian-noise") {
+            return bad(NO_GAUSSIAN_NOISE);
         }
         let lean = cfg.footprint == Footprint::Minimal;
         if lean
@@ -1571,7 +1587,7 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
         match self.cfg.noise {
             _ if self.x_fixed => {}
             NoiseMode::Gaussian => {
-                fill_gaussian(&mut self.rng, self.arena.ram().z);
+                draw_noise(&mut self.rng, self.arena.ram().z);
                 self.run_generator(None)?;
             }
             NoiseMode::Zero => {
@@ -1664,7 +1680,7 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
             return Ok(false);
         }
         self.begin_checks(obs, (map, map.len()), ps)?;
-        fill_gaussian(&mut self.rng, self.arena.ram().z);
+        draw_noise(&mut self.rng, self.arena.ram().z);
         self.g_pending = true;
         self.begun = true;
         Ok(true)

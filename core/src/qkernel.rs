@@ -341,36 +341,51 @@ pub fn segment_terms_int8(
         });
     };
     // (A host's table fills the same integers block by block.)
-    let dots = pick(w);
+    let terms = &mut terms[..need];
+    terms.fill(-0.0);
+    let added = seg_blocks((q, &scales, cols), col0, seg, (terms, rows), pick(w));
+    Ok(if added { nb } else { 0 })
+}
+
+/// The blocks of one input segment at columns `off ..` of an int8 matrix (`(q, scales,
+/// cols)`): quantised with its own scale, block `b`'s terms added to `y[b * stride ..]`
+/// (`(y, stride)`; stride 0: all into `y`). Returns false when the segment's scale is 0
+/// (nothing added).
+// Not inlined: one copy for matvec_acc_int8 and segment_terms_int8.
+#[inline(never)]
+fn seg_blocks(
+    (q, scales, cols): (&[u8], &Scales<'_>, usize),
+    off: usize,
+    seg: &[f32],
+    (y, stride): (&mut [f32], usize),
+    dots: Dots,
+) -> bool {
     let (sx, inv, nonneg) = act_range(seg);
-    if sx <= 0.0 || rows == 0 {
-        return Ok(0);
+    if sx <= 0.0 {
+        return false;
     }
     let mut xq = [0i8; QCOLS];
     let mut xp = [0u32; QWORDS];
     let mut acc = [0i32; QROWS];
-    for (b, (xs, y)) in seg
-        .chunks(QCOLS)
-        .zip(terms.chunks_exact_mut(rows))
-        .enumerate()
-    {
-        y.fill(-0.0);
+    let rows = y.len().min(if stride == 0 { y.len() } else { stride });
+    for (b, xs) in seg.chunks(QCOLS).enumerate() {
         let xq = &mut xq[..xs.len()];
         let xp = quantize_for(dots, xs, inv, nonneg, xq, &mut xp);
+        let yb = &mut y[b * stride..b * stride + rows];
         block(
             q,
-            &scales,
+            scales,
             cols,
-            col0 + b * QCOLS,
+            off + b * QCOLS,
             xq,
             xp,
             sx,
             &mut acc,
-            y,
+            yb,
             dots,
         );
     }
-    Ok(nb)
+    true
 }
 
 /// [`matvec_acc_int8`] with some segments' terms given (`cached[i]`, when `Some`, stands for
@@ -465,9 +480,6 @@ fn matvec_int8_with(
             return Ok(());
         }
     }
-    let mut xq = [0i8; QCOLS];
-    let mut xp = [0u32; QWORDS];
-    let mut acc = [0i32; QROWS];
     let mut off = 0;
     for (i, seg) in x.iter().enumerate() {
         if let Some(Some(t)) = cached.get(i) {
@@ -484,17 +496,8 @@ fn matvec_int8_with(
                     *yi += v;
                 }
             }
-            off += seg.len();
-            continue;
-        }
-        let (sx, inv, nonneg) = act_range(seg);
-        if sx > 0.0 {
-            for (b, xs) in seg.chunks(QCOLS).enumerate() {
-                let xq = &mut xq[..xs.len()];
-                let xp = quantize_for(dots, xs, inv, nonneg, xq, &mut xp);
-                let c0 = off + b * QCOLS;
-                block(q, &scales, cols, c0, xq, xp, sx, &mut acc, y, dots);
-            }
+        } else {
+            seg_blocks((q, &scales, cols), off, seg, (&mut *y, 0), dots);
         }
         off += seg.len();
     }

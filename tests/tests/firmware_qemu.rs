@@ -288,10 +288,16 @@ fn run_and_compare(
     m
 }
 
-/// The blob the default firmware embeds: the shipped model with int8 activations
-/// (`blobgen::firmware_blob_in`, what `build.rs` writes with the default features).
+/// The shipped model with int8 activations (what `gman export --preset mcu --quant int8`
+/// writes of it; the image with `gaussian-noise` embeds it).
 fn int8_activation_blob() -> Vec<u8> {
-    blobgen::firmware_blob_in(&fw_dir(), true).expect("int8 activations")
+    blobgen::firmware_blob_in(&fw_dir(), true, true).expect("int8 activations")
+}
+
+/// The blob the default firmware embeds: [`int8_activation_blob`] with G's noise z = 0
+/// (`blobgen::firmware_blob_in`, what `build.rs` writes with the default features).
+fn default_image_blob() -> Vec<u8> {
+    blobgen::firmware_blob_in(&fw_dir(), true, false).expect("int8 activations, zero noise")
 }
 
 #[test]
@@ -303,12 +309,14 @@ fn firmware_under_qemu_matches_host_bit_for_bit() {
     // ELF elsewhere.
     let target_dir = fw_dir().join("target");
     // The default image: the integer path (feature `int8-activations`) on the shipped trained
-    // GMAN model re-emitted with int8 activations (or the seeded blob without it).
-    // `gman bench` reads its firmware row from `qemu-measurements.txt`.
+    // GMAN model re-emitted with int8 activations and G's noise z = 0 (or the seeded blob
+    // without it): x_t and the fusion layer's terms of x_t and SE(y) are kept between inner
+    // updates, Ψ keeps no z_t and one x_t. `gman bench` reads its firmware row from
+    // `qemu-measurements.txt`.
     let m = run_and_compare(
         &target_dir,
         None,
-        &int8_activation_blob(),
+        &default_image_blob(),
         "qemu-measurements.txt",
         &[],
     );
@@ -324,66 +332,84 @@ fn f32_activation_firmware_under_qemu_matches_host_bit_for_bit() {
     // Its own target dir (the embedded blob differs; the two tests may run at once).
     let target_dir = fw_dir().join("target/f32-activations");
     std::fs::create_dir_all(&target_dir).expect("target dir");
-    // The shipped blob as it is (f32 activations), the integer path compiled out.
+    // The shipped blob with f32 activations (zero noise, as the default image), the integer
+    // path compiled out.
+    let blob = blobgen::firmware_blob_in(&fw_dir(), false, false).expect("zero noise");
     let m = run_and_compare(
         &target_dir,
         None,
-        &blobgen::default_blob_in(&fw_dir()),
+        &blob,
         "qemu-measurements-f32-activations.txt",
         &["--no-default-features", "--features", "selftest"],
     );
     assert!(m.contains_key("mean_insns"));
 }
 
-/// `blob` with G's noise set to zero ([`FLAG_ZERO_NOISE`]), re-emitted by gman-core's
-/// encoder (every tensor and the other flags kept, the CRC recomputed).
-///
-/// [`FLAG_ZERO_NOISE`]: gman_core::schema::FLAG_ZERO_NOISE
-fn zero_noise_blob(blob: &[u8]) -> Vec<u8> {
-    use gman_core::blob::{reencode_with_flags, reencoded_len_bound, Blob};
-    let flags =
-        Blob::parse(blob).expect("blob").header().flags() | gman_core::schema::FLAG_ZERO_NOISE;
-    let mut out = vec![0u8; reencoded_len_bound(blob)];
-    let n = reencode_with_flags(blob, flags, &mut out).expect("re-encode");
-    out.truncate(n);
-    out
-}
-
 #[test]
-fn zero_noise_firmware_under_qemu_matches_host_bit_for_bit() {
+fn gaussian_noise_firmware_under_qemu_matches_host_bit_for_bit() {
     if !qemu_available() {
         return;
     }
-    // The default image (int8 activations, `Footprint::Minimal`) on the shipped model with
-    // G's noise z = 0: x_t is cached between inner updates and Ψ keeps no z_t or x_t.
-    let target_dir = fw_dir().join("target/zero-noise");
+    // The image with the feature `gaussian-noise` on the shipped model as it was trained
+    // (z_t ~ N(0, I) every step), with the self-test: on this int8-activation blob it compares
+    // the DSP kernels with the portable ones on the device.
+    let target_dir = fw_dir().join("target/gaussian");
     std::fs::create_dir_all(&target_dir).expect("target dir");
-    let blob = zero_noise_blob(&int8_activation_blob());
-    let file = target_dir.join("model-zero-noise.gman");
-    std::fs::write(&file, &blob).expect("write the zero-noise blob");
+    let blob = int8_activation_blob();
     let (host, _) = host_lines(&blob, &checked_in_episode());
     assert!(
-        host.iter().any(|l| l.contains("noise=Zero")),
-        "the blob does not run with zero noise"
+        host.iter().any(|l| l.contains("noise=Gaussian")),
+        "the blob does not run with Gaussian noise"
     );
-    // With the self-test: on this int8-activation blob it compares the DSP kernels with the
-    // portable ones on the device.
     let m = run_and_compare(
         &target_dir,
-        Some(&file),
+        None,
         &blob,
-        "qemu-measurements-zero-noise.txt",
-        &["--features", "selftest"],
+        "qemu-measurements-gaussian.txt",
+        &["--features", "gaussian-noise,selftest"],
     );
     assert_eq!(m.get("dsp_smlad"), Some(&1), "the DSP kernel is not in use");
+    // The default image (no `gaussian-noise`) refuses that blob at start-up, naming the
+    // feature, and exits QEMU with failure.
+    let refused_dir = fw_dir().join("target/gaussian-refused");
+    std::fs::create_dir_all(&refused_dir).expect("target dir");
+    let file = refused_dir.join("model-gaussian.gman");
+    std::fs::write(&file, &blob).expect("write the Gaussian blob");
+    let mut build = Command::new(env!("CARGO"));
+    build
+        .current_dir(fw_dir())
+        .args(["build", "--release", "--quiet", "--target-dir"])
+        .arg(&refused_dir)
+        .arg("--config")
+        .arg(remap_path_config())
+        .env("GMAN_FIRMWARE_BLOB", &file);
+    assert!(build.status().expect("cargo build").success());
+    let elf = refused_dir.join("thumbv7em-none-eabihf/release/gman-firmware-example");
+    let out = Command::new("timeout")
+        .current_dir(fw_dir())
+        .args(["120", "qemu-system-arm", "-M", "mps2-an386", "-nographic"])
+        .args(["-icount", "shift=0"])
+        .args(["-semihosting-config", "enable=on,target=native", "-kernel"])
+        .arg(&elf)
+        .output()
+        .expect("run qemu");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        !out.status.success(),
+        "a Gaussian blob ran without the feature:\n{stdout}"
+    );
+    assert!(
+        stdout.contains("ERROR: ") && stdout.contains("`gaussian-noise`"),
+        "the refusal does not name the feature:\n{stdout}"
+    );
 }
 
 #[test]
 fn exported_blob_is_what_the_default_firmware_runs() {
     // What README's device sequence flashes: `gman export --preset mcu --quant int8` with its
     // defaults for that preset (int8 activations, Ψ's observations int16) writes the bytes
-    // the default image embeds, which `firmware_under_qemu_matches_host_bit_for_bit` runs
-    // (a checkpoint's blob is the shipped model's kind: int8 weights, f32 activations).
+    // the `gaussian-noise` image embeds, and the default image embeds them with G's noise
+    // z = 0 (a checkpoint's blob is the shipped model's kind: int8 weights, f32 activations).
     let act8 = gman_host_sim::blob_edit::default_int8_activations(true, true);
     assert!(act8, "the mcu export must fit the default firmware");
     let shipped = blobgen::default_blob_in(&fw_dir());
@@ -392,8 +418,12 @@ fn exported_blob_is_what_the_default_firmware_runs() {
         .expect("gman export --preset mcu --quant int8");
     assert!(
         blob == int8_activation_blob(),
-        "the mcu export's defaults differ from the blob the default firmware runs"
+        "the mcu export's defaults differ from the blob the firmware runs"
     );
+    // The default image runs it with G's noise z = 0 (a model trained with `--noise zero`
+    // exports that flag itself; a Gaussian one needs the feature `gaussian-noise`).
+    let zero = blobgen::with_zero_noise(&blob).expect("zero noise");
+    assert!(zero == default_image_blob());
 }
 
 #[test]
