@@ -478,6 +478,9 @@ impl<'w> NavWeights<'w> {
             }
             return Ok(w.with_int8_activations());
         }
+        if !crate::qkernel::F32_ACTIVATIONS && w.t.iter().any(MatRef::is_int8) {
+            return Err(crate::qkernel::NO_F32_ACTIVATIONS);
+        }
         Ok(w)
     }
 
@@ -983,7 +986,8 @@ fn draw_noise(rng: &mut Xoshiro128, z: &mut [f32]) {
 }
 
 /// The error of a navigator with Gaussian noise in a build without it.
-pub const NO_GAUSSIAN_NOISE: &str = "the model's G draws Gaussian noise (no FLAG_ZERO_NOISE) and this build has none: enable gman-core's feature `gaussian-noise` (the firmware's `gaussian-noise`), or run a zero-noise model (`gman train --noise zero`)";
+pub const NO_GAUSSIAN_NOISE: &str =
+    "Gaussian noise: needs gman-core's feature `gaussian-noise` (or a `--noise zero` model)";
 
 /// The error of a step whose probabilities or value are not finite.
 const NUMERICAL_PROBS: Error = Error::NumericalFault {
@@ -1114,6 +1118,9 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
         }
         if cfg.noise == NoiseMode::Gaussian && !cfg!(feature = "gaussian-noise") {
             return bad(NO_GAUSSIAN_NOISE);
+        }
+        if cfg.adapt && cfg.emd == Emd::CosSim && !cfg!(feature = "cossim") {
+            return Err(inner::NO_COSSIM);
         }
         let lean = cfg.footprint == Footprint::Minimal;
         if lean
@@ -2778,7 +2785,8 @@ mod tests {
                     .into_iter()
                     .flat_map(|k| [(k, Footprint::Compact), (k, Footprint::Fast)])
                 {
-                    let n = arena_len_with(&d, mode, k, fp);
+                    let n = crate::memory::arena_len_noise(&d, mode, k, fp, NoiseMode::Gaussian);
+                    assert!(n <= arena_len_with(&d, mode, k, fp));
                     let mut arena = vec![0.0f32; n + 7];
                     let base = arena.as_ptr() as usize;
                     let (lens, used) = carve_check(&mut arena, &d, mode, k, (fp, false)).unwrap();

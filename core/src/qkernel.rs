@@ -38,6 +38,14 @@ pub const QWORDS: usize = QCOLS / 2;
 /// True when gman-core is built with its feature `int8-activations` (the integer path is
 /// compiled in; without it, callers can compile out their own uses of this module).
 pub const INT8_ACTIVATIONS: bool = cfg!(feature = "int8-activations");
+/// True when gman-core is built with its feature `f32-activations` (the f32-activation
+/// forward kernels for int8 weights; without it only int8-activation views of int8 weights
+/// run forward).
+pub const F32_ACTIVATIONS: bool = cfg!(feature = "f32-activations");
+/// The error of an int8 weight matrix with f32 activations in a build without them.
+pub(crate) const NO_F32_ACTIVATIONS: crate::Error = crate::Error::Config {
+    what: "f32 activations: needs gman-core's feature `f32-activations` (or `--activations int8`)",
+};
 /// True when [`dots_i8_dsp`] runs the `SXTB16` / `SMLAD` instructions (Armv7E-M targets),
 /// false where it runs their plain-Rust model; the integers are the same.
 pub const DSP_KERNEL: bool = gman_dsp::HAS_DSP;

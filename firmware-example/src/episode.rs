@@ -356,7 +356,7 @@ fn run_with<const U8: bool>(
     cfg.footprint = FOOTPRINT;
     if FOOTPRINT == Footprint::Minimal && !cfg.compact_psi {
         return Err(Failure::Blob(
-            "Ψ's observations are f32; this image's Footprint::Minimal arena needs them int16: export with `gman export --preset mcu --quant int8` (its default --activations auto writes int8 activations and Ψ int16) or add `--psi int16`, or build with --no-default-features",
+            "Ψ's observations are f32; this image's Footprint::Minimal needs them int16: `gman export --preset mcu --quant int8` (or `--psi int16`)",
         ));
     }
     probe.line(format_args!(
