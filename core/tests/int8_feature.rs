@@ -34,13 +34,14 @@ fn an_int8_activation_blob_runs_only_where_the_feature_is_built() {
     // kernels (the feature `f32-activations`), else it is refused naming the feature.
     let plain = seeded_blob(&dims, 3, true, 0);
     let blob = Blob::parse(&plain).expect("parse");
+    let f32_path = gman_core::qkernel::F32_ACTIVATIONS;
     match NavWeights::from_blob(&blob, &dims) {
         Ok(w) => {
-            assert!(cfg!(feature = "f32-activations"));
+            assert!(f32_path, "refused only without the feature");
             assert!(TensorId::all_for(&dims).all(|id| !w.get(id).int8_activations()));
         }
         Err(Error::Config { what }) => {
-            assert!(!cfg!(feature = "f32-activations"));
+            assert!(!f32_path, "{what}");
             assert!(what.contains("`f32-activations`"), "{what}");
         }
         Err(e) => panic!("expected a configuration error, got {e:?}"),
