@@ -2,13 +2,13 @@
 //! (`tests/tests/firmware_qemu.rs`) so that both use the very same bytes: the shipped trained
 //! model, or a deterministic seeded int8 blob of the same shapes; with the firmware's default
 //! feature `int8-activations`, re-emitted with int8 activations (as `gman export --activations
-//! int8` does).
+//! int8` does), and without the feature `gaussian-noise` with G's noise z = 0.
 
 use gman_core::blob::{
     encode_model_scratch_len, encoded_model_len_bound, reencode_with_flags, reencoded_len_bound,
     AdaptSettings, Blob, Quant,
 };
-use gman_core::schema::{FLAG_ADAPT, FLAG_COMPACT_PSI, FLAG_INT8_ACTIVATIONS};
+use gman_core::schema::{FLAG_ADAPT, FLAG_COMPACT_PSI, FLAG_INT8_ACTIVATIONS, FLAG_ZERO_NOISE};
 use gman_core::seeded::encode_seeded;
 use gman_core::Dims;
 
@@ -61,17 +61,31 @@ pub fn with_int8_activations(bytes: &[u8]) -> Result<Vec<u8>, gman_core::BlobErr
     Ok(out)
 }
 
-/// The blob the firmware embeds by default for its activation mode: [`default_blob_in`], with
-/// int8 activations when `int8_activations` (the firmware's default feature).
+/// `bytes` re-emitted with [`FLAG_ZERO_NOISE`] (G's noise z = 0 at navigation): every tensor,
+/// the other flags and the inner-loop settings kept, the CRC recomputed.
+pub fn with_zero_noise(bytes: &[u8]) -> Result<Vec<u8>, gman_core::BlobError> {
+    let flags = Blob::parse(bytes)?.header().flags() | FLAG_ZERO_NOISE;
+    let mut out = vec![0u8; reencoded_len_bound(bytes)];
+    let n = reencode_with_flags(bytes, flags, &mut out)?;
+    out.truncate(n);
+    Ok(out)
+}
+
+/// The blob the firmware embeds by default for its features: [`default_blob_in`], with int8
+/// activations when `int8_activations` (the firmware's default feature), and with zero noise
+/// unless `gaussian_noise` (the firmware's feature `gaussian-noise`, not in the default image).
 #[allow(dead_code)]
 pub fn firmware_blob_in(
     base: &std::path::Path,
     int8_activations: bool,
+    gaussian_noise: bool,
 ) -> Result<Vec<u8>, gman_core::BlobError> {
-    let blob = default_blob_in(base);
+    let mut blob = default_blob_in(base);
     if int8_activations {
-        with_int8_activations(&blob)
-    } else {
-        Ok(blob)
+        blob = with_int8_activations(&blob)?;
     }
+    if !gaussian_noise {
+        blob = with_zero_noise(&blob)?;
+    }
+    Ok(blob)
 }

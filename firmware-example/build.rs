@@ -6,7 +6,9 @@
 //! deterministic int8 blob of the same shapes (`Mcu` with the 3 x 3 map) made here from seeded
 //! random weights with gman-core's
 //! own encoder. With the feature `int8-activations` (the default) the shipped or seeded blob
-//! is re-emitted with int8 activations (`blobgen::with_int8_activations`).
+//! is re-emitted with int8 activations (`blobgen::with_int8_activations`), and without the
+//! feature `gaussian-noise` (the default image) with G's noise z = 0
+//! (`blobgen::with_zero_noise`).
 
 use std::{env, fs, path::PathBuf};
 
@@ -31,7 +33,9 @@ fn main() {
             // The default feature `int8-activations` runs the integer path: the shipped model
             // re-emitted with int8 activations (its tensors unchanged).
             let int8 = env::var_os("CARGO_FEATURE_INT8_ACTIVATIONS").is_some();
-            blobgen::firmware_blob_in(std::path::Path::new("."), int8)
+            // Without the feature `gaussian-noise` (the default image), with G's noise z = 0.
+            let gaussian = env::var_os("CARGO_FEATURE_GAUSSIAN_NOISE").is_some();
+            blobgen::firmware_blob_in(std::path::Path::new("."), int8, gaussian)
                 .unwrap_or_else(|e| panic!("{}: {e}", blobgen::TRAINED))
         }
     };

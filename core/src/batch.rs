@@ -58,6 +58,9 @@ impl MatRef<'_> {
         if self.int8_activations() {
             return crate::qkernel::matvec_acc_int8(self, x, y);
         }
+        if !crate::qkernel::F32_ACTIVATIONS && self.is_int8() {
+            return Err(crate::qkernel::NO_F32_ACTIVATIONS);
+        }
         if x.len() > MAX_SEGS {
             self.matvec_acc_many(x, y);
             return Ok(());
@@ -102,6 +105,10 @@ impl MatRef<'_> {
     /// [`MatRef::matvec_acc`] one row at a time: for more than [`MAX_SEGS`] segments, and on
     /// the Cortex-M4F for f32 weights (the same canonical order as the blocked body).
     fn matvec_acc_many(&self, x: &[&[f32]], y: &mut [f32]) {
+        // (Without `f32-activations` its callers refuse int8 weights first.)
+        if !crate::qkernel::F32_ACTIVATIONS && self.is_int8() {
+            return;
+        }
         match self.weights() {
             Weights::F32(d) => {
                 for (row, yi) in d.chunks_exact(self.cols()).zip(y.iter_mut()) {
@@ -275,6 +282,9 @@ pub fn matmul_acc(
             crate::qkernel::matvec_acc_int8(w, &xs[..x.len()], yb)?;
         }
         return Ok(());
+    }
+    if !crate::qkernel::F32_ACTIVATIONS && w.is_int8() {
+        return Err(crate::qkernel::NO_F32_ACTIVATIONS);
     }
     match w.kernels() {
         Some(k) => k.matmul_acc(&w.without_kernels(), x, n, y),

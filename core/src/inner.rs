@@ -37,6 +37,10 @@ use crate::error::{check_len, Result};
 use crate::generator::Generator;
 use crate::matrix::{axpy, dot};
 
+/// The error of an adapting CosSim model in a build without the feature `cossim`.
+pub const NO_COSSIM: crate::Error = crate::Error::Config {
+    what: "CosSim EMD: needs gman-core's feature `cossim`",
+};
 /// Buffers of the batched inner update for batches of up to `b` entries (`b >= 1`).
 /// `Z, A, H, F` are G's noise, attribute, hidden and feature widths, `DH` D's hidden width;
 /// "gain" buffers are needed only when the layer has a gain (else they may be empty), the
@@ -739,6 +743,8 @@ pub fn adapt_scores_part(
                     }
                     Ok(())
                 }
+                // (Without the feature `cossim` a navigator refuses CosSim models that adapt.)
+                None if !cfg!(feature = "cossim") => Err(NO_COSSIM),
                 None => {
                     for (i, di) in d.iter_mut().enumerate() {
                         let t = t0 + i;
@@ -1017,6 +1023,7 @@ fn group_forward(
                 }
             }
         }
+        None if !cfg!(feature = "cossim") => return Err(NO_COSSIM),
         None => {
             for (i, (t, c)) in groups.each().take(nb).enumerate() {
                 let (x, g) = (&w.mix[i * f..(i + 1) * f], &mut w.g[i * f..(i + 1) * f]);

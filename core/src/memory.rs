@@ -410,6 +410,13 @@ macro_rules! arena_table {
             ps in Work = d.ps;
             cell in Work = tri!(d.checked_cell_out());
             cell_prod in Work = if map { d.feat } else { 0 };
+            // With zero noise, the fusion layer's terms of x_t and SE(y), kept between two
+            // inner updates on the integer path (`Policy::fuse_terms`).
+            fuse_terms in Work = if zero {
+                tri!(crate::policy::fuse_terms_len(d.embed, d.feat, d.attr))
+            } else {
+                0
+            };
         }
     };
 }

@@ -104,9 +104,9 @@ use crate::memory::{
     adapt_batch_with, arena_len_with, arena_table, first, region_lens, AdaptMode, Footprint,
     NUM_REGIONS,
 };
-use crate::policy::{Policy, PolicyCache, PolicyInput};
+use crate::policy::{FuseBlocks, FuseTerms, Policy, PolicyCache, PolicyInput};
 use crate::preset::Dims;
-use crate::rng::{fill_gaussian, uniform, Xoshiro128};
+use crate::rng::{uniform, Xoshiro128};
 pub use crate::schema::{Emd, NoiseMode};
 use crate::schema::{ModelFlags, TensorId, NUM_TENSORS};
 use crate::spec::ModelSpec;
@@ -477,6 +477,9 @@ impl<'w> NavWeights<'w> {
                 });
             }
             return Ok(w.with_int8_activations());
+        }
+        if !crate::qkernel::F32_ACTIVATIONS && w.t.iter().any(MatRef::is_int8) {
+            return Err(crate::qkernel::NO_F32_ACTIVATIONS);
         }
         Ok(w)
     }
@@ -959,6 +962,9 @@ pub struct Navigator<'w, M: Mode, const K: usize, S = &'w mut [f32]> {
     psi_recorded: bool,
     /// [`Footprint::Minimal`]: no Ψ_x (regenerated batch by batch), Ψ's observations packed.
     lean: bool,
+    /// With zero noise: the fusion layer's terms of x_t and SE(y) in `fuse_terms` are those
+    /// of the current x_t and SE(y) (`Policy::fuse_terms`'s blocks), or `None`.
+    fuse_blocks: Option<FuseBlocks>,
     last: AdaptReport,
     /// The inner update in progress (between Ψ filling and its commit when
     /// [`NavConfig::commit_delay`] > 0).
@@ -968,6 +974,20 @@ pub struct Navigator<'w, M: Mode, const K: usize, S = &'w mut [f32]> {
     upd_rng: Xoshiro128,
     _mode: PhantomData<M>,
 }
+
+/// z_t ~ N(0, I) into `z` (gman-core's feature `gaussian-noise`; without it a navigator
+/// with Gaussian noise is refused by [`Navigator::check_settings`], so nothing calls this).
+#[inline]
+fn draw_noise(rng: &mut Xoshiro128, z: &mut [f32]) {
+    #[cfg(feature = "gaussian-noise")]
+    crate::rng::fill_gaussian(rng, z);
+    #[cfg(not(feature = "gaussian-noise"))]
+    let _ = (rng, z);
+}
+
+/// The error of a navigator with Gaussian noise in a build without it.
+pub const NO_GAUSSIAN_NOISE: &str =
+    "Gaussian noise: needs gman-core's feature `gaussian-noise` (or a `--noise zero` model)";
 
 /// The error of a step whose probabilities or value are not finite.
 const NUMERICAL_PROBS: Error = Error::NumericalFault {
@@ -982,6 +1002,7 @@ struct StepMarks {
     g_pending: bool,
     x_valid: bool,
     u2_valid: bool,
+    fuse_blocks: Option<FuseBlocks>,
 }
 
 /// Where an inner update is: the phases of [`Navigator::inner_update`] in order, each over
@@ -1095,6 +1116,12 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
         if cfg.schedule == Schedule::Background && cfg.commit_delay == 0 {
             return bad("Schedule::Background needs a commit_delay of at least 1 step");
         }
+        if cfg.noise == NoiseMode::Gaussian && !cfg!(feature = "gaussian-noise") {
+            return bad(NO_GAUSSIAN_NOISE);
+        }
+        if cfg.adapt && cfg.emd == Emd::CosSim && !cfg!(feature = "cossim") {
+            return Err(inner::NO_COSSIM);
+        }
         let lean = cfg.footprint == Footprint::Minimal;
         if lean
             && (M::MODE != AdaptMode::Efficient
@@ -1142,6 +1169,7 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
             u2_valid: false,
             psi_recorded: false,
             lean,
+            fuse_blocks: None,
             last: AdaptReport::default(),
             upd: None,
             upd_rng: Xoshiro128::seed_from_u64(0),
@@ -1208,6 +1236,7 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
         self.n_buf = 0;
         self.x_valid = false;
         self.x_fixed = false;
+        self.fuse_blocks = None;
         self.ready = true;
         self.begun = false;
         self.g_pending = false;
@@ -1215,6 +1244,25 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
         c.steps = 0;
         c.adaptations = 0;
         c.rollbacks = 0;
+        if self.cfg.noise == NoiseMode::Zero {
+            self.prepare_zero_noise()?;
+        }
+        Ok(())
+    }
+
+    /// With zero noise, what stays the same until the next commit or reset: x_t = G_θi(SE(y),
+    /// 0) and the fusion layer's terms of x_t and SE(y) ([`Policy::fuse_terms`]), computed
+    /// here at the reset so that the episode's first step is a plain one (after a commit the
+    /// next step computes them).
+    fn prepare_zero_noise(&mut self) -> Result<()> {
+        self.arena.ram().z.fill(0.0);
+        self.run_generator(None)?;
+        self.x_valid = true;
+        let r = self.arena.ram();
+        let biases = [&*r.fuse_b, &*r.lstm_b, &*r.critic_b, &*r.cell_b];
+        let actor = r.actor.view(self.w.get(TensorId::ActorW))?;
+        let policy = policy_view(&self.w, biases, actor)?;
+        self.fuse_blocks = policy.fuse_terms(r.x, r.attr, r.fuse_terms)?;
         Ok(())
     }
 
@@ -1238,6 +1286,7 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
         r.x.copy_from_slice(x);
         r.z.fill(0.0);
         self.x_fixed = true;
+        self.fuse_blocks = None;
         Ok(())
     }
 
@@ -1442,16 +1491,8 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
     /// behind, in the diagnostic views [`Navigator::generated_feature`],
     /// [`Navigator::noise`] and [`Navigator::generator_activations`] (the next step
     /// overwrites it). Nothing has to be done to recover: step again with a good input.
-    #[inline(never)]
     pub fn step_map(&mut self, obs: &[f32], map: &[f32], ps: &[f32]) -> Result<StepOutput> {
-        let marks = self.marks();
-        // (Its errors come from checks made before anything is written.)
-        self.begin_step(obs, map, ps)?;
-        // Line 8: the policy (trunk and heads in one pass).
-        match self.run_policy(obs, map) {
-            Ok(v) if self.outputs_finite(v) => self.commit_checked(obs, v),
-            r => Err(self.refused(marks, r.err())),
-        }
+        self.step_with(obs, map, None, ps)
     }
 
     /// What a step changes before its outputs are known to be finite.
@@ -1462,6 +1503,7 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
             g_pending: self.g_pending,
             x_valid: self.x_valid,
             u2_valid: self.u2_valid,
+            fuse_blocks: self.fuse_blocks,
         }
     }
 
@@ -1475,6 +1517,7 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
         self.g_pending = m.g_pending;
         self.x_valid = m.x_valid;
         self.u2_valid = m.u2_valid;
+        self.fuse_blocks = m.fuse_blocks;
         e.unwrap_or(NUMERICAL_PROBS)
     }
 
@@ -1500,35 +1543,29 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
                 what: "step_map_u8: the map's scale must be positive",
             });
         }
-        self.begin_step_with(obs, (&[], map.len()), ps)?;
-        let r = self.arena.ram();
-        let biases = [&*r.fuse_b, &*r.lstm_b, &*r.critic_b, &*r.cell_b];
-        let actor = r.actor.view(self.w.get(TensorId::ActorW))?;
-        let policy = policy_view(&self.w, biases, actor)?;
-        let inp = PolicyInput {
-            obs,
-            feat: r.x,
-            attr: r.attr,
-            prev_probs: r.prev_probs,
-            ps: r.ps,
-            map: &[],
-        };
-        let mut value = [0.0f32];
-        let mut cache = PolicyCache {
-            prod: r.prod,
-            fuse: r.fuse,
-            gates: r.gates,
-            c: r.c,
-            h: r.h,
-            actor_u: r.actor_u,
-            logits: r.logits,
-            probs: r.probs,
-            value: &mut value,
-            cell: r.cell,
-            cell_prod: r.cell_prod,
-        };
-        policy.forward_map_u8(&inp, (map, scale), r.h_state, r.c_state, &mut cache)?;
-        self.commit_step(obs, value[0])
+        self.step_with(obs, &[], Some((map, scale)), ps)
+    }
+
+    /// [`Navigator::step_map`] (`map_u8` `None`) and [`Navigator::step_map_u8`] (the map as
+    /// u8 codes with their scale, `map` empty): the checks and G (line 7), the policy (line
+    /// 8), then the commit of the step, or its refusal.
+    #[inline(never)]
+    fn step_with(
+        &mut self,
+        obs: &[f32],
+        map: &[f32],
+        map_u8: Option<(&[u8], f32)>,
+        ps: &[f32],
+    ) -> Result<StepOutput> {
+        let marks = self.marks();
+        let map_len = map_u8.map_or(map.len(), |(m, _)| m.len());
+        // (Its errors come from checks made before anything is written.)
+        self.begin_step_with(obs, (map, map_len), ps)?;
+        // Line 8: the policy (trunk and heads in one pass).
+        match self.run_policy(obs, map, map_u8) {
+            Ok(v) if self.outputs_finite(v) => self.commit_checked(obs, v),
+            r => Err(self.refused(marks, r.err())),
+        }
     }
 
     /// Lines 5-7 of a step, for a host that runs the policies of many navigators as one
@@ -1557,7 +1594,7 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
         match self.cfg.noise {
             _ if self.x_fixed => {}
             NoiseMode::Gaussian => {
-                fill_gaussian(&mut self.rng, self.arena.ram().z);
+                draw_noise(&mut self.rng, self.arena.ram().z);
                 self.run_generator(None)?;
             }
             NoiseMode::Zero => {
@@ -1650,7 +1687,7 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
             return Ok(false);
         }
         self.begin_checks(obs, (map, map.len()), ps)?;
-        fill_gaussian(&mut self.rng, self.arena.ram().z);
+        draw_noise(&mut self.rng, self.arena.ram().z);
         self.g_pending = true;
         self.begun = true;
         Ok(true)
@@ -1925,11 +1962,28 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
         gen.forward(z, r.attr, &mut cache)
     }
 
-    fn run_policy(&mut self, obs: &[f32], map: &[f32]) -> Result<f32> {
+    /// Line 8, the policy on this step's inputs: the map as f32 values (`map`) or as u8
+    /// codes with their scale (`map_u8`). With zero noise the fusion layer's terms of x_t
+    /// and SE(y) are computed at the first step after a reset or a commit and kept
+    /// (where the policy runs the integer path, [`Policy::keeps_fuse_terms`]). Returns the
+    /// value; the rest is in RAM.
+    fn run_policy(
+        &mut self,
+        obs: &[f32],
+        map: &[f32],
+        map_u8: Option<(&[u8], f32)>,
+    ) -> Result<f32> {
+        let (d, zero) = (self.w.dims, self.cfg.noise == NoiseMode::Zero);
         let r = self.arena.ram();
         let biases = [&*r.fuse_b, &*r.lstm_b, &*r.critic_b, &*r.cell_b];
         let actor = r.actor.view(self.w.get(TensorId::ActorW))?;
         let policy = policy_view(&self.w, biases, actor)?;
+        if zero && self.fuse_blocks.is_none() {
+            self.fuse_blocks = policy.fuse_terms(r.x, r.attr, r.fuse_terms)?;
+        }
+        let terms = (self.fuse_blocks)
+            .filter(|_| zero)
+            .map(|b| FuseTerms::new(r.fuse_terms, d.embed, d.feat, b));
         let inp = PolicyInput {
             obs,
             feat: r.x,
@@ -1952,7 +2006,8 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
             cell: r.cell,
             cell_prod: r.cell_prod,
         };
-        policy.forward(&inp, r.h_state, r.c_state, &mut cache)?;
+        let (h, c) = (&*r.h_state, &*r.c_state);
+        policy.forward_step(&inp, map_u8, terms.as_ref(), h, c, &mut cache)?;
         Ok(value[0])
     }
 
@@ -2256,6 +2311,7 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
         c.adaptations = c.adaptations.saturating_add(1);
         c.total_adaptations = c.total_adaptations.saturating_add(1);
         self.x_valid = false;
+        self.fuse_blocks = None;
         self.last = report;
         self.n_buf = 0;
         Ok(())
@@ -2729,7 +2785,8 @@ mod tests {
                     .into_iter()
                     .flat_map(|k| [(k, Footprint::Compact), (k, Footprint::Fast)])
                 {
-                    let n = arena_len_with(&d, mode, k, fp);
+                    let n = crate::memory::arena_len_noise(&d, mode, k, fp, NoiseMode::Gaussian);
+                    assert!(n <= arena_len_with(&d, mode, k, fp));
                     let mut arena = vec![0.0f32; n + 7];
                     let base = arena.as_ptr() as usize;
                     let (lens, used) = carve_check(&mut arena, &d, mode, k, (fp, false)).unwrap();

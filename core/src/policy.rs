@@ -33,6 +33,7 @@ use crate::batch_cols::matmul_t_acc_cols;
 use crate::dense::{Dense, DenseGrads};
 use crate::error::{check_len, Result};
 use crate::lstm::{Lstm, LstmGrads};
+use crate::qkernel::SegTerms;
 use crate::NUM_ACTIONS;
 
 /// A read-only view of the policy's layers.
@@ -96,6 +97,53 @@ pub struct PolicyCache<'a> {
     pub cell: &'a mut [f32],
     /// `M_t,c ⊙ x_t`: one cell's (`feat`) or every cell's, see above (empty without a map).
     pub cell_prod: &'a mut [f32],
+}
+
+/// The blocks [`Policy::fuse_terms`] wrote for x_t and for SE(y).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct FuseBlocks {
+    /// Blocks of x_t's terms (0: its scale is 0, it adds nothing).
+    pub feat: usize,
+    /// Blocks of SE(y)'s terms.
+    pub attr: usize,
+}
+
+/// The fusion layer's terms of x_t and SE(y), kept by the caller of [`Policy::fuse_terms`]
+/// and given to [`Policy::forward_step`].
+#[derive(Clone, Copy, Debug)]
+pub struct FuseTerms<'a> {
+    /// x_t's.
+    pub feat: SegTerms<'a>,
+    /// SE(y)'s.
+    pub attr: SegTerms<'a>,
+}
+
+impl<'a> FuseTerms<'a> {
+    /// The terms [`Policy::fuse_terms`] wrote into `buf` for a fusion layer of `embed` rows
+    /// and a `feat`-wide x_t, with the blocks it returned.
+    pub fn new(buf: &'a [f32], embed: usize, feat: usize, blocks: FuseBlocks) -> Self {
+        let split = crate::qkernel::segment_blocks(feat)
+            .saturating_mul(embed)
+            .min(buf.len());
+        let (tf, ta) = buf.split_at(split);
+        FuseTerms {
+            feat: SegTerms {
+                terms: tf,
+                blocks: blocks.feat,
+            },
+            attr: SegTerms {
+                terms: ta,
+                blocks: blocks.attr,
+            },
+        }
+    }
+}
+
+/// Floats [`Policy::fuse_terms`] writes at most for a fusion layer of `embed` rows, a
+/// `feat`-wide x_t and an `attr`-wide SE(y) (`None`: overflow).
+pub const fn fuse_terms_len(embed: usize, feat: usize, attr: usize) -> Option<usize> {
+    let blocks = crate::qkernel::segment_blocks(feat) + crate::qkernel::segment_blocks(attr);
+    embed.checked_mul(blocks)
 }
 
 /// Parameter-gradient accumulators of the policy (`+=`).
@@ -199,17 +247,7 @@ impl<'a> Policy<'a> {
         c_prev: &[f32],
         cache: &mut PolicyCache<'_>,
     ) -> Result<()> {
-        self.validate()?;
-        let wd = self.batch_widths(inp, 1, cache.cell.len())?;
-        let (f, cells, ce) = (wd.f, wd.cells, wd.ce);
-        match &self.cell {
-            Some(cell) if int8_cells(cell) => {
-                cell_layer_int8(cell, inp.map, inp.feat, &mut cache.cell[..cells * ce])?;
-            }
-            Some(cell) => self.cells_f32(cell, inp, f, cells, ce, cache)?,
-            None => {}
-        }
-        self.forward_tail(1, wd, inp, h_prev, c_prev, cache)
+        self.forward_step(inp, None, None, h_prev, c_prev, cache)
     }
 
     /// [`Policy::forward`] with the map given as the camera quantised it: `map[j] * scale`
@@ -221,12 +259,61 @@ impl<'a> Policy<'a> {
     pub fn forward_map_u8(
         &self,
         inp: &PolicyInput<'_>,
-        (map, scale): (&[u8], f32),
+        map: (&[u8], f32),
+        h_prev: &[f32],
+        c_prev: &[f32],
+        cache: &mut PolicyCache<'_>,
+    ) -> Result<()> {
+        self.forward_step(inp, Some(map), None, h_prev, c_prev, cache)
+    }
+
+    /// [`Policy::forward`] (`map_u8` `None`) or [`Policy::forward_map_u8`] (`Some((codes,
+    /// scale))`), with the fusion layer's terms of x_t and SE(y) given (`terms`, from
+    /// [`Policy::fuse_terms`] on this step's `inp.feat` and `inp.attr`) instead of computed
+    /// again: the same bits. `terms` is used only where [`Policy::keeps_fuse_terms`].
+    pub fn forward_step(
+        &self,
+        inp: &PolicyInput<'_>,
+        map_u8: Option<(&[u8], f32)>,
+        terms: Option<&FuseTerms<'_>>,
         h_prev: &[f32],
         c_prev: &[f32],
         cache: &mut PolicyCache<'_>,
     ) -> Result<()> {
         self.validate()?;
+        let wd = match map_u8 {
+            None => self.cells_step_f32(inp, cache)?,
+            Some(m) => self.cells_step_u8(inp, m, cache)?,
+        };
+        let terms = terms.filter(|_| self.keeps_fuse_terms());
+        self.forward_tail(1, wd, inp, h_prev, c_prev, cache, terms)
+    }
+
+    /// The cell layer of one step on an f32 map (`inp.map`); returns the step's widths.
+    fn cells_step_f32(
+        &self,
+        inp: &PolicyInput<'_>,
+        cache: &mut PolicyCache<'_>,
+    ) -> Result<BatchWidths> {
+        let wd = self.batch_widths(inp, 1, cache.cell.len())?;
+        let (f, cells, ce) = (wd.f, wd.cells, wd.ce);
+        match &self.cell {
+            Some(cell) if int8_cells(cell) => {
+                cell_layer_int8(cell, inp.map, inp.feat, &mut cache.cell[..cells * ce])?;
+            }
+            Some(cell) => self.cells_f32(cell, inp, f, cells, ce, cache)?,
+            None => {}
+        }
+        Ok(wd)
+    }
+
+    /// The cell layer of one step on a map of u8 codes; returns the step's widths.
+    fn cells_step_u8(
+        &self,
+        inp: &PolicyInput<'_>,
+        (map, scale): (&[u8], f32),
+        cache: &mut PolicyCache<'_>,
+    ) -> Result<BatchWidths> {
         let wd = self.batch_widths_map(inp, 1, cache.cell.len(), map.len())?;
         let (f, cells, ce) = (wd.f, wd.cells, wd.ce);
         match &self.cell {
@@ -261,7 +348,43 @@ impl<'a> Policy<'a> {
             }
             None => {}
         }
-        self.forward_tail(1, wd, inp, h_prev, c_prev, cache)
+        Ok(wd)
+    }
+
+    /// True when the fusion layer runs the integer path (int8 weights and activations, no
+    /// gain), where each input segment adds its own terms
+    /// ([`crate::qkernel::segment_terms_int8`]): then [`Policy::fuse_terms`] can keep those
+    /// of x_t and SE(y) while they are constant. On the f32-activation path the fusion
+    /// layer sums every row's segments before its scale, and nothing is kept.
+    pub fn keeps_fuse_terms(&self) -> bool {
+        self.fuse.gain.is_none() && self.fuse.w.int8_activations()
+    }
+
+    /// The fusion layer's terms of the x_t segment `feat` and the SE(y) segment `attr` into
+    /// `out` (at least [`fuse_terms_len`] floats), for [`Policy::forward_step`] while both are
+    /// constant (with zero noise, between two inner updates). Returns the blocks written per
+    /// segment, `None` (nothing written) unless [`Policy::keeps_fuse_terms`].
+    pub fn fuse_terms(
+        &self,
+        feat: &[f32],
+        attr: &[f32],
+        out: &mut [f32],
+    ) -> Result<Option<FuseBlocks>> {
+        if !self.keeps_fuse_terms() {
+            return Ok(None);
+        }
+        let (f, e) = (feat.len(), self.fuse.out_dim());
+        let split = crate::qkernel::segment_blocks(f)
+            .saturating_mul(e)
+            .min(out.len());
+        let (of, oa) = out.split_at_mut(split);
+        let w = &self.fuse.w;
+        let feat_blocks = crate::qkernel::segment_terms_int8(w, f, feat, of)?;
+        let attr_blocks = crate::qkernel::segment_terms_int8(w, 3 * f, attr, oa)?;
+        Ok(Some(FuseBlocks {
+            feat: feat_blocks,
+            attr: attr_blocks,
+        }))
     }
 
     /// The map's cells one at a time through a single cell's scratch (`cache.cell_prod`).
@@ -290,6 +413,7 @@ impl<'a> Policy<'a> {
     /// The policy after the cell layer, over a batch of `n` rows: `s_t ⊙ x_t`, the fusion
     /// layer, the LSTM and both heads (the shared tail of [`Policy::forward`] and
     /// [`Policy::forward_batch`]; `t.cell` already holds the cell layer's outputs).
+    #[allow(clippy::too_many_arguments)]
     fn forward_tail(
         &self,
         n: usize,
@@ -298,6 +422,7 @@ impl<'a> Policy<'a> {
         h_prev: &[f32],
         c_prev: &[f32],
         t: &mut PolicyCache<'_>,
+        terms: Option<&FuseTerms<'_>>,
     ) -> Result<()> {
         let f = wd.f;
         check_len("policy.prod", inp.obs.len(), t.prod.len())?;
@@ -317,7 +442,18 @@ impl<'a> Policy<'a> {
             t.cell,
         ];
         let lens = [f, f, f, wd.a, NUM_ACTIONS, wd.ps, wd.cells * wd.ce];
-        self.fuse.forward_batch(&segs, &lens, n, &mut [], t.fuse)?;
+        match terms {
+            // One step with x_t's and SE(y)'s terms kept: the fusion layer's bias, then every
+            // segment's terms in order (`matvec_acc_int8`'s bits, two segments not quantised).
+            Some(k) if n == 1 => {
+                check_len("policy.fuse", self.fuse.out_dim(), t.fuse.len())?;
+                t.fuse.copy_from_slice(self.fuse.b);
+                let (tf, ta) = (k.feat, k.attr);
+                let cached = [None, Some(tf), None, Some(ta), None, None, None];
+                crate::qkernel::matvec_acc_int8_terms(&self.fuse.w, &segs, &cached, t.fuse)?;
+            }
+            _ => self.fuse.forward_batch(&segs, &lens, n, &mut [], t.fuse)?,
+        }
         leaky_relu_inplace(t.fuse);
         let e = self.fuse.out_dim();
         self.lstm
@@ -500,7 +636,7 @@ impl<'a> Policy<'a> {
                 leaky_relu_inplace(cache.cell);
             }
         }
-        self.forward_tail(n, wd, inp, h_prev, c_prev, cache)
+        self.forward_tail(n, wd, inp, h_prev, c_prev, cache, None)
     }
 
     /// [`Policy::backward`] over a batch of `n` steps of independent episodes: every buffer is

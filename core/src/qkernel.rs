@@ -38,6 +38,14 @@ pub const QWORDS: usize = QCOLS / 2;
 /// True when gman-core is built with its feature `int8-activations` (the integer path is
 /// compiled in; without it, callers can compile out their own uses of this module).
 pub const INT8_ACTIVATIONS: bool = cfg!(feature = "int8-activations");
+/// True when gman-core is built with its feature `f32-activations` (the f32-activation
+/// forward kernels for int8 weights; without it only int8-activation views of int8 weights
+/// run forward).
+pub const F32_ACTIVATIONS: bool = cfg!(feature = "f32-activations");
+/// The error of an int8 weight matrix with f32 activations in a build without them.
+pub(crate) const NO_F32_ACTIVATIONS: crate::Error = crate::Error::Config {
+    what: "f32 activations: needs gman-core's feature `f32-activations` (or `--activations int8`)",
+};
 /// True when [`dots_i8_dsp`] runs the `SXTB16` / `SMLAD` instructions (Armv7E-M targets),
 /// false where it runs their plain-Rust model; the integers are the same.
 pub const DSP_KERNEL: bool = gman_dsp::HAS_DSP;
@@ -292,7 +300,138 @@ enum Dots {
 /// int8 (else the call is an error naming it); `x` are segments adding up to `w.cols()`.
 /// A kernel table attached to `w` fills the accumulators (same integers).
 pub fn matvec_acc_int8(w: &MatRef<'_>, x: &[&[f32]], y: &mut [f32]) -> Result<()> {
-    matvec_int8_with(w, x, y, pick(w))
+    matvec_int8_with(w, x, &[], y, pick(w))
+}
+
+/// What one input segment adds to `y` in [`matvec_acc_int8`], kept from an earlier call of
+/// [`segment_terms_int8`] on the same values: `blocks` rows of `terms`, each `W.rows()` wide,
+/// the term `(acc_i as f32) * (s_x * s_i)` of every row for each block of [`QCOLS`] columns
+/// in order (`blocks` is 0 for a segment whose scale is 0: it adds nothing).
+#[derive(Clone, Copy, Debug)]
+pub struct SegTerms<'a> {
+    /// `blocks x rows` terms, block-major.
+    pub terms: &'a [f32],
+    /// Blocks that add a term.
+    pub blocks: usize,
+}
+
+/// Rows of `terms` [`segment_terms_int8`] writes for a segment of `len` values (its
+/// blocks of [`QCOLS`] columns).
+pub const fn segment_blocks(len: usize) -> usize {
+    len.div_ceil(QCOLS)
+}
+
+/// The terms the segment `seg`, at columns `col0 .. col0 + seg.len()` of `w`, adds to `y` in
+/// [`matvec_acc_int8`] (see [`SegTerms`]), into `terms` (at least
+/// [`segment_blocks`]`(seg.len()) x rows`); returns the number of blocks written. Adding
+/// them block by block, in order, at the segment's place among the others
+/// ([`matvec_acc_int8_terms`]) gives `y` exactly the bits of quantising the segment again:
+/// each block adds one f32 term per row, and these are the terms (each computed into
+/// `-0.0`, the exact identity of `+`).
+pub fn segment_terms_int8(
+    w: &MatRef<'_>,
+    col0: usize,
+    seg: &[f32],
+    terms: &mut [f32],
+) -> Result<usize> {
+    let (rows, cols) = (w.rows(), w.cols());
+    check_len(
+        "segment_terms.cols",
+        cols,
+        cols.max(col0.saturating_add(seg.len())),
+    )?;
+    let nb = segment_blocks(seg.len());
+    let need = nb.saturating_mul(rows);
+    check_len("segment_terms.terms", need, terms.len().min(need))?;
+    let Weights::I8 { q, scales } = w.weights() else {
+        return Err(crate::Error::Config {
+            what: "segment_terms_int8: the matrix is not int8",
+        });
+    };
+    // (A host's table fills the same integers block by block.)
+    let terms = &mut terms[..need];
+    terms.fill(-0.0);
+    let added = seg_blocks((q, &scales, cols), col0, seg, (terms, rows), pick(w));
+    Ok(if added { nb } else { 0 })
+}
+
+/// The blocks of one input segment at columns `off ..` of an int8 matrix (`(q, scales,
+/// cols)`): quantised with its own scale, block `b`'s terms added to `y[b * stride ..]`
+/// (`(y, stride)`; stride 0: all into `y`). Returns false when the segment's scale is 0
+/// (nothing added).
+// Not inlined: one copy for matvec_acc_int8 and segment_terms_int8.
+#[inline(never)]
+fn seg_blocks(
+    (q, scales, cols): (&[u8], &Scales<'_>, usize),
+    off: usize,
+    seg: &[f32],
+    (y, stride): (&mut [f32], usize),
+    dots: Dots,
+) -> bool {
+    let (sx, inv, nonneg) = act_range(seg);
+    if sx <= 0.0 {
+        return false;
+    }
+    let mut xq = [0i8; QCOLS];
+    let mut xp = [0u32; QWORDS];
+    let mut acc = [0i32; QROWS];
+    let rows = y.len().min(if stride == 0 { y.len() } else { stride });
+    for (b, xs) in seg.chunks(QCOLS).enumerate() {
+        let xq = &mut xq[..xs.len()];
+        let xp = quantize_for(dots, xs, inv, nonneg, xq, &mut xp);
+        let yb = &mut y[b * stride..b * stride + rows];
+        block(
+            q,
+            scales,
+            cols,
+            off + b * QCOLS,
+            xq,
+            xp,
+            sx,
+            &mut acc,
+            yb,
+            dots,
+        );
+    }
+    true
+}
+
+/// [`matvec_acc_int8`] with some segments' terms given (`cached[i]`, when `Some`, stands for
+/// segment `i`, whose values in `x` are then not read, only its length): the bits of
+/// [`matvec_acc_int8`] on the values the terms were computed from. `cached` is empty or as
+/// long as `x`.
+pub fn matvec_acc_int8_terms(
+    w: &MatRef<'_>,
+    x: &[&[f32]],
+    cached: &[Option<SegTerms<'_>>],
+    y: &mut [f32],
+) -> Result<()> {
+    if !cached.is_empty() {
+        check_len("matvec_int8.cached", x.len(), cached.len())?;
+    }
+    matvec_int8_with(w, x, cached, y, pick(w))
+}
+
+/// Quantises one input block for `dots` (packed for the DSP kernel); returns the packed words.
+#[inline(always)]
+fn quantize_for<'p>(
+    dots: Dots,
+    xs: &[f32],
+    inv: f32,
+    nonneg: bool,
+    xq: &mut [i8],
+    xp: &'p mut [u32; QWORDS],
+) -> &'p [u32] {
+    match dots {
+        Dots::Dsp => {
+            let packed = quantize_pack(xs, inv, nonneg, xq, xp);
+            &xp[..packed / 2]
+        }
+        _ => {
+            quantize_act(xs, inv, xq);
+            &xp[..0]
+        }
+    }
 }
 
 /// The kernel of a view: the DSP kernel on a DSP target (a constant there, so that a firmware
@@ -314,18 +453,24 @@ fn pick(w: &MatRef<'_>) -> Dots {
 /// [`matvec_acc_int8`] with gman-core's portable kernel whatever the target or the view's
 /// kernel table (the reference a test compares the optimised kernels with).
 pub fn matvec_acc_int8_portable(w: &MatRef<'_>, x: &[&[f32]], y: &mut [f32]) -> Result<()> {
-    matvec_int8_with(w, x, y, Dots::Portable)
+    matvec_int8_with(w, x, &[], y, Dots::Portable)
 }
 
 /// [`matvec_acc_int8`] with [`dots_i8_dsp`] whatever the target (on a host: its plain-Rust
 /// model of the DSP instructions), for the tests that compare it with the portable kernel.
 pub fn matvec_acc_int8_dsp(w: &MatRef<'_>, x: &[&[f32]], y: &mut [f32]) -> Result<()> {
-    matvec_int8_with(w, x, y, Dots::Dsp)
+    matvec_int8_with(w, x, &[], y, Dots::Dsp)
 }
 
 // Not inlined: one copy of the driver in a firmware image, whatever the call sites.
 #[inline(never)]
-fn matvec_int8_with(w: &MatRef<'_>, x: &[&[f32]], y: &mut [f32], dots: Dots) -> Result<()> {
+fn matvec_int8_with(
+    w: &MatRef<'_>,
+    x: &[&[f32]],
+    cached: &[Option<SegTerms<'_>>],
+    y: &mut [f32],
+    dots: Dots,
+) -> Result<()> {
     let (rows, cols) = (w.rows(), w.cols());
     check_len("matvec_int8.x", cols, seg_len(x))?;
     check_len("matvec_int8.y", rows, y.len())?;
@@ -338,33 +483,29 @@ fn matvec_int8_with(w: &MatRef<'_>, x: &[&[f32]], y: &mut [f32], dots: Dots) -> 
         return Ok(());
     }
     // A host's table may run the whole layer at once (same bits); a DSP target never has one.
-    if let (false, Dots::Table(k)) = (gman_dsp::HAS_DSP, dots) {
+    if let (false, Dots::Table(k), true) = (gman_dsp::HAS_DSP, dots, cached.is_empty()) {
         if k.matvec_int8(w, x, y) {
             return Ok(());
         }
     }
-    let mut xq = [0i8; QCOLS];
-    let mut xp = [0u32; QWORDS];
-    let mut acc = [0i32; QROWS];
     let mut off = 0;
-    for seg in x {
-        let (sx, inv, nonneg) = act_range(seg);
-        if sx > 0.0 {
-            for (b, xs) in seg.chunks(QCOLS).enumerate() {
-                let xq = &mut xq[..xs.len()];
-                let xp = match dots {
-                    Dots::Dsp => {
-                        let packed = quantize_pack(xs, inv, nonneg, xq, &mut xp);
-                        &xp[..packed / 2]
-                    }
-                    _ => {
-                        quantize_act(xs, inv, xq);
-                        &xp[..0]
-                    }
-                };
-                let c0 = off + b * QCOLS;
-                block(q, &scales, cols, c0, xq, xp, sx, &mut acc, y, dots);
+    for (i, seg) in x.iter().enumerate() {
+        if let Some(Some(t)) = cached.get(i) {
+            // The segment's terms, block by block (one add per row and block, as below).
+            let need = t.blocks.saturating_mul(rows);
+            check_len("matvec_int8.terms", need, t.terms.len().min(need))?;
+            if t.blocks > segment_blocks(seg.len()) {
+                return Err(crate::Error::Config {
+                    what: "matvec_int8: more cached blocks than the segment has",
+                });
             }
+            for tb in t.terms.chunks_exact(rows.max(1)).take(t.blocks) {
+                for (yi, &v) in y.iter_mut().zip(tb) {
+                    *yi += v;
+                }
+            }
+        } else {
+            seg_blocks((q, &scales, cols), off, seg, (&mut *y, 0), dots);
         }
         off += seg.len();
     }
@@ -949,6 +1090,50 @@ mod tests {
             }
         }
         assert_eq!(y.map(f32::to_bits), want.map(f32::to_bits));
+    }
+
+    /// A segment's kept terms added in its place give the bits of quantising it again, for
+    /// a segment of two blocks, one of one block and one of zeros (no block), with a bias of
+    /// `-0.0` (which adding a `+0.0` would change); a bad cache is refused.
+    #[test]
+    fn kept_segment_terms_give_the_bits_of_recomputing() {
+        let mut rng = Rng::seed_from_u64(9);
+        let (rows, cols) = (70, 300 + 45 + 20);
+        let qb = rand_i8(&mut rng, rows * cols);
+        let q = &qb[..rows * cols];
+        let sc: [f32; 70] = core::array::from_fn(|i| 0.01 + i as f32 * 1e-4);
+        let w = MatRef::i8(rows, cols, q, Scales::F32(&sc)).unwrap();
+        let x: [f32; 300] = core::array::from_fn(|j| libm::sinf(j as f32 * 0.37) * 2.0);
+        let a: [f32; 45] = core::array::from_fn(|j| libm::cosf(j as f32) * 0.3);
+        let z = [0.0f32; 20];
+        let segs: [&[f32]; 3] = [&x, &a, &z];
+        let bias: [f32; 70] = core::array::from_fn(|i| if i % 3 == 0 { -0.0 } else { 0.25 });
+        let mut want = bias;
+        matvec_acc_int8(&w, &segs, &mut want).unwrap();
+        let (mut tx, mut ta, mut tz) = ([0.0f32; 140], [0.0f32; 70], [0.0f32; 70]);
+        assert_eq!(segment_blocks(300), 2);
+        assert_eq!(segment_terms_int8(&w, 0, &x, &mut tx).unwrap(), 2);
+        assert_eq!(segment_terms_int8(&w, 300, &a, &mut ta).unwrap(), 1);
+        assert_eq!(segment_terms_int8(&w, 345, &z, &mut tz).unwrap(), 0);
+        fn t(terms: &[f32], blocks: usize) -> Option<SegTerms<'_>> {
+            Some(SegTerms { terms, blocks })
+        }
+        for cached in [
+            [t(&tx, 2), None, None],
+            [None, t(&ta, 1), t(&tz, 0)],
+            [t(&tx, 2), t(&ta, 1), t(&tz, 0)],
+        ] {
+            let mut y = bias;
+            matvec_acc_int8_terms(&w, &segs, &cached, &mut y).unwrap();
+            assert_eq!(y.map(f32::to_bits), want.map(f32::to_bits));
+        }
+        // Too few terms, more blocks than the segment has, a segment past the last column.
+        let mut y = bias;
+        assert!(matvec_acc_int8_terms(&w, &segs, &[t(&tx[..70], 2), None, None], &mut y).is_err());
+        assert!(matvec_acc_int8_terms(&w, &segs, &[None, t(&tx, 2), None], &mut y).is_err());
+        assert!(matvec_acc_int8_terms(&w, &segs, &[None, None], &mut y).is_err());
+        assert!(segment_terms_int8(&w, 330, &a, &mut ta).is_err());
+        assert!(segment_terms_int8(&w, 0, &x, &mut tx[..139]).is_err());
     }
 
     /// A map layer: `rows x 2f` int8 weights, `cells` cells (some all zero, some signed).

@@ -30,9 +30,20 @@ fn an_int8_activation_blob_runs_only_where_the_feature_is_built() {
             ),
         }
     }
-    // A blob without the flag never takes the integer path.
+    // A blob without the flag never takes the integer path; it needs the f32-activation
+    // kernels (the feature `f32-activations`), else it is refused naming the feature.
     let plain = seeded_blob(&dims, 3, true, 0);
     let blob = Blob::parse(&plain).expect("parse");
-    let w = NavWeights::from_blob(&blob, &dims).expect("plain int8 blob");
-    assert!(TensorId::all_for(&dims).all(|id| !w.get(id).int8_activations()));
+    let f32_path = gman_core::qkernel::F32_ACTIVATIONS;
+    match NavWeights::from_blob(&blob, &dims) {
+        Ok(w) => {
+            assert!(f32_path, "refused only without the feature");
+            assert!(TensorId::all_for(&dims).all(|id| !w.get(id).int8_activations()));
+        }
+        Err(Error::Config { what }) => {
+            assert!(!f32_path, "{what}");
+            assert!(what.contains("`f32-activations`"), "{what}");
+        }
+        Err(e) => panic!("expected a configuration error, got {e:?}"),
+    }
 }

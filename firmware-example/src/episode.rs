@@ -295,6 +295,11 @@ impl Episode {
 pub trait Probe {
     /// One result line.
     fn line(&mut self, args: fmt::Arguments<'_>);
+    /// Called right before and right after [`Navigator::reset`] (with zero noise it runs G
+    /// and the fusion layer's constant terms).
+    fn reset_begin(&mut self) {}
+    /// See [`Probe::reset_begin`].
+    fn reset_end(&mut self) {}
     /// Called right before [`Navigator::step`].
     fn step_begin(&mut self) {}
     /// Called right after [`Navigator::step`] returned; `adapted` is true when that step
@@ -351,7 +356,7 @@ fn run_with<const U8: bool>(
     cfg.footprint = FOOTPRINT;
     if FOOTPRINT == Footprint::Minimal && !cfg.compact_psi {
         return Err(Failure::Blob(
-            "Ψ's observations are f32; this image's Footprint::Minimal arena needs them int16: export with `gman export --preset mcu --quant int8` (its default --activations auto writes int8 activations and Ψ int16) or add `--psi int16`, or build with --no-default-features",
+            "Ψ's observations are f32; this image's Footprint::Minimal needs them int16: `gman export --preset mcu --quant int8` (or `--psi int16`)",
         ));
     }
     probe.line(format_args!(
@@ -392,7 +397,9 @@ fn run_with<const U8: bool>(
         blob.header().model_flags().commit_delay
     ));
     let mut nav: Navigator<'_, Efficient, K> = Navigator::new(weights, arena, cfg)?;
+    probe.reset_begin();
     nav.reset(ep.attributes(), ep.seed)?;
+    probe.reset_end();
     // G's output at z = 0 before any inner update, to show how far the updates move G
     // (Fig. 3 on the device): ‖G_θi(SE(y), 0) − G_θ(SE(y), 0)‖ after each update.
     let mut g0 = [0.0f32; DIMS.feat];

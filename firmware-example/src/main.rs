@@ -134,11 +134,19 @@ struct Device<'c> {
     min_slack: u32,
     misses: u32,
     commit_steps: u32,
+    /// SysTick ticks of the episode's `reset`.
+    reset_ticks: u32,
 }
 
 impl Probe for Device<'_> {
     fn line(&mut self, args: core::fmt::Arguments<'_>) {
         hprintln!("{}", args);
+    }
+    fn reset_begin(&mut self) {
+        self.t0 = self.clock.now();
+    }
+    fn reset_end(&mut self) {
+        self.reset_ticks = self.clock.ticks_since(self.t0);
     }
     fn step_begin(&mut self) {
         // Wait for the release time: one period after the previous release.
@@ -366,6 +374,7 @@ fn run() -> Result<(), Failure> {
         min_slack: u32::MAX,
         misses: 0,
         commit_steps: 0,
+        reset_ticks: 0,
     };
     let (stack_selftest, updates) = with_arena(|arena| -> Result<(usize, u32), Failure> {
         selftest_phase(arena)?;
@@ -398,6 +407,10 @@ fn run() -> Result<(), Failure> {
         u.min as u64 * tick,
         u.mean_insns(),
         u.max as u64 * tick
+    );
+    hprintln!(
+        "# reset (before the first step): reset_insns={}",
+        dev.reset_ticks as u64 * tick
     );
     // What the steps that computed an update took beyond plain steps, per update.
     let update_alone =

@@ -132,15 +132,23 @@ fn skip_or_fail(why: &str) {
     eprintln!("SKIPPED firmware_qemu: {why}");
 }
 
-/// `key=value` tokens of the `# ` lines.
+/// `key=value` tokens of the `# ` lines (those of `# step with inner update:` prefixed with
+/// `update_`, whose `min_insns`, `mean_insns` and `max_insns` are also the plain steps' keys).
 fn measurements(lines: &[&str]) -> HashMap<String, u64> {
     lines
         .iter()
         .filter_map(|l| l.strip_prefix("# "))
-        .flat_map(|l| l.split_whitespace())
-        .filter_map(|tok| {
+        .flat_map(|l| {
+            let pre = if l.starts_with("step with inner update:") {
+                "update_"
+            } else {
+                ""
+            };
+            l.split_whitespace().map(move |tok| (pre, tok))
+        })
+        .filter_map(|(pre, tok)| {
             let (k, v) = tok.split_once('=')?;
-            Some((k.to_string(), v.parse().ok()?))
+            Some((format!("{pre}{k}"), v.parse().ok()?))
         })
         .collect()
 }
@@ -288,102 +296,365 @@ fn run_and_compare(
     m
 }
 
-/// The blob the default firmware embeds: the shipped model with int8 activations
-/// (`blobgen::firmware_blob_in`, what `build.rs` writes with the default features).
+/// The shipped model with int8 activations (what `gman export --preset mcu --quant int8`
+/// writes of it; the image with `gaussian-noise` embeds it).
 fn int8_activation_blob() -> Vec<u8> {
-    blobgen::firmware_blob_in(&fw_dir(), true).expect("int8 activations")
+    blobgen::firmware_blob_in(&fw_dir(), true, true).expect("int8 activations")
 }
 
-#[test]
-fn firmware_under_qemu_matches_host_bit_for_bit() {
-    if !qemu_available() {
-        return;
-    }
+/// The blob the default firmware embeds: [`int8_activation_blob`] with G's noise z = 0
+/// (`blobgen::firmware_blob_in`, what `build.rs` writes with the default features).
+fn default_image_blob() -> Vec<u8> {
+    blobgen::firmware_blob_in(&fw_dir(), true, false).expect("int8 activations, zero noise")
+}
+
+/// The default image; returns its measurements.
+fn default_image_under_qemu() -> HashMap<String, u64> {
     // An explicit target dir: a CARGO_TARGET_DIR inherited from the outer cargo would put the
     // ELF elsewhere.
     let target_dir = fw_dir().join("target");
     // The default image: the integer path (feature `int8-activations`) on the shipped trained
-    // GMAN model re-emitted with int8 activations (or the seeded blob without it).
-    // `gman bench` reads its firmware row from `qemu-measurements.txt`.
+    // GMAN model re-emitted with int8 activations and G's noise z = 0 (or the seeded blob
+    // without it): x_t and the fusion layer's terms of x_t and SE(y) are kept between inner
+    // updates, Ψ keeps no z_t and one x_t. `gman bench` reads its firmware row from
+    // `qemu-measurements.txt`.
     let m = run_and_compare(
         &target_dir,
         None,
-        &int8_activation_blob(),
+        &default_image_blob(),
         "qemu-measurements.txt",
         &[],
     );
     // The device ran gman-dsp's SXTB16 / SMLAD kernel, not the model.
     assert_eq!(m.get("dsp_smlad"), Some(&1), "the DSP kernel is not in use");
+    m
 }
 
-#[test]
-fn f32_activation_firmware_under_qemu_matches_host_bit_for_bit() {
-    if !qemu_available() {
-        return;
-    }
-    // Its own target dir (the embedded blob differs; the two tests may run at once).
+/// The f32-activation image; returns its measurements.
+fn f32_image_under_qemu() -> HashMap<String, u64> {
+    // Its own target dir (the embedded blob differs).
     let target_dir = fw_dir().join("target/f32-activations");
     std::fs::create_dir_all(&target_dir).expect("target dir");
-    // The shipped blob as it is (f32 activations), the integer path compiled out.
+    // The shipped blob with f32 activations (zero noise, as the default image), the integer
+    // path compiled out.
+    let blob = blobgen::firmware_blob_in(&fw_dir(), false, false).expect("zero noise");
     let m = run_and_compare(
         &target_dir,
         None,
-        &blobgen::default_blob_in(&fw_dir()),
+        &blob,
         "qemu-measurements-f32-activations.txt",
-        &["--no-default-features", "--features", "selftest"],
+        &[
+            "--no-default-features",
+            "--features",
+            "f32-activations,selftest",
+        ],
     );
     assert!(m.contains_key("mean_insns"));
+    m
 }
 
-/// `blob` with G's noise set to zero ([`FLAG_ZERO_NOISE`]), re-emitted by gman-core's
-/// encoder (every tensor and the other flags kept, the CRC recomputed).
-///
-/// [`FLAG_ZERO_NOISE`]: gman_core::schema::FLAG_ZERO_NOISE
-fn zero_noise_blob(blob: &[u8]) -> Vec<u8> {
-    use gman_core::blob::{reencode_with_flags, reencoded_len_bound, Blob};
-    let flags =
-        Blob::parse(blob).expect("blob").header().flags() | gman_core::schema::FLAG_ZERO_NOISE;
-    let mut out = vec![0u8; reencoded_len_bound(blob)];
-    let n = reencode_with_flags(blob, flags, &mut out).expect("re-encode");
-    out.truncate(n);
-    out
+/// The image with Gaussian noise, and the default image's refusal of its blob; returns the
+/// Gaussian image's measurements.
+fn gaussian_image_under_qemu() -> HashMap<String, u64> {
+    // The image with the feature `gaussian-noise` on the shipped model as it was trained
+    // (z_t ~ N(0, I) every step), with the self-test: on this int8-activation blob it compares
+    // the DSP kernels with the portable ones on the device.
+    let target_dir = fw_dir().join("target/gaussian");
+    std::fs::create_dir_all(&target_dir).expect("target dir");
+    let blob = int8_activation_blob();
+    let (host, _) = host_lines(&blob, &checked_in_episode());
+    assert!(
+        host.iter().any(|l| l.contains("noise=Gaussian")),
+        "the blob does not run with Gaussian noise"
+    );
+    let m = run_and_compare(
+        &target_dir,
+        None,
+        &blob,
+        "qemu-measurements-gaussian.txt",
+        &["--features", "gaussian-noise,selftest"],
+    );
+    assert_eq!(m.get("dsp_smlad"), Some(&1), "the DSP kernel is not in use");
+    // The default image (no `gaussian-noise`) refuses that blob at start-up, naming the
+    // feature, and exits QEMU with failure.
+    let refused_dir = fw_dir().join("target/gaussian-refused");
+    std::fs::create_dir_all(&refused_dir).expect("target dir");
+    let file = refused_dir.join("model-gaussian.gman");
+    std::fs::write(&file, &blob).expect("write the Gaussian blob");
+    let mut build = Command::new(env!("CARGO"));
+    build
+        .current_dir(fw_dir())
+        .args(["build", "--release", "--quiet", "--target-dir"])
+        .arg(&refused_dir)
+        .arg("--config")
+        .arg(remap_path_config())
+        .env("GMAN_FIRMWARE_BLOB", &file);
+    assert!(build.status().expect("cargo build").success());
+    let elf = refused_dir.join("thumbv7em-none-eabihf/release/gman-firmware-example");
+    let out = Command::new("timeout")
+        .current_dir(fw_dir())
+        .args(["120", "qemu-system-arm", "-M", "mps2-an386", "-nographic"])
+        .args(["-icount", "shift=0"])
+        .args(["-semihosting-config", "enable=on,target=native", "-kernel"])
+        .arg(&elf)
+        .output()
+        .expect("run qemu");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        !out.status.success(),
+        "a Gaussian blob ran without the feature:\n{stdout}"
+    );
+    assert!(
+        stdout.contains("ERROR: ") && stdout.contains("`gaussian-noise`"),
+        "the refusal does not name the feature:\n{stdout}"
+    );
+    m
 }
 
+/// The three images, one after the other (each build takes both cores): the default one
+/// (int8 activations, zero noise), the one with Gaussian noise and the f32-activation one,
+/// each bit for bit against the host; then the device figures of the docs against this run
+/// ([`check_documented_figures`]).
 #[test]
-fn zero_noise_firmware_under_qemu_matches_host_bit_for_bit() {
+fn firmware_images_under_qemu_match_host_bit_for_bit_and_the_docs() {
     if !qemu_available() {
         return;
     }
-    // The default image (int8 activations, `Footprint::Minimal`) on the shipped model with
-    // G's noise z = 0: x_t is cached between inner updates and Ψ keeps no z_t or x_t.
-    let target_dir = fw_dir().join("target/zero-noise");
-    std::fs::create_dir_all(&target_dir).expect("target dir");
-    let blob = zero_noise_blob(&int8_activation_blob());
-    let file = target_dir.join("model-zero-noise.gman");
-    std::fs::write(&file, &blob).expect("write the zero-noise blob");
-    let (host, _) = host_lines(&blob, &checked_in_episode());
-    assert!(
-        host.iter().any(|l| l.contains("noise=Zero")),
-        "the blob does not run with zero noise"
+    let runs = Runs {
+        default: default_image_under_qemu(),
+        gaussian: gaussian_image_under_qemu(),
+        f32: f32_image_under_qemu(),
+    };
+    check_documented_figures(&runs);
+}
+
+/// The measurements of the three images of one run.
+struct Runs {
+    default: HashMap<String, u64>,
+    gaussian: HashMap<String, u64>,
+    f32: HashMap<String, u64>,
+}
+
+/// The docs holding device figures of the QEMU run, each in regions between
+/// `<!-- qemu-figures: begin KIND; RUSTC -->` and `<!-- qemu-figures: end -->` (KIND `budget`:
+/// the budget table, `lines`: the default and the Gaussian image's `# ` lines; RUSTC: the
+/// `rustc --version` of the run that wrote them).
+const FIGURE_DOCS: [&str; 3] = [
+    "firmware-example/README.md",
+    "docs/kernels.md",
+    "docs/device.md",
+];
+const BEGIN: &str = "<!-- qemu-figures: begin ";
+const END: &str = "<!-- qemu-figures: end -->";
+
+/// Every region of [`FIGURE_DOCS`] must be what this run generates when the region's rustc is
+/// this one (instruction counts depend on the compiler; otherwise a note is printed and the
+/// region is skipped). On a mismatch the test fails with the regenerated region;
+/// `GMAN_UPDATE_DOCS=1` rewrites the regions instead (and records this rustc).
+fn check_documented_figures(runs: &Runs) {
+    let rustc = rustc_version();
+    let update = std::env::var("GMAN_UPDATE_DOCS").as_deref() == Ok("1");
+    let root = fw_dir().join("..");
+    let mut regions = 0;
+    for doc in FIGURE_DOCS {
+        let path = root.join(doc);
+        let text = std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{doc}: {e}"));
+        let mut out = String::new();
+        let mut rest = text.as_str();
+        while let Some(b) = rest.find(BEGIN) {
+            let (head, tail) = rest.split_at(b);
+            out.push_str(head);
+            let close = tail
+                .find("-->")
+                .unwrap_or_else(|| panic!("{doc}: unclosed marker"));
+            let marker = &tail[BEGIN.len()..close];
+            let (kind, recorded) = marker
+                .split_once(';')
+                .map(|(k, r)| (k.trim(), r.trim()))
+                .unwrap_or_else(|| panic!("{doc}: marker without `; rustc ...`: {marker}"));
+            let body_start = close + "-->".len();
+            let e = tail[body_start..]
+                .find(END)
+                .unwrap_or_else(|| panic!("{doc}: no {END} after {marker}"))
+                + body_start;
+            let body = &tail[body_start..e];
+            let want = format!("\n{}", figures_region(kind, runs, &rustc));
+            regions += 1;
+            if update {
+                out.push_str(&format!("{BEGIN}{kind}; {rustc} -->{want}"));
+            } else {
+                out.push_str(&tail[..e]);
+                if recorded != rustc {
+                    eprintln!(
+                        "NOTE {doc}: its {kind} figures were measured with `{recorded}`, this is `{rustc}` (instruction counts depend on the compiler): not compared; GMAN_UPDATE_DOCS=1 rewrites them"
+                    );
+                } else {
+                    assert!(
+                        body == want,
+                        "{doc}: the `{kind}` figures differ from this run; regenerated (or run with GMAN_UPDATE_DOCS=1):\n{want}"
+                    );
+                }
+            }
+            out.push_str(END);
+            rest = &tail[e + END.len()..];
+        }
+        out.push_str(rest);
+        if update && out != text {
+            std::fs::write(&path, &out).unwrap_or_else(|e| panic!("{doc}: {e}"));
+            eprintln!("GMAN_UPDATE_DOCS=1: rewrote the device figures of {doc}");
+        }
+    }
+    assert!(regions >= FIGURE_DOCS.len(), "{regions} figure regions");
+}
+
+/// `rustc --version` of the compiler cargo runs.
+fn rustc_version() -> String {
+    let rustc = std::env::var("RUSTC").unwrap_or_else(|_| "rustc".into());
+    let out = Command::new(rustc)
+        .arg("--version")
+        .output()
+        .expect("rustc --version");
+    String::from_utf8_lossy(&out.stdout).trim().to_string()
+}
+
+/// `n` with thousands separators.
+fn thousands(n: u64) -> String {
+    let s = n.to_string();
+    let mut out = String::new();
+    for (i, c) in s.chars().enumerate() {
+        if i > 0 && (s.len() - i).is_multiple_of(3) {
+            out.push(',');
+        }
+        out.push(c);
+    }
+    out
+}
+
+/// The generated body of a figures region of `kind` (ending with a newline).
+fn figures_region(kind: &str, runs: &Runs, rustc: &str) -> String {
+    match kind {
+        "budget" => budget_table(runs, rustc),
+        "lines" => {
+            let read = |dir: &str, name: &str| {
+                let p = fw_dir().join("target").join(dir).join(name);
+                std::fs::read_to_string(&p).unwrap_or_else(|e| panic!("{}: {e}", p.display()))
+            };
+            format!(
+                "The default image (`firmware-example/target/qemu-measurements.txt`, {rustc}):\n\n```text\n{}```\n\nThe image with Gaussian noise (`--features gaussian-noise,selftest`, `firmware-example/target/gaussian/qemu-measurements-gaussian.txt`):\n\n```text\n{}```\n",
+                read("", "qemu-measurements.txt"),
+                read("gaussian", "qemu-measurements-gaussian.txt")
+            )
+        }
+        other => panic!("unknown figures region kind `{other}`"),
+    }
+}
+
+/// The budget table of the three images (the `# budget:`, `# step ...`, `# reset`, `# inner
+/// update` and `# memory:` lines) with the goals and whether the default image meets them.
+fn budget_table(runs: &Runs, rustc: &str) -> String {
+    let g = |m: &HashMap<String, u64>, k: &str| {
+        *m.get(k)
+            .unwrap_or_else(|| panic!("no {k}= in the measurements"))
+    };
+    let imgs = [&runs.default, &runs.gaussian, &runs.f32];
+    type Cell<'a> = &'a dyn Fn(&HashMap<String, u64>) -> String;
+    let row = |name: &str, cell: Cell<'_>, goal: &str, met: Option<bool>| {
+        let cells: Vec<String> = imgs.iter().map(|m| cell(m)).collect();
+        let met = match met {
+            Some(true) => "yes",
+            Some(false) => "**no**",
+            None => "",
+        };
+        format!("| {name} | {} | {goal} | {met} |\n", cells.join(" | "))
+    };
+    let d = &runs.default;
+    let (plain, mean, max) = (
+        g(d, "mean_insns"),
+        g(d, "step_mean_insns"),
+        g(d, "step_max_insns"),
     );
-    // With the self-test: on this int8-activation blob it compares the DSP kernels with the
-    // portable ones on the device.
-    let m = run_and_compare(
-        &target_dir,
-        Some(&file),
-        &blob,
-        "qemu-measurements-zero-noise.txt",
-        &["--features", "selftest"],
+    let mut t = format!(
+        "One run of `GMAN_REQUIRE_QEMU=1 cargo test --release -p gman-tests --test firmware_qemu` ({rustc}); the default image's `# ` lines are in `firmware-example/target/qemu-measurements.txt`, the others' in `target/gaussian/` and `target/f32-activations/`.\n\n"
     );
-    assert_eq!(m.get("dsp_smlad"), Some(&1), "the DSP kernel is not in use");
+    t.push_str("| | default image: int8 activations, zero noise | `--features gaussian-noise,selftest` | f32 activations: `--no-default-features --features f32-activations,selftest` | goal | default image meets it |\n|---|---:|---:|---:|---:|---|\n");
+    t += &row(
+        "plain step (`# step without inner update`, mean)",
+        &|m| thousands(g(m, "mean_insns")),
+        "<= 504,000",
+        Some(plain <= 504_000),
+    );
+    t += &row(
+        "reset (`reset_insns`, before the first step)",
+        &|m| thousands(g(m, "reset_insns")),
+        "",
+        None,
+    );
+    t += &row(
+        "mean step over the episode (`step_mean_insns`)",
+        &|m| thousands(g(m, "step_mean_insns")),
+        "<= 1,000,000",
+        Some(mean <= 1_000_000),
+    );
+    t += &row(
+        "worst step (`step_max_insns`)",
+        &|m| {
+            let (mx, mn) = (g(m, "step_max_insns"), g(m, "step_mean_insns"));
+            format!(
+                "{} ({}.{:02} x mean)",
+                thousands(mx),
+                mx / mn,
+                mx * 100 / mn % 100
+            )
+        },
+        "<= 2 x mean",
+        Some(max <= 2 * mean),
+    );
+    t += &row(
+        "inner update (`update_insns`)",
+        &|m| thousands(g(m, "update_insns")),
+        "<= 12,000,000",
+        Some(g(d, "update_insns") <= 12_000_000),
+    );
+    t += &row(
+        "update committed after (`update_commit_steps`)",
+        &|m| format!("{} steps", g(m, "update_commit_steps")),
+        "<= 20 steps",
+        Some(g(d, "update_commit_steps") <= 20),
+    );
+    t += &row(
+        "slack before the next 25 Hz release (`min_slack_insns`)",
+        &|m| thousands(g(m, "min_slack_insns")),
+        "> 0",
+        Some(g(d, "min_slack_insns") > 0 && g(d, "deadline_misses") == 0),
+    );
+    t += &row(
+        "flash (`flash_bytes`)",
+        &|m| format!("{} B", thousands(g(m, "flash_bytes"))),
+        "<= 442,368 B (432 KiB)",
+        Some(g(d, "flash_bytes") <= 442_368),
+    );
+    t += &row(
+        "RAM = static + peak stack (`ram_bytes`)",
+        &|m| {
+            format!(
+                "{} B ({} + {})",
+                thousands(g(m, "ram_bytes")),
+                thousands(g(m, "static_ram_bytes")),
+                thousands(g(m, "peak_stack_bytes"))
+            )
+        },
+        "<= 98,304 B (96 KiB)",
+        Some(g(d, "ram_bytes") <= 98_304),
+    );
+    t
 }
 
 #[test]
 fn exported_blob_is_what_the_default_firmware_runs() {
     // What README's device sequence flashes: `gman export --preset mcu --quant int8` with its
     // defaults for that preset (int8 activations, Ψ's observations int16) writes the bytes
-    // the default image embeds, which `firmware_under_qemu_matches_host_bit_for_bit` runs
-    // (a checkpoint's blob is the shipped model's kind: int8 weights, f32 activations).
+    // the `gaussian-noise` image embeds, and the default image embeds them with G's noise
+    // z = 0 (a checkpoint's blob is the shipped model's kind: int8 weights, f32 activations).
     let act8 = gman_host_sim::blob_edit::default_int8_activations(true, true);
     assert!(act8, "the mcu export must fit the default firmware");
     let shipped = blobgen::default_blob_in(&fw_dir());
@@ -392,8 +663,12 @@ fn exported_blob_is_what_the_default_firmware_runs() {
         .expect("gman export --preset mcu --quant int8");
     assert!(
         blob == int8_activation_blob(),
-        "the mcu export's defaults differ from the blob the default firmware runs"
+        "the mcu export's defaults differ from the blob the firmware runs"
     );
+    // The default image runs it with G's noise z = 0 (a model trained with `--noise zero`
+    // exports that flag itself; a Gaussian one needs the feature `gaussian-noise`).
+    let zero = blobgen::with_zero_noise(&blob).expect("zero noise");
+    assert!(zero == default_image_blob());
 }
 
 #[test]

@@ -861,3 +861,120 @@ fn inner_rule_levers_do_what_they_say() {
         "ω moved {omega_1} with 1 step, {omega_3} with 3"
     );
 }
+
+/// With zero noise the navigator keeps the fusion layer's terms of x_t and SE(y) between two
+/// inner updates (the integer path, `Policy::fuse_terms`). Over two targets (a reset with
+/// another SE(y)) and several commits, `step_map` and `step_map_u8` give the bits of the same
+/// navigator driven through `begin_step` / `finish_step` with the trunk computed by
+/// `Policy::forward` / `forward_map_u8`, which quantise every segment at every step.
+#[test]
+fn zero_noise_fusion_cache_is_recomputing_every_segment_bit_for_bit() {
+    use gman_core::blob::Blob;
+    let dims = Dims::MCU.with_map(3, 3, 8);
+    let bytes = gman_host_sim::seeded::int8_blob(&dims, 5, 0.05).unwrap();
+    let bytes = gman_host_sim::blob_edit::reencode_with_activations(&bytes, true).unwrap();
+    let blob = Blob::parse(&bytes).unwrap();
+    let cfg = NavConfig {
+        adapt: true,
+        alpha_disc: 0.05,
+        alpha_adapt: 0.5,
+        max_inner_updates: 10,
+        noise: NoiseMode::Zero,
+        commit_delay: 0,
+        ..NavConfig::default()
+    };
+    for u8_map in [false, true] {
+        const K: usize = 10;
+        let alen = Navigator::<Efficient, K>::arena_len(&dims);
+        let (mut a1, mut a2) = (vec![0.0f32; alen], vec![0.0f32; alen]);
+        let w = || NavWeights::from_blob(&blob, &dims).unwrap();
+        let mut cached: Navigator<'_, Efficient, K> = Navigator::new(w(), &mut a1, cfg).unwrap();
+        let mut plain: Navigator<'_, Efficient, K> = Navigator::new(w(), &mut a2, cfg).unwrap();
+        assert!(cached.policy().unwrap().keeps_fuse_terms(), "int8 path");
+        let (f, e, lh) = (dims.feat, dims.embed, dims.lstm_hidden);
+        let (cells, ce) = (dims.map_cells(), dims.cell_embed);
+        let mut rng = Xoshiro128::seed_from_u64(21);
+        let mut commits = 0;
+        for (ep, steps) in [(0u64, 47usize), (1, 33)] {
+            let attr: Vec<f32> = (0..dims.attr).map(|_| uniform(&mut rng)).collect();
+            cached.reset(&attr, 70 + ep).unwrap();
+            plain.reset(&attr, 70 + ep).unwrap();
+            for t in 0..steps {
+                let obs: Vec<f32> = (0..f).map(|_| uniform(&mut rng)).collect();
+                let codes: Vec<u8> = (0..dims.map_len())
+                    .map(|_| (uniform(&mut rng) * 255.0) as u8)
+                    .collect();
+                let scale = 1.0 / 255.0;
+                let map: Vec<f32> = codes.iter().map(|&q| q as f32 * scale).collect();
+                let want = if u8_map {
+                    cached.step_map_u8(&obs, &codes, scale, &[]).unwrap()
+                } else {
+                    cached.step_map(&obs, &map, &[]).unwrap()
+                };
+                plain.begin_step(&obs, &map, &[]).unwrap();
+                let mut c = (
+                    vec![0.0; f],
+                    vec![0.0; e],
+                    vec![0.0; 4 * lh],
+                    vec![0.0; lh],
+                    vec![0.0; lh],
+                    vec![0.0; NUM_ACTIONS],
+                    vec![0.0; NUM_ACTIONS],
+                    vec![0.0; NUM_ACTIONS],
+                    vec![0.0; 1],
+                    vec![0.0; cells * ce],
+                    vec![0.0; f],
+                );
+                {
+                    let policy = plain.policy().unwrap();
+                    let inp = PolicyInput {
+                        obs: &obs,
+                        feat: plain.generated_feature(),
+                        attr: plain.attr(),
+                        prev_probs: plain.prev_probs(),
+                        ps: &[],
+                        map: if u8_map { &[] } else { &map },
+                    };
+                    let mut cache = PolicyCache {
+                        prod: &mut c.0,
+                        fuse: &mut c.1,
+                        gates: &mut c.2,
+                        c: &mut c.3,
+                        h: &mut c.4,
+                        actor_u: &mut c.5,
+                        logits: &mut c.6,
+                        probs: &mut c.7,
+                        value: &mut c.8,
+                        cell: &mut c.9,
+                        cell_prod: &mut c.10,
+                    };
+                    let (hp, cp) = (plain.hidden_state(), plain.cell_state());
+                    if u8_map {
+                        let m = (&codes[..], scale);
+                        policy.forward_map_u8(&inp, m, hp, cp, &mut cache).unwrap();
+                    } else {
+                        policy.forward(&inp, hp, cp, &mut cache).unwrap();
+                    }
+                }
+                let got = plain.finish_step(&obs, &c.4, &c.3).unwrap();
+                let at = format!("u8 map {u8_map}, episode {ep}, step {t}");
+                assert_eq!(got.action, want.action, "{at}");
+                assert_eq!(got.value.to_bits(), want.value.to_bits(), "{at}");
+                assert_eq!(
+                    got.probs.map(f32::to_bits),
+                    want.probs.map(f32::to_bits),
+                    "{at}"
+                );
+                assert_eq!(got.adapted, want.adapted, "{at}");
+                commits += want.adapted as u32;
+            }
+        }
+        assert!(commits >= 6, "u8 map {u8_map}: {commits} commits");
+        let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        assert_eq!(
+            bits(cached.generated_feature()),
+            bits(plain.generated_feature())
+        );
+        assert_eq!(bits(cached.hidden_state()), bits(plain.hidden_state()));
+    }
+}
