@@ -52,6 +52,8 @@ struct HostFile {
 impl HostFile {
     fn open(path: &str) -> Result<Self, Failure> {
         // SYS_OPEN: name, mode ("rb"), length without the NUL.
+        // SAFETY: `path` is a live NUL-terminated string (EPISODE_PATH) and the length passed
+        // excludes the NUL; the host only reads it during the call.
         let fd = unsafe {
             syscall!(
                 OPEN,
@@ -71,14 +73,19 @@ impl HostFile {
 
 impl Source for HostFile {
     fn len(&mut self) -> Result<usize, Failure> {
+        // SAFETY: FLEN takes a handle this value owns (opened by `open`, closed on drop) and
+        // touches no memory of ours.
         let n = unsafe { syscall!(FLEN, self.fd) } as isize;
         usize::try_from(n).map_err(|_| Failure::Episode("semihosting FLEN failed"))
     }
     fn read_at(&mut self, offset: usize, buf: &mut [u8]) -> Result<(), Failure> {
+        // SAFETY: SEEK takes our open handle and an offset; it touches no memory of ours.
         if unsafe { syscall!(SEEK, self.fd, offset) } != 0 {
             return Err(Failure::Episode("semihosting SEEK failed"));
         }
         // SYS_READ returns the number of bytes it did *not* read.
+        // SAFETY: the host writes at most `buf.len()` bytes into `buf`, a live exclusive
+        // borrow for the whole call; the handle is ours and open.
         if unsafe { syscall!(READ, self.fd, buf.as_mut_ptr(), buf.len()) } != 0 {
             return Err(Failure::Episode("read past the end (semihosting READ)"));
         }
@@ -88,6 +95,7 @@ impl Source for HostFile {
 
 impl Drop for HostFile {
     fn drop(&mut self) {
+        // SAFETY: the handle is ours, open, and never used again after this call.
         unsafe { syscall!(CLOSE, self.fd) };
     }
 }
