@@ -83,22 +83,25 @@ use crate::crc32::{crc32, crc32_update};
 use crate::error::BlobError;
 use crate::matrix::{MatRef, Scales};
 use crate::preset::Dims;
+use crate::error::SettingText;
 use crate::schema::{AdaptMode, ModelFlags};
+use crate::spec::{ModelSpec, SettingError, SettingValue, SpecError, SETTING_KEYS};
 pub use crate::schema::{
     TensorId, FLAG_ADAPT, FLAG_COSSIM, FLAG_FULL_ADAPT, FLAG_ZERO_NOISE, NUM_TENSORS,
 };
 
 /// The four magic bytes at the start of every blob.
 pub const MAGIC: [u8; 4] = *b"GMAN";
-/// The format version this build writes (v4: the CRC covers the header and the payload).
-pub const FORMAT_VERSION: u16 = 4;
+/// The format version this build writes (v5: the header names its settings, the CRC covers
+/// the header and the payload).
+pub const FORMAT_VERSION: u16 = 5;
 pub use crate::preset::MAX_INNER_RATE;
 /// The oldest format version this build still reads (v1: no inner-loop settings in the
 /// header; they default to [`AdaptSettings::PAPER`]).
 pub const MIN_FORMAT_VERSION: u16 = 1;
-/// Bytes reserved for the header while encoding (the real header is shorter: at most 83
-/// bytes for v2, 98 for v3).
-const HEADER_RESERVE: usize = 112;
+/// Bytes reserved for the header while encoding (the real header is shorter: at most 98
+/// bytes for v3, about 410 for v5 with every setting at its longest).
+const HEADER_RESERVE: usize = 512;
 
 /// Quantisation of a stored tensor.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -308,12 +311,38 @@ impl HeaderV4Body {
     }
 }
 
+/// The start of a format-v5 header: v4's fields before the flags, then the number of
+/// setting records that follow it.
+#[derive(Serialize, Deserialize)]
+struct HeaderV5Start {
+    magic: [u8; 4],
+    version: u16,
+    dims: DimsRecord,
+    map: MapRecord,
+    n_settings: u16,
+}
+
+/// One setting of a format-v5 header: its key ([`SETTING_KEYS`]) and its typed value.
+#[derive(Serialize, Deserialize)]
+struct SettingRecord<'a> {
+    key: &'a str,
+    #[serde(borrow)]
+    value: SettingValue<'a>,
+}
+
+/// The end of a format-v5 header before its checksum.
+#[derive(Serialize, Deserialize)]
+struct HeaderV5End {
+    n_tensors: u16,
+    payload_len: u32,
+}
+
 /// What a blob's CRC-32 covers, by format version.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum ChecksumScope {
     /// v1-v3: the payload (tensor records) only; the header is not covered.
     Payload,
-    /// v4: every header byte before the checksum, then the payload: the whole blob.
+    /// v4 and v5: every header byte before the checksum, then the payload: the whole blob.
     HeaderAndPayload,
 }
 
@@ -322,7 +351,7 @@ impl ChecksumScope {
     pub fn describe(self) -> &'static str {
         match self {
             ChecksumScope::Payload => "payload only (format v1-v3 rule)",
-            ChecksumScope::HeaderAndPayload => "header and payload (format v4 rule)",
+            ChecksumScope::HeaderAndPayload => "header and payload (format v4-v5 rule)",
         }
     }
 }
@@ -347,7 +376,7 @@ impl HeaderV3 {
             dims: self.dims,
             map: self.map,
             flags: self.flags,
-            settings,
+            spec: ModelSpec::from_bits(self.flags, settings),
             n_tensors: self.n_tensors,
             payload_len: self.payload_len,
             payload_crc: self.payload_crc,
@@ -399,7 +428,7 @@ pub struct Header {
     dims: DimsRecord,
     map: MapRecord,
     flags: u32,
-    settings: AdaptSettings,
+    spec: ModelSpec,
     n_tensors: u16,
     payload_len: u32,
     payload_crc: u32,
@@ -412,21 +441,27 @@ impl Header {
     }
     /// Model flags ([`FLAG_ADAPT`], [`FLAG_ZERO_NOISE`], [`FLAG_COSSIM`], ...). A v4 blob
     /// has only bits of [`crate::schema::KNOWN_FLAGS`] (others are refused); a v1-v3 blob's
-    /// unknown bits are kept and ignored, as they always were.
+    /// unknown bits are kept and ignored, as they always were; a v5 blob's are those of its
+    /// named settings ([`ModelSpec::bits`]).
     pub fn flags(&self) -> u32 {
         self.flags
+    }
+    /// Every setting the header records, whatever its version ([`ModelSpec::from_bits`] of
+    /// a v1-v4 header's flags and inner-loop settings; a v5 header's named settings).
+    pub fn spec(&self) -> ModelSpec {
+        self.spec
     }
     /// The adaptation mode the model was meta-trained in and must run in:
     /// [`AdaptMode::Full`] with [`FLAG_FULL_ADAPT`], else
     /// [`AdaptMode::Efficient`].
     pub fn adapt_mode(&self) -> AdaptMode {
-        self.model_flags().mode
+        self.spec.adapt_mode
     }
     /// The flags as the settings they stand for ([`ModelFlags::from_bits`]).
     pub fn model_flags(&self) -> ModelFlags {
         ModelFlags::from_bits(self.flags)
     }
-    /// Format version of the parsed blob (1 to 4).
+    /// Format version of the parsed blob (1 to 5).
     pub fn version(&self) -> u16 {
         self.version
     }
@@ -442,19 +477,19 @@ impl Header {
     }
     /// The inner-loop settings the model was trained with (v1: [`AdaptSettings::PAPER`]).
     pub fn adapt_settings(&self) -> AdaptSettings {
-        self.settings
+        self.spec.adapt_settings()
     }
     /// α1, D's ascent rate (v1: 1e-4).
     pub fn alpha_disc(&self) -> f32 {
-        self.settings.alpha_disc
+        self.adapt_settings().alpha_disc
     }
     /// α2, θ's and φ's descent rate (v1: 1e-4).
     pub fn alpha_adapt(&self) -> f32 {
-        self.settings.alpha_adapt
+        self.spec.inner_lr
     }
     /// Cap on inner updates per episode (v1: 4).
     pub fn max_inner(&self) -> u32 {
-        self.settings.max_inner
+        self.spec.max_inner
     }
     /// Number of tensors.
     pub fn n_tensors(&self) -> u16 {
@@ -533,7 +568,7 @@ fn parse_header(bytes: &[u8], opts: ParseOptions) -> Result<(Header, &[u8]), Blo
                     dims: h.dims,
                     map: MapRecord::default(),
                     flags: h.flags,
-                    settings: AdaptSettings::PAPER,
+                    spec: ModelSpec::from_bits(h.flags, AdaptSettings::PAPER),
                     n_tensors: h.n_tensors,
                     payload_len: h.payload_len,
                     payload_crc: h.payload_crc,
@@ -551,32 +586,128 @@ fn parse_header(bytes: &[u8], opts: ParseOptions) -> Result<(Header, &[u8]), Blo
         }
         4 => {
             let (body, rest) = postcard::take_from_bytes::<HeaderV4Body>(bytes).map_err(map_err)?;
-            let covered = &bytes[..bytes.len() - rest.len()];
-            let (crc, payload) = postcard::take_from_bytes::<u32>(rest).map_err(map_err)?;
-            // Length and checksum before anything in the header is interpreted: a tampered
-            // header is reported as such, not as the odd setting it now holds.
-            let plen = body.payload_len as usize;
-            if payload.len() < plen {
-                return Err(BlobError::Truncated);
-            }
-            if payload.len() != plen {
-                return Err(BlobError::PayloadLength {
-                    expected: body.payload_len,
-                    actual: payload.len(),
-                });
-            }
-            let actual = crc32_update(crc32(covered), payload);
-            if actual != crc {
-                return Err(BlobError::HeaderChecksumMismatch {
-                    expected: crc,
-                    actual,
-                });
-            }
+            let (crc, payload) = check_whole_blob(bytes, rest, body.payload_len)?;
             // After the checksum: these bits were written on purpose, by a newer build.
             crate::schema::check_known_flags(body.flags)?;
             Ok((body.with_crc(crc).into_header(4)?, payload))
         }
+        5 => {
+            let (start, rest) = postcard::take_from_bytes::<HeaderV5Start>(bytes).map_err(map_err)?;
+            let mut end = rest;
+            for _ in 0..start.n_settings {
+                end = postcard::take_from_bytes::<SettingRecord<'_>>(end)
+                    .map_err(map_err)?
+                    .1;
+            }
+            let records = &rest[..rest.len() - end.len()];
+            let (tail, end) = postcard::take_from_bytes::<HeaderV5End>(end).map_err(map_err)?;
+            let (crc, payload) = check_whole_blob(bytes, end, tail.payload_len)?;
+            let spec = read_settings(records, start.n_settings)?;
+            check_dims_fit(&start.dims, start.map)?;
+            let header = Header {
+                version: 5,
+                scope: ChecksumScope::HeaderAndPayload,
+                dims: start.dims,
+                map: start.map,
+                flags: spec.bits(),
+                spec,
+                n_tensors: tail.n_tensors,
+                payload_len: tail.payload_len,
+                payload_crc: crc,
+            };
+            Ok((header, payload))
+        }
         found => Err(BlobError::UnsupportedVersion { found }),
+    }
+}
+
+/// The checksum of a v4/v5 blob whose header's fields before the checksum end where `rest`
+/// starts, checked with the payload's length before anything in the header is interpreted
+/// (a tampered header is reported as such, not as the odd setting it now holds). Returns
+/// the checksum and the payload.
+fn check_whole_blob<'a>(
+    bytes: &'a [u8],
+    rest: &'a [u8],
+    payload_len: u32,
+) -> Result<(u32, &'a [u8]), BlobError> {
+    let covered = &bytes[..bytes.len() - rest.len()];
+    let (crc, payload) = match postcard::take_from_bytes::<u32>(rest) {
+        Ok(v) => v,
+        Err(postcard::Error::DeserializeUnexpectedEnd) => return Err(BlobError::Truncated),
+        Err(_) => return Err(BlobError::Malformed),
+    };
+    let plen = payload_len as usize;
+    if payload.len() < plen {
+        return Err(BlobError::Truncated);
+    }
+    if payload.len() != plen {
+        return Err(BlobError::PayloadLength {
+            expected: payload_len,
+            actual: payload.len(),
+        });
+    }
+    let actual = crc32_update(crc32(covered), payload);
+    if actual != crc {
+        return Err(BlobError::HeaderChecksumMismatch {
+            expected: crc,
+            actual,
+        });
+    }
+    Ok((crc, payload))
+}
+
+/// The settings of a v5 header's `n` records (already decoded once, so they are well
+/// formed): every key known, named once, of its setting's type, a known name, in range.
+fn read_settings(mut records: &[u8], n: u16) -> Result<ModelSpec, BlobError> {
+    let mut spec = ModelSpec::BLOB_DEFAULT;
+    let mut seen = 0u32;
+    for _ in 0..n {
+        let (rec, rest) = postcard::take_from_bytes::<SettingRecord<'_>>(records)
+            .map_err(|_| BlobError::Malformed)?;
+        records = rest;
+        let i = SETTING_KEYS.iter().position(|k| *k == rec.key);
+        let i = i.ok_or(BlobError::UnknownSetting {
+            key: SettingText::new(rec.key),
+        })?;
+        let key = SETTING_KEYS[i];
+        if seen & (1 << i) != 0 {
+            return Err(BlobError::DuplicateSetting { key });
+        }
+        seen |= 1 << i;
+        spec.set(key, rec.value).map_err(|e| match (e, rec.value) {
+            (SettingError::WrongType { expected }, _) => BlobError::SettingType { key, expected },
+            (_, SettingValue::Name(name)) => BlobError::UnknownSettingValue {
+                key,
+                value: SettingText::new(name),
+            },
+            _ => BlobError::Malformed,
+        })?;
+    }
+    spec.validate()?;
+    Ok(spec)
+}
+
+impl From<SpecError> for BlobError {
+    /// The setting out of its range, named by its key in a v5 header.
+    fn from(e: SpecError) -> BlobError {
+        match e {
+            SpecError::InnerRate(a) => BlobError::BadInnerRate {
+                field: "inner_lr",
+                bits: a.to_bits(),
+            },
+            SpecError::DiscRate(a) => BlobError::BadInnerRate {
+                field: "disc_lr",
+                bits: a.to_bits(),
+            },
+            SpecError::DiscSteps(n) => BlobError::SettingOutOfRange {
+                key: "disc_steps",
+                value: n,
+            },
+            SpecError::CommitDelay(d) => BlobError::SettingOutOfRange {
+                key: "commit_delay",
+                value: d,
+            },
+        }
     }
 }
 
@@ -923,28 +1054,33 @@ pub fn encoded_len_bound(tensors: &[TensorSpec<'_>]) -> usize {
     n
 }
 
-/// Encodes a blob (format v4) for `dims` holding `tensors` into `out` with no flags and the paper's
-/// inner-loop settings; see [`encode_with_settings`].
+/// Encodes a blob (format v5) for `dims` holding `tensors` into `out` with the settings
+/// [`ModelSpec::BLOB_DEFAULT`] (the paper's, no adaptation); see [`Encoder`].
 pub fn encode(dims: &Dims, tensors: &[TensorSpec<'_>], out: &mut [u8]) -> Result<usize, BlobError> {
-    encode_with_settings(dims, 0, AdaptSettings::PAPER, tensors, out)
+    encode_spec(dims, &ModelSpec::BLOB_DEFAULT, tensors, out)
 }
 
-/// Encodes a blob (format v4) for `dims` and model `flags` holding `tensors` into `out` with the
-/// paper's inner-loop settings ([`AdaptSettings::PAPER`]); see [`encode_with_settings`].
-pub fn encode_with_flags(
+/// Encodes a blob (format v5, see [`FORMAT_VERSION`]) for `dims` and the model's settings
+/// `spec`, holding `tensors`, into `out`; returns the number of bytes written. Checks the
+/// settings ([`ModelSpec::validate`]), the dims ([`check_model_dims`]), shapes, finiteness
+/// and quantisation like the parser does, so what it writes always parses. See [`Encoder`]
+/// for writing tensor by tensor.
+pub fn encode_spec(
     dims: &Dims,
-    flags: u32,
+    spec: &ModelSpec,
     tensors: &[TensorSpec<'_>],
     out: &mut [u8],
 ) -> Result<usize, BlobError> {
-    encode_with_settings(dims, flags, AdaptSettings::PAPER, tensors, out)
+    let mut e = Encoder::new(dims, spec, out)?;
+    for t in tensors {
+        e.push(t)?;
+    }
+    e.finish()
 }
 
-/// Encodes a blob (format v4, see [`FORMAT_VERSION`]) for `dims`, model `flags` and the
-/// inner-loop `settings` the model was trained with, holding `tensors`, into `out`; returns
-/// the number of bytes written. Checks the settings ([`AdaptSettings::validate`]), the dims
-/// ([`check_model_dims`]), shapes, finiteness and quantisation like the parser does, so what
-/// it writes always parses. See [`Encoder`] for writing tensor by tensor.
+/// [`encode_spec`] of the settings a v1-v4 header's model `flags` and inner-loop `settings`
+/// stand for ([`ModelSpec::from_bits`]); flag bits this build does not know are refused
+/// ([`BlobError::UnknownFlagBit`]), and so are bad rates ([`AdaptSettings::validate`]).
 pub fn encode_with_settings(
     dims: &Dims,
     flags: u32,
@@ -952,47 +1088,38 @@ pub fn encode_with_settings(
     tensors: &[TensorSpec<'_>],
     out: &mut [u8],
 ) -> Result<usize, BlobError> {
-    let mut e = Encoder::new(dims, flags, settings, out)?;
-    for t in tensors {
-        e.push(t)?;
-    }
-    e.finish()
+    settings.validate()?;
+    crate::schema::check_known_flags(flags)?;
+    encode_spec(dims, &ModelSpec::from_bits(flags, settings), tensors, out)
 }
 
 /// The one emitter of blobs: writes tensor records one by one into the caller's buffer, then
-/// the header in front of them ([`Encoder::finish`]). The `encode*` functions and
-/// [`encode_model`] use it; it needs no allocation and no buffer beyond `out`.
+/// the header, format v5, in front of them ([`Encoder::finish`]). The `encode*` functions,
+/// [`reencode`] and [`encode_model`] use it; it needs no allocation and no buffer beyond
+/// `out`.
 #[derive(Debug)]
 pub struct Encoder<'o> {
     out: &'o mut [u8],
     dims: Dims,
-    flags: u32,
-    settings: AdaptSettings,
+    spec: ModelSpec,
     seen: [bool; NUM_TENSORS],
     n_tensors: u16,
     pos: usize,
 }
 
 impl<'o> Encoder<'o> {
-    /// Starts a blob for `dims`, model `flags` and inner-loop `settings` in `out` (checks
-    /// the settings, then that `out` can hold a header).
-    pub fn new(
-        dims: &Dims,
-        flags: u32,
-        settings: AdaptSettings,
-        out: &'o mut [u8],
-    ) -> Result<Self, BlobError> {
-        settings.validate()?;
+    /// Starts a blob for `dims` and the model's settings `spec` in `out` (checks the
+    /// settings, the dims, then that `out` can hold a header).
+    pub fn new(dims: &Dims, spec: &ModelSpec, out: &'o mut [u8]) -> Result<Self, BlobError> {
+        spec.validate()?;
         check_model_dims(dims)?;
-        crate::schema::check_known_flags(flags)?;
         if out.len() < HEADER_RESERVE {
             return Err(BlobError::BufferTooSmall);
         }
         Ok(Encoder {
             out,
             dims: *dims,
-            flags,
-            settings,
+            spec: *spec,
             seen: [false; NUM_TENSORS],
             n_tensors: 0,
             pos: HEADER_RESERVE,
@@ -1116,58 +1243,74 @@ impl<'o> Encoder<'o> {
         let Encoder {
             out,
             dims,
-            flags,
-            settings,
+            spec,
             n_tensors,
             pos,
             ..
         } = self;
-        let dims = &dims;
         let payload_len = pos - HEADER_RESERVE;
         let mut hbuf = [0u8; HEADER_RESERVE];
-        let body = HeaderV4Body {
+        let too_small = |_| BlobError::BufferTooSmall;
+        let n_settings = SETTING_KEYS.iter().filter(|k| spec.get(k).is_some()).count();
+        let start = HeaderV5Start {
             magic: MAGIC,
             version: FORMAT_VERSION,
-            dims: DimsRecord::from_dims(dims),
-            map: MapRecord::from_dims(dims),
-            flags,
-            alpha_disc: settings.alpha_disc,
-            alpha_adapt: settings.alpha_adapt,
-            max_inner: settings.max_inner,
+            dims: DimsRecord::from_dims(&dims),
+            map: MapRecord::from_dims(&dims),
+            n_settings: n_settings as u16,
+        };
+        let mut blen = postcard::to_slice(&start, &mut hbuf).map_err(too_small)?.len();
+        for key in SETTING_KEYS {
+            if let Some(value) = spec.get(key) {
+                let rec = SettingRecord { key, value };
+                blen += postcard::to_slice(&rec, &mut hbuf[blen..])
+                    .map_err(too_small)?
+                    .len();
+            }
+        }
+        let end = HeaderV5End {
             n_tensors,
             payload_len: payload_len as u32,
         };
-        let blen = postcard::to_slice(&body, &mut hbuf)
-            .map_err(|_| BlobError::BufferTooSmall)?
+        blen += postcard::to_slice(&end, &mut hbuf[blen..])
+            .map_err(too_small)?
             .len();
         let crc = crc32_update(crc32(&hbuf[..blen]), &out[HEADER_RESERVE..pos]);
         let written = postcard::to_slice(&crc, &mut hbuf[blen..]).map(|w| blen + w.len());
-        let hlen = written.map_err(|_| BlobError::BufferTooSmall)?;
+        let hlen = written.map_err(too_small)?;
         out.copy_within(HEADER_RESERVE..pos, hlen);
         out[..hlen].copy_from_slice(&hbuf[..hlen]);
         Ok(hlen + payload_len)
     }
 }
 
-/// Length of the `out` buffer [`reencode_with_flags`] needs for the blob `bytes`.
+/// Length of the `out` buffer [`reencode`] needs for the blob `bytes`.
 pub const fn reencoded_len_bound(bytes: &[u8]) -> usize {
     bytes.len().saturating_add(HEADER_RESERVE)
 }
 
-/// The blob `bytes` emitted again through the one encoder with the model flags `flags`:
-/// the dims, the inner-loop settings and every tensor record are kept byte for byte (a
-/// format v1-v3 blob comes out as the current format). Writes into `out` (at least
-/// [`reencoded_len_bound`] bytes) and returns the new blob's length. `gman export --blob
-/// --activations` and the firmware's build script set or clear
-/// [`crate::schema::FLAG_INT8_ACTIVATIONS`] with it.
-pub fn reencode_with_flags(bytes: &[u8], flags: u32, out: &mut [u8]) -> Result<usize, BlobError> {
+/// The blob `bytes` emitted again through the one encoder with the settings `spec`: the
+/// dims and every tensor record are kept byte for byte (a format v1-v4 blob comes out as
+/// the current format). Writes into `out` (at least [`reencoded_len_bound`] bytes) and
+/// returns the new blob's length. `gman export --blob --activations`, `gman upgrade-blob`
+/// and the firmware's build script change [`ModelSpec::int8_activations`] and
+/// [`ModelSpec::compact_psi`] of [`Header::spec`] with it.
+pub fn reencode(bytes: &[u8], spec: &ModelSpec, out: &mut [u8]) -> Result<usize, BlobError> {
     let blob = Blob::parse(bytes)?;
-    let h = blob.header();
-    let mut e = Encoder::new(&h.dims(), flags, h.adapt_settings(), out)?;
+    let mut e = Encoder::new(&blob.header().dims(), spec, out)?;
     for t in blob.tensors() {
         e.push_view(&t)?;
     }
     e.finish()
+}
+
+/// [`reencode`] with the settings a v1-v4 header's model `flags` stand for
+/// ([`ModelSpec::from_bits`], the blob's own inner-loop settings); flag bits this build
+/// does not know are refused ([`BlobError::UnknownFlagBit`]).
+pub fn reencode_with_flags(bytes: &[u8], flags: u32, out: &mut [u8]) -> Result<usize, BlobError> {
+    crate::schema::check_known_flags(flags)?;
+    let settings = Blob::parse(bytes)?.header().adapt_settings();
+    reencode(bytes, &ModelSpec::from_bits(flags, settings), out)
 }
 
 /// Bytes a blob of every tensor of `d` takes at most, in `quant` (matrices; vectors are
@@ -1209,15 +1352,14 @@ pub const fn encode_model_scratch_len(d: &Dims) -> (usize, usize) {
 #[allow(clippy::too_many_arguments)]
 pub fn encode_model<E: From<BlobError>>(
     dims: &Dims,
-    flags: u32,
-    settings: AdaptSettings,
+    spec: &ModelSpec,
     quant: Quant,
     mut values: impl FnMut(TensorId, &mut [f32]) -> Result<(), E>,
     out: &mut [u8],
     floats: &mut [f32],
     bytes: &mut [u8],
 ) -> Result<usize, E> {
-    let mut e = Encoder::new(dims, flags, settings, out)?;
+    let mut e = Encoder::new(dims, spec, out)?;
     for id in TensorId::all_for(dims) {
         let (r, c) = id.shape(dims);
         let n = r * c;

@@ -54,6 +54,58 @@ pub enum Error {
     },
 }
 
+/// The first bytes of a word found in a blob (a setting's key or a value's name), kept
+/// without allocation so that an error can name it: up to [`SettingText::CAP`] bytes, any
+/// byte outside printable ASCII shown as `?`, a longer word ending in `...`.
+#[derive(Clone, Copy, PartialEq, Eq)]
+pub struct SettingText {
+    bytes: [u8; SettingText::CAP],
+    len: u8,
+    cut: bool,
+}
+
+impl SettingText {
+    /// Bytes kept.
+    pub const CAP: usize = 24;
+
+    /// The first bytes of `s`.
+    pub fn new(s: &str) -> SettingText {
+        let mut bytes = [b'?'; SettingText::CAP];
+        let n = s.len().min(SettingText::CAP);
+        for (d, &b) in bytes.iter_mut().zip(&s.as_bytes()[..n]) {
+            if b.is_ascii_graphic() {
+                *d = b;
+            }
+        }
+        SettingText {
+            bytes,
+            len: n as u8,
+            cut: s.len() > n,
+        }
+    }
+
+    /// The kept bytes (printable ASCII).
+    pub fn as_str(&self) -> &str {
+        core::str::from_utf8(&self.bytes[..self.len as usize]).unwrap_or("?")
+    }
+}
+
+impl fmt::Display for SettingText {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.as_str())?;
+        if self.cut {
+            f.write_str("...")?;
+        }
+        Ok(())
+    }
+}
+
+impl fmt::Debug for SettingText {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{:?}", self.as_str())
+    }
+}
+
 /// Why a weight blob was rejected.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum BlobError {
@@ -169,6 +221,39 @@ pub enum BlobError {
         /// All of the header's flags.
         flags: u32,
     },
+    /// A format v5 header names a setting this build does not know: a setting of a newer
+    /// build, which this one would run as if it were at its default.
+    UnknownSetting {
+        /// The key as found (its first bytes).
+        key: SettingText,
+    },
+    /// A format v5 header gives a setting a value of another type than the setting's.
+    SettingType {
+        /// The setting.
+        key: &'static str,
+        /// The setting's type (`"u32"`, `"f32"`, `"name"`, `"bool"`).
+        expected: &'static str,
+    },
+    /// A format v5 header gives a setting a name none of its values has.
+    UnknownSettingValue {
+        /// The setting.
+        key: &'static str,
+        /// The name as found (its first bytes).
+        value: SettingText,
+    },
+    /// A format v5 header (or a blob being encoded) holds a count out of its setting's
+    /// range ([`ModelSpec::validate`](crate::spec::ModelSpec::validate)).
+    SettingOutOfRange {
+        /// The setting (`"disc_steps"`, `"commit_delay"`).
+        key: &'static str,
+        /// Its value.
+        value: u32,
+    },
+    /// A format v5 header names the same setting twice.
+    DuplicateSetting {
+        /// The setting.
+        key: &'static str,
+    },
     /// The postcard encoding itself is malformed (bad varint, trailing bytes, ...).
     Malformed,
     /// The output buffer given to the encoder is too small.
@@ -263,6 +348,20 @@ impl fmt::Display for BlobError {
                 f,
                 "unknown model flag bit {bit} (flags {flags:#x})"
             ),
+            BlobError::UnknownSetting { key } => write!(
+                f,
+                "unknown model setting `{key}` (a setting of a newer build)"
+            ),
+            BlobError::SettingType { key, expected } => {
+                write!(f, "model setting `{key}` is not a {expected}")
+            }
+            BlobError::UnknownSettingValue { key, value } => {
+                write!(f, "model setting `{key}` has the unknown value `{value}`")
+            }
+            BlobError::SettingOutOfRange { key, value } => {
+                write!(f, "model setting `{key}` is out of range: {value}")
+            }
+            BlobError::DuplicateSetting { key } => write!(f, "model setting `{key}` appears twice"),
             BlobError::Malformed => write!(f, "malformed postcard encoding"),
             BlobError::BufferTooSmall => write!(f, "output buffer too small"),
         }

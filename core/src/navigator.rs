@@ -268,17 +268,17 @@ impl NavConfig {
     /// [`Blob::parse`]), so the result is accepted by [`Navigator::new`] as far as the rates
     /// are concerned. See also [`Blob::nav_config`].
     pub fn from_header(header: &Header) -> NavConfig {
-        NavConfig {
-            compact_psi: header.flags() & crate::schema::FLAG_COMPACT_PSI != 0,
-            ..NavConfig::from_flags(header.model_flags(), header.adapt_settings())
-        }
+        NavConfig::from_spec(&header.spec())
     }
 
-    /// [`NavConfig::from_flags`] of a model's switches (gman-core's one declaration of them,
-    /// [`ModelSpec`]), `adapt` and `emd` being the method's ([`ModelSpec::flags`]): what a
-    /// host that holds the model's settings runs before it writes them into a blob.
-    pub fn from_spec(spec: &ModelSpec, adapt: bool, emd: Emd) -> NavConfig {
-        NavConfig::from_flags(spec.flags(adapt, emd), spec.adapt_settings())
+    /// [`NavConfig::from_flags`] of a model's settings (gman-core's one carrier of them,
+    /// [`ModelSpec`]), with its `compact_psi`: what a host that holds the model's settings
+    /// runs before it writes them into a blob.
+    pub fn from_spec(spec: &ModelSpec) -> NavConfig {
+        NavConfig {
+            compact_psi: spec.compact_psi,
+            ..NavConfig::from_flags(spec.flags(), spec.adapt_settings())
+        }
     }
 
     /// [`NavConfig::from_header`] from the settings themselves: the one mapping of a model's

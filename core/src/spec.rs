@@ -22,8 +22,8 @@ use serde::{Deserialize, Deserializer, Serialize, Serializer};
 
 use crate::blob::{AdaptSettings, Header};
 use crate::preset::MAX_INNER_RATE;
-use crate::schema::MAX_COMMIT_DELAY;
 use crate::schema::{AdaptLossKind, AdaptMode, Emd, ModelFlags, NoiseMode, StepRule};
+use crate::schema::{FLAG_COMPACT_PSI, FLAG_INT8_ACTIVATIONS, MAX_COMMIT_DELAY};
 
 /// A setting enum with one table of names: the form a command line, a checkpoint and a
 /// report use. `FromStr`, `Display` and serde (as the name) derive from [`Named::NAMES`].
@@ -208,6 +208,23 @@ named!(
     ]
 );
 
+named!(
+    Emd,
+    NAME_LIST,
+    [
+        (
+            Emd::Discriminator,
+            "discriminator",
+            "The learned discriminator D scores the generated features (GMAN)"
+        ),
+        (
+            Emd::CosSim,
+            "cossim",
+            "The cosine similarity between x_t and s_t, D unused (the CosSim variant)"
+        ),
+    ]
+);
+
 /// The largest number of D's ascent steps per inner update a blob can record.
 pub const MAX_DISC_STEPS: u32 = 256;
 
@@ -372,6 +389,24 @@ pub struct ModelSpec {
     /// The inner rule's levers (absent, and not written, for the paper's rule).
     #[serde(default, skip_serializing_if = "InnerRule::is_paper")]
     pub inner_rule: InnerRule,
+    /// The inner loop runs at inference (the training method's; a host checkpoint stores the
+    /// method instead, so this is not part of the serde form).
+    #[serde(skip, default = "yes")]
+    pub adapt: bool,
+    /// What scores the generated features in L_ad (the method's; not in the serde form).
+    #[serde(skip)]
+    pub emd: Emd,
+    /// The int8 weight matrices multiply int8 activations ([`FLAG_INT8_ACTIVATIONS`]); how a
+    /// blob is run, set by `gman export`, not in the serde form.
+    #[serde(skip)]
+    pub int8_activations: bool,
+    /// Ψ keeps its observations as int16 ([`FLAG_COMPACT_PSI`]); not in the serde form.
+    #[serde(skip)]
+    pub compact_psi: bool,
+}
+
+fn yes() -> bool {
+    true
 }
 
 fn paper_rate() -> f32 {
@@ -395,6 +430,10 @@ impl ModelSpec {
             max_inner: AdaptSettings::PAPER.max_inner,
             adapt_mode,
             inner_rule: InnerRule::PAPER,
+            adapt: true,
+            emd: Emd::Discriminator,
+            int8_activations: false,
+            compact_psi: false,
         }
     }
 
@@ -407,13 +446,13 @@ impl ModelSpec {
         self.inner_rule.validate()
     }
 
-    /// The blob header's model flags of a model with these switches, `adapt` (the inner loop
-    /// runs at inference) and `emd` (what scores its features) being the method's.
-    pub const fn flags(&self, adapt: bool, emd: Emd) -> ModelFlags {
+    /// The model flags of a model with these switches (the v1-v4 header's bit form, see
+    /// [`ModelFlags`]).
+    pub const fn flags(&self) -> ModelFlags {
         let r = &self.inner_rule;
         ModelFlags {
-            adapt,
-            emd,
+            adapt: self.adapt,
+            emd: self.emd,
             noise: self.noise,
             mode: self.adapt_mode,
             disc_steps: r.disc_steps,
@@ -426,6 +465,20 @@ impl ModelSpec {
         }
     }
 
+    /// Every setting as the flag word of a v1-v4 header ([`ModelSpec::flags`] with
+    /// [`FLAG_INT8_ACTIVATIONS`] and [`FLAG_COMPACT_PSI`]); what
+    /// [`Header::flags`](crate::blob::Header::flags) reports for a v5 blob.
+    pub const fn bits(&self) -> u32 {
+        let mut f = self.flags().bits();
+        if self.int8_activations {
+            f |= FLAG_INT8_ACTIVATIONS;
+        }
+        if self.compact_psi {
+            f |= FLAG_COMPACT_PSI;
+        }
+        f
+    }
+
     /// The blob header's inner-loop settings: α1 (`inner_lr` unless the rule sets its own),
     /// α2 = `inner_lr`, and `max_inner`.
     pub fn adapt_settings(&self) -> AdaptSettings {
@@ -436,10 +489,12 @@ impl ModelSpec {
         }
     }
 
-    /// The switches a blob's flags and inner-loop settings record (the inverse of
-    /// [`ModelSpec::flags`] and [`ModelSpec::adapt_settings`]; α1 is a separate `disc_lr`
-    /// exactly when its bits differ from α2's).
-    pub fn from_flags(flags: ModelFlags, settings: AdaptSettings) -> ModelSpec {
+    /// The switches a v1-v4 blob's flag word and inner-loop settings record (the inverse of
+    /// [`ModelSpec::bits`] and [`ModelSpec::adapt_settings`]; α1 is a separate `disc_lr`
+    /// exactly when its bits differ from α2's). Bits outside
+    /// [`KNOWN_FLAGS`](crate::schema::KNOWN_FLAGS) are ignored here.
+    pub fn from_bits(bits: u32, settings: AdaptSettings) -> ModelSpec {
+        let flags = ModelFlags::from_bits(bits);
         let (a1, a2) = (settings.alpha_disc, settings.alpha_adapt);
         ModelSpec {
             noise: flags.noise,
@@ -456,12 +511,157 @@ impl ModelSpec {
                 head_only: flags.head_only,
                 commit_delay: flags.commit_delay,
             },
+            adapt: flags.adapt,
+            emd: flags.emd,
+            int8_activations: bits & FLAG_INT8_ACTIVATIONS != 0,
+            compact_psi: bits & FLAG_COMPACT_PSI != 0,
         }
     }
 
-    /// [`ModelSpec::from_flags`] of a blob header.
+    /// Every setting a blob header records ([`Header::spec`]).
     pub fn from_header(header: &Header) -> ModelSpec {
-        ModelSpec::from_flags(header.model_flags(), header.adapt_settings())
+        header.spec()
+    }
+}
+
+/// A setting's value as a format v5 blob header stores it: its type is part of the record,
+/// so that a reader can tell a wrong type from a wrong value.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub enum SettingValue<'a> {
+    /// A count (varint).
+    U32(u32),
+    /// A rate (4 bytes, little-endian).
+    F32(f32),
+    /// A value of a [`Named`] enum, by its name.
+    Name(&'a str),
+    /// A switch (one byte, 0 or 1).
+    Bool(bool),
+}
+
+/// Why [`ModelSpec::set`] refused a setting.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SettingError {
+    /// No setting has this key.
+    UnknownKey,
+    /// The value has another type than the setting's (`"u32"`, `"f32"`, `"name"`,
+    /// `"bool"`).
+    WrongType {
+        /// The setting's type.
+        expected: &'static str,
+    },
+    /// The value is a name that none of the setting's values has.
+    UnknownName,
+}
+
+/// The key of every setting of a [`ModelSpec`], in the order the blob encoder writes them
+/// (the same words as the serde form's keys, and as the command line's flags without the
+/// dashes and with `_` for `-`).
+pub const SETTING_KEYS: [&str; 16] = [
+    "adapt",
+    "emd",
+    "noise",
+    "adapt_mode",
+    "inner_lr",
+    "disc_lr",
+    "max_inner",
+    "disc_steps",
+    "step_rule",
+    "disc_head_reset",
+    "adapt_loss",
+    "reference_critic",
+    "head_only",
+    "commit_delay",
+    "int8_activations",
+    "compact_psi",
+];
+
+fn name_of<T: Named>(v: SettingValue<'_>) -> Result<T, SettingError> {
+    match v {
+        SettingValue::Name(n) => T::from_name(n).ok_or(SettingError::UnknownName),
+        _ => Err(SettingError::WrongType { expected: "name" }),
+    }
+}
+
+fn u32_of(v: SettingValue<'_>) -> Result<u32, SettingError> {
+    match v {
+        SettingValue::U32(n) => Ok(n),
+        _ => Err(SettingError::WrongType { expected: "u32" }),
+    }
+}
+
+fn f32_of(v: SettingValue<'_>) -> Result<f32, SettingError> {
+    match v {
+        SettingValue::F32(a) => Ok(a),
+        _ => Err(SettingError::WrongType { expected: "f32" }),
+    }
+}
+
+fn bool_of(v: SettingValue<'_>) -> Result<bool, SettingError> {
+    match v {
+        SettingValue::Bool(b) => Ok(b),
+        _ => Err(SettingError::WrongType { expected: "bool" }),
+    }
+}
+
+impl ModelSpec {
+    /// The settings of a format v5 blob header before its records are read: a key a record
+    /// does not name keeps this value (the paper's rule and rates, Efficient mode, no
+    /// adaptation, every run-time form off: what a v4 header with no flag bit says).
+    pub const BLOB_DEFAULT: ModelSpec = ModelSpec {
+        adapt: false,
+        ..ModelSpec::paper(AdaptMode::Efficient)
+    };
+
+    /// The value of the setting `key` ([`SETTING_KEYS`]); `None` for an unknown key and for
+    /// `disc_lr` when α1 is α2.
+    pub fn get(&self, key: &str) -> Option<SettingValue<'static>> {
+        use SettingValue::{Bool, Name, F32, U32};
+        let r = &self.inner_rule;
+        Some(match key {
+            "adapt" => Bool(self.adapt),
+            "emd" => Name(self.emd.name()),
+            "noise" => Name(self.noise.name()),
+            "adapt_mode" => Name(self.adapt_mode.name()),
+            "inner_lr" => F32(self.inner_lr),
+            "disc_lr" => F32(r.disc_lr?),
+            "max_inner" => U32(self.max_inner),
+            "disc_steps" => U32(r.disc_steps),
+            "step_rule" => Name(r.step_rule.name()),
+            "disc_head_reset" => Bool(r.disc_head_reset),
+            "adapt_loss" => Name(r.adapt_loss.name()),
+            "reference_critic" => Bool(r.reference_critic),
+            "head_only" => Bool(r.head_only),
+            "commit_delay" => U32(r.commit_delay),
+            "int8_activations" => Bool(self.int8_activations),
+            "compact_psi" => Bool(self.compact_psi),
+            _ => return None,
+        })
+    }
+
+    /// Sets the setting `key` to `value` (its type and, for a name, its value checked; the
+    /// ranges are [`ModelSpec::validate`]'s).
+    pub fn set(&mut self, key: &str, value: SettingValue<'_>) -> Result<(), SettingError> {
+        let r = &mut self.inner_rule;
+        match key {
+            "adapt" => self.adapt = bool_of(value)?,
+            "emd" => self.emd = name_of(value)?,
+            "noise" => self.noise = name_of(value)?,
+            "adapt_mode" => self.adapt_mode = name_of(value)?,
+            "inner_lr" => self.inner_lr = f32_of(value)?,
+            "disc_lr" => r.disc_lr = Some(f32_of(value)?),
+            "max_inner" => self.max_inner = u32_of(value)?,
+            "disc_steps" => r.disc_steps = u32_of(value)?,
+            "step_rule" => r.step_rule = name_of(value)?,
+            "disc_head_reset" => r.disc_head_reset = bool_of(value)?,
+            "adapt_loss" => r.adapt_loss = name_of(value)?,
+            "reference_critic" => r.reference_critic = bool_of(value)?,
+            "head_only" => r.head_only = bool_of(value)?,
+            "commit_delay" => r.commit_delay = u32_of(value)?,
+            "int8_activations" => self.int8_activations = bool_of(value)?,
+            "compact_psi" => self.compact_psi = bool_of(value)?,
+            _ => return Err(SettingError::UnknownKey),
+        }
+        Ok(())
     }
 }
 
@@ -528,10 +728,14 @@ mod tests {
                 head_only: true,
                 commit_delay: 17,
             },
+            adapt: true,
+            emd: Emd::CosSim,
+            int8_activations: true,
+            compact_psi: true,
         };
-        let flags = ModelFlags::from_bits(spec.flags(true, Emd::CosSim).bits());
+        let flags = ModelFlags::from_bits(spec.bits());
         assert!(flags.adapt && flags.emd == Emd::CosSim);
-        assert_eq!(ModelSpec::from_flags(flags, spec.adapt_settings()), spec);
+        assert_eq!(ModelSpec::from_bits(spec.bits(), spec.adapt_settings()), spec);
         let paper = ModelSpec::paper(AdaptMode::Full);
         assert_eq!(paper.adapt_settings(), AdaptSettings::PAPER);
         assert_eq!(paper.validate(), Ok(()));

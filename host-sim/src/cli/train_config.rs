@@ -243,6 +243,10 @@ pub(super) fn model_spec(a: &TrainArgs) -> ModelSpec {
             head_only: a.adapt_head_only,
             commit_delay: a.commit_delay,
         },
+        adapt: a.method.adapts_at_eval(),
+        emd: a.method.emd(),
+        int8_activations: false,
+        compact_psi: false,
     }
 }
 
