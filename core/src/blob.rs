@@ -1,7 +1,7 @@
 //! Weight blobs: the versioned, checksummed `postcard` container the core loads weights from.
 //!
 //! # Layout (format version 2; v3 inserts `map` after `dims`; v4 is v3 with a checksum over the
-//! whole blob)
+//! whole blob; v5 replaces the flags and rates by named settings, see "Versions")
 //! ```text
 //! blob    = header payload
 //! header  = postcard(HeaderV2)        in this order:
@@ -27,7 +27,30 @@
 //! Vectors (biases) are f32 with `cols = 1`.
 //!
 //! # Versions
-//! * **v4** (what the encoders write) has the v3 header, but its last field is the CRC-32
+//! * **v5** (what the encoders write) names its settings. After `magic`, `version`, `dims`
+//!   and `map` (as v4) comes the settings section, then `n_tensors`, `payload_len` and the
+//!   CRC-32 of every header byte before it followed by the payload (as v4):
+//!   ```text
+//!   n_settings  u16 varint
+//!   setting     key    str (varint length + ASCII)   one of spec::SETTING_KEYS
+//!               value  u32 varint tag + payload      0 u32 (varint) | 1 f32 (4 bytes LE)
+//!                                                    | 2 name (varint length + ASCII)
+//!                                                    | 3 bool (1 byte: 0 or 1)
+//!   ```
+//!   The one encoder ([`Encoder`]) writes every setting of the carrier,
+//!   [`ModelSpec`], in [`SETTING_KEYS`] order (`disc_lr` only when
+//!   α1 is not α2), e.g. `commit_delay = U32(3)`, `step_rule = Name("per-group")`. A key
+//!   a record does not name keeps its value in
+//!   [`ModelSpec::BLOB_DEFAULT`]. After the
+//!   checksum, the parser refuses, naming the key: a key this build does not know
+//!   ([`BlobError::UnknownSetting`]: a setting of a newer build is never run as if it were
+//!   off), a value of another type ([`BlobError::SettingType`]), a name none of the
+//!   setting's values has ([`BlobError::UnknownSettingValue`]), a key given twice
+//!   ([`BlobError::DuplicateSetting`]) and a value out of its range
+//!   ([`BlobError::SettingOutOfRange`], [`BlobError::BadInnerRate`]); an unknown value
+//!   type is [`BlobError::Malformed`]. [`Header::flags`] of a v5 blob is the v4 flag word
+//!   of the same settings, [`Header::spec`] the settings themselves.
+//! * **v4** (what the encoders wrote before v5) has the v3 header, but its last field is the CRC-32
 //!   of the whole blob without that field: the header's bytes before it (magic, version,
 //!   dims, map, flags, rates, cap, counts) followed by the payload. In v1-v3 the CRC covered
 //!   the payload only, so a changed flag, rate or map size went unnoticed; in v4 every byte

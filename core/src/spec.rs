@@ -1,19 +1,24 @@
-//! The model's switches, declared once: what a blob header records about how a model runs,
+//! The model's settings, declared once: what a blob header records about how a model runs,
 //! what a host checkpoint stores beside the weights, and what a command line sets.
 //!
 //! * [`Named`]: the one table of names of each setting enum ([`AdaptMode`], [`NoiseMode`],
-//!   [`StepRule`], [`AdaptLossKind`]), with its `FromStr`, `Display` and serde forms; a
-//!   command line lists the table's values and their meaning.
+//!   [`StepRule`], [`AdaptLossKind`], [`Emd`]), with its `FromStr`, `Display` and serde
+//!   forms; a command line lists the table's values and their meaning.
 //! * [`InnerRule`]: the inner loop's rule where it departs from the paper's (α1 apart from
 //!   α2, D's steps, the step rule, D's head reset, the form of L_ad, the critic scale, the
 //!   head-only step, the commit delay).
-//! * [`ModelSpec`]: the noise, the adaptation mode, the inner rates, the cap on inner
-//!   updates and the [`InnerRule`]; [`ModelSpec::flags`] and [`ModelSpec::adapt_settings`]
-//!   are what a blob header records, [`ModelSpec::from_header`] reads them back, and
-//!   [`ModelSpec::validate`] is the one check of their ranges.
+//! * [`ModelSpec`]: the carrier of every setting that changes what the model computes: the
+//!   noise, the adaptation mode, the inner rates, the cap on inner updates, the
+//!   [`InnerRule`], whether the model adapts and its EMD, and how a blob is run (int8
+//!   activations, compact Ψ). [`ModelSpec::validate`] is the one check of their ranges;
+//!   [`ModelSpec::get`] and [`ModelSpec::set`] read and write a setting by its key
+//!   ([`SETTING_KEYS`]), which is how a format v5 blob header names them
+//!   ([`crate::blob`]); [`ModelSpec::bits`], [`ModelSpec::adapt_settings`] and
+//!   [`ModelSpec::from_bits`] are the v1-v4 header's form.
 //!
-//! Whether a model adapts at inference and what scores its features ([`ModelFlags::adapt`],
-//! [`ModelFlags::emd`]) belong to the training method, so [`ModelSpec::flags`] takes them.
+//! A host checkpoint stores the training method, not whether the model adapts and its EMD,
+//! and a blob's run-time forms are set at export: those four fields are not part of the
+//! serde form, so checkpoints keep their bytes.
 
 use core::fmt;
 use core::str::FromStr;
