@@ -31,17 +31,19 @@
 //!   and `map` (as v4) comes the settings section, then `n_tensors`, `payload_len` and the
 //!   CRC-32 of every header byte before it followed by the payload (as v4):
 //!   ```text
-//!   n_settings  u16 varint
+//!   settings    u32 varint   bytes of the records that follow
 //!   setting     key    str (varint length + ASCII)   one of spec::SETTING_KEYS
 //!               value  u32 varint tag + payload      0 u32 (varint) | 1 f32 (4 bytes LE)
 //!                                                    | 2 name (varint length + ASCII)
 //!                                                    | 3 bool (1 byte: 0 or 1)
 //!   ```
-//!   The one encoder ([`Encoder`]) writes every setting of the carrier,
-//!   [`ModelSpec`], in [`SETTING_KEYS`] order (`disc_lr` only when
-//!   α1 is not α2), e.g. `commit_delay = U32(3)`, `step_rule = Name("per-group")`. A key
-//!   a record does not name keeps its value in
-//!   [`ModelSpec::BLOB_DEFAULT`]. After the
+//!   The one encoder ([`Encoder`]) writes, in [`SETTING_KEYS`] order, every setting of
+//!   the carrier, [`ModelSpec`], whose value departs from
+//!   [`ModelSpec::BLOB_DEFAULT`] (the paper's rule and rates, Efficient mode, no
+//!   adaptation; `disc_lr` only when α1 is not α2), e.g. `commit_delay = U32(3)`,
+//!   `step_rule = Name("per-group")`; a key a record does not name keeps its default.
+//!   So a newer build's setting left at its default does not stop an older reader, and
+//!   one in use does. After the
 //!   checksum, the parser refuses, naming the key: a key this build does not know
 //!   ([`BlobError::UnknownSetting`]: a setting of a newer build is never run as if it were
 //!   off), a value of another type ([`BlobError::SettingType`]), a name none of the
@@ -104,14 +106,16 @@ use serde::{Deserialize, Serialize, Serializer};
 
 use crate::crc32::{crc32, crc32_update};
 use crate::error::BlobError;
+use crate::error::SettingText;
 use crate::matrix::{MatRef, Scales};
 use crate::preset::Dims;
-use crate::error::SettingText;
 use crate::schema::{AdaptMode, ModelFlags};
-use crate::spec::{ModelSpec, SettingError, SettingValue, SpecError, SETTING_KEYS};
 pub use crate::schema::{
     TensorId, FLAG_ADAPT, FLAG_COSSIM, FLAG_FULL_ADAPT, FLAG_ZERO_NOISE, NUM_TENSORS,
 };
+use crate::spec::SpecError;
+use crate::spec::SETTING_KEYS;
+use crate::spec::{apply_setting, name_index, ModelSpec, SettingError, SettingKey, SettingValue};
 
 /// The four magic bytes at the start of every blob.
 pub const MAGIC: [u8; 4] = *b"GMAN";
@@ -334,30 +338,84 @@ impl HeaderV4Body {
     }
 }
 
-/// The start of a format-v5 header: v4's fields before the flags, then the number of
-/// setting records that follow it.
-#[derive(Serialize, Deserialize)]
-struct HeaderV5Start {
+/// The header of a format-v5 blob without its last field, the checksum (as v4): v4's
+/// fields with the flags and the inner-loop settings replaced by the settings section, the
+/// setting records as one byte string.
+#[derive(Deserialize)]
+struct HeaderV5Body<'a> {
+    _magic: [u8; 4],
+    _version: u16,
+    dims: DimsRecord,
+    map: MapRecord,
+    settings: &'a [u8],
+    n_tensors: u16,
+    payload_len: u32,
+}
+
+/// [`HeaderV5Body`] as the encoder writes it.
+#[derive(Serialize)]
+struct HeaderV5Out<'a> {
     magic: [u8; 4],
     version: u16,
     dims: DimsRecord,
     map: MapRecord,
-    n_settings: u16,
+    settings: RawBytes<'a>,
+    n_tensors: u16,
+    payload_len: u32,
 }
 
-/// One setting of a format-v5 header: its key ([`SETTING_KEYS`]) and its typed value.
-#[derive(Serialize, Deserialize)]
+/// One setting of a format-v5 header as the encoder writes it: its key
+/// ([`SETTING_KEYS`]) and its typed value (read back by [`take_setting`]).
+#[derive(Serialize)]
 struct SettingRecord<'a> {
     key: &'a str,
-    #[serde(borrow)]
     value: SettingValue<'a>,
 }
 
-/// The end of a format-v5 header before its checksum.
-#[derive(Serialize, Deserialize)]
-struct HeaderV5End {
-    n_tensors: u16,
-    payload_len: u32,
+/// Decodes one setting record (postcard's form of [`SettingRecord`], read by hand so that
+/// the parser stays small on a device) from the front of `bytes`: the key's bytes, the
+/// value's type tag, the value as a `u32` (a varint, 4 bytes little-endian, or 1 byte 0
+/// or 1; 0 for a name), the name's bytes (empty for the other types), the bytes after it.
+/// `None` for a record that is not well formed.
+fn take_setting(bytes: &[u8]) -> Option<(RawSetting<'_>, &[u8])> {
+    let (key, rest) = take_bytes(bytes)?;
+    let (tag, rest) = take_varint(rest)?;
+    let (raw, name, rest) = match (tag, rest) {
+        (0, _) => take_varint(rest).map(|(v, r)| (v, &[][..], r))?,
+        (1, [a, b, c, d, r @ ..]) => (u32::from_le_bytes([*a, *b, *c, *d]), &[][..], r),
+        (2, _) => take_bytes(rest).map(|(n, r)| (0, n, r))?,
+        (3, [b @ (0 | 1), r @ ..]) => (u32::from(*b), &[][..], r),
+        _ => return None,
+    };
+    Some((
+        RawSetting {
+            key,
+            tag,
+            raw,
+            name,
+        },
+        rest,
+    ))
+}
+
+/// A setting record as [`take_setting`] decodes it.
+struct RawSetting<'a> {
+    key: &'a [u8],
+    tag: u32,
+    raw: u32,
+    name: &'a [u8],
+}
+
+/// A postcard `u32` varint and the rest (postcard's own decoder, which the checksum's
+/// field needs anyway).
+fn take_varint(b: &[u8]) -> Option<(u32, &[u8])> {
+    postcard::take_from_bytes::<u32>(b).ok()
+}
+
+/// A postcard byte string (varint length, then the bytes) and the rest.
+fn take_bytes(b: &[u8]) -> Option<(&[u8], &[u8])> {
+    let (n, rest) = take_varint(b)?;
+    (rest.len() >= n as usize).then(|| rest.split_at(n as usize))
 }
 
 /// What a blob's CRC-32 covers, by format version.
@@ -399,7 +457,7 @@ impl HeaderV3 {
             dims: self.dims,
             map: self.map,
             flags: self.flags,
-            spec: ModelSpec::from_bits(self.flags, settings),
+            settings,
             n_tensors: self.n_tensors,
             payload_len: self.payload_len,
             payload_crc: self.payload_crc,
@@ -451,7 +509,7 @@ pub struct Header {
     dims: DimsRecord,
     map: MapRecord,
     flags: u32,
-    spec: ModelSpec,
+    settings: AdaptSettings,
     n_tensors: u16,
     payload_len: u32,
     payload_crc: u32,
@@ -472,13 +530,13 @@ impl Header {
     /// Every setting the header records, whatever its version ([`ModelSpec::from_bits`] of
     /// a v1-v4 header's flags and inner-loop settings; a v5 header's named settings).
     pub fn spec(&self) -> ModelSpec {
-        self.spec
+        ModelSpec::from_bits(self.flags, self.settings)
     }
     /// The adaptation mode the model was meta-trained in and must run in:
     /// [`AdaptMode::Full`] with [`FLAG_FULL_ADAPT`], else
     /// [`AdaptMode::Efficient`].
     pub fn adapt_mode(&self) -> AdaptMode {
-        self.spec.adapt_mode
+        self.model_flags().mode
     }
     /// The flags as the settings they stand for ([`ModelFlags::from_bits`]).
     pub fn model_flags(&self) -> ModelFlags {
@@ -500,19 +558,19 @@ impl Header {
     }
     /// The inner-loop settings the model was trained with (v1: [`AdaptSettings::PAPER`]).
     pub fn adapt_settings(&self) -> AdaptSettings {
-        self.spec.adapt_settings()
+        self.settings
     }
     /// α1, D's ascent rate (v1: 1e-4).
     pub fn alpha_disc(&self) -> f32 {
-        self.adapt_settings().alpha_disc
+        self.settings.alpha_disc
     }
     /// α2, θ's and φ's descent rate (v1: 1e-4).
     pub fn alpha_adapt(&self) -> f32 {
-        self.spec.inner_lr
+        self.settings.alpha_adapt
     }
     /// Cap on inner updates per episode (v1: 4).
     pub fn max_inner(&self) -> u32 {
-        self.spec.max_inner
+        self.settings.max_inner
     }
     /// Number of tensors.
     pub fn n_tensors(&self) -> u16 {
@@ -591,7 +649,7 @@ fn parse_header(bytes: &[u8], opts: ParseOptions) -> Result<(Header, &[u8]), Blo
                     dims: h.dims,
                     map: MapRecord::default(),
                     flags: h.flags,
-                    spec: ModelSpec::from_bits(h.flags, AdaptSettings::PAPER),
+                    settings: AdaptSettings::PAPER,
                     n_tensors: h.n_tensors,
                     payload_len: h.payload_len,
                     payload_crc: h.payload_crc,
@@ -615,29 +673,22 @@ fn parse_header(bytes: &[u8], opts: ParseOptions) -> Result<(Header, &[u8]), Blo
             Ok((body.with_crc(crc).into_header(4)?, payload))
         }
         5 => {
-            let (start, rest) = postcard::take_from_bytes::<HeaderV5Start>(bytes).map_err(map_err)?;
-            let mut end = rest;
-            for _ in 0..start.n_settings {
-                end = postcard::take_from_bytes::<SettingRecord<'_>>(end)
-                    .map_err(map_err)?
-                    .1;
-            }
-            let records = &rest[..rest.len() - end.len()];
-            let (tail, end) = postcard::take_from_bytes::<HeaderV5End>(end).map_err(map_err)?;
-            let (crc, payload) = check_whole_blob(bytes, end, tail.payload_len)?;
-            let spec = read_settings(records, start.n_settings)?;
-            check_dims_fit(&start.dims, start.map)?;
-            let header = Header {
+            let (h, rest) =
+                postcard::take_from_bytes::<HeaderV5Body<'_>>(bytes).map_err(map_err)?;
+            let (crc, payload) = check_whole_blob(bytes, rest, h.payload_len)?;
+            let mut header = Header {
                 version: 5,
                 scope: ChecksumScope::HeaderAndPayload,
-                dims: start.dims,
-                map: start.map,
-                flags: spec.bits(),
-                spec,
-                n_tensors: tail.n_tensors,
-                payload_len: tail.payload_len,
+                dims: h.dims,
+                map: h.map,
+                flags: 0,
+                settings: AdaptSettings::PAPER,
+                n_tensors: h.n_tensors,
+                payload_len: h.payload_len,
                 payload_crc: crc,
             };
+            read_settings(h.settings, &mut header.flags, &mut header.settings)?;
+            check_dims_fit(&h.dims, h.map)?;
             Ok((header, payload))
         }
         found => Err(BlobError::UnsupportedVersion { found }),
@@ -679,35 +730,51 @@ fn check_whole_blob<'a>(
     Ok((crc, payload))
 }
 
-/// The settings of a v5 header's `n` records (already decoded once, so they are well
-/// formed): every key known, named once, of its setting's type, a known name, in range.
-fn read_settings(mut records: &[u8], n: u16) -> Result<ModelSpec, BlobError> {
-    let mut spec = ModelSpec::BLOB_DEFAULT;
+/// Reads the settings of a v5 header's settings section into the v4 form, a flag word and
+/// the inner-loop settings (from [`ModelSpec::BLOB_DEFAULT`]'s: no bit, the paper's rates;
+/// α1 is α2 unless a record names `disc_lr`): every record well formed, its key known,
+/// named once, of its setting's type, a known name, in range.
+fn read_settings(
+    mut records: &[u8],
+    flags: &mut u32,
+    settings: &mut AdaptSettings,
+) -> Result<(), BlobError> {
     let mut seen = 0u32;
-    for _ in 0..n {
-        let (rec, rest) = postcard::take_from_bytes::<SettingRecord<'_>>(records)
-            .map_err(|_| BlobError::Malformed)?;
+    while !records.is_empty() {
+        let (rec, rest) = take_setting(records).ok_or(BlobError::Malformed)?;
+        let RawSetting {
+            key: name,
+            tag,
+            raw,
+            name: value,
+        } = rec;
         records = rest;
-        let i = SETTING_KEYS.iter().position(|k| *k == rec.key);
-        let i = i.ok_or(BlobError::UnknownSetting {
-            key: SettingText::new(rec.key),
+        let key = SettingKey::of(name).ok_or(BlobError::UnknownSetting {
+            key: SettingText::new(name),
         })?;
-        let key = SETTING_KEYS[i];
-        if seen & (1 << i) != 0 {
+        let bit = 1u32 << key.index();
+        if seen & bit != 0 {
             return Err(BlobError::DuplicateSetting { key });
         }
-        seen |= 1 << i;
-        spec.set(key, rec.value).map_err(|e| match (e, rec.value) {
-            (SettingError::WrongType { expected }, _) => BlobError::SettingType { key, expected },
-            (_, SettingValue::Name(name)) => BlobError::UnknownSettingValue {
+        seen |= bit;
+        let raw = if tag == 2 {
+            name_index(key, value)
+        } else {
+            raw
+        };
+        apply_setting(key, tag, raw, flags, settings).map_err(|e| match e {
+            SettingError::WrongType { expected } => BlobError::SettingType { key, expected },
+            SettingError::UnknownName => BlobError::UnknownSettingValue {
                 key,
-                value: SettingText::new(name),
+                value: SettingText::new(value),
             },
-            _ => BlobError::Malformed,
+            _ => BlobError::SettingOutOfRange { key, value: raw },
         })?;
     }
-    spec.validate()?;
-    Ok(spec)
+    if seen & (1 << SettingKey::DISC_LR.index()) == 0 {
+        settings.alpha_disc = settings.alpha_adapt;
+    }
+    settings.validate()
 }
 
 impl From<SpecError> for BlobError {
@@ -723,13 +790,15 @@ impl From<SpecError> for BlobError {
                 bits: a.to_bits(),
             },
             SpecError::DiscSteps(n) => BlobError::SettingOutOfRange {
-                key: "disc_steps",
+                key: SettingKey::DISC_STEPS,
                 value: n,
             },
             SpecError::CommitDelay(d) => BlobError::SettingOutOfRange {
-                key: "commit_delay",
+                key: SettingKey::COMMIT_DELAY,
                 value: d,
             },
+            // Not a setting of a header (the map's dims are checked as dims).
+            SpecError::MapGrid { .. } => BlobError::DegenerateDims { field: "map_rows" },
         }
     }
 }
@@ -1274,28 +1343,30 @@ impl<'o> Encoder<'o> {
         let payload_len = pos - HEADER_RESERVE;
         let mut hbuf = [0u8; HEADER_RESERVE];
         let too_small = |_| BlobError::BufferTooSmall;
-        let n_settings = SETTING_KEYS.iter().filter(|k| spec.get(k).is_some()).count();
-        let start = HeaderV5Start {
+        let mut sbuf = [0u8; HEADER_RESERVE];
+        let mut slen = 0;
+        let default = ModelSpec::BLOB_DEFAULT;
+        for key in SETTING_KEYS {
+            match spec.get(key) {
+                Some(value) if Some(value) != default.get(key) => {
+                    let rec = SettingRecord { key, value };
+                    slen += postcard::to_slice(&rec, &mut sbuf[slen..])
+                        .map_err(too_small)?
+                        .len();
+                }
+                _ => {}
+            }
+        }
+        let body = HeaderV5Out {
             magic: MAGIC,
             version: FORMAT_VERSION,
             dims: DimsRecord::from_dims(&dims),
             map: MapRecord::from_dims(&dims),
-            n_settings: n_settings as u16,
-        };
-        let mut blen = postcard::to_slice(&start, &mut hbuf).map_err(too_small)?.len();
-        for key in SETTING_KEYS {
-            if let Some(value) = spec.get(key) {
-                let rec = SettingRecord { key, value };
-                blen += postcard::to_slice(&rec, &mut hbuf[blen..])
-                    .map_err(too_small)?
-                    .len();
-            }
-        }
-        let end = HeaderV5End {
+            settings: RawBytes(&sbuf[..slen]),
             n_tensors,
             payload_len: payload_len as u32,
         };
-        blen += postcard::to_slice(&end, &mut hbuf[blen..])
+        let blen = postcard::to_slice(&body, &mut hbuf)
             .map_err(too_small)?
             .len();
         let crc = crc32_update(crc32(&hbuf[..blen]), &out[HEADER_RESERVE..pos]);

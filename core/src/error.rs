@@ -6,6 +6,8 @@
 
 use core::fmt;
 
+use crate::spec::SettingKey;
+
 /// Which buffer or tensor had the wrong length.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct ShapeError {
@@ -60,40 +62,40 @@ pub enum Error {
 #[derive(Clone, Copy, PartialEq, Eq)]
 pub struct SettingText {
     bytes: [u8; SettingText::CAP],
+    /// The word's length (saturating): more than `CAP` when it was cut.
     len: u8,
-    cut: bool,
 }
 
 impl SettingText {
-    /// Bytes kept.
-    pub const CAP: usize = 24;
+    /// Bytes kept (16 with the length: an error holding one stays as small as the others).
+    pub const CAP: usize = 15;
 
     /// The first bytes of `s`.
-    pub fn new(s: &str) -> SettingText {
+    #[inline(never)]
+    pub fn new(s: &[u8]) -> SettingText {
         let mut bytes = [b'?'; SettingText::CAP];
-        let n = s.len().min(SettingText::CAP);
-        for (d, &b) in bytes.iter_mut().zip(&s.as_bytes()[..n]) {
+        for (d, &b) in bytes.iter_mut().zip(s) {
             if b.is_ascii_graphic() {
                 *d = b;
             }
         }
         SettingText {
             bytes,
-            len: n as u8,
-            cut: s.len() > n,
+            len: s.len().min(255) as u8,
         }
     }
 
     /// The kept bytes (printable ASCII).
     pub fn as_str(&self) -> &str {
-        core::str::from_utf8(&self.bytes[..self.len as usize]).unwrap_or("?")
+        let n = usize::from(self.len).min(SettingText::CAP);
+        core::str::from_utf8(&self.bytes[..n]).unwrap_or("?")
     }
 }
 
 impl fmt::Display for SettingText {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         f.write_str(self.as_str())?;
-        if self.cut {
+        if usize::from(self.len) > SettingText::CAP {
             f.write_str("...")?;
         }
         Ok(())
@@ -230,29 +232,29 @@ pub enum BlobError {
     /// A format v5 header gives a setting a value of another type than the setting's.
     SettingType {
         /// The setting.
-        key: &'static str,
+        key: SettingKey,
         /// The setting's type (`"u32"`, `"f32"`, `"name"`, `"bool"`).
         expected: &'static str,
     },
     /// A format v5 header gives a setting a name none of its values has.
     UnknownSettingValue {
         /// The setting.
-        key: &'static str,
+        key: SettingKey,
         /// The name as found (its first bytes).
         value: SettingText,
     },
     /// A format v5 header (or a blob being encoded) holds a count out of its setting's
     /// range ([`ModelSpec::validate`](crate::spec::ModelSpec::validate)).
     SettingOutOfRange {
-        /// The setting (`"disc_steps"`, `"commit_delay"`).
-        key: &'static str,
+        /// The setting (`disc_steps`, `commit_delay`).
+        key: SettingKey,
         /// Its value.
         value: u32,
     },
     /// A format v5 header names the same setting twice.
     DuplicateSetting {
         /// The setting.
-        key: &'static str,
+        key: SettingKey,
     },
     /// The postcard encoding itself is malformed (bad varint, trailing bytes, ...).
     Malformed,

@@ -268,7 +268,10 @@ impl NavConfig {
     /// [`Blob::parse`]), so the result is accepted by [`Navigator::new`] as far as the rates
     /// are concerned. See also [`Blob::nav_config`].
     pub fn from_header(header: &Header) -> NavConfig {
-        NavConfig::from_spec(&header.spec())
+        NavConfig {
+            compact_psi: header.flags() & crate::schema::FLAG_COMPACT_PSI != 0,
+            ..NavConfig::from_flags(header.model_flags(), header.adapt_settings())
+        }
     }
 
     /// [`NavConfig::from_flags`] of a model's settings (gman-core's one carrier of them,

@@ -7,11 +7,11 @@
 //! weights-to-blob builder.
 
 use crate::blob::{encode_model, AdaptSettings, Quant};
-use crate::spec::ModelSpec;
 use crate::error::BlobError;
 use crate::preset::Dims;
 use crate::rng::{fill_gaussian, Xoshiro128};
 use crate::schema::TensorId;
+use crate::spec::ModelSpec;
 
 /// The stream of seeded weights: call [`SeededWeights::fill`] once per tensor, in storage
 /// order.

@@ -28,13 +28,22 @@ use serde::{Deserialize, Deserializer, Serialize, Serializer};
 use crate::blob::{AdaptSettings, Header};
 use crate::preset::MAX_INNER_RATE;
 use crate::schema::{AdaptLossKind, AdaptMode, Emd, ModelFlags, NoiseMode, StepRule};
-use crate::schema::{FLAG_COMPACT_PSI, FLAG_INT8_ACTIVATIONS, MAX_COMMIT_DELAY};
+use crate::schema::{
+    COMMIT_DELAY_MASK, COMMIT_DELAY_SHIFT, DISC_STEPS_MASK, DISC_STEPS_SHIFT, FLAG_ADAPT,
+    FLAG_COMPACT_PSI, FLAG_COSSIM, FLAG_DISC_HEAD_RESET, FLAG_FULL_ADAPT, FLAG_HEAD_ONLY,
+    FLAG_INT8_ACTIVATIONS, FLAG_NORMALIZED_STEP, FLAG_PER_GROUP_STEP, FLAG_REFERENCE_ADAPT_LOSS,
+    FLAG_REFERENCE_CRITIC_SCALE, FLAG_ZERO_NOISE, MAX_COMMIT_DELAY,
+};
 
 /// A setting enum with one table of names: the form a command line, a checkpoint and a
 /// report use. `FromStr`, `Display` and serde (as the name) derive from [`Named::NAMES`].
 pub trait Named: Copy + PartialEq + Sized + 'static {
     /// Every value, its name and a one-line meaning, in the order a command line lists them.
     const NAMES: &'static [(Self, &'static str, &'static str)];
+
+    /// Every value, in the order of [`Named::NAMES`] (without the help text a device need
+    /// not link).
+    const VALUES: &'static [Self];
 
     /// The name of this value.
     fn name(self) -> &'static str {
@@ -44,6 +53,58 @@ pub trait Named: Copy + PartialEq + Sized + 'static {
     /// The value named `s`.
     fn from_name(s: &str) -> Option<Self> {
         Self::NAMES.iter().find(|e| e.1 == s).map(|e| e.0)
+    }
+}
+
+/// The index of `s` in `list`: the one lookup of a name or a key (not inlined, so that
+/// each table costs a call on a device, not an unrolled comparison per entry).
+#[inline(never)]
+pub(crate) fn index_of(list: &[&str], s: &[u8]) -> Option<usize> {
+    list.iter().position(|n| n.as_bytes() == s)
+}
+
+/// A setting of a [`ModelSpec`], by its index in [`SETTING_KEYS`] (one byte, so that an
+/// error naming it stays small); shown as its key.
+#[derive(Clone, Copy, PartialEq, Eq)]
+pub struct SettingKey(u8);
+
+impl SettingKey {
+    /// `disc_steps`.
+    pub const DISC_STEPS: SettingKey = SettingKey(7);
+    /// `commit_delay`.
+    pub const COMMIT_DELAY: SettingKey = SettingKey(13);
+    /// `disc_lr`.
+    pub const DISC_LR: SettingKey = SettingKey(5);
+
+    /// The setting whose key is `key`.
+    pub fn named(key: &str) -> Option<SettingKey> {
+        SettingKey::of(key.as_bytes())
+    }
+
+    pub(crate) fn of(key: &[u8]) -> Option<SettingKey> {
+        index_of(&SETTING_KEYS, key).map(|i| SettingKey(i as u8))
+    }
+
+    /// Its index in [`SETTING_KEYS`].
+    pub fn index(self) -> usize {
+        usize::from(self.0)
+    }
+
+    /// Its key.
+    pub fn as_str(self) -> &'static str {
+        SETTING_KEYS.get(self.index()).copied().unwrap_or("?")
+    }
+}
+
+impl fmt::Display for SettingKey {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+impl fmt::Debug for SettingKey {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{:?}", self.as_str())
     }
 }
 
@@ -64,6 +125,19 @@ macro_rules! named {
     ($t:ty, $list:ident, [$(($v:expr, $name:literal, $help:literal)),* $(,)?]) => {
         impl Named for $t {
             const NAMES: &'static [(Self, &'static str, &'static str)] = &[$(($v, $name, $help)),*];
+            const VALUES: &'static [Self] = &[$($v),*];
+
+            // By the names alone: a device that parses a blob links no help text.
+            fn name(self) -> &'static str {
+                $(if self == $v {
+                    return $name;
+                })*
+                ""
+            }
+
+            fn from_name(s: &str) -> Option<Self> {
+                index_of(<$t>::$list, s.as_bytes()).and_then(|i| Self::VALUES.get(i).copied())
+            }
         }
 
         impl $t {
@@ -230,6 +304,21 @@ named!(
     ]
 );
 
+/// Most rows (and most columns) of a model's map grid: the bound of `gman train --map`, of
+/// Python's `map=` and of [`check_map_grid`].
+pub const MAX_GRID_SIDE: usize = 16;
+
+/// Refuses a `rows x cols` map grid no model takes: at least one row and one column, at
+/// most [`MAX_GRID_SIDE`] of each ([`SpecError::MapGrid`]).
+pub fn check_map_grid(rows: usize, cols: usize) -> Result<(), SpecError> {
+    let side = 1..=MAX_GRID_SIDE;
+    if side.contains(&rows) && side.contains(&cols) {
+        Ok(())
+    } else {
+        Err(SpecError::MapGrid { rows, cols })
+    }
+}
+
 /// The largest number of D's ascent steps per inner update a blob can record.
 pub const MAX_DISC_STEPS: u32 = 256;
 
@@ -246,6 +335,14 @@ pub enum SpecError {
     DiscSteps(u32),
     /// [`InnerRule::commit_delay`] is above [`MAX_COMMIT_DELAY`].
     CommitDelay(u32),
+    /// A map grid without a row or a column, or with more than [`MAX_GRID_SIDE`] of either
+    /// ([`check_map_grid`]).
+    MapGrid {
+        /// Rows asked for.
+        rows: usize,
+        /// Columns asked for.
+        cols: usize,
+    },
 }
 
 impl fmt::Display for SpecError {
@@ -264,6 +361,10 @@ impl fmt::Display for SpecError {
             SpecError::CommitDelay(d) => {
                 write!(f, "commit-delay must be in 0..={MAX_COMMIT_DELAY}, got {d}")
             }
+            SpecError::MapGrid { rows, cols } => write!(
+                f,
+                "map {rows}x{cols}: a map grid has 1..={MAX_GRID_SIDE} rows and 1..={MAX_GRID_SIDE} columns"
+            ),
         }
     }
 }
@@ -531,7 +632,7 @@ impl ModelSpec {
 
 /// A setting's value as a format v5 blob header stores it: its type is part of the record,
 /// so that a reader can tell a wrong type from a wrong value.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
 pub enum SettingValue<'a> {
     /// A count (varint).
     U32(u32),
@@ -556,6 +657,9 @@ pub enum SettingError {
     },
     /// The value is a name that none of the setting's values has.
     UnknownName,
+    /// A count out of the setting's range (`disc_steps`: 1..=[`MAX_DISC_STEPS`],
+    /// `commit_delay`: 0..=[`MAX_COMMIT_DELAY`]).
+    OutOfRange,
 }
 
 /// The key of every setting of a [`ModelSpec`], in the order the blob encoder writes them
@@ -580,32 +684,95 @@ pub const SETTING_KEYS: [&str; 16] = [
     "compact_psi",
 ];
 
-fn name_of<T: Named>(v: SettingValue<'_>) -> Result<T, SettingError> {
-    match v {
-        SettingValue::Name(n) => T::from_name(n).ok_or(SettingError::UnknownName),
-        _ => Err(SettingError::WrongType { expected: "name" }),
-    }
+/// The type of each setting's value, in [`SETTING_KEYS`] order: the tag of its
+/// [`SettingValue`] variant (0 `U32`, 1 `F32`, 2 `Name`, 3 `Bool`).
+const SETTING_TYPES: [u8; 16] = [3, 2, 2, 2, 1, 1, 0, 0, 2, 3, 2, 3, 3, 0, 3, 3];
+
+/// The index of the value named `name` of the setting `key` (`u32::MAX` for a name none
+/// of its values has, or a setting without names).
+#[inline(never)]
+pub(crate) fn name_index(key: SettingKey, name: &[u8]) -> u32 {
+    let names: &[&str] = match key.index() {
+        1 => Emd::NAME_LIST,
+        2 => NoiseMode::NAME_LIST,
+        3 => AdaptMode::NAME_LIST,
+        8 => StepRule::NAME_LIST,
+        10 => AdaptLossKind::NAME_LIST,
+        _ => &[],
+    };
+    index_of(names, name).map_or(u32::MAX, |j| j as u32)
 }
 
-fn u32_of(v: SettingValue<'_>) -> Result<u32, SettingError> {
-    match v {
-        SettingValue::U32(n) => Ok(n),
-        _ => Err(SettingError::WrongType { expected: "u32" }),
+/// Sets the setting `key` to `value` in a v1-v4 header's form of the settings, the flag
+/// word `flags` and the inner-loop `settings` (`inner_lr` is α2, `disc_lr` α1): the one
+/// table from each setting to its bits, read by the v5 parser and by [`ModelSpec::set`].
+/// Checks the value's type, its name and the ranges the bits can hold; the rates are
+/// [`AdaptSettings::validate`]'s.
+///
+/// The value comes as its type's tag (that of its [`SettingValue`] variant) and a `u32`: a
+/// count, a rate's bits, a name's index ([`name_index`]), a switch as 0 or 1.
+#[inline(never)]
+pub(crate) fn apply_setting(
+    key: SettingKey,
+    tag: u32,
+    raw: u32,
+    flags: &mut u32,
+    settings: &mut AdaptSettings,
+) -> Result<(), SettingError> {
+    let i = key.index();
+    let expected = u32::from(SETTING_TYPES[i]);
+    if tag != expected {
+        let expected = ["u32", "f32", "name", "bool"][(expected & 3) as usize];
+        return Err(SettingError::WrongType { expected });
     }
-}
-
-fn f32_of(v: SettingValue<'_>) -> Result<f32, SettingError> {
-    match v {
-        SettingValue::F32(a) => Ok(a),
-        _ => Err(SettingError::WrongType { expected: "f32" }),
-    }
-}
-
-fn bool_of(v: SettingValue<'_>) -> Result<bool, SettingError> {
-    match v {
-        SettingValue::Bool(b) => Ok(b),
-        _ => Err(SettingError::WrongType { expected: "bool" }),
-    }
+    // A name's or a switch's bits: the `raw`-th entry of its table.
+    let pick = |table: &[u32]| {
+        table
+            .get(raw as usize)
+            .copied()
+            .ok_or(SettingError::UnknownName)
+    };
+    let (mask, bits) = match i {
+        0 => (FLAG_ADAPT, pick(&[0, FLAG_ADAPT])?),
+        1 => (FLAG_COSSIM, pick(&[0, FLAG_COSSIM])?),
+        2 => (FLAG_ZERO_NOISE, pick(&[0, FLAG_ZERO_NOISE])?),
+        3 => (FLAG_FULL_ADAPT, pick(&[FLAG_FULL_ADAPT, 0])?),
+        4 => {
+            settings.alpha_adapt = f32::from_bits(raw);
+            return Ok(());
+        }
+        5 => {
+            settings.alpha_disc = f32::from_bits(raw);
+            return Ok(());
+        }
+        6 => {
+            settings.max_inner = raw;
+            return Ok(());
+        }
+        7 if (1..=MAX_DISC_STEPS).contains(&raw) => {
+            (DISC_STEPS_MASK, (raw - 1) << DISC_STEPS_SHIFT)
+        }
+        8 => (
+            FLAG_NORMALIZED_STEP | FLAG_PER_GROUP_STEP,
+            pick(&[0, FLAG_NORMALIZED_STEP, FLAG_PER_GROUP_STEP])?,
+        ),
+        9 => (FLAG_DISC_HEAD_RESET, pick(&[0, FLAG_DISC_HEAD_RESET])?),
+        10 => (
+            FLAG_REFERENCE_ADAPT_LOSS,
+            pick(&[0, FLAG_REFERENCE_ADAPT_LOSS])?,
+        ),
+        11 => (
+            FLAG_REFERENCE_CRITIC_SCALE,
+            pick(&[0, FLAG_REFERENCE_CRITIC_SCALE])?,
+        ),
+        12 => (FLAG_HEAD_ONLY, pick(&[0, FLAG_HEAD_ONLY])?),
+        13 if raw <= MAX_COMMIT_DELAY => (COMMIT_DELAY_MASK, raw << COMMIT_DELAY_SHIFT),
+        14 => (FLAG_INT8_ACTIVATIONS, pick(&[0, FLAG_INT8_ACTIVATIONS])?),
+        15 => (FLAG_COMPACT_PSI, pick(&[0, FLAG_COMPACT_PSI])?),
+        _ => return Err(SettingError::OutOfRange),
+    };
+    *flags = (*flags & !mask) | bits;
+    Ok(())
 }
 
 impl ModelSpec {
@@ -646,26 +813,20 @@ impl ModelSpec {
     /// Sets the setting `key` to `value` (its type and, for a name, its value checked; the
     /// ranges are [`ModelSpec::validate`]'s).
     pub fn set(&mut self, key: &str, value: SettingValue<'_>) -> Result<(), SettingError> {
-        let r = &mut self.inner_rule;
-        match key {
-            "adapt" => self.adapt = bool_of(value)?,
-            "emd" => self.emd = name_of(value)?,
-            "noise" => self.noise = name_of(value)?,
-            "adapt_mode" => self.adapt_mode = name_of(value)?,
-            "inner_lr" => self.inner_lr = f32_of(value)?,
-            "disc_lr" => r.disc_lr = Some(f32_of(value)?),
-            "max_inner" => self.max_inner = u32_of(value)?,
-            "disc_steps" => r.disc_steps = u32_of(value)?,
-            "step_rule" => r.step_rule = name_of(value)?,
-            "disc_head_reset" => r.disc_head_reset = bool_of(value)?,
-            "adapt_loss" => r.adapt_loss = name_of(value)?,
-            "reference_critic" => r.reference_critic = bool_of(value)?,
-            "head_only" => r.head_only = bool_of(value)?,
-            "commit_delay" => r.commit_delay = u32_of(value)?,
-            "int8_activations" => self.int8_activations = bool_of(value)?,
-            "compact_psi" => self.compact_psi = bool_of(value)?,
-            _ => return Err(SettingError::UnknownKey),
+        let key = SettingKey::named(key).ok_or(SettingError::UnknownKey)?;
+        let (mut flags, mut settings) = (self.bits(), self.adapt_settings());
+        let (tag, raw) = match value {
+            SettingValue::U32(n) => (0, n),
+            SettingValue::F32(a) => (1, a.to_bits()),
+            SettingValue::Name(n) => (2, name_index(key, n.as_bytes())),
+            SettingValue::Bool(b) => (3, u32::from(b)),
+        };
+        apply_setting(key, tag, raw, &mut flags, &mut settings)?;
+        if key.index() == 4 && self.inner_rule.disc_lr.is_none() {
+            // α1 follows α2 unless it was set on its own.
+            settings.alpha_disc = settings.alpha_adapt;
         }
+        *self = ModelSpec::from_bits(flags, settings);
         Ok(())
     }
 }
@@ -740,11 +901,53 @@ mod tests {
         };
         let flags = ModelFlags::from_bits(spec.bits());
         assert!(flags.adapt && flags.emd == Emd::CosSim);
-        assert_eq!(ModelSpec::from_bits(spec.bits(), spec.adapt_settings()), spec);
+        assert_eq!(
+            ModelSpec::from_bits(spec.bits(), spec.adapt_settings()),
+            spec
+        );
         let paper = ModelSpec::paper(AdaptMode::Full);
         assert_eq!(paper.adapt_settings(), AdaptSettings::PAPER);
         assert_eq!(paper.validate(), Ok(()));
         assert_eq!(spec.validate(), Ok(()));
+    }
+
+    #[test]
+    fn every_setting_key_reads_back_what_it_sets() {
+        assert_eq!(SettingKey::DISC_STEPS.as_str(), "disc_steps");
+        assert_eq!(SettingKey::COMMIT_DELAY.as_str(), "commit_delay");
+        let mut spec = ModelSpec::BLOB_DEFAULT;
+        spec.inner_rule.disc_lr = Some(0.5);
+        let mut back = ModelSpec::BLOB_DEFAULT;
+        for key in SETTING_KEYS {
+            let k = SettingKey::named(key).unwrap();
+            assert_eq!(k.as_str(), key);
+            let v = spec.get(key).unwrap();
+            assert_eq!(back.set(key, v), Ok(()));
+            let wrong = match v {
+                SettingValue::Bool(_) => SettingValue::U32(1),
+                _ => SettingValue::Bool(true),
+            };
+            assert!(matches!(
+                back.set(key, wrong),
+                Err(SettingError::WrongType { .. })
+            ));
+        }
+        assert_eq!(back, spec);
+        assert_eq!(
+            back.set("step_rule", SettingValue::Name("sideways")),
+            Err(SettingError::UnknownName)
+        );
+        assert_eq!(
+            back.set("warp", SettingValue::U32(1)),
+            Err(SettingError::UnknownKey)
+        );
+        assert_eq!(SettingKey::named("warp"), None);
+        assert_eq!(check_map_grid(16, 1), Ok(()));
+        assert_eq!(
+            check_map_grid(17, 3),
+            Err(SpecError::MapGrid { rows: 17, cols: 3 })
+        );
+        assert!(check_map_grid(0, 3).is_err());
     }
 
     #[test]

@@ -911,7 +911,9 @@ fn v5_with_records(blob: &[u8], records: &[Vec<u8>]) -> Vec<u8> {
     ] {
         out.extend(varint_bytes(v as u64));
     }
-    out.extend(varint_bytes(records.len() as u64));
+    out.extend(varint_bytes(
+        records.iter().map(Vec::len).sum::<usize>() as u64
+    ));
     for r in records {
         out.extend_from_slice(r);
     }
@@ -942,21 +944,21 @@ fn name_bytes(s: &str) -> Vec<u8> {
 }
 
 /// Format v5 names every setting: the encoder's records round-trip every field of the
-/// carrier (also α1 equal to α2 set on its own), the v4 bit form of the same settings gives
+/// carrier, the v4 bit form of the same settings gives
 /// the same navigator configuration, and a record this build does not understand (an
 /// unknown key, a value of another type, an unknown name, a repeated key, a count out of
 /// range) is a typed error naming it, with a valid checksum.
 #[test]
 fn v5_names_its_settings_and_refuses_what_it_does_not_know() {
-    use gman_core::spec::{InnerRule, ModelSpec, SETTING_KEYS};
     use gman_core::schema::AdaptLossKind;
+    use gman_core::spec::{InnerRule, ModelSpec, SETTING_KEYS};
     let spec = ModelSpec {
         noise: NoiseMode::Zero,
         inner_lr: 0.02,
         max_inner: 9,
         adapt_mode: AdaptMode::Full,
         inner_rule: InnerRule {
-            disc_lr: Some(0.02),
+            disc_lr: Some(0.05),
             disc_steps: 3,
             step_rule: StepRule::PerGroup,
             disc_head_reset: true,
@@ -987,13 +989,20 @@ fn v5_names_its_settings_and_refuses_what_it_does_not_know() {
     let h4 = *Blob::parse(&v4).unwrap().header();
     assert_eq!(h4.flags(), h.flags());
     assert_eq!(NavConfig::from_header(&h4), NavConfig::from_header(&h));
-    // No record: the documented defaults.
+    // No record: the documented defaults, which the encoder leaves out.
     let empty = v5_with_records(&v5, &[]);
     let empty = Blob::parse(&empty).unwrap();
     assert_eq!(empty.header().spec(), ModelSpec::BLOB_DEFAULT);
+    let n = gman_core::blob::encode(&SMALL, &specs, &mut out).unwrap();
+    assert_eq!(out[..n], v5_with_records(&v5, &[])[..]);
+    let mut one = ModelSpec::BLOB_DEFAULT;
+    one.inner_rule.commit_delay = 7;
+    let n = gman_core::blob::encode_spec(&SMALL, &one, &specs, &mut out).unwrap();
+    let seven = record("commit_delay", 0, &varint_bytes(7));
+    assert_eq!(out[..n], v5_with_records(&v5, &[seven])[..]);
     let ok = record("commit_delay", 0, &varint_bytes(7));
     assert_eq!(
-        Blob::parse(&v5_with_records(&v5, &[ok.clone()]))
+        Blob::parse(&v5_with_records(&v5, std::slice::from_ref(&ok)))
             .unwrap()
             .header()
             .spec()
@@ -1002,6 +1011,7 @@ fn v5_names_its_settings_and_refuses_what_it_does_not_know() {
         7
     );
     let refused = |records: &[Vec<u8>]| Blob::parse(&v5_with_records(&v5, records)).unwrap_err();
+    let key = |k: &str| gman_core::spec::SettingKey::named(k).unwrap();
     let e = refused(&[ok.clone(), record("warp_factor", 0, &varint_bytes(3))]);
     assert!(matches!(e, BlobError::UnknownSetting { key } if key.as_str() == "warp_factor"));
     assert_eq!(
@@ -1010,35 +1020,32 @@ fn v5_names_its_settings_and_refuses_what_it_does_not_know() {
     );
     let e = refused(&[record("step_rule", 2, &name_bytes("sideways"))]);
     assert!(
-        matches!(e, BlobError::UnknownSettingValue { key: "step_rule", value } if value.as_str() == "sideways")
+        matches!(e, BlobError::UnknownSettingValue { key, value } if key.as_str() == "step_rule" && value.as_str() == "sideways")
     );
     assert!(e.to_string().contains("`step_rule`") && e.to_string().contains("`sideways`"));
     assert_eq!(
         refused(&[record("commit_delay", 2, &name_bytes("soon"))]),
         BlobError::SettingType {
-            key: "commit_delay",
+            key: key("commit_delay"),
             expected: "u32"
         }
     );
     assert_eq!(
         refused(&[record("commit_delay", 0, &varint_bytes(64))]),
         BlobError::SettingOutOfRange {
-            key: "commit_delay",
+            key: key("commit_delay"),
             value: 64
         }
     );
     assert_eq!(
         refused(&[ok.clone(), ok]),
         BlobError::DuplicateSetting {
-            key: "commit_delay"
+            key: key("commit_delay")
         }
     );
     let long = "a_setting_with_a_very_long_name_indeed";
     let e = refused(&[record(long, 3, &[1])]);
-    assert!(e.to_string().contains("`a_setting_with_a_very_lo...`"), "{e}");
+    assert!(e.to_string().contains("`a_setting_with_...`"), "{e}");
     // An unknown value type is a decoding error.
-    assert_eq!(
-        refused(&[record("adapt", 9, &[1])]),
-        BlobError::Malformed
-    );
+    assert_eq!(refused(&[record("adapt", 9, &[1])]), BlobError::Malformed);
 }
