@@ -743,7 +743,11 @@ fn legacy_blob_warns_and_upgrade_blob_evaluates_identically() {
 fn with_setting_renamed(v5: &[u8], from: &[u8], to: &[u8]) -> Vec<u8> {
     let blob = gman_core::blob::Blob::parse(v5).unwrap();
     let pl = blob.header().payload_len() as usize;
-    assert_eq!((v5[4], from.len()), (5, to.len()), "a v5 blob, a same-length key");
+    assert_eq!(
+        (v5[4], from.len()),
+        (5, to.len()),
+        "a v5 blob, a same-length key"
+    );
     let end = v5.len() - pl;
     let mut crc_at = end - 1;
     while v5[crc_at - 1] & 0x80 != 0 {
