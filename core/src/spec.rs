@@ -933,6 +933,20 @@ mod tests {
             ));
         }
         assert_eq!(back, spec);
+        // Every name of every name-valued setting reads back as itself.
+        for (key, names) in [
+            ("emd", Emd::NAME_LIST),
+            ("noise", NoiseMode::NAME_LIST),
+            ("adapt_mode", AdaptMode::NAME_LIST),
+            ("step_rule", StepRule::NAME_LIST),
+            ("adapt_loss", AdaptLossKind::NAME_LIST),
+        ] {
+            for name in names {
+                let mut s = ModelSpec::BLOB_DEFAULT;
+                assert_eq!(s.set(key, SettingValue::Name(name)), Ok(()));
+                assert_eq!(s.get(key), Some(SettingValue::Name(name)), "{key}");
+            }
+        }
         assert_eq!(
             back.set("step_rule", SettingValue::Name("sideways")),
             Err(SettingError::UnknownName)
