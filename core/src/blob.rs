@@ -1,7 +1,7 @@
 //! Weight blobs: the versioned, checksummed `postcard` container the core loads weights from.
 //!
 //! # Layout (format version 2; v3 inserts `map` after `dims`; v4 is v3 with a checksum over the
-//! whole blob)
+//! whole blob; v5 replaces the flags and rates by named settings, see "Versions")
 //! ```text
 //! blob    = header payload
 //! header  = postcard(HeaderV2)        in this order:
@@ -27,7 +27,32 @@
 //! Vectors (biases) are f32 with `cols = 1`.
 //!
 //! # Versions
-//! * **v4** (what the encoders write) has the v3 header, but its last field is the CRC-32
+//! * **v5** (what the encoders write) names its settings. After `magic`, `version`, `dims`
+//!   and `map` (as v4) comes the settings section, then `n_tensors`, `payload_len` and the
+//!   CRC-32 of every header byte before it followed by the payload (as v4):
+//!   ```text
+//!   settings    u32 varint   bytes of the records that follow
+//!   setting     key    str (varint length + ASCII)   one of spec::SETTING_KEYS
+//!               value  u32 varint tag + payload      0 u32 (varint) | 1 f32 (4 bytes LE)
+//!                                                    | 2 name (varint length + ASCII)
+//!                                                    | 3 bool (1 byte: 0 or 1)
+//!   ```
+//!   The one encoder ([`Encoder`]) writes, in [`SETTING_KEYS`] order, every setting of
+//!   the carrier, [`ModelSpec`], whose value departs from
+//!   [`ModelSpec::BLOB_DEFAULT`] (the paper's rule and rates, Efficient mode, no
+//!   adaptation; `disc_lr` only when α1 is not α2), e.g. `commit_delay = U32(3)`,
+//!   `step_rule = Name("per-group")`; a key a record does not name keeps its default.
+//!   So a newer build's setting left at its default does not stop an older reader, and
+//!   one in use does. After the
+//!   checksum, the parser refuses, naming the key: a key this build does not know
+//!   ([`BlobError::UnknownSetting`]: a setting of a newer build is never run as if it were
+//!   off), a value of another type ([`BlobError::SettingType`]), a name none of the
+//!   setting's values has ([`BlobError::UnknownSettingValue`]), a key given twice
+//!   ([`BlobError::DuplicateSetting`]) and a value out of its range
+//!   ([`BlobError::SettingOutOfRange`], [`BlobError::BadInnerRate`]); an unknown value
+//!   type is [`BlobError::Malformed`]. [`Header::flags`] of a v5 blob is the v4 flag word
+//!   of the same settings, [`Header::spec`] the settings themselves.
+//! * **v4** (what the encoders wrote before v5) has the v3 header, but its last field is the CRC-32
 //!   of the whole blob without that field: the header's bytes before it (magic, version,
 //!   dims, map, flags, rates, cap, counts) followed by the payload. In v1-v3 the CRC covered
 //!   the payload only, so a changed flag, rate or map size went unnoticed; in v4 every byte
@@ -81,24 +106,29 @@ use serde::{Deserialize, Serialize, Serializer};
 
 use crate::crc32::{crc32, crc32_update};
 use crate::error::BlobError;
+use crate::error::SettingText;
 use crate::matrix::{MatRef, Scales};
 use crate::preset::Dims;
 use crate::schema::{AdaptMode, ModelFlags};
 pub use crate::schema::{
     TensorId, FLAG_ADAPT, FLAG_COSSIM, FLAG_FULL_ADAPT, FLAG_ZERO_NOISE, NUM_TENSORS,
 };
+use crate::spec::SpecError;
+use crate::spec::SETTING_KEYS;
+use crate::spec::{apply_setting, name_index, ModelSpec, SettingError, SettingKey, SettingValue};
 
 /// The four magic bytes at the start of every blob.
 pub const MAGIC: [u8; 4] = *b"GMAN";
-/// The format version this build writes (v4: the CRC covers the header and the payload).
-pub const FORMAT_VERSION: u16 = 4;
+/// The format version this build writes (v5: the header names its settings, the CRC covers
+/// the header and the payload).
+pub const FORMAT_VERSION: u16 = 5;
 pub use crate::preset::MAX_INNER_RATE;
 /// The oldest format version this build still reads (v1: no inner-loop settings in the
 /// header; they default to [`AdaptSettings::PAPER`]).
 pub const MIN_FORMAT_VERSION: u16 = 1;
-/// Bytes reserved for the header while encoding (the real header is shorter: at most 83
-/// bytes for v2, 98 for v3).
-const HEADER_RESERVE: usize = 112;
+/// Bytes reserved for the header while encoding (the real header is shorter: at most 98
+/// bytes for v3, about 410 for v5 with every setting at its longest).
+const HEADER_RESERVE: usize = 512;
 
 /// Quantisation of a stored tensor.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -308,12 +338,92 @@ impl HeaderV4Body {
     }
 }
 
+/// The header of a format-v5 blob without its last field, the checksum (as v4): v4's
+/// fields with the flags and the inner-loop settings replaced by the settings section, the
+/// setting records as one byte string.
+#[derive(Deserialize)]
+struct HeaderV5Body<'a> {
+    _magic: [u8; 4],
+    _version: u16,
+    dims: DimsRecord,
+    map: MapRecord,
+    settings: &'a [u8],
+    n_tensors: u16,
+    payload_len: u32,
+}
+
+/// [`HeaderV5Body`] as the encoder writes it.
+#[derive(Serialize)]
+struct HeaderV5Out<'a> {
+    magic: [u8; 4],
+    version: u16,
+    dims: DimsRecord,
+    map: MapRecord,
+    settings: RawBytes<'a>,
+    n_tensors: u16,
+    payload_len: u32,
+}
+
+/// One setting of a format-v5 header as the encoder writes it: its key
+/// ([`SETTING_KEYS`]) and its typed value (read back by [`take_setting`]).
+#[derive(Serialize)]
+struct SettingRecord<'a> {
+    key: &'a str,
+    value: SettingValue<'a>,
+}
+
+/// Decodes one setting record (postcard's form of [`SettingRecord`], read by hand so that
+/// the parser stays small on a device) from the front of `bytes`: the key's bytes, the
+/// value's type tag, the value as a `u32` (a varint, 4 bytes little-endian, or 1 byte 0
+/// or 1; 0 for a name), the name's bytes (empty for the other types), the bytes after it.
+/// `None` for a record that is not well formed.
+fn take_setting(bytes: &[u8]) -> Option<(RawSetting<'_>, &[u8])> {
+    let (key, rest) = take_bytes(bytes)?;
+    let (tag, rest) = take_varint(rest)?;
+    let (raw, name, rest) = match (tag, rest) {
+        (0, _) => take_varint(rest).map(|(v, r)| (v, &[][..], r))?,
+        (1, [a, b, c, d, r @ ..]) => (u32::from_le_bytes([*a, *b, *c, *d]), &[][..], r),
+        (2, _) => take_bytes(rest).map(|(n, r)| (0, n, r))?,
+        (3, [b @ (0 | 1), r @ ..]) => (u32::from(*b), &[][..], r),
+        _ => return None,
+    };
+    Some((
+        RawSetting {
+            key,
+            tag,
+            raw,
+            name,
+        },
+        rest,
+    ))
+}
+
+/// A setting record as [`take_setting`] decodes it.
+struct RawSetting<'a> {
+    key: &'a [u8],
+    tag: u32,
+    raw: u32,
+    name: &'a [u8],
+}
+
+/// A postcard `u32` varint and the rest (postcard's own decoder, which the checksum's
+/// field needs anyway).
+fn take_varint(b: &[u8]) -> Option<(u32, &[u8])> {
+    postcard::take_from_bytes::<u32>(b).ok()
+}
+
+/// A postcard byte string (varint length, then the bytes) and the rest.
+fn take_bytes(b: &[u8]) -> Option<(&[u8], &[u8])> {
+    let (n, rest) = take_varint(b)?;
+    (rest.len() >= n as usize).then(|| rest.split_at(n as usize))
+}
+
 /// What a blob's CRC-32 covers, by format version.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum ChecksumScope {
     /// v1-v3: the payload (tensor records) only; the header is not covered.
     Payload,
-    /// v4: every header byte before the checksum, then the payload: the whole blob.
+    /// v4 and v5: every header byte before the checksum, then the payload: the whole blob.
     HeaderAndPayload,
 }
 
@@ -322,7 +432,7 @@ impl ChecksumScope {
     pub fn describe(self) -> &'static str {
         match self {
             ChecksumScope::Payload => "payload only (format v1-v3 rule)",
-            ChecksumScope::HeaderAndPayload => "header and payload (format v4 rule)",
+            ChecksumScope::HeaderAndPayload => "header and payload (format v4-v5 rule)",
         }
     }
 }
@@ -412,9 +522,15 @@ impl Header {
     }
     /// Model flags ([`FLAG_ADAPT`], [`FLAG_ZERO_NOISE`], [`FLAG_COSSIM`], ...). A v4 blob
     /// has only bits of [`crate::schema::KNOWN_FLAGS`] (others are refused); a v1-v3 blob's
-    /// unknown bits are kept and ignored, as they always were.
+    /// unknown bits are kept and ignored, as they always were; a v5 blob's are those of its
+    /// named settings ([`ModelSpec::bits`]).
     pub fn flags(&self) -> u32 {
         self.flags
+    }
+    /// Every setting the header records, whatever its version ([`ModelSpec::from_bits`] of
+    /// a v1-v4 header's flags and inner-loop settings; a v5 header's named settings).
+    pub fn spec(&self) -> ModelSpec {
+        ModelSpec::from_bits(self.flags, self.settings)
     }
     /// The adaptation mode the model was meta-trained in and must run in:
     /// [`AdaptMode::Full`] with [`FLAG_FULL_ADAPT`], else
@@ -426,7 +542,7 @@ impl Header {
     pub fn model_flags(&self) -> ModelFlags {
         ModelFlags::from_bits(self.flags)
     }
-    /// Format version of the parsed blob (1 to 4).
+    /// Format version of the parsed blob (1 to 5).
     pub fn version(&self) -> u16 {
         self.version
     }
@@ -551,32 +667,139 @@ fn parse_header(bytes: &[u8], opts: ParseOptions) -> Result<(Header, &[u8]), Blo
         }
         4 => {
             let (body, rest) = postcard::take_from_bytes::<HeaderV4Body>(bytes).map_err(map_err)?;
-            let covered = &bytes[..bytes.len() - rest.len()];
-            let (crc, payload) = postcard::take_from_bytes::<u32>(rest).map_err(map_err)?;
-            // Length and checksum before anything in the header is interpreted: a tampered
-            // header is reported as such, not as the odd setting it now holds.
-            let plen = body.payload_len as usize;
-            if payload.len() < plen {
-                return Err(BlobError::Truncated);
-            }
-            if payload.len() != plen {
-                return Err(BlobError::PayloadLength {
-                    expected: body.payload_len,
-                    actual: payload.len(),
-                });
-            }
-            let actual = crc32_update(crc32(covered), payload);
-            if actual != crc {
-                return Err(BlobError::HeaderChecksumMismatch {
-                    expected: crc,
-                    actual,
-                });
-            }
+            let (crc, payload) = check_whole_blob(bytes, rest, body.payload_len)?;
             // After the checksum: these bits were written on purpose, by a newer build.
             crate::schema::check_known_flags(body.flags)?;
             Ok((body.with_crc(crc).into_header(4)?, payload))
         }
+        5 => {
+            let (h, rest) =
+                postcard::take_from_bytes::<HeaderV5Body<'_>>(bytes).map_err(map_err)?;
+            let (crc, payload) = check_whole_blob(bytes, rest, h.payload_len)?;
+            let mut header = Header {
+                version: 5,
+                scope: ChecksumScope::HeaderAndPayload,
+                dims: h.dims,
+                map: h.map,
+                flags: 0,
+                settings: AdaptSettings::PAPER,
+                n_tensors: h.n_tensors,
+                payload_len: h.payload_len,
+                payload_crc: crc,
+            };
+            read_settings(h.settings, &mut header.flags, &mut header.settings)?;
+            check_dims_fit(&h.dims, h.map)?;
+            Ok((header, payload))
+        }
         found => Err(BlobError::UnsupportedVersion { found }),
+    }
+}
+
+/// The checksum of a v4/v5 blob whose header's fields before the checksum end where `rest`
+/// starts, checked with the payload's length before anything in the header is interpreted
+/// (a tampered header is reported as such, not as the odd setting it now holds). Returns
+/// the checksum and the payload.
+fn check_whole_blob<'a>(
+    bytes: &'a [u8],
+    rest: &'a [u8],
+    payload_len: u32,
+) -> Result<(u32, &'a [u8]), BlobError> {
+    let covered = &bytes[..bytes.len() - rest.len()];
+    let (crc, payload) = match postcard::take_from_bytes::<u32>(rest) {
+        Ok(v) => v,
+        Err(postcard::Error::DeserializeUnexpectedEnd) => return Err(BlobError::Truncated),
+        Err(_) => return Err(BlobError::Malformed),
+    };
+    let plen = payload_len as usize;
+    if payload.len() < plen {
+        return Err(BlobError::Truncated);
+    }
+    if payload.len() != plen {
+        return Err(BlobError::PayloadLength {
+            expected: payload_len,
+            actual: payload.len(),
+        });
+    }
+    let actual = crc32_update(crc32(covered), payload);
+    if actual != crc {
+        return Err(BlobError::HeaderChecksumMismatch {
+            expected: crc,
+            actual,
+        });
+    }
+    Ok((crc, payload))
+}
+
+/// Reads the settings of a v5 header's settings section into the v4 form, a flag word and
+/// the inner-loop settings (from [`ModelSpec::BLOB_DEFAULT`]'s: no bit, the paper's rates;
+/// α1 is α2 unless a record names `disc_lr`): every record well formed, its key known,
+/// named once, of its setting's type, a known name, in range.
+fn read_settings(
+    mut records: &[u8],
+    flags: &mut u32,
+    settings: &mut AdaptSettings,
+) -> Result<(), BlobError> {
+    let mut seen = 0u32;
+    while !records.is_empty() {
+        let (rec, rest) = take_setting(records).ok_or(BlobError::Malformed)?;
+        let RawSetting {
+            key: name,
+            tag,
+            raw,
+            name: value,
+        } = rec;
+        records = rest;
+        let key = SettingKey::of(name).ok_or(BlobError::UnknownSetting {
+            key: SettingText::new(name),
+        })?;
+        let bit = 1u32 << key.index();
+        if seen & bit != 0 {
+            return Err(BlobError::DuplicateSetting { key });
+        }
+        seen |= bit;
+        let raw = if tag == 2 {
+            name_index(key, value)
+        } else {
+            raw
+        };
+        apply_setting(key, tag, raw, flags, settings).map_err(|e| match e {
+            SettingError::WrongType { expected } => BlobError::SettingType { key, expected },
+            SettingError::UnknownName => BlobError::UnknownSettingValue {
+                key,
+                value: SettingText::new(value),
+            },
+            _ => BlobError::SettingOutOfRange { key, value: raw },
+        })?;
+    }
+    if seen & (1 << SettingKey::DISC_LR.index()) == 0 {
+        settings.alpha_disc = settings.alpha_adapt;
+    }
+    settings.validate()
+}
+
+impl From<SpecError> for BlobError {
+    /// The setting out of its range, named by its key in a v5 header.
+    fn from(e: SpecError) -> BlobError {
+        match e {
+            SpecError::InnerRate(a) => BlobError::BadInnerRate {
+                field: "inner_lr",
+                bits: a.to_bits(),
+            },
+            SpecError::DiscRate(a) => BlobError::BadInnerRate {
+                field: "disc_lr",
+                bits: a.to_bits(),
+            },
+            SpecError::DiscSteps(n) => BlobError::SettingOutOfRange {
+                key: SettingKey::DISC_STEPS,
+                value: n,
+            },
+            SpecError::CommitDelay(d) => BlobError::SettingOutOfRange {
+                key: SettingKey::COMMIT_DELAY,
+                value: d,
+            },
+            // Not a setting of a header (the map's dims are checked as dims).
+            SpecError::MapGrid { .. } => BlobError::DegenerateDims { field: "map_rows" },
+        }
     }
 }
 
@@ -923,28 +1146,33 @@ pub fn encoded_len_bound(tensors: &[TensorSpec<'_>]) -> usize {
     n
 }
 
-/// Encodes a blob (format v4) for `dims` holding `tensors` into `out` with no flags and the paper's
-/// inner-loop settings; see [`encode_with_settings`].
+/// Encodes a blob (format v5) for `dims` holding `tensors` into `out` with the settings
+/// [`ModelSpec::BLOB_DEFAULT`] (the paper's, no adaptation); see [`Encoder`].
 pub fn encode(dims: &Dims, tensors: &[TensorSpec<'_>], out: &mut [u8]) -> Result<usize, BlobError> {
-    encode_with_settings(dims, 0, AdaptSettings::PAPER, tensors, out)
+    encode_spec(dims, &ModelSpec::BLOB_DEFAULT, tensors, out)
 }
 
-/// Encodes a blob (format v4) for `dims` and model `flags` holding `tensors` into `out` with the
-/// paper's inner-loop settings ([`AdaptSettings::PAPER`]); see [`encode_with_settings`].
-pub fn encode_with_flags(
+/// Encodes a blob (format v5, see [`FORMAT_VERSION`]) for `dims` and the model's settings
+/// `spec`, holding `tensors`, into `out`; returns the number of bytes written. Checks the
+/// settings ([`ModelSpec::validate`]), the dims ([`check_model_dims`]), shapes, finiteness
+/// and quantisation like the parser does, so what it writes always parses. See [`Encoder`]
+/// for writing tensor by tensor.
+pub fn encode_spec(
     dims: &Dims,
-    flags: u32,
+    spec: &ModelSpec,
     tensors: &[TensorSpec<'_>],
     out: &mut [u8],
 ) -> Result<usize, BlobError> {
-    encode_with_settings(dims, flags, AdaptSettings::PAPER, tensors, out)
+    let mut e = Encoder::new(dims, spec, out)?;
+    for t in tensors {
+        e.push(t)?;
+    }
+    e.finish()
 }
 
-/// Encodes a blob (format v4, see [`FORMAT_VERSION`]) for `dims`, model `flags` and the
-/// inner-loop `settings` the model was trained with, holding `tensors`, into `out`; returns
-/// the number of bytes written. Checks the settings ([`AdaptSettings::validate`]), the dims
-/// ([`check_model_dims`]), shapes, finiteness and quantisation like the parser does, so what
-/// it writes always parses. See [`Encoder`] for writing tensor by tensor.
+/// [`encode_spec`] of the settings a v1-v4 header's model `flags` and inner-loop `settings`
+/// stand for ([`ModelSpec::from_bits`]); flag bits this build does not know are refused
+/// ([`BlobError::UnknownFlagBit`]), and so are bad rates ([`AdaptSettings::validate`]).
 pub fn encode_with_settings(
     dims: &Dims,
     flags: u32,
@@ -952,47 +1180,38 @@ pub fn encode_with_settings(
     tensors: &[TensorSpec<'_>],
     out: &mut [u8],
 ) -> Result<usize, BlobError> {
-    let mut e = Encoder::new(dims, flags, settings, out)?;
-    for t in tensors {
-        e.push(t)?;
-    }
-    e.finish()
+    settings.validate()?;
+    crate::schema::check_known_flags(flags)?;
+    encode_spec(dims, &ModelSpec::from_bits(flags, settings), tensors, out)
 }
 
 /// The one emitter of blobs: writes tensor records one by one into the caller's buffer, then
-/// the header in front of them ([`Encoder::finish`]). The `encode*` functions and
-/// [`encode_model`] use it; it needs no allocation and no buffer beyond `out`.
+/// the header, format v5, in front of them ([`Encoder::finish`]). The `encode*` functions,
+/// [`reencode`] and [`encode_model`] use it; it needs no allocation and no buffer beyond
+/// `out`.
 #[derive(Debug)]
 pub struct Encoder<'o> {
     out: &'o mut [u8],
     dims: Dims,
-    flags: u32,
-    settings: AdaptSettings,
+    spec: ModelSpec,
     seen: [bool; NUM_TENSORS],
     n_tensors: u16,
     pos: usize,
 }
 
 impl<'o> Encoder<'o> {
-    /// Starts a blob for `dims`, model `flags` and inner-loop `settings` in `out` (checks
-    /// the settings, then that `out` can hold a header).
-    pub fn new(
-        dims: &Dims,
-        flags: u32,
-        settings: AdaptSettings,
-        out: &'o mut [u8],
-    ) -> Result<Self, BlobError> {
-        settings.validate()?;
+    /// Starts a blob for `dims` and the model's settings `spec` in `out` (checks the
+    /// settings, the dims, then that `out` can hold a header).
+    pub fn new(dims: &Dims, spec: &ModelSpec, out: &'o mut [u8]) -> Result<Self, BlobError> {
+        spec.validate()?;
         check_model_dims(dims)?;
-        crate::schema::check_known_flags(flags)?;
         if out.len() < HEADER_RESERVE {
             return Err(BlobError::BufferTooSmall);
         }
         Ok(Encoder {
             out,
             dims: *dims,
-            flags,
-            settings,
+            spec: *spec,
             seen: [false; NUM_TENSORS],
             n_tensors: 0,
             pos: HEADER_RESERVE,
@@ -1116,58 +1335,76 @@ impl<'o> Encoder<'o> {
         let Encoder {
             out,
             dims,
-            flags,
-            settings,
+            spec,
             n_tensors,
             pos,
             ..
         } = self;
-        let dims = &dims;
         let payload_len = pos - HEADER_RESERVE;
         let mut hbuf = [0u8; HEADER_RESERVE];
-        let body = HeaderV4Body {
+        let too_small = |_| BlobError::BufferTooSmall;
+        let mut sbuf = [0u8; HEADER_RESERVE];
+        let mut slen = 0;
+        let default = ModelSpec::BLOB_DEFAULT;
+        for key in SETTING_KEYS {
+            match spec.get(key) {
+                Some(value) if Some(value) != default.get(key) => {
+                    let rec = SettingRecord { key, value };
+                    slen += postcard::to_slice(&rec, &mut sbuf[slen..])
+                        .map_err(too_small)?
+                        .len();
+                }
+                _ => {}
+            }
+        }
+        let body = HeaderV5Out {
             magic: MAGIC,
             version: FORMAT_VERSION,
-            dims: DimsRecord::from_dims(dims),
-            map: MapRecord::from_dims(dims),
-            flags,
-            alpha_disc: settings.alpha_disc,
-            alpha_adapt: settings.alpha_adapt,
-            max_inner: settings.max_inner,
+            dims: DimsRecord::from_dims(&dims),
+            map: MapRecord::from_dims(&dims),
+            settings: RawBytes(&sbuf[..slen]),
             n_tensors,
             payload_len: payload_len as u32,
         };
         let blen = postcard::to_slice(&body, &mut hbuf)
-            .map_err(|_| BlobError::BufferTooSmall)?
+            .map_err(too_small)?
             .len();
         let crc = crc32_update(crc32(&hbuf[..blen]), &out[HEADER_RESERVE..pos]);
         let written = postcard::to_slice(&crc, &mut hbuf[blen..]).map(|w| blen + w.len());
-        let hlen = written.map_err(|_| BlobError::BufferTooSmall)?;
+        let hlen = written.map_err(too_small)?;
         out.copy_within(HEADER_RESERVE..pos, hlen);
         out[..hlen].copy_from_slice(&hbuf[..hlen]);
         Ok(hlen + payload_len)
     }
 }
 
-/// Length of the `out` buffer [`reencode_with_flags`] needs for the blob `bytes`.
+/// Length of the `out` buffer [`reencode`] needs for the blob `bytes`.
 pub const fn reencoded_len_bound(bytes: &[u8]) -> usize {
     bytes.len().saturating_add(HEADER_RESERVE)
 }
 
-/// The blob `bytes` emitted again through the one encoder with the model flags `flags`:
-/// the dims, the inner-loop settings and every tensor record are kept byte for byte (a
-/// format v1-v3 blob comes out as the current format). Writes into `out` (at least
-/// [`reencoded_len_bound`] bytes) and returns the new blob's length. `gman export --blob
-/// --activations` and the firmware's build script set or clear
-/// [`crate::schema::FLAG_INT8_ACTIVATIONS`] with it.
-pub fn reencode_with_flags(bytes: &[u8], flags: u32, out: &mut [u8]) -> Result<usize, BlobError> {
+/// The blob `bytes` emitted again through the one encoder with the settings `spec`: the
+/// dims and every tensor record are kept byte for byte (a format v1-v4 blob comes out as
+/// the current format). Writes into `out` (at least [`reencoded_len_bound`] bytes) and
+/// returns the new blob's length. `gman export --blob --activations`, `gman upgrade-blob`
+/// and the firmware's build script change [`ModelSpec::int8_activations`] and
+/// [`ModelSpec::compact_psi`] of [`Header::spec`] with it.
+pub fn reencode(bytes: &[u8], spec: &ModelSpec, out: &mut [u8]) -> Result<usize, BlobError> {
     let blob = Blob::parse(bytes)?;
-    let h = blob.header();
-    let mut e = Encoder::new(&h.dims(), flags, h.adapt_settings(), out)?;
+    let mut e = Encoder::new(&blob.header().dims(), spec, out)?;
     for t in blob.tensors() {
         e.push_view(&t)?;
     }
     e.finish()
+}
+
+/// [`reencode`] with the settings a v1-v4 header's model `flags` stand for
+/// ([`ModelSpec::from_bits`], the blob's own inner-loop settings); flag bits this build
+/// does not know are refused ([`BlobError::UnknownFlagBit`]).
+pub fn reencode_with_flags(bytes: &[u8], flags: u32, out: &mut [u8]) -> Result<usize, BlobError> {
+    crate::schema::check_known_flags(flags)?;
+    let settings = Blob::parse(bytes)?.header().adapt_settings();
+    reencode(bytes, &ModelSpec::from_bits(flags, settings), out)
 }
 
 /// Bytes a blob of every tensor of `d` takes at most, in `quant` (matrices; vectors are
@@ -1209,15 +1446,14 @@ pub const fn encode_model_scratch_len(d: &Dims) -> (usize, usize) {
 #[allow(clippy::too_many_arguments)]
 pub fn encode_model<E: From<BlobError>>(
     dims: &Dims,
-    flags: u32,
-    settings: AdaptSettings,
+    spec: &ModelSpec,
     quant: Quant,
     mut values: impl FnMut(TensorId, &mut [f32]) -> Result<(), E>,
     out: &mut [u8],
     floats: &mut [f32],
     bytes: &mut [u8],
 ) -> Result<usize, E> {
-    let mut e = Encoder::new(dims, flags, settings, out)?;
+    let mut e = Encoder::new(dims, spec, out)?;
     for id in TensorId::all_for(dims) {
         let (r, c) = id.shape(dims);
         let n = r * c;

@@ -6,6 +6,8 @@
 
 use core::fmt;
 
+use crate::spec::SettingKey;
+
 /// Which buffer or tensor had the wrong length.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct ShapeError {
@@ -52,6 +54,58 @@ pub enum Error {
         /// Slices of the update still to run.
         slices_left: u32,
     },
+}
+
+/// The first bytes of a word found in a blob (a setting's key or a value's name), kept
+/// without allocation so that an error can name it: up to [`SettingText::CAP`] bytes, any
+/// byte outside printable ASCII shown as `?`, a longer word ending in `...`.
+#[derive(Clone, Copy, PartialEq, Eq)]
+pub struct SettingText {
+    bytes: [u8; SettingText::CAP],
+    /// The word's length (saturating): more than `CAP` when it was cut.
+    len: u8,
+}
+
+impl SettingText {
+    /// Bytes kept (16 with the length: an error holding one stays as small as the others).
+    pub const CAP: usize = 15;
+
+    /// The first bytes of `s`.
+    #[inline(never)]
+    pub fn new(s: &[u8]) -> SettingText {
+        let mut bytes = [b'?'; SettingText::CAP];
+        for (d, &b) in bytes.iter_mut().zip(s) {
+            if b.is_ascii_graphic() {
+                *d = b;
+            }
+        }
+        SettingText {
+            bytes,
+            len: s.len().min(255) as u8,
+        }
+    }
+
+    /// The kept bytes (printable ASCII).
+    pub fn as_str(&self) -> &str {
+        let n = usize::from(self.len).min(SettingText::CAP);
+        core::str::from_utf8(&self.bytes[..n]).unwrap_or("?")
+    }
+}
+
+impl fmt::Display for SettingText {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.as_str())?;
+        if usize::from(self.len) > SettingText::CAP {
+            f.write_str("...")?;
+        }
+        Ok(())
+    }
+}
+
+impl fmt::Debug for SettingText {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{:?}", self.as_str())
+    }
 }
 
 /// Why a weight blob was rejected.
@@ -169,6 +223,39 @@ pub enum BlobError {
         /// All of the header's flags.
         flags: u32,
     },
+    /// A format v5 header names a setting this build does not know: a setting of a newer
+    /// build, which this one would run as if it were at its default.
+    UnknownSetting {
+        /// The key as found (its first bytes).
+        key: SettingText,
+    },
+    /// A format v5 header gives a setting a value of another type than the setting's.
+    SettingType {
+        /// The setting.
+        key: SettingKey,
+        /// The setting's type (`"u32"`, `"f32"`, `"name"`, `"bool"`).
+        expected: &'static str,
+    },
+    /// A format v5 header gives a setting a name none of its values has.
+    UnknownSettingValue {
+        /// The setting.
+        key: SettingKey,
+        /// The name as found (its first bytes).
+        value: SettingText,
+    },
+    /// A format v5 header (or a blob being encoded) holds a count out of its setting's
+    /// range ([`ModelSpec::validate`](crate::spec::ModelSpec::validate)).
+    SettingOutOfRange {
+        /// The setting (`disc_steps`, `commit_delay`).
+        key: SettingKey,
+        /// Its value.
+        value: u32,
+    },
+    /// A format v5 header names the same setting twice.
+    DuplicateSetting {
+        /// The setting.
+        key: SettingKey,
+    },
     /// The postcard encoding itself is malformed (bad varint, trailing bytes, ...).
     Malformed,
     /// The output buffer given to the encoder is too small.
@@ -263,6 +350,20 @@ impl fmt::Display for BlobError {
                 f,
                 "unknown model flag bit {bit} (flags {flags:#x})"
             ),
+            BlobError::UnknownSetting { key } => write!(
+                f,
+                "unknown model setting `{key}` (a setting of a newer build)"
+            ),
+            BlobError::SettingType { key, expected } => {
+                write!(f, "model setting `{key}` is not a {expected}")
+            }
+            BlobError::UnknownSettingValue { key, value } => {
+                write!(f, "model setting `{key}` has the unknown value `{value}`")
+            }
+            BlobError::SettingOutOfRange { key, value } => {
+                write!(f, "model setting `{key}` is out of range: {value}")
+            }
+            BlobError::DuplicateSetting { key } => write!(f, "model setting `{key}` appears twice"),
             BlobError::Malformed => write!(f, "malformed postcard encoding"),
             BlobError::BufferTooSmall => write!(f, "output buffer too small"),
         }

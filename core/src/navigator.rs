@@ -274,11 +274,14 @@ impl NavConfig {
         }
     }
 
-    /// [`NavConfig::from_flags`] of a model's switches (gman-core's one declaration of them,
-    /// [`ModelSpec`]), `adapt` and `emd` being the method's ([`ModelSpec::flags`]): what a
-    /// host that holds the model's settings runs before it writes them into a blob.
-    pub fn from_spec(spec: &ModelSpec, adapt: bool, emd: Emd) -> NavConfig {
-        NavConfig::from_flags(spec.flags(adapt, emd), spec.adapt_settings())
+    /// [`NavConfig::from_flags`] of a model's settings (gman-core's one carrier of them,
+    /// [`ModelSpec`]), with its `compact_psi`: what a host that holds the model's settings
+    /// runs before it writes them into a blob.
+    pub fn from_spec(spec: &ModelSpec) -> NavConfig {
+        NavConfig {
+            compact_psi: spec.compact_psi,
+            ..NavConfig::from_flags(spec.flags(), spec.adapt_settings())
+        }
     }
 
     /// [`NavConfig::from_header`] from the settings themselves: the one mapping of a model's

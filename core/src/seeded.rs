@@ -11,6 +11,7 @@ use crate::error::BlobError;
 use crate::preset::Dims;
 use crate::rng::{fill_gaussian, Xoshiro128};
 use crate::schema::TensorId;
+use crate::spec::ModelSpec;
 
 /// The stream of seeded weights: call [`SeededWeights::fill`] once per tensor, in storage
 /// order.
@@ -37,8 +38,9 @@ impl SeededWeights {
 }
 
 /// Encodes a blob of seeded weights ([`SeededWeights::new`]`(seed, scale)`) for every tensor
-/// of `dims` with model `flags` and inner-loop `settings`, matrices in `quant`; see
-/// [`encode_model`] for `out`, `floats` and `bytes`.
+/// of `dims` with the settings a v1-v4 header's model `flags` and inner-loop `settings`
+/// stand for ([`ModelSpec::from_bits`]; unknown flag bits and bad rates are refused),
+/// matrices in `quant`; see [`encode_model`] for `out`, `floats` and `bytes`.
 #[allow(clippy::too_many_arguments)]
 pub fn encode_seeded(
     dims: &Dims,
@@ -51,11 +53,12 @@ pub fn encode_seeded(
     floats: &mut [f32],
     bytes: &mut [u8],
 ) -> Result<usize, BlobError> {
+    settings.validate()?;
+    crate::schema::check_known_flags(flags)?;
     let mut w = SeededWeights::new(seed, scale);
     encode_model(
         dims,
-        flags,
-        settings,
+        &ModelSpec::from_bits(flags, settings),
         quant,
         |_: TensorId, v: &mut [f32]| {
             w.fill(v);

@@ -1,19 +1,24 @@
-//! The model's switches, declared once: what a blob header records about how a model runs,
+//! The model's settings, declared once: what a blob header records about how a model runs,
 //! what a host checkpoint stores beside the weights, and what a command line sets.
 //!
 //! * [`Named`]: the one table of names of each setting enum ([`AdaptMode`], [`NoiseMode`],
-//!   [`StepRule`], [`AdaptLossKind`]), with its `FromStr`, `Display` and serde forms; a
-//!   command line lists the table's values and their meaning.
+//!   [`StepRule`], [`AdaptLossKind`], [`Emd`]), with its `FromStr`, `Display` and serde
+//!   forms; a command line lists the table's values and their meaning.
 //! * [`InnerRule`]: the inner loop's rule where it departs from the paper's (α1 apart from
 //!   α2, D's steps, the step rule, D's head reset, the form of L_ad, the critic scale, the
 //!   head-only step, the commit delay).
-//! * [`ModelSpec`]: the noise, the adaptation mode, the inner rates, the cap on inner
-//!   updates and the [`InnerRule`]; [`ModelSpec::flags`] and [`ModelSpec::adapt_settings`]
-//!   are what a blob header records, [`ModelSpec::from_header`] reads them back, and
-//!   [`ModelSpec::validate`] is the one check of their ranges.
+//! * [`ModelSpec`]: the carrier of every setting that changes what the model computes: the
+//!   noise, the adaptation mode, the inner rates, the cap on inner updates, the
+//!   [`InnerRule`], whether the model adapts and its EMD, and how a blob is run (int8
+//!   activations, compact Ψ). [`ModelSpec::validate`] is the one check of their ranges;
+//!   [`ModelSpec::get`] and [`ModelSpec::set`] read and write a setting by its key
+//!   ([`SETTING_KEYS`]), which is how a format v5 blob header names them
+//!   ([`crate::blob`]); [`ModelSpec::bits`], [`ModelSpec::adapt_settings`] and
+//!   [`ModelSpec::from_bits`] are the v1-v4 header's form.
 //!
-//! Whether a model adapts at inference and what scores its features ([`ModelFlags::adapt`],
-//! [`ModelFlags::emd`]) belong to the training method, so [`ModelSpec::flags`] takes them.
+//! A host checkpoint stores the training method, not whether the model adapts and its EMD,
+//! and a blob's run-time forms are set at export: those four fields are not part of the
+//! serde form, so checkpoints keep their bytes.
 
 use core::fmt;
 use core::str::FromStr;
@@ -22,14 +27,23 @@ use serde::{Deserialize, Deserializer, Serialize, Serializer};
 
 use crate::blob::{AdaptSettings, Header};
 use crate::preset::MAX_INNER_RATE;
-use crate::schema::MAX_COMMIT_DELAY;
 use crate::schema::{AdaptLossKind, AdaptMode, Emd, ModelFlags, NoiseMode, StepRule};
+use crate::schema::{
+    COMMIT_DELAY_MASK, COMMIT_DELAY_SHIFT, DISC_STEPS_MASK, DISC_STEPS_SHIFT, FLAG_ADAPT,
+    FLAG_COMPACT_PSI, FLAG_COSSIM, FLAG_DISC_HEAD_RESET, FLAG_FULL_ADAPT, FLAG_HEAD_ONLY,
+    FLAG_INT8_ACTIVATIONS, FLAG_NORMALIZED_STEP, FLAG_PER_GROUP_STEP, FLAG_REFERENCE_ADAPT_LOSS,
+    FLAG_REFERENCE_CRITIC_SCALE, FLAG_ZERO_NOISE, MAX_COMMIT_DELAY,
+};
 
 /// A setting enum with one table of names: the form a command line, a checkpoint and a
 /// report use. `FromStr`, `Display` and serde (as the name) derive from [`Named::NAMES`].
 pub trait Named: Copy + PartialEq + Sized + 'static {
     /// Every value, its name and a one-line meaning, in the order a command line lists them.
     const NAMES: &'static [(Self, &'static str, &'static str)];
+
+    /// Every value, in the order of [`Named::NAMES`] (without the help text a device need
+    /// not link).
+    const VALUES: &'static [Self];
 
     /// The name of this value.
     fn name(self) -> &'static str {
@@ -39,6 +53,58 @@ pub trait Named: Copy + PartialEq + Sized + 'static {
     /// The value named `s`.
     fn from_name(s: &str) -> Option<Self> {
         Self::NAMES.iter().find(|e| e.1 == s).map(|e| e.0)
+    }
+}
+
+/// The index of `s` in `list`: the one lookup of a name or a key (not inlined, so that
+/// each table costs a call on a device, not an unrolled comparison per entry).
+#[inline(never)]
+pub(crate) fn index_of(list: &[&str], s: &[u8]) -> Option<usize> {
+    list.iter().position(|n| n.as_bytes() == s)
+}
+
+/// A setting of a [`ModelSpec`], by its index in [`SETTING_KEYS`] (one byte, so that an
+/// error naming it stays small); shown as its key.
+#[derive(Clone, Copy, PartialEq, Eq)]
+pub struct SettingKey(u8);
+
+impl SettingKey {
+    /// `disc_steps`.
+    pub const DISC_STEPS: SettingKey = SettingKey(7);
+    /// `commit_delay`.
+    pub const COMMIT_DELAY: SettingKey = SettingKey(13);
+    /// `disc_lr`.
+    pub const DISC_LR: SettingKey = SettingKey(5);
+
+    /// The setting whose key is `key`.
+    pub fn named(key: &str) -> Option<SettingKey> {
+        SettingKey::of(key.as_bytes())
+    }
+
+    pub(crate) fn of(key: &[u8]) -> Option<SettingKey> {
+        index_of(&SETTING_KEYS, key).map(|i| SettingKey(i as u8))
+    }
+
+    /// Its index in [`SETTING_KEYS`].
+    pub fn index(self) -> usize {
+        usize::from(self.0)
+    }
+
+    /// Its key.
+    pub fn as_str(self) -> &'static str {
+        SETTING_KEYS.get(self.index()).copied().unwrap_or("?")
+    }
+}
+
+impl fmt::Display for SettingKey {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+impl fmt::Debug for SettingKey {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{:?}", self.as_str())
     }
 }
 
@@ -59,6 +125,19 @@ macro_rules! named {
     ($t:ty, $list:ident, [$(($v:expr, $name:literal, $help:literal)),* $(,)?]) => {
         impl Named for $t {
             const NAMES: &'static [(Self, &'static str, &'static str)] = &[$(($v, $name, $help)),*];
+            const VALUES: &'static [Self] = &[$($v),*];
+
+            // By the names alone: a device that parses a blob links no help text.
+            fn name(self) -> &'static str {
+                $(if self == $v {
+                    return $name;
+                })*
+                ""
+            }
+
+            fn from_name(s: &str) -> Option<Self> {
+                index_of(<$t>::$list, s.as_bytes()).and_then(|i| Self::VALUES.get(i).copied())
+            }
         }
 
         impl $t {
@@ -208,6 +287,38 @@ named!(
     ]
 );
 
+named!(
+    Emd,
+    NAME_LIST,
+    [
+        (
+            Emd::Discriminator,
+            "discriminator",
+            "The learned discriminator D scores the generated features (GMAN)"
+        ),
+        (
+            Emd::CosSim,
+            "cossim",
+            "The cosine similarity between x_t and s_t, D unused (the CosSim variant)"
+        ),
+    ]
+);
+
+/// Most rows (and most columns) of a model's map grid: the bound of `gman train --map`, of
+/// Python's `map=` and of [`check_map_grid`].
+pub const MAX_GRID_SIDE: usize = 16;
+
+/// Refuses a `rows x cols` map grid no model takes: at least one row and one column, at
+/// most [`MAX_GRID_SIDE`] of each ([`SpecError::MapGrid`]).
+pub fn check_map_grid(rows: usize, cols: usize) -> Result<(), SpecError> {
+    let side = 1..=MAX_GRID_SIDE;
+    if side.contains(&rows) && side.contains(&cols) {
+        Ok(())
+    } else {
+        Err(SpecError::MapGrid { rows, cols })
+    }
+}
+
 /// The largest number of D's ascent steps per inner update a blob can record.
 pub const MAX_DISC_STEPS: u32 = 256;
 
@@ -224,6 +335,14 @@ pub enum SpecError {
     DiscSteps(u32),
     /// [`InnerRule::commit_delay`] is above [`MAX_COMMIT_DELAY`].
     CommitDelay(u32),
+    /// A map grid without a row or a column, or with more than [`MAX_GRID_SIDE`] of either
+    /// ([`check_map_grid`]).
+    MapGrid {
+        /// Rows asked for.
+        rows: usize,
+        /// Columns asked for.
+        cols: usize,
+    },
 }
 
 impl fmt::Display for SpecError {
@@ -242,6 +361,10 @@ impl fmt::Display for SpecError {
             SpecError::CommitDelay(d) => {
                 write!(f, "commit-delay must be in 0..={MAX_COMMIT_DELAY}, got {d}")
             }
+            SpecError::MapGrid { rows, cols } => write!(
+                f,
+                "map {rows}x{cols}: a map grid has 1..={MAX_GRID_SIDE} rows and 1..={MAX_GRID_SIDE} columns"
+            ),
         }
     }
 }
@@ -372,6 +495,24 @@ pub struct ModelSpec {
     /// The inner rule's levers (absent, and not written, for the paper's rule).
     #[serde(default, skip_serializing_if = "InnerRule::is_paper")]
     pub inner_rule: InnerRule,
+    /// The inner loop runs at inference (the training method's; a host checkpoint stores the
+    /// method instead, so this is not part of the serde form).
+    #[serde(skip, default = "yes")]
+    pub adapt: bool,
+    /// What scores the generated features in L_ad (the method's; not in the serde form).
+    #[serde(skip)]
+    pub emd: Emd,
+    /// The int8 weight matrices multiply int8 activations ([`FLAG_INT8_ACTIVATIONS`]); how a
+    /// blob is run, set by `gman export`, not in the serde form.
+    #[serde(skip)]
+    pub int8_activations: bool,
+    /// Ψ keeps its observations as int16 ([`FLAG_COMPACT_PSI`]); not in the serde form.
+    #[serde(skip)]
+    pub compact_psi: bool,
+}
+
+fn yes() -> bool {
+    true
 }
 
 fn paper_rate() -> f32 {
@@ -395,6 +536,10 @@ impl ModelSpec {
             max_inner: AdaptSettings::PAPER.max_inner,
             adapt_mode,
             inner_rule: InnerRule::PAPER,
+            adapt: true,
+            emd: Emd::Discriminator,
+            int8_activations: false,
+            compact_psi: false,
         }
     }
 
@@ -407,13 +552,13 @@ impl ModelSpec {
         self.inner_rule.validate()
     }
 
-    /// The blob header's model flags of a model with these switches, `adapt` (the inner loop
-    /// runs at inference) and `emd` (what scores its features) being the method's.
-    pub const fn flags(&self, adapt: bool, emd: Emd) -> ModelFlags {
+    /// The model flags of a model with these switches (the v1-v4 header's bit form, see
+    /// [`ModelFlags`]).
+    pub const fn flags(&self) -> ModelFlags {
         let r = &self.inner_rule;
         ModelFlags {
-            adapt,
-            emd,
+            adapt: self.adapt,
+            emd: self.emd,
             noise: self.noise,
             mode: self.adapt_mode,
             disc_steps: r.disc_steps,
@@ -426,6 +571,20 @@ impl ModelSpec {
         }
     }
 
+    /// Every setting as the flag word of a v1-v4 header ([`ModelSpec::flags`] with
+    /// [`FLAG_INT8_ACTIVATIONS`] and [`FLAG_COMPACT_PSI`]); what
+    /// [`Header::flags`](crate::blob::Header::flags) reports for a v5 blob.
+    pub const fn bits(&self) -> u32 {
+        let mut f = self.flags().bits();
+        if self.int8_activations {
+            f |= FLAG_INT8_ACTIVATIONS;
+        }
+        if self.compact_psi {
+            f |= FLAG_COMPACT_PSI;
+        }
+        f
+    }
+
     /// The blob header's inner-loop settings: α1 (`inner_lr` unless the rule sets its own),
     /// α2 = `inner_lr`, and `max_inner`.
     pub fn adapt_settings(&self) -> AdaptSettings {
@@ -436,10 +595,12 @@ impl ModelSpec {
         }
     }
 
-    /// The switches a blob's flags and inner-loop settings record (the inverse of
-    /// [`ModelSpec::flags`] and [`ModelSpec::adapt_settings`]; α1 is a separate `disc_lr`
-    /// exactly when its bits differ from α2's).
-    pub fn from_flags(flags: ModelFlags, settings: AdaptSettings) -> ModelSpec {
+    /// The switches a v1-v4 blob's flag word and inner-loop settings record (the inverse of
+    /// [`ModelSpec::bits`] and [`ModelSpec::adapt_settings`]; α1 is a separate `disc_lr`
+    /// exactly when its bits differ from α2's). Bits outside
+    /// [`KNOWN_FLAGS`](crate::schema::KNOWN_FLAGS) are ignored here.
+    pub fn from_bits(bits: u32, settings: AdaptSettings) -> ModelSpec {
+        let flags = ModelFlags::from_bits(bits);
         let (a1, a2) = (settings.alpha_disc, settings.alpha_adapt);
         ModelSpec {
             noise: flags.noise,
@@ -456,12 +617,217 @@ impl ModelSpec {
                 head_only: flags.head_only,
                 commit_delay: flags.commit_delay,
             },
+            adapt: flags.adapt,
+            emd: flags.emd,
+            int8_activations: bits & FLAG_INT8_ACTIVATIONS != 0,
+            compact_psi: bits & FLAG_COMPACT_PSI != 0,
         }
     }
 
-    /// [`ModelSpec::from_flags`] of a blob header.
+    /// Every setting a blob header records ([`Header::spec`]).
     pub fn from_header(header: &Header) -> ModelSpec {
-        ModelSpec::from_flags(header.model_flags(), header.adapt_settings())
+        header.spec()
+    }
+}
+
+/// A setting's value as a format v5 blob header stores it: its type is part of the record,
+/// so that a reader can tell a wrong type from a wrong value.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub enum SettingValue<'a> {
+    /// A count (varint).
+    U32(u32),
+    /// A rate (4 bytes, little-endian).
+    F32(f32),
+    /// A value of a [`Named`] enum, by its name.
+    Name(&'a str),
+    /// A switch (one byte, 0 or 1).
+    Bool(bool),
+}
+
+/// Why [`ModelSpec::set`] refused a setting.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SettingError {
+    /// No setting has this key.
+    UnknownKey,
+    /// The value has another type than the setting's (`"u32"`, `"f32"`, `"name"`,
+    /// `"bool"`).
+    WrongType {
+        /// The setting's type.
+        expected: &'static str,
+    },
+    /// The value is a name that none of the setting's values has.
+    UnknownName,
+    /// A count out of the setting's range (`disc_steps`: 1..=[`MAX_DISC_STEPS`],
+    /// `commit_delay`: 0..=[`MAX_COMMIT_DELAY`]).
+    OutOfRange,
+}
+
+/// The key of every setting of a [`ModelSpec`], in the order the blob encoder writes them
+/// (the same words as the serde form's keys, and as the command line's flags without the
+/// dashes and with `_` for `-`).
+pub const SETTING_KEYS: [&str; 16] = [
+    "adapt",
+    "emd",
+    "noise",
+    "adapt_mode",
+    "inner_lr",
+    "disc_lr",
+    "max_inner",
+    "disc_steps",
+    "step_rule",
+    "disc_head_reset",
+    "adapt_loss",
+    "reference_critic",
+    "head_only",
+    "commit_delay",
+    "int8_activations",
+    "compact_psi",
+];
+
+/// The type of each setting's value, in [`SETTING_KEYS`] order: the tag of its
+/// [`SettingValue`] variant (0 `U32`, 1 `F32`, 2 `Name`, 3 `Bool`).
+const SETTING_TYPES: [u8; 16] = [3, 2, 2, 2, 1, 1, 0, 0, 2, 3, 2, 3, 3, 0, 3, 3];
+
+/// The index of the value named `name` of the setting `key` (`u32::MAX` for a name none
+/// of its values has, or a setting without names).
+#[inline(never)]
+pub(crate) fn name_index(key: SettingKey, name: &[u8]) -> u32 {
+    let names: &[&str] = match key.index() {
+        1 => Emd::NAME_LIST,
+        2 => NoiseMode::NAME_LIST,
+        3 => AdaptMode::NAME_LIST,
+        8 => StepRule::NAME_LIST,
+        10 => AdaptLossKind::NAME_LIST,
+        _ => &[],
+    };
+    index_of(names, name).map_or(u32::MAX, |j| j as u32)
+}
+
+/// Sets the setting `key` to `value` in a v1-v4 header's form of the settings, the flag
+/// word `flags` and the inner-loop `settings` (`inner_lr` is α2, `disc_lr` α1): the one
+/// table from each setting to its bits, read by the v5 parser and by [`ModelSpec::set`].
+/// Checks the value's type, its name and the ranges the bits can hold; the rates are
+/// [`AdaptSettings::validate`]'s.
+///
+/// The value comes as its type's tag (that of its [`SettingValue`] variant) and a `u32`: a
+/// count, a rate's bits, a name's index ([`name_index`]), a switch as 0 or 1.
+#[inline(never)]
+pub(crate) fn apply_setting(
+    key: SettingKey,
+    tag: u32,
+    raw: u32,
+    flags: &mut u32,
+    settings: &mut AdaptSettings,
+) -> Result<(), SettingError> {
+    let i = key.index();
+    let expected = u32::from(SETTING_TYPES[i]);
+    if tag != expected {
+        let expected = ["u32", "f32", "name", "bool"][(expected & 3) as usize];
+        return Err(SettingError::WrongType { expected });
+    }
+    // A name's or a switch's bits: the `raw`-th entry of its table.
+    let pick = |table: &[u32]| {
+        table
+            .get(raw as usize)
+            .copied()
+            .ok_or(SettingError::UnknownName)
+    };
+    let (mask, bits) = match i {
+        0 => (FLAG_ADAPT, pick(&[0, FLAG_ADAPT])?),
+        1 => (FLAG_COSSIM, pick(&[0, FLAG_COSSIM])?),
+        2 => (FLAG_ZERO_NOISE, pick(&[0, FLAG_ZERO_NOISE])?),
+        3 => (FLAG_FULL_ADAPT, pick(&[FLAG_FULL_ADAPT, 0])?),
+        4 => {
+            settings.alpha_adapt = f32::from_bits(raw);
+            return Ok(());
+        }
+        5 => {
+            settings.alpha_disc = f32::from_bits(raw);
+            return Ok(());
+        }
+        6 => {
+            settings.max_inner = raw;
+            return Ok(());
+        }
+        7 if (1..=MAX_DISC_STEPS).contains(&raw) => {
+            (DISC_STEPS_MASK, (raw - 1) << DISC_STEPS_SHIFT)
+        }
+        8 => (
+            FLAG_NORMALIZED_STEP | FLAG_PER_GROUP_STEP,
+            pick(&[0, FLAG_NORMALIZED_STEP, FLAG_PER_GROUP_STEP])?,
+        ),
+        9 => (FLAG_DISC_HEAD_RESET, pick(&[0, FLAG_DISC_HEAD_RESET])?),
+        10 => (
+            FLAG_REFERENCE_ADAPT_LOSS,
+            pick(&[0, FLAG_REFERENCE_ADAPT_LOSS])?,
+        ),
+        11 => (
+            FLAG_REFERENCE_CRITIC_SCALE,
+            pick(&[0, FLAG_REFERENCE_CRITIC_SCALE])?,
+        ),
+        12 => (FLAG_HEAD_ONLY, pick(&[0, FLAG_HEAD_ONLY])?),
+        13 if raw <= MAX_COMMIT_DELAY => (COMMIT_DELAY_MASK, raw << COMMIT_DELAY_SHIFT),
+        14 => (FLAG_INT8_ACTIVATIONS, pick(&[0, FLAG_INT8_ACTIVATIONS])?),
+        15 => (FLAG_COMPACT_PSI, pick(&[0, FLAG_COMPACT_PSI])?),
+        _ => return Err(SettingError::OutOfRange),
+    };
+    *flags = (*flags & !mask) | bits;
+    Ok(())
+}
+
+impl ModelSpec {
+    /// The settings of a format v5 blob header before its records are read: a key a record
+    /// does not name keeps this value (the paper's rule and rates, Efficient mode, no
+    /// adaptation, every run-time form off: what a v4 header with no flag bit says).
+    pub const BLOB_DEFAULT: ModelSpec = ModelSpec {
+        adapt: false,
+        ..ModelSpec::paper(AdaptMode::Efficient)
+    };
+
+    /// The value of the setting `key` ([`SETTING_KEYS`]); `None` for an unknown key and for
+    /// `disc_lr` when α1 is α2.
+    pub fn get(&self, key: &str) -> Option<SettingValue<'static>> {
+        use SettingValue::{Bool, Name, F32, U32};
+        let r = &self.inner_rule;
+        Some(match key {
+            "adapt" => Bool(self.adapt),
+            "emd" => Name(self.emd.name()),
+            "noise" => Name(self.noise.name()),
+            "adapt_mode" => Name(self.adapt_mode.name()),
+            "inner_lr" => F32(self.inner_lr),
+            "disc_lr" => F32(r.disc_lr?),
+            "max_inner" => U32(self.max_inner),
+            "disc_steps" => U32(r.disc_steps),
+            "step_rule" => Name(r.step_rule.name()),
+            "disc_head_reset" => Bool(r.disc_head_reset),
+            "adapt_loss" => Name(r.adapt_loss.name()),
+            "reference_critic" => Bool(r.reference_critic),
+            "head_only" => Bool(r.head_only),
+            "commit_delay" => U32(r.commit_delay),
+            "int8_activations" => Bool(self.int8_activations),
+            "compact_psi" => Bool(self.compact_psi),
+            _ => return None,
+        })
+    }
+
+    /// Sets the setting `key` to `value` (its type and, for a name, its value checked; the
+    /// ranges are [`ModelSpec::validate`]'s).
+    pub fn set(&mut self, key: &str, value: SettingValue<'_>) -> Result<(), SettingError> {
+        let key = SettingKey::named(key).ok_or(SettingError::UnknownKey)?;
+        let (mut flags, mut settings) = (self.bits(), self.adapt_settings());
+        let (tag, raw) = match value {
+            SettingValue::U32(n) => (0, n),
+            SettingValue::F32(a) => (1, a.to_bits()),
+            SettingValue::Name(n) => (2, name_index(key, n.as_bytes())),
+            SettingValue::Bool(b) => (3, u32::from(b)),
+        };
+        apply_setting(key, tag, raw, &mut flags, &mut settings)?;
+        if key.index() == 4 && self.inner_rule.disc_lr.is_none() {
+            // α1 follows α2 unless it was set on its own.
+            settings.alpha_disc = settings.alpha_adapt;
+        }
+        *self = ModelSpec::from_bits(flags, settings);
+        Ok(())
     }
 }
 
@@ -528,14 +894,74 @@ mod tests {
                 head_only: true,
                 commit_delay: 17,
             },
+            adapt: true,
+            emd: Emd::CosSim,
+            int8_activations: true,
+            compact_psi: true,
         };
-        let flags = ModelFlags::from_bits(spec.flags(true, Emd::CosSim).bits());
+        let flags = ModelFlags::from_bits(spec.bits());
         assert!(flags.adapt && flags.emd == Emd::CosSim);
-        assert_eq!(ModelSpec::from_flags(flags, spec.adapt_settings()), spec);
+        assert_eq!(
+            ModelSpec::from_bits(spec.bits(), spec.adapt_settings()),
+            spec
+        );
         let paper = ModelSpec::paper(AdaptMode::Full);
         assert_eq!(paper.adapt_settings(), AdaptSettings::PAPER);
         assert_eq!(paper.validate(), Ok(()));
         assert_eq!(spec.validate(), Ok(()));
+    }
+
+    #[test]
+    fn every_setting_key_reads_back_what_it_sets() {
+        assert_eq!(SettingKey::DISC_STEPS.as_str(), "disc_steps");
+        assert_eq!(SettingKey::COMMIT_DELAY.as_str(), "commit_delay");
+        let mut spec = ModelSpec::BLOB_DEFAULT;
+        spec.inner_rule.disc_lr = Some(0.5);
+        let mut back = ModelSpec::BLOB_DEFAULT;
+        for key in SETTING_KEYS {
+            let k = SettingKey::named(key).unwrap();
+            assert_eq!(k.as_str(), key);
+            let v = spec.get(key).unwrap();
+            assert_eq!(back.set(key, v), Ok(()));
+            let wrong = match v {
+                SettingValue::Bool(_) => SettingValue::U32(1),
+                _ => SettingValue::Bool(true),
+            };
+            assert!(matches!(
+                back.set(key, wrong),
+                Err(SettingError::WrongType { .. })
+            ));
+        }
+        assert_eq!(back, spec);
+        // Every name of every name-valued setting reads back as itself.
+        for (key, names) in [
+            ("emd", Emd::NAME_LIST),
+            ("noise", NoiseMode::NAME_LIST),
+            ("adapt_mode", AdaptMode::NAME_LIST),
+            ("step_rule", StepRule::NAME_LIST),
+            ("adapt_loss", AdaptLossKind::NAME_LIST),
+        ] {
+            for name in names {
+                let mut s = ModelSpec::BLOB_DEFAULT;
+                assert_eq!(s.set(key, SettingValue::Name(name)), Ok(()));
+                assert_eq!(s.get(key), Some(SettingValue::Name(name)), "{key}");
+            }
+        }
+        assert_eq!(
+            back.set("step_rule", SettingValue::Name("sideways")),
+            Err(SettingError::UnknownName)
+        );
+        assert_eq!(
+            back.set("warp", SettingValue::U32(1)),
+            Err(SettingError::UnknownKey)
+        );
+        assert_eq!(SettingKey::named("warp"), None);
+        assert_eq!(check_map_grid(16, 1), Ok(()));
+        assert_eq!(
+            check_map_grid(17, 3),
+            Err(SpecError::MapGrid { rows: 17, cols: 3 })
+        );
+        assert!(check_map_grid(0, 3).is_err());
     }
 
     #[test]

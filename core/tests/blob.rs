@@ -37,11 +37,12 @@ fn int8_round_trip_respects_documented_error_bound() {
     let t = random_tensors(&SMALL, 2);
     let bytes = make_blob(&SMALL, &t, true);
     let f32_bytes = make_blob(&SMALL, &t, false);
+    let blob = Blob::parse(&bytes).unwrap();
+    let payload = |b: &[u8]| Blob::parse(b).unwrap().header().payload_len();
     assert!(
-        bytes.len() < f32_bytes.len() / 2,
+        payload(&bytes) < payload(&f32_bytes) / 2,
         "int8 blob should be much smaller"
     );
-    let blob = Blob::parse(&bytes).unwrap();
     for (id, v) in &t {
         let view = blob.tensor(*id).unwrap();
         let mut out = vec![0.0; v.len()];
@@ -92,8 +93,8 @@ fn bad_magic_version_checksum_and_dims_are_typed() {
     let mut m = bytes.clone();
     m[0] = b'X';
     assert_eq!(Blob::parse(&m).unwrap_err(), BlobError::BadMagic);
-    assert_eq!(bytes[4], 4, "the encoder writes format v4");
-    for bad in [0u8, 5, 9, 0x7f] {
+    assert_eq!(bytes[4], 5, "the encoder writes format v5");
+    for bad in [0u8, 6, 9, 0x7f] {
         let mut v = bytes.clone();
         v[4] = bad; // version varint follows the 4 magic bytes
         assert_eq!(
@@ -231,14 +232,19 @@ fn f32_specs(tensors: &[(TensorId, Vec<f32>)]) -> Vec<TensorSpec<'_>> {
         .collect()
 }
 
-/// A v4 blob of `SMALL` f32 tensors with the given flags and settings.
-fn blob_v4_with(flags: u32, settings: AdaptSettings, seed: u64) -> Vec<u8> {
+/// A v5 blob of `SMALL` f32 tensors with the given flags and settings.
+fn blob_v5_with(flags: u32, settings: AdaptSettings, seed: u64) -> Vec<u8> {
     let t = random_tensors(&SMALL, seed);
     let specs = f32_specs(&t);
     let mut out = vec![0u8; encoded_len_bound(&specs)];
     let n = encode_with_settings(&SMALL, flags, settings, &specs, &mut out).unwrap();
     out.truncate(n);
     out
+}
+
+/// The same blob in format v4.
+fn blob_v4_with(flags: u32, settings: AdaptSettings, seed: u64) -> Vec<u8> {
+    as_v4(&blob_v5_with(flags, settings, seed))
 }
 
 /// The same blob in format v2 (what the encoders wrote before v4; CRC over the payload).
@@ -657,7 +663,7 @@ fn v3_blobs_carry_the_spatial_map() {
     for int8 in [false, true] {
         let bytes = make_blob(&dims, &tensors, int8);
         let blob = Blob::parse(&bytes).unwrap();
-        assert_eq!(blob.header().version(), 4);
+        assert_eq!(blob.header().version(), FORMAT_VERSION);
         let old = legacy(&bytes);
         let ob = Blob::parse(&old).unwrap();
         assert_eq!((ob.header().version(), ob.dims()), (3, dims));
@@ -746,22 +752,25 @@ fn seeded_builder_equals_the_spec_list_encoder() {
 #[test]
 fn v4_checksum_covers_every_header_bit() {
     let dims = SMALL.with_map(3, 3, 2);
-    let bytes = make_blob(&dims, &random_tensors(&dims, 31), true);
-    let blob = Blob::parse(&bytes).unwrap();
-    assert_eq!(blob.header().version(), 4);
-    assert_eq!(
-        blob.header().checksum_scope(),
-        ChecksumScope::HeaderAndPayload
-    );
-    let hlen = bytes.len() - blob.header().payload_len() as usize;
-    for byte in 0..hlen {
-        for bit in 0..8 {
-            let mut m = bytes.clone();
-            m[byte] ^= 1 << bit;
-            assert!(
-                Blob::parse(&m).is_err(),
-                "header byte {byte} bit {bit} flipped and the blob still parsed"
-            );
+    let v5 = make_blob(&dims, &random_tensors(&dims, 31), true);
+    let bytes = as_v4(&v5);
+    for (bytes, version) in [(&bytes, 4), (&v5, 5)] {
+        let blob = Blob::parse(bytes).unwrap();
+        assert_eq!(blob.header().version(), version);
+        assert_eq!(
+            blob.header().checksum_scope(),
+            ChecksumScope::HeaderAndPayload
+        );
+        let hlen = bytes.len() - blob.header().payload_len() as usize;
+        for byte in 0..hlen {
+            for bit in 0..8 {
+                let mut m = bytes.clone();
+                m[byte] ^= 1 << bit;
+                assert!(
+                    Blob::parse(&m).is_err(),
+                    "v{version}: header byte {byte} bit {bit} flipped and the blob still parsed"
+                );
+            }
         }
     }
     // The v3 rule: a flipped exponent bit of α2 (0.01 -> huge) is caught only by the rate
@@ -877,4 +886,166 @@ fn unknown_flag_bits_in_a_v4_blob_are_refused_naming_the_bit() {
     edited.extend_from_slice(&old[at..]);
     let b = Blob::parse(&edited).unwrap();
     assert_eq!(b.header().flags(), FLAG_ADAPT | 1 << 22);
+}
+
+/// A format-v5 blob with the dims and payload of `blob` and the setting records `records`
+/// (each already encoded), written by hand with a valid checksum: it can hold what the
+/// encoder never writes (an unknown key, a wrong type, an unknown name, a repeated key).
+fn v5_with_records(blob: &[u8], records: &[Vec<u8>]) -> Vec<u8> {
+    let h = *Blob::parse(blob).unwrap().header();
+    let d = h.dims();
+    let mut out = MAGIC.to_vec();
+    out.extend(varint_bytes(5));
+    for v in [
+        d.attr,
+        d.noise,
+        d.gen_hidden,
+        d.feat,
+        d.disc_hidden,
+        d.lstm_hidden,
+        d.embed,
+        d.ps,
+        d.map_rows,
+        d.map_cols,
+        d.cell_embed,
+    ] {
+        out.extend(varint_bytes(v as u64));
+    }
+    out.extend(varint_bytes(
+        records.iter().map(Vec::len).sum::<usize>() as u64
+    ));
+    for r in records {
+        out.extend_from_slice(r);
+    }
+    out.extend(varint_bytes(h.n_tensors().into()));
+    out.extend(varint_bytes(h.payload_len().into()));
+    let payload = &blob[blob.len() - h.payload_len() as usize..];
+    let crc = gman_core::crc32::crc32_update(gman_core::crc32::crc32(&out), payload);
+    out.extend(varint_bytes(crc.into()));
+    out.extend_from_slice(payload);
+    out
+}
+
+/// One v5 setting record: the key, the value's type tag (0 u32, 1 f32, 2 name, 3 bool) and
+/// the value's bytes.
+fn record(key: &str, tag: u64, value: &[u8]) -> Vec<u8> {
+    let mut r = varint_bytes(key.len() as u64);
+    r.extend_from_slice(key.as_bytes());
+    r.extend(varint_bytes(tag));
+    r.extend_from_slice(value);
+    r
+}
+
+/// A name value's bytes (length, then the name).
+fn name_bytes(s: &str) -> Vec<u8> {
+    let mut r = varint_bytes(s.len() as u64);
+    r.extend_from_slice(s.as_bytes());
+    r
+}
+
+/// Format v5 names every setting: the encoder's records round-trip every field of the
+/// carrier, the v4 bit form of the same settings gives
+/// the same navigator configuration, and a record this build does not understand (an
+/// unknown key, a value of another type, an unknown name, a repeated key, a count out of
+/// range) is a typed error naming it, with a valid checksum.
+#[test]
+fn v5_names_its_settings_and_refuses_what_it_does_not_know() {
+    use gman_core::schema::AdaptLossKind;
+    use gman_core::spec::{InnerRule, ModelSpec, SETTING_KEYS};
+    let spec = ModelSpec {
+        noise: NoiseMode::Zero,
+        inner_lr: 0.02,
+        max_inner: 9,
+        adapt_mode: AdaptMode::Full,
+        inner_rule: InnerRule {
+            disc_lr: Some(0.05),
+            disc_steps: 3,
+            step_rule: StepRule::PerGroup,
+            disc_head_reset: true,
+            adapt_loss: AdaptLossKind::Reference,
+            reference_critic: true,
+            head_only: true,
+            commit_delay: 5,
+        },
+        adapt: true,
+        emd: Emd::CosSim,
+        int8_activations: true,
+        compact_psi: true,
+    };
+    let t = random_tensors(&SMALL, 8);
+    let specs = f32_specs(&t);
+    let mut out = vec![0u8; encoded_len_bound(&specs)];
+    let n = gman_core::blob::encode_spec(&SMALL, &spec, &specs, &mut out).unwrap();
+    let v5 = out[..n].to_vec();
+    let h = *Blob::parse(&v5).unwrap().header();
+    assert_eq!((h.version(), h.spec()), (5, spec));
+    // Every key is written, by name, in the header.
+    let hlen = v5.len() - h.payload_len() as usize;
+    for key in SETTING_KEYS {
+        let found = v5[..hlen].windows(key.len()).any(|w| w == key.as_bytes());
+        assert!(found, "{key} not named in the header");
+    }
+    let v4 = as_v4(&v5);
+    let h4 = *Blob::parse(&v4).unwrap().header();
+    assert_eq!(h4.flags(), h.flags());
+    assert_eq!(NavConfig::from_header(&h4), NavConfig::from_header(&h));
+    // No record: the documented defaults, which the encoder leaves out.
+    let empty = v5_with_records(&v5, &[]);
+    let empty = Blob::parse(&empty).unwrap();
+    assert_eq!(empty.header().spec(), ModelSpec::BLOB_DEFAULT);
+    let n = gman_core::blob::encode(&SMALL, &specs, &mut out).unwrap();
+    assert_eq!(out[..n], v5_with_records(&v5, &[])[..]);
+    let mut one = ModelSpec::BLOB_DEFAULT;
+    one.inner_rule.commit_delay = 7;
+    let n = gman_core::blob::encode_spec(&SMALL, &one, &specs, &mut out).unwrap();
+    let seven = record("commit_delay", 0, &varint_bytes(7));
+    assert_eq!(out[..n], v5_with_records(&v5, &[seven])[..]);
+    let ok = record("commit_delay", 0, &varint_bytes(7));
+    assert_eq!(
+        Blob::parse(&v5_with_records(&v5, std::slice::from_ref(&ok)))
+            .unwrap()
+            .header()
+            .spec()
+            .inner_rule
+            .commit_delay,
+        7
+    );
+    let refused = |records: &[Vec<u8>]| Blob::parse(&v5_with_records(&v5, records)).unwrap_err();
+    let key = |k: &str| gman_core::spec::SettingKey::named(k).unwrap();
+    let e = refused(&[ok.clone(), record("warp_factor", 0, &varint_bytes(3))]);
+    assert!(matches!(e, BlobError::UnknownSetting { key } if key.as_str() == "warp_factor"));
+    assert_eq!(
+        e.to_string(),
+        "unknown model setting `warp_factor` (a setting of a newer build)"
+    );
+    let e = refused(&[record("step_rule", 2, &name_bytes("sideways"))]);
+    assert!(
+        matches!(e, BlobError::UnknownSettingValue { key, value } if key.as_str() == "step_rule" && value.as_str() == "sideways")
+    );
+    assert!(e.to_string().contains("`step_rule`") && e.to_string().contains("`sideways`"));
+    assert_eq!(
+        refused(&[record("commit_delay", 2, &name_bytes("soon"))]),
+        BlobError::SettingType {
+            key: key("commit_delay"),
+            expected: "u32"
+        }
+    );
+    assert_eq!(
+        refused(&[record("commit_delay", 0, &varint_bytes(64))]),
+        BlobError::SettingOutOfRange {
+            key: key("commit_delay"),
+            value: 64
+        }
+    );
+    assert_eq!(
+        refused(&[ok.clone(), ok]),
+        BlobError::DuplicateSetting {
+            key: key("commit_delay")
+        }
+    );
+    let long = "a_setting_with_a_very_long_name_indeed";
+    let e = refused(&[record(long, 3, &[1])]);
+    assert!(e.to_string().contains("`a_setting_with_...`"), "{e}");
+    // An unknown value type is a decoding error.
+    assert_eq!(refused(&[record("adapt", 9, &[1])]), BlobError::Malformed);
 }

@@ -610,7 +610,7 @@ fn table_summarises_rows_and_draws_their_spread() {
 }
 
 /// A blob whose checksum skips its header (format v2 here) loads with a warning naming the
-/// file and the risk (`inspect`, `eval`); `upgrade-blob IN OUT` rewrites it in format v4,
+/// file and the risk (`inspect`, `eval`); `upgrade-blob IN OUT` rewrites it in format v5,
 /// refuses OUT = IN, and the upgraded blob evaluates to the same JSON, without the warning.
 #[test]
 fn legacy_blob_warns_and_upgrade_blob_evaluates_identically() {
@@ -640,13 +640,13 @@ fn legacy_blob_warns_and_upgrade_blob_evaluates_identically() {
     let (ok, out, err) = gman(&["upgrade-blob", old, new_s]);
     assert!(ok, "{err}");
     assert!(
-        out.contains("format v2") && out.contains("format v4"),
+        out.contains("format v2") && out.contains("format v5"),
         "{out}"
     );
     let (ok, out, err) = gman(&["inspect", new_s]);
     assert!(ok, "{err}");
     assert!(
-        out.contains("format v4") && !err.contains("warning"),
+        out.contains("format v5") && !err.contains("warning"),
         "{out}{err}"
     );
     for setting in [
@@ -659,6 +659,8 @@ fn legacy_blob_warns_and_upgrade_blob_evaluates_identically() {
         "commit delay 0 steps",
         "int8 activations",
         "compact Ψ",
+        "settings by key: adapt=true emd=discriminator",
+        "commit_delay=0 int8_activations=false compact_psi=false",
     ] {
         assert!(
             out.contains(setting),
@@ -667,10 +669,30 @@ fn legacy_blob_warns_and_upgrade_blob_evaluates_identically() {
     }
     // A v4 blob with a flag bit this build does not know (checksum recomputed): refused,
     // naming the bit.
+    let v4 = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/models/gman-thor5-map3-b16-mcu-int8-seed3.gman"
+    );
     let unknown = d.join("unknown-bit.gman");
-    std::fs::write(&unknown, with_flag_bit(&std::fs::read(&new).unwrap(), 22)).unwrap();
+    std::fs::write(&unknown, with_flag_bit(&std::fs::read(v4).unwrap(), 22)).unwrap();
     let (ok, _, err) = gman(&["inspect", unknown.to_str().unwrap()]);
     assert!(!ok && err.contains("unknown model flag bit 22"), "{err}");
+    // A v5 blob naming a setting this build does not know (checksum recomputed): refused by
+    // every command, naming it.
+    let unknown = d.join("unknown-setting.gman");
+    let renamed = with_setting_renamed(&std::fs::read(&new).unwrap(), b"adapt", b"warp_");
+    std::fs::write(&unknown, renamed).unwrap();
+    let unknown = unknown.to_str().unwrap();
+    for args in [
+        &["inspect", unknown][..],
+        &["eval", "--agent", unknown, "--episodes", "1", "--quiet"],
+    ] {
+        let (ok, _, err) = gman(args);
+        assert!(
+            !ok && err.contains("unknown model setting `warp_`"),
+            "{args:?}: {err}"
+        );
+    }
     // Only the header changed: every tensor record is the old payload's.
     let (a, b) = (std::fs::read(old).unwrap(), std::fs::read(&new).unwrap());
     let (pa, pb) = (
@@ -713,6 +735,39 @@ fn legacy_blob_warns_and_upgrade_blob_evaluates_identically() {
     assert!(!err_b.contains("checksums the payload only"), "{err_b}");
     assert_eq!(va, vb, "the upgraded blob evaluates differently");
     let _ = std::fs::remove_dir_all(&d);
+}
+
+/// The format v5 blob `v5` with its setting key `from` renamed `to` (the same length) and
+/// its checksum recomputed (the last varint of the header, over every header byte before
+/// it and the payload).
+fn with_setting_renamed(v5: &[u8], from: &[u8], to: &[u8]) -> Vec<u8> {
+    let blob = gman_core::blob::Blob::parse(v5).unwrap();
+    let pl = blob.header().payload_len() as usize;
+    assert_eq!(
+        (v5[4], from.len()),
+        (5, to.len()),
+        "a v5 blob, a same-length key"
+    );
+    let end = v5.len() - pl;
+    let mut crc_at = end - 1;
+    while v5[crc_at - 1] & 0x80 != 0 {
+        crc_at -= 1;
+    }
+    let mut head = v5[..crc_at].to_vec();
+    let at = head
+        .windows(from.len())
+        .position(|w| w == from)
+        .expect("the key in the header");
+    head[at..at + to.len()].copy_from_slice(to);
+    let payload = &v5[end..];
+    let mut crc = gman_core::crc32::crc32_update(gman_core::crc32::crc32(&head), payload);
+    while crc >= 0x80 {
+        head.push(crc as u8 | 0x80);
+        crc >>= 7;
+    }
+    head.push(crc as u8);
+    head.extend_from_slice(payload);
+    head
 }
 
 /// A format v4 blob with flag bit `bit` also set and its checksum recomputed (the header's

@@ -802,10 +802,10 @@ fn outputs_never_overwrite_inputs() {
     ]);
     assert!(!ok && e.contains("same file"), "{e}");
     assert_eq!(std::fs::read(&m).unwrap(), blob, "model changed");
-    // `inspect` names the rule that verified the blob: v4 covers the header.
+    // `inspect` names the rule that verified the blob: v5 covers the header.
     let (ok, out, e) = gman(&["inspect", s(&m)]);
     assert!(
-        ok && out.contains("format v4") && out.contains("header and payload"),
+        ok && out.contains("format v5") && out.contains("header and payload"),
         "{out}{e}"
     );
     let shipped = Path::new(env!("CARGO_MANIFEST_DIR")).join("models/gman-mcu-int8-seed1.gman");

@@ -187,8 +187,7 @@ pub fn view_map(world: &World, scene: SceneId, state: usize, grid: MapGrid, out:
 /// Side of the reference's ResNet18 feature map (7 x 7 cells).
 pub const RESNET_SIDE: usize = 7;
 
-/// Most rows (and most columns) of a model's map grid, the bound of `gman train --map`.
-pub const MAX_GRID_SIDE: usize = 16;
+pub use gman_core::spec::MAX_GRID_SIDE;
 
 /// Refuses a `rows x cols` map grid no model takes: gman-core's rule for a map's dims
 /// ([`gman_core::Dims::degenerate_field`]: rows and columns both non-zero) and at most
@@ -201,7 +200,7 @@ pub fn check_grid(rows: usize, cols: usize, what: &str) -> anyhow::Result<()> {
             "{what}: a {rows}x{cols} map grid ({field} is 0): a map grid has at least one row and one column"
         );
     }
-    if rows > MAX_GRID_SIDE || cols > MAX_GRID_SIDE {
+    if gman_core::spec::check_map_grid(rows, cols).is_err() {
         anyhow::bail!(
             "{what}: a {rows}x{cols} map grid, but a map grid has at most {MAX_GRID_SIDE} rows and {MAX_GRID_SIDE} columns"
         );

@@ -4,7 +4,8 @@
 use std::path::Path;
 
 use anyhow::{anyhow, bail, Result};
-use gman_core::blob::{reencode_with_flags, reencoded_len_bound, Blob, ChecksumScope, Quant};
+use gman_core::blob::{reencode, reencoded_len_bound, Blob, ChecksumScope, Quant};
+#[cfg(doc)]
 use gman_core::schema::{FLAG_COMPACT_PSI, FLAG_INT8_ACTIVATIONS};
 
 /// `bytes` (a weight blob) emitted again with [`FLAG_INT8_ACTIVATIONS`] and
@@ -29,20 +30,14 @@ pub fn default_int8_activations(mcu_preset: bool, int8_weights: bool) -> bool {
 /// weight matrix.
 pub fn reencode_with_flags_of(bytes: &[u8], int8: bool, compact_psi: bool) -> Result<Vec<u8>> {
     let blob = Blob::parse(bytes).map_err(|e| anyhow!("{e}"))?;
-    let h = blob.header();
-    let mut flags = h.flags() & !(FLAG_INT8_ACTIVATIONS | FLAG_COMPACT_PSI);
-    if compact_psi {
-        flags |= FLAG_COMPACT_PSI;
-    }
-    if int8 {
-        if !blob.tensors().any(|t| t.quant == Quant::I8) {
-            bail!("the blob has no int8 weights; int8 activations need int8 weights (export with --quant int8)");
-        }
-        flags |= FLAG_INT8_ACTIVATIONS;
+    let mut spec = blob.header().spec();
+    spec.compact_psi = compact_psi;
+    spec.int8_activations = int8;
+    if int8 && !blob.tensors().any(|t| t.quant == Quant::I8) {
+        bail!("the blob has no int8 weights; int8 activations need int8 weights (export with --quant int8)");
     }
     let mut out = vec![0u8; reencoded_len_bound(bytes)];
-    let n = reencode_with_flags(bytes, flags, &mut out)
-        .map_err(|e| anyhow!("encoding the blob: {e}"))?;
+    let n = reencode(bytes, &spec, &mut out).map_err(|e| anyhow!("encoding the blob: {e}"))?;
     out.truncate(n);
     Ok(out)
 }
@@ -66,12 +61,12 @@ pub fn unprotected_header_warning(path: &Path, bytes: &[u8]) -> Option<String> {
 }
 
 /// `bytes` (a weight blob of any format this build reads) rewritten in the current format:
-/// the dims, flags, inner-loop settings and every tensor record byte for byte, the
+/// the dims, every setting (named, format v5) and every tensor record byte for byte, the
 /// checksum over the header and the payload.
 pub fn upgrade_blob(bytes: &[u8]) -> Result<Vec<u8>> {
     let blob = Blob::parse(bytes).map_err(|e| anyhow!("{e}"))?;
     let mut out = vec![0u8; reencoded_len_bound(bytes)];
-    let n = reencode_with_flags(bytes, blob.header().flags(), &mut out)
+    let n = reencode(bytes, &blob.header().spec(), &mut out)
         .map_err(|e| anyhow!("encoding the blob: {e}"))?;
     out.truncate(n);
     Ok(out)
@@ -80,6 +75,7 @@ pub fn upgrade_blob(bytes: &[u8]) -> Result<Vec<u8>> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use gman_core::schema::{FLAG_COMPACT_PSI, FLAG_INT8_ACTIVATIONS};
 
     fn shipped() -> Vec<u8> {
         let p = concat!(
@@ -103,7 +99,7 @@ mod tests {
         let tb: Vec<_> = b.tensors().map(|t| (t.id, t.data, t.scales)).collect();
         assert_eq!(ta, tb);
         // And back: the original's header fields and, byte for byte, its payload (the
-        // re-emitted blob is format v4, whose checksum also covers the header).
+        // re-emitted blob is format v5, whose checksum also covers the header).
         let back = reencode_with_activations(&q, false).unwrap();
         let c = Blob::parse(&back).unwrap();
         assert_eq!(c.header().flags(), a.header().flags());

@@ -113,8 +113,8 @@ pub fn reseal(blob: &[u8], payload_len: usize, old_crc: u32) -> Vec<u8> {
     let prefix = &blob[..hlen - old.len()];
     let payload = &blob[hlen..];
     let mut out = prefix.to_vec();
-    // v4: the CRC covers the header bytes before it and the payload; v1-v3: the payload.
-    let crc = if blob.get(4) == Some(&4) {
+    // v4, v5: the CRC covers the header bytes before it and the payload; v1-v3: the payload.
+    let crc = if blob.get(4).is_some_and(|v| *v >= 4) {
         gman_core::crc32::crc32_update(gman_core::crc32::crc32(prefix), payload)
     } else {
         gman_core::crc32::crc32(payload)
@@ -190,6 +190,42 @@ pub fn legacy(v4: &[u8]) -> Vec<u8> {
     out.extend(varint(h.payload_len().into()));
     let payload = &v4[v4.len() - h.payload_len() as usize..];
     out.extend(varint(gman_core::crc32::crc32(payload).into()));
+    out.extend_from_slice(payload);
+    out
+}
+
+/// The blob `blob` (any version) written in format v4 (what the encoders wrote before v5:
+/// the settings as flag bits and rates, the CRC over the header and the payload), by hand.
+pub fn as_v4(blob: &[u8]) -> Vec<u8> {
+    let b = gman_core::blob::Blob::parse(blob).unwrap();
+    let h = *b.header();
+    let d = h.dims();
+    let mut out = gman_core::blob::MAGIC.to_vec();
+    out.extend(varint(4));
+    for v in [
+        d.attr,
+        d.noise,
+        d.gen_hidden,
+        d.feat,
+        d.disc_hidden,
+        d.lstm_hidden,
+        d.embed,
+        d.ps,
+        d.map_rows,
+        d.map_cols,
+        d.cell_embed,
+    ] {
+        out.extend(varint(v as u64));
+    }
+    out.extend(varint(h.flags().into()));
+    out.extend(h.alpha_disc().to_le_bytes());
+    out.extend(h.alpha_adapt().to_le_bytes());
+    out.extend(varint(h.max_inner().into()));
+    out.extend(varint(h.n_tensors().into()));
+    out.extend(varint(h.payload_len().into()));
+    let payload = &blob[blob.len() - h.payload_len() as usize..];
+    let crc = gman_core::crc32::crc32_update(gman_core::crc32::crc32(&out), payload);
+    out.extend(varint(crc.into()));
     out.extend_from_slice(payload);
     out
 }

@@ -44,7 +44,10 @@ pub struct EvalArgs {
     pub adapt_head_only: bool,
     /// Override the inner update's commit delay D (steps from Ψ filling to the update taking
     /// effect, 0..=63; default: the model's, 0 for models trained without it), e.g. to
-    /// measure what a device's delay costs a model.
+    /// measure what a device's delay costs a model. An experiment on the host: like every
+    /// override here it replaces what the model records. A device runs the blob's own
+    /// delay (the C API's `gman_options.commit_delay` may only add one to a blob that
+    /// records none).
     #[arg(long, value_name = "D")]
     pub commit_delay: Option<u32>,
     /// The PS module of a PS variant's blob (`a3c-ps`, `gman-ps`, ...), which blobs do not

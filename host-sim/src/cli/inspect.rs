@@ -80,6 +80,7 @@ fn print_flags(blob: &Blob<'_>) {
         }
     );
     print_settings(h);
+    print_setting_keys(h);
     let st = h.adapt_settings();
     println!(
         "inner loop: alpha_disc (α1, D ascent) {:e}, alpha_adapt (α2, θ/φ descent) {:e}, \
@@ -129,6 +130,24 @@ fn print_settings(h: &gman_core::blob::Header) {
         on(h.flags() & FLAG_INT8_ACTIVATIONS != 0),
         on(h.flags() & FLAG_COMPACT_PSI != 0),
     );
+}
+
+/// Every setting by its key, as a format v5 header names it (`key=value`), whatever the
+/// blob's version; `disc_lr` is shown as `(inner_lr)` when α1 is α2.
+fn print_setting_keys(h: &gman_core::blob::Header) {
+    use gman_core::spec::{SettingValue, SETTING_KEYS};
+    let spec = h.spec();
+    let shown: Vec<String> = SETTING_KEYS
+        .iter()
+        .map(|key| match spec.get(key) {
+            Some(SettingValue::U32(n)) => format!("{key}={n}"),
+            Some(SettingValue::F32(a)) => format!("{key}={a:e}"),
+            Some(SettingValue::Name(n)) => format!("{key}={n}"),
+            Some(SettingValue::Bool(b)) => format!("{key}={b}"),
+            None => format!("{key}=(inner_lr)"),
+        })
+        .collect();
+    println!("settings by key: {}", shown.join(" "));
 }
 
 /// One line per tensor, then the tensors a navigator needs that the blob lacks.

@@ -12,6 +12,7 @@ use clap::{Args, ValueEnum};
 use gman_core::memory::AdaptMode;
 use gman_core::navigator::{NoiseMode, StepRule};
 use gman_core::schema::AdaptLossKind;
+use gman_core::spec::{check_map_grid, MAX_GRID_SIDE};
 use gman_host_sim::model::{InnerRule, Method, ModelSpec, NavModel};
 use gman_host_sim::optim::adam::AdamConfig;
 use gman_host_sim::sim::RewardKind;
@@ -212,17 +213,18 @@ pub struct TrainArgs {
     pub rank_check_every: u64,
 }
 
-/// Parses `--map`: `none` or `RxC` with 1 <= R, C <= 16.
+/// Parses `--map`: `none` or `RxC` with 1 <= R, C <= [`MAX_GRID_SIDE`] (gman-core's
+/// [`check_map_grid`]).
 fn parse_map_grid(s: &str) -> std::result::Result<(usize, usize), String> {
     if s == "none" {
         return Ok((0, 0));
     }
-    let bad = || format!("expected `none` or ROWSxCOLS such as 3x3 (each 1..=16), got {s:?}");
+    let bad = || {
+        format!("expected `none` or ROWSxCOLS such as 3x3 (each 1..={MAX_GRID_SIDE}), got {s:?}")
+    };
     let (r, c) = s.split_once(['x', 'X']).ok_or_else(bad)?;
     let (r, c): (usize, usize) = (r.parse().map_err(|_| bad())?, c.parse().map_err(|_| bad())?);
-    if !(1..=16).contains(&r) || !(1..=16).contains(&c) {
-        return Err(bad());
-    }
+    check_map_grid(r, c).map_err(|_| bad())?;
     Ok((r, c))
 }
 
@@ -243,6 +245,10 @@ pub(super) fn model_spec(a: &TrainArgs) -> ModelSpec {
             head_only: a.adapt_head_only,
             commit_delay: a.commit_delay,
         },
+        adapt: a.method.adapts_at_eval(),
+        emd: a.method.emd(),
+        int8_activations: false,
+        compact_psi: false,
     }
 }
 
@@ -314,8 +320,6 @@ const MAX_LR: f32 = 1.0;
 pub const MAX_EPISODE_STEPS: u32 = 10_000;
 /// Largest `--min-steps` (steps per worker and update, all held in memory for BPTT).
 const MAX_MIN_STEPS: u32 = 10_000;
-/// Largest map side (`--map RxC`, rows and columns each).
-const MAX_MAP_SIDE: usize = 16;
 /// Largest `--cell-embed`.
 const MAX_CELL_EMBED: usize = 1024;
 /// Largest `--updates` (and `--checkpoint-every`): counters stay far from `u64::MAX`.
@@ -531,9 +535,9 @@ impl RunConfig {
     /// [`RunConfig::validate`]'s part for the map grid and the per-cell layer.
     fn validate_map(&self) -> Result<()> {
         let (rows, cols) = self.map;
-        if rows > MAX_MAP_SIDE || cols > MAX_MAP_SIDE {
+        if (rows, cols) != (0, 0) && check_map_grid(rows, cols).is_err() {
             bail!(
-                "--map {rows}x{cols}: a map grid has at most {MAX_MAP_SIDE} rows and {MAX_MAP_SIDE} columns"
+                "--map {rows}x{cols}: a map grid has at most {MAX_GRID_SIDE} rows and {MAX_GRID_SIDE} columns"
             );
         }
         match self.cell_embed {

@@ -35,7 +35,7 @@ pub fn model_from_blob_with_ps(
 ) -> Result<NavModel> {
     let blob = Blob::parse(bytes).map_err(|e| anyhow!("{e}"))?;
     let dims = blob.dims();
-    let flags = blob.header().model_flags();
+    let spec = ModelSpec::from_header(blob.header());
     // Every tensor must be present before anything is allocated from the header's dims
     // (present tensors were checked against the dims by the parser, so their sizes are backed
     // by bytes of the file).
@@ -57,8 +57,8 @@ pub fn model_from_blob_with_ps(
             .map_err(|e| anyhow!("{}: {e}", id.name()))?;
         params.push(p)?;
     }
-    let method = method.unwrap_or(match (flags.adapt, dims.ps > 0) {
-        (true, false) if flags.emd == Emd::CosSim => Method::GmanCossim,
+    let method = method.unwrap_or(match (spec.adapt, dims.ps > 0) {
+        (true, false) if spec.emd == Emd::CosSim => Method::GmanCossim,
         (true, false) => Method::Gman,
         (true, true) => Method::GmanPs,
         (false, false) => Method::A3cFg,
@@ -76,7 +76,6 @@ pub fn model_from_blob_with_ps(
         ),
         _ => {}
     }
-    let spec = ModelSpec::from_header(blob.header());
     Ok(NavModel {
         method,
         dims,
@@ -89,7 +88,7 @@ pub fn model_from_blob_with_ps(
         privileged: false,
         adapt_mode: spec.adapt_mode,
         inner_rule: spec.inner_rule,
-        compact_psi: blob.header().flags() & gman_core::schema::FLAG_COMPACT_PSI != 0,
+        compact_psi: spec.compact_psi,
     })
 }
 

@@ -197,12 +197,7 @@ impl NavModel {
             // A host has the RAM: Ψ as one batch and G's pre-gain outputs kept (the same
             // bits as the device's compact layout).
             footprint: Footprint::Fast,
-            compact_psi: self.compact_psi,
-            ..NavConfig::from_spec(
-                &self.spec(),
-                self.method.adapts_at_eval(),
-                self.method.emd(),
-            )
+            ..NavConfig::from_spec(&self.spec())
         }
     }
 
@@ -225,7 +220,7 @@ impl NavModel {
     }
 
     /// The model's switches (gman-core's [`ModelSpec`]): what its blobs record and its
-    /// checkpoints store.
+    /// checkpoints store; whether it adapts and its EMD are the method's.
     pub fn spec(&self) -> ModelSpec {
         ModelSpec {
             noise: self.noise,
@@ -233,10 +228,15 @@ impl NavModel {
             max_inner: self.max_inner,
             adapt_mode: self.adapt_mode,
             inner_rule: self.inner_rule,
+            adapt: self.method.adapts_at_eval(),
+            emd: self.method.emd(),
+            int8_activations: false,
+            compact_psi: self.compact_psi,
         }
     }
 
-    /// Sets the model's switches to `spec`.
+    /// Sets the model's switches to `spec` (but whether it adapts and its EMD, which are the
+    /// method's, and the run-time forms).
     pub fn set_spec(&mut self, spec: ModelSpec) {
         let ModelSpec {
             noise,
@@ -244,6 +244,7 @@ impl NavModel {
             max_inner,
             adapt_mode,
             inner_rule,
+            ..
         } = spec;
         (self.noise, self.inner_lr, self.max_inner) = (noise, inner_lr, max_inner);
         (self.adapt_mode, self.inner_rule) = (adapt_mode, inner_rule);
@@ -335,8 +336,7 @@ impl NavModel {
 
     /// The model flags of this model's blobs.
     pub fn model_flags(&self) -> ModelFlags {
-        self.spec()
-            .flags(self.method.adapts_at_eval(), self.method.emd())
+        self.spec().flags()
     }
 
     /// The inner-loop settings stored in the model's blobs ([`ModelSpec::adapt_settings`]).
@@ -344,10 +344,11 @@ impl NavModel {
         self.spec().adapt_settings()
     }
 
-    /// Encodes the model as a gman-core weight blob (format v4, see `gman_core::blob`), int8 (per-row scales) or
-    /// f32. The header carries the model's flags ([`NavModel::blob_flags`]) and its
-    /// inner-loop settings ([`NavModel::adapt_settings`]), so a device running
-    /// `NavConfig::from_header` adapts exactly as this model was trained and evaluated.
+    /// Encodes the model as a gman-core weight blob (format v5, see `gman_core::blob`), int8
+    /// (per-row scales) or f32. The header names the model's settings ([`NavModel::spec`],
+    /// with f32 activations and Ψ kept as f32: `gman export --activations` sets those), so
+    /// a device running `NavConfig::from_header` adapts exactly as this model was trained
+    /// and evaluated.
     pub fn to_blob(&self, int8: bool) -> Result<Vec<u8>> {
         if self.privileged {
             bail!("a privileged-feature model reads the simulator's true target feature and cannot run on a device; it is not exported");
@@ -366,10 +367,14 @@ impl NavModel {
         let quant = if int8 { Quant::I8 } else { Quant::F32 };
         let mut out = vec![0u8; encoded_model_len_bound(&self.dims, quant)];
         let (nf, nb) = encode_model_scratch_len(&self.dims);
+        let spec = ModelSpec {
+            int8_activations: false,
+            compact_psi: false,
+            ..self.spec()
+        };
         let n = encode_model(
             &self.dims,
-            self.blob_flags(),
-            self.adapt_settings(),
+            &spec,
             quant,
             |id, v: &mut [f32]| -> Result<()> {
                 v.copy_from_slice(&self.params.tensor(id.name())?.data);
