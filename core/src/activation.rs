@@ -54,8 +54,19 @@ pub fn leaky_relu_inplace(x: &mut [f32]) {
 
 /// In-place sigmoid over a slice: [`sigmoid`] of every element, bit for bit, eight at a
 /// time through [`expf8`] where every lane's argument is on `libm::expf`'s main path (the
-/// others, and the tail, through [`sigmoid`] itself).
+/// others, and the tail, through [`sigmoid`] itself) on targets with f32 SIMD; elsewhere
+/// element by element.
 pub fn sigmoid_inplace(x: &mut [f32]) {
+    if cfg!(not(any(
+        target_arch = "x86_64",
+        target_arch = "x86",
+        target_arch = "aarch64"
+    ))) {
+        // No f32 SIMD (a Cortex-M): the eight lanes would run one after another anyway, so
+        // the scalar form, the same bits in a fraction of the flash.
+        x.iter_mut().for_each(|v| *v = sigmoid(*v));
+        return;
+    }
     let mut chunks = x.chunks_exact_mut(8);
     for ch in &mut chunks {
         let v: [f32; 8] = core::array::from_fn(|l| ch[l]);

@@ -278,6 +278,7 @@ struct Prefix {
 /// The header of a format-v1 blob (read only; postcard has no field names, so the
 /// underscored fields are decoded like any other and only checked through [`Prefix`]).
 #[derive(Deserialize)]
+#[cfg_attr(not(feature = "legacy-blobs"), allow(dead_code))]
 struct HeaderV1 {
     _magic: [u8; 4],
     _version: u16,
@@ -290,6 +291,7 @@ struct HeaderV1 {
 
 /// The header of a format-v3 blob: v2 with the spatial-map dims after `dims`.
 #[derive(Serialize, Deserialize)]
+#[cfg_attr(not(feature = "legacy-blobs"), allow(dead_code))]
 struct HeaderV3 {
     magic: [u8; 4],
     version: u16,
@@ -307,6 +309,7 @@ struct HeaderV3 {
 /// The header of a format-v4 blob without its last field, the checksum (a varint after
 /// these fields): CRC-32 of these bytes followed by the payload.
 #[derive(Serialize, Deserialize)]
+#[cfg_attr(not(feature = "legacy-blobs"), allow(dead_code))]
 struct HeaderV4Body {
     magic: [u8; 4],
     version: u16,
@@ -320,6 +323,7 @@ struct HeaderV4Body {
     payload_len: u32,
 }
 
+#[cfg_attr(not(feature = "legacy-blobs"), allow(dead_code))]
 impl HeaderV4Body {
     fn with_crc(self, payload_crc: u32) -> HeaderV3 {
         HeaderV3 {
@@ -437,6 +441,7 @@ impl ChecksumScope {
     }
 }
 
+#[cfg_attr(not(feature = "legacy-blobs"), allow(dead_code))]
 impl HeaderV3 {
     /// The checked [`Header`] (inner-loop rates first, then the sizes the dims imply).
     fn into_header(self, version: u16) -> Result<Header, BlobError> {
@@ -465,6 +470,7 @@ impl HeaderV3 {
     }
 }
 
+#[cfg_attr(not(feature = "legacy-blobs"), allow(dead_code))]
 impl From<HeaderV2> for HeaderV3 {
     /// A v2 header is a v3 header without a map.
     fn from(h: HeaderV2) -> HeaderV3 {
@@ -486,6 +492,7 @@ impl From<HeaderV2> for HeaderV3 {
 
 /// The header of a format-v2 blob (see the module docs for the field order).
 #[derive(Serialize, Deserialize)]
+#[cfg_attr(not(feature = "legacy-blobs"), allow(dead_code))]
 struct HeaderV2 {
     magic: [u8; 4],
     version: u16,
@@ -638,6 +645,9 @@ fn parse_header(bytes: &[u8], opts: ParseOptions) -> Result<(Header, &[u8]), Blo
         });
     }
     match prefix.version {
+        #[cfg(not(feature = "legacy-blobs"))]
+        found @ MIN_FORMAT_VERSION..=4 => Err(BlobError::LegacyFormat { found }),
+        #[cfg(feature = "legacy-blobs")]
         1 => {
             // `magic` and `version` are decoded again (same bytes, same values as the prefix).
             let (h, rest) = postcard::take_from_bytes::<HeaderV1>(bytes).map_err(map_err)?;
@@ -657,14 +667,17 @@ fn parse_header(bytes: &[u8], opts: ParseOptions) -> Result<(Header, &[u8]), Blo
                 rest,
             ))
         }
+        #[cfg(feature = "legacy-blobs")]
         2 => {
             let (h, rest) = postcard::take_from_bytes::<HeaderV2>(bytes).map_err(map_err)?;
             Ok((HeaderV3::from(h).into_header(2)?, rest))
         }
+        #[cfg(feature = "legacy-blobs")]
         3 => {
             let (h, rest) = postcard::take_from_bytes::<HeaderV3>(bytes).map_err(map_err)?;
             Ok((h.into_header(3)?, rest))
         }
+        #[cfg(feature = "legacy-blobs")]
         4 => {
             let (body, rest) = postcard::take_from_bytes::<HeaderV4Body>(bytes).map_err(map_err)?;
             let (crc, payload) = check_whole_blob(bytes, rest, body.payload_len)?;

@@ -120,6 +120,12 @@ pub enum BlobError {
         /// The version found in the blob.
         found: u16,
     },
+    /// A format v1-v4 blob given to a build without gman-core's `legacy-blobs` feature (a
+    /// device image that reads only the current format).
+    LegacyFormat {
+        /// The version found in the blob.
+        found: u16,
+    },
     /// The header's payload length does not match the bytes present.
     PayloadLength {
         /// Length announced by the header.
@@ -292,6 +298,10 @@ impl fmt::Display for BlobError {
             BlobError::UnsupportedVersion { found } => {
                 write!(f, "unsupported blob format version {found}")
             }
+            BlobError::LegacyFormat { found } => write!(
+                f,
+                "blob format v{found}: run `gman upgrade-blob` or build with `legacy-blobs`"
+            ),
             BlobError::PayloadLength { expected, actual } => write!(
                 f,
                 "payload length mismatch: header says {expected} bytes, found {actual}"

@@ -1095,7 +1095,7 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
             max_inner: cfg.max_inner_updates,
         };
         if rates.validate().is_err() {
-            return bad("alpha_disc and alpha_adapt must be finite, non-negative and at most blob::MAX_INNER_RATE");
+            return bad("alpha_disc, alpha_adapt: finite, in 0..=blob::MAX_INNER_RATE");
         }
         if cfg.loss_bound.is_nan() || cfg.loss_bound <= 0.0 {
             return bad("loss_bound must be > 0");
@@ -1111,7 +1111,7 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
         }
         // (A model that does not adapt runs identically in both modes.)
         if cfg.adapt && cfg.mode.is_some_and(|m| m != M::MODE) {
-            return bad("these weights were meta-trained in the other adaptation mode (see NavConfig::mode): run them with that Navigator mode");
+            return bad("weights meta-trained in the other adaptation mode (NavConfig::mode)");
         }
         if cfg.commit_delay > crate::schema::MAX_COMMIT_DELAY {
             return bad("commit_delay above MAX_COMMIT_DELAY (63)");

@@ -356,7 +356,7 @@ fn run_with<const U8: bool>(
     cfg.footprint = FOOTPRINT;
     if FOOTPRINT == Footprint::Minimal && !cfg.compact_psi {
         return Err(Failure::Blob(
-            "Ψ's observations are f32; this image's Footprint::Minimal needs them int16: `gman export --preset mcu --quant int8` (or `--psi int16`)",
+            "Footprint::Minimal needs Ψ in int16: export with `--psi int16`",
         ));
     }
     probe.line(format_args!(

@@ -377,10 +377,26 @@ fn gaussian_image_under_qemu() -> HashMap<String, u64> {
     assert_eq!(m.get("dsp_smlad"), Some(&1), "the DSP kernel is not in use");
     // The default image (no `gaussian-noise`) refuses that blob at start-up, naming the
     // feature, and exits QEMU with failure.
-    let refused_dir = fw_dir().join("target/gaussian-refused");
+    default_image_refuses("gaussian", &blob, "`gaussian-noise`");
+    // As it refuses a blob of an older format (no `legacy-blobs`), naming the feature and the
+    // upgrade.
+    let old = std::fs::read(fw_dir().join("../host-sim/models/gman-map3-b16-mcu-int8-seed1.gman"))
+        .expect("a shipped format-v4 blob");
+    assert!(
+        old[4] < 5,
+        "the shipped blob is no longer of an older format"
+    );
+    default_image_refuses("legacy", &old, "`gman upgrade-blob`");
+    m
+}
+
+/// The default image built around `blob` stops at start-up, exits QEMU with failure, and
+/// its error line contains `needle`.
+fn default_image_refuses(name: &str, blob: &[u8], needle: &str) {
+    let refused_dir = fw_dir().join(format!("target/{name}-refused"));
     std::fs::create_dir_all(&refused_dir).expect("target dir");
-    let file = refused_dir.join("model-gaussian.gman");
-    std::fs::write(&file, &blob).expect("write the Gaussian blob");
+    let file = refused_dir.join(format!("model-{name}.gman"));
+    std::fs::write(&file, blob).expect("write the blob");
     let mut build = Command::new(env!("CARGO"));
     build
         .current_dir(fw_dir())
@@ -402,13 +418,12 @@ fn gaussian_image_under_qemu() -> HashMap<String, u64> {
     let stdout = String::from_utf8_lossy(&out.stdout);
     assert!(
         !out.status.success(),
-        "a Gaussian blob ran without the feature:\n{stdout}"
+        "the {name} blob ran on the default image:\n{stdout}"
     );
     assert!(
-        stdout.contains("ERROR: ") && stdout.contains("`gaussian-noise`"),
-        "the refusal does not name the feature:\n{stdout}"
+        stdout.contains("ERROR: ") && stdout.contains(needle),
+        "the refusal of the {name} blob does not name {needle}:\n{stdout}"
     );
-    m
 }
 
 /// The three images, one after the other (each build takes both cores): the default one
