@@ -644,7 +644,17 @@ fn budget_table(runs: &Runs, rustc: &str) -> String {
     );
     t += &row(
         "flash (`flash_bytes`)",
-        &|m| format!("{} B", thousands(g(m, "flash_bytes"))),
+        &|m| {
+            let b = g(m, "flash_bytes");
+            if std::ptr::eq(m, d) {
+                format!("{} B", thousands(b))
+            } else {
+                // The self-test's images vary by a few bytes with the checkout's path (code
+                // alignment), so they are shown to 0.1 KB.
+                let tenths = (b + 50) / 100;
+                format!("{}.{} KB", tenths / 10, tenths % 10)
+            }
+        },
         "<= 442,368 B (432 KiB)",
         Some(g(d, "flash_bytes") <= 442_368),
     );
