@@ -158,6 +158,33 @@ fn shell_commands_join_continuations_and_drop_comments() {
     assert_eq!(shell_commands(text), ["gman eval --agent random"]);
 }
 
+/// A generated part of a doc: `<!-- gen:KIND ARGS -->`, its body, `<!-- /gen -->`.
+struct Part<'a> {
+    /// The marker's arguments.
+    args: Vec<&'a str>,
+    /// Where the body stands in the doc's text.
+    body: std::ops::Range<usize>,
+}
+
+/// Every `<!-- gen:KIND ... -->` part of `text`, in order.
+fn generated_parts<'a>(text: &'a str, kind: &str) -> Vec<Part<'a>> {
+    let open = format!("<!-- gen:{kind} ");
+    let mut parts = Vec::new();
+    let mut from = 0;
+    while let Some(i) = text[from..].find(&open) {
+        let args_start = from + i + open.len();
+        let end = args_start + text[args_start..].find(" -->\n").expect("marker end");
+        let body_start = end + " -->\n".len();
+        let body_end = body_start + text[body_start..].find("<!-- /gen -->").expect("part end");
+        parts.push(Part {
+            args: text[args_start..end].split_whitespace().collect(),
+            body: body_start..body_end,
+        });
+        from = body_end;
+    }
+    parts
+}
+
 /// Every `<!-- gen:table RUNS -->` part of the docs is what `gman table --markdown --runs RUNS`
 /// prints (the Python generator and the Rust table agree, to the last digit).
 #[test]
@@ -165,25 +192,17 @@ fn generated_tables_are_what_gman_table_prints() {
     let mut checked = 0;
     for f in doc_files() {
         let text = std::fs::read_to_string(&f).unwrap();
-        let mut rest = text.as_str();
-        while let Some(i) = rest.find("<!-- gen:table ") {
-            let after = &rest[i + "<!-- gen:table ".len()..];
-            let end = after.find(" -->\n").expect("marker end");
-            let runs: Vec<&str> = after[..end].split_whitespace().collect();
-            let body_start = end + " -->\n".len();
-            let body_end = after.find("<!-- /gen -->").expect("part end");
-            let body = &after[body_start..body_end];
+        for part in generated_parts(&text, "table") {
             let mut args = vec!["table", "--markdown", "--runs"];
-            args.extend(&runs);
+            args.extend(&part.args);
             assert_eq!(
                 gman(&args),
-                body,
+                &text[part.body],
                 "{}: gen:table {}",
                 f.display(),
-                runs.join(" ")
+                part.args.join(" ")
             );
             checked += 1;
-            rest = &after[body_end..];
         }
     }
     assert!(checked >= 2, "only {checked} generated tables found");
@@ -194,36 +213,28 @@ fn generated_tables_are_what_gman_table_prints() {
 /// rewrites the parts instead of failing.
 #[test]
 fn generated_command_outputs_are_what_gman_prints() {
-    const OPEN: &str = "<!-- gen:gman ";
-    const CLOSE: &str = "<!-- /gen -->";
     let update = std::env::var_os("GMAN_UPDATE_DOCS").is_some_and(|v| v == "1");
     let mut checked = 0;
     let mut stale = Vec::new();
     for f in doc_files() {
         let text = std::fs::read_to_string(&f).unwrap();
         let mut out = String::new();
-        let mut rest = text.as_str();
-        while let Some(i) = rest.find(OPEN) {
-            let after = &rest[i + OPEN.len()..];
-            let end = after.find(" -->\n").expect("marker end");
-            let args: Vec<&str> = after[..end].split_whitespace().collect();
-            let body_start = end + " -->\n".len();
-            let body_end = after.find(CLOSE).expect("part end");
-            let body = &after[body_start..body_end];
-            let now = gman(&args);
+        let mut copied = 0;
+        for part in generated_parts(&text, "gman") {
+            let (body, now) = (&text[part.body.clone()], gman(&part.args));
             if now != body {
                 stale.push(format!(
                     "{}: gen:gman {}\n--- documented\n{body}--- printed now\n{now}",
                     f.display(),
-                    args.join(" ")
+                    part.args.join(" ")
                 ));
             }
-            out.push_str(&rest[..i + OPEN.len() + body_start]);
+            out.push_str(&text[copied..part.body.start]);
             out.push_str(&now);
-            rest = &after[body_end..];
+            copied = part.body.end;
             checked += 1;
         }
-        out.push_str(rest);
+        out.push_str(&text[copied..]);
         if update && out != text {
             std::fs::write(&f, out).unwrap();
         }
