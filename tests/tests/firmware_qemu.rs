@@ -174,17 +174,14 @@ fn qemu_available() -> bool {
     true
 }
 
-/// Builds the firmware in `target_dir` embedding `blob_file` (`GMAN_FIRMWARE_BLOB`; `None`:
-/// the default blob), runs it under QEMU, checks that it prints bit for bit what the host
-/// prints for `blob`, checks the budgets and writes the `# ` lines to `log_name` in
-/// `target_dir`. Returns the measurements.
-fn run_and_compare(
+/// Builds the firmware in `target_dir` with `cargo_args`, embedding `blob_file`
+/// (`GMAN_FIRMWARE_BLOB`; `None`: the default blob), and runs it under QEMU in
+/// firmware-example/ (where it opens data/episode.gmep through semihosting).
+fn build_and_run(
     target_dir: &std::path::Path,
     blob_file: Option<&std::path::Path>,
-    blob: &[u8],
-    log_name: &str,
     cargo_args: &[&str],
-) -> HashMap<String, u64> {
+) -> std::process::Output {
     let fw = fw_dir();
     let mut build = Command::new(env!("CARGO"));
     build
@@ -200,15 +197,28 @@ fn run_and_compare(
     let status = build.status().expect("run cargo build for the firmware");
     assert!(status.success(), "firmware build failed");
     let elf = target_dir.join("thumbv7em-none-eabihf/release/gman-firmware-example");
-    // In firmware-example/: the firmware opens data/episode.gmep there through semihosting.
-    let out = Command::new("timeout")
+    Command::new("timeout")
         .current_dir(&fw)
         .args(["120", "qemu-system-arm", "-M", "mps2-an386", "-nographic"])
         .args(["-icount", "shift=0"])
         .args(["-semihosting-config", "enable=on,target=native", "-kernel"])
         .arg(&elf)
         .output()
-        .expect("run qemu");
+        .expect("run qemu")
+}
+
+/// Builds the firmware in `target_dir` embedding `blob_file` (`GMAN_FIRMWARE_BLOB`; `None`:
+/// the default blob), runs it under QEMU, checks that it prints bit for bit what the host
+/// prints for `blob`, checks the budgets and writes the `# ` lines to `log_name` in
+/// `target_dir`. Returns the measurements.
+fn run_and_compare(
+    target_dir: &std::path::Path,
+    blob_file: Option<&std::path::Path>,
+    blob: &[u8],
+    log_name: &str,
+    cargo_args: &[&str],
+) -> HashMap<String, u64> {
+    let out = build_and_run(target_dir, blob_file, cargo_args);
     let stdout = String::from_utf8_lossy(&out.stdout);
     assert!(
         out.status.success(),
@@ -397,24 +407,7 @@ fn default_image_refuses(name: &str, blob: &[u8], needle: &str) {
     std::fs::create_dir_all(&refused_dir).expect("target dir");
     let file = refused_dir.join(format!("model-{name}.gman"));
     std::fs::write(&file, blob).expect("write the blob");
-    let mut build = Command::new(env!("CARGO"));
-    build
-        .current_dir(fw_dir())
-        .args(["build", "--release", "--quiet", "--target-dir"])
-        .arg(&refused_dir)
-        .arg("--config")
-        .arg(remap_path_config())
-        .env("GMAN_FIRMWARE_BLOB", &file);
-    assert!(build.status().expect("cargo build").success());
-    let elf = refused_dir.join("thumbv7em-none-eabihf/release/gman-firmware-example");
-    let out = Command::new("timeout")
-        .current_dir(fw_dir())
-        .args(["120", "qemu-system-arm", "-M", "mps2-an386", "-nographic"])
-        .args(["-icount", "shift=0"])
-        .args(["-semihosting-config", "enable=on,target=native", "-kernel"])
-        .arg(&elf)
-        .output()
-        .expect("run qemu");
+    let out = build_and_run(&refused_dir, Some(&file), &[]);
     let stdout = String::from_utf8_lossy(&out.stdout);
     assert!(
         !out.status.success(),
