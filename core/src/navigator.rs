@@ -1126,12 +1126,11 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
             return Err(inner::NO_COSSIM);
         }
         let lean = cfg.footprint == Footprint::Minimal;
-        if lean
-            && (M::MODE != AdaptMode::Efficient
-                || !cfg.compact_psi
-                || (cfg.adapt && cfg.emd == Emd::CosSim))
-        {
-            return bad("Footprint::Minimal: compact Ψ, Efficient, D only");
+        if lean && !cfg.compact_psi {
+            return bad("Footprint::Minimal needs Ψ in int16: export with `--psi int16`");
+        }
+        if lean && (M::MODE != AdaptMode::Efficient || (cfg.adapt && cfg.emd == Emd::CosSim)) {
+            return bad("Footprint::Minimal: Efficient, D only");
         }
         let dims = weights.dims;
         if crate::memory::try_arena_len_noise(&dims, M::MODE, K, cfg.footprint, cfg.noise).is_none()

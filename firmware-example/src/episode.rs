@@ -93,8 +93,6 @@ pub enum Failure {
     Episode(&'static str),
     /// gman-core returned an error.
     Core(gman_core::Error),
-    /// The embedded blob does not fit this image (what to export instead).
-    Blob(&'static str),
 }
 
 impl From<gman_core::Error> for Failure {
@@ -114,7 +112,6 @@ impl fmt::Display for Failure {
         match self {
             Failure::Episode(what) => write!(f, "episode file: {what}"),
             Failure::Core(e) => write!(f, "gman-core: {e}"),
-            Failure::Blob(what) => write!(f, "blob: {what}"),
         }
     }
 }
@@ -354,11 +351,6 @@ fn run_with<const U8: bool>(
         cfg.commit_delay = COMMIT_DELAY;
     }
     cfg.footprint = FOOTPRINT;
-    if FOOTPRINT == Footprint::Minimal && !cfg.compact_psi {
-        return Err(Failure::Blob(
-            "Footprint::Minimal needs Ψ in int16: export with `--psi int16`",
-        ));
-    }
     probe.line(format_args!(
         "episode: {} ({} steps, seed {})",
         ep.label(),

@@ -306,7 +306,10 @@ fn minimal_footprint_is_smaller_and_refuses_what_it_cannot_run() {
         ..cfg
     };
     let e = Navigator::<Efficient, K>::new(w(), &mut arena, plain).err();
-    assert!(matches!(e, Some(gman_core::Error::Config { .. })), "{e:?}");
+    assert!(
+        matches!(e, Some(gman_core::Error::Config { what }) if what.contains("--psi int16")),
+        "the refusal names the export flag: {e:?}"
+    );
     let cos = NavConfig {
         emd: Emd::CosSim,
         ..cfg
