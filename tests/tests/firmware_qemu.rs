@@ -45,9 +45,43 @@ fn fw_dir() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../firmware-example")
 }
 
-/// A `--config` value that maps the checkout and the cargo home to fixed names in the
-/// firmware's panic locations, so its flash size does not depend on where the repository or
-/// the registry lives. (The value is merged with `.cargo/config.toml`'s rustflags.)
+/// The fixed path the firmware is built through (a symbolic link to this checkout, made under
+/// [`fixed_root_lock`]). Cargo hashes the absolute path of gman-core and gman-dsp (path
+/// dependencies outside the firmware's workspace) into their metadata, and LTO's code layout
+/// follows those hashes: built from the checkout's own path, the image's size moved by a few
+/// bytes from one checkout to another. Through one fixed path every checkout builds the same
+/// image, so the documented flash figures hold on every machine.
+#[cfg(unix)]
+const FIXED_ROOT: &str = "/tmp/gman-rs-firmware-src";
+
+/// Points [`FIXED_ROOT`] at this checkout and returns the lock that keeps it there: held for a
+/// build, so two checkouts (or two tests) building at once never build each other's sources.
+#[cfg(unix)]
+fn fixed_root_lock() -> (std::fs::File, PathBuf) {
+    let lock = std::fs::OpenOptions::new()
+        .create(true)
+        .truncate(false)
+        .write(true)
+        .open(format!("{FIXED_ROOT}.lock"))
+        .expect("open the firmware build lock");
+    lock.lock().expect("take the firmware build lock");
+    let tmp = format!("{FIXED_ROOT}.{}", std::process::id());
+    let _ = std::fs::remove_file(&tmp);
+    std::os::unix::fs::symlink(checkout_root(), &tmp).expect("link the fixed build path");
+    std::fs::rename(&tmp, FIXED_ROOT).expect("point the fixed build path at this checkout");
+    (lock, PathBuf::from(FIXED_ROOT))
+}
+
+fn checkout_root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .parent()
+        .expect("tests/ has a parent")
+        .to_path_buf()
+}
+
+/// A `--config` value that maps the checkout (and the fixed build path) and the cargo home to
+/// fixed names in the firmware's panic locations and debug paths. (The value is merged with
+/// `.cargo/config.toml`'s rustflags.)
 fn remap_path_config() -> String {
     fn toml_str(p: &std::path::Path) -> String {
         p.display()
@@ -55,16 +89,16 @@ fn remap_path_config() -> String {
             .replace('\\', "\\\\")
             .replace('"', "\\\"")
     }
-    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .parent()
-        .expect("tests/ has a parent")
-        .to_path_buf();
+    let root = checkout_root();
     let cargo_home = std::env::var_os("CARGO_HOME")
         .map(PathBuf::from)
         .or_else(|| std::env::var_os("HOME").map(|h| PathBuf::from(h).join(".cargo")))
         .unwrap_or_else(|| PathBuf::from(".cargo"));
     let mut flags = Vec::new();
-    for (dir, to) in [(root, "gman"), (cargo_home, "cargo")] {
+    let mut dirs = vec![(root, "gman"), (cargo_home, "cargo")];
+    #[cfg(unix)]
+    dirs.push((PathBuf::from(FIXED_ROOT), "gman"));
+    for (dir, to) in dirs {
         // Both spellings when one is a symbolic link: cargo passes the path as it found it.
         let canonical = dir.canonicalize().unwrap_or_else(|_| dir.clone());
         for d in [canonical, dir]
@@ -184,10 +218,17 @@ fn build_and_run(
 ) -> std::process::Output {
     let fw = fw_dir();
     let mut build = Command::new(env!("CARGO"));
+    // (run in the checkout's firmware directory, whose `.cargo/config.toml` sets the target)
     build
         .current_dir(&fw)
         .args(["build", "--release", "--quiet", "--target-dir"])
         .arg(target_dir);
+    #[cfg(unix)]
+    let (lock, fixed) = fixed_root_lock();
+    #[cfg(unix)]
+    build
+        .arg("--manifest-path")
+        .arg(fixed.join("firmware-example/Cargo.toml"));
     build.args(cargo_args);
     build.arg("--config").arg(remap_path_config());
     match blob_file {
@@ -195,6 +236,8 @@ fn build_and_run(
         None => build.env_remove("GMAN_FIRMWARE_BLOB"),
     };
     let status = build.status().expect("run cargo build for the firmware");
+    #[cfg(unix)]
+    drop(lock);
     assert!(status.success(), "firmware build failed");
     let elf = target_dir.join("thumbv7em-none-eabihf/release/gman-firmware-example");
     Command::new("timeout")
