@@ -209,18 +209,16 @@ fn qemu_available() -> bool {
 }
 
 /// Builds the firmware in `target_dir` with `cargo_args`, embedding `blob_file`
-/// (`GMAN_FIRMWARE_BLOB`; `None`: the default blob), and runs it under QEMU in
-/// firmware-example/ (where it opens data/episode.gmep through semihosting).
-fn build_and_run(
+/// (`GMAN_FIRMWARE_BLOB`; `None`: the default blob); returns the ELF.
+fn build_image(
     target_dir: &std::path::Path,
     blob_file: Option<&std::path::Path>,
     cargo_args: &[&str],
-) -> std::process::Output {
-    let fw = fw_dir();
+) -> PathBuf {
     let mut build = Command::new(env!("CARGO"));
     // (run in the checkout's firmware directory, whose `.cargo/config.toml` sets the target)
     build
-        .current_dir(&fw)
+        .current_dir(fw_dir())
         .args(["build", "--release", "--quiet", "--target-dir"])
         .arg(target_dir);
     #[cfg(unix)]
@@ -239,15 +237,72 @@ fn build_and_run(
     #[cfg(unix)]
     drop(lock);
     assert!(status.success(), "firmware build failed");
-    let elf = target_dir.join("thumbv7em-none-eabihf/release/gman-firmware-example");
+    target_dir.join("thumbv7em-none-eabihf/release/gman-firmware-example")
+}
+
+/// [`build_image`], then runs the image under QEMU in firmware-example/ (where it opens
+/// data/episode.gmep through semihosting).
+fn build_and_run(
+    target_dir: &std::path::Path,
+    blob_file: Option<&std::path::Path>,
+    cargo_args: &[&str],
+) -> std::process::Output {
+    let elf = build_image(target_dir, blob_file, cargo_args);
     Command::new("timeout")
-        .current_dir(&fw)
+        .current_dir(fw_dir())
         .args(["120", "qemu-system-arm", "-M", "mps2-an386", "-nographic"])
         .args(["-icount", "shift=0"])
         .args(["-semihosting-config", "enable=on,target=native", "-kernel"])
         .arg(&elf)
         .output()
         .expect("run qemu")
+}
+
+/// `.vector_table + .text + .rodata` of `elf` (`arm-none-eabi-size -A`): what the image puts
+/// in flash.
+fn image_flash(elf: &std::path::Path) -> u64 {
+    let out = Command::new("arm-none-eabi-size")
+        .arg("-A")
+        .arg(elf)
+        .output()
+        .expect("run arm-none-eabi-size (binutils-arm-none-eabi)");
+    assert!(out.status.success(), "arm-none-eabi-size {}", elf.display());
+    String::from_utf8_lossy(&out.stdout)
+        .lines()
+        .filter_map(|l| {
+            let mut f = l.split_whitespace();
+            match (f.next(), f.next()) {
+                (Some(".vector_table" | ".text" | ".rodata"), Some(n)) => n.parse::<u64>().ok(),
+                _ => None,
+            }
+        })
+        .sum()
+}
+
+/// The features a controller does not need, each with what it adds (firmware-example/README.md,
+/// "Where the flash goes").
+const OPTIONAL_FEATURES: [&str; 5] = [
+    "gaussian-noise",
+    "f32-activations",
+    "cossim",
+    "selftest",
+    "legacy-blobs",
+];
+
+/// The flash each optional feature adds to the default image, built as the QEMU test builds
+/// it; prints the rows of firmware-example/README.md's feature table. Six builds of the
+/// image, so by hand: `cargo test --release -p gman-tests --test firmware_qemu --
+/// --ignored --nocapture feature_flash`.
+#[test]
+#[ignore = "six firmware builds: run by hand for firmware-example/README.md's feature table"]
+fn feature_flash() {
+    let dir = |name: &str| fw_dir().join(format!("target/feature-{name}"));
+    let base = image_flash(&build_image(&dir("none"), None, &[]));
+    println!("default image: {} B", thousands(base));
+    for f in OPTIONAL_FEATURES {
+        let with = image_flash(&build_image(&dir(f), None, &["--features", f]));
+        println!("| `{f}` | +{} |", thousands(with - base));
+    }
 }
 
 /// Builds the firmware in `target_dir` embedding `blob_file` (`GMAN_FIRMWARE_BLOB`; `None`:
@@ -488,7 +543,8 @@ struct Runs {
 
 /// The docs holding device figures of the QEMU run, each in regions between
 /// `<!-- qemu-figures: begin KIND; RUSTC -->` and `<!-- qemu-figures: end -->` (KIND `budget`:
-/// the budget table, `lines`: the default and the Gaussian image's `# ` lines; RUSTC: the
+/// the budget table, `lines`: the default image's `# ` lines, `parts`: where the flash of the
+/// default and the Gaussian image goes; RUSTC: the
 /// `rustc --version` of the run that wrote them).
 const FIGURE_DOCS: [&str; 3] = [
     "firmware-example/README.md",
@@ -597,8 +653,131 @@ fn figures_region(kind: &str, runs: &Runs, rustc: &str) -> String {
                 read("", "qemu-measurements.txt")
             )
         }
+        "parts" => flash_parts_table(runs),
         other => panic!("unknown figures region kind `{other}`"),
     }
+}
+
+/// The ELF of an image built in `target/DIR` of the firmware (`""`: the default image).
+fn image_elf(dir: &str) -> PathBuf {
+    fw_dir()
+        .join("target")
+        .join(dir)
+        .join("thumbv7em-none-eabihf/release/gman-firmware-example")
+}
+
+/// The part of the image a symbol's code or constant data belongs to (`nm -C` names; LTO
+/// inlines across crates, so a part is where the code ended up), `None` for the blob, which
+/// is found by its size. The first pattern found in the name decides.
+const PARTS: [(&str, &[&str]); 8] = [
+    (
+        "gman-core: `navigator` (step, inner-update slices, commit, blob views)",
+        &["gman_core::navigator"],
+    ),
+    (
+        "gman-core: integer path (`qkernel` with gman-dsp's kernel)",
+        &["gman_core::qkernel", "gman_dsp"],
+    ),
+    (
+        "gman-core: other (kernels, networks, losses, blob parser, RNG)",
+        &["gman_core"],
+    ),
+    (
+        "firmware: episode driver, measurements, main (and the self-test)",
+        &["gman_firmware_example"],
+    ),
+    (
+        "compiler_builtins",
+        &[
+            "compiler_builtins",
+            "__aeabi",
+            "memcpy",
+            "memset",
+            "memcmp",
+            "memmove",
+        ],
+    ),
+    ("libm", &["libm::"]),
+    ("`core::fmt`", &["core::fmt"]),
+    (
+        "other (cortex-m, cortex-m-rt, semihosting, `core::str`, strings, tables)",
+        &[""],
+    ),
+];
+
+/// Code and read-only symbols of `elf` summed by [`PARTS`] (the blob first), from
+/// `arm-none-eabi-nm -S --size-sort -C`.
+fn flash_parts(elf: &std::path::Path, blob_bytes: u64) -> Vec<u64> {
+    let out = Command::new("arm-none-eabi-nm")
+        .args(["-S", "--size-sort", "-C"])
+        .arg(elf)
+        .output()
+        .expect("run arm-none-eabi-nm (binutils-arm-none-eabi)");
+    assert!(out.status.success(), "arm-none-eabi-nm {}", elf.display());
+    let mut sums = vec![0u64; PARTS.len() + 1];
+    let mut blob_seen = false;
+    for line in String::from_utf8_lossy(&out.stdout).lines() {
+        let mut f = line.splitn(4, ' ');
+        let (_, size, kind, name) = match (f.next(), f.next(), f.next(), f.next()) {
+            (Some(a), Some(s), Some(k), Some(n)) => (a, s, k, n),
+            _ => continue,
+        };
+        if !matches!(kind, "t" | "T" | "r" | "R") {
+            continue;
+        }
+        let size = u64::from_str_radix(size, 16).expect("nm size");
+        if !blob_seen && size == blob_bytes {
+            blob_seen = true;
+            sums[0] += size;
+            continue;
+        }
+        let part = PARTS
+            .iter()
+            .position(|(_, pats)| pats.iter().any(|p| name.contains(p)))
+            .expect("the last part matches every name");
+        sums[part + 1] += size;
+    }
+    assert!(
+        blob_seen,
+        "{}: no symbol of the blob's {blob_bytes} B",
+        elf.display()
+    );
+    sums
+}
+
+/// Where the default and the Gaussian image's flash goes, part by part (`flash_parts`), the
+/// rest being alignment, the vector table's padding and unnamed constants.
+fn flash_parts_table(runs: &Runs) -> String {
+    let g = |m: &HashMap<String, u64>, k: &str| *m.get(k).expect("measured key");
+    let imgs = [("", &runs.default), ("gaussian", &runs.gaussian)];
+    let sums: Vec<Vec<u64>> = imgs
+        .iter()
+        .map(|(dir, m)| flash_parts(&image_elf(dir), g(m, "blob_bytes")))
+        .collect();
+    let mut t = String::from(
+        "| part | default image (B) | `gaussian-noise,selftest` (B) |\n|---|---:|---:|\n",
+    );
+    let names =
+        std::iter::once("the blob (weights, read in place)").chain(PARTS.iter().map(|p| p.0));
+    for (i, name) in names.enumerate() {
+        t += &format!(
+            "| {name} | {} | {} |\n",
+            thousands(sums[0][i]),
+            thousands(sums[1][i])
+        );
+    }
+    let rest = |k: usize| g(imgs[k].1, "flash_bytes") - sums[k].iter().sum::<u64>();
+    t += &format!(
+        "| alignment, the vector table's padding, unnamed constants | {} | {} |\n",
+        thousands(rest(0)),
+        thousands(rest(1))
+    );
+    t += &format!(
+        "| **`flash_bytes`** | **{}** | **{}** |\n",
+        thousands(g(&runs.default, "flash_bytes")),
+        thousands(g(&runs.gaussian, "flash_bytes"))
+    );
+    t
 }
 
 /// The budget table of the three images (the `# budget:`, `# step ...`, `# reset`, `# inner
