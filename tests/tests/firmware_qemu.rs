@@ -544,9 +544,12 @@ struct Runs {
 /// The docs holding device figures of the QEMU run, each in regions between
 /// `<!-- qemu-figures: begin KIND; RUSTC -->` and `<!-- qemu-figures: end -->` (KIND `budget`:
 /// the budget table, `lines`: the default image's `# ` lines, `parts`: where the flash of the
-/// default and the Gaussian image goes; RUSTC: the
+/// default and the Gaussian image goes, `stack`: the peak stack per phase, `summary`: the
+/// README's paragraph of device figures; RUSTC: the
 /// `rustc --version` of the run that wrote them).
-const FIGURE_DOCS: [&str; 3] = [
+const FIGURE_DOCS: [&str; 5] = [
+    "README.md",
+    "docs/memory.md",
     "firmware-example/README.md",
     "docs/kernels.md",
     "docs/device.md",
@@ -654,8 +657,77 @@ fn figures_region(kind: &str, runs: &Runs, rustc: &str) -> String {
             )
         }
         "parts" => flash_parts_table(runs),
+        "stack" => stack_table(runs),
+        "summary" => summary(runs),
         other => panic!("unknown figures region kind `{other}`"),
     }
+}
+
+/// The peak stack of each phase in the three images (the `# stack:` lines) and the default
+/// image's RAM total.
+fn stack_table(runs: &Runs) -> String {
+    let g = |m: &HashMap<String, u64>, k: &str| *m.get(k).expect("measured key");
+    let d = &runs.default;
+    let mut t = String::from("| phase | default image | int8, `gaussian-noise,selftest` | f32 with `selftest` |\n|---|---:|---:|---:|\n");
+    t += &format!(
+        "| start-up + kernel self-test (`selftest_stack_bytes`) | {} B (no self-test) | {} B | {} B |\n",
+        thousands(g(d, "selftest_stack_bytes")),
+        thousands(g(&runs.gaussian, "selftest_stack_bytes")),
+        thousands(g(&runs.f32, "selftest_stack_bytes"))
+    );
+    t += &format!(
+        "| navigator episode (`navigator_stack_bytes`: `reset` + 40 steps) | **{} B** | {} B | {} B |\n",
+        thousands(g(d, "navigator_stack_bytes")),
+        thousands(g(&runs.gaussian, "navigator_stack_bytes")),
+        thousands(g(&runs.f32, "navigator_stack_bytes"))
+    );
+    t += &format!(
+        "\nRAM total of the default image = {} static + {} peak stack = {} B (`ram_bytes={}`).\n",
+        thousands(g(d, "static_ram_bytes")),
+        thousands(g(d, "peak_stack_bytes")),
+        thousands(g(d, "ram_bytes")),
+        g(d, "ram_bytes")
+    );
+    t
+}
+
+/// `n` millions with two decimals (`0.50 M`).
+fn millions(n: u64) -> String {
+    let c = (n + 5_000) / 10_000;
+    format!("{}.{:02} M", c / 100, c % 100)
+}
+
+/// The README's one paragraph of device figures.
+fn summary(runs: &Runs) -> String {
+    let g = |m: &HashMap<String, u64>, k: &str| *m.get(k).expect("measured key");
+    let d = &runs.default;
+    let (plain, mean, max) = (
+        g(d, "mean_insns"),
+        g(d, "step_mean_insns"),
+        g(d, "step_max_insns"),
+    );
+    // 168 instructions per microsecond at 168 MHz, 1 instruction per cycle; tenths of a ms.
+    let ms10 = (plain + 8_400) / 16_800;
+    format!(
+        "Default image: a plain step {} instructions ({}.{} ms at 168 MHz); no step over {} \
+         ({}.{:02}x the episode's mean step of {}); inner update {} instructions in slices over \
+         {} steps; flash {} B (432 KiB goal: 442,368 B), RAM {} B. With `--features \
+         gaussian-noise` (and the self-test) a plain step costs {}; the f32-activation image \
+         (`--no-default-features --features f32-activations`, zero noise) {}.\n",
+        millions(plain),
+        ms10 / 10,
+        ms10 % 10,
+        millions(max),
+        max / mean,
+        max * 100 / mean % 100,
+        millions(mean),
+        millions(g(d, "update_insns")),
+        g(d, "update_commit_steps"),
+        thousands(g(d, "flash_bytes")),
+        thousands(g(d, "ram_bytes")),
+        millions(g(&runs.gaussian, "mean_insns")),
+        millions(g(&runs.f32, "mean_insns")),
+    )
 }
 
 /// The ELF of an image built in `target/DIR` of the firmware (`""`: the default image).
