@@ -44,7 +44,7 @@ use gman_core::blob::Blob;
 use gman_core::crc32::crc32_update;
 use gman_core::memory::{arena_len_with, AdaptMode, Footprint};
 use gman_core::navigator::{
-    Counters, Efficient, Emd, NavConfig, NavWeights, Navigator, NoiseMode, Schedule,
+    Counters, Efficient, Emd, NavConfig, NavWeights, Navigator, NoiseMode, Schedule, StepOutput,
 };
 use gman_core::{Action, Dims};
 
@@ -351,43 +351,7 @@ fn run_with<const U8: bool>(
         cfg.commit_delay = COMMIT_DELAY;
     }
     cfg.footprint = FOOTPRINT;
-    probe.line(format_args!(
-        "episode: {} ({} steps, seed {})",
-        ep.label(),
-        ep.steps(),
-        ep.seed
-    ));
-    probe.line(format_args!(
-        "navigator: Mcu, 3x3 map, Efficient, K=20, max_inner_updates={}",
-        cfg.max_inner_updates
-    ));
-    // Rates as f32 bits: exact, and no float formatting code in flash. The enums by the
-    // names their `Debug` prints, without linking those impls (flash).
-    probe.line(format_args!(
-        "config from blob v{}: adapt={} emd={} noise={} alpha_disc={:08x} alpha_adapt={:08x}",
-        blob.header().version() as u32,
-        cfg.adapt as u32,
-        match cfg.emd {
-            Emd::Discriminator => "Discriminator",
-            Emd::CosSim => "CosSim",
-        },
-        match cfg.noise {
-            NoiseMode::Gaussian => "Gaussian",
-            NoiseMode::Zero => "Zero",
-        },
-        cfg.alpha_disc.to_bits(),
-        cfg.alpha_adapt.to_bits(),
-    ));
-    probe.line(format_args!(
-        "schedule: {}, commit_delay={} (blob: {})",
-        match cfg.schedule {
-            Schedule::Auto => "Auto",
-            Schedule::Manual => "Manual",
-            Schedule::Background => "Background",
-        },
-        cfg.commit_delay,
-        blob.header().model_flags().commit_delay
-    ));
+    print_config(&ep, &blob, &cfg, probe);
     let mut nav: Navigator<'_, Efficient, K> = Navigator::new(weights, arena, cfg)?;
     probe.reset_begin();
     nav.reset(ep.attributes(), ep.seed)?;
@@ -427,40 +391,10 @@ fn run_with<const U8: bool>(
         } else if nav.update_pending() && filled_at.is_none() {
             filled_at = Some(t);
         }
-        let c = nav.counters();
-        let p = out.probs.map(f32::to_bits);
-        probe.line(format_args!(
-            "t={:02} {:<11} p=[{:08x} {:08x} {:08x} {:08x} {:08x} {:08x}] v={:08x} adapted={} adaptations={} rollbacks={} (script {})",
-            t,
-            out.action.name(),
-            p[0],
-            p[1],
-            p[2],
-            p[3],
-            p[4],
-            p[5],
-            out.value.to_bits(),
-            out.adapted as u32,
-            c.adaptations,
-            c.rollbacks,
-            ep.scripted_action(src, t).map_or("?", Action::name),
-        ));
+        let scripted = ep.scripted_action(src, t).map_or("?", Action::name);
+        print_step(t, &out, nav.counters(), scripted, probe);
         if out.adapted {
-            let r = nav.last_adaptation();
-            probe.line(format_args!(
-                "  inner update: L_D={:08x} E[D(s)]={:08x} E[D(x)]={:08x} penalty={:08x} L_ad={:08x} D applied={} G/actor applied={}",
-                r.ld.loss.to_bits(),
-                r.ld.mean_real.to_bits(),
-                r.ld.mean_fake.to_bits(),
-                r.ld.penalty.to_bits(),
-                r.adapt_loss.to_bits(),
-                r.disc_applied,
-                r.adapt_applied,
-            ));
-            probe.line(format_args!(
-                "  G(SE(y), 0) moved by {} since the episode began",
-                Fixed6(g_moved(&mut nav, &g0)?)
-            ));
+            print_update(&mut nav, &g0, probe)?;
         }
     }
     let c = nav.counters();
@@ -471,6 +405,94 @@ fn run_with<const U8: bool>(
         c.steps, c.adaptations, c.rollbacks, x_sum
     ));
     Ok(c)
+}
+
+/// The episode's and the navigator's configuration lines: what the blob asks for and what the
+/// device runs.
+fn print_config(ep: &Episode, blob: &Blob<'_>, cfg: &NavConfig, probe: &mut dyn Probe) {
+    probe.line(format_args!(
+        "episode: {} ({} steps, seed {})",
+        ep.label(),
+        ep.steps(),
+        ep.seed
+    ));
+    probe.line(format_args!(
+        "navigator: Mcu, 3x3 map, Efficient, K=20, max_inner_updates={}",
+        cfg.max_inner_updates
+    ));
+    // Rates as f32 bits: exact, and no float formatting code in flash. The enums by the
+    // names their `Debug` prints, without linking those impls (flash).
+    probe.line(format_args!(
+        "config from blob v{}: adapt={} emd={} noise={} alpha_disc={:08x} alpha_adapt={:08x}",
+        blob.header().version() as u32,
+        cfg.adapt as u32,
+        match cfg.emd {
+            Emd::Discriminator => "Discriminator",
+            Emd::CosSim => "CosSim",
+        },
+        match cfg.noise {
+            NoiseMode::Gaussian => "Gaussian",
+            NoiseMode::Zero => "Zero",
+        },
+        cfg.alpha_disc.to_bits(),
+        cfg.alpha_adapt.to_bits(),
+    ));
+    probe.line(format_args!(
+        "schedule: {}, commit_delay={} (blob: {})",
+        match cfg.schedule {
+            Schedule::Auto => "Auto",
+            Schedule::Manual => "Manual",
+            Schedule::Background => "Background",
+        },
+        cfg.commit_delay,
+        blob.header().model_flags().commit_delay
+    ));
+}
+
+/// One step's line: the action, the probabilities' and the value's bits, the counters and the
+/// recorded episode's action at `t`.
+fn print_step(t: usize, out: &StepOutput, c: Counters, scripted: &str, probe: &mut dyn Probe) {
+    let p = out.probs.map(f32::to_bits);
+    probe.line(format_args!(
+        "t={:02} {:<11} p=[{:08x} {:08x} {:08x} {:08x} {:08x} {:08x}] v={:08x} adapted={} adaptations={} rollbacks={} (script {})",
+        t,
+        out.action.name(),
+        p[0],
+        p[1],
+        p[2],
+        p[3],
+        p[4],
+        p[5],
+        out.value.to_bits(),
+        out.adapted as u32,
+        c.adaptations,
+        c.rollbacks,
+        scripted,
+    ));
+}
+
+/// The lines of an inner update that just took effect: its losses and how far it moved G.
+fn print_update(
+    nav: &mut Navigator<'_, Efficient, K>,
+    g0: &[f32],
+    probe: &mut dyn Probe,
+) -> Result<(), Failure> {
+    let r = nav.last_adaptation();
+    probe.line(format_args!(
+        "  inner update: L_D={:08x} E[D(s)]={:08x} E[D(x)]={:08x} penalty={:08x} L_ad={:08x} D applied={} G/actor applied={}",
+        r.ld.loss.to_bits(),
+        r.ld.mean_real.to_bits(),
+        r.ld.mean_fake.to_bits(),
+        r.ld.penalty.to_bits(),
+        r.adapt_loss.to_bits(),
+        r.disc_applied,
+        r.adapt_applied,
+    ));
+    probe.line(format_args!(
+        "  G(SE(y), 0) moved by {} since the episode began",
+        Fixed6(g_moved(nav, g0)?)
+    ));
+    Ok(())
 }
 
 /// ‖G_θi(SE(y), 0) − g0‖ at the navigator's current θ (its own buffer, so the episode's

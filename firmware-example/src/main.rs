@@ -400,7 +400,18 @@ fn run() -> Result<(), Failure> {
     #[cfg(feature = "kernel-table")]
     kernel_phase(&clock)?;
 
-    let (p, u, all) = (dev.plain, dev.update, dev.all);
+    print_step_lines(&dev, updates);
+    #[cfg(not(feature = "kernel-table"))]
+    let stack_navigator = measure::stack_peak().ok_or(STACK_SATURATED)?;
+    #[cfg(feature = "kernel-table")]
+    let stack_navigator = stack_before_table;
+    print_budget_lines(&dev, stack_selftest, stack_navigator)
+}
+
+/// The `# step ...`, `# reset`, `# inner update alone` and `# at ... MHz` lines of the
+/// episode's steps (`updates`: the inner updates it committed).
+fn print_step_lines(dev: &Device<'_>, updates: u32) {
+    let (p, u) = (dev.plain, dev.update);
     let tick = INSNS_PER_TICK as u64;
     hprintln!(
         "# step without inner update: steps={} min_insns={} mean_insns={} max_insns={}",
@@ -434,10 +445,17 @@ fn run() -> Result<(), Failure> {
         u.mean_insns() * 1_000_000 / CPU_HZ,
         update_alone * 1_000_000 / CPU_HZ
     );
-    #[cfg(not(feature = "kernel-table"))]
-    let stack_navigator = measure::stack_peak().ok_or(STACK_SATURATED)?;
-    #[cfg(feature = "kernel-table")]
-    let stack_navigator = stack_before_table;
+}
+
+/// The `# model`, `# cadence`, `# budget`, `# stack` and `# memory` lines, from the episode's
+/// measurements and the peak stack of the self-test and of the navigator.
+fn print_budget_lines(
+    dev: &Device<'_>,
+    stack_selftest: usize,
+    stack_navigator: usize,
+) -> Result<(), Failure> {
+    let all = dev.all;
+    let tick = INSNS_PER_TICK as u64;
     let act8 = blob_int8_activations()?;
     hprintln!(
         "# model: macs_per_step={} map_cells={} int8_activations={}",

@@ -110,19 +110,61 @@ fn networks(
     };
 
     let mut rng = Xoshiro128::seed_from_u64(7);
+    let mut ds = DiscBuffers::ZERO;
+    generate_and_score(&gen, &disc, fake, &mut rng, &mut ds, out)?;
+    for (i, v) in real.iter_mut().enumerate() {
+        // Synthetic observation features in [0, 1): a fixed, deterministic pattern.
+        *v = ((i * 37) % 101) as f32 / 101.0;
+    }
+    ld_gradient(&disc, real, fake, &mut rng, &mut ds, out)
+}
+
+/// D's scratch buffers, shared by the scoring and the gradient of L_D.
+struct DiscBuffers {
+    u: [f32; DH],
+    h: [f32; DH],
+    v: [f32; DH],
+    w1g: [f32; DH],
+    g: [f32; F],
+    mix: [f32; F],
+}
+
+impl DiscBuffers {
+    const ZERO: DiscBuffers = DiscBuffers {
+        u: [0.0; DH],
+        h: [0.0; DH],
+        v: [0.0; DH],
+        w1g: [0.0; DH],
+        g: [0.0; F],
+        mix: [0.0; F],
+    };
+
+    fn scratch(&mut self) -> DiscScratch<'_> {
+        DiscScratch {
+            u: &mut self.u,
+            h: &mut self.h,
+            v: &mut self.v,
+            w1g: &mut self.w1g,
+            g: &mut self.g,
+            mix: &mut self.mix,
+        }
+    }
+}
+
+/// G on `K` seeded noise draws into `fake`, each scored by D; one line per draw.
+fn generate_and_score(
+    gen: &Generator<'_>,
+    disc: &Discriminator<'_>,
+    fake: &mut [f32],
+    rng: &mut Xoshiro128,
+    ds: &mut DiscBuffers,
+    out: &mut dyn FnMut(core::fmt::Arguments<'_>),
+) -> gman_core::Result<()> {
     let attr = [0.25f32; D.attr];
     let (mut u1, mut h1, mut u2, mut x) = ([0.0f32; H], [0.0f32; H], [0.0f32; F], [0.0f32; F]);
-    let mut ds = (
-        [0.0f32; DH],
-        [0.0f32; DH],
-        [0.0f32; DH],
-        [0.0f32; DH],
-        [0.0f32; F],
-        [0.0f32; F],
-    );
     for t in 0..K {
         let mut z = [0.0f32; D.noise];
-        fill_gaussian(&mut rng, &mut z);
+        fill_gaussian(rng, &mut z);
         let mut cache = GeneratorCache {
             u1: &mut u1,
             h1: &mut h1,
@@ -131,15 +173,7 @@ fn networks(
         };
         gen.forward(&z, &attr, &mut cache)?;
         fake[t * F..(t + 1) * F].copy_from_slice(&x);
-        let mut s = DiscScratch {
-            u: &mut ds.0,
-            h: &mut ds.1,
-            v: &mut ds.2,
-            w1g: &mut ds.3,
-            g: &mut ds.4,
-            mix: &mut ds.5,
-        };
-        let score = disc.score(&x, &mut s)?;
+        let score = disc.score(&x, &mut ds.scratch())?;
         out(format_args!(
             "x[{}]: x0={:#010x} D(x)={:#010x}",
             t,
@@ -147,16 +181,19 @@ fn networks(
             score.to_bits()
         ));
     }
-    for (i, v) in real.iter_mut().enumerate() {
-        // Synthetic observation features in [0, 1): a fixed, deterministic pattern.
-        *v = ((i * 37) % 101) as f32 / 101.0;
-    }
-    let eps = [
-        uniform(&mut rng),
-        uniform(&mut rng),
-        uniform(&mut rng),
-        uniform(&mut rng),
-    ];
+    Ok(())
+}
+
+/// One closed-form gradient of L_D (Eq. 1) on `real` against `fake`; one line.
+fn ld_gradient(
+    disc: &Discriminator<'_>,
+    real: &[f32],
+    fake: &[f32],
+    rng: &mut Xoshiro128,
+    ds: &mut DiscBuffers,
+    out: &mut dyn FnMut(core::fmt::Arguments<'_>),
+) -> gman_core::Result<()> {
+    let eps = [uniform(rng), uniform(rng), uniform(rng), uniform(rng)];
     let (mut g_gain, mut g_b1, mut g_w2, mut g_b2) =
         ([0.0f32; DH], [0.0f32; DH], [0.0f32; DH], 0.0f32);
     let mut grads = DiscGrads {
@@ -167,20 +204,12 @@ fn networks(
         w2: &mut g_w2,
         b2: &mut g_b2,
     };
-    let mut s = DiscScratch {
-        u: &mut ds.0,
-        h: &mut ds.1,
-        v: &mut ds.2,
-        w1g: &mut ds.3,
-        g: &mut ds.4,
-        mix: &mut ds.5,
-    };
     let ld = disc.ld_loss(
         real,
         fake,
         &eps,
         LdConfig::default(),
-        &mut s,
+        &mut ds.scratch(),
         Some(&mut grads),
     )?;
     out(format_args!(

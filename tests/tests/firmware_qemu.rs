@@ -649,8 +649,7 @@ fn figures_region(kind: &str, runs: &Runs, rustc: &str) -> String {
                 let p = fw_dir().join("target").join(dir).join(name);
                 std::fs::read_to_string(&p).unwrap_or_else(|e| panic!("{}: {e}", p.display()))
             };
-            // The default image's lines only: the self-test images' flash varies by a few
-            // bytes with the checkout's path.
+            // The default image's lines only (the others' are in the budget table).
             format!(
                 "The default image (`firmware-example/target/qemu-measurements.txt`, {rustc}):\n\n```text\n{}```\n",
                 read("", "qemu-measurements.txt")
@@ -932,17 +931,7 @@ fn budget_table(runs: &Runs, rustc: &str) -> String {
     );
     t += &row(
         "flash (`flash_bytes`)",
-        &|m| {
-            let b = g(m, "flash_bytes");
-            if std::ptr::eq(m, d) {
-                format!("{} B", thousands(b))
-            } else {
-                // The self-test's images vary by a few bytes with the checkout's path (code
-                // alignment), so they are shown to 0.1 KB.
-                let tenths = (b + 50) / 100;
-                format!("{}.{} KB", tenths / 10, tenths % 10)
-            }
-        },
+        &|m| format!("{} B", thousands(g(m, "flash_bytes"))),
         "<= 442,368 B (432 KiB)",
         Some(g(d, "flash_bytes") <= 442_368),
     );
