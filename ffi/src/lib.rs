@@ -602,24 +602,24 @@ fn blob_info(blob: &Blob<'_>) -> Result<gman_info, gman_status> {
         map_cols: u(d.map_cols)?,
         cell_embed: u(d.cell_embed)?,
         map_len: u(d.map_cells().checked_mul(d.feat).ok_or(GMAN_ERR_BLOB)?)?,
-        adapt: cfg.adapt as u32,
+        adapt: cfg.model.adapt as u32,
         adapt_mode: match mode {
             AdaptMode::Efficient => 0,
             AdaptMode::Full => 1,
         },
-        emd: match cfg.emd {
+        emd: match cfg.model.emd {
             Emd::Discriminator => 0,
             Emd::CosSim => 1,
         },
-        noise_mode: match cfg.noise {
+        noise_mode: match cfg.model.noise {
             NoiseMode::Gaussian => 0,
             NoiseMode::Zero => 1,
         },
-        max_inner_updates: cfg.max_inner_updates,
-        alpha_disc: cfg.alpha_disc,
-        alpha_adapt: cfg.alpha_adapt,
+        max_inner_updates: cfg.model.max_inner,
+        alpha_disc: cfg.model.alpha_disc(),
+        alpha_adapt: cfg.model.inner_lr,
         buffer_capacity: K as u32,
-        commit_delay: cfg.commit_delay,
+        commit_delay: cfg.model.inner_rule.commit_delay,
         arena_bytes: arena as u64,
     })
 }
@@ -1000,7 +1000,8 @@ fn init_config(blob: &Blob<'_>, opts: &gman_options) -> Result<NavConfig, gman_s
         2 => Schedule::Background,
         _ => return Err(GMAN_ERR_CONFIG),
     };
-    cfg.commit_delay = commit_delay(cfg.commit_delay, opts.commit_delay)?;
+    cfg.model.inner_rule.commit_delay =
+        commit_delay(cfg.model.inner_rule.commit_delay, opts.commit_delay)?;
     Ok(cfg)
 }
 
@@ -1184,7 +1185,7 @@ pub unsafe extern "C" fn gman_get_schedule(
                     Schedule::Manual => 1,
                     Schedule::Background => 2,
                 },
-                commit_delay: n.config().commit_delay,
+                commit_delay: n.config().model.inner_rule.commit_delay,
                 pending: n.update_pending() as u32,
                 slices_left: n.slices_left(),
             });

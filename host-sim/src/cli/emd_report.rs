@@ -102,12 +102,12 @@ pub fn cmd_emd_report(a: EmdReportArgs) -> Result<()> {
         "emd-report: {} episodes of {}, inner rate {} (α1 {}), cap {}, mode {:?}, {} D steps, {:?} step",
         episodes.len(),
         split.name(),
-        model.inner_lr,
-        model.inner_rule.disc_lr.unwrap_or(model.inner_lr),
-        model.max_inner,
-        model.adapt_mode,
-        model.inner_rule.disc_steps,
-        model.inner_rule.step_rule
+        model.spec.inner_lr,
+        model.spec.inner_rule.disc_lr.unwrap_or(model.spec.inner_lr),
+        model.spec.max_inner,
+        model.spec.adapt_mode,
+        model.spec.inner_rule.disc_steps,
+        model.spec.inner_rule.step_rule
     );
     let records = emd_report::measure(&world, &model, &episodes)?;
     let seen = emd_report::summarize(&records, TargetKind::Seen);
@@ -129,25 +129,25 @@ pub fn cmd_emd_report(a: EmdReportArgs) -> Result<()> {
 /// The inner-rule flags given on the command line, applied to `model` and checked.
 fn apply_inner_flags(a: &EmdReportArgs, model: &mut NavModel) -> Result<()> {
     if let Some(lr) = a.inner_lr {
-        model.inner_lr = lr;
+        model.spec.inner_lr = lr;
     }
     if let Some(n) = a.max_inner {
-        model.max_inner = n;
+        model.spec.max_inner = n;
     }
     if a.disc_lr.is_some() {
-        model.inner_rule.disc_lr = a.disc_lr;
+        model.spec.inner_rule.disc_lr = a.disc_lr;
     }
     if let Some(n) = a.disc_steps {
-        model.inner_rule.disc_steps = n;
+        model.spec.inner_rule.disc_steps = n;
     }
     if let Some(r) = a.step_rule {
-        model.inner_rule.step_rule = r;
+        model.spec.inner_rule.step_rule = r;
     }
     if a.disc_head_reset {
-        model.inner_rule.disc_head_reset = true;
+        model.spec.inner_rule.disc_head_reset = true;
     }
     if a.adapt_head_only {
-        model.inner_rule.head_only = true;
+        model.spec.inner_rule.head_only = true;
     }
     model.spec().validate()?;
     Ok(())
@@ -184,10 +184,10 @@ fn write_outputs(
         let r = Report {
             agent: a.agent.display().to_string(),
             split: split.name(),
-            inner_lr: model.inner_lr,
-            max_inner: model.max_inner,
-            inner_rule: model.inner_rule,
-            mode: gman_core::spec::Named::name(model.adapt_mode),
+            inner_lr: model.spec.inner_lr,
+            max_inner: model.spec.max_inner,
+            inner_rule: model.spec.inner_rule,
+            mode: gman_core::spec::Named::name(model.spec.adapt_mode),
             seen,
             unseen,
         };

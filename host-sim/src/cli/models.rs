@@ -31,16 +31,16 @@ pub struct ModelOverrides {
 pub fn model_factory(path: &Path, ov: &ModelOverrides) -> Result<(AgentFactory, String)> {
     let mut model = load_model_with_ps(path, ov.method, ov.ps.as_deref())?;
     if let Some(lr) = ov.inner_lr {
-        model.inner_lr = lr;
+        model.spec.inner_lr = lr;
     }
     if let Some(n) = ov.max_inner {
-        model.max_inner = n;
+        model.spec.max_inner = n;
     }
     if ov.head_only {
-        model.inner_rule.head_only = true;
+        model.spec.inner_rule.head_only = true;
     }
     if let Some(d) = ov.commit_delay {
-        model.inner_rule.commit_delay = d;
+        model.spec.inner_rule.commit_delay = d;
     }
     model.spec().validate().context("the overridden settings")?;
     let model = Arc::new(model);

@@ -342,7 +342,7 @@ fn new_run(a: &TrainArgs, world: &World, out: &Path, world_id: WorldId) -> Resul
     };
     let mut model = NavModel::init(a.method, dims, a.seed, gen.as_ref(), psm)?;
     model.privileged = a.privileged_feature;
-    model.set_spec(model_spec(a));
+    model.spec = model_spec(a);
     let adam = AdamConfig {
         lr: updates_and_lr(a).1,
         ..AdamConfig::default()

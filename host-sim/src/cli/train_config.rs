@@ -472,7 +472,7 @@ impl RunConfig {
             map: (d.map_rows, d.map_cols),
             cell_embed: (d.map_cells() > 0).then_some(d.cell_embed),
             privileged_feature: m.privileged,
-            adapt_mode: Some(m.adapt_mode),
+            adapt_mode: Some(m.spec.adapt_mode),
             spec: m.spec(),
             run: run.clone(),
         }
