@@ -10,8 +10,6 @@ use anyhow::{anyhow, bail, Context, Result};
 use clap::builder::TypedValueParser;
 use clap::{Args, ValueEnum};
 use gman_core::memory::AdaptMode;
-use gman_core::navigator::{NoiseMode, StepRule};
-use gman_core::schema::AdaptLossKind;
 use gman_core::spec::{check_map_grid, MAX_GRID_SIDE};
 use gman_host_sim::model::{InnerRule, Method, ModelSpec, NavModel};
 use gman_host_sim::optim::adam::AdamConfig;
@@ -20,7 +18,8 @@ use gman_host_sim::train::a3c::{A3cConfig, Objective};
 use gman_host_sim::train::state::RunSettings;
 use gman_host_sim::train::trainer::TrainOptions;
 
-use super::args::{named, PresetArg, WorldArgs};
+use super::args::{PresetArg, WorldArgs};
+use super::model_args::ModelArgs;
 
 /// Training configuration presets.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -33,6 +32,7 @@ pub enum ConfigArg {
 
 /// `gman train`.
 #[derive(Debug, Args)]
+#[command(mut_args(ModelArgs::train_defaults))]
 pub struct TrainArgs {
     /// World selection (training episodes come from the training scenes).
     #[command(flatten, next_help_heading = "World")]
@@ -87,67 +87,9 @@ pub struct TrainArgs {
     /// Outer Adam learning rate β (overrides the config).
     #[arg(help_heading = "Optimisation", long)]
     pub lr: Option<f32>,
-    /// Inner learning rates α1 (D) and α2 (θ, φ) (paper: 1e-4).
-    #[arg(help_heading = "Inner loop (adaptation)", long, default_value_t = 1e-4)]
-    pub inner_lr: f32,
-    /// At most this many inner updates per episode (GMAN variants).
-    #[arg(help_heading = "Inner loop (adaptation)", long, default_value_t = gman_host_sim::model::DEFAULT_MAX_INNER)]
-    pub max_inner: u32,
-    /// α1 alone, D's ascent rate on L_D (default: --inner-lr, the paper's α1 = α2).
-    #[arg(help_heading = "Inner loop (adaptation)", long, value_name = "ALPHA1")]
-    pub disc_lr: Option<f32>,
-    /// D's ascent steps on L_D per inner update (paper: 1).
-    #[arg(
-        help_heading = "Inner loop (adaptation)",
-        long,
-        value_name = "N",
-        default_value_t = 1
-    )]
-    pub disc_steps: u32,
-    /// The descent step of θ and φ on L_ad: `gradient` (α2 ∇, the paper), `normalized`
-    /// (α2 ∇/‖∇‖: --inner-lr is then the step's length) or `per-group` (θ and φ each
-    /// normalised to that length). Recorded in the blob.
-    #[arg(
-        help_heading = "Inner loop (adaptation)",
-        long,
-        value_parser = named::<StepRule>(),
-        default_value = "gradient"
-    )]
-    pub step_rule: StepRule,
-    /// D restarts with every episode: layer 1 from ω, the output layer (w2, b2) at zero, so
-    /// D's first ascent step sets the head from the episode's own buffer; ω then does not
-    /// learn across episodes (paper: off, D persists). Recorded in the blob.
-    #[arg(help_heading = "Inner loop (adaptation)", long)]
-    pub disc_head_reset: bool,
-    /// The form of L_ad: `paper` (Eq. 3) or `reference` (‖Σ_t a_t (−D(x_t))‖₂, the
-    /// reference implementation's). Recorded in the blob.
-    #[arg(
-        help_heading = "Inner loop (adaptation)",
-        long,
-        value_parser = named::<AdaptLossKind>(),
-        default_value = "paper"
-    )]
-    pub adapt_loss: AdaptLossKind,
-    /// Scale L_D's critic terms by 10, as the reference implementation does (the paper: 1).
-    /// Recorded in the blob.
-    #[arg(help_heading = "Inner loop (adaptation)", long)]
-    pub reference_critic: bool,
-    /// The inner loop's descent step on L_ad adapts only the actor head; G stays at θ (the
-    /// reference implementation's default, whose G gets no inner gradient; the paper: G and
-    /// the head). Recorded in the blob.
-    #[arg(help_heading = "Inner loop (adaptation)", long)]
-    pub adapt_head_only: bool,
-    /// The inner update's commit delay D in steps (0..=63): the update that starts when Ψ
-    /// fills takes effect D steps later, the steps between acting on the current parameters
-    /// and not recorded in Ψ; what a device that computes the update in slices, or at a lower
-    /// priority, runs (see docs/device.md). 0: at once (the paper). Recorded in the blob.
-    #[arg(
-        help_heading = "Inner loop (adaptation)",
-        long,
-        default_value_t = 0,
-        value_name = "D"
-    )]
-    pub commit_delay: u32,
+    /// The model's settings (the paper's by default).
+    #[command(flatten, next_help_heading = "Inner loop (adaptation)")]
+    pub model: ModelArgs,
     /// Minimum steps per worker and update.
     #[arg(help_heading = "Episodes and reward", long, default_value_t = 40)]
     pub min_steps: u32,
@@ -173,11 +115,6 @@ pub struct TrainArgs {
     /// Channels of the shared per-cell layer over the map (the reference's 1x1 conv: 64).
     #[arg(help_heading = "Model", long, default_value_t = 8)]
     pub cell_embed: usize,
-    /// Adaptation mode of the inner loop (in training and on the device; blobs record it):
-    /// `efficient` (per-unit gains and biases, what the microcontroller runs) or `full`
-    /// (every parameter). Default: efficient for the mcu preset, full for paper.
-    #[arg(help_heading = "Inner loop (adaptation)", long, value_parser = named::<AdaptMode>())]
-    pub adapt_mode: Option<AdaptMode>,
     /// Training objective: `a3c` (the paper's actor-critic loss) or `dagger` (imitation of
     /// the shortest-path oracle on the learner's own states: the imitation ceiling).
     #[arg(help_heading = "Optimisation", long, value_enum, default_value = "a3c")]
@@ -186,15 +123,6 @@ pub struct TrainArgs {
     /// current scene in place of G's output (not exportable; methods without inner loop).
     #[arg(help_heading = "Model", long)]
     pub privileged_feature: bool,
-    /// Noise z of G at navigation time, in training and wherever the model runs (recorded in
-    /// the checkpoint and the blob; a resumed run keeps its own).
-    #[arg(
-        help_heading = "Inner loop (adaptation)",
-        long,
-        value_parser = named::<NoiseMode>(),
-        default_value = "gaussian"
-    )]
-    pub noise: NoiseMode,
     /// Meta-gradient order: 1 = first-order MAML (the gradient at the adapted parameters),
     /// 2 = exact through the inner SGD steps (Hessian-vector products by central finite
     /// differences of gradients).
@@ -228,34 +156,28 @@ fn parse_map_grid(s: &str) -> std::result::Result<(usize, usize), String> {
     Ok((r, c))
 }
 
-/// The model's switches the flags ask for (those of a new run).
-pub(super) fn model_spec(a: &TrainArgs) -> ModelSpec {
+/// The settings of a new run before its flags: the paper's ([`ModelSpec::paper`]) in the
+/// preset's adaptation mode, whether the model adapts and its EMD from the method.
+fn default_spec(a: &TrainArgs) -> ModelSpec {
     ModelSpec {
-        noise: a.noise,
-        inner_lr: a.inner_lr,
-        max_inner: a.max_inner,
-        adapt_mode: new_run_adapt_mode(a),
-        inner_rule: InnerRule {
-            disc_lr: a.disc_lr,
-            disc_steps: a.disc_steps,
-            step_rule: a.step_rule,
-            disc_head_reset: a.disc_head_reset,
-            adapt_loss: a.adapt_loss,
-            reference_critic: a.reference_critic,
-            head_only: a.adapt_head_only,
-            commit_delay: a.commit_delay,
-        },
         adapt: a.method.adapts_at_eval(),
         emd: a.method.emd(),
-        int8_activations: false,
-        compact_psi: false,
+        ..ModelSpec::paper(new_run_adapt_mode(a))
     }
+}
+
+/// The model's settings the flags ask for (those of a new run): [`default_spec`] with the
+/// flags applied, checked (an error names the setting by its flag).
+pub(super) fn model_spec(a: &TrainArgs) -> Result<ModelSpec> {
+    let mut spec = default_spec(a);
+    a.model.apply(&mut spec).map_err(|e| anyhow!("--{e}"))?;
+    Ok(spec)
 }
 
 /// The adaptation mode of a new run: `--adapt-mode`, else Full for the paper preset and
 /// Efficient (what a microcontroller runs) for mcu.
 fn new_run_adapt_mode(a: &TrainArgs) -> AdaptMode {
-    match (a.adapt_mode, a.preset) {
+    match (a.model.adapt_mode, a.preset) {
         (Some(m), _) => m,
         (None, PresetArg::Paper) => AdaptMode::Full,
         (None, _) => AdaptMode::Efficient,
@@ -280,9 +202,12 @@ pub(super) fn check_train_flags(a: &TrainArgs) -> Result<()> {
         bail!("--meta-order 2 is implemented for the Full adaptation mode; add --adapt-mode full");
     }
     // The commit delay only moves the update in time: the meta-gradient is the same recursion.
+    // (The ranges are `RunConfig::validate`'s to report.)
+    let mut spec = default_spec(a);
+    a.model.write(&mut spec);
     let rule = InnerRule {
         commit_delay: 0,
-        ..model_spec(a).inner_rule
+        ..spec.inner_rule
     };
     if a.meta_order == 2 && a.method.adapts_in_training() && !rule.is_paper() {
         bail!("--meta-order 2 differentiates the paper's inner rule only (one D step, the gradient step, α1 = α2); use --meta-order 1 with --disc-lr, --disc-steps, --step-rule, --disc-head-reset, --adapt-loss, --reference-critic or --adapt-head-only");
@@ -451,17 +376,17 @@ fn differs<T: PartialEq + std::fmt::Debug>(
 }
 
 impl RunConfig {
-    /// The settings the flags ask for.
-    pub(super) fn from_flags(a: &TrainArgs) -> RunConfig {
-        RunConfig {
+    /// The settings the flags ask for (the model's checked, [`model_spec`]).
+    pub(super) fn from_flags(a: &TrainArgs) -> Result<RunConfig> {
+        Ok(RunConfig {
             method: a.method,
             map: a.map,
             cell_embed: Some(a.cell_embed),
             privileged_feature: a.privileged_feature,
-            adapt_mode: a.adapt_mode,
-            spec: model_spec(a),
+            adapt_mode: a.model.adapt_mode,
+            spec: model_spec(a)?,
             run: flag_options(a).run,
-        }
+        })
     }
 
     /// The settings of a stored model and its stored [`RunSettings`].
