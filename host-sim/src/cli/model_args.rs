@@ -270,7 +270,8 @@ const OVERRIDE_HELP: &[Wording] = &[
          effect, 0..=63; default: the model's, 0 for models trained without it), e.g. to \
          measure what a device's delay costs a model. An experiment on the host: like every \
          override here it replaces what the model records. A device runs the blob's own delay \
-         (the C API's `gman_options.commit_delay` may only add one to a blob that records none)",
+         (the C API's `gman_options.settings.commit_delay` may only add one to a blob that \
+         records none)",
         None,
     ),
     (
