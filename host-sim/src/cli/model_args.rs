@@ -159,6 +159,52 @@ impl ModelArgs {
     }
 }
 
+/// A setting a resumed `gman train` run keeps: its flag, the flag's clap id, and the
+/// setting's two values in a pair of `T` as the refusal prints them, when they differ.
+pub(super) type Kept<T> = (
+    &'static str,
+    &'static str,
+    fn(&T, &T) -> Option<(String, String)>,
+);
+
+/// A [`Kept`] entry over a `$t`: `|c| get` reads the setting (`None`: not compared).
+macro_rules! kept {
+    ($t:ty: $flag:literal, $id:literal, |$c:ident| $get:expr) => {
+        ($flag, $id, |a: &$t, b: &$t| differs(a, b, |$c: &$t| $get))
+    };
+}
+pub(super) use kept;
+
+/// The setting `get` of `a` and `b` when both have it and they differ.
+pub(super) fn differs<C, T: PartialEq + std::fmt::Debug>(
+    a: &C,
+    b: &C,
+    get: impl Fn(&C) -> Option<T>,
+) -> Option<(String, String)> {
+    match (get(a), get(b)) {
+        (Some(x), Some(y)) if x != y => Some((format!("{x:?}"), format!("{y:?}"))),
+        _ => None,
+    }
+}
+
+/// The model's settings a resumed `gman train` run keeps, in the order a resume checks them,
+/// before the run's own (`train_config`'s `KEPT`): given on `--resume`, a flag must agree
+/// with the stored setting. `--adapt-mode` is the run's (its default is the preset's);
+/// `--noise` is not compared (a resumed run keeps its own).
+#[rustfmt::skip]
+pub(super) const KEPT: &[Kept<ModelSpec>] = &[
+    kept!(ModelSpec: "--inner-lr", "inner_lr", |c| Some(c.inner_lr)),
+    kept!(ModelSpec: "--max-inner", "max_inner", |c| Some(c.max_inner)),
+    kept!(ModelSpec: "--disc-lr", "disc_lr", |c| Some(c.inner_rule.disc_lr)),
+    kept!(ModelSpec: "--disc-steps", "disc_steps", |c| Some(c.inner_rule.disc_steps)),
+    kept!(ModelSpec: "--step-rule", "step_rule", |c| Some(c.inner_rule.step_rule)),
+    kept!(ModelSpec: "--disc-head-reset", "disc_head_reset", |c| Some(c.inner_rule.disc_head_reset)),
+    kept!(ModelSpec: "--adapt-loss", "adapt_loss", |c| Some(c.inner_rule.adapt_loss)),
+    kept!(ModelSpec: "--reference-critic", "reference_critic", |c| Some(c.inner_rule.reference_critic)),
+    kept!(ModelSpec: "--adapt-head-only", "adapt_head_only", |c| Some(c.inner_rule.head_only)),
+    kept!(ModelSpec: "--commit-delay", "commit_delay", |c| Some(c.inner_rule.commit_delay)),
+];
+
 /// `*to = v` when `v` is given.
 fn set<T>(to: &mut T, v: Option<T>) {
     if let Some(v) = v {

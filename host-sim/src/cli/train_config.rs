@@ -1,8 +1,9 @@
 //! `gman train`'s run configuration: the flags ([`TrainArgs`]), their defaults, the checks
 //! of their ranges and combinations, and [`RunConfig`], the settings a run keeps, built from
 //! the flags or from a checkpoint and validated by one function ([`RunConfig::validate`]);
-//! resuming is [`RunConfig::resume`], one comparison over the table of kept settings
-//! ([`KEPT`]).
+//! resuming is [`RunConfig::resume`], one comparison over the tables of kept settings (the
+//! model's, [`model_args::KEPT`], then the run's, [`KEPT`]). The model's flags are
+//! [`ModelArgs`], shared with `gman eval` and `gman emd-report`.
 
 use std::path::{Path, PathBuf};
 
@@ -19,7 +20,7 @@ use gman_host_sim::train::state::RunSettings;
 use gman_host_sim::train::trainer::TrainOptions;
 
 use super::args::{PresetArg, WorldArgs};
-use super::model_args::ModelArgs;
+use super::model_args::{self, differs, kept, Kept, ModelArgs};
 
 /// Training configuration presets.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -312,68 +313,27 @@ pub(super) struct RunConfig {
     run: RunSettings,
 }
 
-/// A setting a resumed run keeps: its flag, the flag's clap id, and its value in a
-/// [`RunConfig`] (`None`: not compared).
-type Kept = (
-    &'static str,
-    &'static str,
-    fn(&RunConfig, &RunConfig) -> Differs,
-);
-
-/// Two values of a setting as the refusal prints them, when they differ.
-type Differs = Option<(String, String)>;
-
-/// A [`Kept`] entry: `|c| get` reads the setting from a [`RunConfig`].
-macro_rules! kept {
-    ($flag:literal, $id:literal, |$c:ident| $get:expr) => {
-        ($flag, $id, |a: &RunConfig, b: &RunConfig| {
-            differs(a, b, |$c: &RunConfig| $get)
-        })
-    };
-}
-
-/// Every kept setting, in the order a resume checks them.
+/// The run's settings a resumed run keeps, in the order a resume checks them (after the
+/// model's, [`model_args::KEPT`]).
 #[rustfmt::skip]
-const KEPT: &[Kept] = &[
-    kept!("--inner-lr", "inner_lr", |c| Some(c.spec.inner_lr)),
-    kept!("--max-inner", "max_inner", |c| Some(c.spec.max_inner)),
-    kept!("--disc-lr", "disc_lr", |c| Some(c.spec.inner_rule.disc_lr)),
-    kept!("--disc-steps", "disc_steps", |c| Some(c.spec.inner_rule.disc_steps)),
-    kept!("--step-rule", "step_rule", |c| Some(c.spec.inner_rule.step_rule)),
-    kept!("--disc-head-reset", "disc_head_reset", |c| Some(c.spec.inner_rule.disc_head_reset)),
-    kept!("--adapt-loss", "adapt_loss", |c| Some(c.spec.inner_rule.adapt_loss)),
-    kept!("--reference-critic", "reference_critic", |c| Some(c.spec.inner_rule.reference_critic)),
-    kept!("--adapt-head-only", "adapt_head_only", |c| Some(c.spec.inner_rule.head_only)),
-    kept!("--commit-delay", "commit_delay", |c| Some(c.spec.inner_rule.commit_delay)),
-    kept!("--method", "method", |c| Some(c.method)),
-    kept!("--adapt-mode", "adapt_mode", |c| c.adapt_mode),
-    kept!("--map", "map", |c| Some(c.map)),
-    kept!("--cell-embed", "cell_embed", |c| c.cell_embed),
-    kept!("--privileged-feature", "privileged_feature", |c| Some(c.privileged_feature)),
-    kept!("--objective", "objective", |c| Some(c.run.objective)),
-    kept!("--seed", "seed", |c| Some(c.run.seed)),
-    kept!("--workers (x ranks)", "workers", |c| Some(c.run.workers)),
-    kept!("--batch-envs", "batch_envs", |c| Some(c.run.batch_envs)),
-    kept!("--min-steps", "min_steps", |c| Some(c.run.min_steps)),
-    kept!("--min-start-actions", "min_start_actions", |c| Some(c.run.min_start_actions)),
-    kept!("--max-steps", "max_steps", |c| Some(c.run.max_steps)),
-    kept!("--meta-order", "meta_order", |c| Some(c.run.meta_order)),
-    kept!("--reward", "reward", |c| Some(c.run.reward)),
-    kept!("--lr", "lr", |c| Some(c.run.adam.lr)),
-    kept!("--entropy", "entropy", |c| Some(c.run.a3c.entropy)),
+const KEPT: &[Kept<RunConfig>] = &[
+    kept!(RunConfig: "--method", "method", |c| Some(c.method)),
+    kept!(RunConfig: "--adapt-mode", "adapt_mode", |c| c.adapt_mode),
+    kept!(RunConfig: "--map", "map", |c| Some(c.map)),
+    kept!(RunConfig: "--cell-embed", "cell_embed", |c| c.cell_embed),
+    kept!(RunConfig: "--privileged-feature", "privileged_feature", |c| Some(c.privileged_feature)),
+    kept!(RunConfig: "--objective", "objective", |c| Some(c.run.objective)),
+    kept!(RunConfig: "--seed", "seed", |c| Some(c.run.seed)),
+    kept!(RunConfig: "--workers (x ranks)", "workers", |c| Some(c.run.workers)),
+    kept!(RunConfig: "--batch-envs", "batch_envs", |c| Some(c.run.batch_envs)),
+    kept!(RunConfig: "--min-steps", "min_steps", |c| Some(c.run.min_steps)),
+    kept!(RunConfig: "--min-start-actions", "min_start_actions", |c| Some(c.run.min_start_actions)),
+    kept!(RunConfig: "--max-steps", "max_steps", |c| Some(c.run.max_steps)),
+    kept!(RunConfig: "--meta-order", "meta_order", |c| Some(c.run.meta_order)),
+    kept!(RunConfig: "--reward", "reward", |c| Some(c.run.reward)),
+    kept!(RunConfig: "--lr", "lr", |c| Some(c.run.adam.lr)),
+    kept!(RunConfig: "--entropy", "entropy", |c| Some(c.run.a3c.entropy)),
 ];
-
-/// The setting `get` of `a` and `b` when both have it and they differ.
-fn differs<T: PartialEq + std::fmt::Debug>(
-    a: &RunConfig,
-    b: &RunConfig,
-    get: impl Fn(&RunConfig) -> Option<T>,
-) -> Differs {
-    match (get(a), get(b)) {
-        (Some(x), Some(y)) if x != y => Some((format!("{x:?}"), format!("{y:?}"))),
-        _ => None,
-    }
-}
 
 impl RunConfig {
     /// The settings the flags ask for (the model's checked, [`model_spec`]).
@@ -486,11 +446,17 @@ impl RunConfig {
         explicit: &dyn Fn(&str) -> bool,
         ck: &Path,
     ) -> Result<RunSettings> {
-        for (flag, id, value) in KEPT {
-            if !explicit(id) || (change_workers && *id == "workers") {
+        let model = model_args::KEPT
+            .iter()
+            .map(|&(flag, id, value)| (flag, id, value(&flags.spec, &self.spec)));
+        let run = KEPT
+            .iter()
+            .map(|&(flag, id, value)| (flag, id, value(flags, &self)));
+        for (flag, id, differs) in model.chain(run) {
+            if !explicit(id) || (change_workers && id == "workers") {
                 continue;
             }
-            if let Some((cli, stored)) = value(flags, &self) {
+            if let Some((cli, stored)) = differs {
                 bail!(
                     "{flag} {cli} conflicts with the resumed run, which was trained with {stored}; a \
                      resumed run keeps its own settings (omit the flag, or start a new run with --out)"
@@ -517,14 +483,16 @@ mod tests {
     #[test]
     fn kept_settings_name_real_flags() {
         let cmd = TrainArgs::augment_args(Command::new("train"));
-        for (i, (flag, id, _)) in KEPT.iter().enumerate() {
+        let model = model_args::KEPT.iter().map(|k| (k.0, k.1));
+        let kept: Vec<(&str, &str)> = model.chain(KEPT.iter().map(|k| (k.0, k.1))).collect();
+        for (i, (flag, id)) in kept.iter().enumerate() {
             let arg = cmd
                 .get_arguments()
                 .find(|a| a.get_id() == *id)
                 .unwrap_or_else(|| panic!("{flag}: no argument with id {id}"));
             let long = arg.get_long().expect("a long flag");
             assert!(flag.starts_with(&format!("--{long}")), "{flag} vs --{long}");
-            assert!(KEPT[i + 1..].iter().all(|k| k.1 != *id), "{id} twice");
+            assert!(kept[i + 1..].iter().all(|k| k.1 != *id), "{id} twice");
         }
     }
 }
