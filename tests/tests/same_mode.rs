@@ -170,8 +170,7 @@ fn trainer_and_device_agree_with_the_levers() {
         disc_head_reset: true,
         adapt_loss: AdaptLossKind::Reference,
         reference_critic: true,
-        head_only: false,
-        commit_delay: 0,
+        ..InnerRule::PAPER
     };
     check_with(AdaptMode::Efficient, gman_core::Dims::MCU, rule);
     // The reference's default: only the actor head adapts (with the normalised step, whose
@@ -210,8 +209,8 @@ fn trainer_and_device_agree_with_a_commit_delay() {
         disc_head_reset: true,
         adapt_loss: AdaptLossKind::Reference,
         reference_critic: true,
-        head_only: false,
         commit_delay: 7,
+        ..InnerRule::PAPER
     };
     check_with(AdaptMode::Efficient, gman_core::Dims::MCU, rule);
 }
