@@ -14,6 +14,7 @@ use gman_core::matrix::MatRef;
 use gman_core::navigator::{Efficient, Full, Mode, NavConfig, NavWeights, Navigator};
 use gman_core::rng::{uniform, Xoshiro128};
 use gman_core::seeded::{encode_seeded, SeededWeights};
+use gman_core::spec::ModelSpec;
 use gman_core::Dims;
 use std::hint::black_box;
 use std::time::{Duration, Instant};
@@ -59,7 +60,10 @@ fn bench_one<M: Mode>(c: &mut Criterion, preset: &str, d: Dims, quant: &str, w: 
     let mode = format!("{:?}", M::MODE);
     let mut arena = vec![0.0f32; Navigator::<M, K>::arena_len(&d)];
     let cfg = NavConfig {
-        adapt: false,
+        model: ModelSpec {
+            adapt: false,
+            ..NavConfig::default().model
+        },
         ..NavConfig::default()
     };
     let mut nav: Navigator<'_, M, K> = Navigator::new(w, &mut arena, cfg).unwrap();

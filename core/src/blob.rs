@@ -109,7 +109,7 @@ use crate::error::BlobError;
 use crate::error::SettingText;
 use crate::matrix::{MatRef, Scales};
 use crate::preset::Dims;
-use crate::schema::{AdaptMode, ModelFlags};
+use crate::schema::AdaptMode;
 pub use crate::schema::{
     TensorId, FLAG_ADAPT, FLAG_COSSIM, FLAG_FULL_ADAPT, FLAG_ZERO_NOISE, NUM_TENSORS,
 };
@@ -219,16 +219,18 @@ impl MapRecord {
 /// [`Navigator::new`](crate::navigator::Navigator::new) refuses them in a
 /// [`NavConfig`](crate::navigator::NavConfig). Any `max_inner` is valid (0 turns
 /// the inner loop off even for a blob with [`FLAG_ADAPT`]).
-#[derive(Clone, Copy, Debug, PartialEq)]
+///
+/// The settings themselves are [`ModelSpec`]'s (`inner_lr`,
+/// [`InnerRule::disc_lr`](crate::spec::InnerRule::disc_lr), `max_inner`;
+/// [`ModelSpec::adapt_settings`], [`ModelSpec::from_bits`]); this is their v2-v4 header record
+/// (postcard: the three fields in this order).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct AdaptSettings {
-    /// α1, the ascent rate of D on L_D (Eq. 1; paper: 1e-4); becomes
-    /// [`NavConfig::alpha_disc`](crate::navigator::NavConfig::alpha_disc).
+    /// α1, the ascent rate of D on L_D (Eq. 1; paper: 1e-4): [`ModelSpec::alpha_disc`].
     pub alpha_disc: f32,
-    /// α2, the SGD rate of θ and φ on L_ad (Eq. 3; paper: 1e-4); becomes
-    /// [`NavConfig::alpha_adapt`](crate::navigator::NavConfig::alpha_adapt).
+    /// α2, the SGD rate of θ and φ on L_ad (Eq. 3; paper: 1e-4): `ModelSpec::inner_lr`.
     pub alpha_adapt: f32,
-    /// At most this many inner updates per episode (reference: 4); becomes
-    /// [`NavConfig::max_inner_updates`](crate::navigator::NavConfig::max_inner_updates).
+    /// At most this many inner updates per episode (reference: 4): `ModelSpec::max_inner`.
     pub max_inner: u32,
 }
 
@@ -298,9 +300,7 @@ struct HeaderV3 {
     dims: DimsRecord,
     map: MapRecord,
     flags: u32,
-    alpha_disc: f32,
-    alpha_adapt: f32,
-    max_inner: u32,
+    settings: AdaptSettings,
     n_tensors: u16,
     payload_len: u32,
     payload_crc: u32,
@@ -316,9 +316,7 @@ struct HeaderV4Body {
     dims: DimsRecord,
     map: MapRecord,
     flags: u32,
-    alpha_disc: f32,
-    alpha_adapt: f32,
-    max_inner: u32,
+    settings: AdaptSettings,
     n_tensors: u16,
     payload_len: u32,
 }
@@ -332,9 +330,7 @@ impl HeaderV4Body {
             dims: self.dims,
             map: self.map,
             flags: self.flags,
-            alpha_disc: self.alpha_disc,
-            alpha_adapt: self.alpha_adapt,
-            max_inner: self.max_inner,
+            settings: self.settings,
             n_tensors: self.n_tensors,
             payload_len: self.payload_len,
             payload_crc,
@@ -445,11 +441,7 @@ impl ChecksumScope {
 impl HeaderV3 {
     /// The checked [`Header`] (inner-loop rates first, then the sizes the dims imply).
     fn into_header(self, version: u16) -> Result<Header, BlobError> {
-        let settings = AdaptSettings {
-            alpha_disc: self.alpha_disc,
-            alpha_adapt: self.alpha_adapt,
-            max_inner: self.max_inner,
-        };
+        let settings = self.settings;
         settings.validate()?;
         check_dims_fit(&self.dims, self.map)?;
         Ok(Header {
@@ -480,9 +472,7 @@ impl From<HeaderV2> for HeaderV3 {
             dims: h.dims,
             map: MapRecord::default(),
             flags: h.flags,
-            alpha_disc: h.alpha_disc,
-            alpha_adapt: h.alpha_adapt,
-            max_inner: h.max_inner,
+            settings: h.settings,
             n_tensors: h.n_tensors,
             payload_len: h.payload_len,
             payload_crc: h.payload_crc,
@@ -498,9 +488,7 @@ struct HeaderV2 {
     version: u16,
     dims: DimsRecord,
     flags: u32,
-    alpha_disc: f32,
-    alpha_adapt: f32,
-    max_inner: u32,
+    settings: AdaptSettings,
     n_tensors: u16,
     payload_len: u32,
     payload_crc: u32,
@@ -543,11 +531,11 @@ impl Header {
     /// [`AdaptMode::Full`] with [`FLAG_FULL_ADAPT`], else
     /// [`AdaptMode::Efficient`].
     pub fn adapt_mode(&self) -> AdaptMode {
-        self.model_flags().mode
-    }
-    /// The flags as the settings they stand for ([`ModelFlags::from_bits`]).
-    pub fn model_flags(&self) -> ModelFlags {
-        ModelFlags::from_bits(self.flags)
+        if self.flags & FLAG_FULL_ADAPT != 0 {
+            AdaptMode::Full
+        } else {
+            AdaptMode::Efficient
+        }
     }
     /// Format version of the parsed blob (1 to 5).
     pub fn version(&self) -> u16 {

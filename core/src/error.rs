@@ -44,7 +44,7 @@ pub enum Error {
         what: &'static str,
     },
     /// The step would reach the commit point of a pending inner update
-    /// ([`NavConfig::commit_delay`](crate::navigator::NavConfig::commit_delay) steps after Ψ
+    /// ([commit delay](crate::spec::InnerRule::commit_delay) steps after Ψ
     /// filled) before the update is complete: with
     /// [`Schedule::Background`](crate::navigator::Schedule::Background) the caller's
     /// lower-priority context has not yet run all of

@@ -449,9 +449,9 @@ pub const fn arena_len_with(d: &Dims, mode: AdaptMode, k: usize, fp: Footprint) 
     sat(try_arena_len_with(d, mode, k, fp))
 }
 
-/// [`arena_len_with`] for one noise mode of G ([`NavConfig::noise`](crate::navigator::NavConfig::noise)):
-/// with [`NoiseMode::Zero`] Ψ keeps no noise and one x_t, so a firmware that knows its blob's
-/// mode can size the arena exactly.
+/// [`arena_len_with`] for one noise mode of G
+/// ([`ModelSpec::noise`](crate::spec::ModelSpec::noise)): with [`NoiseMode::Zero`] Ψ keeps
+/// no noise and one x_t, so a firmware that knows its blob's mode can size the arena exactly.
 pub const fn arena_len_noise(
     d: &Dims,
     mode: AdaptMode,

@@ -90,8 +90,8 @@ use core::marker::PhantomData;
 use core::ops::Deref;
 
 use crate::activation::{all_finite, leaky_relu_inplace, sigmoid_inplace};
-use crate::adapt::{actor_head_grad, AdaptLossKind};
-use crate::blob::{AdaptSettings, Blob, Header};
+use crate::adapt::actor_head_grad;
+use crate::blob::{Blob, Header};
 use crate::dense::{gain_bias, Dense, DenseGrads};
 use crate::discriminator::{DiscGrads, Discriminator, LdConfig, LdValue};
 use crate::error::BlobError;
@@ -108,7 +108,7 @@ use crate::policy::{FuseBlocks, FuseTerms, Policy, PolicyCache, PolicyInput};
 use crate::preset::Dims;
 use crate::rng::{uniform, Xoshiro128};
 pub use crate::schema::{Emd, NoiseMode};
-use crate::schema::{ModelFlags, TensorId, NUM_TENSORS};
+use crate::schema::{TensorId, NUM_TENSORS};
 use crate::spec::ModelSpec;
 use crate::{Action, NUM_ACTIONS};
 
@@ -151,176 +151,113 @@ pub enum Schedule {
     /// Only when the caller asks ([`Navigator::adapt_now`] or [`Navigator::clear_buffer`]);
     /// `step()` refuses to run while Ψ is full. A trainer uses this to take the navigation
     /// loss's gradient at the parameters a segment was run with, before they adapt. The
-    /// update itself is the same code. With a [`NavConfig::commit_delay`] `d > 0` the `d`
-    /// steps after Ψ fills run (unrecorded) before `step()` asks for `adapt_now()`.
+    /// update itself is the same code. With a
+    /// [commit delay](crate::spec::InnerRule::commit_delay) `d > 0` the `d` steps after Ψ
+    /// fills run (unrecorded) before `step()` asks for `adapt_now()`.
     Manual,
-    /// With a [`NavConfig::commit_delay`] `d >= 1` (required): `step()` never computes the
-    /// update; the caller runs it in slices with [`Navigator::adapt_slice`] from a context of
-    /// lower priority than the control loop (an RTIC task, a lower interrupt priority, the
-    /// main loop between timer ticks). The update commits at the end of the `d`-th step
-    /// after Ψ filled, as with `Auto`; a step that would reach that point before every slice
-    /// ran returns [`Error::UpdateNotReady`] and changes nothing.
+    /// With a [commit delay](crate::spec::InnerRule::commit_delay) `d >= 1` (required): `step()`
+    /// never computes the update; the caller runs it in slices with [`Navigator::adapt_slice`] from
+    /// a context of lower priority than the control loop (an RTIC task, a lower interrupt priority,
+    /// the main loop between timer ticks). The update commits at the end of the `d`-th step after Ψ
+    /// filled, as with `Auto`; a step that would reach that point before every slice ran returns
+    /// [`Error::UpdateNotReady`] and changes nothing.
     Background,
 }
 
-/// Run-time settings of the navigator.
+/// The navigator's configuration: the model's settings ([`ModelSpec`], what a blob records)
+/// and the caller's run-time choices.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct NavConfig {
+    /// The model's settings, every one a blob records and nothing else: whether the inner
+    /// loop runs at all (`adapt`; false: the A3C+FG baseline with no adaptation), what
+    /// scores the generated features in L_ad (`emd`), G's noise, the adaptation mode, α1
+    /// ([`ModelSpec::alpha_disc`]) and α2 (`inner_lr`), at most `max_inner` inner updates
+    /// per episode, the inner rule's levers ([`InnerRule`](crate::spec::InnerRule): D's
+    /// ascent steps, 0 counting as 1; the step rule; D's head reset; the form of L_ad; L_D's
+    /// critic scale; the head-only step; the commit delay) and Ψ's int16 form
+    /// (`compact_psi`, [`crate::schema::FLAG_COMPACT_PSI`]: the inner update sees those
+    /// values in every [`Footprint`]; [`Footprint::Minimal`] needs it).
+    ///
+    /// The commit delay d ([`InnerRule::commit_delay`](crate::spec::InnerRule::commit_delay)):
+    /// the inner update that starts when Ψ fills at step t takes effect at the end of step
+    /// t + d. The `d` steps between act on the current parameters and are not recorded in
+    /// Ψ; with [`Schedule::Auto`] each of them computes a bounded slice of the update, with
+    /// [`Schedule::Background`] the caller does ([`Navigator::adapt_slice`]). 0 (the
+    /// default): the update runs inside the step that fills Ψ. At most
+    /// [`MAX_COMMIT_DELAY`](crate::schema::MAX_COMMIT_DELAY).
+    ///
+    /// `int8_activations` is how a blob's weights run ([`NavWeights::from_blob`] applies
+    /// it); the navigator does not read it here.
+    pub model: ModelSpec,
+    /// [`Navigator::new`] refuses weights whose `model.adapt_mode` is not the navigator's
+    /// mode when the model adapts, since the inner loop would then not be the one that was
+    /// meta-learned: true in the configuration of a blob or a model's settings
+    /// ([`NavConfig::from_header`], [`NavConfig::from_spec`]); false (the default) runs the
+    /// weights in any mode.
+    pub check_mode: bool,
     /// When the inner update runs.
     pub schedule: Schedule,
-    /// What scores the generated features in L_ad.
-    pub emd: Emd,
-    /// Whether the inner loop runs at all (false: the A3C+FG baseline with no adaptation).
-    pub adapt: bool,
-    /// At most this many inner updates per episode (reference: 4).
-    pub max_inner_updates: u32,
-    /// α1, the ascent rate of D on L_D (paper: 1e-4).
-    pub alpha_disc: f32,
-    /// α2, the SGD rate of θ and φ on L_ad (paper: 1e-4).
-    pub alpha_adapt: f32,
-    /// λ and the critic scale of L_D.
-    pub ld: LdConfig,
-    /// Form of Eq. 3.
-    pub adapt_loss: AdaptLossKind,
-    /// Noise of G.
-    pub noise: NoiseMode,
     /// Action selection.
     pub selection: Selection,
     /// An adaptation step whose |loss| exceeds this is rolled back.
     pub loss_bound: f32,
-    /// Ascent steps of D on L_D per inner update (paper: 1; a blob records it, see
-    /// [`ModelFlags::disc_steps`]; 0 counts as 1).
-    pub disc_steps: u32,
-    /// How the descent step on L_ad is sized.
-    pub step_rule: StepRule,
-    /// D restarts with every [`Navigator::reset`]: layer 1 from the weights' ω, the output
-    /// layer (w2, b2) at zero (a blob records it, see [`ModelFlags::disc_head_reset`]; the
-    /// paper: false, D persists across episodes).
-    pub disc_head_reset: bool,
-    /// The descent step on L_ad adapts only the actor head φ; G stays at θ (the reference
-    /// implementation's default; a blob records it, see [`ModelFlags::head_only`]; the paper:
-    /// false, θ and the head).
-    pub head_only: bool,
-    /// The adaptation mode the weights were meta-trained in, when known (a blob records it,
-    /// see [`Header::adapt_mode`]): [`Navigator::new`] refuses to run such weights in the
-    /// other mode, since the inner loop would then not be the one that was meta-learned.
-    /// `None`: any mode.
-    pub mode: Option<AdaptMode>,
     /// How much RAM the navigator trades for speed ([`Footprint::Compact`], the
     /// microcontroller's layout, by default; hosts use [`Footprint::Fast`]). Never changes
     /// a bit of what the navigator computes; the arena must hold
     /// [`Navigator::arena_len_for`] floats for it.
     pub footprint: Footprint,
-    /// The commit delay d (a blob records it, see [`ModelFlags::commit_delay`]): the inner
-    /// update that starts when Ψ fills at step t takes effect at the end of step t + d. The
-    /// `d` steps between act on the current parameters and are not recorded in Ψ; with
-    /// [`Schedule::Auto`] each of them computes a bounded slice of the update, with
-    /// [`Schedule::Background`] the caller does ([`Navigator::adapt_slice`]). 0 (the
-    /// default): the update runs inside the step that fills Ψ. At most
-    /// [`MAX_COMMIT_DELAY`](crate::schema::MAX_COMMIT_DELAY).
-    pub commit_delay: u32,
-    /// Ψ keeps its observations as int16 with one scale per entry
-    /// ([`crate::schema::FLAG_COMPACT_PSI`]: a blob records it; default false), so that the
-    /// inner update sees those values in every [`Footprint`];
-    /// [`Footprint::Minimal`] needs it.
-    pub compact_psi: bool,
+    /// λ, the gradient penalty's weight in L_D (paper: 10; L_D's critic scale is the
+    /// model's, [`InnerRule::critic_scale`](crate::spec::InnerRule::critic_scale)).
+    pub ld_lambda: f32,
 }
 
 impl NavConfig {
-    /// The navigator configuration a weight blob asks for, from its header.
+    /// The navigator configuration a weight blob asks for, from its header: the settings
+    /// it records ([`Header::spec`]) as `model`, with the mode check on.
     ///
     /// A blob records how its model was trained: whether the method adapts at inference
-    /// ([`FLAG_ADAPT`](crate::schema::FLAG_ADAPT)), what scores the generated features ([`FLAG_COSSIM`](crate::schema::FLAG_COSSIM)), which noise
-    /// drives G ([`FLAG_ZERO_NOISE`](crate::schema::FLAG_ZERO_NOISE)) and, from format v2 on, the inner-loop rates and the cap
-    /// on inner updates ([`AdaptSettings`]; a v1 blob reports the paper's). Any loader — the
-    /// firmware, the host's evaluation, a user's controller — must run the model with exactly
-    /// these settings: the host meta-trained and evaluated the weights with them, so a device
-    /// that ran its own defaults instead would silently execute a different algorithm (an
-    /// A3C+FG baseline that adapts, a CosSim model whose features D scores instead, GMAN with
-    /// other rates or another cap), and the two could no longer be compared bit for bit. Building the
-    /// configuration here, in the core both sides link, is what keeps host and device from
-    /// ever disagreeing.
-    ///
-    /// The result is [`NavConfig::default`] with:
-    /// * `adapt` = the header has [`FLAG_ADAPT`](crate::schema::FLAG_ADAPT);
-    /// * `emd` = [`Emd::CosSim`] if it has [`FLAG_COSSIM`](crate::schema::FLAG_COSSIM), else [`Emd::Discriminator`];
-    /// * `noise` = [`NoiseMode::Zero`] if it has [`FLAG_ZERO_NOISE`](crate::schema::FLAG_ZERO_NOISE), else
-    ///   [`NoiseMode::Gaussian`];
-    /// * `alpha_disc`, `alpha_adapt`, `max_inner_updates` = [`Header::alpha_disc`],
-    ///   [`Header::alpha_adapt`], [`Header::max_inner`] (v1: 1e-4, 1e-4, 4);
-    /// * `mode` = [`Header::adapt_mode`] (Full with [`FLAG_FULL_ADAPT`](crate::schema::FLAG_FULL_ADAPT), else
-    ///   Efficient), so
-    ///   that a navigator of the other mode refuses an adapting model.
-    ///
-    /// * the inner rule's levers (`disc_steps`, `step_rule`, `disc_head_reset`, `head_only`), the form of
-    ///   L_ad (`adapt_loss`) and the scale of L_D's critic terms (`ld.critic_scale`, 1 or 10)
-    ///   from [`ModelFlags`];
-    /// * `compact_psi` = the header has [`FLAG_COMPACT_PSI`](crate::schema::FLAG_COMPACT_PSI).
+    /// ([`FLAG_ADAPT`](crate::schema::FLAG_ADAPT)), what scores the generated features
+    /// ([`FLAG_COSSIM`](crate::schema::FLAG_COSSIM)), which noise drives G
+    /// ([`FLAG_ZERO_NOISE`](crate::schema::FLAG_ZERO_NOISE)), the adaptation mode, the inner rule's
+    /// levers and, from format v2 on, the inner-loop rates and the cap on inner updates
+    /// ([`AdaptSettings`](crate::blob::AdaptSettings); a v1 blob reports the paper's). Any loader —
+    /// the firmware, the host's evaluation, a user's controller — must run the model with exactly
+    /// these settings: the host meta-trained and evaluated the weights with them, so a device that
+    /// ran its own defaults instead would silently execute a different algorithm (an A3C+FG
+    /// baseline that adapts, a CosSim model whose features D scores instead, GMAN with other rates
+    /// or another cap), and the two could no longer be compared bit for bit. Building the
+    /// configuration here, in the core both sides link, is what keeps host and device from ever
+    /// disagreeing.
     ///
     /// Everything else keeps its default: [`Schedule::Auto`], [`Selection::Greedy`], L_D's
-    /// λ and the default loss bound. These are
-    /// run-time choices of the caller, not properties of the trained weights (the host's
-    /// evaluation, for one, samples its actions: it uses this configuration with
-    /// `selection: Selection::Sample`). A v4 header has no unknown flag bits (the parser
-    /// refuses them); a v1-v3 header's are ignored.
+    /// λ, the default loss bound and footprint. These are run-time choices of the caller,
+    /// not properties of the trained weights (the host's evaluation, for one, samples its
+    /// actions: it uses this configuration with `selection: Selection::Sample`). A v4 header
+    /// has no unknown flag bits (the parser refuses them); a v1-v3 header's are ignored.
     ///
     /// Never fails: a parsed [`Header`]'s rates are finite and non-negative (checked by
     /// [`Blob::parse`]), so the result is accepted by [`Navigator::new`] as far as the rates
     /// are concerned. See also [`Blob::nav_config`].
     pub fn from_header(header: &Header) -> NavConfig {
-        NavConfig {
-            compact_psi: header.flags() & crate::schema::FLAG_COMPACT_PSI != 0,
-            ..NavConfig::from_flags(header.model_flags(), header.adapt_settings())
-        }
+        NavConfig::from_spec(&header.spec())
     }
 
-    /// [`NavConfig::from_flags`] of a model's settings (gman-core's one carrier of them,
-    /// [`ModelSpec`]), with its `compact_psi`: what a host that holds the model's settings
-    /// runs before it writes them into a blob.
+    /// The configuration of a model's settings (gman-core's one carrier of them,
+    /// [`ModelSpec`]): what a host that holds them runs before it writes them into a blob,
+    /// [`NavConfig::from_header`] of that blob.
     pub fn from_spec(spec: &ModelSpec) -> NavConfig {
         NavConfig {
-            compact_psi: spec.compact_psi,
-            ..NavConfig::from_flags(spec.flags(), spec.adapt_settings())
+            model: *spec,
+            check_mode: true,
+            ..NavConfig::default()
         }
     }
 
-    /// [`NavConfig::from_header`] from the settings themselves: the one mapping of a model's
-    /// flags and inner-loop settings onto the navigator's configuration, for a blob's header
-    /// and for a host that holds the model's settings before writing the blob.
-    pub fn from_flags(flags: ModelFlags, settings: AdaptSettings) -> NavConfig {
-        let critic_scale = flags.critic_scale();
-        let ModelFlags {
-            adapt,
-            emd,
-            noise,
-            mode,
-            disc_steps,
-            step_rule,
-            disc_head_reset,
-            adapt_loss,
-            reference_critic: _,
-            head_only,
-            commit_delay,
-        } = flags;
-        NavConfig {
-            adapt,
-            emd,
-            noise,
-            alpha_disc: settings.alpha_disc,
-            alpha_adapt: settings.alpha_adapt,
-            max_inner_updates: settings.max_inner,
-            mode: Some(mode),
-            disc_steps,
-            step_rule,
-            disc_head_reset,
-            head_only,
-            adapt_loss,
-            commit_delay,
-            ld: LdConfig {
-                critic_scale,
-                ..LdConfig::default()
-            },
-            ..NavConfig::default()
+    /// L_D's λ and critic scale.
+    fn ld(&self) -> LdConfig {
+        LdConfig {
+            lambda: self.ld_lambda,
+            critic_scale: self.model.inner_rule.critic_scale(),
         }
     }
 }
@@ -334,30 +271,20 @@ impl Blob<'_> {
 }
 
 impl Default for NavConfig {
-    /// The paper's settings: adaptation on with D as the EMD, Gaussian noise, α1 = α2 = 1e-4
-    /// and at most 4 inner updates per episode ([`AdaptSettings::PAPER`]), automatic
-    /// schedule, greedy selection.
+    /// The paper's settings ([`ModelSpec::paper`]): adaptation on with D as the EMD, Gaussian
+    /// noise, α1 = α2 = 1e-4 and at most 4 inner updates per episode
+    /// ([`AdaptSettings::PAPER`](crate::blob::AdaptSettings::PAPER)), the paper's inner rule;
+    /// weights run in any mode, automatic schedule, greedy selection, the compact footprint, λ =
+    /// 10.
     fn default() -> Self {
         NavConfig {
+            model: ModelSpec::paper(AdaptMode::Full),
+            check_mode: false,
             schedule: Schedule::Auto,
-            emd: Emd::Discriminator,
-            adapt: true,
-            max_inner_updates: AdaptSettings::PAPER.max_inner,
-            alpha_disc: AdaptSettings::PAPER.alpha_disc,
-            alpha_adapt: AdaptSettings::PAPER.alpha_adapt,
-            ld: LdConfig::default(),
-            adapt_loss: AdaptLossKind::Paper,
-            noise: NoiseMode::Gaussian,
             selection: Selection::Greedy,
             loss_bound: 1e6,
-            disc_steps: 1,
-            step_rule: StepRule::Gradient,
-            disc_head_reset: false,
-            head_only: false,
-            mode: None,
             footprint: Footprint::Compact,
-            commit_delay: 0,
-            compact_psi: false,
+            ld_lambda: LdConfig::default().lambda,
         }
     }
 }
@@ -970,7 +897,7 @@ pub struct Navigator<'w, M: Mode, const K: usize, S = &'w mut [f32]> {
     fuse_blocks: Option<FuseBlocks>,
     last: AdaptReport,
     /// The inner update in progress (between Ψ filling and its commit when
-    /// [`NavConfig::commit_delay`] > 0).
+    /// a [commit delay](crate::spec::InnerRule::commit_delay) > 0).
     upd: Option<Update>,
     /// The update's own generator (ε of L_D), forked from the navigator's when Ψ filled, so
     /// that the steps of the commit window draw what they would draw without the update.
@@ -1089,12 +1016,7 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
             return bad("buffer capacity K must be at least 1");
         }
         // The blob parser's checks, for weights and settings from any source.
-        let rates = AdaptSettings {
-            alpha_disc: cfg.alpha_disc,
-            alpha_adapt: cfg.alpha_adapt,
-            max_inner: cfg.max_inner_updates,
-        };
-        if rates.validate().is_err() {
+        if cfg.model.adapt_settings().validate().is_err() {
             return bad("alpha_disc, alpha_adapt: finite, in 0..=blob::MAX_INNER_RATE");
         }
         if cfg.loss_bound.is_nan() || cfg.loss_bound <= 0.0 {
@@ -1110,30 +1032,36 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
             }
         }
         // (A model that does not adapt runs identically in both modes.)
-        if cfg.adapt && cfg.mode.is_some_and(|m| m != M::MODE) {
-            return bad("weights meta-trained in the other adaptation mode (NavConfig::mode)");
+        if cfg.model.adapt && cfg.check_mode && cfg.model.adapt_mode != M::MODE {
+            return bad(
+                "weights meta-trained in the other adaptation mode (NavConfig::check_mode)",
+            );
         }
-        if cfg.commit_delay > crate::schema::MAX_COMMIT_DELAY {
+        if cfg.model.inner_rule.commit_delay > crate::schema::MAX_COMMIT_DELAY {
             return bad("commit_delay above MAX_COMMIT_DELAY (63)");
         }
-        if cfg.schedule == Schedule::Background && cfg.commit_delay == 0 {
+        if cfg.schedule == Schedule::Background && cfg.model.inner_rule.commit_delay == 0 {
             return bad("Schedule::Background needs a commit_delay of at least 1 step");
         }
-        if cfg.noise == NoiseMode::Gaussian && !cfg!(feature = "gaussian-noise") {
+        if cfg.model.noise == NoiseMode::Gaussian && !cfg!(feature = "gaussian-noise") {
             return bad(NO_GAUSSIAN_NOISE);
         }
-        if cfg.adapt && cfg.emd == Emd::CosSim && !cfg!(feature = "cossim") {
+        if cfg.model.adapt && cfg.model.emd == Emd::CosSim && !cfg!(feature = "cossim") {
             return Err(inner::NO_COSSIM);
         }
         let lean = cfg.footprint == Footprint::Minimal;
-        if lean && !cfg.compact_psi {
+        if lean && !cfg.model.compact_psi {
             return bad("Footprint::Minimal needs Ψ in int16: export with `--psi int16`");
         }
-        if lean && (M::MODE != AdaptMode::Efficient || (cfg.adapt && cfg.emd == Emd::CosSim)) {
+        if lean
+            && (M::MODE != AdaptMode::Efficient
+                || (cfg.model.adapt && cfg.model.emd == Emd::CosSim))
+        {
             return bad("Footprint::Minimal: Efficient, D only");
         }
         let dims = weights.dims;
-        if crate::memory::try_arena_len_noise(&dims, M::MODE, K, cfg.footprint, cfg.noise).is_none()
+        if crate::memory::try_arena_len_noise(&dims, M::MODE, K, cfg.footprint, cfg.model.noise)
+            .is_none()
         {
             return bad("dims too large: the arena size for these dims, mode and K overflows");
         }
@@ -1149,7 +1077,7 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
         Self::check_settings(&weights, &cfg)?;
         let dims = weights.dims;
         let lean = cfg.footprint == Footprint::Minimal;
-        let zero = cfg.noise == NoiseMode::Zero;
+        let zero = cfg.model.noise == NoiseMode::Zero;
         let (lens, _used) = carve_check(arena.as_mut(), &dims, M::MODE, K, (cfg.footprint, zero))?;
         let mut nav = Navigator {
             w: weights,
@@ -1222,7 +1150,7 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
         }
         self.settle()?;
         self.restore_adapted()?;
-        if self.cfg.disc_head_reset {
+        if self.cfg.model.inner_rule.disc_head_reset {
             // D restarts with the episode: layer 1 from ω, the head at zero.
             self.reset_discriminator()?;
             let r = self.arena.ram();
@@ -1246,7 +1174,7 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
         c.steps = 0;
         c.adaptations = 0;
         c.rollbacks = 0;
-        if self.cfg.noise == NoiseMode::Zero {
+        if self.cfg.model.noise == NoiseMode::Zero {
             self.prepare_zero_noise()?;
         }
         Ok(())
@@ -1356,7 +1284,7 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
     /// True while more inner updates are allowed in this episode (`adapt` is on and fewer
     /// than `max_inner_updates` were made).
     pub fn can_adapt(&self) -> bool {
-        self.cfg.adapt && self.counters.adaptations < self.cfg.max_inner_updates
+        self.cfg.model.adapt && self.counters.adaptations < self.cfg.model.max_inner
     }
 
     /// Empties Ψ without adapting (line 20 alone).
@@ -1365,17 +1293,20 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
         self.upd = None;
     }
 
-    /// True from the step that fills Ψ to the commit of its inner update when
-    /// [`NavConfig::commit_delay`] > 0 (the commit window: steps are not recorded in Ψ).
+    /// True from the step that fills Ψ to the commit of its inner update when a [commit
+    /// delay](crate::spec::InnerRule::commit_delay) > 0 (the commit window: steps are not recorded
+    /// in Ψ).
     pub fn update_pending(&self) -> bool {
         self.upd.is_some()
     }
 
-    /// True while a pending update's commit window has steps left to take: the steps after
-    /// Ψ filled that run before the update takes effect ([`NavConfig::commit_delay`]). A
-    /// trainer's segment ends when Ψ is full and this is false.
+    /// True while a pending update's commit window has steps left to take: the steps after Ψ filled
+    /// that run before the update takes effect (the model's [commit
+    /// delay](crate::spec::InnerRule::commit_delay)). A trainer's segment ends when Ψ is full and
+    /// this is false.
     pub fn in_commit_window(&self) -> bool {
-        self.upd.is_some_and(|u| u.window < self.cfg.commit_delay)
+        self.upd
+            .is_some_and(|u| u.window < self.cfg.model.inner_rule.commit_delay)
     }
 
     /// Slices of the pending update still to run (0: none pending, or complete).
@@ -1429,7 +1360,7 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
             } else {
                 &r.psi_s[..n * d.feat]
             },
-            noise: if self.cfg.noise == NoiseMode::Zero {
+            noise: if self.cfg.model.noise == NoiseMode::Zero {
                 &[]
             } else {
                 &r.psi_z[..n * d.noise]
@@ -1593,7 +1524,7 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
     ) -> Result<()> {
         self.begin_checks(obs, (map, map_len), ps)?;
         // Line 7: x_t = G_θi(SE(y), z_t) (unless the caller fixed x_t for this episode).
-        match self.cfg.noise {
+        match self.cfg.model.noise {
             _ if self.x_fixed => {}
             NoiseMode::Gaussian => {
                 draw_noise(&mut self.rng, self.arena.ram().z);
@@ -1625,7 +1556,7 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
             });
         }
         if let Some(u) = self.upd {
-            let d = self.cfg.commit_delay;
+            let d = self.cfg.model.inner_rule.commit_delay;
             if u.window >= d {
                 // Only reachable with `Schedule::Manual`: the others commit at the window's end.
                 return Err(Error::Config {
@@ -1670,7 +1601,7 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
     pub fn defers_generator(&self) -> bool {
         let r = self.arena.view();
         let (g1, g2) = (&r.gen1, &r.gen2);
-        self.cfg.noise == NoiseMode::Gaussian
+        self.cfg.model.noise == NoiseMode::Gaussian
             && !self.x_fixed
             && g1.w.is_empty()
             && g2.w.is_empty()
@@ -1851,7 +1782,7 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
         let window = self.upd.is_some();
         if !window {
             let (f, z, lh, n) = (d.feat, d.noise, d.lstm_hidden, self.n_buf);
-            let (compact, lean) = (self.cfg.compact_psi, self.lean);
+            let (compact, lean) = (self.cfg.model.compact_psi, self.lean);
             let r = self.arena.ram();
             if compact {
                 let w = if lean { f.div_ceil(2) } else { f };
@@ -1859,7 +1790,7 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
             } else {
                 r.psi_s[n * f..(n + 1) * f].copy_from_slice(obs);
             }
-            if self.cfg.noise == NoiseMode::Gaussian {
+            if self.cfg.model.noise == NoiseMode::Gaussian {
                 r.psi_z[n * z..(n + 1) * z].copy_from_slice(r.z);
             }
             r.psi_p[n * NUM_ACTIONS..(n + 1) * NUM_ACTIONS].copy_from_slice(r.probs);
@@ -1878,7 +1809,7 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
         // Lines 14-20: every k steps, the inner update; then empty Ψ. With a commit delay d
         // it starts here and commits at the end of the d-th step from now.
         let mut adapted = false;
-        let (delay, sched) = (self.cfg.commit_delay, self.cfg.schedule);
+        let (delay, sched) = (self.cfg.model.inner_rule.commit_delay, self.cfg.schedule);
         if let Some(mut u) = self.upd.filter(|_| window) {
             u.window += 1;
             self.upd = Some(u);
@@ -1975,7 +1906,7 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
         map: &[f32],
         map_u8: Option<(&[u8], f32)>,
     ) -> Result<f32> {
-        let (d, zero) = (self.w.dims, self.cfg.noise == NoiseMode::Zero);
+        let (d, zero) = (self.w.dims, self.cfg.model.noise == NoiseMode::Zero);
         let r = self.arena.ram();
         let biases = [&*r.fuse_b, &*r.lstm_b, &*r.critic_b, &*r.cell_b];
         let actor = r.actor.view(self.w.get(TensorId::ActorW))?;
@@ -2017,13 +1948,13 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
         select_action(self.cfg.selection, self.arena.view().probs, &mut self.rng)
     }
 
-    /// Runs the inner update (lines 15-20 of Algorithm 1) now on the steps buffered in Ψ,
-    /// then empties Ψ, whatever the step count and the per-episode cap (which it still
-    /// counts towards). Useful at the end of an episode, and for benchmarks; with
-    /// [`Schedule::Manual`] and a [`NavConfig::commit_delay`], the commit of the update that
-    /// started when Ψ filled (its remaining slices first). Returns whether an update ran:
-    /// false with nothing buffered, and false with the inner loop off ([`NavConfig::adapt`]
-    /// false), which only empties Ψ.
+    /// Runs the inner update (lines 15-20 of Algorithm 1) now on the steps buffered in Ψ, then
+    /// empties Ψ, whatever the step count and the per-episode cap (which it still counts towards).
+    /// Useful at the end of an episode, and for benchmarks; with [`Schedule::Manual`] and a [commit
+    /// delay](crate::spec::InnerRule::commit_delay), the commit of the update that started when Ψ
+    /// filled (its remaining slices first). Returns whether an update ran: false with nothing
+    /// buffered, and false with the inner loop off ([`ModelSpec::adapt`] false), which only empties
+    /// Ψ.
     pub fn adapt_now(&mut self) -> Result<bool> {
         if !self.ready {
             return Err(Error::Config {
@@ -2040,8 +1971,8 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
         if self.n_buf == 0 {
             return Ok(false);
         }
-        if !self.cfg.adapt {
-            // The inner loop is off (`NavConfig::adapt == false`): nothing adapts, Ψ is
+        if !self.cfg.model.adapt {
+            // The inner loop is off (`NavConfig::model.adapt == false`): nothing adapts, Ψ is
             // emptied like after an update.
             self.n_buf = 0;
             return Ok(false);
@@ -2067,7 +1998,7 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
     /// fixed x_t, or a probe overwrote G's activations first): G(0, SE(y)) at the current θ,
     /// once, into that row (the bits the steps' G pass gives).
     fn generate_shared_x(&mut self) -> Result<()> {
-        if self.cfg.noise != NoiseMode::Zero || self.psi_recorded {
+        if self.cfg.model.noise != NoiseMode::Zero || self.psi_recorded {
             return Ok(());
         }
         self.u2_valid = false;
@@ -2097,9 +2028,9 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
         self.generate_shared_x()?;
         // Lines 15-16: D ascends L_D over Ψ_s and Ψ_x, `disc_steps` times (the paper: once;
         // not with the CosSim variant, which has no D).
-        let use_d = self.cfg.emd == Emd::Discriminator;
+        let use_d = self.cfg.model.emd == Emd::Discriminator;
         let disc_steps = if use_d {
-            self.cfg.disc_steps.clamp(1, 256)
+            self.cfg.model.inner_rule.disc_steps.clamp(1, 256)
         } else {
             0
         };
@@ -2174,7 +2105,7 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
     /// as two slices (`inner::shared_backward_half`): G's and D's forward part, then G's
     /// backward pass.
     fn split_backward(&self) -> bool {
-        self.cfg.noise == NoiseMode::Zero && self.cfg.emd == Emd::Discriminator
+        self.cfg.model.noise == NoiseMode::Zero && self.cfg.model.emd == Emd::Discriminator
     }
 
     /// Estimated multiply-adds of the first half of a split backward pass (the rest of
@@ -2192,7 +2123,7 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
         let n = self.n_buf;
         let mut c = u.disc_steps as u64 * self.slice_cost(Phase::Disc, n);
         c += self.slice_cost(Phase::Scores, n);
-        if !self.cfg.head_only {
+        if !self.cfg.model.inner_rule.head_only {
             c += self.slice_cost(Phase::Backward, n);
         }
         c + self.slice_cost(Phase::Head, n)
@@ -2202,7 +2133,7 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
     fn slice_bound(&self) -> u32 {
         let Some(u) = self.upd else { return 0 };
         let per = self.n_buf.div_ceil(self.arena.b) as u32;
-        let back = if self.cfg.head_only {
+        let back = if self.cfg.model.inner_rule.head_only {
             0
         } else if self.split_backward() {
             per.max(2)
@@ -2257,7 +2188,7 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
                 if let Some(loss) = self.adapt_scores(t0, t1, u.use_d)? {
                     u.report.adapt_loss = loss;
                     u.t = 0;
-                    u.phase = if self.cfg.head_only {
+                    u.phase = if self.cfg.model.inner_rule.head_only {
                         Phase::Head
                     } else {
                         Phase::Backward
@@ -2328,7 +2259,7 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
         let f = self.w.dims.feat;
         let r = self.arena.ram();
         let keep_u2 = !r.psi_u2.is_empty();
-        if self.cfg.noise == NoiseMode::Zero {
+        if self.cfg.model.noise == NoiseMode::Zero {
             // One row for every entry: the first entry's (G's output is the same until the
             // commit, which empties Ψ).
             if n == 0 {
@@ -2372,7 +2303,7 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
         let (f, zd) = (d.feat, d.noise);
         let w = self.w;
         let (recorded, lean) = (self.psi_recorded, self.lean);
-        let zero = self.cfg.noise == NoiseMode::Zero;
+        let zero = self.cfg.model.noise == NoiseMode::Zero;
         let Ram {
             gen1,
             gen2,
@@ -2437,7 +2368,7 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
                 real,
                 fake,
                 &eps[t0..t1],
-                cfg.ld,
+                cfg.ld(),
                 inv,
                 iw,
                 &mut grads,
@@ -2510,7 +2441,7 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
             ..
         } = &mut self.arena.ram();
         // Ascent: ω ← ω + α1 ∇_ω L_D, only if everything stays finite and bounded.
-        let a1 = cfg.alpha_disc;
+        let a1 = cfg.model.alpha_disc();
         let disc_ok = loss.is_finite()
             && libm::fabsf(loss) <= cfg.loss_bound
             && g_disc1.finite()
@@ -2538,7 +2469,7 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
         let (f, zd) = (d.feat, d.noise);
         let w = self.w;
         let (recorded, lean) = (self.psi_recorded, self.lean);
-        let zero = self.cfg.noise == NoiseMode::Zero;
+        let zero = self.cfg.model.noise == NoiseMode::Zero;
         let Ram {
             gen1,
             gen2,
@@ -2584,7 +2515,16 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
             &mut dprobs[..n * NUM_ACTIONS],
         );
         let (disc, probs) = (use_d.then_some(&disc), &psi_p[..n * NUM_ACTIONS]);
-        inner::adapt_scores_part(cfg.adapt_loss, &gen, disc, inp, probs, outs, iw, (t0, t1))
+        inner::adapt_scores_part(
+            cfg.model.inner_rule.adapt_loss,
+            &gen,
+            disc,
+            inp,
+            probs,
+            outs,
+            iw,
+            (t0, t1),
+        )
     }
 
     /// Pass 2 of L_ad from entry `t` for one batch: θ's gradient (G's backward pass through D
@@ -2597,7 +2537,7 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
         let (f, zd) = (d.feat, d.noise);
         let w = self.w;
         let (recorded, lean) = (self.psi_recorded, self.lean);
-        let zero = self.cfg.noise == NoiseMode::Zero;
+        let zero = self.cfg.model.noise == NoiseMode::Zero;
         let Ram {
             gen1,
             gen2,
@@ -2729,13 +2669,13 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
         let unit = |sq: f32| {
             let norm = libm::sqrtf(sq);
             if norm > 0.0 {
-                -cfg.alpha_adapt / norm
+                -cfg.model.inner_lr / norm
             } else {
                 0.0
             }
         };
         // With `head_only` θ takes no step and has no say in the step's length.
-        let theta = !cfg.head_only;
+        let theta = !cfg.model.inner_rule.head_only;
         let theta_sq = || {
             if theta {
                 g_gen1.sum_sq() + g_gen2.sum_sq()
@@ -2743,8 +2683,8 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
                 0.0
             }
         };
-        let (a2, a2_phi) = match cfg.step_rule {
-            StepRule::Gradient => (-cfg.alpha_adapt, -cfg.alpha_adapt),
+        let (a2, a2_phi) = match cfg.model.inner_rule.step_rule {
+            StepRule::Gradient => (-cfg.model.inner_lr, -cfg.model.inner_lr),
             StepRule::Normalized => {
                 let a = unit(theta_sq() + g_actor.sum_sq());
                 (a, a)

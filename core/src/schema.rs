@@ -9,9 +9,9 @@
 //! exporter (`gman-host-sim`), and the groups [`TensorId::GENERATOR`],
 //! [`TensorId::DISCRIMINATOR`] and [`TensorId::ACTOR_HEAD`].
 //!
-//! The model flags of a blob header ([`FLAG_ADAPT`], ...) and their meaning as run-time
-//! settings ([`ModelFlags`]) are declared here too, so that the wire format, the navigator and
-//! the host read them through one mapping.
+//! The bits of a blob header's model flags ([`FLAG_ADAPT`], ...) are declared here too; the
+//! one mapping between them and the settings they stand for is [`crate::spec::ModelSpec`]'s
+//! (`bits`, `from_bits`).
 //!
 //! The PS module of the dagger variants (`gman-host-sim`'s `ps`) is a host-side
 //! network: it is not part of this schema and never stored in a blob.
@@ -273,44 +273,50 @@ pub enum Emd {
 }
 
 /// Bit of the blob header's flags: the model was meta-trained to adapt at inference (GMAN); a
-/// loader should enable the inner loop ([`ModelFlags::adapt`]).
+/// loader should enable the inner loop ([`ModelSpec::adapt`](crate::spec::ModelSpec::adapt)).
 pub const FLAG_ADAPT: u32 = 1;
-/// Bit of the blob header's flags: G is driven with zero noise (the reference
-/// implementation's choice) instead of fresh Gaussian noise ([`ModelFlags::noise`]).
+/// Bit of the blob header's flags: G is driven with zero noise (the reference implementation's
+/// choice) instead of fresh Gaussian noise ([`ModelSpec::noise`](crate::spec::ModelSpec::noise)).
 pub const FLAG_ZERO_NOISE: u32 = 2;
 /// Bit of the blob header's flags: the inner loop scores generated features with the cosine
-/// similarity to the observation instead of D (the CosSim EMD variant, [`ModelFlags::emd`]).
+/// similarity to the observation instead of D (the CosSim EMD variant,
+/// [`ModelSpec::emd`](crate::spec::ModelSpec::emd)).
 pub const FLAG_COSSIM: u32 = 4;
 /// Bit of the blob header's flags: the model was meta-trained with the inner loop in the
-/// [`AdaptMode::Full`] mode (every parameter of θ, ω and the actor head adapted in f32 RAM),
-/// so it must run in that mode. Without it the model runs in the [`AdaptMode::Efficient`]
-/// mode (per-unit gains and biases over the base weights), which is how every blob without
-/// the bit has always been run on the device ([`ModelFlags::mode`]).
+/// [`AdaptMode::Full`] mode (every parameter of θ, ω and the actor head adapted in f32 RAM), so it
+/// must run in that mode. Without it the model runs in the [`AdaptMode::Efficient`] mode (per-unit
+/// gains and biases over the base weights), which is how every blob without the bit has always been
+/// run on the device ([`ModelSpec::adapt_mode`](crate::spec::ModelSpec::adapt_mode)).
 pub const FLAG_FULL_ADAPT: u32 = 8;
 
 /// Bit of the blob header's flags: the inner loop's descent step on L_ad is normalised
-/// ([`StepRule::Normalized`], [`ModelFlags::step_rule`]); without it the paper's gradient step.
+/// ([`StepRule::Normalized`], [`InnerRule::step_rule`](crate::spec::InnerRule::step_rule)); without
+/// it the paper's gradient step.
 pub const FLAG_NORMALIZED_STEP: u32 = 1 << 16;
 
 /// Bit of the blob header's flags: the descent step is normalised per parameter group
 /// ([`StepRule::PerGroup`]; takes precedence over [`FLAG_NORMALIZED_STEP`]).
 pub const FLAG_PER_GROUP_STEP: u32 = 1 << 17;
 
-/// Bit of the blob header's flags: D restarts with every episode, layer 1 from ω and the
-/// output layer (w2, b2) at zero ([`ModelFlags::disc_head_reset`]).
+/// Bit of the blob header's flags: D restarts with every episode, layer 1 from ω and the output
+/// layer (w2, b2) at zero
+/// ([`InnerRule::disc_head_reset`](crate::spec::InnerRule::disc_head_reset)).
 pub const FLAG_DISC_HEAD_RESET: u32 = 1 << 18;
 
 /// Bit of the blob header's flags: L_ad takes the reference implementation's form
-/// ([`AdaptLossKind::Reference`], [`ModelFlags::adapt_loss`]); without it the paper's Eq. 3.
+/// ([`AdaptLossKind::Reference`], [`InnerRule::adapt_loss`](crate::spec::InnerRule::adapt_loss));
+/// without it the paper's Eq. 3.
 pub const FLAG_REFERENCE_ADAPT_LOSS: u32 = 1 << 19;
 
 /// Bit of the blob header's flags: L_D's critic terms are scaled by 10 as in the reference
-/// implementation ([`ModelFlags::critic_scale`]); without it by 1, the paper's Eq. 1.
+/// implementation ([`InnerRule::critic_scale`](crate::spec::InnerRule::critic_scale)); without it
+/// by 1, the paper's Eq. 1.
 pub const FLAG_REFERENCE_CRITIC_SCALE: u32 = 1 << 20;
 
-/// Bit of the blob header's flags: the inner loop's descent step on L_ad updates only the
-/// actor head, G stays at θ (the reference implementation's default, whose G parameters get
-/// no inner gradient; [`ModelFlags::head_only`]); without it G and the head, the paper.
+/// Bit of the blob header's flags: the inner loop's descent step on L_ad updates only the actor
+/// head, G stays at θ (the reference implementation's default, whose G parameters get no inner
+/// gradient; [`InnerRule::head_only`](crate::spec::InnerRule::head_only)); without it G and the
+/// head, the paper.
 pub const FLAG_HEAD_ONLY: u32 = 1 << 21;
 
 /// Bit of the blob header's flags: the int8 weight matrices multiply int8 activations
@@ -318,7 +324,7 @@ pub const FLAG_HEAD_ONLY: u32 = 1 << 21;
 /// [`crate::qkernel`]; without it int8 weights are widened to f32 and multiply f32
 /// activations. A loader applies it to every int8 view
 /// ([`crate::matrix::MatRef::with_int8_activations`]; [`crate::navigator::NavWeights::from_blob`]
-/// does). It changes no other setting, so it is not part of [`ModelFlags`].
+/// does). It changes no other setting of the navigator.
 pub const FLAG_INT8_ACTIVATIONS: u32 = 1 << 24;
 
 /// Bit of the blob header's flags: the navigator keeps Ψ's observations s_t in a compact
@@ -326,20 +332,20 @@ pub const FLAG_INT8_ACTIVATIONS: u32 = 1 << 24;
 /// as `q_j * (max|s| / 32767)`), so that the inner update sees those values instead of the
 /// f32 ones; the firmware's [`crate::memory::Footprint::Minimal`] arena needs it. `gman
 /// export` sets it with int8 activations. Like [`FLAG_INT8_ACTIVATIONS`] it says how a
-/// blob is run ([`crate::navigator::NavWeights::from_blob`] reads it), so it is not part
-/// of [`ModelFlags`]; without it every path computes what it computed before the flag.
+/// blob is run ([`crate::navigator::NavWeights::from_blob`] reads it); without it every
+/// path computes what it computed before the flag.
 pub const FLAG_COMPACT_PSI: u32 = 1 << 23;
 
 /// Bits 8..16 of the blob header's flags: D's ascent steps per inner update minus one
-/// ([`ModelFlags::disc_steps`], 1..=256; 0 in every blob written before the setting, i.e. the
-/// paper's one step).
+/// ([`InnerRule::disc_steps`](crate::spec::InnerRule::disc_steps), 1..=256; 0 in every blob written
+/// before the setting, i.e. the paper's one step).
 pub const DISC_STEPS_SHIFT: u32 = 8;
 /// Mask of [`DISC_STEPS_SHIFT`]'s field.
 pub const DISC_STEPS_MASK: u32 = 0xFF << DISC_STEPS_SHIFT;
 
 /// Bits 25..31 of the blob header's flags: the inner update's commit delay d
-/// ([`ModelFlags::commit_delay`], 0..=[`MAX_COMMIT_DELAY`]; 0 in every blob written before
-/// the setting: the update takes effect in the step that fills Ψ).
+/// ([`InnerRule::commit_delay`](crate::spec::InnerRule::commit_delay), 0..=[`MAX_COMMIT_DELAY`]; 0
+/// in every blob written before the setting: the update takes effect in the step that fills Ψ).
 pub const COMMIT_DELAY_SHIFT: u32 = 25;
 /// Mask of [`COMMIT_DELAY_SHIFT`]'s field.
 pub const COMMIT_DELAY_MASK: u32 = 0x3F << COMMIT_DELAY_SHIFT;
@@ -395,144 +401,6 @@ pub enum StepRule {
     PerGroup,
 }
 
-/// The model flags of a blob header as the settings they stand for: the one mapping between
-/// the `FLAG_*` bits and the navigator's configuration (see
-/// [`NavConfig::from_header`](crate::navigator::NavConfig::from_header)).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct ModelFlags {
-    /// [`FLAG_ADAPT`]: the inner loop runs at inference.
-    pub adapt: bool,
-    /// [`FLAG_COSSIM`]: [`Emd::CosSim`], else [`Emd::Discriminator`].
-    pub emd: Emd,
-    /// [`FLAG_ZERO_NOISE`]: [`NoiseMode::Zero`], else [`NoiseMode::Gaussian`].
-    pub noise: NoiseMode,
-    /// [`FLAG_FULL_ADAPT`]: [`AdaptMode::Full`], else [`AdaptMode::Efficient`].
-    pub mode: AdaptMode,
-    /// [`DISC_STEPS_MASK`]: D's ascent steps per inner update (1..=256; values above 256 are
-    /// written as 256).
-    pub disc_steps: u32,
-    /// [`FLAG_PER_GROUP_STEP`]: [`StepRule::PerGroup`]; else [`FLAG_NORMALIZED_STEP`]:
-    /// [`StepRule::Normalized`]; else [`StepRule::Gradient`].
-    pub step_rule: StepRule,
-    /// [`FLAG_DISC_HEAD_RESET`]: D restarts with every episode, layer 1 from ω and the output
-    /// layer at zero, so the first ascent step sets the head from the episode's own buffer (D
-    /// starts with no opinion and carries nothing from earlier episodes).
-    pub disc_head_reset: bool,
-    /// [`FLAG_REFERENCE_ADAPT_LOSS`]: [`AdaptLossKind::Reference`], else
-    /// [`AdaptLossKind::Paper`].
-    pub adapt_loss: AdaptLossKind,
-    /// [`FLAG_REFERENCE_CRITIC_SCALE`]: L_D's critic terms scaled by 10 (the reference), else
-    /// by 1 (the paper); see [`ModelFlags::critic_scale`].
-    pub reference_critic: bool,
-    /// [`FLAG_HEAD_ONLY`]: the descent step on L_ad adapts only the actor head (G stays at θ).
-    pub head_only: bool,
-    /// [`COMMIT_DELAY_MASK`]: the inner update that starts when Ψ fills takes effect `d`
-    /// steps later (0: in the step that fills Ψ); see
-    /// [`NavConfig::commit_delay`](crate::navigator::NavConfig::commit_delay). Values above
-    /// [`MAX_COMMIT_DELAY`] are written as it.
-    pub commit_delay: u32,
-}
-
-impl ModelFlags {
-    /// Decodes `bits` (bits outside [`KNOWN_FLAGS`] are ignored here; the blob parser
-    /// refuses them in a format v4 header, [`check_known_flags`]).
-    pub const fn from_bits(bits: u32) -> ModelFlags {
-        ModelFlags {
-            adapt: bits & FLAG_ADAPT != 0,
-            emd: if bits & FLAG_COSSIM != 0 {
-                Emd::CosSim
-            } else {
-                Emd::Discriminator
-            },
-            noise: if bits & FLAG_ZERO_NOISE != 0 {
-                NoiseMode::Zero
-            } else {
-                NoiseMode::Gaussian
-            },
-            mode: if bits & FLAG_FULL_ADAPT != 0 {
-                AdaptMode::Full
-            } else {
-                AdaptMode::Efficient
-            },
-            disc_steps: ((bits & DISC_STEPS_MASK) >> DISC_STEPS_SHIFT) + 1,
-            step_rule: if bits & FLAG_PER_GROUP_STEP != 0 {
-                StepRule::PerGroup
-            } else if bits & FLAG_NORMALIZED_STEP != 0 {
-                StepRule::Normalized
-            } else {
-                StepRule::Gradient
-            },
-            disc_head_reset: bits & FLAG_DISC_HEAD_RESET != 0,
-            adapt_loss: if bits & FLAG_REFERENCE_ADAPT_LOSS != 0 {
-                AdaptLossKind::Reference
-            } else {
-                AdaptLossKind::Paper
-            },
-            reference_critic: bits & FLAG_REFERENCE_CRITIC_SCALE != 0,
-            head_only: bits & FLAG_HEAD_ONLY != 0,
-            commit_delay: (bits & COMMIT_DELAY_MASK) >> COMMIT_DELAY_SHIFT,
-        }
-    }
-
-    /// The scale of L_D's critic terms: 10 with [`ModelFlags::reference_critic`], else 1.
-    pub fn critic_scale(&self) -> f32 {
-        if self.reference_critic {
-            10.0
-        } else {
-            1.0
-        }
-    }
-
-    /// The header bits of these settings.
-    pub const fn bits(self) -> u32 {
-        let mut f = 0;
-        if self.adapt {
-            f |= FLAG_ADAPT;
-        }
-        if matches!(self.noise, NoiseMode::Zero) {
-            f |= FLAG_ZERO_NOISE;
-        }
-        if matches!(self.emd, Emd::CosSim) {
-            f |= FLAG_COSSIM;
-        }
-        if matches!(self.mode, AdaptMode::Full) {
-            f |= FLAG_FULL_ADAPT;
-        }
-        let steps = if self.disc_steps == 0 {
-            0
-        } else if self.disc_steps > 256 {
-            255
-        } else {
-            self.disc_steps - 1
-        };
-        f |= steps << DISC_STEPS_SHIFT;
-        match self.step_rule {
-            StepRule::Gradient => {}
-            StepRule::Normalized => f |= FLAG_NORMALIZED_STEP,
-            StepRule::PerGroup => f |= FLAG_PER_GROUP_STEP,
-        }
-        if self.disc_head_reset {
-            f |= FLAG_DISC_HEAD_RESET;
-        }
-        if matches!(self.adapt_loss, AdaptLossKind::Reference) {
-            f |= FLAG_REFERENCE_ADAPT_LOSS;
-        }
-        if self.reference_critic {
-            f |= FLAG_REFERENCE_CRITIC_SCALE;
-        }
-        if self.head_only {
-            f |= FLAG_HEAD_ONLY;
-        }
-        let d = if self.commit_delay > MAX_COMMIT_DELAY {
-            MAX_COMMIT_DELAY
-        } else {
-            self.commit_delay
-        };
-        f |= d << COMMIT_DELAY_SHIFT;
-        f
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -570,75 +438,5 @@ mod tests {
         }
         assert_eq!(TensorId::from_raw(NUM_TENSORS as u16), None);
         assert_eq!(TensorId::from_name("PsW1"), None);
-    }
-
-    #[test]
-    fn flags_round_trip() {
-        for bits in 0..16u32 {
-            assert_eq!(ModelFlags::from_bits(bits).bits(), bits);
-        }
-        assert_eq!(ModelFlags::from_bits(0xF0).bits(), 0);
-        // the inner-rule levers: every step count and both rules, next to the other bits
-        for steps in [0u32, 1, 2, 5, 256] {
-            for norm in [false, true] {
-                let bits = 0b1011
-                    | (steps.saturating_sub(1) << DISC_STEPS_SHIFT)
-                    | if norm { FLAG_NORMALIZED_STEP } else { 0 };
-                let f = ModelFlags::from_bits(bits);
-                assert_eq!(f.disc_steps, steps.max(1));
-                assert_eq!(f.step_rule == StepRule::Normalized, norm);
-                assert!(f.adapt && f.mode == AdaptMode::Full);
-                assert_eq!(f.bits(), bits);
-            }
-        }
-        // the per-group step and D's head reset, with and without the other rule bits
-        for (bits, rule) in [
-            (FLAG_PER_GROUP_STEP, StepRule::PerGroup),
-            (FLAG_NORMALIZED_STEP, StepRule::Normalized),
-        ] {
-            for reset in [false, true] {
-                let bits = bits | FLAG_ADAPT | if reset { FLAG_DISC_HEAD_RESET } else { 0 };
-                let f = ModelFlags::from_bits(bits);
-                assert_eq!((f.step_rule, f.disc_head_reset), (rule, reset));
-                assert_eq!(f.bits(), bits);
-            }
-        }
-        // blobs written before the levers read as the paper's rule
-        let old = ModelFlags::from_bits(FLAG_ADAPT);
-        assert_eq!((old.disc_steps, old.step_rule), (1, StepRule::Gradient));
-        assert!(!old.disc_head_reset);
-        assert_eq!(
-            (old.adapt_loss, old.critic_scale()),
-            (AdaptLossKind::Paper, 1.0)
-        );
-        let r = FLAG_ADAPT | FLAG_REFERENCE_ADAPT_LOSS | FLAG_REFERENCE_CRITIC_SCALE;
-        let f = ModelFlags::from_bits(r);
-        assert_eq!(
-            (f.adapt_loss, f.critic_scale()),
-            (AdaptLossKind::Reference, 10.0)
-        );
-        assert_eq!(f.bits(), r);
-        assert!(!old.head_only && !f.head_only);
-        let h = ModelFlags::from_bits(FLAG_ADAPT | FLAG_HEAD_ONLY);
-        assert!(h.head_only && h.adapt);
-        assert_eq!(h.bits(), FLAG_ADAPT | FLAG_HEAD_ONLY);
-        let mut f = old;
-        f.disc_steps = 1000;
-        assert_eq!(ModelFlags::from_bits(f.bits()).disc_steps, 256);
-        // the commit delay: 0 in older blobs, round trips, saturates, leaves the rest alone
-        assert_eq!(old.commit_delay, 0);
-        for d in [1u32, 7, 20, MAX_COMMIT_DELAY] {
-            let mut f = ModelFlags::from_bits(r | FLAG_HEAD_ONLY);
-            f.commit_delay = d;
-            let g = ModelFlags::from_bits(f.bits());
-            assert_eq!(g, f);
-            assert_eq!(f.bits() & !COMMIT_DELAY_MASK, r | FLAG_HEAD_ONLY);
-        }
-        let mut f = old;
-        f.commit_delay = 1000;
-        assert_eq!(
-            ModelFlags::from_bits(f.bits()).commit_delay,
-            MAX_COMMIT_DELAY
-        );
     }
 }

@@ -27,7 +27,7 @@ use serde::{Deserialize, Deserializer, Serialize, Serializer};
 
 use crate::blob::{AdaptSettings, Header};
 use crate::preset::MAX_INNER_RATE;
-use crate::schema::{AdaptLossKind, AdaptMode, Emd, ModelFlags, NoiseMode, StepRule};
+use crate::schema::{AdaptLossKind, AdaptMode, Emd, NoiseMode, StepRule};
 use crate::schema::{
     COMMIT_DELAY_MASK, COMMIT_DELAY_SHIFT, DISC_STEPS_MASK, DISC_STEPS_SHIFT, FLAG_ADAPT,
     FLAG_COMPACT_PSI, FLAG_COSSIM, FLAG_DISC_HEAD_RESET, FLAG_FULL_ADAPT, FLAG_HEAD_ONLY,
@@ -407,9 +407,9 @@ pub struct InnerRule {
     /// implementation's default; the paper: G and the head).
     #[serde(default, skip_serializing_if = "is_false")]
     pub head_only: bool,
-    /// The inner update's commit delay d in steps
-    /// ([`NavConfig::commit_delay`](crate::navigator::NavConfig::commit_delay)): it takes
-    /// effect d steps after Ψ fills, the steps between not recorded (0: at once).
+    /// The inner update's commit delay d in steps (see
+    /// [`NavConfig::model`](crate::navigator::NavConfig::model)): it takes effect d steps
+    /// after Ψ fills, the steps between not recorded (0: at once).
     #[serde(default, skip_serializing_if = "is_zero")]
     pub commit_delay: u32,
 }
@@ -448,6 +448,15 @@ impl InnerRule {
         head_only: false,
         commit_delay: 0,
     };
+
+    /// The scale of L_D's critic terms: 10 with [`InnerRule::reference_critic`], else 1.
+    pub fn critic_scale(&self) -> f32 {
+        if self.reference_critic {
+            10.0
+        } else {
+            1.0
+        }
+    }
 
     /// True for the paper's rule.
     pub fn is_paper(&self) -> bool {
@@ -552,30 +561,58 @@ impl ModelSpec {
         self.inner_rule.validate()
     }
 
-    /// The model flags of a model with these switches (the v1-v4 header's bit form, see
-    /// [`ModelFlags`]).
-    pub const fn flags(&self) -> ModelFlags {
-        let r = &self.inner_rule;
-        ModelFlags {
-            adapt: self.adapt,
-            emd: self.emd,
-            noise: self.noise,
-            mode: self.adapt_mode,
-            disc_steps: r.disc_steps,
-            step_rule: r.step_rule,
-            disc_head_reset: r.disc_head_reset,
-            adapt_loss: r.adapt_loss,
-            reference_critic: r.reference_critic,
-            head_only: r.head_only,
-            commit_delay: r.commit_delay,
-        }
-    }
-
-    /// Every setting as the flag word of a v1-v4 header ([`ModelSpec::flags`] with
-    /// [`FLAG_INT8_ACTIVATIONS`] and [`FLAG_COMPACT_PSI`]); what
-    /// [`Header::flags`](crate::blob::Header::flags) reports for a v5 blob.
+    /// Every setting as the flag word of a v1-v4 header (the `FLAG_*` bits and the
+    /// [`DISC_STEPS_MASK`] and [`COMMIT_DELAY_MASK`] fields): the one mapping from the
+    /// settings to the bits, the inverse of [`ModelSpec::from_bits`]. A `disc_steps` of 0 is
+    /// written as 1 and one above [`MAX_DISC_STEPS`] as it, a `commit_delay` above
+    /// [`MAX_COMMIT_DELAY`] as it. What [`Header::flags`](crate::blob::Header::flags)
+    /// reports for a v5 blob.
     pub const fn bits(&self) -> u32 {
-        let mut f = self.flags().bits();
+        let r = &self.inner_rule;
+        let mut f = 0;
+        if self.adapt {
+            f |= FLAG_ADAPT;
+        }
+        if matches!(self.noise, NoiseMode::Zero) {
+            f |= FLAG_ZERO_NOISE;
+        }
+        if matches!(self.emd, Emd::CosSim) {
+            f |= FLAG_COSSIM;
+        }
+        if matches!(self.adapt_mode, AdaptMode::Full) {
+            f |= FLAG_FULL_ADAPT;
+        }
+        let steps = if r.disc_steps == 0 {
+            0
+        } else if r.disc_steps > MAX_DISC_STEPS {
+            MAX_DISC_STEPS - 1
+        } else {
+            r.disc_steps - 1
+        };
+        f |= steps << DISC_STEPS_SHIFT;
+        match r.step_rule {
+            StepRule::Gradient => {}
+            StepRule::Normalized => f |= FLAG_NORMALIZED_STEP,
+            StepRule::PerGroup => f |= FLAG_PER_GROUP_STEP,
+        }
+        if r.disc_head_reset {
+            f |= FLAG_DISC_HEAD_RESET;
+        }
+        if matches!(r.adapt_loss, AdaptLossKind::Reference) {
+            f |= FLAG_REFERENCE_ADAPT_LOSS;
+        }
+        if r.reference_critic {
+            f |= FLAG_REFERENCE_CRITIC_SCALE;
+        }
+        if r.head_only {
+            f |= FLAG_HEAD_ONLY;
+        }
+        let d = if r.commit_delay > MAX_COMMIT_DELAY {
+            MAX_COMMIT_DELAY
+        } else {
+            r.commit_delay
+        };
+        f |= d << COMMIT_DELAY_SHIFT;
         if self.int8_activations {
             f |= FLAG_INT8_ACTIVATIONS;
         }
@@ -585,11 +622,17 @@ impl ModelSpec {
         f
     }
 
+    /// α1, D's ascent rate on L_D: [`InnerRule::disc_lr`] when the rule sets its own, else
+    /// `inner_lr` (α2).
+    pub fn alpha_disc(&self) -> f32 {
+        self.inner_rule.disc_lr.unwrap_or(self.inner_lr)
+    }
+
     /// The blob header's inner-loop settings: α1 (`inner_lr` unless the rule sets its own),
     /// α2 = `inner_lr`, and `max_inner`.
     pub fn adapt_settings(&self) -> AdaptSettings {
         AdaptSettings {
-            alpha_disc: self.inner_rule.disc_lr.unwrap_or(self.inner_lr),
+            alpha_disc: self.alpha_disc(),
             alpha_adapt: self.inner_lr,
             max_inner: self.max_inner,
         }
@@ -600,27 +643,49 @@ impl ModelSpec {
     /// exactly when its bits differ from α2's). Bits outside
     /// [`KNOWN_FLAGS`](crate::schema::KNOWN_FLAGS) are ignored here.
     pub fn from_bits(bits: u32, settings: AdaptSettings) -> ModelSpec {
-        let flags = ModelFlags::from_bits(bits);
+        let on = |flag: u32| bits & flag != 0;
         let (a1, a2) = (settings.alpha_disc, settings.alpha_adapt);
         ModelSpec {
-            noise: flags.noise,
+            noise: if on(FLAG_ZERO_NOISE) {
+                NoiseMode::Zero
+            } else {
+                NoiseMode::Gaussian
+            },
             inner_lr: a2,
             max_inner: settings.max_inner,
-            adapt_mode: flags.mode,
+            adapt_mode: if on(FLAG_FULL_ADAPT) {
+                AdaptMode::Full
+            } else {
+                AdaptMode::Efficient
+            },
             inner_rule: InnerRule {
                 disc_lr: (a1.to_bits() != a2.to_bits()).then_some(a1),
-                disc_steps: flags.disc_steps,
-                step_rule: flags.step_rule,
-                disc_head_reset: flags.disc_head_reset,
-                adapt_loss: flags.adapt_loss,
-                reference_critic: flags.reference_critic,
-                head_only: flags.head_only,
-                commit_delay: flags.commit_delay,
+                disc_steps: ((bits & DISC_STEPS_MASK) >> DISC_STEPS_SHIFT) + 1,
+                step_rule: if on(FLAG_PER_GROUP_STEP) {
+                    StepRule::PerGroup
+                } else if on(FLAG_NORMALIZED_STEP) {
+                    StepRule::Normalized
+                } else {
+                    StepRule::Gradient
+                },
+                disc_head_reset: on(FLAG_DISC_HEAD_RESET),
+                adapt_loss: if on(FLAG_REFERENCE_ADAPT_LOSS) {
+                    AdaptLossKind::Reference
+                } else {
+                    AdaptLossKind::Paper
+                },
+                reference_critic: on(FLAG_REFERENCE_CRITIC_SCALE),
+                head_only: on(FLAG_HEAD_ONLY),
+                commit_delay: (bits & COMMIT_DELAY_MASK) >> COMMIT_DELAY_SHIFT,
             },
-            adapt: flags.adapt,
-            emd: flags.emd,
-            int8_activations: bits & FLAG_INT8_ACTIVATIONS != 0,
-            compact_psi: bits & FLAG_COMPACT_PSI != 0,
+            adapt: on(FLAG_ADAPT),
+            emd: if on(FLAG_COSSIM) {
+                Emd::CosSim
+            } else {
+                Emd::Discriminator
+            },
+            int8_activations: on(FLAG_INT8_ACTIVATIONS),
+            compact_psi: on(FLAG_COMPACT_PSI),
         }
     }
 
@@ -899,8 +964,8 @@ mod tests {
             int8_activations: true,
             compact_psi: true,
         };
-        let flags = ModelFlags::from_bits(spec.bits());
-        assert!(flags.adapt && flags.emd == Emd::CosSim);
+        let back = ModelSpec::from_bits(spec.bits(), AdaptSettings::PAPER);
+        assert!(back.adapt && back.emd == Emd::CosSim);
         assert_eq!(
             ModelSpec::from_bits(spec.bits(), spec.adapt_settings()),
             spec
@@ -980,5 +1045,73 @@ mod tests {
         s.inner_rule.disc_steps = MAX_DISC_STEPS;
         s.inner_rule.commit_delay = MAX_COMMIT_DELAY + 1;
         assert_eq!(s.validate(), Err(SpecError::CommitDelay(64)));
+    }
+
+    /// [`ModelSpec::from_bits`] with the paper's rates.
+    fn of_bits(bits: u32) -> ModelSpec {
+        ModelSpec::from_bits(bits, AdaptSettings::PAPER)
+    }
+
+    #[test]
+    fn flags_round_trip() {
+        for bits in 0..16u32 {
+            assert_eq!(of_bits(bits).bits(), bits);
+        }
+        assert_eq!(of_bits(0xF0).bits(), 0);
+        // the inner-rule levers: every step count and both rules, next to the other bits
+        for steps in [0u32, 1, 2, 5, 256] {
+            for norm in [false, true] {
+                let bits = 0b1011
+                    | (steps.saturating_sub(1) << DISC_STEPS_SHIFT)
+                    | if norm { FLAG_NORMALIZED_STEP } else { 0 };
+                let f = of_bits(bits);
+                let r = f.inner_rule;
+                assert_eq!(r.disc_steps, steps.max(1));
+                assert_eq!(r.step_rule == StepRule::Normalized, norm);
+                assert!(f.adapt && f.adapt_mode == AdaptMode::Full);
+                assert_eq!(f.bits(), bits);
+            }
+        }
+        // the per-group step and D's head reset, with and without the other rule bits
+        for (bits, rule) in [
+            (FLAG_PER_GROUP_STEP, StepRule::PerGroup),
+            (FLAG_NORMALIZED_STEP, StepRule::Normalized),
+        ] {
+            for reset in [false, true] {
+                let bits = bits | FLAG_ADAPT | if reset { FLAG_DISC_HEAD_RESET } else { 0 };
+                let f = of_bits(bits);
+                let r = f.inner_rule;
+                assert_eq!((r.step_rule, r.disc_head_reset), (rule, reset));
+                assert_eq!(f.bits(), bits);
+            }
+        }
+        // blobs written before the levers read as the paper's rule
+        let old = of_bits(FLAG_ADAPT);
+        assert_eq!(old.inner_rule, InnerRule::PAPER);
+        assert_eq!(old.inner_rule.critic_scale(), 1.0);
+        let r = FLAG_ADAPT | FLAG_REFERENCE_ADAPT_LOSS | FLAG_REFERENCE_CRITIC_SCALE;
+        let f = of_bits(r);
+        assert_eq!(
+            (f.inner_rule.adapt_loss, f.inner_rule.critic_scale()),
+            (AdaptLossKind::Reference, 10.0)
+        );
+        assert_eq!(f.bits(), r);
+        assert!(!f.inner_rule.head_only);
+        let h = of_bits(FLAG_ADAPT | FLAG_HEAD_ONLY);
+        assert!(h.inner_rule.head_only && h.adapt);
+        assert_eq!(h.bits(), FLAG_ADAPT | FLAG_HEAD_ONLY);
+        let mut f = old;
+        f.inner_rule.disc_steps = 1000;
+        assert_eq!(of_bits(f.bits()).inner_rule.disc_steps, 256);
+        // the commit delay: 0 in older blobs, round trips, saturates, leaves the rest alone
+        for d in [1u32, 7, 20, MAX_COMMIT_DELAY] {
+            let mut f = of_bits(r | FLAG_HEAD_ONLY);
+            f.inner_rule.commit_delay = d;
+            assert_eq!(of_bits(f.bits()), f);
+            assert_eq!(f.bits() & !COMMIT_DELAY_MASK, r | FLAG_HEAD_ONLY);
+        }
+        let mut f = old;
+        f.inner_rule.commit_delay = 1000;
+        assert_eq!(of_bits(f.bits()).inner_rule.commit_delay, MAX_COMMIT_DELAY);
     }
 }

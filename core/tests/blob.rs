@@ -10,6 +10,7 @@ use gman_core::blob::{
 use gman_core::memory::AdaptMode;
 use gman_core::navigator::{Emd, NavConfig, NoiseMode, StepRule};
 use gman_core::schema::{DISC_STEPS_SHIFT, FLAG_NORMALIZED_STEP};
+use gman_core::spec::{InnerRule, ModelSpec};
 use gman_core::{BlobError, Dims};
 use proptest::prelude::*;
 
@@ -425,10 +426,14 @@ fn v1_blobs_still_parse_with_the_paper_settings() {
     let cfg = NavConfig::from_header(h);
     let d = NavConfig::default();
     assert_eq!(
-        (cfg.alpha_disc, cfg.alpha_adapt, cfg.max_inner_updates),
-        (d.alpha_disc, d.alpha_adapt, d.max_inner_updates)
+        (
+            cfg.model.alpha_disc(),
+            cfg.model.inner_lr,
+            cfg.model.max_inner
+        ),
+        (d.model.alpha_disc(), d.model.inner_lr, d.model.max_inner)
     );
-    assert_eq!(cfg.noise, NoiseMode::Zero);
+    assert_eq!(cfg.model.noise, NoiseMode::Zero);
     // The shipped GMAN model (v2, trained with the paper's inner loop) parses with those
     // settings, whichever version it is stored in.
     let shipped = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
@@ -519,32 +524,41 @@ fn nav_config_follows_the_header() {
         max_inner: 2,
     };
     for flags in 0..32u32 {
-        // Bit 4 stands for bit 24 (int8 activations: no part of the navigator's settings).
+        // Bit 4 stands for bit 24 (int8 activations: how the weights run, which the model's
+        // settings record too).
         let flags = (flags & 15) | if flags & 16 != 0 { 1 << 24 } else { 0 };
         let bytes = blob_with(flags, settings, 15);
         let blob = Blob::parse(&bytes).unwrap();
         let cfg = NavConfig::from_header(blob.header());
         assert_eq!(cfg, blob.nav_config());
         let expected = NavConfig {
-            adapt: flags & FLAG_ADAPT != 0,
-            emd: if flags & FLAG_COSSIM != 0 {
-                Emd::CosSim
-            } else {
-                Emd::Discriminator
+            model: ModelSpec {
+                adapt: flags & FLAG_ADAPT != 0,
+                emd: if flags & FLAG_COSSIM != 0 {
+                    Emd::CosSim
+                } else {
+                    Emd::Discriminator
+                },
+                noise: if flags & FLAG_ZERO_NOISE != 0 {
+                    NoiseMode::Zero
+                } else {
+                    NoiseMode::Gaussian
+                },
+                inner_lr: 0.07,
+                max_inner: 2,
+                adapt_mode: if flags & FLAG_FULL_ADAPT != 0 {
+                    AdaptMode::Full
+                } else {
+                    AdaptMode::Efficient
+                },
+                inner_rule: InnerRule {
+                    disc_lr: Some(0.03),
+                    ..InnerRule::PAPER
+                },
+                int8_activations: flags & (1 << 24) != 0,
+                ..NavConfig::default().model
             },
-            noise: if flags & FLAG_ZERO_NOISE != 0 {
-                NoiseMode::Zero
-            } else {
-                NoiseMode::Gaussian
-            },
-            alpha_disc: 0.03,
-            alpha_adapt: 0.07,
-            max_inner_updates: 2,
-            mode: Some(if flags & FLAG_FULL_ADAPT != 0 {
-                AdaptMode::Full
-            } else {
-                AdaptMode::Efficient
-            }),
+            check_mode: true,
             ..NavConfig::default()
         };
         assert_eq!(cfg, expected, "flags {flags:#x}");
@@ -563,7 +577,10 @@ fn nav_config_follows_the_header() {
         let bytes = blob_with(FLAG_ADAPT | bits, settings, 15);
         let cfg = Blob::parse(&bytes).unwrap().nav_config();
         assert_eq!(
-            (cfg.disc_steps, cfg.step_rule),
+            (
+                cfg.model.inner_rule.disc_steps,
+                cfg.model.inner_rule.step_rule
+            ),
             (steps, rule),
             "flags {bits:#x}"
         );
@@ -574,7 +591,11 @@ fn nav_config_follows_the_header() {
     assert_eq!(
         Blob::parse(&bytes).unwrap().nav_config(),
         NavConfig {
-            mode: Some(AdaptMode::Efficient),
+            model: ModelSpec {
+                adapt_mode: AdaptMode::Efficient,
+                ..NavConfig::default().model
+            },
+            check_mode: true,
             ..NavConfig::default()
         }
     );

@@ -11,6 +11,7 @@ use gman_core::blob::{
 use gman_core::navigator::{
     Efficient, Full, Mode, NavConfig, NavWeights, Navigator, NoiseMode, Schedule, Selection,
 };
+use gman_core::spec::{InnerRule, ModelSpec};
 use gman_core::{BlobError, Error};
 
 const K: usize = 20;
@@ -122,17 +123,32 @@ fn a_step_refused_as_numerical_changes_nothing() {
         };
         refused_step_changes_nothing::<Efficient>(sample, at);
         let zero = NavConfig {
-            noise: NoiseMode::Zero,
+            model: ModelSpec {
+                noise: NoiseMode::Zero,
+                ..NavConfig::default().model
+            },
             ..NavConfig::default()
         };
         refused_step_changes_nothing::<Efficient>(zero, at);
         let delayed = NavConfig {
-            commit_delay: 3,
+            model: ModelSpec {
+                inner_rule: InnerRule {
+                    commit_delay: 3,
+                    ..InnerRule::PAPER
+                },
+                ..NavConfig::default().model
+            },
             ..NavConfig::default()
         };
         refused_step_changes_nothing::<Efficient>(delayed, at);
         let background = NavConfig {
-            commit_delay: 3,
+            model: ModelSpec {
+                inner_rule: InnerRule {
+                    commit_delay: 3,
+                    ..InnerRule::PAPER
+                },
+                ..NavConfig::default().model
+            },
             schedule: Schedule::Background,
             ..NavConfig::default()
         };

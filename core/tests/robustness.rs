@@ -18,6 +18,7 @@ use gman_core::memory::{
 use gman_core::navigator::{
     Efficient, Full, Mode, NavConfig, NavWeights, Navigator, NoiseMode, Schedule, Selection,
 };
+use gman_core::spec::{InnerRule, ModelSpec};
 use gman_core::{BlobError, Dims, Error};
 use proptest::prelude::*;
 
@@ -236,25 +237,31 @@ fn config() -> impl Strategy<Value = NavConfig> {
         prop_oneof![Just(1e-4f32), Just(0.0), Just(100.0), Just(1e30)],
     )
         .prop_map(|(manual, adapt, zero, sample, cap, a1, a2)| NavConfig {
+            model: ModelSpec {
+                adapt,
+                noise: if zero {
+                    NoiseMode::Zero
+                } else {
+                    NoiseMode::Gaussian
+                },
+                max_inner: cap,
+                inner_lr: a2,
+                inner_rule: InnerRule {
+                    disc_lr: Some(a1),
+                    ..InnerRule::PAPER
+                },
+                ..NavConfig::default().model
+            },
             schedule: if manual {
                 Schedule::Manual
             } else {
                 Schedule::Auto
-            },
-            adapt,
-            noise: if zero {
-                NoiseMode::Zero
-            } else {
-                NoiseMode::Gaussian
             },
             selection: if sample {
                 Selection::Sample
             } else {
                 Selection::Greedy
             },
-            max_inner_updates: cap,
-            alpha_disc: a1,
-            alpha_adapt: a2,
             ..NavConfig::default()
         })
 }
@@ -514,8 +521,14 @@ fn navigator_settings_are_checked_like_a_blob_and_adapt_false_never_adapts() {
         let w = NavWeights::from_blob(&blob, &SMALL).unwrap();
         let mut arena = vec![0.0f32; Navigator::<Full, 4>::arena_len(&SMALL)];
         let cfg = NavConfig {
-            alpha_disc: a1,
-            alpha_adapt: a2,
+            model: ModelSpec {
+                inner_lr: a2,
+                inner_rule: InnerRule {
+                    disc_lr: Some(a1),
+                    ..InnerRule::PAPER
+                },
+                ..NavConfig::default().model
+            },
             ..NavConfig::default()
         };
         let Err(e) = Navigator::<Full, 4>::new(w, &mut arena, cfg) else {
@@ -529,10 +542,16 @@ fn navigator_settings_are_checked_like_a_blob_and_adapt_false_never_adapts() {
     let w = NavWeights::from_blob(&blob, &SMALL).unwrap();
     let mut arena = vec![0.0f32; Navigator::<Full, 4>::arena_len(&SMALL)];
     let cfg = NavConfig {
-        adapt: false,
+        model: ModelSpec {
+            adapt: false,
+            inner_lr: 0.5,
+            inner_rule: InnerRule {
+                disc_lr: Some(0.5),
+                ..InnerRule::PAPER
+            },
+            ..NavConfig::default().model
+        },
         schedule: Schedule::Manual,
-        alpha_adapt: 0.5,
-        alpha_disc: 0.5,
         ..NavConfig::default()
     };
     let mut nav = Navigator::<Full, 4>::new(w, &mut arena, cfg).unwrap();

@@ -11,6 +11,7 @@ use gman_core::blob::Blob;
 use gman_core::navigator::{
     Efficient, Full, Mode, NavConfig, NavWeights, Navigator, Schedule, Selection,
 };
+use gman_core::spec::{InnerRule, ModelSpec};
 use gman_core::Error;
 
 const K: usize = 5;
@@ -29,12 +30,18 @@ fn run<M: Mode>(bytes: &[u8], schedule: Schedule, delay: u32) -> Run {
     let w = NavWeights::from_blob(&blob, &SMALL).unwrap();
     let mut arena = vec![0.0f32; Navigator::<M, K>::arena_len(&SMALL)];
     let cfg = NavConfig {
+        model: ModelSpec {
+            inner_lr: 0.05,
+            max_inner: 100,
+            inner_rule: InnerRule {
+                commit_delay: delay,
+                disc_lr: Some(0.05),
+                ..InnerRule::PAPER
+            },
+            ..NavConfig::default().model
+        },
         schedule,
-        commit_delay: delay,
         selection: Selection::Sample,
-        alpha_adapt: 0.05,
-        alpha_disc: 0.05,
-        max_inner_updates: 100,
         ..NavConfig::default()
     };
     let mut nav = Navigator::<M, K>::new(w, &mut arena, cfg).unwrap();
@@ -126,8 +133,14 @@ fn background_update_not_ready_at_its_commit_point_changes_nothing() {
     let w = NavWeights::from_blob(&blob, &SMALL).unwrap();
     let mut arena = vec![0.0f32; Navigator::<Efficient, K>::arena_len(&SMALL)];
     let cfg = NavConfig {
+        model: ModelSpec {
+            inner_rule: InnerRule {
+                commit_delay: 3,
+                ..InnerRule::PAPER
+            },
+            ..NavConfig::default().model
+        },
         schedule: Schedule::Background,
-        commit_delay: 3,
         ..NavConfig::default()
     };
     let mut nav = Navigator::<Efficient, K>::new(w, &mut arena, cfg).unwrap();
@@ -165,8 +178,14 @@ fn bad_delays_are_refused() {
         let w = NavWeights::from_blob(&blob, &SMALL).unwrap();
         let mut arena = vec![0.0f32; Navigator::<Efficient, K>::arena_len(&SMALL)];
         let cfg = NavConfig {
+            model: ModelSpec {
+                inner_rule: InnerRule {
+                    commit_delay: delay,
+                    ..InnerRule::PAPER
+                },
+                ..NavConfig::default().model
+            },
             schedule,
-            commit_delay: delay,
             ..NavConfig::default()
         };
         let e = Navigator::<Efficient, K>::new(w, &mut arena, cfg).err();

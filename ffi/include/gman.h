@@ -14,7 +14,7 @@
 #include <stdint.h>
 
 // Version of this C API ([`gman_api_version`]); bumped on any incompatible change.
-#define GMAN_API_VERSION 2
+#define GMAN_API_VERSION 3
 
 // Capacity k of the buffer Ψ: an inner update every `GMAN_BUFFER_CAPACITY` steps (the
 // paper's k = 20).
@@ -46,6 +46,30 @@ typedef struct gman_nav gman_nav;
 
 // A status code: [`GMAN_OK`] or one of the `GMAN_ERR_*` values.
 typedef int32_t gman_status;
+
+// The model's settings: how the navigator runs the weights (gman-core's `ModelSpec`, the
+// part a C program reads). A blob records them ([`gman_info::settings`]); the navigator runs
+// them exactly, so that the device adapts as the host trained and evaluated the model.
+typedef struct gman_settings {
+  // 1: the model adapts at inference (the GMAN inner loop); 0: it does not.
+  uint32_t adapt;
+  // Adaptation mode the model was trained in: 0 Efficient, 1 Full.
+  uint32_t adapt_mode;
+  // What scores the generated features: 0 the discriminator D, 1 cosine similarity.
+  uint32_t emd;
+  // Noise of G: 0 Gaussian, 1 zero.
+  uint32_t noise_mode;
+  // At most this many inner updates per episode.
+  uint32_t max_inner_updates;
+  // α1, the ascent rate of D.
+  float alpha_disc;
+  // α2, the descent rate of θ and φ.
+  float alpha_adapt;
+  // The commit delay d (0 to 63): the inner update that starts when Ψ fills at step t
+  // takes effect at the end of step t + d (0: within step t). A blob records it in bits
+  // 25..31 of [`gman_info::flags`].
+  uint32_t commit_delay;
+} gman_settings;
 
 // What a blob holds ([`gman_inspect`]).
 typedef struct gman_info {
@@ -79,25 +103,11 @@ typedef struct gman_info {
   uint32_t cell_embed;
   // Floats of one map ([`gman_step`]'s `map`): `map_rows * map_cols * feat`.
   uint32_t map_len;
-  // 1: the model adapts at inference (the GMAN inner loop); 0: it does not.
-  uint32_t adapt;
-  // Adaptation mode the model was trained in: 0 Efficient, 1 Full.
-  uint32_t adapt_mode;
-  // What scores the generated features: 0 the discriminator D, 1 cosine similarity.
-  uint32_t emd;
-  // Noise of G: 0 Gaussian, 1 zero.
-  uint32_t noise_mode;
-  // At most this many inner updates per episode.
-  uint32_t max_inner_updates;
-  // α1, the ascent rate of D.
-  float alpha_disc;
-  // α2, the descent rate of θ and φ.
-  float alpha_adapt;
+  // The model's settings the blob records ([`gman_inspect`]), or those the navigator runs
+  // ([`gman_nav_info`]: the blob's, with the commit delay the options chose).
+  struct gman_settings settings;
   // Capacity of Ψ ([`GMAN_BUFFER_CAPACITY`]).
   uint32_t buffer_capacity;
-  // The commit delay d the blob records (0 to 63): the inner update that starts when Ψ
-  // fills at step t takes effect at the end of step t + d (0: within step t).
-  uint32_t commit_delay;
   // Bytes of arena a navigator over this blob needs ([`gman_arena_size`]).
   uint64_t arena_bytes;
 } gman_info;
@@ -115,17 +125,20 @@ typedef struct gman_options {
   // than the control loop, and a step that would commit an unfinished update fails with
   // [`GMAN_ERR_UPDATE_NOT_READY`], changing nothing. Other values are refused.
   uint32_t schedule;
-  // The commit delay d (steps between Ψ filling and the inner update taking effect,
-  // 0 to 63): 0 runs the blob's recorded delay ([`gman_info::commit_delay`]); a non-zero
-  // value runs at that delay when the blob records 0, and must equal the blob's delay
-  // when it records one (else [`GMAN_ERR_CONFIG`], as for a value above 63).
-  uint32_t commit_delay;
   // 1: refuse a blob whose checksum does not cover its header (formats v1-v3, where a
   // flipped flag bit, rate or map size goes unnoticed) with [`GMAN_ERR_BLOB_VERSION`],
   // before anything of it is read; `gman upgrade-blob IN OUT` rewrites such a blob in
   // the current format. 0: accept every format this library reads. Other values are
   // refused ([`GMAN_ERR_CONFIG`]).
   uint32_t require_header_crc;
+  // The settings the device chooses where the blob leaves the choice to it; all 0: the
+  // blob's. Only the commit delay is the device's to choose: `settings.commit_delay`
+  // (steps between Ψ filling and the inner update taking effect, 0 to 63) 0 runs the
+  // blob's recorded delay ([`gman_info::settings`]); a non-zero value runs at that delay
+  // when the blob records 0, and must equal the blob's delay when it records one (else
+  // [`GMAN_ERR_CONFIG`], as for a value above 63). Every other field must be 0
+  // ([`GMAN_ERR_CONFIG`]): the blob's settings are the model's.
+  struct gman_settings settings;
 } gman_options;
 
 // What one step returns ([`gman_step`]).
@@ -144,10 +157,9 @@ typedef struct gman_step_out {
 // The schedule a navigator runs and the state of its pending inner update
 // ([`gman_get_schedule`]).
 typedef struct gman_schedule_state {
-  // The schedule ([`gman_options::schedule`]): 0 automatic, 1 manual, 2 background.
+  // The schedule ([`gman_options::schedule`]): 0 automatic, 1 manual, 2 background (the
+  // commit delay it runs at: [`gman_nav_info`]'s `settings.commit_delay`).
   uint32_t schedule;
-  // The commit delay d the navigator runs at (the blob's, or the one the options chose).
-  uint32_t commit_delay;
   // 1 from the step that fills Ψ until its inner update commits (d > 0 only).
   uint32_t pending;
   // Slices of the pending update still to run (0: none pending, or all have run).
@@ -375,7 +387,9 @@ gman_status gman_get_counters(struct gman_nav *nav, struct gman_counters *out);
 // `nav` a handle; `out` writable.
 gman_status gman_last_adaptation(struct gman_nav *nav, struct gman_adapt_report *out);
 
-// The description of the navigator's blob ([`gman_inspect`]) in `*out`.
+// The description of the navigator's blob ([`gman_inspect`]) in `*out`, with the settings
+// the navigator runs: the blob's, and the commit delay the options chose
+// ([`gman_options::settings`]; [`gman_info::flags`] keeps the blob's bits).
 //
 // # Safety
 // `nav` a handle; `out` writable.

@@ -47,6 +47,7 @@ use gman_core::navigator::{
     Efficient, Emd, Full, NavConfig, NavWeights, Navigator, NoiseMode, Schedule, Selection,
     StepOutput,
 };
+use gman_core::spec::ModelSpec;
 use gman_core::{BlobError, Dims, Error, NUM_ACTIONS};
 
 /// The Rust blocks of the integration guide, compiled as doc tests.
@@ -55,7 +56,7 @@ use gman_core::{BlobError, Dims, Error, NUM_ACTIONS};
 pub struct IntegrationGuide;
 
 /// Version of this C API ([`gman_api_version`]); bumped on any incompatible change.
-pub const GMAN_API_VERSION: u32 = 2;
+pub const GMAN_API_VERSION: u32 = 3;
 
 /// Capacity k of the buffer Ψ: an inner update every `GMAN_BUFFER_CAPACITY` steps (the
 /// paper's k = 20).
@@ -189,6 +190,21 @@ pub struct gman_info {
     pub cell_embed: u32,
     /// Floats of one map ([`gman_step`]'s `map`): `map_rows * map_cols * feat`.
     pub map_len: u32,
+    /// The model's settings the blob records ([`gman_inspect`]), or those the navigator runs
+    /// ([`gman_nav_info`]: the blob's, with the commit delay the options chose).
+    pub settings: gman_settings,
+    /// Capacity of Ψ ([`GMAN_BUFFER_CAPACITY`]).
+    pub buffer_capacity: u32,
+    /// Bytes of arena a navigator over this blob needs ([`gman_arena_size`]).
+    pub arena_bytes: u64,
+}
+
+/// The model's settings: how the navigator runs the weights (gman-core's `ModelSpec`, the
+/// part a C program reads). A blob records them ([`gman_info::settings`]); the navigator runs
+/// them exactly, so that the device adapts as the host trained and evaluated the model.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct gman_settings {
     /// 1: the model adapts at inference (the GMAN inner loop); 0: it does not.
     pub adapt: u32,
     /// Adaptation mode the model was trained in: 0 Efficient, 1 Full.
@@ -203,18 +219,15 @@ pub struct gman_info {
     pub alpha_disc: f32,
     /// α2, the descent rate of θ and φ.
     pub alpha_adapt: f32,
-    /// Capacity of Ψ ([`GMAN_BUFFER_CAPACITY`]).
-    pub buffer_capacity: u32,
-    /// The commit delay d the blob records (0 to 63): the inner update that starts when Ψ
-    /// fills at step t takes effect at the end of step t + d (0: within step t).
+    /// The commit delay d (0 to 63): the inner update that starts when Ψ fills at step t
+    /// takes effect at the end of step t + d (0: within step t). A blob records it in bits
+    /// 25..31 of [`gman_info::flags`].
     pub commit_delay: u32,
-    /// Bytes of arena a navigator over this blob needs ([`gman_arena_size`]).
-    pub arena_bytes: u64,
 }
 
 /// Options of [`gman_init`]; pass NULL for the defaults (all fields 0).
 #[repr(C)]
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct gman_options {
     /// Action selection: 0 the most probable action (greedy), 1 a sample from the
     /// probabilities with the navigator's seeded generator.
@@ -227,17 +240,20 @@ pub struct gman_options {
     /// than the control loop, and a step that would commit an unfinished update fails with
     /// [`GMAN_ERR_UPDATE_NOT_READY`], changing nothing. Other values are refused.
     pub schedule: u32,
-    /// The commit delay d (steps between Ψ filling and the inner update taking effect,
-    /// 0 to 63): 0 runs the blob's recorded delay ([`gman_info::commit_delay`]); a non-zero
-    /// value runs at that delay when the blob records 0, and must equal the blob's delay
-    /// when it records one (else [`GMAN_ERR_CONFIG`], as for a value above 63).
-    pub commit_delay: u32,
     /// 1: refuse a blob whose checksum does not cover its header (formats v1-v3, where a
     /// flipped flag bit, rate or map size goes unnoticed) with [`GMAN_ERR_BLOB_VERSION`],
     /// before anything of it is read; `gman upgrade-blob IN OUT` rewrites such a blob in
     /// the current format. 0: accept every format this library reads. Other values are
     /// refused ([`GMAN_ERR_CONFIG`]).
     pub require_header_crc: u32,
+    /// The settings the device chooses where the blob leaves the choice to it; all 0: the
+    /// blob's. Only the commit delay is the device's to choose: `settings.commit_delay`
+    /// (steps between Ψ filling and the inner update taking effect, 0 to 63) 0 runs the
+    /// blob's recorded delay ([`gman_info::settings`]); a non-zero value runs at that delay
+    /// when the blob records 0, and must equal the blob's delay when it records one (else
+    /// [`GMAN_ERR_CONFIG`], as for a value above 63). Every other field must be 0
+    /// ([`GMAN_ERR_CONFIG`]): the blob's settings are the model's.
+    pub settings: gman_settings,
 }
 
 /// What one step returns ([`gman_step`]).
@@ -280,10 +296,9 @@ pub struct gman_counters {
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct gman_schedule_state {
-    /// The schedule ([`gman_options::schedule`]): 0 automatic, 1 manual, 2 background.
+    /// The schedule ([`gman_options::schedule`]): 0 automatic, 1 manual, 2 background (the
+    /// commit delay it runs at: [`gman_nav_info`]'s `settings.commit_delay`).
     pub schedule: u32,
-    /// The commit delay d the navigator runs at (the blob's, or the one the options chose).
-    pub commit_delay: u32,
     /// 1 from the step that fills Ψ until its inner update commits (d > 0 only).
     pub pending: u32,
     /// Slices of the pending update still to run (0: none pending, or all have run).
@@ -582,9 +597,7 @@ fn blob_too_long(len: usize) -> bool {
 fn blob_info(blob: &Blob<'_>) -> Result<gman_info, gman_status> {
     let h: &Header = blob.header();
     let d = h.dims();
-    let cfg = NavConfig::from_header(h);
-    let mode = h.adapt_mode();
-    let arena = arena_bytes_for(&d, mode).ok_or(GMAN_ERR_CONFIG)?;
+    let arena = arena_bytes_for(&d, h.adapt_mode()).ok_or(GMAN_ERR_CONFIG)?;
     let u = |v: usize| u32::try_from(v).map_err(|_| GMAN_ERR_BLOB);
     Ok(gman_info {
         format_version: h.version() as u32,
@@ -602,26 +615,33 @@ fn blob_info(blob: &Blob<'_>) -> Result<gman_info, gman_status> {
         map_cols: u(d.map_cols)?,
         cell_embed: u(d.cell_embed)?,
         map_len: u(d.map_cells().checked_mul(d.feat).ok_or(GMAN_ERR_BLOB)?)?,
-        adapt: cfg.adapt as u32,
-        adapt_mode: match mode {
+        settings: settings_of(&h.spec()),
+        buffer_capacity: K as u32,
+        arena_bytes: arena as u64,
+    })
+}
+
+/// The C form of a model's settings.
+fn settings_of(m: &ModelSpec) -> gman_settings {
+    gman_settings {
+        adapt: m.adapt as u32,
+        adapt_mode: match m.adapt_mode {
             AdaptMode::Efficient => 0,
             AdaptMode::Full => 1,
         },
-        emd: match cfg.emd {
+        emd: match m.emd {
             Emd::Discriminator => 0,
             Emd::CosSim => 1,
         },
-        noise_mode: match cfg.noise {
+        noise_mode: match m.noise {
             NoiseMode::Gaussian => 0,
             NoiseMode::Zero => 1,
         },
-        max_inner_updates: cfg.max_inner_updates,
-        alpha_disc: cfg.alpha_disc,
-        alpha_adapt: cfg.alpha_adapt,
-        buffer_capacity: K as u32,
-        commit_delay: cfg.commit_delay,
-        arena_bytes: arena as u64,
-    })
+        max_inner_updates: m.max_inner,
+        alpha_disc: m.alpha_disc(),
+        alpha_adapt: m.inner_lr,
+        commit_delay: m.inner_rule.commit_delay,
+    }
 }
 
 /// Parses `blob`/`len` and describes it.
@@ -928,7 +948,7 @@ unsafe fn init(
     let weights = NavWeights::from_blob(&blob, &dims).map_err(|e| status_of(&e))?;
     // Every check of the settings before the arena is written: a refused call leaves a live
     // navigator in this arena untouched.
-    match info.adapt_mode {
+    match info.settings.adapt_mode {
         0 => Navigator::<'static, Efficient, K>::check_settings(&weights, &cfg),
         _ => Navigator::<'static, Full, K>::check_settings(&weights, &cfg),
     }
@@ -948,7 +968,7 @@ unsafe fn init(
         ptr::write_bytes(fp, 0, floats);
         core::slice::from_raw_parts_mut(fp, floats)
     };
-    let nav = match info.adapt_mode {
+    let nav = match info.settings.adapt_mode {
         0 => Navigator::new(weights, ram, cfg).map(Nav::Efficient),
         _ => Navigator::new(weights, ram, cfg).map(Nav::Full),
     };
@@ -964,6 +984,7 @@ unsafe fn init(
         }
     };
     info.arena_bytes = need as u64;
+    info.settings = settings_of(&cfg.model);
     let mut msg = [0u8; MSG_LEN];
     set_msg(&mut msg, format_args!("no error"));
     // SAFETY: `hp` is aligned (16 >= align_of::<Handle>()) and GMAN_HANDLE_BYTES >=
@@ -1000,7 +1021,16 @@ fn init_config(blob: &Blob<'_>, opts: &gman_options) -> Result<NavConfig, gman_s
         2 => Schedule::Background,
         _ => return Err(GMAN_ERR_CONFIG),
     };
-    cfg.commit_delay = commit_delay(cfg.commit_delay, opts.commit_delay)?;
+    let requested = opts.settings.commit_delay;
+    let others = gman_settings {
+        commit_delay: 0,
+        ..opts.settings
+    };
+    if others != gman_settings::default() {
+        return Err(GMAN_ERR_CONFIG);
+    }
+    let delay = &mut cfg.model.inner_rule.commit_delay;
+    *delay = commit_delay(*delay, requested)?;
     Ok(cfg)
 }
 
@@ -1184,7 +1214,6 @@ pub unsafe extern "C" fn gman_get_schedule(
                     Schedule::Manual => 1,
                     Schedule::Background => 2,
                 },
-                commit_delay: n.config().commit_delay,
                 pending: n.update_pending() as u32,
                 slices_left: n.slices_left(),
             });
@@ -1268,7 +1297,9 @@ pub unsafe extern "C" fn gman_last_adaptation(
     }
 }
 
-/// The description of the navigator's blob ([`gman_inspect`]) in `*out`.
+/// The description of the navigator's blob ([`gman_inspect`]) in `*out`, with the settings
+/// the navigator runs: the blob's, and the commit delay the options chose
+/// ([`gman_options::settings`]; [`gman_info::flags`] keeps the blob's bits).
 ///
 /// # Safety
 /// `nav` a handle; `out` writable.

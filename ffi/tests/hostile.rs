@@ -274,8 +274,8 @@ fn order_shape_nan_alignment_and_dead_handles() {
     let opts = gman_options {
         selection: 7,
         schedule: 0,
-        commit_delay: 0,
         require_header_crc: 0,
+        settings: gman_settings::default(),
     };
     let s = unsafe {
         gman_init(
@@ -292,8 +292,11 @@ fn order_shape_nan_alignment_and_dead_handles() {
     let delayed = gman_options {
         selection: 0,
         schedule: 0,
-        commit_delay: 64,
         require_header_crc: 0,
+        settings: gman_settings {
+            commit_delay: 64,
+            ..gman_settings::default()
+        },
     };
     let s = unsafe {
         gman_init(
@@ -385,8 +388,8 @@ fn manual_schedule_runs_the_update_only_on_request() {
     let opts = gman_options {
         selection: 0,
         schedule: 1,
-        commit_delay: 0,
         require_header_crc: 0,
+        settings: gman_settings::default(),
     };
     let s = unsafe {
         gman_init(

@@ -99,8 +99,11 @@ fn opts(schedule: u32, commit_delay: u32) -> gman_options {
     gman_options {
         selection: 0,
         schedule,
-        commit_delay,
         require_header_crc: 0,
+        settings: gman_settings {
+            commit_delay,
+            ..gman_settings::default()
+        },
     }
 }
 
@@ -108,6 +111,13 @@ fn schedule_of(n: &Nav) -> gman_schedule_state {
     let mut s = gman_schedule_state::default();
     assert_eq!(unsafe { gman_get_schedule(n.h, &mut s) }, GMAN_OK);
     s
+}
+
+/// The schedule a navigator runs and its commit delay ([`gman_nav_info`]).
+fn running(n: &Nav) -> (u32, u32) {
+    let mut i = gman_info::default();
+    assert_eq!(unsafe { gman_nav_info(n.h, &mut i) }, GMAN_OK);
+    (schedule_of(n).schedule, i.settings.commit_delay)
 }
 
 fn reset(n: &Nav, i: &gman_info, seed: u64) {
@@ -225,18 +235,18 @@ fn new_functions_refuse_null_and_dead_handles() {
         schedule_of(&n),
         gman_schedule_state {
             schedule: 2,
-            commit_delay: 20,
             pending: 0,
             slices_left: 0
         }
     );
+    assert_eq!(running(&n), (2, 20));
 }
 
 #[test]
 fn options_choose_the_delay_and_the_blob_s_own_delay_wins() {
     let blob = model();
     assert_eq!(
-        info(&blob).commit_delay,
+        info(&blob).settings.commit_delay,
         0,
         "the shipped blob records d = 0"
     );
@@ -246,6 +256,16 @@ fn options_choose_the_delay_and_the_blob_s_own_delay_wins() {
         (opts(0, u32::MAX), "commit_delay u32::MAX"),
         (opts(3, 20), "schedule 3"),
         (opts(2, 0), "background with d = 0"),
+        (
+            gman_options {
+                settings: gman_settings {
+                    max_inner_updates: 2,
+                    ..gman_settings::default()
+                },
+                ..opts(0, 0)
+            },
+            "a setting other than the delay",
+        ),
     ] {
         assert_eq!(
             try_nav(&blob, o).err(),
@@ -259,13 +279,12 @@ fn options_choose_the_delay_and_the_blob_s_own_delay_wins() {
         (opts(1, 63), (1, 63)),
     ] {
         let n = try_nav(&blob, o).expect("valid options");
-        let s = schedule_of(&n);
-        assert_eq!((s.schedule, s.commit_delay), want);
+        assert_eq!(running(&n), want);
     }
     // A blob that records d = 7: reported, run by default, a contradiction refused.
     let b7 = with_recorded_delay(&blob, 7);
     let i7 = info(&b7);
-    assert_eq!(i7.commit_delay, 7);
+    assert_eq!(i7.settings.commit_delay, 7);
     assert_eq!(i7.flags >> 25, 7);
     for (o, want) in [
         (opts(0, 0), (0, 7)),
@@ -273,11 +292,7 @@ fn options_choose_the_delay_and_the_blob_s_own_delay_wins() {
         (opts(2, 0), (2, 7)),
     ] {
         let n = try_nav(&b7, o).expect("the blob's delay");
-        let s = schedule_of(&n);
-        assert_eq!((s.schedule, s.commit_delay), want);
-        let mut ni = gman_info::default();
-        assert_eq!(unsafe { gman_nav_info(n.h, &mut ni) }, GMAN_OK);
-        assert_eq!(ni.commit_delay, 7);
+        assert_eq!(running(&n), want);
     }
     for d in [1, 6, 8, 20, 63] {
         assert_eq!(

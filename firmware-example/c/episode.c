@@ -151,11 +151,15 @@ const char *ep_run(const uint8_t *blob, size_t blob_len, void *arena, size_t are
     if (info.feat != FEAT || info.attr != ATTR || info.map_rows * info.map_cols != CELLS ||
         info.noise > NOISE_MAX)
         return "the blob's sizes are not the episode's (Mcu with a 3 x 3 map)";
-    gman_options opts = {0, schedule, 0, 0}; /* greedy, any blob format */
-    opts.commit_delay = info.commit_delay ? info.commit_delay : COMMIT_DELAY;
+    /* Greedy, any blob format, the blob's settings with d = COMMIT_DELAY if it records none. */
+    gman_options opts = {.schedule = schedule};
+    opts.settings.commit_delay = info.settings.commit_delay ? 0 : COMMIT_DELAY;
     TRY(gman_init(blob, blob_len, arena, arena_len, &opts, &nav));
     gman_schedule_state sched;
     TRY(gman_get_schedule(nav, &sched));
+    gman_info running; /* the settings the navigator runs (the delay it runs at) */
+    TRY(gman_nav_info(nav, &running));
+    const gman_settings *set = &info.settings;
 
     put_s(&l, "episode: ");
     put_sn(&l, label, label_len);
@@ -171,32 +175,32 @@ const char *ep_run(const uint8_t *blob, size_t blob_len, void *arena, size_t are
     put_c(&l, 'x');
     put_u64(&l, info.map_cols, 0);
     put_s(&l, " map, ");
-    put_s(&l, info.adapt_mode ? "Full" : "Efficient");
+    put_s(&l, set->adapt_mode ? "Full" : "Efficient");
     put_s(&l, ", K=");
     put_u64(&l, info.buffer_capacity, 0);
     put_s(&l, ", max_inner_updates=");
-    put_u64(&l, info.max_inner_updates, 0);
+    put_u64(&l, set->max_inner_updates, 0);
     emit(io, &l);
 
     put_s(&l, "config from blob v");
     put_u64(&l, info.format_version, 0);
     put_s(&l, ": adapt=");
-    put_u64(&l, info.adapt, 0);
-    put_s(&l, info.emd ? " emd=CosSim" : " emd=Discriminator");
-    put_s(&l, info.noise_mode ? " noise=Zero" : " noise=Gaussian");
+    put_u64(&l, set->adapt, 0);
+    put_s(&l, set->emd ? " emd=CosSim" : " emd=Discriminator");
+    put_s(&l, set->noise_mode ? " noise=Zero" : " noise=Gaussian");
     put_s(&l, " alpha_disc=");
-    put_bits(&l, info.alpha_disc);
+    put_bits(&l, set->alpha_disc);
     put_s(&l, " alpha_adapt=");
-    put_bits(&l, info.alpha_adapt);
+    put_bits(&l, set->alpha_adapt);
     emit(io, &l);
 
     static const char *const SCHEDULE_NAMES[3] = {"Auto", "Manual", "Background"};
     put_s(&l, "schedule: ");
     put_s(&l, sched.schedule < 3 ? SCHEDULE_NAMES[sched.schedule] : "?");
     put_s(&l, ", commit_delay=");
-    put_u64(&l, sched.commit_delay, 0);
+    put_u64(&l, running.settings.commit_delay, 0);
     put_s(&l, " (blob: ");
-    put_u64(&l, info.commit_delay, 0);
+    put_u64(&l, set->commit_delay, 0);
     put_c(&l, ')');
     emit(io, &l);
 

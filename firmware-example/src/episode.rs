@@ -54,7 +54,8 @@ pub const DIMS: Dims = Dims::MCU.with_map(3, 3, 8);
 /// Capacity of the buffer Ψ: the paper's k = 20, so an inner update every 20 steps.
 pub const K: usize = 20;
 /// The commit delay the firmware runs a blob with that records none
-/// ([`NavConfig::commit_delay`]; a blob's own non-zero delay wins): the inner update that
+/// ([`InnerRule::commit_delay`](gman_core::spec::InnerRule::commit_delay) of
+/// [`NavConfig::model`]; a blob's own non-zero delay wins): the inner update that
 /// starts when Ψ fills is computed in slices inside the next 20 steps and takes effect at the
 /// end of the 20th, so no step carries more than about a twentieth of it (see
 /// `docs/device.md`; `gman eval --commit-delay 20` runs the same schedule on the host).
@@ -347,11 +348,12 @@ fn run_with<const U8: bool>(
     // cap on inner updates; v1 blobs: the paper's rates and cap), never this program's own
     // defaults: the host evaluated the model with exactly these settings.
     let mut cfg = NavConfig::from_header(blob.header());
-    if cfg.commit_delay == 0 {
-        cfg.commit_delay = COMMIT_DELAY;
+    let blob_delay = cfg.model.inner_rule.commit_delay;
+    if blob_delay == 0 {
+        cfg.model.inner_rule.commit_delay = COMMIT_DELAY;
     }
     cfg.footprint = FOOTPRINT;
-    print_config(&ep, &blob, &cfg, probe);
+    print_config(&ep, &blob, &cfg, blob_delay, probe);
     let mut nav: Navigator<'_, Efficient, K> = Navigator::new(weights, arena, cfg)?;
     probe.reset_begin();
     nav.reset(ep.attributes(), ep.seed)?;
@@ -409,7 +411,13 @@ fn run_with<const U8: bool>(
 
 /// The episode's and the navigator's configuration lines: what the blob asks for and what the
 /// device runs.
-fn print_config(ep: &Episode, blob: &Blob<'_>, cfg: &NavConfig, probe: &mut dyn Probe) {
+fn print_config(
+    ep: &Episode,
+    blob: &Blob<'_>,
+    cfg: &NavConfig,
+    blob_delay: u32,
+    probe: &mut dyn Probe,
+) {
     probe.line(format_args!(
         "episode: {} ({} steps, seed {})",
         ep.label(),
@@ -418,24 +426,24 @@ fn print_config(ep: &Episode, blob: &Blob<'_>, cfg: &NavConfig, probe: &mut dyn 
     ));
     probe.line(format_args!(
         "navigator: Mcu, 3x3 map, Efficient, K=20, max_inner_updates={}",
-        cfg.max_inner_updates
+        cfg.model.max_inner
     ));
     // Rates as f32 bits: exact, and no float formatting code in flash. The enums by the
     // names their `Debug` prints, without linking those impls (flash).
     probe.line(format_args!(
         "config from blob v{}: adapt={} emd={} noise={} alpha_disc={:08x} alpha_adapt={:08x}",
         blob.header().version() as u32,
-        cfg.adapt as u32,
-        match cfg.emd {
+        cfg.model.adapt as u32,
+        match cfg.model.emd {
             Emd::Discriminator => "Discriminator",
             Emd::CosSim => "CosSim",
         },
-        match cfg.noise {
+        match cfg.model.noise {
             NoiseMode::Gaussian => "Gaussian",
             NoiseMode::Zero => "Zero",
         },
-        cfg.alpha_disc.to_bits(),
-        cfg.alpha_adapt.to_bits(),
+        cfg.model.alpha_disc().to_bits(),
+        cfg.model.inner_lr.to_bits(),
     ));
     probe.line(format_args!(
         "schedule: {}, commit_delay={} (blob: {})",
@@ -444,8 +452,8 @@ fn print_config(ep: &Episode, blob: &Blob<'_>, cfg: &NavConfig, probe: &mut dyn 
             Schedule::Manual => "Manual",
             Schedule::Background => "Background",
         },
-        cfg.commit_delay,
-        blob.header().model_flags().commit_delay
+        cfg.model.inner_rule.commit_delay,
+        blob_delay
     ));
 }
 

@@ -33,20 +33,23 @@ fn main() -> Result<()> {
     let per_file: usize = args.get(3).map(|s| s.parse()).transpose()?.unwrap_or(100);
     let mut model = load_model(Path::new(ckpt), None)?;
     if let Some(lr) = args.get(4).filter(|s| *s != "-") {
-        model.inner_lr = lr.parse()?;
+        model.spec.inner_lr = lr.parse()?;
     }
     if let Some(n) = args.get(5).filter(|s| *s != "-") {
-        model.max_inner = n.parse()?;
+        model.spec.max_inner = n.parse()?;
     }
-    println!("inner rate {} cap {}", model.inner_lr, model.max_inner);
+    println!(
+        "inner rate {} cap {}",
+        model.spec.inner_lr, model.spec.max_inner
+    );
     let episodes = world.episodes(Split::Val, Some(per_file))?;
     println!(
         "adaptation mode {:?}, spatial map {} x {}",
-        model.adapt_mode, model.dims.map_rows, model.dims.map_cols
+        model.spec.adapt_mode, model.dims.map_rows, model.dims.map_cols
     );
     if let Some(a) = args.get(7) {
-        model.inner_rule.disc_lr = Some(a.parse()?);
-        model.inner_rule.validate()?;
+        model.spec.inner_rule.disc_lr = Some(a.parse()?);
+        model.spec.inner_rule.validate()?;
     }
     let records = emd_report::measure(&world, &model, &episodes)?;
     for (name, kind) in [("seen", TargetKind::Seen), ("unseen", TargetKind::Unseen)] {

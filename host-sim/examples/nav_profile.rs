@@ -6,6 +6,7 @@
 //!     mcu|paper f32|int8 full|efficient step|adapt SECONDS [fast|compact]
 //! perf record target/release/examples/nav_profile paper int8 efficient adapt 5
 //! ```
+use gman_core::spec::ModelSpec;
 use std::hint::black_box;
 use std::time::Instant;
 
@@ -24,7 +25,10 @@ fn run<M: Mode>(w: NavWeights<'_>, what: &str, secs: f64, fp: Footprint) {
     let o: Vec<f32> = (0..d.feat).map(|_| uniform(&mut rng)).collect();
     let mut arena = vec![0.0f32; Navigator::<M, { K + 1 }>::arena_len_for(&d, fp)];
     let cfg = NavConfig {
-        adapt: what == "adapt",
+        model: ModelSpec {
+            adapt: what == "adapt",
+            ..NavConfig::default().model
+        },
         footprint: fp,
         ..NavConfig::default()
     };

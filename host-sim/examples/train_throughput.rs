@@ -120,7 +120,7 @@ fn main() -> Result<()> {
     let (mut sps, mut cpus) = (Vec::new(), Vec::new());
     for rep in 0..a.reps {
         let mut model = NavModel::init(a.method, a.dims, 1, Some(&gen), None)?;
-        model.adapt_mode = mode;
+        model.spec.adapt_mode = mode;
         let mut state = TrainState::new(model, adam);
         let opts = TrainOptions {
             updates: a.warmup,

@@ -9,6 +9,7 @@ use gman_core::matrix::{MatRef, Scales};
 use gman_core::navigator::{Efficient, Full, Mode, NavConfig, NavWeights, Navigator};
 use gman_core::quant::quantize_rows;
 use gman_core::rng::{fill_gaussian, Xoshiro128};
+use gman_core::spec::ModelSpec;
 use gman_core::Dims;
 
 fn avx2_or_skip() -> Option<&'static dyn Kernels> {
@@ -175,7 +176,10 @@ fn episode<M: Mode>(bytes: &[u8], k: Option<&'static dyn Kernels>) -> Vec<u32> {
     }
     let mut arena = vec![0.0f32; Navigator::<M, K>::arena_len(&d)];
     let cfg = NavConfig {
-        adapt: true,
+        model: ModelSpec {
+            adapt: true,
+            ..NavConfig::default().model
+        },
         ..NavConfig::default()
     };
     let mut nav: Navigator<'_, M, K> = Navigator::new(w, &mut arena, cfg).unwrap();

@@ -39,7 +39,7 @@ fn model(method: Method, dims: Dims, mode: AdaptMode, seed: u64) -> NavModel {
     let mut rng = gman_core::rng::Xoshiro128::seed_from_u64(seed);
     let g = init_generator(&dims, &mut rng).unwrap();
     let mut m = NavModel::init(method, dims, seed, Some(&g), None).unwrap();
-    m.adapt_mode = mode;
+    m.spec.adapt_mode = mode;
     m
 }
 
@@ -238,7 +238,7 @@ fn cases() -> Vec<Case> {
 fn case_model(c: &Case) -> NavModel {
     let mut m = model(c.method, c.dims, c.mode, 3);
     m.privileged = c.privileged;
-    m.noise = c.noise;
+    m.spec.noise = c.noise;
     m
 }
 
@@ -318,7 +318,7 @@ fn batched_episodes_are_the_episodes_run_alone() {
 /// The actions of the episode `spec` run by a gman-core navigator alone over the model (its
 /// own `step_map`, no training): what every training lane must reproduce.
 fn navigator_actions(world: &World, m: &NavModel, spec: &EpisodeSpec, max: u32) -> Vec<u8> {
-    match m.adapt_mode {
+    match m.spec.adapt_mode {
         AdaptMode::Full => navigator_actions_in::<Full>(world, m, spec, max),
         AdaptMode::Efficient => navigator_actions_in::<Efficient>(world, m, spec, max),
     }
@@ -591,7 +591,7 @@ fn adapt_cases() -> Vec<(Case, f32)> {
 
 fn adapt_model(c: &Case, inner_lr: f32) -> NavModel {
     let mut m = case_model(c);
-    m.inner_lr = inner_lr;
+    m.spec.inner_lr = inner_lr;
     let b = m.params.get_mut("ActorB").unwrap();
     b.data[gman_core::Action::Done.index()] -= 4.0;
     m
@@ -672,7 +672,7 @@ fn adapting_batched_runs_are_reproducible_and_resume_bit_for_bit() {
     for mode in [AdaptMode::Efficient, AdaptMode::Full] {
         let st = || {
             let mut m = model(Method::Gman, Dims::MCU, mode, 1);
-            m.inner_lr = 0.01;
+            m.spec.inner_lr = 0.01;
             m.params.get_mut("ActorB").unwrap().data[gman_core::Action::Done.index()] -= 3.0;
             TrainState::new(
                 m,
@@ -716,7 +716,7 @@ fn the_second_order_meta_gradient_refuses_batched_episodes() {
     let world = World::synthetic(7);
     let d = tmp("gman");
     let mut st = state(Method::Gman);
-    st.model.adapt_mode = AdaptMode::Full;
+    st.model.spec.adapt_mode = AdaptMode::Full;
     let mut o = opts(d.clone(), 1, 4);
     o.run.meta_order = 2;
     let e = train(&world, &o, &mut st).unwrap_err();

@@ -356,8 +356,8 @@ fn short_training_run_then_blob_replays_through_gman_core() {
     // the device's mode.
     let dims = Dims::MCU.with_map(3, 3, 4);
     let mut model = NavModel::init(Method::Gman, dims, 2, Some(&g), None).unwrap();
-    model.inner_lr = 1e-2;
-    model.adapt_mode = gman_core::memory::AdaptMode::Efficient;
+    model.spec.inner_lr = 1e-2;
+    model.spec.adapt_mode = gman_core::memory::AdaptMode::Efficient;
     let before = model.params.clone();
     let mut st = TrainState::new(
         model,

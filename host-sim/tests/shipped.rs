@@ -68,7 +68,7 @@ fn every_shipped_blob_loads_and_runs() {
             let with_ps = blob.dims().ps > 0;
             let m = load_model_with_ps(&path, None, with_ps.then_some(ps.as_path()))
                 .unwrap_or_else(|e| panic!("{name}: {e:#}"));
-            let adapted = match m.adapt_mode {
+            let adapted = match m.spec.adapt_mode {
                 AdaptMode::Full => run::<Full>(&m, &name),
                 AdaptMode::Efficient => run::<Efficient>(&m, &name),
             };

@@ -37,7 +37,7 @@ fn state() -> TrainState {
     let mut rng = gman_core::rng::Xoshiro128::seed_from_u64(1);
     let g = init_generator(&dims, &mut rng).unwrap();
     let mut m = NavModel::init(Method::Gman, dims, 1, Some(&g), None).unwrap();
-    m.adapt_mode = AdaptMode::Efficient;
+    m.spec.adapt_mode = AdaptMode::Efficient;
     TrainState::new(
         m,
         AdamConfig {

@@ -154,7 +154,7 @@ static void refused_init_leaves_the_live_navigator(const blob_t *old) {
     STATUS(reset(live.h), GMAN_OK);
     STATUS(reset(ref.h), GMAN_OK);
     CHECK(lockstep(live.h, ref.h, 0, 5) == 0, "the navigators differ before the refused init");
-    gman_options bg = {0, 2, 0, 0}; /* background needs a commit delay; OLD records 0 */
+    gman_options bg = {.schedule = 2}; /* background needs a commit delay; OLD records 0 */
     gman_nav *other = (gman_nav *)1;
     STATUS(gman_init(old->bytes, old->len, live.mem + 3, live.len, &bg, &other), GMAN_ERR_CONFIG);
     CHECK(other == NULL, "a refused gman_init left *out non-null");
@@ -204,10 +204,10 @@ static void overlap_alignment_and_header_crc(const blob_t *old, const blob_t *ne
     CHECK(strstr(gman_status_str(GMAN_ERR_ALIGNMENT), "float buffer") == NULL,
           "the ALIGNMENT text speaks of a float buffer: %s", gman_status_str(GMAN_ERR_ALIGNMENT));
 
-    gman_options strict = {0, 0, 0, 1};
+    gman_options strict = {.require_header_crc = 1};
     STATUS(gman_init(old->bytes, old->len, arena, (size_t)info.arena_bytes, &strict, &h), GMAN_ERR_BLOB_VERSION);
     STATUS(gman_init(new_->bytes, new_->len, arena, (size_t)info.arena_bytes, &strict, &h), GMAN_OK);
-    gman_options two = {0, 0, 0, 2};
+    gman_options two = {.require_header_crc = 2};
     STATUS(gman_init(new_->bytes, new_->len, arena, (size_t)info.arena_bytes, &two, &h), GMAN_ERR_CONFIG);
     free(arena);
     free(n.mem);
@@ -385,13 +385,16 @@ static void sweep_blob_functions(const blob_t *b, nav_t *v) {
     /* The live navigator's own arena as the blob of another init, and its handle as out. */
     SWEEP(F_INIT, gman_init(v->mem + 3, b->len < v->len ? b->len : v->len, arena, alen, NULL, &h), GMAN_ERR_BLOB);
     SWEEP(F_INIT, gman_init(b->bytes, b->len, v->mem + 3, v->len, NULL, (gman_nav **)(v->mem + 64)), GMAN_ERR_OVERLAP);
-    gman_options o = {9, 0, 0, 0};
+    gman_options o = {.selection = 9};
     SWEEP(F_INIT, gman_init(b->bytes, b->len, arena, alen, &o, &h), GMAN_ERR_CONFIG);
     o.selection = 0;
     o.schedule = 3;
     SWEEP(F_INIT, gman_init(b->bytes, b->len, arena, alen, &o, &h), GMAN_ERR_CONFIG);
     o.schedule = 0;
-    o.commit_delay = 64;
+    o.settings.commit_delay = 64;
+    SWEEP(F_INIT, gman_init(b->bytes, b->len, arena, alen, &o, &h), GMAN_ERR_CONFIG);
+    o.settings.commit_delay = 0;
+    o.settings.adapt = 1; /* the blob's settings are the model's: only the delay is the device's */
     SWEEP(F_INIT, gman_init(b->bytes, b->len, arena, alen, &o, &h), GMAN_ERR_CONFIG);
     /* A corrupt copy: one bit flipped in the payload. */
     uint8_t *copy = malloc(b->len);
@@ -429,9 +432,9 @@ int main(int argc, char **argv) {
     gman_info oi;
     STATUS(gman_inspect(old.bytes, old.len, &oi), GMAN_OK);
     STATUS(gman_inspect(new_.bytes, new_.len, &info), GMAN_OK);
-    CHECK(oi.format_version < 4 && info.format_version >= 4 && oi.commit_delay == 0,
+    CHECK(oi.format_version < 4 && info.format_version >= 4 && oi.settings.commit_delay == 0,
           "want an old blob with delay 0 and a v4 one (got v%u delay %u, v%u)",
-          oi.format_version, oi.commit_delay, info.format_version);
+          oi.format_version, oi.settings.commit_delay, info.format_version);
     CHECK(oi.arena_bytes == info.arena_bytes && oi.feat == info.feat, "the blobs' sizes differ");
     if (failures) return 1;
 

@@ -57,8 +57,8 @@ impl Agent for CApiAgent {
         let opts = gman_options {
             selection: 1, // sampled, as `gman eval` runs
             schedule: 0,
-            commit_delay: 0,
             require_header_crc: 0,
+            settings: gman_settings::default(),
         };
         let mut nav = null_mut();
         // SAFETY: the blob and the arena outlive the handle (both owned by self, unmoved

@@ -14,6 +14,7 @@ use gman_core::navigator::{
     Efficient, Emd, Full, Mode, NavConfig, NavWeights, Navigator, NoiseMode,
 };
 use gman_core::rng::{fill_gaussian, uniform, Xoshiro128};
+use gman_core::spec::{InnerRule, ModelSpec};
 use gman_core::Dims;
 
 const K: usize = 10;
@@ -97,11 +98,17 @@ fn check_mode<M: Mode>(w: impl Fn() -> NavWeights<'static>, what: &str) {
     for noise in [NoiseMode::Gaussian, NoiseMode::Zero] {
         for emd in [Emd::Discriminator, Emd::CosSim] {
             let cfg = NavConfig {
-                alpha_disc: 0.05,
-                alpha_adapt: 0.1,
-                max_inner_updates: 3,
-                noise,
-                emd,
+                model: ModelSpec {
+                    inner_lr: 0.1,
+                    max_inner: 3,
+                    noise,
+                    emd,
+                    inner_rule: InnerRule {
+                        disc_lr: Some(0.05),
+                        ..InnerRule::PAPER
+                    },
+                    ..NavConfig::default().model
+                },
                 ..NavConfig::default()
             };
             let base = episode::<M>(w(), cfg, false);
@@ -225,7 +232,7 @@ fn compact_psi_gives_the_same_episode_in_every_footprint() {
     let bytes: &'static [u8] = Vec::leak(bytes);
     let blob: &'static Blob<'static> = Box::leak(Box::new(Blob::parse(bytes).unwrap()));
     let i8w = move || NavWeights::from_blob(blob, &dims).unwrap();
-    assert!(blob.nav_config().compact_psi);
+    assert!(blob.nav_config().model.compact_psi);
     for (what, w) in [
         ("f32", &f32w as &dyn Fn() -> NavWeights<'static>),
         ("int8", &i8w),
@@ -233,12 +240,18 @@ fn compact_psi_gives_the_same_episode_in_every_footprint() {
         for noise in [NoiseMode::Gaussian, NoiseMode::Zero] {
             for disc_steps in [1, 2] {
                 let cfg = NavConfig {
-                    alpha_disc: 0.05,
-                    alpha_adapt: 0.1,
-                    max_inner_updates: 3,
-                    noise,
-                    disc_steps,
-                    compact_psi: true,
+                    model: ModelSpec {
+                        inner_lr: 0.1,
+                        max_inner: 3,
+                        noise,
+                        compact_psi: true,
+                        inner_rule: InnerRule {
+                            disc_lr: Some(0.05),
+                            disc_steps,
+                            ..InnerRule::PAPER
+                        },
+                        ..NavConfig::default().model
+                    },
                     ..NavConfig::default()
                 };
                 let base = episode::<Efficient>(w(), cfg, false);
@@ -263,7 +276,10 @@ fn compact_psi_gives_the_same_episode_in_every_footprint() {
                 let plain = episode::<Efficient>(
                     w(),
                     NavConfig {
-                        compact_psi: false,
+                        model: ModelSpec {
+                            compact_psi: false,
+                            ..cfg.model
+                        },
                         ..cfg
                     },
                     false,
@@ -293,8 +309,11 @@ fn minimal_footprint_is_smaller_and_refuses_what_it_cannot_run() {
         .unwrap()
     };
     let cfg = NavConfig {
+        model: ModelSpec {
+            compact_psi: true,
+            ..NavConfig::default().model
+        },
         footprint: Footprint::Minimal,
-        compact_psi: true,
         ..NavConfig::default()
     };
     let n = Navigator::<Efficient, K>::arena_len_for(&dims, Footprint::Minimal);
@@ -302,7 +321,10 @@ fn minimal_footprint_is_smaller_and_refuses_what_it_cannot_run() {
     assert!(Navigator::<Efficient, K>::new(w(), &mut arena, cfg).is_ok());
     // Without the compact observations, in Full mode, with CosSim: a typed error.
     let plain = NavConfig {
-        compact_psi: false,
+        model: ModelSpec {
+            compact_psi: false,
+            ..cfg.model
+        },
         ..cfg
     };
     let e = Navigator::<Efficient, K>::new(w(), &mut arena, plain).err();
@@ -311,7 +333,10 @@ fn minimal_footprint_is_smaller_and_refuses_what_it_cannot_run() {
         "the refusal names the export flag: {e:?}"
     );
     let cos = NavConfig {
-        emd: Emd::CosSim,
+        model: ModelSpec {
+            emd: Emd::CosSim,
+            ..cfg.model
+        },
         ..cfg
     };
     let e = Navigator::<Efficient, K>::new(w(), &mut arena, cos).err();
@@ -368,9 +393,12 @@ fn zero_noise_psi_keeps_no_noise_and_one_feature() {
         .unwrap()
     };
     let cfg = NavConfig {
+        model: ModelSpec {
+            compact_psi: true,
+            noise: NoiseMode::Zero,
+            ..NavConfig::default().model
+        },
         footprint: Footprint::Minimal,
-        compact_psi: true,
-        noise: NoiseMode::Zero,
         ..NavConfig::default()
     };
     let n = arena_len_noise(
@@ -383,7 +411,10 @@ fn zero_noise_psi_keeps_no_noise_and_one_feature() {
     let mut arena = vec![0.0f32; n];
     assert!(Navigator::<Efficient, 20>::new(w(), &mut arena, cfg).is_ok());
     let gauss = NavConfig {
-        noise: NoiseMode::Gaussian,
+        model: ModelSpec {
+            noise: NoiseMode::Gaussian,
+            ..cfg.model
+        },
         ..cfg
     };
     assert!(Navigator::<Efficient, 20>::new(w(), &mut arena, gauss).is_err());

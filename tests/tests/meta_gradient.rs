@@ -20,6 +20,7 @@ use gman_core::blob::TensorId;
 use gman_core::matrix::MatRef;
 use gman_core::navigator::{Full, NavConfig, NavWeights, Navigator, Schedule, Selection};
 use gman_core::rng::{fill_gaussian, uniform, Xoshiro128};
+use gman_core::spec::{InnerRule, ModelSpec};
 use gman_core::{Dims, NUM_ACTIONS};
 use gman_host_sim::optim::params::{Param, ParamSet};
 use gman_host_sim::train::a3c::{output_grads, A3cConfig};
@@ -84,12 +85,18 @@ fn record(p: &ParamSet, kind: AdaptLossKind, delay: u32) -> Recorded {
     })
     .unwrap();
     let cfg = NavConfig {
+        model: ModelSpec {
+            inner_lr: ALPHA,
+            inner_rule: InnerRule {
+                disc_lr: Some(0.05),
+                adapt_loss: kind,
+                commit_delay: delay,
+                ..InnerRule::PAPER
+            },
+            ..NavConfig::default().model
+        },
         schedule: Schedule::Manual,
         selection: Selection::Sample,
-        alpha_adapt: ALPHA,
-        alpha_disc: 0.05,
-        adapt_loss: kind,
-        commit_delay: delay,
         ..NavConfig::default()
     };
     let mut arena = vec![0.0f32; Navigator::<Full, K>::arena_len(&TINY)];

@@ -11,6 +11,7 @@ use gman_core::navigator::{
 };
 use gman_core::policy::{PolicyCache, PolicyInput};
 use gman_core::rng::{fill_gaussian, uniform, Xoshiro128};
+use gman_core::spec::{InnerRule, ModelSpec};
 use gman_core::{Dims, Error, NUM_ACTIONS};
 use gman_tests::reference::nav::NavRef;
 use gman_tests::reference::{Dense64, Disc64, Gen64, Lstm64};
@@ -81,10 +82,10 @@ fn reference(
         actor: d64(dims, w, TensorId::ActorW, TensorId::ActorB, efficient),
         critic: d64(dims, w, TensorId::CriticW, TensorId::CriticB, false),
         efficient,
-        alpha_disc: cfg.alpha_disc as f64,
-        alpha_adapt: cfg.alpha_adapt as f64,
-        lambda: cfg.ld.lambda as f64,
-        paper_loss: cfg.adapt_loss == AdaptLossKind::Paper,
+        alpha_disc: cfg.model.alpha_disc() as f64,
+        alpha_adapt: cfg.model.inner_lr as f64,
+        lambda: cfg.ld_lambda as f64,
+        paper_loss: cfg.model.inner_rule.adapt_loss == AdaptLossKind::Paper,
         h: vec![0.0; lh],
         c: vec![0.0; lh],
         prev: vec![0.0; 6],
@@ -169,10 +170,16 @@ fn agree<M: Mode, const K: usize>(dims: Dims, kind: AdaptLossKind, seed: u64) {
     let eff = matches!(M::MODE, gman_core::memory::AdaptMode::Efficient);
     let w = weights(&dims, seed, 0.1);
     let cfg = NavConfig {
-        alpha_disc: 0.05,
-        alpha_adapt: 0.05,
-        adapt_loss: kind,
-        noise: NoiseMode::Gaussian,
+        model: ModelSpec {
+            inner_lr: 0.05,
+            noise: NoiseMode::Gaussian,
+            inner_rule: InnerRule {
+                disc_lr: Some(0.05),
+                adapt_loss: kind,
+                ..InnerRule::PAPER
+            },
+            ..NavConfig::default().model
+        },
         selection: Selection::Greedy,
         ..NavConfig::default()
     };
@@ -270,9 +277,15 @@ fn paper_preset_with_reduced_hidden_sizes_agrees_with_f64_reference() {
 
 fn run_episode(w: &[Vec<f32>], dims: &Dims, seed: u64) -> (Vec<u8>, Vec<u32>) {
     let cfg = NavConfig {
+        model: ModelSpec {
+            inner_lr: 1e-2,
+            inner_rule: InnerRule {
+                disc_lr: Some(1e-2),
+                ..InnerRule::PAPER
+            },
+            ..NavConfig::default().model
+        },
         selection: Selection::Sample,
-        alpha_disc: 1e-2,
-        alpha_adapt: 1e-2,
         ..NavConfig::default()
     };
     let mut arena = vec![0.0f32; Navigator::<Full, 10>::arena_len(dims)];
@@ -384,10 +397,16 @@ fn adaptation_moves_generated_feature_towards_observations() {
     let dims = Dims::MCU;
     let w = weights(&dims, 8, 0.05);
     let cfg = NavConfig {
-        alpha_disc: 0.05,
-        alpha_adapt: 0.2,
-        max_inner_updates: 30,
-        noise: NoiseMode::Zero,
+        model: ModelSpec {
+            inner_lr: 0.2,
+            max_inner: 30,
+            noise: NoiseMode::Zero,
+            inner_rule: InnerRule {
+                disc_lr: Some(0.05),
+                ..InnerRule::PAPER
+            },
+            ..NavConfig::default().model
+        },
         ..NavConfig::default()
     };
     let mut arena = vec![0.0f32; Navigator::<Full, 10>::arena_len(&dims)];
@@ -460,10 +479,16 @@ fn generator_output_probes_g_without_changing_the_episode() {
     let w = weights(&dims, 8, 0.05);
     let run = |probe: bool, noise: NoiseMode| {
         let cfg = NavConfig {
-            alpha_disc: 0.05,
-            alpha_adapt: 0.2,
-            max_inner_updates: 3,
-            noise,
+            model: ModelSpec {
+                inner_lr: 0.2,
+                max_inner: 3,
+                noise,
+                inner_rule: InnerRule {
+                    disc_lr: Some(0.05),
+                    ..InnerRule::PAPER
+                },
+                ..NavConfig::default().model
+            },
             ..NavConfig::default()
         };
         let mut arena = vec![0.0f32; Navigator::<Efficient, 10>::arena_len(&dims)];
@@ -550,10 +575,16 @@ fn head_only_adapts_the_actor_head_and_not_g() {
     let w = weights(&dims, 8, 0.05);
     let run = |head_only: bool| {
         let cfg = NavConfig {
-            alpha_disc: 0.05,
-            alpha_adapt: 0.2,
-            max_inner_updates: 3,
-            head_only,
+            model: ModelSpec {
+                inner_lr: 0.2,
+                max_inner: 3,
+                inner_rule: InnerRule {
+                    disc_lr: Some(0.05),
+                    head_only,
+                    ..InnerRule::PAPER
+                },
+                ..NavConfig::default().model
+            },
             ..NavConfig::default()
         };
         let mut arena = vec![0.0f32; Navigator::<Efficient, 10>::arena_len(&dims)];
@@ -607,9 +638,15 @@ fn batched_trunk_is_step(defer: bool) {
     let dims = Dims::MCU;
     let w = weights(&dims, 8, 0.05);
     let cfg = NavConfig {
-        alpha_disc: 0.05,
-        alpha_adapt: 0.2,
-        max_inner_updates: 3,
+        model: ModelSpec {
+            inner_lr: 0.2,
+            max_inner: 3,
+            inner_rule: InnerRule {
+                disc_lr: Some(0.05),
+                ..InnerRule::PAPER
+            },
+            ..NavConfig::default().model
+        },
         ..NavConfig::default()
     };
     const B: usize = 3;
@@ -744,8 +781,11 @@ fn cossim_variant_adapts_without_discriminator() {
     let dims = Dims::MCU;
     let w = weights(&dims, 9, 0.1);
     let cfg = NavConfig {
-        emd: gman_core::navigator::Emd::CosSim,
-        alpha_adapt: 0.05,
+        model: ModelSpec {
+            emd: gman_core::navigator::Emd::CosSim,
+            inner_lr: 0.05,
+            ..NavConfig::default().model
+        },
         ..NavConfig::default()
     };
     let mut arena = vec![0.0f32; Navigator::<Full, 5>::arena_len(&dims)];
@@ -778,13 +818,19 @@ fn inner_rule_levers_do_what_they_say() {
     let w = weights(&dims, 8, 0.05);
     let run_with = |disc_steps: u32, step_rule: StepRule, disc_head_reset: bool| {
         let cfg = NavConfig {
-            alpha_disc: 0.05,
-            alpha_adapt: 0.3,
-            max_inner_updates: 1,
-            noise: NoiseMode::Zero,
-            disc_steps,
-            step_rule,
-            disc_head_reset,
+            model: ModelSpec {
+                inner_lr: 0.3,
+                max_inner: 1,
+                noise: NoiseMode::Zero,
+                inner_rule: InnerRule {
+                    disc_lr: Some(0.05),
+                    disc_steps,
+                    step_rule,
+                    disc_head_reset,
+                    ..InnerRule::PAPER
+                },
+                ..NavConfig::default().model
+            },
             ..NavConfig::default()
         };
         let mut arena = vec![0.0f32; Navigator::<Full, 10>::arena_len(&dims)];
@@ -875,12 +921,18 @@ fn zero_noise_fusion_cache_is_recomputing_every_segment_bit_for_bit() {
     let bytes = gman_host_sim::blob_edit::reencode_with_activations(&bytes, true).unwrap();
     let blob = Blob::parse(&bytes).unwrap();
     let cfg = NavConfig {
-        adapt: true,
-        alpha_disc: 0.05,
-        alpha_adapt: 0.5,
-        max_inner_updates: 10,
-        noise: NoiseMode::Zero,
-        commit_delay: 0,
+        model: ModelSpec {
+            adapt: true,
+            inner_lr: 0.5,
+            max_inner: 10,
+            noise: NoiseMode::Zero,
+            inner_rule: InnerRule {
+                disc_lr: Some(0.05),
+                commit_delay: 0,
+                ..InnerRule::PAPER
+            },
+            ..NavConfig::default().model
+        },
         ..NavConfig::default()
     };
     for u8_map in [false, true] {

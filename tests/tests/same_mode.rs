@@ -33,8 +33,8 @@ fn model(mode: AdaptMode, dims: gman_core::Dims) -> NavModel {
         gen.add(id.name(), r, c, init, &mut rng).unwrap();
     }
     let mut m = NavModel::init(Method::Gman, dims, 3, Some(&gen), None).unwrap();
-    m.inner_lr = 0.05;
-    m.adapt_mode = mode;
+    m.spec.inner_lr = 0.05;
+    m.spec.adapt_mode = mode;
     // A policy that rarely stops, so episodes are long enough for inner updates.
     m.params.get_mut("ActorB").unwrap().data[gman_core::Action::Done.index()] = -4.0;
     m
@@ -86,7 +86,7 @@ fn check(mode: AdaptMode, dims: gman_core::Dims) {
 fn check_with(mode: AdaptMode, dims: gman_core::Dims, rule: InnerRule) {
     let world = World::synthetic(11);
     let mut m = model(mode, dims);
-    m.inner_rule = rule;
+    m.spec.inner_rule = rule;
     let cycle = K + rule.commit_delay as usize;
     let blob = m.to_blob(false).unwrap();
     assert_eq!(Blob::parse(&blob).unwrap().header().adapt_mode(), mode);
@@ -170,8 +170,7 @@ fn trainer_and_device_agree_with_the_levers() {
         disc_head_reset: true,
         adapt_loss: AdaptLossKind::Reference,
         reference_critic: true,
-        head_only: false,
-        commit_delay: 0,
+        ..InnerRule::PAPER
     };
     check_with(AdaptMode::Efficient, gman_core::Dims::MCU, rule);
     // The reference's default: only the actor head adapts (with the normalised step, whose
@@ -210,8 +209,8 @@ fn trainer_and_device_agree_with_a_commit_delay() {
         disc_head_reset: true,
         adapt_loss: AdaptLossKind::Reference,
         reference_critic: true,
-        head_only: false,
         commit_delay: 7,
+        ..InnerRule::PAPER
     };
     check_with(AdaptMode::Efficient, gman_core::Dims::MCU, rule);
 }

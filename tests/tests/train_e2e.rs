@@ -50,7 +50,7 @@ fn gman_model(seed: u64) -> NavModel {
     let mut rng = gman_core::rng::Xoshiro128::seed_from_u64(seed);
     let g = init_generator(&Dims::MCU, &mut rng).unwrap();
     let mut m = NavModel::init(Method::Gman, Dims::MCU, seed, Some(&g), None).unwrap();
-    m.inner_lr = 1e-2; // large enough that the inner loop visibly changes parameters
+    m.spec.inner_lr = 1e-2; // large enough that the inner loop visibly changes parameters
     m
 }
 
@@ -194,7 +194,7 @@ fn exported_int8_blob_host_path_and_core_api_agree() {
     let dir = tmp("export");
     // Meta-trained in the mode the device runs (the mcu default of `gman train`).
     let mut model = gman_model(2);
-    model.adapt_mode = gman_core::memory::AdaptMode::Efficient;
+    model.spec.adapt_mode = gman_core::memory::AdaptMode::Efficient;
     let mut st = TrainState::new(
         model,
         AdamConfig {
@@ -213,7 +213,10 @@ fn exported_int8_blob_host_path_and_core_api_agree() {
         "blob flags carry the adapting method"
     );
     // The blob carries the inner-loop settings the model was trained with (inner_lr 1e-2).
-    assert_eq!((host.inner_lr, host.max_inner), (1e-2, st.model.max_inner));
+    assert_eq!(
+        (host.spec.inner_lr, host.spec.max_inner),
+        (1e-2, st.model.spec.max_inner)
+    );
     assert_eq!(
         host.nav_config(false),
         NavConfig {
@@ -323,9 +326,9 @@ fn blob_carries_the_inner_loop_settings_to_the_device_config() {
         (Method::GmanNoemd, NoiseMode::Zero, 1e-3, 1, false),
     ] {
         let mut m = NavModel::init(method, Dims::MCU, 5, Some(&g), None).unwrap();
-        m.noise = noise;
-        m.inner_lr = lr;
-        m.max_inner = cap;
+        m.spec.noise = noise;
+        m.spec.inner_lr = lr;
+        m.spec.max_inner = cap;
         let bytes = m.to_blob(int8).unwrap();
         let blob = Blob::parse(&bytes).unwrap();
         let h = blob.header();
@@ -337,7 +340,7 @@ fn blob_carries_the_inner_loop_settings_to_the_device_config() {
         );
         let back = gman_host_sim::model::model_from_blob(&bytes, None).unwrap();
         assert_eq!(
-            (back.inner_lr, back.max_inner, back.noise),
+            (back.spec.inner_lr, back.spec.max_inner, back.spec.noise),
             (lr, cap, noise)
         );
         // A blob does not say whether θ was trained by the outer loop: gman-noemd comes back
@@ -349,7 +352,7 @@ fn blob_carries_the_inner_loop_settings_to_the_device_config() {
         };
         assert_eq!(back.method, expected_method);
         let device = NavConfig::from_header(h);
-        assert_eq!(device.adapt, method.adapts_at_eval(), "{method:?}");
+        assert_eq!(device.model.adapt, method.adapts_at_eval(), "{method:?}");
         assert_eq!(
             back.nav_config(false),
             NavConfig {
@@ -364,7 +367,7 @@ fn blob_carries_the_inner_loop_settings_to_the_device_config() {
     }
     // The host refuses settings a blob cannot hold, naming the setting.
     let mut m = NavModel::init(Method::Gman, Dims::MCU, 5, Some(&g), None).unwrap();
-    m.inner_lr = f32::NAN;
+    m.spec.inner_lr = f32::NAN;
     let e = m.to_blob(true).unwrap_err().to_string();
     assert!(e.contains("inner_lr"), "{e}");
 }
@@ -472,7 +475,7 @@ fn gman_noemd_trains_the_generator_without_adapting() {
         .collect();
     let run = |method: Method| {
         let mut model = NavModel::init(method, Dims::MCU, 1, Some(&g), None).unwrap();
-        model.inner_lr = 1e-2;
+        model.spec.inner_lr = 1e-2;
         let mut worker = Worker::new(&model);
         let mut grads = model.params.zeros_like();
         let mut adaptations = 0;
@@ -520,13 +523,13 @@ fn gman_noemd_trains_the_generator_without_adapting() {
     );
     // The cap on inner updates survives a checkpoint round trip.
     let mut m = NavModel::init(Method::GmanNoemd, Dims::MCU, 1, Some(&g), None).unwrap();
-    m.max_inner = 7;
-    m.inner_lr = 0.05;
+    m.spec.max_inner = 7;
+    m.spec.inner_lr = 0.05;
     let dir = tmp("noemd");
     let mut st = TrainState::new(m, AdamConfig::default());
     train(&world, &opts(dir.clone(), 1), &mut st).unwrap();
     let back = load_model(&dir.join("checkpoint.ckpt"), None).unwrap();
     assert_eq!(back.method, Method::GmanNoemd);
-    assert_eq!(back.max_inner, 7);
-    assert_eq!(back.inner_lr, 0.05);
+    assert_eq!(back.spec.max_inner, 7);
+    assert_eq!(back.spec.inner_lr, 0.05);
 }

@@ -199,7 +199,7 @@ pub fn measure(world: &World, model: &NavModel, episodes: &[EpisodeSpec]) -> Res
     use rayon::prelude::*;
     let out: Vec<Option<Record>> = episodes
         .par_iter()
-        .map(|spec| match model.adapt_mode {
+        .map(|spec| match model.spec.adapt_mode {
             AdaptMode::Full => episode::<Full>(world, model, spec),
             AdaptMode::Efficient => episode::<Efficient>(world, model, spec),
         })

@@ -4,15 +4,19 @@ use std::path::PathBuf;
 
 use anyhow::{bail, Context, Result};
 use clap::Args;
+use gman_core::spec::{ModelSpec, Named};
 use gman_host_sim::emd_report::{self, Summary};
 use gman_host_sim::model::{load_model, NavModel};
 use gman_host_sim::sim::{Split, TargetKind, World};
-use serde::Serialize;
+use serde::ser::SerializeStruct;
+use serde::{Serialize, Serializer};
 
 use super::args::WorldArgs;
+use super::model_args::ModelArgs;
 
 /// `gman emd-report`.
 #[derive(Debug, Args)]
+#[command(mut_args(ModelArgs::emd_report_help))]
 pub struct EmdReportArgs {
     /// World selection.
     #[command(flatten)]
@@ -31,28 +35,9 @@ pub struct EmdReportArgs {
     /// At most N episodes per episode file (file order); all when omitted.
     #[arg(long, value_name = "N", default_value_t = 250)]
     pub episodes: usize,
-    /// Override the inner-loop rate α (α1 = α2).
-    #[arg(long, value_name = "ALPHA")]
-    pub inner_lr: Option<f32>,
-    /// Override α1 alone (D's ascent rate on L_D).
-    #[arg(long, value_name = "ALPHA1")]
-    pub disc_lr: Option<f32>,
-    /// Override D's ascent steps per inner update.
-    #[arg(long, value_name = "N")]
-    pub disc_steps: Option<u32>,
-    /// Override the descent step rule (`gradient` or `normalized`).
-    #[arg(long, value_parser = super::args::named::<gman_core::navigator::StepRule>())]
-    pub step_rule: Option<gman_core::navigator::StepRule>,
-    /// Override the cap on inner updates per episode.
-    #[arg(long, value_name = "N")]
-    pub max_inner: Option<u32>,
-    /// D restarts with every episode (layer 1 from ω, the output layer at zero): D starts with
-    /// no opinion and its first ascent step on L_D sets the head from the episode's buffer.
-    #[arg(long)]
-    pub disc_head_reset: bool,
-    /// The descent step adapts only the actor head (G stays at θ; the reference's default).
-    #[arg(long)]
-    pub adapt_head_only: bool,
+    /// Overrides of the model's settings (default: the model's own).
+    #[command(flatten)]
+    pub model: ModelArgs,
     /// Write the Fig. 3 picture (two scenes, PCA) to this PNG.
     #[arg(long, value_name = "OUT.png")]
     pub png: Option<PathBuf>,
@@ -65,16 +50,29 @@ pub struct EmdReportArgs {
     pub json: Option<PathBuf>,
 }
 
-#[derive(Serialize)]
+/// The `--json` summary: the agent, the split, the model's inner-loop settings by their
+/// keys, the summaries.
 struct Report<'a> {
     agent: String,
     split: &'a str,
-    inner_lr: f32,
-    max_inner: u32,
-    inner_rule: gman_host_sim::model::InnerRule,
-    mode: &'a str,
+    spec: &'a ModelSpec,
     seen: Summary,
     unseen: Summary,
+}
+
+impl Serialize for Report<'_> {
+    fn serialize<S: Serializer>(&self, s: S) -> std::result::Result<S::Ok, S::Error> {
+        let mut r = s.serialize_struct("Report", 8)?;
+        r.serialize_field("agent", &self.agent)?;
+        r.serialize_field("split", self.split)?;
+        r.serialize_field("inner_lr", &self.spec.inner_lr)?;
+        r.serialize_field("max_inner", &self.spec.max_inner)?;
+        r.serialize_field("inner_rule", &self.spec.inner_rule)?;
+        r.serialize_field("mode", self.spec.adapt_mode.name())?;
+        r.serialize_field("seen", &self.seen)?;
+        r.serialize_field("unseen", &self.unseen)?;
+        r.end()
+    }
 }
 
 /// Runs `gman emd-report`.
@@ -96,18 +94,18 @@ pub fn cmd_emd_report(a: EmdReportArgs) -> Result<()> {
         model.dims.map_cols,
         &format!("model {}", a.agent.display()),
     )?;
-    apply_inner_flags(&a, &mut model)?;
+    a.model.apply(&mut model.spec)?;
     let episodes = world.episodes(split, Some(a.episodes))?;
     eprintln!(
         "emd-report: {} episodes of {}, inner rate {} (α1 {}), cap {}, mode {:?}, {} D steps, {:?} step",
         episodes.len(),
         split.name(),
-        model.inner_lr,
-        model.inner_rule.disc_lr.unwrap_or(model.inner_lr),
-        model.max_inner,
-        model.adapt_mode,
-        model.inner_rule.disc_steps,
-        model.inner_rule.step_rule
+        model.spec.inner_lr,
+        model.spec.inner_rule.disc_lr.unwrap_or(model.spec.inner_lr),
+        model.spec.max_inner,
+        model.spec.adapt_mode,
+        model.spec.inner_rule.disc_steps,
+        model.spec.inner_rule.step_rule
     );
     let records = emd_report::measure(&world, &model, &episodes)?;
     let seen = emd_report::summarize(&records, TargetKind::Seen);
@@ -124,33 +122,6 @@ pub fn cmd_emd_report(a: EmdReportArgs) -> Result<()> {
         println!("no episode reached an inner update (does the model adapt? is k larger than the episodes?)");
     }
     write_outputs(&a, &world, &model, split, &records, seen, unseen)
-}
-
-/// The inner-rule flags given on the command line, applied to `model` and checked.
-fn apply_inner_flags(a: &EmdReportArgs, model: &mut NavModel) -> Result<()> {
-    if let Some(lr) = a.inner_lr {
-        model.inner_lr = lr;
-    }
-    if let Some(n) = a.max_inner {
-        model.max_inner = n;
-    }
-    if a.disc_lr.is_some() {
-        model.inner_rule.disc_lr = a.disc_lr;
-    }
-    if let Some(n) = a.disc_steps {
-        model.inner_rule.disc_steps = n;
-    }
-    if let Some(r) = a.step_rule {
-        model.inner_rule.step_rule = r;
-    }
-    if a.disc_head_reset {
-        model.inner_rule.disc_head_reset = true;
-    }
-    if a.adapt_head_only {
-        model.inner_rule.head_only = true;
-    }
-    model.spec().validate()?;
-    Ok(())
 }
 
 /// `--png` (Fig. 3), `--dump` (the records) and `--json` (the summaries).
@@ -184,10 +155,7 @@ fn write_outputs(
         let r = Report {
             agent: a.agent.display().to_string(),
             split: split.name(),
-            inner_lr: model.inner_lr,
-            max_inner: model.max_inner,
-            inner_rule: model.inner_rule,
-            mode: gman_core::spec::Named::name(model.adapt_mode),
+            spec: &model.spec,
             seen,
             unseen,
         };

@@ -11,10 +11,12 @@ use gman_host_sim::sim::{
 };
 
 use super::args::WorldArgs;
+use super::model_args::ModelArgs;
 use super::models::{self, agent_factory};
 
 /// `gman eval`.
 #[derive(Debug, Args)]
+#[command(mut_args(ModelArgs::eval_help))]
 pub struct EvalArgs {
     /// World selection.
     #[command(flatten)]
@@ -30,26 +32,9 @@ pub struct EvalArgs {
     /// `gman-nometa`: adversarial adaptation at test time only).
     #[arg(long, value_enum)]
     pub method: Option<gman_host_sim::model::Method>,
-    /// Override the model's inner-loop rate α (α1 = α2) at evaluation (default: the rate the
-    /// model was trained with, which checkpoints and blobs store and `gman inspect` shows; a
-    /// blob of format v1, which has no field for it, runs the paper's 1e-4).
-    #[arg(long, value_name = "ALPHA")]
-    pub inner_lr: Option<f32>,
-    /// Override the cap on inner updates per episode at evaluation (default: the model's, 4).
-    #[arg(long, value_name = "N")]
-    pub max_inner: Option<u32>,
-    /// At evaluation, the inner loop's descent step adapts only the actor head; G stays at θ
-    /// (the reference implementation's default).
-    #[arg(long)]
-    pub adapt_head_only: bool,
-    /// Override the inner update's commit delay D (steps from Ψ filling to the update taking
-    /// effect, 0..=63; default: the model's, 0 for models trained without it), e.g. to
-    /// measure what a device's delay costs a model. An experiment on the host: like every
-    /// override here it replaces what the model records. A device runs the blob's own
-    /// delay (the C API's `gman_options.commit_delay` may only add one to a blob that
-    /// records none).
-    #[arg(long, value_name = "D")]
-    pub commit_delay: Option<u32>,
+    /// Overrides of the model's settings (default: the model's own).
+    #[command(flatten)]
+    pub model: ModelArgs,
     /// The PS module of a PS variant's blob (`a3c-ps`, `gman-ps`, ...), which blobs do not
     /// carry: the `ps.ckpt` the run was trained with, or its training checkpoint.
     #[arg(long, value_name = "PS.ckpt")]
@@ -106,10 +91,7 @@ impl EvalArgs {
     fn overrides(&self) -> models::ModelOverrides {
         models::ModelOverrides {
             method: self.method,
-            inner_lr: self.inner_lr,
-            max_inner: self.max_inner,
-            head_only: self.adapt_head_only,
-            commit_delay: self.commit_delay,
+            model: self.model.clone(),
             ps: self.ps.clone(),
         }
     }
@@ -150,17 +132,12 @@ fn check_eval_flags(a: &EvalArgs) -> Result<()> {
         bail!("--seeds lists seed {dup} twice; each training seed must be averaged once");
     }
     if matches!(a.agent.as_str(), "random" | "oracle") {
-        for (flag, given) in [
-            ("--method", a.method.is_some()),
-            ("--inner-lr", a.inner_lr.is_some()),
-            ("--max-inner", a.max_inner.is_some()),
-        ] {
-            if given {
-                eprintln!(
-                    "warning: {flag} is ignored: it applies to model agents (a checkpoint or a weight blob), not to the built-in `{}` agent",
-                    a.agent
-                );
-            }
+        let method = a.method.is_some().then_some("--method");
+        for flag in method.into_iter().chain(a.model.given()) {
+            eprintln!(
+                "warning: {flag} is ignored: it applies to model agents (a checkpoint or a weight blob), not to the built-in `{}` agent",
+                a.agent
+            );
         }
     }
     Ok(())

@@ -53,7 +53,7 @@ fn print_header(path: &Path, blob: &Blob<'_>) {
 /// The model flags, the inner-loop settings and the navigator configuration they give.
 fn print_flags(blob: &Blob<'_>) {
     let h = blob.header();
-    let mf = h.model_flags();
+    let mf = h.spec();
     let mut flags = Vec::new();
     if mf.adapt {
         flags.push("adapt (GMAN inner loop on)");
@@ -65,7 +65,7 @@ fn print_flags(blob: &Blob<'_>) {
         flags.push("cosine-similarity EMD (no D)");
     }
     if mf.adapt {
-        flags.push(match mf.mode {
+        flags.push(match mf.adapt_mode {
             gman_core::memory::AdaptMode::Full => "Full adaptation mode",
             gman_core::memory::AdaptMode::Efficient => "Efficient adaptation mode",
         });
@@ -100,14 +100,14 @@ fn print_flags(blob: &Blob<'_>) {
     let cfg = blob.nav_config();
     println!(
         "navigator (NavConfig::from_header): adapt {}, emd {:?}, noise {:?}",
-        cfg.adapt, cfg.emd, cfg.noise
+        cfg.model.adapt, cfg.model.emd, cfg.model.noise
     );
 }
 
 /// Every setting the flags hold, named, whether on or off.
 fn print_settings(h: &gman_core::blob::Header) {
     use gman_core::schema::{AdaptLossKind, StepRule, FLAG_COMPACT_PSI, FLAG_INT8_ACTIVATIONS};
-    let mf = h.model_flags();
+    let mf = h.spec().inner_rule;
     let on = |b: bool| if b { "on" } else { "off" };
     println!(
         "settings: D ascent steps per inner update {}, descent step rule {}, D head reset {}, \

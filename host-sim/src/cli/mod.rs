@@ -17,6 +17,7 @@ pub mod export;
 pub mod inspect;
 #[cfg(feature = "offline")]
 pub mod make_offline_fixture;
+pub mod model_args;
 pub mod models;
 pub mod plot;
 pub mod pretrain_fg;

@@ -10,19 +10,15 @@ use gman_host_sim::model::{load_model_with_ps, Method};
 use gman_host_sim::sim::eval::AgentFactory;
 use gman_host_sim::sim::{OracleAgent, RandomAgent};
 
-/// Evaluation-time changes to a loaded model (`gman eval --method/--inner-lr/--max-inner`).
+use super::model_args::ModelArgs;
+
+/// Evaluation-time changes to a loaded model (`gman eval --method` and the model's settings).
 #[derive(Clone, Debug, Default)]
 pub struct ModelOverrides {
     /// Treat the model as this method.
     pub method: Option<Method>,
-    /// Inner-loop rate α (both α1 and α2).
-    pub inner_lr: Option<f32>,
-    /// Cap on inner updates per episode.
-    pub max_inner: Option<u32>,
-    /// The descent step adapts only the actor head (G stays at θ).
-    pub head_only: bool,
-    /// The inner update's commit delay in steps.
-    pub commit_delay: Option<u32>,
+    /// Settings that replace the model's own.
+    pub model: ModelArgs,
     /// The PS module of a PS variant's blob (a checkpoint file holding its tensors).
     pub ps: Option<PathBuf>,
 }
@@ -30,19 +26,9 @@ pub struct ModelOverrides {
 /// Model-file agents for `gman eval`: a checkpoint or a blob.
 pub fn model_factory(path: &Path, ov: &ModelOverrides) -> Result<(AgentFactory, String)> {
     let mut model = load_model_with_ps(path, ov.method, ov.ps.as_deref())?;
-    if let Some(lr) = ov.inner_lr {
-        model.inner_lr = lr;
-    }
-    if let Some(n) = ov.max_inner {
-        model.max_inner = n;
-    }
-    if ov.head_only {
-        model.inner_rule.head_only = true;
-    }
-    if let Some(d) = ov.commit_delay {
-        model.inner_rule.commit_delay = d;
-    }
-    model.spec().validate().context("the overridden settings")?;
+    ov.model
+        .apply(&mut model.spec)
+        .context("the overridden settings")?;
     let model = Arc::new(model);
     let label = format!("{} ({})", model.method.name(), path.display());
     let factory: AgentFactory = Box::new(move |_| Box::new(NavAgent::new(model.clone())));

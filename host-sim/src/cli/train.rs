@@ -168,7 +168,7 @@ fn train_on(
     // From here on `workers` counts the workers of all ranks, the number the run stores.
     let per_rank = a.workers;
     a.workers = per_rank.saturating_mul(ranks);
-    RunConfig::from_flags(&a).validate()?;
+    RunConfig::from_flags(&a)?.validate()?;
     if a.resume.is_some() && lead {
         // Flags that only shape a new run have no effect here: said so, not silently dropped.
         for (flag, id) in [("--fg", "fg"), ("--ps", "ps"), ("--config", "config")] {
@@ -342,7 +342,7 @@ fn new_run(a: &TrainArgs, world: &World, out: &Path, world_id: WorldId) -> Resul
     };
     let mut model = NavModel::init(a.method, dims, a.seed, gen.as_ref(), psm)?;
     model.privileged = a.privileged_feature;
-    model.set_spec(model_spec(a));
+    model.spec = model_spec(a)?;
     let adam = AdamConfig {
         lr: updates_and_lr(a).1,
         ..AdamConfig::default()
@@ -386,7 +386,7 @@ fn open_resumed(
         st.update
     );
     let run = RunConfig::stored(&st.model, &meta.run).resume(
-        &RunConfig::from_flags(a),
+        &RunConfig::from_flags(a)?,
         a.change_workers,
         explicit,
         &ck,

@@ -1,8 +1,9 @@
 //! `gman train`'s run configuration: the flags ([`TrainArgs`]), their defaults, the checks
 //! of their ranges and combinations, and [`RunConfig`], the settings a run keeps, built from
 //! the flags or from a checkpoint and validated by one function ([`RunConfig::validate`]);
-//! resuming is [`RunConfig::resume`], one comparison over the table of kept settings
-//! ([`KEPT`]).
+//! resuming is [`RunConfig::resume`], one comparison over the tables of kept settings (the
+//! model's, [`model_args::KEPT`], then the run's, [`KEPT`]). The model's flags are
+//! [`ModelArgs`], shared with `gman eval` and `gman emd-report`.
 
 use std::path::{Path, PathBuf};
 
@@ -10,8 +11,6 @@ use anyhow::{anyhow, bail, Context, Result};
 use clap::builder::TypedValueParser;
 use clap::{Args, ValueEnum};
 use gman_core::memory::AdaptMode;
-use gman_core::navigator::{NoiseMode, StepRule};
-use gman_core::schema::AdaptLossKind;
 use gman_core::spec::{check_map_grid, MAX_GRID_SIDE};
 use gman_host_sim::model::{InnerRule, Method, ModelSpec, NavModel};
 use gman_host_sim::optim::adam::AdamConfig;
@@ -20,7 +19,8 @@ use gman_host_sim::train::a3c::{A3cConfig, Objective};
 use gman_host_sim::train::state::RunSettings;
 use gman_host_sim::train::trainer::TrainOptions;
 
-use super::args::{named, PresetArg, WorldArgs};
+use super::args::{PresetArg, WorldArgs};
+use super::model_args::{self, differs, kept, Kept, ModelArgs};
 
 /// Training configuration presets.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -33,6 +33,7 @@ pub enum ConfigArg {
 
 /// `gman train`.
 #[derive(Debug, Args)]
+#[command(mut_args(ModelArgs::train_defaults))]
 pub struct TrainArgs {
     /// World selection (training episodes come from the training scenes).
     #[command(flatten, next_help_heading = "World")]
@@ -87,67 +88,9 @@ pub struct TrainArgs {
     /// Outer Adam learning rate β (overrides the config).
     #[arg(help_heading = "Optimisation", long)]
     pub lr: Option<f32>,
-    /// Inner learning rates α1 (D) and α2 (θ, φ) (paper: 1e-4).
-    #[arg(help_heading = "Inner loop (adaptation)", long, default_value_t = 1e-4)]
-    pub inner_lr: f32,
-    /// At most this many inner updates per episode (GMAN variants).
-    #[arg(help_heading = "Inner loop (adaptation)", long, default_value_t = gman_host_sim::model::DEFAULT_MAX_INNER)]
-    pub max_inner: u32,
-    /// α1 alone, D's ascent rate on L_D (default: --inner-lr, the paper's α1 = α2).
-    #[arg(help_heading = "Inner loop (adaptation)", long, value_name = "ALPHA1")]
-    pub disc_lr: Option<f32>,
-    /// D's ascent steps on L_D per inner update (paper: 1).
-    #[arg(
-        help_heading = "Inner loop (adaptation)",
-        long,
-        value_name = "N",
-        default_value_t = 1
-    )]
-    pub disc_steps: u32,
-    /// The descent step of θ and φ on L_ad: `gradient` (α2 ∇, the paper), `normalized`
-    /// (α2 ∇/‖∇‖: --inner-lr is then the step's length) or `per-group` (θ and φ each
-    /// normalised to that length). Recorded in the blob.
-    #[arg(
-        help_heading = "Inner loop (adaptation)",
-        long,
-        value_parser = named::<StepRule>(),
-        default_value = "gradient"
-    )]
-    pub step_rule: StepRule,
-    /// D restarts with every episode: layer 1 from ω, the output layer (w2, b2) at zero, so
-    /// D's first ascent step sets the head from the episode's own buffer; ω then does not
-    /// learn across episodes (paper: off, D persists). Recorded in the blob.
-    #[arg(help_heading = "Inner loop (adaptation)", long)]
-    pub disc_head_reset: bool,
-    /// The form of L_ad: `paper` (Eq. 3) or `reference` (‖Σ_t a_t (−D(x_t))‖₂, the
-    /// reference implementation's). Recorded in the blob.
-    #[arg(
-        help_heading = "Inner loop (adaptation)",
-        long,
-        value_parser = named::<AdaptLossKind>(),
-        default_value = "paper"
-    )]
-    pub adapt_loss: AdaptLossKind,
-    /// Scale L_D's critic terms by 10, as the reference implementation does (the paper: 1).
-    /// Recorded in the blob.
-    #[arg(help_heading = "Inner loop (adaptation)", long)]
-    pub reference_critic: bool,
-    /// The inner loop's descent step on L_ad adapts only the actor head; G stays at θ (the
-    /// reference implementation's default, whose G gets no inner gradient; the paper: G and
-    /// the head). Recorded in the blob.
-    #[arg(help_heading = "Inner loop (adaptation)", long)]
-    pub adapt_head_only: bool,
-    /// The inner update's commit delay D in steps (0..=63): the update that starts when Ψ
-    /// fills takes effect D steps later, the steps between acting on the current parameters
-    /// and not recorded in Ψ; what a device that computes the update in slices, or at a lower
-    /// priority, runs (see docs/device.md). 0: at once (the paper). Recorded in the blob.
-    #[arg(
-        help_heading = "Inner loop (adaptation)",
-        long,
-        default_value_t = 0,
-        value_name = "D"
-    )]
-    pub commit_delay: u32,
+    /// The model's settings (the paper's by default).
+    #[command(flatten, next_help_heading = "Inner loop (adaptation)")]
+    pub model: ModelArgs,
     /// Minimum steps per worker and update.
     #[arg(help_heading = "Episodes and reward", long, default_value_t = 40)]
     pub min_steps: u32,
@@ -173,11 +116,6 @@ pub struct TrainArgs {
     /// Channels of the shared per-cell layer over the map (the reference's 1x1 conv: 64).
     #[arg(help_heading = "Model", long, default_value_t = 8)]
     pub cell_embed: usize,
-    /// Adaptation mode of the inner loop (in training and on the device; blobs record it):
-    /// `efficient` (per-unit gains and biases, what the microcontroller runs) or `full`
-    /// (every parameter). Default: efficient for the mcu preset, full for paper.
-    #[arg(help_heading = "Inner loop (adaptation)", long, value_parser = named::<AdaptMode>())]
-    pub adapt_mode: Option<AdaptMode>,
     /// Training objective: `a3c` (the paper's actor-critic loss) or `dagger` (imitation of
     /// the shortest-path oracle on the learner's own states: the imitation ceiling).
     #[arg(help_heading = "Optimisation", long, value_enum, default_value = "a3c")]
@@ -186,15 +124,6 @@ pub struct TrainArgs {
     /// current scene in place of G's output (not exportable; methods without inner loop).
     #[arg(help_heading = "Model", long)]
     pub privileged_feature: bool,
-    /// Noise z of G at navigation time, in training and wherever the model runs (recorded in
-    /// the checkpoint and the blob; a resumed run keeps its own).
-    #[arg(
-        help_heading = "Inner loop (adaptation)",
-        long,
-        value_parser = named::<NoiseMode>(),
-        default_value = "gaussian"
-    )]
-    pub noise: NoiseMode,
     /// Meta-gradient order: 1 = first-order MAML (the gradient at the adapted parameters),
     /// 2 = exact through the inner SGD steps (Hessian-vector products by central finite
     /// differences of gradients).
@@ -228,34 +157,28 @@ fn parse_map_grid(s: &str) -> std::result::Result<(usize, usize), String> {
     Ok((r, c))
 }
 
-/// The model's switches the flags ask for (those of a new run).
-pub(super) fn model_spec(a: &TrainArgs) -> ModelSpec {
+/// The settings of a new run before its flags: the paper's ([`ModelSpec::paper`]) in the
+/// preset's adaptation mode, whether the model adapts and its EMD from the method.
+fn default_spec(a: &TrainArgs) -> ModelSpec {
     ModelSpec {
-        noise: a.noise,
-        inner_lr: a.inner_lr,
-        max_inner: a.max_inner,
-        adapt_mode: new_run_adapt_mode(a),
-        inner_rule: InnerRule {
-            disc_lr: a.disc_lr,
-            disc_steps: a.disc_steps,
-            step_rule: a.step_rule,
-            disc_head_reset: a.disc_head_reset,
-            adapt_loss: a.adapt_loss,
-            reference_critic: a.reference_critic,
-            head_only: a.adapt_head_only,
-            commit_delay: a.commit_delay,
-        },
         adapt: a.method.adapts_at_eval(),
         emd: a.method.emd(),
-        int8_activations: false,
-        compact_psi: false,
+        ..ModelSpec::paper(new_run_adapt_mode(a))
     }
+}
+
+/// The model's settings the flags ask for (those of a new run): [`default_spec`] with the
+/// flags applied, checked (an error names the setting by its flag).
+pub(super) fn model_spec(a: &TrainArgs) -> Result<ModelSpec> {
+    let mut spec = default_spec(a);
+    a.model.apply(&mut spec).map_err(|e| anyhow!("--{e}"))?;
+    Ok(spec)
 }
 
 /// The adaptation mode of a new run: `--adapt-mode`, else Full for the paper preset and
 /// Efficient (what a microcontroller runs) for mcu.
 fn new_run_adapt_mode(a: &TrainArgs) -> AdaptMode {
-    match (a.adapt_mode, a.preset) {
+    match (a.model.adapt_mode, a.preset) {
         (Some(m), _) => m,
         (None, PresetArg::Paper) => AdaptMode::Full,
         (None, _) => AdaptMode::Efficient,
@@ -280,9 +203,12 @@ pub(super) fn check_train_flags(a: &TrainArgs) -> Result<()> {
         bail!("--meta-order 2 is implemented for the Full adaptation mode; add --adapt-mode full");
     }
     // The commit delay only moves the update in time: the meta-gradient is the same recursion.
+    // (The ranges are `RunConfig::validate`'s to report.)
+    let mut spec = default_spec(a);
+    a.model.write(&mut spec);
     let rule = InnerRule {
         commit_delay: 0,
-        ..model_spec(a).inner_rule
+        ..spec.inner_rule
     };
     if a.meta_order == 2 && a.method.adapts_in_training() && !rule.is_paper() {
         bail!("--meta-order 2 differentiates the paper's inner rule only (one D step, the gradient step, α1 = α2); use --meta-order 1 with --disc-lr, --disc-steps, --step-rule, --disc-head-reset, --adapt-loss, --reference-critic or --adapt-head-only");
@@ -387,81 +313,40 @@ pub(super) struct RunConfig {
     run: RunSettings,
 }
 
-/// A setting a resumed run keeps: its flag, the flag's clap id, and its value in a
-/// [`RunConfig`] (`None`: not compared).
-type Kept = (
-    &'static str,
-    &'static str,
-    fn(&RunConfig, &RunConfig) -> Differs,
-);
-
-/// Two values of a setting as the refusal prints them, when they differ.
-type Differs = Option<(String, String)>;
-
-/// A [`Kept`] entry: `|c| get` reads the setting from a [`RunConfig`].
-macro_rules! kept {
-    ($flag:literal, $id:literal, |$c:ident| $get:expr) => {
-        ($flag, $id, |a: &RunConfig, b: &RunConfig| {
-            differs(a, b, |$c: &RunConfig| $get)
-        })
-    };
-}
-
-/// Every kept setting, in the order a resume checks them.
+/// The run's settings a resumed run keeps, in the order a resume checks them (after the
+/// model's, [`model_args::KEPT`]).
 #[rustfmt::skip]
-const KEPT: &[Kept] = &[
-    kept!("--inner-lr", "inner_lr", |c| Some(c.spec.inner_lr)),
-    kept!("--max-inner", "max_inner", |c| Some(c.spec.max_inner)),
-    kept!("--disc-lr", "disc_lr", |c| Some(c.spec.inner_rule.disc_lr)),
-    kept!("--disc-steps", "disc_steps", |c| Some(c.spec.inner_rule.disc_steps)),
-    kept!("--step-rule", "step_rule", |c| Some(c.spec.inner_rule.step_rule)),
-    kept!("--disc-head-reset", "disc_head_reset", |c| Some(c.spec.inner_rule.disc_head_reset)),
-    kept!("--adapt-loss", "adapt_loss", |c| Some(c.spec.inner_rule.adapt_loss)),
-    kept!("--reference-critic", "reference_critic", |c| Some(c.spec.inner_rule.reference_critic)),
-    kept!("--adapt-head-only", "adapt_head_only", |c| Some(c.spec.inner_rule.head_only)),
-    kept!("--commit-delay", "commit_delay", |c| Some(c.spec.inner_rule.commit_delay)),
-    kept!("--method", "method", |c| Some(c.method)),
-    kept!("--adapt-mode", "adapt_mode", |c| c.adapt_mode),
-    kept!("--map", "map", |c| Some(c.map)),
-    kept!("--cell-embed", "cell_embed", |c| c.cell_embed),
-    kept!("--privileged-feature", "privileged_feature", |c| Some(c.privileged_feature)),
-    kept!("--objective", "objective", |c| Some(c.run.objective)),
-    kept!("--seed", "seed", |c| Some(c.run.seed)),
-    kept!("--workers (x ranks)", "workers", |c| Some(c.run.workers)),
-    kept!("--batch-envs", "batch_envs", |c| Some(c.run.batch_envs)),
-    kept!("--min-steps", "min_steps", |c| Some(c.run.min_steps)),
-    kept!("--min-start-actions", "min_start_actions", |c| Some(c.run.min_start_actions)),
-    kept!("--max-steps", "max_steps", |c| Some(c.run.max_steps)),
-    kept!("--meta-order", "meta_order", |c| Some(c.run.meta_order)),
-    kept!("--reward", "reward", |c| Some(c.run.reward)),
-    kept!("--lr", "lr", |c| Some(c.run.adam.lr)),
-    kept!("--entropy", "entropy", |c| Some(c.run.a3c.entropy)),
+const KEPT: &[Kept<RunConfig>] = &[
+    kept!(RunConfig: "--method", "method", |c| Some(c.method)),
+    kept!(RunConfig: "--adapt-mode", "adapt_mode", |c| c.adapt_mode),
+    kept!(RunConfig: "--map", "map", |c| Some(c.map)),
+    kept!(RunConfig: "--cell-embed", "cell_embed", |c| c.cell_embed),
+    kept!(RunConfig: "--privileged-feature", "privileged_feature", |c| Some(c.privileged_feature)),
+    kept!(RunConfig: "--objective", "objective", |c| Some(c.run.objective)),
+    kept!(RunConfig: "--seed", "seed", |c| Some(c.run.seed)),
+    kept!(RunConfig: "--workers (x ranks)", "workers", |c| Some(c.run.workers)),
+    kept!(RunConfig: "--batch-envs", "batch_envs", |c| Some(c.run.batch_envs)),
+    kept!(RunConfig: "--min-steps", "min_steps", |c| Some(c.run.min_steps)),
+    kept!(RunConfig: "--min-start-actions", "min_start_actions", |c| Some(c.run.min_start_actions)),
+    kept!(RunConfig: "--max-steps", "max_steps", |c| Some(c.run.max_steps)),
+    kept!(RunConfig: "--meta-order", "meta_order", |c| Some(c.run.meta_order)),
+    kept!(RunConfig: "--reward", "reward", |c| Some(c.run.reward)),
+    kept!(RunConfig: "--lr", "lr", |c| Some(c.run.adam.lr)),
+    kept!(RunConfig: "--entropy", "entropy", |c| Some(c.run.a3c.entropy)),
 ];
 
-/// The setting `get` of `a` and `b` when both have it and they differ.
-fn differs<T: PartialEq + std::fmt::Debug>(
-    a: &RunConfig,
-    b: &RunConfig,
-    get: impl Fn(&RunConfig) -> Option<T>,
-) -> Differs {
-    match (get(a), get(b)) {
-        (Some(x), Some(y)) if x != y => Some((format!("{x:?}"), format!("{y:?}"))),
-        _ => None,
-    }
-}
-
 impl RunConfig {
-    /// The settings the flags ask for.
-    pub(super) fn from_flags(a: &TrainArgs) -> RunConfig {
-        RunConfig {
+    /// The settings the flags ask for (the model's checked, [`model_spec`]).
+    pub(super) fn from_flags(a: &TrainArgs) -> Result<RunConfig> {
+        Ok(RunConfig {
             method: a.method,
             map: a.map,
             cell_embed: Some(a.cell_embed),
             privileged_feature: a.privileged_feature,
-            adapt_mode: a.adapt_mode,
-            spec: model_spec(a),
+            adapt_mode: a.model.adapt_mode,
+            spec: model_spec(a)?,
             run: flag_options(a).run,
-        }
+        })
     }
 
     /// The settings of a stored model and its stored [`RunSettings`].
@@ -472,7 +357,7 @@ impl RunConfig {
             map: (d.map_rows, d.map_cols),
             cell_embed: (d.map_cells() > 0).then_some(d.cell_embed),
             privileged_feature: m.privileged,
-            adapt_mode: Some(m.adapt_mode),
+            adapt_mode: Some(m.spec.adapt_mode),
             spec: m.spec(),
             run: run.clone(),
         }
@@ -561,11 +446,17 @@ impl RunConfig {
         explicit: &dyn Fn(&str) -> bool,
         ck: &Path,
     ) -> Result<RunSettings> {
-        for (flag, id, value) in KEPT {
-            if !explicit(id) || (change_workers && *id == "workers") {
+        let model = model_args::KEPT
+            .iter()
+            .map(|&(flag, id, value)| (flag, id, value(&flags.spec, &self.spec)));
+        let run = KEPT
+            .iter()
+            .map(|&(flag, id, value)| (flag, id, value(flags, &self)));
+        for (flag, id, differs) in model.chain(run) {
+            if !explicit(id) || (change_workers && id == "workers") {
                 continue;
             }
-            if let Some((cli, stored)) = value(flags, &self) {
+            if let Some((cli, stored)) = differs {
                 bail!(
                     "{flag} {cli} conflicts with the resumed run, which was trained with {stored}; a \
                      resumed run keeps its own settings (omit the flag, or start a new run with --out)"
@@ -592,14 +483,16 @@ mod tests {
     #[test]
     fn kept_settings_name_real_flags() {
         let cmd = TrainArgs::augment_args(Command::new("train"));
-        for (i, (flag, id, _)) in KEPT.iter().enumerate() {
+        let model = model_args::KEPT.iter().map(|k| (k.0, k.1));
+        let kept: Vec<(&str, &str)> = model.chain(KEPT.iter().map(|k| (k.0, k.1))).collect();
+        for (i, (flag, id)) in kept.iter().enumerate() {
             let arg = cmd
                 .get_arguments()
                 .find(|a| a.get_id() == *id)
                 .unwrap_or_else(|| panic!("{flag}: no argument with id {id}"));
             let long = arg.get_long().expect("a long flag");
             assert!(flag.starts_with(&format!("--{long}")), "{flag} vs --{long}");
-            assert!(KEPT[i + 1..].iter().all(|k| k.1 != *id), "{id} twice");
+            assert!(kept[i + 1..].iter().all(|k| k.1 != *id), "{id} twice");
         }
     }
 }

@@ -64,5 +64,5 @@ pub(crate) fn ps_input(
 
 /// True when `model` runs in the `Efficient` adaptation mode (what the microcontroller runs).
 pub fn eval_mode_is_efficient(model: &NavModel) -> bool {
-    model.adapt_mode == AdaptMode::Efficient
+    model.spec.adapt_mode == AdaptMode::Efficient
 }

@@ -81,14 +81,9 @@ pub fn model_from_blob_with_ps(
         dims,
         params,
         ps,
-        noise: spec.noise,
-        inner_lr: spec.inner_lr,
-        max_inner: spec.max_inner,
+        spec,
         blob: Some(std::sync::Arc::new(bytes.to_vec())),
         privileged: false,
-        adapt_mode: spec.adapt_mode,
-        inner_rule: spec.inner_rule,
-        compact_psi: spec.compact_psi,
     })
 }
 

@@ -4,15 +4,13 @@
 
 use anyhow::{anyhow, bail, Context, Result};
 use gman_core::blob::{
-    encode_model, encode_model_scratch_len, encoded_model_len_bound, AdaptSettings, Blob, Quant,
-    TensorId,
+    encode_model, encode_model_scratch_len, encoded_model_len_bound, Blob, Quant, TensorId,
 };
 use gman_core::matrix::MatRef;
 use gman_core::memory::{AdaptMode, Footprint};
-use gman_core::navigator::{NavConfig, NavWeights, NoiseMode, Selection};
+use gman_core::navigator::{NavConfig, NavWeights, Selection};
 use gman_core::rng::Xoshiro128;
-use gman_core::schema::ModelFlags;
-use gman_core::spec::{InnerRule, ModelSpec};
+use gman_core::spec::ModelSpec;
 use gman_core::Dims;
 
 use crate::optim::checkpoint::Checkpoint;
@@ -20,7 +18,7 @@ use crate::optim::params::{Init, ParamSet};
 use crate::pretrain::ps::PsModule;
 
 use super::method::Method;
-use super::record::{check_model_record, DimsMeta, ModelMeta, DEFAULT_MAX_INNER, NAVIGATOR_KIND};
+use super::record::{check_model_record, DimsMeta, ModelMeta, NAVIGATOR_KIND};
 
 /// Capacity k of the navigation buffer Ψ (the paper's k = 20).
 pub const K: usize = 20;
@@ -36,13 +34,14 @@ pub struct NavModel {
     pub params: ParamSet,
     /// The PS module (PS variants only).
     pub ps: Option<PsModule>,
-    /// Noise of G at navigation time.
-    pub noise: NoiseMode,
-    /// Inner-loop rates α1 (D ascent) and α2 (θ, φ descent) (paper: 1e-4).
-    pub inner_lr: f32,
-    /// At most this many inner updates per episode (default 4, as gman-core's
-    /// [`NavConfig::default`]).
-    pub max_inner: u32,
+    /// The model's settings (gman-core's [`ModelSpec`]: noise, inner rates and cap, the
+    /// adaptation mode, the inner rule, Ψ's form): what its checkpoints store and its
+    /// blobs record. Whether it adapts and its EMD are the method's: [`NavModel::spec`]
+    /// fills them in. The adaptation mode is that of the inner loop in training and
+    /// wherever the model runs: `Efficient` (per-unit gains and biases over the base
+    /// weights, what the microcontroller runs) or `Full` (every parameter of θ, ω and the
+    /// actor head); checkpoints from before the setting existed were trained in `Full`.
+    pub spec: ModelSpec,
     /// For a model loaded from a weight blob: the blob, whose weights the navigator then reads
     /// in place (int8 stays int8), exactly as on the device. `params` holds a dequantised
     /// copy for inspection.
@@ -52,18 +51,6 @@ pub struct NavModel {
     /// G's output x_t, in training and at evaluation, i.e. what a perfectly adapted G would
     /// give. G is not run or trained; such a model cannot be exported to a blob.
     pub privileged: bool,
-    /// The adaptation mode of the inner loop, in training and wherever the model runs
-    /// (gman-core's [`AdaptMode`]): `Efficient` (per-unit gains and biases over the base
-    /// weights, what the microcontroller runs) or `Full` (every parameter of θ, ω and the
-    /// actor head). Blobs record it ([`FLAG_FULL_ADAPT`](gman_core::schema::FLAG_FULL_ADAPT)), so the device adapts exactly as
-    /// the trainer meta-learned. Checkpoints from before this setting existed were trained in
-    /// `Full`.
-    pub adapt_mode: AdaptMode,
-    /// The inner rule's levers beyond `inner_lr` and `max_inner` (default: the paper's).
-    pub inner_rule: InnerRule,
-    /// Ψ's observations kept as int16 (a blob with
-    /// [`FLAG_COMPACT_PSI`](gman_core::schema::FLAG_COMPACT_PSI); [`NavConfig::compact_psi`]).
-    pub compact_psi: bool,
 }
 
 impl NavModel {
@@ -127,14 +114,9 @@ impl NavModel {
             dims,
             params,
             ps,
-            noise: NoiseMode::Gaussian,
-            inner_lr: AdaptSettings::PAPER.alpha_adapt,
-            max_inner: DEFAULT_MAX_INNER,
+            spec: ModelSpec::paper(AdaptMode::Full),
             blob: None,
             privileged: false,
-            adapt_mode: AdaptMode::Full,
-            inner_rule: InnerRule::PAPER,
-            compact_psi: false,
         })
     }
 
@@ -186,8 +168,9 @@ impl NavModel {
         };
         // The blob's own mapping (what the device will run), with the host's run-time
         // choices: the training schedule, sampled actions, adaptation as the method trains.
+        let spec = self.spec();
         NavConfig {
-            adapt,
+            model: ModelSpec { adapt, ..spec },
             selection: Selection::Sample,
             schedule: if training {
                 gman_core::navigator::Schedule::Manual
@@ -197,7 +180,7 @@ impl NavModel {
             // A host has the RAM: Ψ as one batch and G's pre-gain outputs kept (the same
             // bits as the device's compact layout).
             footprint: Footprint::Fast,
-            ..NavConfig::from_spec(&self.spec())
+            ..NavConfig::from_spec(&spec)
         }
     }
 
@@ -219,35 +202,16 @@ impl NavModel {
         }
     }
 
-    /// The model's switches (gman-core's [`ModelSpec`]): what its blobs record and its
-    /// checkpoints store; whether it adapts and its EMD are the method's.
+    /// The model's settings as its blobs record them and its checkpoints store them:
+    /// [`NavModel::spec`](field@NavModel::spec) with whether it adapts and its EMD, which are
+    /// the method's, and f32 activations (how a blob runs is `gman export`'s choice).
     pub fn spec(&self) -> ModelSpec {
         ModelSpec {
-            noise: self.noise,
-            inner_lr: self.inner_lr,
-            max_inner: self.max_inner,
-            adapt_mode: self.adapt_mode,
-            inner_rule: self.inner_rule,
             adapt: self.method.adapts_at_eval(),
             emd: self.method.emd(),
             int8_activations: false,
-            compact_psi: self.compact_psi,
+            ..self.spec
         }
-    }
-
-    /// Sets the model's switches to `spec` (but whether it adapts and its EMD, which are the
-    /// method's, and the run-time forms).
-    pub fn set_spec(&mut self, spec: ModelSpec) {
-        let ModelSpec {
-            noise,
-            inner_lr,
-            max_inner,
-            adapt_mode,
-            inner_rule,
-            ..
-        } = spec;
-        (self.noise, self.inner_lr, self.max_inner) = (noise, inner_lr, max_inner);
-        (self.adapt_mode, self.inner_rule) = (adapt_mode, inner_rule);
     }
 
     /// Metadata stored in checkpoints: [`NavModel::meta`] as JSON (keys sorted, as always).
@@ -311,37 +275,15 @@ impl NavModel {
                 if ps.is_some() { "present" } else { "absent" }
             );
         }
-        let mut model = NavModel {
+        Ok(NavModel {
             method,
             dims,
             params,
             ps,
-            noise: NoiseMode::Gaussian,
-            inner_lr: 0.0,
-            max_inner: 0,
+            spec: m.spec,
             blob: None,
             privileged: m.privileged,
-            adapt_mode: AdaptMode::Full,
-            inner_rule: InnerRule::PAPER,
-            compact_psi: false,
-        };
-        model.set_spec(m.spec);
-        Ok(model)
-    }
-
-    /// Blob flags of this model.
-    pub fn blob_flags(&self) -> u32 {
-        self.model_flags().bits()
-    }
-
-    /// The model flags of this model's blobs.
-    pub fn model_flags(&self) -> ModelFlags {
-        self.spec().flags()
-    }
-
-    /// The inner-loop settings stored in the model's blobs ([`ModelSpec::adapt_settings`]).
-    pub fn adapt_settings(&self) -> AdaptSettings {
-        self.spec().adapt_settings()
+        })
     }
 
     /// Encodes the model as a gman-core weight blob (format v5, see `gman_core::blob`), int8
@@ -403,6 +345,8 @@ pub fn host_arena_len(dims: &Dims) -> usize {
 mod tests {
     use super::*;
 
+    use crate::model::DEFAULT_MAX_INNER;
+    use gman_core::navigator::NoiseMode;
     use gman_core::schema::Emd;
 
     /// The presets answer the six predicates as the truth table written out here pins them,
@@ -468,12 +412,12 @@ mod tests {
             "kind": "gman-navigator",
             "method": m.method.name(),
             "dims": crate::optim::dims_json(&m.dims),
-            "noise": match m.noise { NoiseMode::Gaussian => "gaussian", NoiseMode::Zero => "zero" },
+            "noise": match m.spec.noise { NoiseMode::Gaussian => "gaussian", NoiseMode::Zero => "zero" },
             "ps_hidden": m.ps.as_ref().map(|p| p.hidden),
-            "inner_lr": m.inner_lr,
-            "max_inner": m.max_inner,
+            "inner_lr": m.spec.inner_lr,
+            "max_inner": m.spec.max_inner,
             "privileged": m.privileged,
-            "adapt_mode": match m.adapt_mode { AdaptMode::Full => "full", AdaptMode::Efficient => "efficient" },
+            "adapt_mode": match m.spec.adapt_mode { AdaptMode::Full => "full", AdaptMode::Efficient => "efficient" },
         })
     }
 
@@ -489,10 +433,10 @@ mod tests {
             (Method::A3cFg, Dims::MCU.with_map(3, 3, 8)),
         ] {
             let mut m = NavModel::init(method, dims, 1, Some(&g), None).unwrap();
-            m.noise = NoiseMode::Zero;
-            m.inner_lr = 3e-3;
-            m.max_inner = 7;
-            m.adapt_mode = AdaptMode::Efficient;
+            m.spec.noise = NoiseMode::Zero;
+            m.spec.inner_lr = 3e-3;
+            m.spec.max_inner = 7;
+            m.spec.adapt_mode = AdaptMode::Efficient;
             let old = old_metadata(&m);
             assert_eq!(m.metadata().to_string(), old.to_string());
             let mut ck = Checkpoint::new(old);
@@ -515,11 +459,11 @@ mod tests {
         let back = NavModel::from_checkpoint(&ck).unwrap();
         assert_eq!(
             (
-                back.noise,
-                back.inner_lr,
-                back.max_inner,
+                back.spec.noise,
+                back.spec.inner_lr,
+                back.spec.max_inner,
                 back.privileged,
-                back.adapt_mode
+                back.spec.adapt_mode
             ),
             (
                 NoiseMode::Gaussian,
@@ -544,6 +488,7 @@ mod inner_rule_tests {
     use crate::optim::checkpoint::Checkpoint;
     use gman_core::navigator::StepRule;
     use gman_core::schema::AdaptLossKind;
+    use gman_core::spec::InnerRule;
 
     #[test]
     fn inner_rule_round_trips_through_checkpoint_and_blob() {
@@ -553,11 +498,11 @@ mod inner_rule_tests {
         )
         .unwrap();
         let mut m = NavModel::init(Method::Gman, Dims::MCU, 1, Some(&g), None).unwrap();
-        m.adapt_mode = AdaptMode::Efficient;
-        m.inner_lr = 0.5;
+        m.spec.adapt_mode = AdaptMode::Efficient;
+        m.spec.inner_lr = 0.5;
         // The paper's rule writes no `inner_rule` key (old checkpoints' JSON unchanged).
         assert!(m.metadata().get("inner_rule").is_none());
-        m.inner_rule = InnerRule {
+        m.spec.inner_rule = InnerRule {
             disc_lr: Some(0.05),
             disc_steps: 5,
             step_rule: StepRule::PerGroup,
@@ -570,24 +515,24 @@ mod inner_rule_tests {
         let mut ck = Checkpoint::new(m.metadata());
         m.add_to_checkpoint(&mut ck).unwrap();
         let back = NavModel::from_checkpoint(&ck).unwrap();
-        assert_eq!(back.inner_rule, m.inner_rule);
+        assert_eq!(back.spec.inner_rule, m.spec.inner_rule);
         // The blob carries it too, and the device's configuration follows.
         let blob = m.to_blob(false).unwrap();
         let b = model_from_blob(&blob, None).unwrap();
-        assert_eq!(b.inner_rule, m.inner_rule);
-        assert_eq!(b.inner_lr, 0.5);
+        assert_eq!(b.spec.inner_rule, m.spec.inner_rule);
+        assert_eq!(b.spec.inner_lr, 0.5);
         let parsed = gman_core::blob::Blob::parse(&blob).unwrap();
         let cfg = parsed.nav_config();
-        assert_eq!((cfg.alpha_disc, cfg.alpha_adapt), (0.05, 0.5));
-        assert_eq!((cfg.disc_steps, cfg.step_rule), (5, StepRule::PerGroup));
-        assert!(cfg.disc_head_reset && m.nav_config(false).disc_head_reset);
-        assert!(cfg.head_only && m.nav_config(false).head_only);
-        assert_eq!(cfg.adapt_loss, AdaptLossKind::Reference);
-        assert_eq!(cfg.ld.critic_scale, 10.0);
-        assert_eq!(m.nav_config(false).ld.critic_scale, 10.0);
-        assert_eq!(cfg.disc_steps, m.nav_config(false).disc_steps);
-        assert_eq!(cfg.commit_delay, 17);
-        assert_eq!(m.nav_config(true).commit_delay, 17);
+        assert_eq!((cfg.model.alpha_disc(), cfg.model.inner_lr), (0.05, 0.5));
+        assert_eq!(cfg.model.inner_rule, m.spec.inner_rule);
+        assert_eq!(cfg.model.inner_rule.critic_scale(), 10.0);
+        // The host runs what the device runs.
+        for training in [false, true] {
+            assert_eq!(
+                m.nav_config(training).model.inner_rule,
+                cfg.model.inner_rule
+            );
+        }
         // Nonsense in a file is refused with the field named.
         let mut bad = m.metadata();
         bad["inner_rule"]["disc_steps"] = serde_json::json!(0);

@@ -111,7 +111,7 @@ pub(super) fn run_hooked(
         sample,
         hooks,
     };
-    match (without_inner_loop(model), model.adapt_mode) {
+    match (without_inner_loop(model), model.spec.adapt_mode) {
         (true, AdaptMode::Full) => super::lanes_shared::run::<Full, _>(job, worker),
         (true, AdaptMode::Efficient) => super::lanes_shared::run::<Efficient, _>(job, worker),
         (false, AdaptMode::Full) => super::lanes_nav::run::<Full, _>(job, worker),
@@ -168,7 +168,7 @@ mod tests {
         let g = init_generator(&d, &mut Xoshiro128::seed_from_u64(5)).unwrap();
         for method in [Method::A3cFg, Method::GmanNoemd] {
             let mut model = NavModel::init(method, d, 3, Some(&g), None).unwrap();
-            model.adapt_mode = AdaptMode::Efficient;
+            model.spec.adapt_mode = AdaptMode::Efficient;
             let a3c = A3cConfig::default();
             let s = VecSettings {
                 batch_envs: 6,
@@ -299,8 +299,8 @@ mod tests {
         let g = init_generator(&d, &mut Xoshiro128::seed_from_u64(5)).unwrap();
         for mode in [AdaptMode::Efficient, AdaptMode::Full] {
             let mut model = NavModel::init(Method::Gman, d, 3, Some(&g), None).unwrap();
-            model.adapt_mode = mode;
-            model.inner_lr = 0.05;
+            model.spec.adapt_mode = mode;
+            model.spec.inner_lr = 0.05;
             model.params.get_mut("ActorB").unwrap().data[gman_core::Action::Done.index()] -= 1.5;
             let a3c = A3cConfig::default();
             let s = VecSettings {
@@ -344,10 +344,8 @@ mod tests {
                 .any(|p| p[0] != log[0].params[0][0]));
             // The trunk and the shapes from a navigator over the model.
             let weights = model.weights().unwrap();
-            let nav_cfg = gman_core::navigator::NavConfig {
-                adapt: false,
-                ..model.nav_config(true)
-            };
+            let mut nav_cfg = model.nav_config(true);
+            nav_cfg.model.adapt = false;
             let mut arena = vec![0.0; Navigator::<Full, K>::arena_len(&d)];
             let mut nav: Navigator<'_, Full, K> =
                 Navigator::new(weights, &mut arena, nav_cfg).unwrap();

@@ -38,6 +38,7 @@ use gman_core::generator::Generator;
 use gman_core::memory::AdaptMode;
 use gman_core::navigator::{Mode, NavConfig, NavWeights, Navigator, NoiseMode};
 use gman_core::policy::Policy;
+use gman_core::spec::ModelSpec;
 use gman_core::{Action, Dims, NUM_ACTIONS};
 
 use super::bptt::{take_act, Adapted, GenBufs, Rows, Widths};
@@ -128,7 +129,10 @@ pub(super) fn run<M: Mode, F: FnMut(u32) -> Result<(EpisodeSpec, u32)>>(
         weights,
         &mut fixed_arena,
         NavConfig {
-            adapt: false,
+            model: ModelSpec {
+                adapt: false,
+                ..cfg.model
+            },
             ..cfg
         },
     )?;
@@ -140,7 +144,7 @@ pub(super) fn run<M: Mode, F: FnMut(u32) -> Result<(EpisodeSpec, u32)>>(
         w,
         d,
         second,
-        ran_g: model.noise == NoiseMode::Gaussian && !model.privileged,
+        ran_g: model.spec.noise == NoiseMode::Gaussian && !model.privileged,
         pending: Vec::new(),
         gen_scratch: Vec::new(),
     };

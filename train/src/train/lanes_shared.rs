@@ -60,7 +60,7 @@ pub(super) fn run<M: Mode, F: FnMut(u32) -> Result<(EpisodeSpec, u32)>>(
 ) -> Result<Vec<Finished>> {
     let model = job.model;
     let cfg = model.nav_config(true);
-    if cfg.adapt || cfg.selection != Selection::Sample {
+    if cfg.model.adapt || cfg.selection != Selection::Sample {
         bail!("shared training lanes need a sampling navigator without inner loop");
     }
     // The navigator provides the parameter views (G and the policy, in the model's mode).
@@ -132,7 +132,7 @@ impl<'w> Lanes<'w> for Shared<'_> {
         if st.x_fixed {
             return Ok(());
         }
-        match self.model.noise {
+        match self.model.spec.noise {
             NoiseMode::Gaussian => {
                 fill_gaussian(&mut st.rng, &mut st.z);
                 self.gb.who.push(i);

@@ -262,8 +262,8 @@ impl InnerSetup {
         InnerSetup {
             dims: *nav.dims(),
             attr: nav.attr().to_vec(),
-            kind: cfg.adapt_loss,
-            alpha: cfg.alpha_adapt,
+            kind: cfg.model.inner_rule.adapt_loss,
+            alpha: cfg.model.inner_lr,
         }
     }
 }

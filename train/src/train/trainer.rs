@@ -47,7 +47,7 @@
 //!   like GMAN does, so comparing it with `gman` isolates what the inner loop (the EMD) adds
 //!   and comparing it with `a3c-fg` what training θ adds (README "Results").
 //! * **Adaptation mode.** The inner loop runs in the mode the model will run in on the
-//!   device ([`NavModel::adapt_mode`](crate::model::NavModel::adapt_mode), `--adapt-mode`,
+//!   device (`NavModel::spec.adapt_mode`, `--adapt-mode`,
 //!   Efficient by default for `mcu`): in `Efficient` the segment gradients of θ and of the
 //!   actor head are taken through the adapted per-unit gains, exactly the parameters the
 //!   robot adapts. The exported blob records the mode.
@@ -426,7 +426,7 @@ fn outer_step(
     // With D's head reset, D restarts from ω with every episode (on the device too), so ω
     // does not learn across episodes: carrying the episodes' layer-1 changes over lets the
     // gradient penalty grow layer 1 without bound (it diverged after ~6500 updates).
-    let disc_delta = if state.model.inner_rule.disc_head_reset {
+    let disc_delta = if state.model.spec.inner_rule.disc_head_reset {
         None
     } else {
         Some(disc_deltas(state, episodes)?)

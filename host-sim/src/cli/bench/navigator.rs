@@ -1,6 +1,7 @@
 //! The navigator rows (`step()` and one inner update on k = 20 buffered steps, per preset,
 //! weight storage and adaptation mode) and the cache-resident kernel rows.
 
+use gman_core::spec::ModelSpec;
 use std::hint::black_box;
 use std::time::Instant;
 
@@ -80,7 +81,10 @@ fn time_steps<M: Mode>(w: NavWeights<'_>, fp: Footprint, reps: usize) -> Result<
     let d = *w.dims();
     let mut arena = vec![0.0f32; Navigator::<M, K>::arena_len_for(&d, fp)];
     let cfg = NavConfig {
-        adapt: false,
+        model: ModelSpec {
+            adapt: false,
+            ..NavConfig::default().model
+        },
         footprint: fp,
         ..NavConfig::default()
     };

@@ -81,7 +81,7 @@ pub fn rows(updates: u64) -> Result<Vec<TrainRow>> {
                     continue;
                 }
                 let mut model = NavModel::init(method, dims, 1, Some(&gen), None)?;
-                model.adapt_mode = if preset == "paper" {
+                model.spec.adapt_mode = if preset == "paper" {
                     AdaptMode::Full
                 } else {
                     AdaptMode::Efficient
