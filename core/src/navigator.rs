@@ -6,7 +6,7 @@
 //! step(s_t) -> a_t        x_t = G_θi(SE(y), z_t)            (line 7)
 //!                         a_t ~ π_{θi,φi}(· | s_t, x_t, ...)  (line 8)
 //!                         Ψ ← Ψ ∪ {(s_t, x_t, a_t, h_t)}      (lines 11-13)
-//!                         every k steps, while fewer than `max_inner_updates` were made:
+//!                         every k steps, while fewer than `max_inner` were made:
 //!                           ω  ← ω  + α1 ∇_ω L_D             (lines 15-16, Eq. 1)
 //!                           θi ← θi − α2 ∇_θi L_ad            (lines 17-18, Eq. 3)
 //!                           φi ← φi − α2 ∇_φi L_ad            (line 19)
@@ -1282,7 +1282,7 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
     }
 
     /// True while more inner updates are allowed in this episode (`adapt` is on and fewer
-    /// than `max_inner_updates` were made).
+    /// than `max_inner` were made).
     pub fn can_adapt(&self) -> bool {
         self.cfg.model.adapt && self.counters.adaptations < self.cfg.model.max_inner
     }
