@@ -22,7 +22,8 @@ fn default_sigpipe() {}
 
 fn main() -> ExitCode {
     default_sigpipe();
-    let matches = cli::Cli::command().get_matches();
+    let matches =
+        cli::Cli::command().get_matches_from(cli::recipes::expand(std::env::args_os().collect()));
     let parsed = cli::Cli::from_arg_matches(&matches).unwrap_or_else(|e| e.exit());
     match cli::run(parsed, &matches) {
         Ok(()) => ExitCode::SUCCESS,

@@ -39,7 +39,8 @@ pub struct TrainArgs {
     #[command(flatten, next_help_heading = "World")]
     pub world: WorldArgs,
     /// Method (the rows of the paper's Tables 2 and 3).
-    #[arg(help_heading = "Basics", long, value_enum, default_value = "gman")]
+    #[arg(help_heading = "Basics", long, value_enum, default_value = "gman",
+          long_help = format!("Method (the rows of the paper's Tables 2 and 3). Recipes, a preset with settings:\n{}", super::recipes::help()))]
     pub method: Method,
     /// Network sizes.
     #[arg(help_heading = "Basics", long, value_enum, default_value = "mcu")]
