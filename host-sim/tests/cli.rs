@@ -372,6 +372,49 @@ fn train_noise_flag_reaches_the_blob() {
     assert!(!ok && err.contains("--noise"), "{err}");
 }
 
+/// `--method gman-ref` trains gman-fixed-g with the reference's settings, which the exported
+/// blob records; an explicit flag wins over the recipe's.
+#[test]
+fn gman_ref_recipe_reaches_the_blob() {
+    let d = tmp("gman-ref");
+    for (name, extra, want) in [
+        ("ref", &[][..], "inner_lr=1e-2"),
+        ("ref-lr", &["--inner-lr", "0.5"][..], "inner_lr=5e-1"),
+    ] {
+        let run = d.join(name);
+        let mut args = vec!["train", "--method", "gman-ref", "--config", "tiny"];
+        args.extend_from_slice(extra);
+        args.extend(["--workers", "1", "--updates", "1", "--quiet", "--out"]);
+        args.push(run.to_str().unwrap());
+        let (ok, stdout, err) = gman(&args);
+        assert!(ok, "{err}");
+        assert!(
+            stdout.contains("gman-fixed-g") || err.contains("gman-fixed-g"),
+            "{stdout}{err}"
+        );
+        let blob = d.join(format!("{name}.gman"));
+        let (ok, _, err) = gman(&[
+            "export",
+            "--ckpt",
+            run.join("checkpoint.ckpt").to_str().unwrap(),
+            "--out",
+            blob.to_str().unwrap(),
+        ]);
+        assert!(ok, "{err}");
+        let (ok, stdout, err) = gman(&["inspect", blob.to_str().unwrap()]);
+        assert!(ok, "{err}");
+        for setting in [
+            "noise=zero",
+            "disc_lr=0e0",
+            "head_only=true",
+            "adapt_loss=reference",
+            want,
+        ] {
+            assert!(stdout.contains(setting), "{setting}: {stdout}");
+        }
+    }
+}
+
 #[test]
 fn demo_writes_summary_pictures_and_intervals() {
     let d = tmp("demo");
