@@ -1,8 +1,10 @@
 //! The blob the firmware embeds, shared by `build.rs` and the host-side parity test
-//! (`tests/tests/firmware_qemu.rs`) so that both use the very same bytes: the shipped trained
-//! model, or a deterministic seeded int8 blob of the same shapes; with the firmware's default
-//! feature `int8-activations`, re-emitted with int8 activations (as `gman export --activations
-//! int8` does), and without the feature `gaussian-noise` with G's noise z = 0.
+//! (`tests/tests/firmware_qemu.rs`) so that both use the very same bytes: a shipped trained
+//! model, or a deterministic seeded int8 blob of the same shapes. Without the feature
+//! `gaussian-noise` (the default image) the GMAN model trained with G's noise z = 0
+//! ([`TRAINED_ZERO`]); with it the one trained with Gaussian noise ([`TRAINED`]). With the
+//! firmware's default feature `int8-activations` the blob carries int8 activations and Ψ in
+//! int16 (as `gman export --preset mcu --quant int8` writes), without it neither.
 
 use gman_core::blob::{
     encode_model_scratch_len, encoded_model_len_bound, reencode_with_flags, reencoded_len_bound,
@@ -39,26 +41,19 @@ pub fn seeded_blob(dims: &Dims, seed: u64) -> Vec<u8> {
 /// cannot include that file).
 pub const FIRMWARE_DIMS: Dims = Dims::MCU.with_map(3, 3, 8);
 
-/// The trained GMAN model shipped in the repository (relative to `firmware-example/`).
+/// The trained GMAN model shipped in the repository, trained with Gaussian noise (relative to
+/// `firmware-example/`): the image with the feature `gaussian-noise` embeds it.
 pub const TRAINED: &str = "../host-sim/models/gman-thor5-map3-b16-mcu-int8-seed3.gman";
+
+/// The trained GMAN model shipped in the repository, trained with G's noise z = 0 (relative to
+/// `firmware-example/`; `results/paper/models/gman-zero-s2.gman`): the default image embeds it.
+pub const TRAINED_ZERO: &str = "../host-sim/models/gman-zero-thor5-map3-b16-mcu-int8-seed2.gman";
 
 /// The blob the firmware embeds by default: the shipped trained GMAN map model when it is
 /// present, else the seeded one. `base` is the `firmware-example/` directory.
 #[allow(dead_code)]
 pub fn default_blob_in(base: &std::path::Path) -> Vec<u8> {
     std::fs::read(base.join(TRAINED)).unwrap_or_else(|_| seeded_blob(&FIRMWARE_DIMS, 1))
-}
-
-/// `bytes` (an int8 weight blob) re-emitted with [`FLAG_INT8_ACTIVATIONS`] and
-/// [`FLAG_COMPACT_PSI`] set (Ψ's observations as int16, for the firmware's
-/// `Footprint::Minimal` arena): every tensor, the other flags and the inner-loop settings
-/// kept (the bytes `gman export --activations int8` writes; the parity test compares the two).
-pub fn with_int8_activations(bytes: &[u8]) -> Result<Vec<u8>, gman_core::BlobError> {
-    let flags = Blob::parse(bytes)?.header().flags() | FLAG_INT8_ACTIVATIONS | FLAG_COMPACT_PSI;
-    let mut out = vec![0u8; reencoded_len_bound(bytes)];
-    let n = reencode_with_flags(bytes, flags, &mut out)?;
-    out.truncate(n);
-    Ok(out)
 }
 
 /// `bytes` re-emitted with [`FLAG_ZERO_NOISE`] (G's noise z = 0 at navigation): every tensor,
@@ -71,21 +66,36 @@ pub fn with_zero_noise(bytes: &[u8]) -> Result<Vec<u8>, gman_core::BlobError> {
     Ok(out)
 }
 
-/// The blob the firmware embeds by default for its features: [`default_blob_in`], with int8
-/// activations when `int8_activations` (the firmware's default feature), and with zero noise
-/// unless `gaussian_noise` (the firmware's feature `gaussian-noise`, not in the default image).
+/// The blob the firmware embeds for its features: without `gaussian_noise` (the firmware's
+/// default) [`TRAINED_ZERO`] (else the seeded blob with zero noise), with it
+/// [`default_blob_in`]; with int8 activations and Ψ in int16 when `int8_activations` (the
+/// firmware's default feature), with neither otherwise.
 #[allow(dead_code)]
 pub fn firmware_blob_in(
     base: &std::path::Path,
     int8_activations: bool,
     gaussian_noise: bool,
 ) -> Result<Vec<u8>, gman_core::BlobError> {
-    let mut blob = default_blob_in(base);
-    if int8_activations {
-        blob = with_int8_activations(&blob)?;
+    let blob = if gaussian_noise {
+        default_blob_in(base)
+    } else {
+        match std::fs::read(base.join(TRAINED_ZERO)) {
+            Ok(b) => b,
+            Err(_) => with_zero_noise(&seeded_blob(&FIRMWARE_DIMS, 1))?,
+        }
+    };
+    let flags = Blob::parse(&blob)?.header().flags();
+    let act = FLAG_INT8_ACTIVATIONS | FLAG_COMPACT_PSI;
+    let want = if int8_activations {
+        flags | act
+    } else {
+        flags & !act
+    };
+    if want == flags {
+        return Ok(blob);
     }
-    if !gaussian_noise {
-        blob = with_zero_noise(&blob)?;
-    }
-    Ok(blob)
+    let mut out = vec![0u8; reencoded_len_bound(&blob)];
+    let n = reencode_with_flags(&blob, want, &mut out)?;
+    out.truncate(n);
+    Ok(out)
 }

@@ -404,13 +404,13 @@ fn run_and_compare(
     m
 }
 
-/// The shipped model with int8 activations (what `gman export --preset mcu --quant int8`
-/// writes of it; the image with `gaussian-noise` embeds it).
+/// The shipped Gaussian-noise model with int8 activations (what `gman export --preset mcu
+/// --quant int8` writes of it; the image with `gaussian-noise` embeds it).
 fn int8_activation_blob() -> Vec<u8> {
     blobgen::firmware_blob_in(&fw_dir(), true, true).expect("int8 activations")
 }
 
-/// The blob the default firmware embeds: [`int8_activation_blob`] with G's noise z = 0
+/// The blob the default firmware embeds: the shipped zero-noise model with int8 activations
 /// (`blobgen::firmware_blob_in`, what `build.rs` writes with the default features).
 fn default_image_blob() -> Vec<u8> {
     blobgen::firmware_blob_in(&fw_dir(), true, false).expect("int8 activations, zero noise")
@@ -421,9 +421,8 @@ fn default_image_under_qemu() -> HashMap<String, u64> {
     // An explicit target dir: a CARGO_TARGET_DIR inherited from the outer cargo would put the
     // ELF elsewhere.
     let target_dir = fw_dir().join("target");
-    // The default image: the integer path (feature `int8-activations`) on the shipped trained
-    // GMAN model re-emitted with int8 activations and G's noise z = 0 (or the seeded blob
-    // without it): x_t and the fusion layer's terms of x_t and SE(y) are kept between inner
+    // The default image: the integer path (feature `int8-activations`) on the shipped GMAN
+    // model trained with G's noise z = 0 (or the seeded blob with zero noise without it): x_t and the fusion layer's terms of x_t and SE(y) are kept between inner
     // updates, Ψ keeps no z_t and one x_t. `gman bench` reads its firmware row from
     // `qemu-measurements.txt`.
     let m = run_and_compare(
@@ -443,8 +442,7 @@ fn f32_image_under_qemu() -> HashMap<String, u64> {
     // Its own target dir (the embedded blob differs).
     let target_dir = fw_dir().join("target/f32-activations");
     std::fs::create_dir_all(&target_dir).expect("target dir");
-    // The shipped blob with f32 activations (zero noise, as the default image), the integer
-    // path compiled out.
+    // The default image's model with f32 activations, the integer path compiled out.
     let blob = blobgen::firmware_blob_in(&fw_dir(), false, false).expect("zero noise");
     let m = run_and_compare(
         &target_dir,
@@ -954,23 +952,30 @@ fn budget_table(runs: &Runs, rustc: &str) -> String {
 #[test]
 fn exported_blob_is_what_the_default_firmware_runs() {
     // What README's device sequence flashes: `gman export --preset mcu --quant int8` with its
-    // defaults for that preset (int8 activations, Ψ's observations int16) writes the bytes
-    // the `gaussian-noise` image embeds, and the default image embeds them with G's noise
-    // z = 0 (a checkpoint's blob is the shipped model's kind: int8 weights, f32 activations).
+    // defaults for that preset (int8 activations, Ψ's observations int16). Re-exported so,
+    // the shipped zero-noise model (a checkpoint's blob of a `--noise zero` run, exported by
+    // host-sim/scripts/paper-tables.sh) is the very blob the default image embeds, and the
+    // shipped Gaussian model the one the `gaussian-noise` image embeds.
     let act8 = gman_host_sim::blob_edit::default_int8_activations(true, true);
     assert!(act8, "the mcu export must fit the default firmware");
-    let shipped = blobgen::default_blob_in(&fw_dir());
-    // (`--psi auto`: int16 with int8 activations.)
-    let blob = gman_host_sim::blob_edit::reencode_with_activations(&shipped, act8)
-        .expect("gman export --preset mcu --quant int8");
+    let zero = std::fs::read(fw_dir().join(blobgen::TRAINED_ZERO)).expect("the zero-noise model");
+    let export = |b: &[u8]| {
+        gman_host_sim::blob_edit::reencode_with_activations(b, act8)
+            .expect("gman export --preset mcu --quant int8")
+    };
     assert!(
-        blob == int8_activation_blob(),
-        "the mcu export's defaults differ from the blob the firmware runs"
+        export(&zero) == default_image_blob(),
+        "the mcu export's defaults differ from the blob the default firmware runs"
     );
-    // The default image runs it with G's noise z = 0 (a model trained with `--noise zero`
-    // exports that flag itself; a Gaussian one needs the feature `gaussian-noise`).
-    let zero = blobgen::with_zero_noise(&blob).expect("zero noise");
-    assert!(zero == default_image_blob());
+    assert!(
+        export(&blobgen::default_blob_in(&fw_dir())) == int8_activation_blob(),
+        "the mcu export's defaults differ from the blob the gaussian-noise firmware runs"
+    );
+    let (host, _) = host_lines(&default_image_blob(), &checked_in_episode());
+    assert!(
+        host.iter().any(|l| l.contains("noise=Zero")),
+        "the default image's model does not run with zero noise"
+    );
 }
 
 #[test]
