@@ -7,15 +7,7 @@ use crate::error::{check_len, Result};
 use crate::matrix::dot;
 use crate::NUM_ACTIONS;
 
-/// Which form of Eq. 3 to use.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
-pub enum AdaptLossKind {
-    /// `−mean_t D(x_t) ‖a_t‖₂` (the paper's Eq. 3). Default.
-    #[default]
-    Paper,
-    /// `‖ Σ_t a_t (−D(x_t)) ‖₂` (the reference implementation).
-    Reference,
-}
+pub use crate::schema::AdaptLossKind;
 
 /// L_ad from the discriminator scores `d` (`n`) and action probabilities `probs` (`n x 6`).
 /// Writes `∂L/∂d_t` into `dd` (`n`) and `∂L/∂a_t` into `dprobs` (`n x 6`).

@@ -113,6 +113,7 @@ use crate::schema::AdaptMode;
 pub use crate::schema::{
     TensorId, FLAG_ADAPT, FLAG_COSSIM, FLAG_FULL_ADAPT, FLAG_ZERO_NOISE, NUM_TENSORS,
 };
+pub use crate::spec::AdaptSettings;
 use crate::spec::SpecError;
 use crate::spec::SETTING_KEYS;
 use crate::spec::{apply_setting, name_index, ModelSpec, SettingError, SettingKey, SettingValue};
@@ -208,64 +209,6 @@ impl MapRecord {
             map_cols: c(d.map_cols),
             cell_embed: c(d.cell_embed),
         }
-    }
-}
-
-/// The inner-loop settings of Algorithm 1 a model was trained with, stored in the header of
-/// a v2 blob (see the module docs) so that the device adapts exactly as the trainer did.
-///
-/// Both rates must be finite, non-negative and at most [`MAX_INNER_RATE`]: the encoder
-/// refuses other values, the parser rejects them with [`BlobError::BadInnerRate`], and
-/// [`Navigator::new`](crate::navigator::Navigator::new) refuses them in a
-/// [`NavConfig`](crate::navigator::NavConfig). Any `max_inner` is valid (0 turns
-/// the inner loop off even for a blob with [`FLAG_ADAPT`]).
-///
-/// The settings themselves are [`ModelSpec`]'s (`inner_lr`,
-/// [`InnerRule::disc_lr`](crate::spec::InnerRule::disc_lr), `max_inner`;
-/// [`ModelSpec::adapt_settings`], [`ModelSpec::from_bits`]); this is their v2-v4 header record
-/// (postcard: the three fields in this order).
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-pub struct AdaptSettings {
-    /// α1, the ascent rate of D on L_D (Eq. 1; paper: 1e-4): [`ModelSpec::alpha_disc`].
-    pub alpha_disc: f32,
-    /// α2, the SGD rate of θ and φ on L_ad (Eq. 3; paper: 1e-4): `ModelSpec::inner_lr`.
-    pub alpha_adapt: f32,
-    /// At most this many inner updates per episode (reference: 4): `ModelSpec::max_inner`.
-    pub max_inner: u32,
-}
-
-impl AdaptSettings {
-    /// The paper's settings, α1 = α2 = 1e-4 and at most 4 inner updates per episode: the
-    /// values of [`NavConfig::default`](crate::navigator::NavConfig) (which is built from this
-    /// constant) and the settings of every v1 blob.
-    pub const PAPER: AdaptSettings = AdaptSettings {
-        alpha_disc: 1e-4,
-        alpha_adapt: 1e-4,
-        max_inner: 4,
-    };
-
-    /// Checks that both rates are finite, non-negative and at most [`MAX_INNER_RATE`];
-    /// otherwise returns [`BlobError::BadInnerRate`] naming the first bad one.
-    pub fn validate(&self) -> Result<(), BlobError> {
-        for (field, v) in [
-            ("alpha_disc", self.alpha_disc),
-            ("alpha_adapt", self.alpha_adapt),
-        ] {
-            if !(v.is_finite() && (0.0..=MAX_INNER_RATE).contains(&v)) {
-                return Err(BlobError::BadInnerRate {
-                    field,
-                    bits: v.to_bits(),
-                });
-            }
-        }
-        Ok(())
-    }
-}
-
-impl Default for AdaptSettings {
-    /// [`AdaptSettings::PAPER`].
-    fn default() -> Self {
-        AdaptSettings::PAPER
     }
 }
 
@@ -579,6 +522,13 @@ impl Header {
     /// payload (v4); see [`Header::checksum_scope`].
     pub fn payload_crc(&self) -> u32 {
         self.payload_crc
+    }
+}
+
+impl ModelSpec {
+    /// Every setting a blob header records ([`Header::spec`]).
+    pub fn from_header(header: &Header) -> ModelSpec {
+        header.spec()
     }
 }
 

@@ -6,7 +6,7 @@
 
 use core::fmt;
 
-use crate::spec::SettingKey;
+use crate::setting_key::SettingKey;
 
 /// Which buffer or tensor had the wrong length.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

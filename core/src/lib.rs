@@ -86,6 +86,7 @@ pub mod quant;
 pub mod rng;
 pub mod schema;
 pub mod seeded;
+mod setting_key;
 pub mod spec;
 
 // What an integrator needs, at the root (the device loop above uses only these).

@@ -16,7 +16,6 @@
 //! The PS module of the dagger variants (`gman-host-sim`'s `ps`) is a host-side
 //! network: it is not part of this schema and never stored in a blob.
 
-pub use crate::ad_loss::AdaptLossKind;
 use crate::preset::Dims;
 use crate::NUM_ACTIONS;
 
@@ -270,6 +269,16 @@ pub enum Emd {
     Discriminator,
     /// The cosine similarity between x_t and s_t ("CosSim"); D is not used or updated.
     CosSim,
+}
+
+/// Which form of Eq. 3 to use ([`crate::ad_loss::adapt_loss`] computes both).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum AdaptLossKind {
+    /// `−mean_t D(x_t) ‖a_t‖₂` (the paper's Eq. 3). Default.
+    #[default]
+    Paper,
+    /// `‖ Σ_t a_t (−D(x_t)) ‖₂` (the reference implementation).
+    Reference,
 }
 
 /// Bit of the blob header's flags: the model was meta-trained to adapt at inference (GMAN); a

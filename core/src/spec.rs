@@ -14,7 +14,8 @@
 //!   [`ModelSpec::get`] and [`ModelSpec::set`] read and write a setting by its key
 //!   ([`SETTING_KEYS`]), which is how a format v5 blob header names them
 //!   ([`crate::blob`]); [`ModelSpec::bits`], [`ModelSpec::adapt_settings`] and
-//!   [`ModelSpec::from_bits`] are the v1-v4 header's form.
+//!   [`ModelSpec::from_bits`] are the v1-v4 header's form (its flag word and its
+//!   [`AdaptSettings`] record).
 //!
 //! A host checkpoint stores the training method, not whether the model adapts and its EMD,
 //! and a blob's run-time forms are set at export: those four fields are not part of the
@@ -25,7 +26,7 @@ use core::str::FromStr;
 
 use serde::{Deserialize, Deserializer, Serialize, Serializer};
 
-use crate::blob::{AdaptSettings, Header};
+use crate::error::BlobError;
 use crate::preset::MAX_INNER_RATE;
 use crate::schema::{AdaptLossKind, AdaptMode, Emd, NoiseMode, StepRule};
 use crate::schema::{
@@ -34,6 +35,8 @@ use crate::schema::{
     FLAG_INT8_ACTIVATIONS, FLAG_NORMALIZED_STEP, FLAG_PER_GROUP_STEP, FLAG_REFERENCE_ADAPT_LOSS,
     FLAG_REFERENCE_CRITIC_SCALE, FLAG_ZERO_NOISE, MAX_COMMIT_DELAY,
 };
+use crate::setting_key::index_of;
+pub use crate::setting_key::{SettingKey, SETTING_KEYS};
 
 /// A setting enum with one table of names: the form a command line, a checkpoint and a
 /// report use. `FromStr`, `Display` and serde (as the name) derive from [`Named::NAMES`].
@@ -53,58 +56,6 @@ pub trait Named: Copy + PartialEq + Sized + 'static {
     /// The value named `s`.
     fn from_name(s: &str) -> Option<Self> {
         Self::NAMES.iter().find(|e| e.1 == s).map(|e| e.0)
-    }
-}
-
-/// The index of `s` in `list`: the one lookup of a name or a key (not inlined, so that
-/// each table costs a call on a device, not an unrolled comparison per entry).
-#[inline(never)]
-pub(crate) fn index_of(list: &[&str], s: &[u8]) -> Option<usize> {
-    list.iter().position(|n| n.as_bytes() == s)
-}
-
-/// A setting of a [`ModelSpec`], by its index in [`SETTING_KEYS`] (one byte, so that an
-/// error naming it stays small); shown as its key.
-#[derive(Clone, Copy, PartialEq, Eq)]
-pub struct SettingKey(u8);
-
-impl SettingKey {
-    /// `disc_steps`.
-    pub const DISC_STEPS: SettingKey = SettingKey(7);
-    /// `commit_delay`.
-    pub const COMMIT_DELAY: SettingKey = SettingKey(13);
-    /// `disc_lr`.
-    pub const DISC_LR: SettingKey = SettingKey(5);
-
-    /// The setting whose key is `key`.
-    pub fn named(key: &str) -> Option<SettingKey> {
-        SettingKey::of(key.as_bytes())
-    }
-
-    pub(crate) fn of(key: &[u8]) -> Option<SettingKey> {
-        index_of(&SETTING_KEYS, key).map(|i| SettingKey(i as u8))
-    }
-
-    /// Its index in [`SETTING_KEYS`].
-    pub fn index(self) -> usize {
-        usize::from(self.0)
-    }
-
-    /// Its key.
-    pub fn as_str(self) -> &'static str {
-        SETTING_KEYS.get(self.index()).copied().unwrap_or("?")
-    }
-}
-
-impl fmt::Display for SettingKey {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(self.as_str())
-    }
-}
-
-impl fmt::Debug for SettingKey {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(f, "{:?}", self.as_str())
     }
 }
 
@@ -481,6 +432,63 @@ impl InnerRule {
     }
 }
 
+/// The inner-loop settings of Algorithm 1 a model was trained with, stored in the header of
+/// a v2 blob (see [`crate::blob`]) so that the device adapts exactly as the trainer did.
+///
+/// Both rates must be finite, non-negative and at most [`MAX_INNER_RATE`]: the encoder
+/// refuses other values, the parser rejects them with [`BlobError::BadInnerRate`], and
+/// [`Navigator::new`](crate::navigator::Navigator::new) refuses them in a
+/// [`NavConfig`](crate::navigator::NavConfig). Any `max_inner` is valid (0 turns
+/// the inner loop off even for a blob with [`FLAG_ADAPT`]).
+///
+/// The settings themselves are [`ModelSpec`]'s (`inner_lr`, [`InnerRule::disc_lr`],
+/// `max_inner`; [`ModelSpec::adapt_settings`], [`ModelSpec::from_bits`]); this is their v2-v4
+/// header record (postcard: the three fields in this order).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct AdaptSettings {
+    /// α1, the ascent rate of D on L_D (Eq. 1; paper: 1e-4): [`ModelSpec::alpha_disc`].
+    pub alpha_disc: f32,
+    /// α2, the SGD rate of θ and φ on L_ad (Eq. 3; paper: 1e-4): `ModelSpec::inner_lr`.
+    pub alpha_adapt: f32,
+    /// At most this many inner updates per episode (reference: 4): `ModelSpec::max_inner`.
+    pub max_inner: u32,
+}
+
+impl AdaptSettings {
+    /// The paper's settings, α1 = α2 = 1e-4 and at most 4 inner updates per episode: the
+    /// values of [`NavConfig::default`](crate::navigator::NavConfig) (which is built from this
+    /// constant) and the settings of every v1 blob.
+    pub const PAPER: AdaptSettings = AdaptSettings {
+        alpha_disc: 1e-4,
+        alpha_adapt: 1e-4,
+        max_inner: 4,
+    };
+
+    /// Checks that both rates are finite, non-negative and at most [`MAX_INNER_RATE`];
+    /// otherwise returns [`BlobError::BadInnerRate`] naming the first bad one.
+    pub fn validate(&self) -> Result<(), BlobError> {
+        for (field, v) in [
+            ("alpha_disc", self.alpha_disc),
+            ("alpha_adapt", self.alpha_adapt),
+        ] {
+            if !(v.is_finite() && (0.0..=MAX_INNER_RATE).contains(&v)) {
+                return Err(BlobError::BadInnerRate {
+                    field,
+                    bits: v.to_bits(),
+                });
+            }
+        }
+        Ok(())
+    }
+}
+
+impl Default for AdaptSettings {
+    /// [`AdaptSettings::PAPER`].
+    fn default() -> Self {
+        AdaptSettings::PAPER
+    }
+}
+
 /// The model's switches a blob header records and a host checkpoint stores (under these
 /// keys, beside the method and sizes): G's noise, the adaptation mode, the inner rates
 /// (`inner_lr` = α2, and α1 unless the rule sets its own), the cap on inner updates and the
@@ -688,11 +696,6 @@ impl ModelSpec {
             compact_psi: on(FLAG_COMPACT_PSI),
         }
     }
-
-    /// Every setting a blob header records ([`Header::spec`]).
-    pub fn from_header(header: &Header) -> ModelSpec {
-        header.spec()
-    }
 }
 
 /// A setting's value as a format v5 blob header stores it: its type is part of the record,
@@ -726,28 +729,6 @@ pub enum SettingError {
     /// `commit_delay`: 0..=[`MAX_COMMIT_DELAY`]).
     OutOfRange,
 }
-
-/// The key of every setting of a [`ModelSpec`], in the order the blob encoder writes them
-/// (the same words as the serde form's keys, and as the command line's flags without the
-/// dashes and with `_` for `-`).
-pub const SETTING_KEYS: [&str; 16] = [
-    "adapt",
-    "emd",
-    "noise",
-    "adapt_mode",
-    "inner_lr",
-    "disc_lr",
-    "max_inner",
-    "disc_steps",
-    "step_rule",
-    "disc_head_reset",
-    "adapt_loss",
-    "reference_critic",
-    "head_only",
-    "commit_delay",
-    "int8_activations",
-    "compact_psi",
-];
 
 /// The type of each setting's value, in [`SETTING_KEYS`] order: the tag of its
 /// [`SettingValue`] variant (0 `U32`, 1 `F32`, 2 `Name`, 3 `Bool`).

@@ -916,24 +916,12 @@ unsafe fn init(
     // SAFETY: forwarded from the caller.
     let out = unsafe { out_ref(out) }?;
     *out = ptr::null_mut();
-    let opts = if opts.is_null() {
-        gman_options::default()
-    } else if !opts.is_aligned() {
-        return Err(GMAN_ERR_ALIGNMENT);
-    } else {
-        // SAFETY: non-null, aligned, readable per the caller; plain integers.
-        unsafe { ptr::read(opts) }
-    };
+    // SAFETY: forwarded from the caller.
+    let opts = unsafe { read_options(opts) }?;
     if arena.is_null() {
         return Err(GMAN_ERR_NULL);
     }
-    let parse = ParseOptions {
-        require_header_crc: match opts.require_header_crc {
-            0 => false,
-            1 => true,
-            _ => return Err(GMAN_ERR_CONFIG),
-        },
-    };
+    let parse = parse_options(&opts)?;
     // SAFETY: forwarded from the caller. The weights borrow the blob for as long as the
     // caller keeps the handle, which the API's contract makes the caller guarantee ('static
     // stands for "as long as the handle is used").
@@ -946,17 +934,68 @@ unsafe fn init(
     let cfg = init_config(&blob, &opts)?;
     let dims = blob.dims();
     let weights = NavWeights::from_blob(&blob, &dims).map_err(|e| status_of(&e))?;
+    let mode = info.settings.adapt_mode;
     // Every check of the settings before the arena is written: a refused call leaves a live
     // navigator in this arena untouched.
-    match info.settings.adapt_mode {
+    match mode {
         0 => Navigator::<'static, Efficient, K>::check_settings(&weights, &cfg),
         _ => Navigator::<'static, Full, K>::check_settings(&weights, &cfg),
     }
     .map_err(|e| status_of(&e))?;
+    // SAFETY: `arena` is non-null and the caller's `arena_len >= need` bytes there are
+    // writable and exclusively ours while the handle is used; `need` is the blob's
+    // `arena_bytes`, which counts the alignment pad and the handle's bytes.
+    let (hp, ram) = unsafe { carve_arena(arena, need) };
+    // SAFETY: `hp` is `carve_arena`'s handle region, aligned and inside the arena.
+    let nav = unsafe { start_navigator(hp, mode, weights, ram, cfg) }?;
+    info.arena_bytes = need as u64;
+    info.settings = settings_of(&cfg.model);
+    // SAFETY: as above; nothing else refers to the handle region.
+    unsafe { write_handle(hp, used, info, nav) };
+    *out = hp as *mut gman_nav;
+    Ok(())
+}
+
+/// The run-time options at `opts` (NULL: the defaults; a misaligned pointer is
+/// [`GMAN_ERR_ALIGNMENT`]).
+///
+/// # Safety
+/// A non-null `opts` must be readable.
+unsafe fn read_options(opts: *const gman_options) -> Result<gman_options, gman_status> {
+    if opts.is_null() {
+        Ok(gman_options::default())
+    } else if !opts.is_aligned() {
+        Err(GMAN_ERR_ALIGNMENT)
+    } else {
+        // SAFETY: non-null, aligned, readable per the caller; plain integers.
+        Ok(unsafe { ptr::read(opts) })
+    }
+}
+
+/// How `gman_init` parses the blob under `opts` (`require_header_crc` is 0 or 1, else
+/// [`GMAN_ERR_CONFIG`]).
+fn parse_options(opts: &gman_options) -> Result<ParseOptions, gman_status> {
+    Ok(ParseOptions {
+        require_header_crc: match opts.require_header_crc {
+            0 => false,
+            1 => true,
+            _ => return Err(GMAN_ERR_CONFIG),
+        },
+    })
+}
+
+/// The first `need` bytes of `arena` as the handle's region (at the first 16-byte aligned
+/// address) and the navigator's floats after its [`GMAN_HANDLE_BYTES`], zeroed.
+///
+/// # Safety
+/// `arena` non-null and writable for `need` bytes, exclusively ours for as long as the handle
+/// is used; `need` at least `GMAN_ARENA_ALIGN + GMAN_HANDLE_BYTES` (a blob's `arena_bytes`).
+unsafe fn carve_arena(arena: *mut u8, need: usize) -> (*mut Handle, &'static mut [f32]) {
     let pad = (GMAN_ARENA_ALIGN - (arena as usize) % GMAN_ARENA_ALIGN) % GMAN_ARENA_ALIGN;
     let floats = (need - GMAN_ARENA_ALIGN - GMAN_HANDLE_BYTES) / 4;
-    // SAFETY: `pad + GMAN_HANDLE_BYTES + 4 * floats <= need <= arena_len`, so both regions
-    // lie inside the caller's arena, which it guarantees writable and exclusively ours.
+    // SAFETY: `pad + GMAN_HANDLE_BYTES + 4 * floats <= need`, so both regions lie inside
+    // the `need` bytes of the caller's arena, which it guarantees writable and exclusively
+    // ours.
     let (hp, fp) = unsafe {
         let base = arena.add(pad);
         (base as *mut Handle, base.add(GMAN_HANDLE_BYTES) as *mut f32)
@@ -968,23 +1007,45 @@ unsafe fn init(
         ptr::write_bytes(fp, 0, floats);
         core::slice::from_raw_parts_mut(fp, floats)
     };
-    let nav = match info.settings.adapt_mode {
+    (hp, ram)
+}
+
+/// The navigator over `weights` in `ram`, in the blob's adaptation mode (`mode` 0:
+/// Efficient, else Full). A refusal poisons the handle region `hp`.
+///
+/// # Safety
+/// `hp` aligned for a `Handle` and inside the caller's arena, which is ours.
+unsafe fn start_navigator(
+    hp: *mut Handle,
+    mode: u32,
+    weights: NavWeights<'static>,
+    ram: &'static mut [f32],
+    cfg: NavConfig,
+) -> Result<Nav, gman_status> {
+    let nav = match mode {
         0 => Navigator::new(weights, ram, cfg).map(Nav::Efficient),
         _ => Navigator::new(weights, ram, cfg).map(Nav::Full),
     };
-    let nav = match nav {
-        Ok(n) => n,
+    match nav {
+        Ok(n) => Ok(n),
         Err(e) => {
-            // Not reached (the checks above are Navigator::new's): a navigator that lived in
-            // this arena lost its state, so its handle must not run.
+            // Not reached (the checks in `init` are Navigator::new's): a navigator that lived
+            // in this arena lost its state, so its handle must not run.
             // SAFETY: `hp` is aligned and inside the arena, which is ours; only the first
             // field's 8 bytes are written.
             unsafe { ptr::write(ptr::addr_of_mut!((*hp).magic), POISONED) };
-            return Err(status_of(&e));
+            Err(status_of(&e))
         }
-    };
-    info.arena_bytes = need as u64;
-    info.settings = settings_of(&cfg.model);
+    }
+}
+
+/// Writes the complete handle of `nav` (its `info`, the arena bytes it uses `arena`, the
+/// message "no error") at `hp`.
+///
+/// # Safety
+/// `hp` aligned for a `Handle`, with `GMAN_HANDLE_BYTES` bytes of the caller's arena at it
+/// that are ours.
+unsafe fn write_handle(hp: *mut Handle, arena: Span, info: gman_info, nav: Nav) {
     let mut msg = [0u8; MSG_LEN];
     set_msg(&mut msg, format_args!("no error"));
     // SAFETY: `hp` is aligned (16 >= align_of::<Handle>()) and GMAN_HANDLE_BYTES >=
@@ -996,15 +1057,13 @@ unsafe fn init(
             hp,
             Handle {
                 magic: MAGIC,
-                arena: used,
+                arena,
                 info,
                 msg,
                 nav,
             },
         )
     };
-    *out = hp as *mut gman_nav;
-    Ok(())
 }
 
 /// The navigator configuration of `blob` with the run-time options `opts`.
