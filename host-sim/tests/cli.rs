@@ -335,6 +335,22 @@ fn emd_report_measures_a_gman_model() {
 
 /// `gman train --noise zero` reaches the model: the checkpoint exports to a blob whose flags
 /// say zero noise (the default run's blob would not).
+/// `gman export` of the run directory's checkpoint to `blob`, then what `gman inspect` prints
+/// of it.
+fn export_and_inspect(run: &std::path::Path, blob: &std::path::Path) -> String {
+    let (ok, _, err) = gman(&[
+        "export",
+        "--ckpt",
+        run.join("checkpoint.ckpt").to_str().unwrap(),
+        "--out",
+        blob.to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    let (ok, stdout, err) = gman(&["inspect", blob.to_str().unwrap()]);
+    assert!(ok, "{err}");
+    stdout
+}
+
 #[test]
 fn train_noise_flag_reaches_the_blob() {
     let d = tmp("noise");
@@ -356,17 +372,7 @@ fn train_noise_flag_reaches_the_blob() {
         run.to_str().unwrap(),
     ]);
     assert!(ok, "{err}");
-    let blob = d.join("m.gman");
-    let (ok, _, err) = gman(&[
-        "export",
-        "--ckpt",
-        run.join("checkpoint.ckpt").to_str().unwrap(),
-        "--out",
-        blob.to_str().unwrap(),
-    ]);
-    assert!(ok, "{err}");
-    let (ok, stdout, err) = gman(&["inspect", blob.to_str().unwrap()]);
-    assert!(ok, "{err}");
+    let stdout = export_and_inspect(&run, &d.join("m.gman"));
     assert!(stdout.contains("zero noise"), "{stdout}");
     let (ok, _, err) = gman(&["train", "--noise", "none", "--out", run.to_str().unwrap()]);
     assert!(!ok && err.contains("--noise"), "{err}");
@@ -392,17 +398,7 @@ fn gman_ref_recipe_reaches_the_blob() {
             stdout.contains("gman-fixed-g") || err.contains("gman-fixed-g"),
             "{stdout}{err}"
         );
-        let blob = d.join(format!("{name}.gman"));
-        let (ok, _, err) = gman(&[
-            "export",
-            "--ckpt",
-            run.join("checkpoint.ckpt").to_str().unwrap(),
-            "--out",
-            blob.to_str().unwrap(),
-        ]);
-        assert!(ok, "{err}");
-        let (ok, stdout, err) = gman(&["inspect", blob.to_str().unwrap()]);
-        assert!(ok, "{err}");
+        let stdout = export_and_inspect(&run, &d.join(format!("{name}.gman")));
         for setting in [
             "noise=zero",
             "disc_lr=0e0",
