@@ -56,14 +56,23 @@ pub fn default_blob_in(base: &std::path::Path) -> Vec<u8> {
     std::fs::read(base.join(TRAINED)).unwrap_or_else(|_| seeded_blob(&FIRMWARE_DIMS, 1))
 }
 
-/// `bytes` re-emitted with [`FLAG_ZERO_NOISE`] (G's noise z = 0 at navigation): every tensor,
-/// the other flags and the inner-loop settings kept, the CRC recomputed.
-pub fn with_zero_noise(bytes: &[u8]) -> Result<Vec<u8>, gman_core::BlobError> {
-    let flags = Blob::parse(bytes)?.header().flags() | FLAG_ZERO_NOISE;
+/// `bytes` re-emitted with the header flags `flags` makes of its own: every tensor and the
+/// inner-loop settings kept, the CRC recomputed.
+fn with_flags(
+    bytes: &[u8],
+    flags: impl FnOnce(u32) -> u32,
+) -> Result<Vec<u8>, gman_core::BlobError> {
+    let flags = flags(Blob::parse(bytes)?.header().flags());
     let mut out = vec![0u8; reencoded_len_bound(bytes)];
     let n = reencode_with_flags(bytes, flags, &mut out)?;
     out.truncate(n);
     Ok(out)
+}
+
+/// `bytes` re-emitted with [`FLAG_ZERO_NOISE`] (G's noise z = 0 at navigation): every tensor,
+/// the other flags and the inner-loop settings kept, the CRC recomputed.
+pub fn with_zero_noise(bytes: &[u8]) -> Result<Vec<u8>, gman_core::BlobError> {
+    with_flags(bytes, |f| f | FLAG_ZERO_NOISE)
 }
 
 /// The blob the firmware embeds for its features: without `gaussian_noise` (the firmware's
@@ -84,18 +93,6 @@ pub fn firmware_blob_in(
             Err(_) => with_zero_noise(&seeded_blob(&FIRMWARE_DIMS, 1))?,
         }
     };
-    let flags = Blob::parse(&blob)?.header().flags();
     let act = FLAG_INT8_ACTIVATIONS | FLAG_COMPACT_PSI;
-    let want = if int8_activations {
-        flags | act
-    } else {
-        flags & !act
-    };
-    if want == flags {
-        return Ok(blob);
-    }
-    let mut out = vec![0u8; reencoded_len_bound(&blob)];
-    let n = reencode_with_flags(&blob, want, &mut out)?;
-    out.truncate(n);
-    Ok(out)
+    with_flags(&blob, |f| if int8_activations { f | act } else { f & !act })
 }

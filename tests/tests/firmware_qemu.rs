@@ -237,7 +237,7 @@ fn build_image(
     #[cfg(unix)]
     drop(lock);
     assert!(status.success(), "firmware build failed");
-    target_dir.join("thumbv7em-none-eabihf/release/gman-firmware-example")
+    elf_in(target_dir)
 }
 
 /// [`build_image`], then runs the image under QEMU in firmware-example/ (where it opens
@@ -663,7 +663,7 @@ fn figures_region(kind: &str, runs: &Runs, rustc: &str) -> String {
 /// The peak stack of each phase in the three images (the `# stack:` lines) and the default
 /// image's RAM total.
 fn stack_table(runs: &Runs) -> String {
-    let g = |m: &HashMap<String, u64>, k: &str| *m.get(k).expect("measured key");
+    let g = measured;
     let d = &runs.default;
     let mut t = String::from("| phase | default image | int8, `gaussian-noise,selftest` | f32 with `selftest` |\n|---|---:|---:|---:|\n");
     t += &format!(
@@ -696,7 +696,7 @@ fn millions(n: u64) -> String {
 
 /// The README's one paragraph of device figures.
 fn summary(runs: &Runs) -> String {
-    let g = |m: &HashMap<String, u64>, k: &str| *m.get(k).expect("measured key");
+    let g = measured;
     let d = &runs.default;
     let (plain, mean, max) = (
         g(d, "mean_insns"),
@@ -727,12 +727,20 @@ fn summary(runs: &Runs) -> String {
     )
 }
 
+/// The value of `key=` in an image's measurements (its `# ` lines).
+fn measured(m: &HashMap<String, u64>, key: &str) -> u64 {
+    *m.get(key)
+        .unwrap_or_else(|| panic!("no {key}= in the measurements"))
+}
+
+/// The ELF of the firmware built in `target_dir`.
+fn elf_in(target_dir: &std::path::Path) -> PathBuf {
+    target_dir.join("thumbv7em-none-eabihf/release/gman-firmware-example")
+}
+
 /// The ELF of an image built in `target/DIR` of the firmware (`""`: the default image).
 fn image_elf(dir: &str) -> PathBuf {
-    fw_dir()
-        .join("target")
-        .join(dir)
-        .join("thumbv7em-none-eabihf/release/gman-firmware-example")
+    elf_in(&fw_dir().join("target").join(dir))
 }
 
 /// The part of the image a symbol's code or constant data belongs to (`nm -C` names; LTO
@@ -817,7 +825,7 @@ fn flash_parts(elf: &std::path::Path, blob_bytes: u64) -> Vec<u64> {
 /// Where the default and the Gaussian image's flash goes, part by part (`flash_parts`), the
 /// rest being alignment, the vector table's padding and unnamed constants.
 fn flash_parts_table(runs: &Runs) -> String {
-    let g = |m: &HashMap<String, u64>, k: &str| *m.get(k).expect("measured key");
+    let g = measured;
     let imgs = [("", &runs.default), ("gaussian", &runs.gaussian)];
     let sums: Vec<Vec<u64>> = imgs
         .iter()
@@ -852,10 +860,7 @@ fn flash_parts_table(runs: &Runs) -> String {
 /// The budget table of the three images (the `# budget:`, `# step ...`, `# reset`, `# inner
 /// update` and `# memory:` lines) with the goals and whether the default image meets them.
 fn budget_table(runs: &Runs, rustc: &str) -> String {
-    let g = |m: &HashMap<String, u64>, k: &str| {
-        *m.get(k)
-            .unwrap_or_else(|| panic!("no {k}= in the measurements"))
-    };
+    let g = measured;
     let imgs = [&runs.default, &runs.gaussian, &runs.f32];
     type Cell<'a> = &'a dyn Fn(&HashMap<String, u64>) -> String;
     let row = |name: &str, cell: Cell<'_>, goal: &str, met: Option<bool>| {
