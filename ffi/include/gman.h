@@ -41,6 +41,9 @@
 // Arena bytes for the `Paper` preset (Efficient mode).
 #define GMAN_ARENA_BYTES_PAPER 528364
 
+// Longest key or value name of a [`gman_setting`], with its terminating NUL.
+#define GMAN_SETTING_TEXT 24
+
 // An opaque navigator; it lives inside the caller's arena ([`gman_init`]).
 typedef struct gman_nav gman_nav;
 
@@ -111,6 +114,24 @@ typedef struct gman_info {
   // Bytes of arena a navigator over this blob needs ([`gman_arena_size`]).
   uint64_t arena_bytes;
 } gman_info;
+
+// One of a model's settings, by key ([`gman_blob_setting`]): every setting the blob
+// records, including those [`gman_settings`] does not carry, so that a program can list
+// them all without knowing them in advance.
+typedef struct gman_setting {
+  // The setting's key, NUL-terminated (e.g. `"commit_delay"`, the word `gman inspect`
+  // prints and `gman train`'s flag spells with dashes); empty past the last setting.
+  char key[GMAN_SETTING_TEXT];
+  // Its type: 0 a count (`count`), 1 a rate (`rate`), 2 a name (`name`), 3 a switch
+  // (`count`, 0 or 1), 4 not set (`disc_lr` when α1 follows α2).
+  uint32_t kind;
+  // The value of a count or a switch.
+  uint32_t count;
+  // The value of a rate.
+  float rate;
+  // The value of a name, NUL-terminated (e.g. `"per-group"`); empty for other types.
+  char name[GMAN_SETTING_TEXT];
+} gman_setting;
 
 // Options of [`gman_init`]; pass NULL for the defaults (all fields 0).
 typedef struct gman_options {
@@ -283,6 +304,19 @@ gman_status gman_inspect(const uint8_t *blob, size_t len, struct gman_info *out)
 // # Safety
 // As [`gman_inspect`].
 gman_status gman_arena_size(const uint8_t *blob, size_t len, size_t *out);
+
+// Setting number `index` (0, 1, ...) of the validated blob (`len` bytes at `blob`) in
+// `*out`: its key, type and value. Past the last setting `out->key` is empty (and the
+// call returns [`GMAN_OK`]), so a program lists every setting with
+// `for (i = 0; gman_blob_setting(blob, len, i, &s) == GMAN_OK && s.key[0]; i++)`.
+// The blob is validated on every call, as by [`gman_inspect`].
+//
+// # Safety
+// As [`gman_inspect`].
+gman_status gman_blob_setting(const uint8_t *blob,
+                              size_t len,
+                              uint32_t index,
+                              struct gman_setting *out);
 
 // Makes a navigator over the blob (read in place) inside `arena` (`arena_len` bytes, at
 // least [`gman_arena_size`], any alignment) and stores its handle (a pointer into the

@@ -108,6 +108,68 @@ pub unsafe extern "C" fn gman_arena_size(
     }
 }
 
+/// Setting number `index` (0, 1, ...) of the validated blob (`len` bytes at `blob`) in
+/// `*out`: its key, type and value. Past the last setting `out->key` is empty (and the
+/// call returns [`GMAN_OK`]), so a program lists every setting with
+/// `for (i = 0; gman_blob_setting(blob, len, i, &s) == GMAN_OK && s.key[0]; i++)`.
+/// The blob is validated on every call, as by [`gman_inspect`].
+///
+/// # Safety
+/// As [`gman_inspect`].
+#[no_mangle]
+pub unsafe extern "C" fn gman_blob_setting(
+    blob: *const u8,
+    len: usize,
+    index: u32,
+    out: *mut gman_setting,
+) -> gman_status {
+    guard(|| {
+        let r = if blob_too_long(len) {
+            Err(GMAN_ERR_BLOB)
+        } else {
+            disjoint(Span::EMPTY, &[Span::of(blob, len)], &[Span::one(out)])
+        };
+        // SAFETY: forwarded from the caller.
+        let r = r.and_then(|()| unsafe { out_ref(out) }).and_then(|o| {
+            // SAFETY: forwarded from the caller.
+            let (b, _) = unsafe { parse_blob(blob, len, ParseOptions::default()) }?;
+            *o = setting_at(&b.header().spec(), index as usize);
+            Ok(())
+        });
+        r.err().unwrap_or(GMAN_OK)
+    })
+}
+
+/// The C form of setting number `i` of `m` (an empty key past the last).
+pub(crate) fn setting_at(m: &ModelSpec, i: usize) -> gman_setting {
+    let mut s = gman_setting::default();
+    let Some(key) = SETTING_KEYS.get(i) else {
+        return s;
+    };
+    c_text(key, &mut s.key);
+    match m.get(key) {
+        Some(SettingValue::U32(n)) => s.count = n,
+        Some(SettingValue::F32(a)) => (s.kind, s.rate) = (1, a),
+        Some(SettingValue::Name(n)) => {
+            s.kind = 2;
+            c_text(n, &mut s.name);
+        }
+        Some(SettingValue::Bool(b)) => (s.kind, s.count) = (3, u32::from(b)),
+        None => s.kind = 4,
+    }
+    s
+}
+
+/// `text` into `out`, NUL-terminated (cut to fit; every key and name fits, a test checks).
+fn c_text(text: &str, out: &mut [c_char; GMAN_SETTING_TEXT]) {
+    for (o, &b) in out
+        .iter_mut()
+        .zip(text.as_bytes().iter().take(GMAN_SETTING_TEXT - 1))
+    {
+        *o = b as c_char;
+    }
+}
+
 /// `*out = f(info)` of the validated blob's description `info`, as a status: the body of
 /// [`gman_inspect`] and [`gman_arena_size`].
 ///

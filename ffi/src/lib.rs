@@ -47,7 +47,7 @@ use gman_core::navigator::{
     Efficient, Emd, Full, NavConfig, NavWeights, Navigator, NoiseMode, Schedule, Selection,
     StepOutput,
 };
-use gman_core::spec::ModelSpec;
+use gman_core::spec::{ModelSpec, SettingValue, SETTING_KEYS};
 use gman_core::{BlobError, Dims, Error, NUM_ACTIONS};
 
 /// The Rust blocks of the integration guide, compiled as doc tests.
@@ -117,20 +117,20 @@ const _: () = assert!(
     GMAN_ARENA_BYTES_PAPER == unwrap_or_zero(arena_bytes_for(&Dims::PAPER, AdaptMode::Efficient))
 );
 
-mod status;
-mod types;
-mod handle;
-mod boundary;
 mod blob_info;
+mod boundary;
+mod handle;
 mod init;
 mod nav;
+mod status;
+mod types;
 
 use blob_info::*;
 use boundary::*;
 use handle::*;
 use status::*;
 
-pub use blob_info::{gman_arena_size, gman_inspect};
+pub use blob_info::{gman_arena_size, gman_blob_setting, gman_inspect};
 pub use init::gman_init;
 pub use nav::*;
 pub use status::*;

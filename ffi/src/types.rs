@@ -71,6 +71,41 @@ pub struct gman_settings {
     pub commit_delay: u32,
 }
 
+/// Longest key or value name of a [`gman_setting`], with its terminating NUL.
+pub const GMAN_SETTING_TEXT: usize = 24;
+
+/// One of a model's settings, by key ([`gman_blob_setting`]): every setting the blob
+/// records, including those [`gman_settings`] does not carry, so that a program can list
+/// them all without knowing them in advance.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct gman_setting {
+    /// The setting's key, NUL-terminated (e.g. `"commit_delay"`, the word `gman inspect`
+    /// prints and `gman train`'s flag spells with dashes); empty past the last setting.
+    pub key: [c_char; GMAN_SETTING_TEXT],
+    /// Its type: 0 a count (`count`), 1 a rate (`rate`), 2 a name (`name`), 3 a switch
+    /// (`count`, 0 or 1), 4 not set (`disc_lr` when α1 follows α2).
+    pub kind: u32,
+    /// The value of a count or a switch.
+    pub count: u32,
+    /// The value of a rate.
+    pub rate: f32,
+    /// The value of a name, NUL-terminated (e.g. `"per-group"`); empty for other types.
+    pub name: [c_char; GMAN_SETTING_TEXT],
+}
+
+impl Default for gman_setting {
+    fn default() -> Self {
+        gman_setting {
+            key: [0; GMAN_SETTING_TEXT],
+            kind: 0,
+            count: 0,
+            rate: 0.0,
+            name: [0; GMAN_SETTING_TEXT],
+        }
+    }
+}
+
 /// Options of [`gman_init`]; pass NULL for the defaults (all fields 0).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq)]

@@ -611,6 +611,13 @@ class Navigator:
         return tuple(self._core.map_shape)  # type: ignore[return-value]
 
     @property
+    def settings(self) -> Dict[str, Any]:
+        """Every setting of the model by key (``gman inspect``'s words), e.g.
+        ``{"adapt": True, "inner_lr": 0.01, "step_rule": "paper", ...}``; ``None`` for a
+        setting that follows another (``disc_lr`` when it is ``inner_lr``)."""
+        return dict(self._core.settings)
+
+    @property
     def buffered(self) -> int:
         """Steps buffered for the next inner update."""
         return self._core.buffered

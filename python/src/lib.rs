@@ -12,6 +12,7 @@ use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex, OnceLock};
 
 use gman_core::navigator::{Efficient, Full, Navigator};
+use gman_core::spec::{SettingValue, SETTING_KEYS};
 use gman_core::{Action, ATTR_DIM, FEATURE_DIM, NUM_ACTIONS};
 use gman_train::eval::agent::NavAgent;
 use gman_train::model::{load_model, model_from_blob, NavModel, K};

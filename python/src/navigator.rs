@@ -186,4 +186,23 @@ impl PyNavigator {
     fn map_len(&self) -> usize {
         self.map_len
     }
+
+    /// Every setting of the model, by key (gman-core's `SETTING_KEYS`, the words `gman
+    /// inspect` prints): a count or a switch as an `int` or `bool`, a rate as a `float`, a
+    /// name as a `str`; `None` for a setting that follows another (`disc_lr` when α1 is α2).
+    #[getter]
+    fn settings<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let spec = self.cell.borrow_model().spec;
+        let d = PyDict::new(py);
+        for key in SETTING_KEYS {
+            match spec.get(key) {
+                Some(SettingValue::U32(n)) => d.set_item(key, n)?,
+                Some(SettingValue::F32(a)) => d.set_item(key, a)?,
+                Some(SettingValue::Name(n)) => d.set_item(key, n)?,
+                Some(SettingValue::Bool(b)) => d.set_item(key, b)?,
+                None => d.set_item(key, py.None())?,
+            }
+        }
+        Ok(d)
+    }
 }

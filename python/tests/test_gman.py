@@ -209,6 +209,27 @@ def test_navigator_step_and_adapt():
     assert nav.adapt() is True and nav.buffered == 0
 
 
+def test_navigator_settings_match_gman_inspect():
+    """Every setting the blob records, by key, as `gman inspect` prints them."""
+    printed = subprocess.run(
+        [gman_cli(), "inspect", str(BLOB)], capture_output=True, text=True, check=True
+    ).stdout
+    line = next(l for l in printed.splitlines() if l.startswith("settings by key: "))
+    want = dict(kv.split("=", 1) for kv in line[len("settings by key: "):].split())
+    got = gman.Navigator.from_file(BLOB).settings
+    assert list(got) == list(want)
+    for key, value in got.items():
+        w = want[key]
+        if value is None:
+            assert w.startswith("("), (key, w)
+        elif isinstance(value, bool):
+            assert w == str(value).lower(), (key, w)
+        elif isinstance(value, float):
+            assert float(w) == pytest.approx(value, rel=1e-6), (key, w)
+        else:
+            assert w == str(value), (key, w)
+
+
 def test_bad_inputs_raise_clear_exceptions():
     env = gman.make_vec_env(num_envs=2)
     with pytest.raises(RuntimeError, match="reset"):

@@ -66,7 +66,7 @@ enum {
     F_API_VERSION, F_STATUS_STR, F_CRC32, F_INSPECT, F_ARENA_SIZE, F_INIT, F_RESET, F_STEP,
     F_ADAPT_NOW, F_ADAPT_SLICE, F_SETTLE, F_GET_SCHEDULE, F_BUFFERED, F_GET_COUNTERS,
     F_LAST_ADAPTATION, F_NAV_INFO, F_GENERATED_FEATURE, F_GENERATOR_OUTPUT, F_LAST_ERROR,
-    F_COUNT
+    F_BLOB_SETTING, F_COUNT
 };
 
 typedef struct blob_t {
@@ -373,6 +373,14 @@ static void sweep_blob_functions(const blob_t *b, nav_t *v) {
     SWEEP(F_ARENA_SIZE, gman_arena_size(NULL, b->len, &as), GMAN_ERR_NULL);
     SWEEP(F_ARENA_SIZE, gman_arena_size(b->bytes, b->len, NULL), GMAN_ERR_NULL);
     SWEEP(F_ARENA_SIZE, gman_arena_size(b->bytes, b->len, (size_t *)(b->bytes + 64)), GMAN_ERR_OVERLAP);
+    gman_setting gs;
+    SWEEP(F_BLOB_SETTING, gman_blob_setting(NULL, b->len, 0, &gs), GMAN_ERR_NULL);
+    SWEEP(F_BLOB_SETTING, gman_blob_setting(b->bytes, b->len, 0, NULL), GMAN_ERR_NULL);
+    SWEEP(F_BLOB_SETTING, gman_blob_setting(b->bytes, b->len - 1, 0, &gs), GMAN_ERR_BLOB);
+    SWEEP(F_BLOB_SETTING, gman_blob_setting(b->bytes, b->len, 0, (gman_setting *)((uint8_t *)raw + 1)), GMAN_ERR_ALIGNMENT);
+    SWEEP(F_BLOB_SETTING, gman_blob_setting(b->bytes, b->len, 0, (gman_setting *)(b->bytes + 64)), GMAN_ERR_OVERLAP);
+    SWEEP(F_BLOB_SETTING, gman_blob_setting(b->bytes, b->len, 1u << 31, &gs), GMAN_OK);
+    CHECK(gs.key[0] == 0, "past the last setting the key is empty");
     SWEEP(F_INIT, gman_init(NULL, b->len, arena, alen, NULL, &h), GMAN_ERR_NULL);
     SWEEP(F_INIT, gman_init(b->bytes, b->len, NULL, alen, NULL, &h), GMAN_ERR_NULL);
     SWEEP(F_INIT, gman_init(b->bytes, b->len, arena, alen, NULL, NULL), GMAN_ERR_NULL);
