@@ -62,44 +62,26 @@
 #![forbid(unsafe_code)]
 #![warn(missing_docs)]
 
-pub mod action;
-pub mod activation;
-pub mod ad_loss;
 pub mod adapt;
-pub mod batch;
-pub mod batch_cols;
 pub mod blob;
-pub mod crc32;
-pub mod dense;
-pub mod discriminator;
 pub mod error;
-pub mod generator;
-pub mod inner;
-pub mod lstm;
-pub mod matrix;
-pub mod memory;
 pub mod navigator;
-pub mod policy;
-pub mod preset;
-pub mod qkernel;
-pub mod quant;
+pub mod nets;
+pub mod nn;
 pub mod rng;
-pub mod schema;
-pub mod seeded;
-mod setting_key;
 pub mod spec;
 
 // What an integrator needs, at the root (the device loop above uses only these).
-pub use action::{Action, NUM_ACTIONS};
 pub use blob::{Blob, Header};
 pub use error::{BlobError, Error, Result, ShapeError};
-pub use memory::{arena_len, try_arena_len, Footprint};
+pub use navigator::memory::{arena_len, try_arena_len, Footprint};
 pub use navigator::{
     AdaptReport, Counters, Efficient, Full, Mode, NavConfig, NavWeights, Navigator, Schedule,
     Selection, StepOutput,
 };
-pub use preset::{Dims, Mcu, Paper, Preset};
-pub use schema::AdaptMode;
+pub use spec::action::{Action, NUM_ACTIONS};
+pub use spec::preset::{Dims, Mcu, Paper, Preset};
+pub use spec::schema::AdaptMode;
 
 /// Width of the semantic embedding SE(y) (the attribute vector), fixed by the data.
 pub const ATTR_DIM: usize = 45;

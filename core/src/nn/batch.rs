@@ -4,7 +4,7 @@
 //!
 //! A batch of `n` vectors is stored **batch-major**: vector `b` of a segment of length `len`
 //! is `seg[b * len .. (b + 1) * len]`, so a batch of inputs given as segments is a list of
-//! `n x len_s` row-major blocks (the same segment convention as [`crate::matrix`]).
+//! `n x len_s` row-major blocks (the same segment convention as [`crate::nn::matrix`]).
 //!
 //! # Contract: the same bits as the batch-1 kernels
 //! Every kernel here gives, for every vector `b` of the batch, exactly the bits the
@@ -13,7 +13,7 @@
 //! `b = 0, 1, .., n - 1` in that order. A batch is therefore a pure speed-up: results,
 //! training runs and the host/device parity do not depend on how work is batched. The unit
 //! tests below pin this contract against a plain transcription of the canonical order
-//! ([`crate::matrix::dot`], [`crate::matrix::axpy`]).
+//! ([`crate::nn::matrix::dot`], [`crate::nn::matrix::axpy`]).
 //!
 //! # The canonical order, and how the blocked bodies keep it
 //! * `y = W x`: per (row, vector, segment) eight accumulators over the segment's chunks of
@@ -38,8 +38,8 @@
 //! them on a matrix view with [`MatRef::with_kernels`].
 
 use crate::error::{check_len, Result};
-pub use crate::matrix::Kernels;
-use crate::matrix::{axpy, axpy_i8, dot, dot_i8, dot_le, seg_len, MatRef, Scales, Weights};
+pub use crate::nn::matrix::Kernels;
+use crate::nn::matrix::{axpy, axpy_i8, dot, dot_i8, dot_le, seg_len, MatRef, Scales, Weights};
 
 /// Most segments a batched input may have (the layers use at most four).
 pub const MAX_SEGS: usize = 8;
@@ -56,10 +56,10 @@ impl MatRef<'_> {
             return Ok(());
         }
         if self.int8_activations() {
-            return crate::qkernel::matvec_acc_int8(self, x, y);
+            return crate::nn::qkernel::matvec_acc_int8(self, x, y);
         }
-        if !crate::qkernel::F32_ACTIVATIONS && self.is_int8() {
-            return Err(crate::qkernel::NO_F32_ACTIVATIONS);
+        if !crate::nn::qkernel::F32_ACTIVATIONS && self.is_int8() {
+            return Err(crate::nn::qkernel::NO_F32_ACTIVATIONS);
         }
         if x.len() > MAX_SEGS {
             self.matvec_acc_many(x, y);
@@ -106,7 +106,7 @@ impl MatRef<'_> {
     /// the Cortex-M4F for f32 weights (the same canonical order as the blocked body).
     fn matvec_acc_many(&self, x: &[&[f32]], y: &mut [f32]) {
         // (Without `f32-activations` its callers refuse int8 weights first.)
-        if !crate::qkernel::F32_ACTIVATIONS && self.is_int8() {
+        if !crate::nn::qkernel::F32_ACTIVATIONS && self.is_int8() {
             return;
         }
         match self.weights() {
@@ -279,12 +279,12 @@ pub fn matmul_acc(
             for ((s, seg), &l) in xs.iter_mut().zip(x).zip(lens) {
                 *s = &seg[b * l..(b + 1) * l];
             }
-            crate::qkernel::matvec_acc_int8(w, &xs[..x.len()], yb)?;
+            crate::nn::qkernel::matvec_acc_int8(w, &xs[..x.len()], yb)?;
         }
         return Ok(());
     }
-    if !crate::qkernel::F32_ACTIVATIONS && w.is_int8() {
-        return Err(crate::qkernel::NO_F32_ACTIVATIONS);
+    if !crate::nn::qkernel::F32_ACTIVATIONS && w.is_int8() {
+        return Err(crate::nn::qkernel::NO_F32_ACTIVATIONS);
     }
     match w.kernels() {
         Some(k) => k.matmul_acc(&w.without_kernels(), x, n, y),
@@ -1346,7 +1346,7 @@ fn mr_seg<K: Kind, const B: usize>(
 mod tests {
     use super::outer_acc;
     use super::*;
-    use crate::matrix::MatRef;
+    use crate::nn::matrix::MatRef;
 
     fn vals(n: usize, seed: u32) -> [f32; 512] {
         let mut out = [0.0f32; 512];
@@ -1462,7 +1462,7 @@ mod tests {
 
     /// The canonical `y += W x` of one vector, written out (no blocking).
     fn ref_matvec(w: &MatRef<'_>, x: &[&[f32]], y: &mut [f32]) {
-        use crate::matrix::{dot, dot_i8, dot_le};
+        use crate::nn::matrix::{dot, dot_i8, dot_le};
         if w.cols() == 0 {
             return;
         }
@@ -1515,7 +1515,7 @@ mod tests {
             if a == 0.0 {
                 continue;
             }
-            crate::matrix::axpy(a, x, &mut dw[i * cols..(i + 1) * cols]);
+            crate::nn::matrix::axpy(a, x, &mut dw[i * cols..(i + 1) * cols]);
         }
     }
 

@@ -54,16 +54,16 @@
 //! # Example: a firmware loop
 //! ```
 //! use gman_core::navigator::{NavConfig, NavWeights, Navigator, Efficient};
-//! use gman_core::memory::{arena_len, AdaptMode};
+//! use gman_core::navigator::memory::{arena_len, AdaptMode};
 //! use gman_core::blob::Blob;
 //! use gman_core::Dims;
 //! # use gman_core::blob::{encode_model_scratch_len, encoded_model_len_bound, AdaptSettings, Quant};
-//! # use gman_core::schema::FLAG_ADAPT;
+//! # use gman_core::spec::schema::FLAG_ADAPT;
 //! # // Hidden: make an Mcu int8 blob from seeded weights (a firmware embeds a trained one).
 //! # let d = Dims::MCU;
 //! # let mut bytes = vec![0u8; encoded_model_len_bound(&d, Quant::I8)];
 //! # let (nf, nb) = encode_model_scratch_len(&d);
-//! # let n = gman_core::seeded::encode_seeded(&d, FLAG_ADAPT, AdaptSettings::PAPER, Quant::I8,
+//! # let n = gman_core::blob::seeded::encode_seeded(&d, FLAG_ADAPT, AdaptSettings::PAPER, Quant::I8,
 //! #     1, 0.05, &mut bytes, &mut vec![0.0; nf], &mut vec![0; nb]).unwrap();
 //! # bytes.truncate(n);
 //! // In firmware: `static BLOB: &[u8] = include_bytes!("model.gman");` and a static arena.
@@ -86,29 +86,31 @@
 //! assert_eq!(nav.counters().adaptations, 1); // one inner update after k = 20 steps
 //! ```
 
+pub mod memory;
+
 use core::marker::PhantomData;
 use core::ops::Deref;
 
-use crate::activation::{all_finite, leaky_relu_inplace, sigmoid_inplace};
 use crate::adapt::actor_head_grad;
+use crate::adapt::inner::{self, InnerWorkOf};
 use crate::blob::{Blob, Header};
-use crate::dense::{gain_bias, Dense, DenseGrads};
-use crate::discriminator::{DiscGrads, Discriminator, LdConfig, LdValue};
 use crate::error::BlobError;
 use crate::error::{check_len, Error, Result};
-use crate::generator::{Generator, GeneratorCache};
-use crate::inner::{self, InnerWorkOf};
-use crate::lstm::Lstm;
-use crate::matrix::MatRef;
-use crate::memory::{
+use crate::navigator::memory::{
     adapt_batch_with, arena_len_with, arena_table, first, region_lens, AdaptMode, Footprint,
     NUM_REGIONS,
 };
-use crate::policy::{FuseBlocks, FuseTerms, Policy, PolicyCache, PolicyInput};
-use crate::preset::Dims;
+use crate::nets::discriminator::{DiscGrads, Discriminator, LdConfig, LdValue};
+use crate::nets::generator::{Generator, GeneratorCache};
+use crate::nets::policy::{FuseBlocks, FuseTerms, Policy, PolicyCache, PolicyInput};
+use crate::nn::activation::{all_finite, leaky_relu_inplace, sigmoid_inplace};
+use crate::nn::dense::{gain_bias, Dense, DenseGrads};
+use crate::nn::lstm::Lstm;
+use crate::nn::matrix::MatRef;
 use crate::rng::{uniform, Xoshiro128};
-pub use crate::schema::{Emd, NoiseMode};
-use crate::schema::{TensorId, NUM_TENSORS};
+use crate::spec::preset::Dims;
+pub use crate::spec::schema::{Emd, NoiseMode};
+use crate::spec::schema::{TensorId, NUM_TENSORS};
 use crate::spec::ModelSpec;
 use crate::{Action, NUM_ACTIONS};
 
@@ -175,7 +177,7 @@ pub struct NavConfig {
     /// per episode, the inner rule's levers ([`InnerRule`](crate::spec::InnerRule): D's
     /// ascent steps, 0 counting as 1; the step rule; D's head reset; the form of L_ad; L_D's
     /// critic scale; the head-only step; the commit delay) and Ψ's int16 form
-    /// (`compact_psi`, [`crate::schema::FLAG_COMPACT_PSI`]: the inner update sees those
+    /// (`compact_psi`, [`crate::spec::schema::FLAG_COMPACT_PSI`]: the inner update sees those
     /// values in every [`Footprint`]; [`Footprint::Minimal`] needs it).
     ///
     /// The commit delay d ([`InnerRule::commit_delay`](crate::spec::InnerRule::commit_delay)):
@@ -184,7 +186,7 @@ pub struct NavConfig {
     /// Ψ; with [`Schedule::Auto`] each of them computes a bounded slice of the update, with
     /// [`Schedule::Background`] the caller does ([`Navigator::adapt_slice`]). 0 (the
     /// default): the update runs inside the step that fills Ψ. At most
-    /// [`MAX_COMMIT_DELAY`](crate::schema::MAX_COMMIT_DELAY).
+    /// [`MAX_COMMIT_DELAY`](crate::spec::schema::MAX_COMMIT_DELAY).
     ///
     /// `int8_activations` is how a blob's weights run ([`NavWeights::from_blob`] applies
     /// it); the navigator does not read it here.
@@ -216,9 +218,9 @@ impl NavConfig {
     /// it records ([`Header::spec`]) as `model`, with the mode check on.
     ///
     /// A blob records how its model was trained: whether the method adapts at inference
-    /// ([`FLAG_ADAPT`](crate::schema::FLAG_ADAPT)), what scores the generated features
-    /// ([`FLAG_COSSIM`](crate::schema::FLAG_COSSIM)), which noise drives G
-    /// ([`FLAG_ZERO_NOISE`](crate::schema::FLAG_ZERO_NOISE)), the adaptation mode, the inner rule's
+    /// ([`FLAG_ADAPT`](crate::spec::schema::FLAG_ADAPT)), what scores the generated features
+    /// ([`FLAG_COSSIM`](crate::spec::schema::FLAG_COSSIM)), which noise drives G
+    /// ([`FLAG_ZERO_NOISE`](crate::spec::schema::FLAG_ZERO_NOISE)), the adaptation mode, the inner rule's
     /// levers and, from format v2 on, the inner-loop rates and the cap on inner updates
     /// ([`AdaptSettings`](crate::blob::AdaptSettings); a v1 blob reports the paper's). Any loader —
     /// the firmware, the host's evaluation, a user's controller — must run the model with exactly
@@ -289,7 +291,7 @@ impl Default for NavConfig {
     }
 }
 
-pub use crate::schema::StepRule;
+pub use crate::spec::schema::StepRule;
 
 /// The action chosen from the policy's probabilities `p` (`NUM_ACTIONS` values): the most
 /// probable (first on ties) with [`Selection::Greedy`], or one draw of `rng` against the
@@ -390,7 +392,7 @@ pub struct NavWeights<'w> {
 
 impl<'w> NavWeights<'w> {
     /// Views into a parsed blob (no copy); checks the blob's dims against `dims`. A blob with
-    /// [`crate::schema::FLAG_INT8_ACTIVATIONS`] gets int8 activations on its int8 views
+    /// [`crate::spec::schema::FLAG_INT8_ACTIVATIONS`] gets int8 activations on its int8 views
     /// ([`NavWeights::with_int8_activations`]).
     pub fn from_blob(blob: &Blob<'w>, dims: &Dims) -> Result<Self> {
         blob.check_dims(dims)?;
@@ -399,7 +401,7 @@ impl<'w> NavWeights<'w> {
             t[id as usize] = blob.matrix(id)?;
         }
         let w = NavWeights { dims: *dims, t };
-        if blob.header().flags() & crate::schema::FLAG_INT8_ACTIVATIONS != 0 {
+        if blob.header().flags() & crate::spec::schema::FLAG_INT8_ACTIVATIONS != 0 {
             if !cfg!(feature = "int8-activations") {
                 return Err(Error::Config {
                     what: "the blob needs int8 activations: build gman-core with the \
@@ -408,8 +410,8 @@ impl<'w> NavWeights<'w> {
             }
             return Ok(w.with_int8_activations());
         }
-        if !crate::qkernel::F32_ACTIVATIONS && w.t.iter().any(MatRef::is_int8) {
-            return Err(crate::qkernel::NO_F32_ACTIVATIONS);
+        if !crate::nn::qkernel::F32_ACTIVATIONS && w.t.iter().any(MatRef::is_int8) {
+            return Err(crate::nn::qkernel::NO_F32_ACTIVATIONS);
         }
         Ok(w)
     }
@@ -440,10 +442,10 @@ impl<'w> NavWeights<'w> {
         Ok(NavWeights { dims: *dims, t })
     }
 
-    /// The same views running their kernels through `k` (see [`crate::batch::Kernels`]; a
+    /// The same views running their kernels through `k` (see [`crate::nn::batch::Kernels`]; a
     /// host's wider-SIMD build of the same kernels). Every result keeps its bits; the f32
     /// copies the navigator adapts in RAM inherit `k` from the view they stand in for.
-    pub fn with_kernels(mut self, k: &'static dyn crate::batch::Kernels) -> Self {
+    pub fn with_kernels(mut self, k: &'static dyn crate::nn::batch::Kernels) -> Self {
         for m in self.t.iter_mut() {
             *m = m.with_kernels(k);
         }
@@ -586,7 +588,7 @@ fn gen_view<'s, T: Deref<Target = [f32]>>(
 
 /// Whether two matrix views read the same stored values (the same slices).
 fn same_storage(a: &MatRef<'_>, b: &MatRef<'_>) -> bool {
-    use crate::matrix::{Scales, Weights};
+    use crate::nn::matrix::{Scales, Weights};
     let sc = |s: Scales<'_>| match s {
         Scales::F32(v) => (v.as_ptr() as usize, v.len()),
         Scales::Le(v) => (v.as_ptr() as usize, v.len()),
@@ -644,7 +646,7 @@ fn ok_update(p: &[f32], g: &[f32], step: f32) -> bool {
     p.iter().zip(g).all(|(a, b)| (a + step * b).is_finite())
 }
 
-/// The int16 range of Ψ's compact observations ([`crate::schema::FLAG_COMPACT_PSI`]).
+/// The int16 range of Ψ's compact observations ([`crate::spec::schema::FLAG_COMPACT_PSI`]).
 const PSI_Q: f32 = 32767.0;
 
 /// One observation `s` into Ψ's compact form: `q_j = round(s_j * (32767 / a))` (halves
@@ -756,7 +758,7 @@ macro_rules! ram_field {
     ($t:ident, $kind:ident) => { $kind<$t> };
 }
 
-/// Generates, from the arena table ([`crate::memory`]'s `arena_table`), the `Ram` struct
+/// Generates, from the arena table ([`crate::navigator::memory`]'s `arena_table`), the `Ram` struct
 /// (one field per region or group of regions, in table order) and its carve.
 macro_rules! arena_ram {
     (|$d:ident, $full:ident, $g:ident, $k:ident, $b:ident, $map:ident, $gen_in:ident, $fast:ident, $min:ident, $zero:ident|
@@ -818,7 +820,7 @@ macro_rules! arena_ram {
 
 arena_table!(arena_ram);
 
-/// The lengths of the regions of [`crate::memory`]'s arena table for `d`, `mode`, `k`,
+/// The lengths of the regions of [`crate::navigator::memory`]'s arena table for `d`, `mode`, `k`,
 /// `fp` and zero noise or not, checked against `arena` (too short: an error); returns them and the floats used.
 fn carve_check(
     arena: &mut [f32],
@@ -936,7 +938,7 @@ struct StepMarks {
 }
 
 /// Where an inner update is: the phases of [`Navigator::inner_update`] in order, each over
-/// Ψ's entries a batch ([`InnerWork::b`](crate::inner::InnerWork::b) entries) per slice.
+/// Ψ's entries a batch ([`InnerWork::b`](crate::adapt::inner::InnerWork::b) entries) per slice.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum Phase {
     /// ∇_ω L_D over Ψ, then D's ascent (`disc_steps` times).
@@ -988,7 +990,7 @@ impl<'w, M: Mode, const K: usize> Navigator<'w, M, K> {
 }
 
 impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, M, K, S> {
-    /// Number of f32 the arena must hold: [`crate::memory::arena_len`] for these dims, `M`
+    /// Number of f32 the arena must hold: [`crate::navigator::memory::arena_len`] for these dims, `M`
     /// and `K` (the default [`Footprint::Compact`]).
     pub fn arena_len(dims: &Dims) -> usize {
         Self::arena_len_for(dims, Footprint::Compact)
@@ -1037,7 +1039,7 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
                 "weights meta-trained in the other adaptation mode (NavConfig::check_mode)",
             );
         }
-        if cfg.model.inner_rule.commit_delay > crate::schema::MAX_COMMIT_DELAY {
+        if cfg.model.inner_rule.commit_delay > crate::spec::schema::MAX_COMMIT_DELAY {
             return bad("commit_delay above MAX_COMMIT_DELAY (63)");
         }
         if cfg.schedule == Schedule::Background && cfg.model.inner_rule.commit_delay == 0 {
@@ -1060,8 +1062,14 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
             return bad("Footprint::Minimal: Efficient, D only");
         }
         let dims = weights.dims;
-        if crate::memory::try_arena_len_noise(&dims, M::MODE, K, cfg.footprint, cfg.model.noise)
-            .is_none()
+        if crate::navigator::memory::try_arena_len_noise(
+            &dims,
+            M::MODE,
+            K,
+            cfg.footprint,
+            cfg.model.noise,
+        )
+        .is_none()
         {
             return bad("dims too large: the arena size for these dims, mode and K overflows");
         }
@@ -1318,7 +1326,7 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
     }
 
     /// Runs one bounded slice of the pending inner update (one batch of
-    /// [`crate::memory::adapt_batch`] entries of one of its passes) — the call of
+    /// [`crate::navigator::memory::adapt_batch`] entries of one of its passes) — the call of
     /// [`Schedule::Background`]'s lower-priority context. Returns whether slices remain
     /// (false also when no update is pending). The slices never change what the steps
     /// read (the adapted θ_i, φ_i change only at the commit, D is not read by a step), and
@@ -1458,7 +1466,7 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
     /// the value of feature `j` (`map_cells x feat` u8 codes, cell-major, one `scale` for
     /// the map, finite and positive). On the integer path (an int8-activation blob) the
     /// map's cells are quantised straight from the codes, with no f32 pass over the map
-    /// ([`crate::qkernel::cell_layer_int8_u8`]); otherwise each cell is expanded to f32
+    /// ([`crate::nn::qkernel::cell_layer_int8_u8`]); otherwise each cell is expanded to f32
     /// (`map[j] as f32 * scale`) as it is used. Its results are its own (the integer path
     /// quantises the codes, not their f32 values), the same on every target.
     pub fn step_map_u8(
@@ -1692,7 +1700,7 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
         }
         // Layer 1: u1 = W1 [z; a] (Dense::forward with a gain: u from zero, then g u + b).
         u1s.fill(0.0);
-        crate::batch::matmul_acc(&w1, &[&*zs, &*attrs], &[nz, na], n, u1s)?;
+        crate::nn::batch::matmul_acc(&w1, &[&*zs, &*attrs], &[nz, na], n, u1s)?;
         for (j, &i) in who.iter().enumerate() {
             let r = navs[i].arena.ram();
             r.u1.copy_from_slice(&u1s[j * nh..(j + 1) * nh]);
@@ -1702,7 +1710,7 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
         }
         // Layer 2: u2 = W2 h1, x = sigmoid(g u2 + b).
         u2s.fill(0.0);
-        crate::batch::matmul_acc(&w2, &[&*h1s], &[nh], n, u2s)?;
+        crate::nn::batch::matmul_acc(&w2, &[&*h1s], &[nh], n, u2s)?;
         for (j, &i) in who.iter().enumerate() {
             let nav = &mut navs[i];
             let r = nav.arena.ram();
@@ -2727,7 +2735,13 @@ mod tests {
                     .into_iter()
                     .flat_map(|k| [(k, Footprint::Compact), (k, Footprint::Fast)])
                 {
-                    let n = crate::memory::arena_len_noise(&d, mode, k, fp, NoiseMode::Gaussian);
+                    let n = crate::navigator::memory::arena_len_noise(
+                        &d,
+                        mode,
+                        k,
+                        fp,
+                        NoiseMode::Gaussian,
+                    );
                     assert!(n <= arena_len_with(&d, mode, k, fp));
                     let mut arena = vec![0.0f32; n + 7];
                     let base = arena.as_ptr() as usize;
@@ -2737,7 +2751,7 @@ mod tests {
                     assert!(!short);
                     assert_eq!(used, n, "{d:?} {mode:?} k={k} {fp:?}");
                     // Ψ follows the parameters and gradients; the step's work ends the arena.
-                    let l = crate::memory::NavLayout::new_with(&d, mode, k, fp);
+                    let l = crate::navigator::memory::NavLayout::new_with(&d, mode, k, fp);
                     let at = |s: &[f32]| (s.as_ptr() as usize - base) / 4;
                     let params = l.gen_params + l.disc_params + l.actor_params;
                     assert_eq!(at(ram.psi_s), params + l.fixed_biases + l.grads);
