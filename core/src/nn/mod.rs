@@ -1,5 +1,5 @@
 //! The kernels every network is built from, on slices with explicit shapes: matrices and
-//! their weight formats ([`matrix`]), the batched matrix products ([`batch`], [`batch_cols`]),
+//! their weight formats ([`matrix`]), the batched matrix products ([`batch`], `batch_cols`),
 //! the int8 kernels ([`qkernel`]), activations ([`activation`]), a dense layer ([`dense`]) and
 //! an LSTM cell ([`lstm`]).
 
