@@ -9,7 +9,7 @@ use crate::navigator::config::{AdaptReport, Mode};
 use crate::navigator::memory::AdaptMode;
 use crate::navigator::psi::psi_load;
 use crate::navigator::state::{Navigator, Phase, Update};
-use crate::navigator::weights::{disc_view, gen_view, ok_update, ARENA_TOO_SMALL};
+use crate::navigator::weights::{axpy_inplace, disc_view, gen_view, ok_update, ARENA_TOO_SMALL};
 use crate::nets::discriminator::{DiscGrads, LdValue};
 use crate::nets::generator::GeneratorCache;
 use crate::nn::activation::all_finite;
@@ -17,12 +17,6 @@ use crate::rng::{uniform, Xoshiro128};
 use crate::spec::schema::{Emd, NoiseMode};
 use crate::spec::schema::{StepRule, TensorId};
 use crate::NUM_ACTIONS;
-
-pub(super) fn axpy_inplace(p: &mut [f32], g: &[f32], step: f32) {
-    for (a, b) in p.iter_mut().zip(g) {
-        *a += step * b;
-    }
-}
 
 impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, M, K, S> {
     /// Runs the inner update (lines 15-20 of Algorithm 1) now on the steps buffered in Ψ, then

@@ -5,7 +5,6 @@ use core::ops::Deref;
 
 use crate::blob::Blob;
 use crate::error::{Error, Result};
-use crate::navigator::update::axpy_inplace;
 use crate::nets::discriminator::Discriminator;
 use crate::nets::generator::Generator;
 use crate::nets::policy::Policy;
@@ -278,4 +277,10 @@ pub(super) fn policy_view<'s>(
 
 pub(super) fn ok_update(p: &[f32], g: &[f32], step: f32) -> bool {
     p.iter().zip(g).all(|(a, b)| (a + step * b).is_finite())
+}
+
+pub(super) fn axpy_inplace(p: &mut [f32], g: &[f32], step: f32) {
+    for (a, b) in p.iter_mut().zip(g) {
+        *a += step * b;
+    }
 }

@@ -4,6 +4,9 @@
 
 use crate::nn::matrix::Scales;
 
+/// Most segments a batched input may have (the layers use at most four).
+pub const MAX_SEGS: usize = 8;
+
 /// One storage kind of weights.
 pub(super) trait Kind {
     /// Raw unit of storage (`f32` or a byte).

@@ -2,10 +2,10 @@
 //! and the batch-1 loops two rows at a time or by blocks of rows, in the same canonical order.
 
 use crate::error::{check_len, Result};
+use crate::nn::batch::kind::MAX_SEGS;
 use crate::nn::batch::kind::{ld8, tree, Kind, I8K, M};
 use crate::nn::batch::matmul::{add_tails, store_tile};
-use crate::nn::batch::matmul_t::{check_t, row_coef};
-use crate::nn::batch::MAX_SEGS;
+use crate::nn::batch::matmul_t::{check_t, row_coef, MT_ROWS};
 use crate::nn::matrix::{seg_len, MatRef, Weights};
 
 /// `y += W x` for `n` vectors, `R` rows x `B` vectors x `L` lanes of accumulators at a time.
@@ -248,9 +248,6 @@ pub(super) fn ldl<const L: usize>(s: &[f32], j: usize) -> [f32; L] {
     core::array::from_fn(|k| s[k])
 }
 
-/// Rows per block of [`matmul_t_acc_rows`] and of the hosts' `mt_seg`: the row coefficients
-/// of a block are computed once into a small buffer on the stack.
-pub(super) const MT_ROWS: usize = 64;
 /// Vectors per pass of [`matmul_t_acc_rows`] (its coefficient buffer holds this many).
 pub(super) const MT_MAXB: usize = 2;
 

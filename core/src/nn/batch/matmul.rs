@@ -2,8 +2,8 @@
 
 use crate::error::{check_len, Result};
 use crate::nn::batch::kind::with_kind;
+use crate::nn::batch::kind::MAX_SEGS;
 use crate::nn::batch::kind::{ld8, tree, Kind, LeK, F32K, I8K, M};
-use crate::nn::batch::MAX_SEGS;
 use crate::nn::matrix::{MatRef, Weights};
 
 /// [`matmul_acc`](crate::nn::batch::matmul_acc) with an explicit block of `R` rows x `B` vectors (speed only; the same

@@ -56,13 +56,11 @@ mod outer;
 #[cfg(test)]
 mod tests;
 
+pub use kind::MAX_SEGS;
 pub use lanes::{matmul_acc_lanes, matmul_t_acc_rows, matvec_acc_pairs};
 pub use matmul::matmul_acc_blocked;
 pub use matmul_t::matmul_t_acc_blocked;
 pub use outer::outer_acc_batch_blocked;
-
-/// Most segments a batched input may have (the layers use at most four).
-pub const MAX_SEGS: usize = 8;
 
 /// The batch-1 kernels of a matrix view: [`MatRef::matvec_acc`] and its transposes are the
 /// batched bodies below with `n = 1` (the Cortex-M4F runs its own loops in the same

@@ -3,7 +3,7 @@
 
 use crate::error::{check_len, Result};
 use crate::nn::batch::kind::ld8;
-use crate::nn::batch::MAX_SEGS;
+use crate::nn::batch::kind::MAX_SEGS;
 
 /// [`outer_acc_batch`](crate::nn::batch::outer_acc_batch) with an explicit block of `R` rows x `8 C` columns (speed only; the
 /// same bits for every shape). `rows = dy.len() / n`, per-vector lengths `x[s].len() / n`;
