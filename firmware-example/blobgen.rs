@@ -6,12 +6,14 @@
 //! firmware's default feature `int8-activations` the blob carries int8 activations and Ψ in
 //! int16 (as `gman export --preset mcu --quant int8` writes), without it neither.
 
+use gman_core::blob::seeded::encode_seeded;
 use gman_core::blob::{
     encode_model_scratch_len, encoded_model_len_bound, reencode_with_flags, reencoded_len_bound,
     AdaptSettings, Blob, Quant,
 };
-use gman_core::schema::{FLAG_ADAPT, FLAG_COMPACT_PSI, FLAG_INT8_ACTIVATIONS, FLAG_ZERO_NOISE};
-use gman_core::seeded::encode_seeded;
+use gman_core::spec::schema::{
+    FLAG_ADAPT, FLAG_COMPACT_PSI, FLAG_INT8_ACTIVATIONS, FLAG_ZERO_NOISE,
+};
 use gman_core::Dims;
 
 /// An int8 blob (format v2) of seeded N(0, 0.05) weights for every tensor of `dims`, flagged

@@ -3,12 +3,17 @@
 
     scripts/module_cycles.py SRC_DIR        e.g. scripts/module_cycles.py core/src
 
-Every `SRC_DIR/*.rs` file but `lib.rs` is a module. An edge `a -> b` is any `crate::b...`
-path in `a.rs`'s code (a `use` line, a path inside an expression, each member of a
-`use crate::{...}` group); a path to a name `lib.rs` re-exports (`crate::Dims`) counts as
-an edge to the module the name comes from, a name `lib.rs` defines itself as an edge to
-`lib`. `super::` inside a file's nested modules (its tests) names the file itself and is no
-edge. Comments (doc links included), strings and character literals are skipped. Prints
+Every `.rs` file under SRC_DIR but `lib.rs` is a module, named by its path (`nn/batch/kind.rs`
+is `nn::batch::kind`, `navigator/mod.rs` is `navigator`). An edge `a -> b` is any
+`crate::...` path in `a`'s code (a `use` line, a path inside an expression, each member of a
+`use crate::{...}` group, nested groups included) whose longest prefix naming a module is
+`b`, and so is a `use child::...` line of a directory module's `mod.rs` naming one of its
+own files; a name a module re-exports from one of its own files (`pub use step::X;` in a
+`mod.rs`, `crate::navigator::X`) counts as an edge to that file, a name `lib.rs` re-exports
+(`crate::Dims`) as an edge to the module the name comes from, a name `lib.rs` defines
+itself as an edge to `lib`. `super::` inside a file's nested modules (its tests) names the
+file itself and is no edge; a directory module's files name one another by `crate::`
+paths. Comments (doc links included), strings and character literals are skipped. Prints
 each module's imports, then each circle found (a strongly connected component of more than
 one module); exits 1 when there is one, else 0.
 """
@@ -68,9 +73,9 @@ def strip(src):
     return "".join(out)
 
 
-def group_heads(text):
-    """The first path segment of each member of a `{...}` group (nested groups flattened)."""
-    heads, depth, item = [], 0, ""
+def group_members(text):
+    """The members of the `{...}` group `text` starts with, as written (nested groups kept)."""
+    members, depth, item = [], 0, ""
     for ch in text:
         if ch == "{":
             depth += 1
@@ -81,52 +86,126 @@ def group_heads(text):
             if depth == 0:
                 break
         if ch == "," and depth == 1:
-            heads.append(item)
+            members.append(item)
             item = ""
         else:
             item += ch
-    heads.append(item)
+    members.append(item)
+    return [m.strip() for m in members if m.strip()]
+
+
+def expand(path):
+    """The plain paths (lists of segments) of `path`, its groups expanded."""
+    path = re.sub(r"\s+", "", path)
+    m = re.match(r"((?:\w+::)*)(\{.*)?", path)
+    prefix = [p for p in m.group(1).split("::") if p]
+    if not m.group(2):
+        seg = re.match(r"\w+", path[len(m.group(1)) :])
+        return [prefix + ([seg.group(0)] if seg else [])]
     out = []
-    for h in heads:
-        h = h.strip()
-        m = re.match(r"(\w+)", h)
-        if m:
-            out.append(m.group(1))
+    for member in group_members(m.group(2)):
+        for tail in expand(member):
+            out.append(prefix + tail)
     return out
+
+
+def module_name(rel):
+    """`nn/batch/mod.rs` -> `nn::batch`, `nn/dense.rs` -> `nn::dense`."""
+    parts = rel[:-3].split(os.sep)
+    if parts[-1] == "mod":
+        parts = parts[:-1]
+    return "::".join(parts)
+
+
+def reexports(src, name):
+    """Names a module file re-exports from its own child modules: name -> child module."""
+    names = {}
+    code = strip(src)
+    for m in re.finditer(r"pub use (?:self::)?(\w+)::(\{[^;]*\}|\w+)\s*;", code, re.S):
+        child, rest = m.group(1), m.group(2)
+        items = group_members(rest) if rest.startswith("{") else [rest]
+        for it in items:
+            h = re.match(r"(\w+)", it)
+            if h:
+                names[h.group(1)] = (name + "::" if name else "") + child
+    return names
 
 
 def root_names(lib_src, modules):
     """Names at the crate root: re-exports -> their module, own items -> `lib`."""
     names = {}
-    for m in re.finditer(r"pub use (\w+)::(\{[^}]*\}|\w+)\s*;", lib_src, re.S):
-        mod, rest = m.group(1), m.group(2)
-        items = group_heads(rest) if rest.startswith("{") else [rest]
+    for m in re.finditer(r"pub use ((?:\w+::)+)(\{[^}]*\}|\w+)\s*;", strip(lib_src), re.S):
+        path, rest = m.group(1).rstrip(":").split("::"), m.group(2)
+        items = group_members(rest) if rest.startswith("{") else [rest]
+        mod = next(
+            ("::".join(path[:i]) for i in range(len(path), 0, -1) if "::".join(path[:i]) in modules),
+            path[0],
+        )
         for it in items:
-            names[it] = mod
+            h = re.match(r"(\w+)", it)
+            if h:
+                names[h.group(1)] = mod
     for m in re.finditer(r"pub (?:const|static|fn|struct|enum|type|trait) (\w+)", lib_src):
         names.setdefault(m.group(1), "lib")
     return names
 
 
-def edges(path, modules, roots):
+def resolve(segs, modules, roots, exports):
+    """The module a `crate::` path (its segments) leads to, or `?name`."""
+    if not segs:
+        return None
+    if segs[0] in roots and segs[0] not in modules:
+        return roots[segs[0]]
+    best = None
+    for i in range(len(segs), 0, -1):
+        cand = "::".join(segs[:i])
+        if cand in modules:
+            best, rest = cand, segs[i:]
+            break
+    if best is None:
+        return "?" + segs[0]
+    if rest and rest[0] in exports.get(best, {}):
+        return exports[best][rest[0]]
+    return best
+
+
+def edges(path, name, modules, roots, exports):
     code = strip(open(path, encoding="utf-8").read())
     out = {}
+    # A directory module's own `use child::...` (and `pub use`) lines name its files.
+    for m in re.finditer(r"\buse\s+(?:self::)?(\w+)::", code):
+        child = (name + "::" if name else "") + m.group(1)
+        if child in modules:
+            out.setdefault(child, []).append(code.count("\n", 0, m.start()) + 1)
     for m in re.finditer(r"\bcrate::", code):
         rest = code[m.end() :]
         if rest.startswith("{"):
-            heads = group_heads(rest)
+            depth, j = 0, 0
+            for j, ch in enumerate(rest):
+                depth += ch == "{"
+                depth -= ch == "}"
+                if depth == 0:
+                    break
+            paths = expand(rest[: j + 1])
         else:
-            h = re.match(r"(\w+)", rest)
-            heads = [h.group(1)] if h else []
-        line = code.count("\n", 0, m.start()) + 1
-        for h in heads:
-            if h in modules:
-                target = h
-            elif h in roots:
-                target = roots[h]
+            h = re.match(r"(?:\w+::)*\{?", rest)
+            text = h.group(0)
+            if text.endswith("{"):
+                depth, j = 0, len(text) - 1
+                for j in range(len(text) - 1, len(rest)):
+                    depth += rest[j] == "{"
+                    depth -= rest[j] == "}"
+                    if depth == 0:
+                        break
+                paths = expand(rest[: j + 1])
             else:
-                target = "?" + h
-            out.setdefault(target, []).append(line)
+                w = re.match(r"(?:\w+::)*\w+", rest)
+                paths = [w.group(0).split("::")] if w else []
+        line = code.count("\n", 0, m.start()) + 1
+        for segs in paths:
+            target = resolve(segs, modules, roots, exports)
+            if target:
+                out.setdefault(target, []).append(line)
     return out
 
 
@@ -167,15 +246,23 @@ def main():
     if len(sys.argv) != 2:
         sys.exit(__doc__)
     src = sys.argv[1]
-    files = sorted(f for f in os.listdir(src) if f.endswith(".rs"))
-    modules = {f[:-3] for f in files if f != "lib.rs"}
+    files = sorted(
+        os.path.relpath(os.path.join(d, f), src)
+        for d, _, fs in os.walk(src)
+        for f in fs
+        if f.endswith(".rs")
+    )
+    files = [f for f in files if f != "lib.rs"]
+    names = {f: module_name(f) for f in files}
+    modules = set(names.values())
     roots = root_names(open(os.path.join(src, "lib.rs"), encoding="utf-8").read(), modules)
+    exports = {}
+    for f, name in names.items():
+        exports[name] = reexports(open(os.path.join(src, f), encoding="utf-8").read(), name)
     graph = {}
     for f in files:
-        if f == "lib.rs":
-            continue
-        mod = f[:-3]
-        e = edges(os.path.join(src, f), modules, roots)
+        mod = names[f]
+        e = edges(os.path.join(src, f), mod, modules, roots, exports)
         e.pop(mod, None)
         graph[mod] = sorted(e)
         shown = ", ".join(f"{t} (line {e[t][0]})" for t in sorted(e))

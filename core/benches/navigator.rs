@@ -7,13 +7,13 @@
 //! comparison and what limits each number are in `host-sim/BENCHMARKS.md`.
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
+use gman_core::blob::seeded::{encode_seeded, SeededWeights};
 use gman_core::blob::{
     encode_model_scratch_len, encoded_model_len_bound, AdaptSettings, Blob, Quant, TensorId,
 };
-use gman_core::matrix::MatRef;
 use gman_core::navigator::{Efficient, Full, Mode, NavConfig, NavWeights, Navigator};
+use gman_core::nn::matrix::MatRef;
 use gman_core::rng::{uniform, Xoshiro128};
-use gman_core::seeded::{encode_seeded, SeededWeights};
 use gman_core::spec::ModelSpec;
 use gman_core::Dims;
 use std::hint::black_box;

@@ -1,7 +1,7 @@
 //! Prints the RAM and flash each preset and adaptation mode needs, from the core's own
 //! `const fn` size accounting: `cargo run -p gman-core --example memory_table`.
 
-use gman_core::memory::{int8_weight_bytes, AdaptMode, Footprint, NavLayout};
+use gman_core::navigator::memory::{int8_weight_bytes, AdaptMode, Footprint, NavLayout};
 use gman_core::Dims;
 
 fn main() {

@@ -6,7 +6,7 @@
 
 use core::fmt;
 
-use crate::setting_key::SettingKey;
+use crate::spec::setting_key::SettingKey;
 
 /// Which buffer or tensor had the wrong length.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -221,7 +221,7 @@ pub enum BlobError {
         found: u16,
     },
     /// A format v4 blob (or a blob being encoded) sets a flag bit this build does not know
-    /// ([`crate::schema::KNOWN_FLAGS`]): a setting of a newer build, which this one would
+    /// ([`crate::spec::schema::KNOWN_FLAGS`]): a setting of a newer build, which this one would
     /// run as if it were off.
     UnknownFlagBit {
         /// The lowest unknown bit (0-31).
@@ -380,7 +380,7 @@ impl fmt::Display for BlobError {
     }
 }
 
-/// [`crate::preset::MAX_INNER_RATE`] as text (checked by a unit test below).
+/// [`crate::spec::preset::MAX_INNER_RATE`] as text (checked by a unit test below).
 const MAX_INNER_RATE_TEXT: &str = "1.0";
 
 /// What is wrong with a rejected inner-loop rate, from its bits alone.
@@ -392,7 +392,7 @@ fn rate_class(bits: u32) -> &'static str {
         "infinite"
     } else if v < 0.0 {
         "negative"
-    } else if v > crate::preset::MAX_INNER_RATE {
+    } else if v > crate::spec::preset::MAX_INNER_RATE {
         "too large"
     } else {
         "valid"
@@ -462,7 +462,7 @@ mod tests {
     #[test]
     fn max_inner_rate_text_is_the_constant() {
         let v: f32 = MAX_INNER_RATE_TEXT.parse().expect("a number");
-        assert_eq!(v.to_bits(), crate::preset::MAX_INNER_RATE.to_bits());
+        assert_eq!(v.to_bits(), crate::spec::preset::MAX_INNER_RATE.to_bits());
     }
 
     #[test]

@@ -43,13 +43,26 @@
 //! ## Map from the paper to the code
 //! | paper | here |
 //! |---|---|
-//! | G(SE(y), z), parameters θ (Sec. 4.1) | [`generator::Generator`] |
-//! | D, parameters ω; L_D (Eq. 1, WGAN-GP); L_G (Eq. 2) | [`discriminator::Discriminator`] |
-//! | L_ad (Eq. 3) and its gradients | [`adapt`] |
-//! | LSTM actor-critic policy π, parameters φ | [`lstm`], [`dense`] |
-//! | every tensor, its shape, group and quantisation; the model flags | [`schema`] |
-//! | weights | [`blob`] (postcard, CRC-32, int8/f32, zero-copy; the wire format of [`schema`]) |
-//! | sizes | [`preset`] (`Paper`, `Mcu`, user-defined) |
+//! | G(SE(y), z), parameters θ (Sec. 4.1) | [`nets::generator::Generator`] |
+//! | D, parameters ω; L_D (Eq. 1, WGAN-GP); L_G (Eq. 2) | [`nets::discriminator::Discriminator`] |
+//! | L_ad (Eq. 3) and its gradients; the inner loop's steps | [`adapt`], [`adapt::inner`] |
+//! | LSTM actor-critic policy π, parameters φ | [`nets::policy`], [`nn::lstm`], [`nn::dense`] |
+//! | Algorithm 1 on the device: the step, Ψ, the inner update | [`navigator`] |
+//! | every tensor, its shape, group and quantisation; the model flags | [`spec::schema`] |
+//! | weights | [`blob`] (postcard, CRC-32, int8/f32, zero-copy; the wire format of [`spec::schema`]) |
+//! | sizes | [`spec::preset`] (`Paper`, `Mcu`, user-defined) |
+//!
+//! ## Modules
+//! | module | what it holds |
+//! |---|---|
+//! | [`spec`] | the model's settings ([`spec::ModelSpec`]), sizes ([`spec::preset`]), tensors and flags ([`spec::schema`]), the action space ([`Action`]) |
+//! | [`blob`] | the weight format: [`Blob`], its CRC-32 ([`blob::crc32`]), int8 rows ([`blob::quant`]), seeded weights ([`blob::seeded`]) |
+//! | [`nn`] | the kernels: matrices and their formats, batched products, int8 kernels, activations, dense, LSTM |
+//! | [`nets`] | the networks G, D and π |
+//! | [`adapt`] | L_ad and its gradients, the inner loop's steps ([`adapt::inner`]) |
+//! | [`navigator`] | the on-device [`Navigator`] and its arena ([`navigator::memory`]) |
+//! | [`rng`] | the deterministic generator every draw comes from |
+//! | [`error`] | [`Error`] and its parts |
 //!
 //! ## Design rules
 //! * No heap, no `unsafe`, no panics on any input: every buffer is provided by the caller and
@@ -62,44 +75,26 @@
 #![forbid(unsafe_code)]
 #![warn(missing_docs)]
 
-pub mod action;
-pub mod activation;
-pub mod ad_loss;
 pub mod adapt;
-pub mod batch;
-pub mod batch_cols;
 pub mod blob;
-pub mod crc32;
-pub mod dense;
-pub mod discriminator;
 pub mod error;
-pub mod generator;
-pub mod inner;
-pub mod lstm;
-pub mod matrix;
-pub mod memory;
 pub mod navigator;
-pub mod policy;
-pub mod preset;
-pub mod qkernel;
-pub mod quant;
+pub mod nets;
+pub mod nn;
 pub mod rng;
-pub mod schema;
-pub mod seeded;
-mod setting_key;
 pub mod spec;
 
 // What an integrator needs, at the root (the device loop above uses only these).
-pub use action::{Action, NUM_ACTIONS};
 pub use blob::{Blob, Header};
 pub use error::{BlobError, Error, Result, ShapeError};
-pub use memory::{arena_len, try_arena_len, Footprint};
+pub use navigator::memory::{arena_len, try_arena_len, Footprint};
 pub use navigator::{
     AdaptReport, Counters, Efficient, Full, Mode, NavConfig, NavWeights, Navigator, Schedule,
     Selection, StepOutput,
 };
-pub use preset::{Dims, Mcu, Paper, Preset};
-pub use schema::AdaptMode;
+pub use spec::action::{Action, NUM_ACTIONS};
+pub use spec::preset::{Dims, Mcu, Paper, Preset};
+pub use spec::schema::AdaptMode;
 
 /// Width of the semantic embedding SE(y) (the attribute vector), fixed by the data.
 pub const ATTR_DIM: usize = 45;

@@ -1,4 +1,4 @@
-//! The batched inner update (`gman_core::inner`) against the batch-1 functions it replaces in
+//! The batched inner update (`gman_core::adapt::inner`) against the batch-1 functions it replaces in
 //! the navigator, bit for bit, for every batch size: `inner::generate` against
 //! `Generator::forward` per entry, `inner::ld_grad_sum` against `Discriminator::ld_loss` on one
 //! entry at a time (the navigator's former loop), `inner::adapt_grad` against
@@ -10,12 +10,12 @@
 mod common;
 use before::{adapt_generator_grad, adapt_generator_grad_cos};
 use common::vals;
+use gman_core::adapt::inner::{self, InnerWork};
 use gman_core::adapt::{AdaptLossKind, AdaptWork};
-use gman_core::dense::{Dense, DenseGrads};
-use gman_core::discriminator::{DiscGrads, DiscScratch, Discriminator, LdConfig, LdValue};
-use gman_core::generator::{Generator, GeneratorCache, GeneratorScratch};
-use gman_core::inner::{self, InnerWork};
-use gman_core::matrix::{MatRef, Scales};
+use gman_core::nets::discriminator::{DiscGrads, DiscScratch, Discriminator, LdConfig, LdValue};
+use gman_core::nets::generator::{Generator, GeneratorCache, GeneratorScratch};
+use gman_core::nn::dense::{Dense, DenseGrads};
+use gman_core::nn::matrix::{MatRef, Scales};
 use gman_core::NUM_ACTIONS;
 
 const Z: usize = 11;
@@ -602,16 +602,16 @@ fn short_buffers_are_errors_not_panics() {
 /// reference transcription of the order of operations.
 mod before {
     use gman_core::adapt::{adapt_loss, cosine, AdaptLossKind, AdaptWork};
-    use gman_core::dense::DenseGrads;
-    use gman_core::discriminator::{DiscScratch, Discriminator};
     use gman_core::error::Result;
+    use gman_core::nets::discriminator::{DiscScratch, Discriminator};
+    use gman_core::nn::dense::DenseGrads;
 
     /// The reference runs on valid shapes only.
     fn check_len(what: &str, expected: usize, actual: usize) -> Result<()> {
         assert_eq!(expected, actual, "{what}");
         Ok(())
     }
-    use gman_core::generator::{Generator, GeneratorCache, GeneratorScratch};
+    use gman_core::nets::generator::{Generator, GeneratorCache, GeneratorScratch};
 
     /// L_ad over a buffer of `n` steps and its gradient with respect to G's parameters θ and to
     /// the action probabilities.

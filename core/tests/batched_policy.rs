@@ -6,12 +6,12 @@
 
 mod common;
 use common::vals;
-use gman_core::dense::{Dense, DenseGrads};
-use gman_core::lstm::{Lstm, LstmGrads};
-use gman_core::matrix::{MatRef, Scales};
-use gman_core::policy::{
+use gman_core::nets::policy::{
     Policy, PolicyCache, PolicyGrads, PolicyInput, PolicyInputGrads, PolicyScratch,
 };
+use gman_core::nn::dense::{Dense, DenseGrads};
+use gman_core::nn::lstm::{Lstm, LstmGrads};
+use gman_core::nn::matrix::{MatRef, Scales};
 use gman_core::NUM_ACTIONS;
 
 const F: usize = 5;

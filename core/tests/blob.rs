@@ -7,9 +7,9 @@ use gman_core::blob::{
     TensorId, TensorSpec, FLAG_ADAPT, FLAG_COSSIM, FLAG_FULL_ADAPT, FLAG_ZERO_NOISE,
     FORMAT_VERSION, MAGIC, MAX_INNER_RATE,
 };
-use gman_core::memory::AdaptMode;
+use gman_core::navigator::memory::AdaptMode;
 use gman_core::navigator::{Emd, NavConfig, NoiseMode, StepRule};
-use gman_core::schema::{DISC_STEPS_SHIFT, FLAG_NORMALIZED_STEP};
+use gman_core::spec::schema::{DISC_STEPS_SHIFT, FLAG_NORMALIZED_STEP};
 use gman_core::spec::{InnerRule, ModelSpec};
 use gman_core::{BlobError, Dims};
 use proptest::prelude::*;
@@ -54,7 +54,7 @@ fn int8_round_trip_respects_documented_error_bound() {
             continue;
         }
         assert_eq!(view.quant, Quant::I8);
-        // Documented bound (gman_core::quant): |w - w_hat| <= max|w| / 254 per tensor
+        // Documented bound (gman_core::blob::quant): |w - w_hat| <= max|w| / 254 per tensor
         // (per row: scale / 2), up to f32 rounding.
         let maxabs = v.iter().fold(0.0f32, |m, x| m.max(x.abs()));
         let bound = maxabs / 254.0 * (1.0 + 1e-5);
@@ -731,7 +731,7 @@ fn seeded_builder_bytes_are_pinned() {
         let quant = if int8 { Quant::I8 } else { Quant::F32 };
         let mut out = vec![0u8; encoded_model_len_bound(&d, quant)];
         let (nf, nb) = encode_model_scratch_len(&d);
-        let n = gman_core::seeded::encode_seeded(
+        let n = gman_core::blob::seeded::encode_seeded(
             &d,
             FLAG_ADAPT,
             AdaptSettings::PAPER,
@@ -748,7 +748,7 @@ fn seeded_builder_bytes_are_pinned() {
         // in its header, so its legacy rewrite must give the same bytes.
         let out = legacy(&out);
         assert_eq!(
-            (out.len(), gman_core::crc32::crc32(&out)),
+            (out.len(), gman_core::blob::crc32::crc32(&out)),
             (len, crc),
             "{d:?} int8={int8}"
         );
@@ -867,7 +867,7 @@ fn v4_with_raw_flags(v4: &[u8], flags: u32) -> Vec<u8> {
 /// before; every known bit parses.
 #[test]
 fn unknown_flag_bits_in_a_v4_blob_are_refused_naming_the_bit() {
-    use gman_core::schema::KNOWN_FLAGS;
+    use gman_core::spec::schema::KNOWN_FLAGS;
     let v4 = blob_v4_with(FLAG_ADAPT, AdaptSettings::PAPER, 3);
     assert_eq!(KNOWN_FLAGS, !(0xF0 | 1 << 22 | 1 << 31));
     for bit in [4u8, 5, 6, 7, 22, 31] {
@@ -941,7 +941,7 @@ fn v5_with_records(blob: &[u8], records: &[Vec<u8>]) -> Vec<u8> {
     out.extend(varint_bytes(h.n_tensors().into()));
     out.extend(varint_bytes(h.payload_len().into()));
     let payload = &blob[blob.len() - h.payload_len() as usize..];
-    let crc = gman_core::crc32::crc32_update(gman_core::crc32::crc32(&out), payload);
+    let crc = gman_core::blob::crc32::crc32_update(gman_core::blob::crc32::crc32(&out), payload);
     out.extend(varint_bytes(crc.into()));
     out.extend_from_slice(payload);
     out
@@ -971,7 +971,7 @@ fn name_bytes(s: &str) -> Vec<u8> {
 /// range) is a typed error naming it, with a valid checksum.
 #[test]
 fn v5_names_its_settings_and_refuses_what_it_does_not_know() {
-    use gman_core::schema::AdaptLossKind;
+    use gman_core::spec::schema::AdaptLossKind;
     use gman_core::spec::{InnerRule, ModelSpec, SETTING_KEYS};
     let spec = ModelSpec {
         noise: NoiseMode::Zero,

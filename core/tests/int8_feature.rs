@@ -1,5 +1,5 @@
 //! The `int8-activations` feature: with it a blob flagged
-//! [`FLAG_INT8_ACTIVATIONS`](gman_core::schema::FLAG_INT8_ACTIVATIONS) runs the integer path;
+//! [`FLAG_INT8_ACTIVATIONS`](gman_core::spec::schema::FLAG_INT8_ACTIVATIONS) runs the integer path;
 //! without it (`cargo test -p gman-core --no-default-features --test int8_feature`, which CI
 //! runs) the same blob is refused with a typed error, never run on the f32 path.
 
@@ -7,7 +7,7 @@ mod common;
 use common::*;
 use gman_core::blob::Blob;
 use gman_core::navigator::NavWeights;
-use gman_core::schema::{TensorId, FLAG_INT8_ACTIVATIONS};
+use gman_core::spec::schema::{TensorId, FLAG_INT8_ACTIVATIONS};
 use gman_core::{Dims, Error};
 
 #[test]
@@ -34,7 +34,7 @@ fn an_int8_activation_blob_runs_only_where_the_feature_is_built() {
     // kernels (the feature `f32-activations`), else it is refused naming the feature.
     let plain = seeded_blob(&dims, 3, true, 0);
     let blob = Blob::parse(&plain).expect("parse");
-    let f32_path = gman_core::qkernel::F32_ACTIVATIONS;
+    let f32_path = gman_core::nn::qkernel::F32_ACTIVATIONS;
     match NavWeights::from_blob(&blob, &dims) {
         Ok(w) => {
             assert!(f32_path, "refused only without the feature");

@@ -2,12 +2,12 @@
 
 mod common;
 use common::*;
+use gman_core::blob::quant::{dequantize_rows, quantize_rows};
 use gman_core::blob::{Blob, TensorId};
-use gman_core::dense::Dense;
-use gman_core::discriminator::{DiscScratch, Discriminator, LdConfig};
-use gman_core::generator::{Generator, GeneratorCache};
-use gman_core::matrix::{MatRef, Scales};
-use gman_core::quant::{dequantize_rows, quantize_rows};
+use gman_core::nets::discriminator::{DiscScratch, Discriminator, LdConfig};
+use gman_core::nets::generator::{Generator, GeneratorCache};
+use gman_core::nn::dense::Dense;
+use gman_core::nn::matrix::{MatRef, Scales};
 use gman_core::rng::{fill_gaussian, gaussian, Xoshiro128};
 use gman_core::Error;
 use rand_core::RngCore;

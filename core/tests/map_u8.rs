@@ -6,9 +6,9 @@
 mod common;
 use common::*;
 use gman_core::blob::Blob;
-use gman_core::memory::arena_len;
+use gman_core::navigator::memory::arena_len;
 use gman_core::navigator::{Efficient, NavConfig, NavWeights, Navigator};
-use gman_core::schema::{FLAG_ADAPT, FLAG_INT8_ACTIVATIONS};
+use gman_core::spec::schema::{FLAG_ADAPT, FLAG_INT8_ACTIVATIONS};
 use gman_core::{Dims, Error};
 
 const K: usize = 5;
@@ -23,7 +23,8 @@ fn codes(t: usize, n: usize) -> Vec<u8> {
 fn run(bytes: &[u8], dims: &Dims, u8_map: bool, steps: usize) -> Vec<[u32; 6]> {
     let blob = Blob::parse(bytes).expect("parse");
     let w = NavWeights::from_blob(&blob, dims).expect("weights");
-    let mut arena = vec![0.0f32; arena_len(dims, gman_core::memory::AdaptMode::Efficient, K)];
+    let mut arena =
+        vec![0.0f32; arena_len(dims, gman_core::navigator::memory::AdaptMode::Efficient, K)];
     let cfg = NavConfig::from_header(blob.header());
     let mut nav: Navigator<'_, Efficient, K> = Navigator::new(w, &mut arena, cfg).unwrap();
     nav.reset(&vec![0.3; dims.attr], 7).unwrap();
@@ -75,7 +76,7 @@ fn integer_cell_layer_follows_its_formula() {
     if !cfg!(feature = "int8-activations") {
         return; // (the integer path is compiled out)
     }
-    use gman_core::matrix::{MatRef, Scales};
+    use gman_core::nn::matrix::{MatRef, Scales};
     // A 3 x 8 int8 matrix over [m; m ⊙ x] (f = 4), two cells; one cell all zero codes.
     let (rows, f) = (3usize, 4usize);
     let wf: Vec<f32> = (0..rows * 2 * f)
@@ -83,7 +84,7 @@ fn integer_cell_layer_follows_its_formula() {
         .collect();
     let mut q = vec![0u8; rows * 2 * f];
     let mut scales = vec![0.0f32; rows];
-    gman_core::quant::quantize_rows(&wf, rows, 2 * f, &mut q, &mut scales).unwrap();
+    gman_core::blob::quant::quantize_rows(&wf, rows, 2 * f, &mut q, &mut scales).unwrap();
     let w = MatRef::i8(rows, 2 * f, &q, Scales::F32(&scales))
         .unwrap()
         .with_int8_activations();
@@ -91,7 +92,7 @@ fn integer_cell_layer_follows_its_formula() {
     let x = [0.5f32, 0.25, 1.0, 0.0];
     let scale = 0.01f32;
     let mut out = [0.0f32; 6];
-    gman_core::qkernel::cell_layer_int8_u8(&w, &map, scale, &x, &mut out).unwrap();
+    gman_core::nn::qkernel::cell_layer_int8_u8(&w, &map, scale, &x, &mut out).unwrap();
     // The canonical computation written out for cell 0 (one block: f < QCOLS).
     let a = 255u32;
     let r = ((127u32 << 16) + a / 2) / a;
@@ -100,10 +101,10 @@ fn integer_cell_layer_follows_its_formula() {
         .map(|&v| ((v as u32 * r + (1 << 15)) >> 16) as i32)
         .collect();
     let sm = (a as f32 * scale) / 127.0;
-    let (sx, inv) = gman_core::qkernel::act_scale(&x);
+    let (sx, inv) = gman_core::nn::qkernel::act_scale(&x);
     let px: Vec<i32> = x
         .iter()
-        .map(|&v| gman_core::qkernel::quantize_one(v, inv))
+        .map(|&v| gman_core::nn::qkernel::quantize_one(v, inv))
         .collect();
     for i in 0..rows {
         let qi = |j: usize| q[i * 2 * f + j] as i8 as i32;
@@ -123,7 +124,8 @@ fn bad_map_input_is_a_typed_error() {
     let bytes = seeded_blob(&dims, 4, true, FLAG_ADAPT);
     let blob = Blob::parse(&bytes).unwrap();
     let w = NavWeights::from_blob(&blob, &dims).unwrap();
-    let mut arena = vec![0.0f32; arena_len(&dims, gman_core::memory::AdaptMode::Efficient, K)];
+    let mut arena =
+        vec![0.0f32; arena_len(&dims, gman_core::navigator::memory::AdaptMode::Efficient, K)];
     let cfg = NavConfig::from_header(blob.header());
     let mut nav: Navigator<'_, Efficient, K> = Navigator::new(w, &mut arena, cfg).unwrap();
     nav.reset(&vec![0.3; dims.attr], 7).unwrap();

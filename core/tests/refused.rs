@@ -192,7 +192,7 @@ fn a_refused_finish_step_leaves_the_begun_step() {
 /// reading their header, and accepts v4; the default accepts all.
 #[test]
 fn require_header_crc_refuses_formats_whose_checksum_skips_the_header() {
-    let v4 = seeded_blob(&SMALL, 3, true, gman_core::schema::FLAG_ADAPT);
+    let v4 = seeded_blob(&SMALL, 3, true, gman_core::spec::schema::FLAG_ADAPT);
     let strict = ParseOptions {
         require_header_crc: true,
     };

@@ -12,7 +12,7 @@
 mod common;
 use common::*;
 use gman_core::blob::Blob;
-use gman_core::memory::{
+use gman_core::navigator::memory::{
     arena_len, checked_int8_weight_bytes, int8_weight_bytes, try_arena_len, AdaptMode, NavLayout,
 };
 use gman_core::navigator::{
@@ -83,8 +83,8 @@ fn sizes_consistent_one(d: &Dims) -> Result<(), TestCaseError> {
                         d,
                         mode,
                         k,
-                        gman_core::memory::Footprint::Compact,
-                        gman_core::schema::NoiseMode::Zero,
+                        gman_core::navigator::memory::Footprint::Compact,
+                        gman_core::spec::schema::NoiseMode::Zero,
                     );
                     let zf = z.map_or(0, |z| z.total_floats());
                     prop_assert_eq!(arena_len(d, mode, k), n);
@@ -94,12 +94,12 @@ fn sizes_consistent_one(d: &Dims) -> Result<(), TestCaseError> {
                 None => {
                     // One of the two noise modes' layouts overflows.
                     prop_assert_eq!(arena_len(d, mode, k), usize::MAX);
-                    let z = gman_core::memory::try_arena_len_noise(
+                    let z = gman_core::navigator::memory::try_arena_len_noise(
                         d,
                         mode,
                         k,
-                        gman_core::memory::Footprint::Compact,
-                        gman_core::schema::NoiseMode::Zero,
+                        gman_core::navigator::memory::Footprint::Compact,
+                        gman_core::spec::schema::NoiseMode::Zero,
                     );
                     prop_assert!(l.total_bytes() == usize::MAX || z.is_none());
                 }
@@ -483,7 +483,7 @@ fn zero_width_dims_are_refused_by_parse_and_navigator() {
         let w = NavWeights::from_fn(&d, |id| {
             let (r, c) = id.shape(&d);
             let v = &store.iter().find(|(i, _)| *i == id).unwrap().1;
-            gman_core::matrix::MatRef::f32(r, c, v).unwrap()
+            gman_core::nn::matrix::MatRef::f32(r, c, v).unwrap()
         })
         .unwrap();
         let mut arena = vec![0.0f32; Navigator::<Full, 4>::arena_len(&d).max(1)];

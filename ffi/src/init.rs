@@ -229,7 +229,7 @@ pub(crate) fn init_config(blob: &Blob<'_>, opts: &gman_options) -> Result<NavCon
 /// The commit delay a navigator runs at: the blob's `recorded` one, or the `requested` one
 /// when the blob records none (0 requests nothing).
 pub(crate) fn commit_delay(recorded: u32, requested: u32) -> Result<u32, gman_status> {
-    if requested > gman_core::schema::MAX_COMMIT_DELAY {
+    if requested > gman_core::spec::schema::MAX_COMMIT_DELAY {
         return Err(GMAN_ERR_CONFIG);
     }
     match (recorded, requested) {

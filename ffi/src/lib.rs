@@ -42,7 +42,7 @@ use core::mem::{align_of, size_of};
 use core::ptr;
 
 use gman_core::blob::{Blob, Header, ParseOptions};
-use gman_core::memory::{try_arena_len_with, AdaptMode, Footprint};
+use gman_core::navigator::memory::{try_arena_len_with, AdaptMode, Footprint};
 use gman_core::navigator::{
     Efficient, Emd, Full, NavConfig, NavWeights, Navigator, NoiseMode, Schedule, Selection,
     StepOutput,
@@ -160,7 +160,7 @@ pub extern "C" fn gman_status_str(status: gman_status) -> *const c_char {
 pub unsafe extern "C" fn gman_crc32(crc: u32, data: *const u8, len: usize) -> u32 {
     // SAFETY: forwarded from the caller.
     match unsafe { slice_in(data, len) } {
-        Ok(d) => gman_core::crc32::crc32_update(crc, d),
+        Ok(d) => gman_core::blob::crc32::crc32_update(crc, d),
         Err(_) => 0,
     }
 }

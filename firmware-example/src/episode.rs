@@ -40,9 +40,9 @@
 
 use core::fmt;
 
+use gman_core::blob::crc32::crc32_update;
 use gman_core::blob::Blob;
-use gman_core::crc32::crc32_update;
-use gman_core::memory::{arena_len_with, AdaptMode, Footprint};
+use gman_core::navigator::memory::{arena_len_with, AdaptMode, Footprint};
 use gman_core::navigator::{
     Counters, Efficient, Emd, NavConfig, NavWeights, Navigator, NoiseMode, Schedule, StepOutput,
 };
@@ -61,7 +61,7 @@ pub const K: usize = 20;
 /// `docs/device.md`; `gman eval --commit-delay 20` runs the same schedule on the host).
 pub const COMMIT_DELAY: u32 = 20;
 /// The navigator's arena layout: with the feature `int8-activations`, whose build embeds a
-/// blob with [`FLAG_COMPACT_PSI`](gman_core::schema::FLAG_COMPACT_PSI), the smallest,
+/// blob with [`FLAG_COMPACT_PSI`](gman_core::spec::schema::FLAG_COMPACT_PSI), the smallest,
 /// [`Footprint::Minimal`] (no Ψ_x, Ψ's observations as int16; a blob without the flag is
 /// refused with a typed error), else [`Footprint::Compact`]. (The host's run of this file
 /// in the parity test has no such feature: it runs `Compact`, which gives the same bits.)

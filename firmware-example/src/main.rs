@@ -242,11 +242,11 @@ fn navigator_phase(dev: &mut Device<'_>, arena: &mut [f32]) -> Result<u32, Failu
 #[inline(never)]
 fn kernel_phase(clock: &Clock) -> Result<(), Failure> {
     use gman_core::blob::{Blob, TensorId};
-    use gman_core::schema::FLAG_INT8_ACTIVATIONS;
+    use gman_core::spec::schema::FLAG_INT8_ACTIVATIONS;
     const D: gman_core::Dims = episode::DIMS;
     let blob = Blob::parse(BLOB)?;
     let act8 = blob.header().flags() & FLAG_INT8_ACTIVATIONS != 0;
-    let m = |id: TensorId| -> Result<gman_core::matrix::MatRef<'_>, Failure> {
+    let m = |id: TensorId| -> Result<gman_core::nn::matrix::MatRef<'_>, Failure> {
         let w = blob.matrix(id)?;
         Ok(if act8 { w.with_int8_activations() } else { w })
     };
@@ -290,8 +290,8 @@ fn kernel_phase(clock: &Clock) -> Result<(), Failure> {
     let map: [f32; D.map_len()] = core::array::from_fn(|i| pos(i + i / D.feat));
     let mut yc = [0.0f32; 72];
     let cell = time(&mut || {
-        if act8 && gman_core::qkernel::INT8_ACTIVATIONS {
-            return gman_core::qkernel::cell_layer_int8(&cw, &map, &x, &mut yc);
+        if act8 && gman_core::nn::qkernel::INT8_ACTIVATIONS {
+            return gman_core::nn::qkernel::cell_layer_int8(&cw, &map, &x, &mut yc);
         }
         for mc in map.chunks_exact(D.feat) {
             for (p, (&a, &b)) in cell_prod.iter_mut().zip(mc.iter().zip(&x)) {
@@ -317,7 +317,7 @@ fn kernel_phase(clock: &Clock) -> Result<(), Failure> {
         mv(&crw, &[&h], &mut y[..1])
     })?;
     let sig = time(&mut || {
-        let f: fn(&mut [f32]) = core::hint::black_box(gman_core::activation::sigmoid_inplace);
+        let f: fn(&mut [f32]) = core::hint::black_box(gman_core::nn::activation::sigmoid_inplace);
         f(&mut yf);
         Ok(())
     })?;
@@ -340,7 +340,7 @@ fn kernel_phase(clock: &Clock) -> Result<(), Failure> {
 /// One `matvec_acc`, not inlined: one copy of the kernels' dispatch for every layer timed.
 #[cfg(feature = "kernel-table")]
 #[inline(never)]
-fn mv(w: &gman_core::matrix::MatRef<'_>, x: &[&[f32]], y: &mut [f32]) -> gman_core::Result<()> {
+fn mv(w: &gman_core::nn::matrix::MatRef<'_>, x: &[&[f32]], y: &mut [f32]) -> gman_core::Result<()> {
     w.matvec_acc(x, y)
 }
 
@@ -350,7 +350,7 @@ fn mv(w: &gman_core::matrix::MatRef<'_>, x: &[&[f32]], y: &mut [f32]) -> gman_co
 #[inline(never)]
 fn blob_int8_activations() -> Result<bool, Failure> {
     let b = gman_core::blob::Blob::parse(BLOB)?;
-    Ok(b.header().flags() & gman_core::schema::FLAG_INT8_ACTIVATIONS != 0)
+    Ok(b.header().flags() & gman_core::spec::schema::FLAG_INT8_ACTIVATIONS != 0)
 }
 
 const STACK_SATURATED: Failure =
@@ -369,7 +369,7 @@ fn run() -> Result<(), Failure> {
 
     hprintln!(
         "# int8 kernel: dsp_smlad={} (1: SXTB16 + SMLAD, gman-dsp)",
-        gman_core::qkernel::DSP_KERNEL as u32
+        gman_core::nn::qkernel::DSP_KERNEL as u32
     );
 
     let mut dev = Device {

@@ -8,9 +8,9 @@
 //! gradient of the WGAN-GP loss L_D (Eq. 1) against synthetic observations.
 
 use gman_core::blob::{Blob, TensorId};
-use gman_core::dense::{Dense, DenseGrads};
-use gman_core::discriminator::{DiscGrads, DiscScratch, Discriminator, LdConfig};
-use gman_core::generator::{Generator, GeneratorCache};
+use gman_core::nets::discriminator::{DiscGrads, DiscScratch, Discriminator, LdConfig};
+use gman_core::nets::generator::{Generator, GeneratorCache};
+use gman_core::nn::dense::{Dense, DenseGrads};
 use gman_core::rng::{fill_gaussian, uniform, Xoshiro128};
 use gman_core::Dims;
 
@@ -38,8 +38,8 @@ pub fn run(
 ) -> gman_core::Result<()> {
     networks(blob_bytes, scratch, out)?;
     let blob = Blob::parse(blob_bytes)?;
-    let act8 = blob.header().flags() & gman_core::schema::FLAG_INT8_ACTIVATIONS != 0;
-    if gman_core::qkernel::INT8_ACTIVATIONS && act8 {
+    let act8 = blob.header().flags() & gman_core::spec::schema::FLAG_INT8_ACTIVATIONS != 0;
+    if gman_core::nn::qkernel::INT8_ACTIVATIONS && act8 {
         int8_kernels(&blob, out)?;
     }
     Ok(())
@@ -233,8 +233,8 @@ fn int8_kernels(
     blob: &Blob<'_>,
     out: &mut dyn FnMut(core::fmt::Arguments<'_>),
 ) -> gman_core::Result<()> {
-    use gman_core::matrix::Weights;
-    use gman_core::qkernel::{self, QCOLS, QWORDS};
+    use gman_core::nn::matrix::Weights;
+    use gman_core::nn::qkernel::{self, QCOLS, QWORDS};
     let w = blob.matrix(TensorId::GenW2)?;
     let Weights::I8 { q, .. } = w.weights() else {
         return Err(gman_core::Error::Config {

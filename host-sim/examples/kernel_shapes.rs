@@ -8,8 +8,8 @@
 
 #[cfg(target_arch = "x86_64")]
 mod x86 {
-    use gman_core::batch::{matmul_acc_blocked, outer_acc_batch_blocked};
-    use gman_core::matrix::MatRef;
+    use gman_core::nn::batch::{matmul_acc_blocked, outer_acc_batch_blocked};
+    use gman_core::nn::matrix::MatRef;
     use std::time::Instant;
 
     macro_rules! mm {
@@ -32,7 +32,7 @@ mod x86 {
     unsafe fn mm_host(w: &MatRef<'_>, x: &[&[f32]], n: usize, y: &mut [f32]) {
         let k = gman_host_sim::simd::avx2().expect("AVX2");
         let lens: Vec<usize> = x.iter().map(|s| s.len() / n).collect();
-        gman_core::batch::matmul_acc(&w.with_kernels(k), x, &lens, n, y).unwrap();
+        gman_core::nn::batch::matmul_acc(&w.with_kernels(k), x, &lens, n, y).unwrap();
     }
     mm!(mm_a42, "avx2", 4, 2);
     mm!(mm_a24, "avx2", 2, 4);

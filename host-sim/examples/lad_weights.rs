@@ -14,8 +14,8 @@ use std::path::Path;
 
 use anyhow::{bail, Result};
 use gman_core::adapt::cosine;
-use gman_core::discriminator::DiscScratch;
 use gman_core::navigator::{Efficient, Full, Mode, Navigator};
+use gman_core::nets::discriminator::DiscScratch;
 use gman_host_sim::model::episode::eval_mode_is_efficient;
 use gman_host_sim::model::K;
 use gman_host_sim::model::{load_model, NavModel};

@@ -11,9 +11,9 @@ use std::hint::black_box;
 use std::time::Instant;
 
 use gman_core::blob::{Blob, TensorId};
-use gman_core::matrix::MatRef;
-use gman_core::memory::Footprint;
+use gman_core::navigator::memory::Footprint;
 use gman_core::navigator::{Efficient, Full, Mode, NavConfig, NavWeights, Navigator};
+use gman_core::nn::matrix::MatRef;
 use gman_core::rng::{uniform, Xoshiro128};
 use gman_core::Dims;
 
@@ -74,7 +74,7 @@ fn main() {
         Dims::MCU
     };
     let secs: f64 = a[5].parse().unwrap();
-    let mut sw = gman_core::seeded::SeededWeights::new(1, 0.05);
+    let mut sw = gman_core::blob::seeded::SeededWeights::new(1, 0.05);
     let t: Vec<Vec<f32>> = TensorId::all_for(&d)
         .map(|id| {
             let mut v = vec![0.0f32; id.numel(&d)];

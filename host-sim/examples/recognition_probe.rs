@@ -19,7 +19,7 @@
 use std::path::Path;
 
 use anyhow::{bail, Result};
-use gman_core::generator::GeneratorCache;
+use gman_core::nets::generator::GeneratorCache;
 use gman_core::Dims;
 use gman_host_sim::pretrain::fg::load_generator;
 use gman_host_sim::pretrain::generator::generator_view;

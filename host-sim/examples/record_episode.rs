@@ -21,7 +21,7 @@
 
 use std::path::PathBuf;
 
-use gman_core::crc32::crc32;
+use gman_core::blob::crc32::crc32;
 use gman_core::Action;
 use gman_host_sim::sim::spatial::MapGrid;
 use gman_host_sim::sim::{

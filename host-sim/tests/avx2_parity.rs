@@ -3,11 +3,11 @@
 //! episodes (steps and inner updates, both adaptation modes, f32 and int8 weights).
 //! Skipped with a message on a CPU without AVX2.
 
-use gman_core::batch::{matmul_acc, matmul_t_acc, outer_acc_batch_with, Kernels};
+use gman_core::blob::quant::quantize_rows;
 use gman_core::blob::{encode, encoded_len_bound, Blob, TensorData, TensorId, TensorSpec};
-use gman_core::matrix::{MatRef, Scales};
 use gman_core::navigator::{Efficient, Full, Mode, NavConfig, NavWeights, Navigator};
-use gman_core::quant::quantize_rows;
+use gman_core::nn::batch::{matmul_acc, matmul_t_acc, outer_acc_batch_with, Kernels};
+use gman_core::nn::matrix::{MatRef, Scales};
 use gman_core::rng::{fill_gaussian, Xoshiro128};
 use gman_core::spec::ModelSpec;
 use gman_core::Dims;

@@ -799,7 +799,8 @@ fn with_setting_renamed(v5: &[u8], from: &[u8], to: &[u8]) -> Vec<u8> {
         .expect("the key in the header");
     head[at..at + to.len()].copy_from_slice(to);
     let payload = &v5[end..];
-    let mut crc = gman_core::crc32::crc32_update(gman_core::crc32::crc32(&head), payload);
+    let mut crc =
+        gman_core::blob::crc32::crc32_update(gman_core::blob::crc32::crc32(&head), payload);
     while crc >= 0x80 {
         head.push(crc as u8 | 0x80);
         crc >>= 7;
@@ -851,7 +852,7 @@ fn with_flag_bit(v4: &[u8], bit: u32) -> Vec<u8> {
     }
     head.extend_from_slice(&v4[at..crc_at]);
     let payload = &v4[end..];
-    let crc = gman_core::crc32::crc32_update(gman_core::crc32::crc32(&head), payload);
+    let crc = gman_core::blob::crc32::crc32_update(gman_core::blob::crc32::crc32(&head), payload);
     put(crc.into(), &mut head);
     head.extend_from_slice(payload);
     head

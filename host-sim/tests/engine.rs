@@ -16,7 +16,7 @@
 //!   it) is the episode run alone, the gradient is the per-episode sum within float rounding,
 //!   runs are reproducible and resume bit for bit; `--meta-order 2` refuses `B > 1`.
 
-use gman_core::memory::AdaptMode;
+use gman_core::navigator::memory::AdaptMode;
 use gman_core::navigator::{Efficient, Full, Mode, Navigator, NoiseMode};
 use gman_core::Dims;
 use gman_host_sim::model::{Method, NavModel, K};

@@ -357,7 +357,7 @@ fn short_training_run_then_blob_replays_through_gman_core() {
     let dims = Dims::MCU.with_map(3, 3, 4);
     let mut model = NavModel::init(Method::Gman, dims, 2, Some(&g), None).unwrap();
     model.spec.inner_lr = 1e-2;
-    model.spec.adapt_mode = gman_core::memory::AdaptMode::Efficient;
+    model.spec.adapt_mode = gman_core::navigator::memory::AdaptMode::Efficient;
     let before = model.params.clone();
     let mut st = TrainState::new(
         model,
@@ -395,7 +395,7 @@ fn short_training_run_then_blob_replays_through_gman_core() {
         let mut arena = vec![0.0f32; Navigator::<Efficient, 20>::arena_len(&dims)];
         // The device's compact layout (the host agent ran the fast one): the same bits.
         let cfg = gman_core::navigator::NavConfig {
-            footprint: gman_core::memory::Footprint::Compact,
+            footprint: gman_core::navigator::memory::Footprint::Compact,
             ..host.nav_config(false)
         };
         let mut nav: Navigator<'_, Efficient, 20> =

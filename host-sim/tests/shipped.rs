@@ -7,7 +7,7 @@
 
 use std::path::{Path, PathBuf};
 
-use gman_core::memory::AdaptMode;
+use gman_core::navigator::memory::AdaptMode;
 use gman_core::navigator::{Efficient, Full, Mode, Navigator};
 use gman_host_sim::model::{load_model_with_ps, NavModel, K};
 

@@ -10,7 +10,7 @@
 
 use std::path::{Path, PathBuf};
 
-use gman_core::memory::AdaptMode;
+use gman_core::navigator::memory::AdaptMode;
 use gman_core::Dims;
 use gman_host_sim::model::{Method, NavModel};
 use gman_host_sim::optim::adam::AdamConfig;

@@ -3,8 +3,8 @@
 //! the same loss computed by the independent f64 reference, on a tiny network.
 
 use gman_core::blob::TensorId;
-use gman_core::matrix::MatRef;
 use gman_core::navigator::{Full, NavConfig, NavWeights, Navigator, Schedule, Selection};
+use gman_core::nn::matrix::MatRef;
 use gman_core::rng::{fill_gaussian, uniform, Xoshiro128};
 use gman_core::Dims;
 use gman_host_sim::optim::params::{Param, ParamSet};

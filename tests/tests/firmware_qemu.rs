@@ -753,7 +753,7 @@ const PARTS: [(&str, &[&str]); 8] = [
     ),
     (
         "gman-core: integer path (`qkernel` with gman-dsp's kernel)",
-        &["gman_core::qkernel", "gman_dsp"],
+        &["gman_core::nn::qkernel", "gman_dsp"],
     ),
     (
         "gman-core: other (kernels, networks, losses, blob parser, RNG)",
@@ -1053,7 +1053,7 @@ fn episode_run_reacts_to_every_input() {
     let mut changed = ep.clone();
     let last = changed.len() - 1;
     changed[last] ^= 0x10;
-    let crc = gman_core::crc32::crc32(&changed[episode::HEADER_LEN..]);
+    let crc = gman_core::blob::crc32::crc32(&changed[episode::HEADER_LEN..]);
     changed[24..28].copy_from_slice(&crc.to_le_bytes());
     let (other, _) = host_lines(&blob, &changed);
     let diff: Vec<usize> = (0..base.len()).filter(|&i| base[i] != other[i]).collect();
@@ -1072,7 +1072,7 @@ fn episode_run_reacts_to_every_input() {
     let mut map_changed = ep.clone();
     let cell0 = ep.len() - 9 * 512;
     map_changed[cell0] ^= 0x40;
-    let crc = gman_core::crc32::crc32(&map_changed[episode::HEADER_LEN..]);
+    let crc = gman_core::blob::crc32::crc32(&map_changed[episode::HEADER_LEN..]);
     map_changed[24..28].copy_from_slice(&crc.to_le_bytes());
     let (fourth, _) = host_lines(&blob, &map_changed);
     let diff: Vec<usize> = (0..base.len()).filter(|&i| base[i] != fourth[i]).collect();

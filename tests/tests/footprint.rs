@@ -8,11 +8,11 @@
 //! arena or the navigator owns it.
 
 use gman_core::blob::{Blob, TensorId};
-use gman_core::matrix::MatRef;
-use gman_core::memory::{AdaptMode, Footprint, NavLayout};
+use gman_core::navigator::memory::{AdaptMode, Footprint, NavLayout};
 use gman_core::navigator::{
     Efficient, Emd, Full, Mode, NavConfig, NavWeights, Navigator, NoiseMode,
 };
+use gman_core::nn::matrix::MatRef;
 use gman_core::rng::{fill_gaussian, uniform, Xoshiro128};
 use gman_core::spec::{InnerRule, ModelSpec};
 use gman_core::Dims;
@@ -356,7 +356,7 @@ fn minimal_footprint_is_smaller_and_refuses_what_it_cannot_run() {
 /// G(0, SE(y)) at the update's θ), and a navigator runs in an arena of exactly that size.
 #[test]
 fn zero_noise_psi_keeps_no_noise_and_one_feature() {
-    use gman_core::memory::{arena_len_noise, arena_len_with};
+    use gman_core::navigator::memory::{arena_len_noise, arena_len_with};
     let d = Dims::MCU.with_map(3, 3, 8);
     for fp in [Footprint::Compact, Footprint::Fast, Footprint::Minimal] {
         let g = NavLayout::try_new_noise(&d, AdaptMode::Efficient, 20, fp, NoiseMode::Gaussian)

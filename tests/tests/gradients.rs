@@ -3,11 +3,11 @@
 //! differences of the f64 reference within 1e-3 relative L2 error per tensor.
 
 use gman_core::adapt::{adapt_generator_grad, AdaptLossKind, AdaptWork};
-use gman_core::dense::{Dense, DenseGrads};
-use gman_core::discriminator::{DiscGrads, DiscScratch, Discriminator, LdConfig};
-use gman_core::generator::{Generator, GeneratorCache, GeneratorScratch};
-use gman_core::lstm::{Lstm, LstmGrads};
-use gman_core::matrix::MatRef;
+use gman_core::nets::discriminator::{DiscGrads, DiscScratch, Discriminator, LdConfig};
+use gman_core::nets::generator::{Generator, GeneratorCache, GeneratorScratch};
+use gman_core::nn::dense::{Dense, DenseGrads};
+use gman_core::nn::lstm::{Lstm, LstmGrads};
+use gman_core::nn::matrix::MatRef;
 use gman_core::rng::{fill_gaussian, uniform, Xoshiro128};
 use gman_tests::reference::*;
 
@@ -376,7 +376,7 @@ fn random_probs(rng: &mut Xoshiro128, k: usize) -> Vec<f32> {
     let mut probs = vec![0.0f32; k * 6];
     for t in 0..k {
         let l = rnd(rng, 6, 1.0);
-        gman_core::activation::softmax(&l, &mut probs[t * 6..(t + 1) * 6]).unwrap();
+        gman_core::nn::activation::softmax(&l, &mut probs[t * 6..(t + 1) * 6]).unwrap();
     }
     probs
 }

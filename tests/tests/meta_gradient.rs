@@ -17,8 +17,8 @@
 
 use gman_core::adapt::AdaptLossKind;
 use gman_core::blob::TensorId;
-use gman_core::matrix::MatRef;
 use gman_core::navigator::{Full, NavConfig, NavWeights, Navigator, Schedule, Selection};
+use gman_core::nn::matrix::MatRef;
 use gman_core::rng::{fill_gaussian, uniform, Xoshiro128};
 use gman_core::spec::{InnerRule, ModelSpec};
 use gman_core::{Dims, NUM_ACTIONS};

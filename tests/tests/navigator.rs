@@ -4,12 +4,12 @@
 
 use gman_core::adapt::AdaptLossKind;
 use gman_core::blob::TensorId;
-use gman_core::dense::Dense;
-use gman_core::matrix::MatRef;
 use gman_core::navigator::{
     Efficient, Full, Mode, NavConfig, NavWeights, Navigator, NoiseMode, Selection,
 };
-use gman_core::policy::{PolicyCache, PolicyInput};
+use gman_core::nets::policy::{PolicyCache, PolicyInput};
+use gman_core::nn::dense::Dense;
+use gman_core::nn::matrix::MatRef;
 use gman_core::rng::{fill_gaussian, uniform, Xoshiro128};
 use gman_core::spec::{InnerRule, ModelSpec};
 use gman_core::{Dims, Error, NUM_ACTIONS};
@@ -167,7 +167,7 @@ const NAMES: [&str; 5] = [
 ];
 
 fn agree<M: Mode, const K: usize>(dims: Dims, kind: AdaptLossKind, seed: u64) {
-    let eff = matches!(M::MODE, gman_core::memory::AdaptMode::Efficient);
+    let eff = matches!(M::MODE, gman_core::navigator::memory::AdaptMode::Efficient);
     let w = weights(&dims, seed, 0.1);
     let cfg = NavConfig {
         model: ModelSpec {

@@ -5,10 +5,10 @@
 //! adapted generator output, bit for bit, in both adaptation modes.
 
 use gman_core::blob::Blob;
-use gman_core::memory::AdaptMode;
+use gman_core::navigator::memory::AdaptMode;
 use gman_core::navigator::StepRule;
 use gman_core::navigator::{Efficient, Full, Mode, Navigator, Selection};
-use gman_core::schema::AdaptLossKind;
+use gman_core::spec::schema::AdaptLossKind;
 use gman_host_sim::model::K;
 use gman_host_sim::model::{InnerRule, Method, NavModel};
 use gman_host_sim::optim::params::{Init, ParamSet};

@@ -6,7 +6,7 @@ use std::path::PathBuf;
 use std::sync::Arc;
 
 use gman_core::blob::Blob;
-use gman_core::memory::Footprint;
+use gman_core::navigator::memory::Footprint;
 use gman_core::navigator::{Efficient, NavConfig, NavWeights, Navigator, NoiseMode, Selection};
 use gman_core::Dims;
 use gman_host_sim::eval::agent::NavAgent;
@@ -194,7 +194,7 @@ fn exported_int8_blob_host_path_and_core_api_agree() {
     let dir = tmp("export");
     // Meta-trained in the mode the device runs (the mcu default of `gman train`).
     let mut model = gman_model(2);
-    model.spec.adapt_mode = gman_core::memory::AdaptMode::Efficient;
+    model.spec.adapt_mode = gman_core::navigator::memory::AdaptMode::Efficient;
     let mut st = TrainState::new(
         model,
         AdamConfig {

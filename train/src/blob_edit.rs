@@ -6,7 +6,7 @@ use std::path::Path;
 use anyhow::{anyhow, bail, Result};
 use gman_core::blob::{reencode, reencoded_len_bound, Blob, ChecksumScope, Quant};
 #[cfg(doc)]
-use gman_core::schema::{FLAG_COMPACT_PSI, FLAG_INT8_ACTIVATIONS};
+use gman_core::spec::schema::{FLAG_COMPACT_PSI, FLAG_INT8_ACTIVATIONS};
 
 /// `bytes` (a weight blob) emitted again with [`FLAG_INT8_ACTIVATIONS`] and
 /// [`FLAG_COMPACT_PSI`] set (`int8`) or both cleared: [`reencode_with_flags_of`] with Ψ's
@@ -75,7 +75,7 @@ pub fn upgrade_blob(bytes: &[u8]) -> Result<Vec<u8>> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use gman_core::schema::{FLAG_COMPACT_PSI, FLAG_INT8_ACTIVATIONS};
+    use gman_core::spec::schema::{FLAG_COMPACT_PSI, FLAG_INT8_ACTIVATIONS};
 
     fn shipped() -> Vec<u8> {
         let p = concat!(

@@ -13,9 +13,9 @@
 use std::path::Path;
 
 use anyhow::{Context, Result};
-use gman_core::generator::GeneratorCache;
-use gman_core::memory::AdaptMode;
+use gman_core::navigator::memory::AdaptMode;
 use gman_core::navigator::{Efficient, Full, Mode, Navigator};
+use gman_core::nets::generator::GeneratorCache;
 use serde::Serialize;
 
 use crate::model::{NavModel, K};

@@ -11,8 +11,8 @@
 use std::path::Path;
 
 use anyhow::{bail, Context, Result};
-use gman_core::activation::{leaky_relu_inplace, sigmoid_inplace};
-use gman_core::dense::Dense;
+use gman_core::nn::activation::{leaky_relu_inplace, sigmoid_inplace};
+use gman_core::nn::dense::Dense;
 use gman_core::rng::Xoshiro128;
 use gman_core::{ATTR_DIM, FEATURE_DIM};
 

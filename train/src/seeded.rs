@@ -1,5 +1,5 @@
 //! Seeded models for benchmarks, profiling and tests: gman-core's seeded weights
-//! ([`gman_core::seeded`], the one seeded-weights builder) as an int8 blob in a `Vec`.
+//! ([`gman_core::blob::seeded`], the one seeded-weights builder) as an int8 blob in a `Vec`.
 
 use anyhow::{anyhow, Result};
 use gman_core::blob::{encode_model_scratch_len, encoded_model_len_bound, AdaptSettings, Quant};
@@ -10,7 +10,7 @@ use gman_core::Dims;
 pub fn int8_blob(dims: &Dims, seed: u64, scale: f32) -> Result<Vec<u8>> {
     let mut buf = vec![0u8; encoded_model_len_bound(dims, Quant::I8)];
     let (nf, nb) = encode_model_scratch_len(dims);
-    let n = gman_core::seeded::encode_seeded(
+    let n = gman_core::blob::seeded::encode_seeded(
         dims,
         0,
         AdaptSettings::PAPER,

@@ -6,7 +6,7 @@
 //! must run steps, adaptations and more than `K` manual steps without a panic.
 
 use gman_core::blob::{Blob, TensorId};
-use gman_core::memory::{try_arena_len, AdaptMode};
+use gman_core::navigator::memory::{try_arena_len, AdaptMode};
 use gman_core::navigator::{Efficient, Full, Mode, NavConfig, NavWeights, Navigator, Schedule};
 
 /// Largest arena the target allocates (floats), so that a blob with big but valid dims does

@@ -1,10 +1,10 @@
 //! Helpers shared by the core's integration tests (included with `mod common;`).
 #![allow(dead_code)]
 
+use gman_core::blob::quant::quantize_rows;
+use gman_core::blob::seeded::{encode_seeded, SeededWeights};
 use gman_core::blob::{encode, encoded_len_bound, TensorData, TensorId, TensorSpec};
 use gman_core::blob::{encode_model_scratch_len, encoded_model_len_bound, AdaptSettings, Quant};
-use gman_core::quant::quantize_rows;
-use gman_core::seeded::{encode_seeded, SeededWeights};
 use gman_core::Dims;
 
 /// Small dims so that tests are fast.
@@ -115,9 +115,9 @@ pub fn reseal(blob: &[u8], payload_len: usize, old_crc: u32) -> Vec<u8> {
     let mut out = prefix.to_vec();
     // v4, v5: the CRC covers the header bytes before it and the payload; v1-v3: the payload.
     let crc = if blob.get(4).is_some_and(|v| *v >= 4) {
-        gman_core::crc32::crc32_update(gman_core::crc32::crc32(prefix), payload)
+        gman_core::blob::crc32::crc32_update(gman_core::blob::crc32::crc32(prefix), payload)
     } else {
-        gman_core::crc32::crc32(payload)
+        gman_core::blob::crc32::crc32(payload)
     };
     out.extend(varint(crc.into()));
     out.extend_from_slice(payload);
@@ -189,7 +189,7 @@ pub fn legacy(v4: &[u8]) -> Vec<u8> {
     out.extend(varint(h.n_tensors().into()));
     out.extend(varint(h.payload_len().into()));
     let payload = &v4[v4.len() - h.payload_len() as usize..];
-    out.extend(varint(gman_core::crc32::crc32(payload).into()));
+    out.extend(varint(gman_core::blob::crc32::crc32(payload).into()));
     out.extend_from_slice(payload);
     out
 }
@@ -224,7 +224,7 @@ pub fn as_v4(blob: &[u8]) -> Vec<u8> {
     out.extend(varint(h.n_tensors().into()));
     out.extend(varint(h.payload_len().into()));
     let payload = &blob[blob.len() - h.payload_len() as usize..];
-    let crc = gman_core::crc32::crc32_update(gman_core::crc32::crc32(&out), payload);
+    let crc = gman_core::blob::crc32::crc32_update(gman_core::blob::crc32::crc32(&out), payload);
     out.extend(varint(crc.into()));
     out.extend_from_slice(payload);
     out
@@ -275,7 +275,7 @@ pub fn raw_blob(dims: &Dims, flags: u32) -> Vec<u8> {
     b.extend(varint(4));
     b.extend(varint(n));
     b.extend(varint(payload.len() as u64));
-    b.extend(varint(gman_core::crc32::crc32(&payload).into()));
+    b.extend(varint(gman_core::blob::crc32::crc32(&payload).into()));
     b.extend(payload);
     b
 }

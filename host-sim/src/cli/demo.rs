@@ -335,7 +335,7 @@ fn train_method(
         // inner loop in the device's Efficient mode.
         let dims = gman_core::Dims::MCU.with_map(3, 3, 8);
         let mut model = NavModel::init(method, dims, 1, Some(gen), None)?;
-        model.spec.adapt_mode = gman_core::memory::AdaptMode::Efficient;
+        model.spec.adapt_mode = gman_core::navigator::memory::AdaptMode::Efficient;
         TrainState::new(
             model,
             AdamConfig {

@@ -94,7 +94,7 @@ pub fn cmd_export(a: ExportArgs) -> Result<()> {
                 .with_context(|| format!("reading the blob {}", path.display()))?;
             let blob = gman_core::blob::Blob::parse(&bytes)
                 .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
-            blob.header().flags() & gman_core::schema::FLAG_INT8_ACTIVATIONS != 0
+            blob.header().flags() & gman_core::spec::schema::FLAG_INT8_ACTIVATIONS != 0
         }
         (ActArg::Auto, None) => {
             default_int8_activations(a.preset == PresetArg::Mcu, a.quant == QuantArg::Int8)

@@ -58,16 +58,16 @@ fn print_flags(blob: &Blob<'_>) {
     if mf.adapt {
         flags.push("adapt (GMAN inner loop on)");
     }
-    if mf.noise == gman_core::schema::NoiseMode::Zero {
+    if mf.noise == gman_core::spec::schema::NoiseMode::Zero {
         flags.push("zero noise");
     }
-    if mf.emd == gman_core::schema::Emd::CosSim {
+    if mf.emd == gman_core::spec::schema::Emd::CosSim {
         flags.push("cosine-similarity EMD (no D)");
     }
     if mf.adapt {
         flags.push(match mf.adapt_mode {
-            gman_core::memory::AdaptMode::Full => "Full adaptation mode",
-            gman_core::memory::AdaptMode::Efficient => "Efficient adaptation mode",
+            gman_core::navigator::memory::AdaptMode::Full => "Full adaptation mode",
+            gman_core::navigator::memory::AdaptMode::Efficient => "Efficient adaptation mode",
         });
     }
     println!(
@@ -106,7 +106,9 @@ fn print_flags(blob: &Blob<'_>) {
 
 /// Every setting the flags hold, named, whether on or off.
 fn print_settings(h: &gman_core::blob::Header) {
-    use gman_core::schema::{AdaptLossKind, StepRule, FLAG_COMPACT_PSI, FLAG_INT8_ACTIVATIONS};
+    use gman_core::spec::schema::{
+        AdaptLossKind, StepRule, FLAG_COMPACT_PSI, FLAG_INT8_ACTIVATIONS,
+    };
     let mf = h.spec().inner_rule;
     let on = |b: bool| if b { "on" } else { "off" };
     println!(

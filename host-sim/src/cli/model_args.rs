@@ -12,9 +12,9 @@
 use std::sync::OnceLock;
 
 use clap::{Arg, Args};
-use gman_core::memory::AdaptMode;
+use gman_core::navigator::memory::AdaptMode;
 use gman_core::navigator::{NoiseMode, StepRule};
-use gman_core::schema::AdaptLossKind;
+use gman_core::spec::schema::AdaptLossKind;
 use gman_core::spec::{ModelSpec, SpecError};
 
 use super::args::named;

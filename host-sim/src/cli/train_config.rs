@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{anyhow, bail, Context, Result};
 use clap::builder::TypedValueParser;
 use clap::{Args, ValueEnum};
-use gman_core::memory::AdaptMode;
+use gman_core::navigator::memory::AdaptMode;
 use gman_core::spec::{check_map_grid, MAX_GRID_SIDE};
 use gman_host_sim::model::{InnerRule, Method, ModelSpec, NavModel};
 use gman_host_sim::optim::adam::AdamConfig;

@@ -3,7 +3,7 @@
 //! an observation, the map grid.
 
 use anyhow::Result;
-use gman_core::memory::AdaptMode;
+use gman_core::navigator::memory::AdaptMode;
 use gman_core::navigator::{Mode, Navigator};
 
 use super::{NavModel, K};

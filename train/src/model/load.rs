@@ -5,7 +5,7 @@ use std::path::Path;
 
 use anyhow::{anyhow, bail, Context, Result};
 use gman_core::blob::{Blob, TensorId};
-use gman_core::schema::Emd;
+use gman_core::spec::schema::Emd;
 use gman_core::spec::ModelSpec;
 
 use super::method::Method;

@@ -1,7 +1,7 @@
 //! The methods of the paper's tables: independent switches (FG, PS, the inner loop, the
 //! EMD, θ trained) with named presets.
 
-use gman_core::schema::Emd;
+use gman_core::spec::schema::Emd;
 use serde::{Deserialize, Serialize};
 
 /// When the inner loop of Algorithm 1 (the EMD's adaptation) runs.

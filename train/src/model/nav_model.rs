@@ -6,9 +6,9 @@ use anyhow::{anyhow, bail, Context, Result};
 use gman_core::blob::{
     encode_model, encode_model_scratch_len, encoded_model_len_bound, Blob, Quant, TensorId,
 };
-use gman_core::matrix::MatRef;
-use gman_core::memory::{AdaptMode, Footprint};
+use gman_core::navigator::memory::{AdaptMode, Footprint};
 use gman_core::navigator::{NavConfig, NavWeights, Selection};
+use gman_core::nn::matrix::MatRef;
 use gman_core::rng::Xoshiro128;
 use gman_core::spec::ModelSpec;
 use gman_core::Dims;
@@ -347,7 +347,7 @@ mod tests {
 
     use crate::model::DEFAULT_MAX_INNER;
     use gman_core::navigator::NoiseMode;
-    use gman_core::schema::Emd;
+    use gman_core::spec::schema::Emd;
 
     /// The presets answer the six predicates as the truth table written out here pins them,
     /// have distinct switches and round-trip their names.
@@ -487,7 +487,7 @@ mod inner_rule_tests {
     use crate::model::model_from_blob;
     use crate::optim::checkpoint::Checkpoint;
     use gman_core::navigator::StepRule;
-    use gman_core::schema::AdaptLossKind;
+    use gman_core::spec::schema::AdaptLossKind;
     use gman_core::spec::InnerRule;
 
     #[test]

@@ -30,7 +30,7 @@ use std::fs::{self, File, OpenOptions};
 use std::io::{self, Write};
 use std::path::{Path, PathBuf};
 
-use gman_core::crc32::crc32;
+use gman_core::blob::crc32::crc32;
 use thiserror::Error;
 
 use super::params::{Param, ParamSet};

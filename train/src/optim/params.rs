@@ -10,8 +10,8 @@
 //! gman-core's seedable Gaussian noise ([`gman_core::rng`]).
 
 use anyhow::{anyhow, bail, Result};
-use gman_core::dense::{Dense, DenseGrads};
-use gman_core::matrix::MatRef;
+use gman_core::nn::dense::{Dense, DenseGrads};
+use gman_core::nn::matrix::MatRef;
 use gman_core::rng::{fill_gaussian, Xoshiro128};
 
 /// Standard deviation of the reference's weight initialisation.

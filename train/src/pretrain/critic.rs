@@ -1,7 +1,7 @@
 //! The conditional WGAN-GP critic `D_c(x, SE(y))` used to pre-train the feature generator
 //! (f-CLSWGAN style, paper Sec. 4.1 / ref. \[58\]). Host-only: the on-device discriminator of
 //! the environmental meta discriminator is gman-core's unconditional
-//! [`gman_core::discriminator::Discriminator`].
+//! [`gman_core::nets::discriminator::Discriminator`].
 //!
 //! ```text
 //! D_c(x, a) = w2 · LeakyReLU_0.2( W1 [x; a] + b1 ) + b2        W1 = [W1x | W1a], DH x (F + A)
@@ -20,15 +20,15 @@
 //! ```
 //!
 //! (exact almost everywhere: the slopes do not move under an infinitesimal change). This is
-//! gman-core's closed form ([`gman_core::discriminator::add_penalty_grad`], the one
+//! gman-core's closed form ([`gman_core::nets::discriminator::add_penalty_grad`], the one
 //! implementation) with the attribute columns held at zero; the tests check it against finite
 //! differences of an independent f64 implementation.
 
 use anyhow::{bail, Result};
-use gman_core::activation::{leaky_relu, leaky_relu_grad};
-use gman_core::dense::{Dense, DenseGrads};
-use gman_core::discriminator::{add_penalty_grad, DiscGrads, PenaltyPoint};
-use gman_core::matrix::{axpy, dot};
+use gman_core::nets::discriminator::{add_penalty_grad, DiscGrads, PenaltyPoint};
+use gman_core::nn::activation::{leaky_relu, leaky_relu_grad};
+use gman_core::nn::dense::{Dense, DenseGrads};
+use gman_core::nn::matrix::{axpy, dot};
 use gman_core::rng::Xoshiro128;
 use gman_core::Dims;
 

@@ -3,7 +3,7 @@
 
 use anyhow::Result;
 use gman_core::blob::TensorId;
-use gman_core::generator::{Generator, GeneratorCache, GeneratorScratch};
+use gman_core::nets::generator::{Generator, GeneratorCache, GeneratorScratch};
 use gman_core::rng::Xoshiro128;
 use gman_core::Dims;
 
@@ -110,8 +110,8 @@ impl GenBuffers {
             attr,
             &cache,
             dx,
-            &mut gman_core::dense::DenseGrads::Full { w: gw1, b: gb1 },
-            &mut gman_core::dense::DenseGrads::Full { w: gw2, b: gb2 },
+            &mut gman_core::nn::dense::DenseGrads::Full { w: gw1, b: gb1 },
+            &mut gman_core::nn::dense::DenseGrads::Full { w: gw2, b: gb2 },
             &mut s,
         )?;
         Ok(())

@@ -2,7 +2,7 @@
 //! module.
 //!
 //! Every forward and backward pass of a network runs on gman-core's kernels
-//! ([`gman_core::dense::Dense`], [`gman_core::generator::Generator`], ...), so the host trains
+//! ([`gman_core::nn::dense::Dense`], [`gman_core::nets::generator::Generator`], ...), so the host trains
 //! exactly what the device runs; these modules add batching, data and I/O on top of
 //! [`crate::optim`].
 //!
@@ -11,7 +11,7 @@
 //! * [`critic`]: the conditional WGAN-GP critic of feature-generator pre-training (not the
 //!   policy's value head, whose tensors the schema calls `CriticW`/`CriticB`); its penalty
 //!   gradient is gman-core's one closed form
-//!   ([`gman_core::discriminator::add_penalty_grad`]).
+//!   ([`gman_core::nets::discriminator::add_penalty_grad`]).
 //! * [`fg`]: `gman pretrain-fg` (paper Sec. 4.1).
 //! * [`ps`]: `gman pretrain-ps` (paper Sec. 5.2): the PS module's BCE gradient and training;
 //!   the network the PS variants run at inference is [`crate::ps`] (re-exported here).

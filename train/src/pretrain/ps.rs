@@ -11,8 +11,8 @@ use std::path::Path;
 use std::time::Instant;
 
 use anyhow::{bail, Context, Result};
-use gman_core::activation::leaky_relu_backward;
-use gman_core::dense::DenseGrads;
+use gman_core::nn::activation::leaky_relu_backward;
+use gman_core::nn::dense::DenseGrads;
 use gman_core::rng::Xoshiro128;
 use gman_core::{ATTR_DIM, FEATURE_DIM};
 use rand::RngCore;

@@ -1,4 +1,4 @@
-//! gman-core's integer kernels (`gman_core::qkernel`) with AVX2: the same integers, four
+//! gman-core's integer kernels (`gman_core::nn::qkernel`) with AVX2: the same integers, four
 //! weight rows per pass sharing each input load.
 //!
 //! * [`dots_i8`]: `vpmaddubsw` takes unsigned bytes times signed bytes, so the sign of each
@@ -19,8 +19,8 @@
 
 use core::arch::x86_64::*;
 
-use gman_core::matrix::{seg_len, MatRef, Scales, Weights};
-use gman_core::qkernel::{
+use gman_core::nn::matrix::{seg_len, MatRef, Scales, Weights};
+use gman_core::nn::qkernel::{
     act_range, dots_i16 as dots_i16_portable, dots_i8_body, quantize_one, QCOLS,
 };
 
@@ -69,7 +69,7 @@ unsafe fn mac(acc: __m256i, xv: __m256i, w: *const u8) -> __m256i {
     _mm256_add_epi32(acc, _mm256_madd_epi16(w, xv))
 }
 
-/// `gman_core::qkernel::dots_i8` (see the module docs). `out.len()` rows of `q` (rows of
+/// `gman_core::nn::qkernel::dots_i8` (see the module docs). `out.len()` rows of `q` (rows of
 /// `cols` bytes), columns `col0 .. col0 + xq.len()`: [`dots4`] four rows per pass.
 ///
 /// # Safety
@@ -85,7 +85,7 @@ pub(super) unsafe fn dots_i8(q: &[u8], cols: usize, col0: usize, xq: &[i8], out:
     dots_rows(q, cols, col0, xq, out)
 }
 
-/// `gman_core::qkernel::dots_i8` for any input byte (-128 included): the input widened to
+/// `gman_core::nn::qkernel::dots_i8` for any input byte (-128 included): the input widened to
 /// i16 once, then per row 16 weights at a time sign-extended (`vpmovsxbw`) and multiplied
 /// pairwise into i32 (`vpmaddwd`). Reached only from [`dots_i8`] after [`rows_fit`], so
 /// `xq.len() <= QCOLS`; [`dots_i16`] checks the shapes again.
@@ -101,7 +101,7 @@ unsafe fn dots_i8_wide(q: &[u8], cols: usize, col0: usize, xq: &[i8], out: &mut 
     dots_i16(q, cols, col0, &xw[..xq.len()], out)
 }
 
-/// `gman_core::qkernel::dots_i16`: int8 weights times an int16 input block, four rows per
+/// `gman_core::nn::qkernel::dots_i16`: int8 weights times an int16 input block, four rows per
 /// pass ([`dots4_i16`]), 16 columns per step (`vpmovsxbw` + `vpmaddwd`), the last
 /// `len % 16` one by one.
 ///
@@ -261,7 +261,7 @@ const PREFETCH_BYTES: usize = 1 << 18;
 /// Most input segments [`matvec_int8`] takes.
 const MV_SEGS: usize = 16;
 
-/// `gman_core::qkernel::act_range`'s `(s_x, inv)`: the largest magnitude on the bit patterns
+/// `gman_core::nn::qkernel::act_range`'s `(s_x, inv)`: the largest magnitude on the bit patterns
 /// (`vpmaxud` of `bits & 0x7fff_ffff`, the integer order of finite magnitudes is their
 /// numeric order), then the same two divisions. A segment holding an infinity or a NaN
 /// takes gman-core's own function (its second pass skips them).
@@ -299,7 +299,7 @@ unsafe fn act_scale(x: &[f32]) -> (f32, f32) {
     }
 }
 
-/// Eight values quantised as `gman_core::qkernel::quantize_one` does: `t = v * inv`,
+/// Eight values quantised as `gman_core::nn::qkernel::quantize_one` does: `t = v * inv`,
 /// `m = min(trunc(|t| + 0.5), 127)` with the sign of `t` put back. The clamp runs on the
 /// float before the conversion, `vminps(127, u)`, which returns `u` when it is a NaN, and
 /// `vcvttps2dq` of a NaN is `i32::MIN`, which the `max(.., 0)` makes 0, as `as i32` does;
@@ -316,7 +316,7 @@ unsafe fn quant8(v: __m256, inv: __m256) -> __m256i {
     _mm256_sub_epi32(_mm256_xor_si256(m, s), s)
 }
 
-/// `gman_core::qkernel::quantize_act` of `x` into the `x.len()` bytes at `out`: 32 values
+/// `gman_core::nn::qkernel::quantize_act` of `x` into the `x.len()` bytes at `out`: 32 values
 /// per step, narrowed with `vpackssdw` / `vpacksswb` (values within +-127: no saturation)
 /// and put back in order with `vpermd`; the last `len % 32` with `quantize_one`. `out` may
 /// be uninitialised memory (it is only written).
@@ -421,7 +421,7 @@ unsafe fn dots1<const VNNI: bool>(w: *const u8, x: *const i8, n: usize) -> i32 {
     sum1(a) + tail([w], x, j, n)[0]
 }
 
-/// `gman_core::qkernel::matvec_acc_int8` in one call (`Kernels::matvec_int8`): every
+/// `gman_core::nn::qkernel::matvec_acc_int8` in one call (`Kernels::matvec_int8`): every
 /// segment's scale ([`act_scale`]) and quantisation ([`quantize`]) first, into one buffer,
 /// then four rows at a time, each row read once from its first column to its last: per
 /// segment whose scale is not 0 and per block of `QCOLS` columns of it, in order, the four

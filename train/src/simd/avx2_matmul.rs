@@ -24,10 +24,10 @@
 
 use core::arch::x86_64::*;
 
-use gman_core::matrix::{MatRef, Scales, Weights};
+use gman_core::nn::matrix::{MatRef, Scales, Weights};
 
 /// Most segments of an input (gman-core's `batch::MAX_SEGS`).
-const MAX_SEGS: usize = gman_core::batch::MAX_SEGS;
+const MAX_SEGS: usize = gman_core::nn::batch::MAX_SEGS;
 
 /// One storage kind of weights: eight weights (or one) of a row segment as f32, exactly as
 /// gman-core converts them (f32 copy, little-endian decode, i8 -> f32).

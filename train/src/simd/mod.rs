@@ -3,13 +3,13 @@
 //! # Design
 //! gman-core is `no_std` and `#![forbid(unsafe_code)]`, and its kernels fix one canonical
 //! order of floating-point operations (eight accumulators over chunks of eight, a fixed
-//! reduction tree, separate multiply and add; see `gman_core::batch`). The bits therefore do
+//! reduction tree, separate multiply and add; see `gman_core::nn::batch`). The bits therefore do
 //! not depend on the vector width the compiler picks, only the speed does. The host binary
 //! is built for baseline x86-64 (SSE2, four lanes) so that it runs on any x86-64 CPU; this
 //! module compiles the *same* kernel bodies a second time inside
 //! `#[target_feature(enable = "avx2")]` functions (the bodies are `#[inline(always)]`
 //! generics in gman-core, so they are instantiated here, with eight-lane registers) and
-//! exposes them as a `gman_core::batch::Kernels` table. A matrix view (or a whole
+//! exposes them as a `gman_core::nn::batch::Kernels` table. A matrix view (or a whole
 //! `NavWeights`) runs through the table once it is attached with `with_kernels`.
 //!
 //! * FMA is **not** enabled: Rust never contracts `a * b + c`, and enabling only `avx2`
@@ -20,11 +20,11 @@
 //!   (gman-core's own build), e.g. to compare speeds; the results are identical either way
 //!   (pinned by this module's tests and `tests/avx2_parity.rs`).
 
-use gman_core::batch::Kernels;
+use gman_core::nn::batch::Kernels;
 #[cfg(target_arch = "x86_64")]
 use gman_core::{
-    batch::{matmul_acc_blocked, matmul_t_acc_blocked, outer_acc_batch_blocked},
-    matrix::MatRef,
+    nn::batch::{matmul_acc_blocked, matmul_t_acc_blocked, outer_acc_batch_blocked},
+    nn::matrix::MatRef,
     Result,
 };
 
@@ -172,7 +172,7 @@ mod x86 {
 
 #[cfg(test)]
 mod tests {
-    use gman_core::qkernel::{dots_i8, QCOLS};
+    use gman_core::nn::qkernel::{dots_i8, QCOLS};
 
     #[test]
     fn avx2_int8_dots_equal_the_portable_kernel() {
@@ -224,7 +224,7 @@ mod tests {
     /// and inputs holding -128 (the widening fallback). Every integer is compared.
     #[test]
     fn avx2_int8_dots_every_length_and_row_count() {
-        use gman_core::qkernel::dots_i16;
+        use gman_core::nn::qkernel::dots_i16;
         let Some(k) = super::avx2() else {
             eprintln!("SKIPPED: no AVX2 on this CPU");
             return;
@@ -316,8 +316,8 @@ mod tests {
     /// little-endian scales, and a `y` that already holds values.
     #[test]
     fn avx2_whole_layer_int8_equals_the_portable_driver() {
-        use gman_core::matrix::{MatRef, Scales};
-        use gman_core::qkernel::{matvec_acc_int8, matvec_acc_int8_portable};
+        use gman_core::nn::matrix::{MatRef, Scales};
+        use gman_core::nn::qkernel::{matvec_acc_int8, matvec_acc_int8_portable};
         let Some(k) = super::avx2() else {
             eprintln!("SKIPPED: no AVX2 on this CPU");
             return;
@@ -428,8 +428,8 @@ mod tests {
 
     #[test]
     fn avx2_map_layer_equals_the_portable_one() {
-        use gman_core::matrix::{MatRef, Scales};
-        use gman_core::qkernel::{cell_layer_int8, cell_layer_int8_portable};
+        use gman_core::nn::matrix::{MatRef, Scales};
+        use gman_core::nn::qkernel::{cell_layer_int8, cell_layer_int8_portable};
         let Some(k) = super::avx2() else {
             eprintln!("SKIPPED: no AVX2 on this CPU");
             return;

@@ -18,19 +18,19 @@
 //! ones, the result is the batch-1 BPTT's bit for bit.
 
 use anyhow::{anyhow, bail, Result};
-use gman_core::activation::{
-    leaky_relu_backward, leaky_relu_inplace, sigmoid_backward, sigmoid_inplace,
-};
-use gman_core::batch::{matmul_acc, matmul_t_acc, outer_acc_batch_with};
 use gman_core::blob::TensorId;
-use gman_core::dense::{Dense, DenseGrads};
-use gman_core::generator::{Generator, GeneratorCache, GeneratorScratch};
-use gman_core::lstm::LstmGrads;
-use gman_core::matrix::Weights;
 use gman_core::navigator::{Mode, Navigator};
-use gman_core::policy::{
+use gman_core::nets::generator::{Generator, GeneratorCache, GeneratorScratch};
+use gman_core::nets::policy::{
     Policy, PolicyCache, PolicyGrads, PolicyInput, PolicyInputGrads, PolicyScratch,
 };
+use gman_core::nn::activation::{
+    leaky_relu_backward, leaky_relu_inplace, sigmoid_backward, sigmoid_inplace,
+};
+use gman_core::nn::batch::{matmul_acc, matmul_t_acc, outer_acc_batch_with};
+use gman_core::nn::dense::{Dense, DenseGrads};
+use gman_core::nn::lstm::LstmGrads;
+use gman_core::nn::matrix::Weights;
 use gman_core::{Dims, NUM_ACTIONS};
 
 use super::a3c::{output_grads, A3cConfig, SegmentLoss};
@@ -931,7 +931,7 @@ impl GenRows {
 mod tests {
     use super::*;
     use crate::pretrain::generator::init_generator;
-    use gman_core::matrix::MatRef;
+    use gman_core::nn::matrix::MatRef;
     use gman_core::rng::{uniform, Xoshiro128};
 
     /// G's backward over the rows of a step as one batch ([`GenRows`]) is bit for bit

@@ -67,7 +67,7 @@
 //!
 //! [`MAX_PENDING_STEPS`]: super::lockstep::MAX_PENDING_STEPS
 use anyhow::{bail, Result};
-use gman_core::memory::AdaptMode;
+use gman_core::navigator::memory::AdaptMode;
 use gman_core::navigator::{Efficient, Full, Selection};
 
 use super::lanes::{Hooks, Job};
@@ -147,10 +147,10 @@ mod tests {
     use crate::train::bptt::Segment;
     use crate::train::bptt::{Adapted, Backward, GenBufs, Widths};
     use crate::train::lanes::{Pending, TickLog};
-    use gman_core::dense::Dense;
-    use gman_core::generator::Generator;
-    use gman_core::matrix::MatRef;
     use gman_core::navigator::Navigator;
+    use gman_core::nets::generator::Generator;
+    use gman_core::nn::dense::Dense;
+    use gman_core::nn::matrix::MatRef;
     use gman_core::rng::Xoshiro128;
     use gman_core::Dims;
     use gman_core::NUM_ACTIONS;

@@ -5,12 +5,12 @@
 //! [`OwnCopy`] of their episode's adapted parameters), inner updates, episodes finished.
 
 use anyhow::{anyhow, bail, Result};
-use gman_core::activation::all_finite;
-use gman_core::dense::Dense;
-use gman_core::generator::Generator;
-use gman_core::matrix::{MatRef, Weights};
 use gman_core::navigator::{Mode, Navigator};
-use gman_core::policy::Policy;
+use gman_core::nets::generator::Generator;
+use gman_core::nets::policy::Policy;
+use gman_core::nn::activation::all_finite;
+use gman_core::nn::dense::Dense;
+use gman_core::nn::matrix::{MatRef, Weights};
 use gman_core::{Action, Dims, NUM_ACTIONS};
 
 use super::a3c::Objective;
@@ -506,7 +506,7 @@ pub(super) struct TickLog;
 
 #[cfg(test)]
 fn tick_log(segs: &[Segment<'_>]) -> TickLog {
-    use gman_core::dense::Dense;
+    use gman_core::nn::dense::Dense;
     fn dense(l: &Dense<'_>) -> LayerCopy {
         let (r, c) = (l.w.rows(), l.w.cols());
         let w = (0..r * c).map(|i| l.w.get(i / c, i % c)).collect();

@@ -34,10 +34,10 @@
 //! holds a copy of G and D, 1.9 MiB for `mcu`), plus the waiting segments.
 
 use anyhow::{bail, Result};
-use gman_core::generator::Generator;
-use gman_core::memory::AdaptMode;
+use gman_core::navigator::memory::AdaptMode;
 use gman_core::navigator::{Mode, NavConfig, NavWeights, Navigator, NoiseMode};
-use gman_core::policy::Policy;
+use gman_core::nets::generator::Generator;
+use gman_core::nets::policy::Policy;
 use gman_core::spec::ModelSpec;
 use gman_core::{Action, Dims, NUM_ACTIONS};
 

@@ -11,12 +11,12 @@
 //! parameters), see [`super::engine`].
 
 use anyhow::{anyhow, bail, Result};
-use gman_core::activation::{all_finite, leaky_relu_inplace, sigmoid_inplace};
 use gman_core::blob::TensorId;
-use gman_core::generator::Generator;
-use gman_core::matrix::{MatRef, Weights};
 use gman_core::navigator::{select_action, Mode, Navigator, NoiseMode, Selection};
-use gman_core::policy::Policy;
+use gman_core::nets::generator::Generator;
+use gman_core::nets::policy::Policy;
+use gman_core::nn::activation::{all_finite, leaky_relu_inplace, sigmoid_inplace};
+use gman_core::nn::matrix::{MatRef, Weights};
 use gman_core::rng::{fill_gaussian, Xoshiro128};
 use gman_core::{Action, Dims, NUM_ACTIONS};
 
@@ -407,7 +407,7 @@ mod tests {
         assert!(!is_zero(&MatRef::f32_le(1, 2, &le1).unwrap()));
         let scales = [1.0f32, f32::NAN];
         let q = [0u8; 4];
-        let sc = gman_core::matrix::Scales::F32(&scales);
+        let sc = gman_core::nn::matrix::Scales::F32(&scales);
         assert!(is_zero(&MatRef::i8(2, 2, &q, sc).unwrap()));
         let q1 = [0u8, 0, 0xff, 0];
         assert!(!is_zero(&MatRef::i8(2, 2, &q1, sc).unwrap()));

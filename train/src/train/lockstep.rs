@@ -6,7 +6,7 @@
 //! BPTT, and each episode's losses collected at the end.
 
 use anyhow::{bail, Result};
-use gman_core::policy::{Policy, PolicyInput};
+use gman_core::nets::policy::{Policy, PolicyInput};
 use gman_core::{Dims, NUM_ACTIONS};
 
 use super::a3c::{A3cConfig, Objective, SegmentLoss};
@@ -19,7 +19,7 @@ use crate::optim::params::ParamSet;
 use crate::pretrain::ps::PsBuffers;
 use crate::sim::spatial::MapGrid;
 use crate::sim::{Env, EpisodeSpec, RewardKind};
-use gman_core::generator::Generator;
+use gman_core::nets::generator::Generator;
 
 /// Most environments a worker steps in lockstep.
 pub const MAX_BATCH_ENVS: usize = 256;

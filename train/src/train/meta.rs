@@ -61,11 +61,11 @@ use gman_core::adapt::{
     actor_head_grad, adapt_generator_grad, generator_score_backward, AdaptLossKind, AdaptWork,
 };
 use gman_core::blob::TensorId;
-use gman_core::dense::{Dense, DenseGrads};
-use gman_core::discriminator::{DiscScratch, Discriminator};
-use gman_core::generator::Generator;
-use gman_core::matrix::MatRef;
 use gman_core::navigator::{Mode, Navigator};
+use gman_core::nets::discriminator::{DiscScratch, Discriminator};
+use gman_core::nets::generator::Generator;
+use gman_core::nn::dense::{Dense, DenseGrads};
+use gman_core::nn::matrix::MatRef;
 use gman_core::{Dims, NUM_ACTIONS};
 
 use crate::optim::params::ParamSet;

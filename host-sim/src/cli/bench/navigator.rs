@@ -6,11 +6,11 @@ use std::hint::black_box;
 use std::time::Instant;
 
 use anyhow::{anyhow, Result};
+use gman_core::blob::quant::quantize_rows;
 use gman_core::blob::{Blob, TensorId};
-use gman_core::matrix::MatRef;
-use gman_core::memory::{AdaptMode, Footprint};
+use gman_core::navigator::memory::{AdaptMode, Footprint};
 use gman_core::navigator::{Efficient, Full, Mode, NavConfig, NavWeights, Navigator};
-use gman_core::quant::quantize_rows;
+use gman_core::nn::matrix::MatRef;
 use gman_core::rng::{fill_gaussian, uniform, Xoshiro128};
 use gman_core::Dims;
 
@@ -19,7 +19,7 @@ use crate::cli::PresetArg;
 
 /// Seeded weights, as in `core/benches/navigator.rs`.
 fn tensors(d: &Dims) -> Vec<Vec<f32>> {
-    let mut w = gman_core::seeded::SeededWeights::new(1, 0.05);
+    let mut w = gman_core::blob::seeded::SeededWeights::new(1, 0.05);
     TensorId::all_for(d)
         .map(|id| {
             let mut v = vec![0.0f32; id.numel(d)];
@@ -33,7 +33,7 @@ fn tensors(d: &Dims) -> Vec<Vec<f32>> {
 /// RAM in `Full` mode (they adapt), from the blob otherwise; fusion, LSTM and critic always
 /// from the blob (values plus int8 row scales). Biases and gains (< 0.1%) are left out.
 fn weight_bytes_per_step<M: Mode>(w: &NavWeights<'_>) -> usize {
-    let full = M::MODE == gman_core::memory::AdaptMode::Full;
+    let full = M::MODE == gman_core::navigator::memory::AdaptMode::Full;
     let adapted = [TensorId::GenW1, TensorId::GenW2, TensorId::ActorW];
     let fixed = [
         TensorId::FuseW,
@@ -235,8 +235,8 @@ pub struct KernelRow {
 /// `mcu` G output layer), batch 1 and batch 20, with the portable build and, when the CPU has
 /// it, the AVX2 build (`gman_host_sim::simd`).
 pub fn kernel_rows(reps: usize) -> Result<Vec<KernelRow>> {
-    use gman_core::batch::{matmul_acc, matmul_t_acc, outer_acc_batch_with, Kernels};
-    use gman_core::matrix::Scales;
+    use gman_core::nn::batch::{matmul_acc, matmul_t_acc, outer_acc_batch_with, Kernels};
+    use gman_core::nn::matrix::Scales;
     let (r, c, n) = (512usize, 256usize, K);
     let mut rng = Xoshiro128::seed_from_u64(6);
     let mut w = vec![0.0f32; r * c];

@@ -14,7 +14,7 @@
 use std::time::Instant;
 
 use anyhow::{Context, Result};
-use gman_core::memory::AdaptMode;
+use gman_core::navigator::memory::AdaptMode;
 use gman_core::rng::Xoshiro128;
 use gman_core::Dims;
 use gman_host_sim::model::{Method, NavModel};

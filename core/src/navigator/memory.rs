@@ -18,15 +18,15 @@
 //! `cargo run -p gman-core --example memory_table` prints the figures of both presets and
 //! modes (from [`NavLayout::total_bytes`] and [`int8_weight_bytes`]); the README quotes them.
 
-use crate::preset::{sat, tri, Dims};
+use crate::spec::preset::{sat, tri, Dims};
 use crate::NUM_ACTIONS;
 
-pub use crate::schema::AdaptMode;
-use crate::schema::NoiseMode;
+pub use crate::spec::schema::AdaptMode;
+use crate::spec::schema::NoiseMode;
 
 /// How much RAM the navigator trades for speed. **Never the bits**: every footprint gives
 /// every step, score, gradient and adapted parameter the same bits (the batched kernels'
-/// contract, see [`crate::inner`]); `tests/tests/navigator.rs` checks whole episodes.
+/// contract, see [`crate::adapt::inner`]); `tests/tests/navigator.rs` checks whole episodes.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Default)]
 pub enum Footprint {
     /// The microcontroller's layout (the default): in [`AdaptMode::Efficient`] the inner
@@ -42,7 +42,7 @@ pub enum Footprint {
     /// 512 KiB for `paper` (`cargo run -p gman-core --example memory_table`). In Full mode
     /// the two layouts are the same.
     Fast,
-    /// The smallest layout, for blobs with [`FLAG_COMPACT_PSI`](crate::schema::FLAG_COMPACT_PSI)
+    /// The smallest layout, for blobs with [`FLAG_COMPACT_PSI`](crate::spec::schema::FLAG_COMPACT_PSI)
     /// in [`AdaptMode::Efficient`]: [`Footprint::Compact`] without Ψ_x (the inner update
     /// regenerates each entry's x_t from its noise, batch by batch: the same bits, more
     /// work; with zero noise Ψ keeps the one x_t every entry shares, as every footprint does)
@@ -239,9 +239,9 @@ const fn if_full(full: bool, n: Option<usize>) -> Option<usize> {
 pub const EFFICIENT_ADAPT_BATCH: usize = 2;
 
 /// Entries of Ψ the inner update processes as one batch (a matrix through the batched
-/// kernels of [`crate::batch`]): all `k` in [`AdaptMode::Full`], at most
+/// kernels of [`crate::nn::batch`]): all `k` in [`AdaptMode::Full`], at most
 /// [`EFFICIENT_ADAPT_BATCH`] in [`AdaptMode::Efficient`]. Only the speed and the RAM
-/// depend on it, never the bits (see `crate::inner`).
+/// depend on it, never the bits (see `crate::adapt::inner`).
 pub const fn adapt_batch(mode: AdaptMode, k: usize) -> usize {
     adapt_batch_with(mode, k, Footprint::Compact)
 }
@@ -413,7 +413,7 @@ macro_rules! arena_table {
             // With zero noise, the fusion layer's terms of x_t and SE(y), kept between two
             // inner updates on the integer path (`Policy::fuse_terms`).
             fuse_terms in Work = if zero {
-                tri!(crate::policy::fuse_terms_len(d.embed, d.feat, d.attr))
+                tri!(crate::nets::policy::fuse_terms_len(d.embed, d.feat, d.attr))
             } else {
                 0
             };
@@ -549,7 +549,7 @@ pub const fn checked_int8_weight_bytes(d: &Dims) -> Option<usize> {
 }
 
 /// The overflow check of [`Dims`] over everything derived from them. It lives here, beside
-/// the RAM layout it checks last, so that [`crate::preset`] only declares sizes and the
+/// the RAM layout it checks last, so that [`crate::spec::preset`] only declares sizes and the
 /// schema and the layout derive from it (no module depends back on its users).
 impl Dims {
     /// True when every size derived from these dims fits in `usize`: the input widths, the
@@ -579,7 +579,7 @@ impl Dims {
         f32_bytes.is_some()
             && self.checked_macs_per_step().is_some()
             && checked_int8_weight_bytes(self).is_some()
-            && crate::schema::checked_tensor_bytes(self)
+            && crate::spec::schema::checked_tensor_bytes(self)
             && NavLayout::try_new(self, AdaptMode::Full, 1).is_some()
             && NavLayout::try_new(self, AdaptMode::Efficient, 1).is_some()
             && NavLayout::try_new_with(self, AdaptMode::Efficient, 1, Footprint::Fast).is_some()
@@ -592,7 +592,7 @@ mod tests {
 
     #[test]
     fn int8_bytes_match_tensor_shapes() {
-        use crate::schema::TensorId;
+        use crate::spec::schema::TensorId;
         for d in [
             Dims::PAPER,
             Dims::MCU,

@@ -2,12 +2,12 @@
 //!
 //! Sizes are compile-time constants: a preset is a type implementing [`Preset`] whose
 //! [`Preset::DIMS`] is a `const`, and every buffer the core needs has a length given by a
-//! `const fn` of those dims (see [`crate::memory`]), so a firmware can declare its storage
-//! statically, e.g. `static mut`-free with `[f32; gman_core::memory::arena_len(&Mcu::DIMS, ..)]`.
+//! `const fn` of those dims (see [`crate::navigator::memory`]), so a firmware can declare its storage
+//! statically, e.g. `static mut`-free with `[f32; gman_core::navigator::memory::arena_len(&Mcu::DIMS, ..)]`.
 //! Declaring another size takes a few lines:
 //!
 //! ```
-//! use gman_core::preset::{Dims, Preset};
+//! use gman_core::spec::preset::{Dims, Preset};
 //! /// A smaller model for a Cortex-M0+ class part.
 //! pub struct Tiny;
 //! impl Preset for Tiny {

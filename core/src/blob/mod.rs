@@ -84,8 +84,8 @@
 //! # Zero copy
 //! [`Blob::parse`] borrows from the input (`&'a [u8]`, e.g. a `&'static` blob in flash): each
 //! tensor's bytes are a sub-slice of the blob and [`Blob::matrix`] hands them to the kernels
-//! in place (int8 and f32 alike, through [`crate::matrix::Weights::I8`] and
-//! [`crate::matrix::Weights::F32Le`]). Only what must be mutable (adapted parameters, biases)
+//! in place (int8 and f32 alike, through [`crate::nn::matrix::Weights::I8`] and
+//! [`crate::nn::matrix::Weights::F32Le`]). Only what must be mutable (adapted parameters, biases)
 //! is ever copied to RAM, by the caller, with [`Blob::copy_f32`].
 //!
 //! # Validation
@@ -101,16 +101,20 @@
 //! weights, finite non-negative scales). Any failure is a typed [`BlobError`]; nothing panics,
 //! whatever the bytes (a property test and a fuzz target check this).
 
+pub mod crc32;
+pub mod quant;
+pub mod seeded;
+
 use serde::ser::SerializeSeq;
 use serde::{Deserialize, Serialize, Serializer};
 
-use crate::crc32::{crc32, crc32_update};
+use crate::blob::crc32::{crc32, crc32_update};
 use crate::error::BlobError;
 use crate::error::SettingText;
-use crate::matrix::{MatRef, Scales};
-use crate::preset::Dims;
-use crate::schema::AdaptMode;
-pub use crate::schema::{
+use crate::nn::matrix::{MatRef, Scales};
+use crate::spec::preset::Dims;
+use crate::spec::schema::AdaptMode;
+pub use crate::spec::schema::{
     TensorId, FLAG_ADAPT, FLAG_COSSIM, FLAG_FULL_ADAPT, FLAG_ZERO_NOISE, NUM_TENSORS,
 };
 pub use crate::spec::AdaptSettings;
@@ -123,7 +127,7 @@ pub const MAGIC: [u8; 4] = *b"GMAN";
 /// The format version this build writes (v5: the header names its settings, the CRC covers
 /// the header and the payload).
 pub const FORMAT_VERSION: u16 = 5;
-pub use crate::preset::MAX_INNER_RATE;
+pub use crate::spec::preset::MAX_INNER_RATE;
 /// The oldest format version this build still reads (v1: no inner-loop settings in the
 /// header; they default to [`AdaptSettings::PAPER`]).
 pub const MIN_FORMAT_VERSION: u16 = 1;
@@ -459,7 +463,7 @@ impl Header {
         self.dims.to_dims(self.map)
     }
     /// Model flags ([`FLAG_ADAPT`], [`FLAG_ZERO_NOISE`], [`FLAG_COSSIM`], ...). A v4 blob
-    /// has only bits of [`crate::schema::KNOWN_FLAGS`] (others are refused); a v1-v3 blob's
+    /// has only bits of [`crate::spec::schema::KNOWN_FLAGS`] (others are refused); a v1-v3 blob's
     /// unknown bits are kept and ignored, as they always were; a v5 blob's are those of its
     /// named settings ([`ModelSpec::bits`]).
     pub fn flags(&self) -> u32 {
@@ -620,7 +624,7 @@ fn parse_header(bytes: &[u8], opts: ParseOptions) -> Result<(Header, &[u8]), Blo
             let (body, rest) = postcard::take_from_bytes::<HeaderV4Body>(bytes).map_err(map_err)?;
             let (crc, payload) = check_whole_blob(bytes, rest, body.payload_len)?;
             // After the checksum: these bits were written on purpose, by a newer build.
-            crate::schema::check_known_flags(body.flags)?;
+            crate::spec::schema::check_known_flags(body.flags)?;
             Ok((body.with_crc(crc).into_header(4)?, payload))
         }
         5 => {
@@ -1132,7 +1136,7 @@ pub fn encode_with_settings(
     out: &mut [u8],
 ) -> Result<usize, BlobError> {
     settings.validate()?;
-    crate::schema::check_known_flags(flags)?;
+    crate::spec::schema::check_known_flags(flags)?;
     encode_spec(dims, &ModelSpec::from_bits(flags, settings), tensors, out)
 }
 
@@ -1353,7 +1357,7 @@ pub fn reencode(bytes: &[u8], spec: &ModelSpec, out: &mut [u8]) -> Result<usize,
 /// ([`ModelSpec::from_bits`], the blob's own inner-loop settings); flag bits this build
 /// does not know are refused ([`BlobError::UnknownFlagBit`]).
 pub fn reencode_with_flags(bytes: &[u8], flags: u32, out: &mut [u8]) -> Result<usize, BlobError> {
-    crate::schema::check_known_flags(flags)?;
+    crate::spec::schema::check_known_flags(flags)?;
     let settings = Blob::parse(bytes)?.header().adapt_settings();
     reencode(bytes, &ModelSpec::from_bits(flags, settings), out)
 }
@@ -1383,7 +1387,7 @@ pub const fn encoded_model_len_bound(d: &Dims, quant: Quant) -> usize {
 /// `(floats, bytes)` of scratch [`encode_model`] needs for `d`: the largest tensor plus its
 /// row scales as f32, and the largest tensor as int8 (saturating).
 pub const fn encode_model_scratch_len(d: &Dims) -> (usize, usize) {
-    let (n, rows) = crate::schema::max_tensor_len(d);
+    let (n, rows) = crate::spec::schema::max_tensor_len(d);
     (n.saturating_add(rows), n)
 }
 
@@ -1391,7 +1395,7 @@ pub const fn encode_model_scratch_len(d: &Dims) -> (usize, usize) {
 /// whose f32 values `values(id, out)` writes into `out` (`rows * cols` floats), matrices
 /// int8-quantised per row when `quant` is [`Quant::I8`] (vectors stay f32): the one
 /// weights-to-blob builder of the workspace (seeded test weights, see
-/// [`crate::seeded`], and the host's exporter alike). `floats` and `bytes` are scratch of at
+/// [`crate::blob::seeded`], and the host's exporter alike). `floats` and `bytes` are scratch of at
 /// least [`encode_model_scratch_len`]; `out` should be [`encoded_model_len_bound`] long.
 /// Returns the blob's length. Errors of `values` are passed through.
 #[allow(clippy::too_many_arguments)]
@@ -1419,7 +1423,7 @@ pub fn encode_model<E: From<BlobError>>(
                 // int8 quantisation would hide it; report it as the f32 path does.
                 return Err(BlobError::NonFiniteWeight { id: id as u16 }.into());
             }
-            crate::quant::quantize_rows(v, r, c, q, s)
+            crate::blob::quant::quantize_rows(v, r, c, q, s)
                 .map_err(|_| BlobError::BadTensorShape { id: id as u16 })?;
             TensorData::I8 { q, scales: s }
         } else {

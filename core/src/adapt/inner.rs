@@ -1,7 +1,7 @@
 //! The inner update of Algorithm 1 (lines 15-19) over the buffer Ψ, **batched**: the
-//! entries go through G and D as matrices ([`crate::batch`]), `b` at a time, in fixed
+//! entries go through G and D as matrices ([`crate::nn::batch`]), `b` at a time, in fixed
 //! caller buffers ([`InnerWork`]; the navigator's are regions of its arena, see
-//! [`crate::memory::adapt_batch`]).
+//! [`crate::navigator::memory::adapt_batch`]).
 //!
 //! # The same bits as one entry at a time
 //! Every function here gives exactly the bits of the batch-1 code it replaced
@@ -10,12 +10,12 @@
 //! [`crate::adapt::adapt_generator_grad_cos`], which are now these passes with `b = 1`),
 //! whatever `b`:
 //! * the batched kernels give every vector the bits of the batch-1 kernel (the contract of
-//!   [`crate::batch`]), and every input keeps its segmentation (`[z; attr]` for G's first
+//!   [`crate::nn::batch`]), and every input keeps its segmentation (`[z; attr]` for G's first
 //!   layer);
 //! * every gradient element receives its `+=` in the order of today's loops: entry by
 //!   entry, and within an entry real, fake, interpolate for D. The small vectors (biases,
 //!   gains, D's output layer) are accumulated in an entry loop; a full weight gradient by one
-//!   [`crate::batch::outer_acc_batch_with`] per batch whose vectors are laid out in exactly
+//!   [`crate::nn::batch::outer_acc_batch_with`] per batch whose vectors are laid out in exactly
 //!   that order (`alpha = 1` and the coefficient folded into `dy`: `1 · (c v) = c v`, and a
 //!   zero row is skipped as the batch-1 loop skips it);
 //! * G is not changed inside one inner update, so the features `x_t` are generated once
@@ -25,17 +25,17 @@
 //! batch sizes 1, 2, 3, n and more than n; whole episodes are checked against the f64 oracle
 //! of `gman-tests` and between the host and the Cortex-M4F (QEMU).
 
-use crate::activation::{
+use crate::adapt::ad_loss::{adapt_loss, cosine, AdaptLossKind};
+use crate::error::{check_len, Result};
+use crate::nets::discriminator::{DiscGrads, Discriminator, LdConfig, LdValue};
+use crate::nets::generator::Generator;
+use crate::nn::activation::{
     leaky_relu, leaky_relu_backward, leaky_relu_grad, leaky_relu_inplace, sigmoid_backward,
     sigmoid_inplace,
 };
-use crate::ad_loss::{adapt_loss, cosine, AdaptLossKind};
-use crate::batch::{matmul_acc, matmul_t_acc, outer_acc_batch_with};
-use crate::dense::DenseGrads;
-use crate::discriminator::{DiscGrads, Discriminator, LdConfig, LdValue};
-use crate::error::{check_len, Result};
-use crate::generator::Generator;
-use crate::matrix::{axpy, dot};
+use crate::nn::batch::{matmul_acc, matmul_t_acc, outer_acc_batch_with};
+use crate::nn::dense::DenseGrads;
+use crate::nn::matrix::{axpy, dot};
 
 /// The error of an adapting CosSim model in a build without the feature `cossim`.
 pub const NO_COSSIM: crate::Error = crate::Error::Config {

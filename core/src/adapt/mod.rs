@@ -11,18 +11,21 @@
 //! into G's parameters θ) and `∂L/∂a_t` (which back-propagates through the softmax into the
 //! adapted policy parameters φ).
 
-use crate::activation::softmax_backward;
-use crate::dense::{Dense, DenseGrads};
-use crate::discriminator::{DiscScratch, Discriminator};
+pub(crate) mod ad_loss;
+pub mod inner;
+
+use crate::adapt::inner::{AdaptInputs, InnerWork};
 use crate::error::{check_len, Result};
-use crate::generator::{Generator, GeneratorCache, GeneratorScratch};
-use crate::inner::{self, AdaptInputs, InnerWork};
+use crate::nets::discriminator::{DiscScratch, Discriminator};
+use crate::nets::generator::{Generator, GeneratorCache, GeneratorScratch};
+use crate::nn::activation::softmax_backward;
+use crate::nn::dense::{Dense, DenseGrads};
 use crate::NUM_ACTIONS;
 
-pub use crate::ad_loss::{adapt_loss, cosine, AdaptLossKind};
+pub use crate::adapt::ad_loss::{adapt_loss, cosine, AdaptLossKind};
 
 /// Everything [`adapt_generator_grad`] writes besides the gradients (its batch-1 buffers:
-/// the functions here are [`crate::inner`]'s batched passes with a batch of one).
+/// the functions here are [`crate::adapt::inner`]'s batched passes with a batch of one).
 #[derive(Debug)]
 pub struct AdaptWork<'a> {
     /// G's activations (reused per buffer entry; `x` is not written, the feature goes to
@@ -75,7 +78,7 @@ impl AdaptWork<'_> {
 /// bit-identical noise (always the case with the reference's fixed zero noise) share one
 /// forward/backward pass of G with their `∂L/∂x` summed. `probs` is `n x 6`.
 /// The θ gradient is accumulated into `grads1`/`grads2`; `dprobs` (`n x 6`) is overwritten.
-/// [`crate::inner::adapt_grad`] one entry at a time (the navigator's inner update runs it
+/// [`crate::adapt::inner::adapt_grad`] one entry at a time (the navigator's inner update runs it
 /// batched: the same bits).
 #[allow(clippy::too_many_arguments)]
 pub fn adapt_generator_grad(
@@ -148,7 +151,7 @@ fn adapt_one_by_one(
 /// floats; `zs` is `n x Z`). With `coef = ∂L_ad/∂d_t` it is L_ad's θ gradient; a host-side
 /// meta-gradient uses it for vector-Jacobian products of other functions of the scores
 /// `d_t = D(x_t)`. Only `w.gen`, `w.gen_scratch` and `w.disc` are written
-/// ([`crate::inner::score_backward`] one entry at a time).
+/// ([`crate::adapt::inner::score_backward`] one entry at a time).
 #[allow(clippy::too_many_arguments)]
 pub fn generator_score_backward(
     gen: &Generator<'_>,

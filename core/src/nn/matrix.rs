@@ -1,7 +1,7 @@
 //! Weight matrices: f32 or int8 with a per-output-row f32 scale, viewed in place, and the
 //! canonical scalar operations ([`dot`], [`axpy`] and their int8 / little-endian forms) that fix
 //! the order of every floating-point operation. The kernels over these views, batch-1 and
-//! batched, are in [`crate::batch`], which builds on this module (never the other way round).
+//! batched, are in [`crate::nn::batch`], which builds on this module (never the other way round).
 //!
 //! A [`MatRef`] is a read-only, row-major view of a `rows x cols` matrix `W`. It never owns
 //! memory: the values live in a caller's RAM buffer (f32, e.g. adapted parameters) or directly
@@ -10,7 +10,7 @@
 //!
 //! The int8 scheme is symmetric per row: `W[i][j] ~= scale[i] * q[i][j]` with `q` in
 //! `-127..=127` and `scale[i] = max_j |W[i][j]| / 127`, so the rounding error of every weight
-//! is at most `scale[i] / 2` (see [`crate::quant`]).
+//! is at most `scale[i] / 2` (see [`crate::blob::quant`]).
 //!
 //! # Inputs made of segments
 //! Layers of GMAN take concatenated inputs (G takes `concat(z, SE(y))`, the policy fuses the
@@ -84,16 +84,16 @@ pub enum Weights<'a> {
 
 /// Dense kernels a host can compile for another instruction set and attach to a matrix view
 /// ([`MatRef::with_kernels`]); every kernel of the view then runs through them. An
-/// implementation must keep the contract of [`crate::batch`] (the same bits as the canonical
-/// order): the intended implementation calls the `*_blocked` functions of [`crate::batch`] from
+/// implementation must keep the contract of [`crate::nn::batch`] (the same bits as the canonical
+/// order): the intended implementation calls the `*_blocked` functions of [`crate::nn::batch`] from
 /// code compiled with more vector features (e.g. AVX2), which keeps every operation and only
-/// widens the registers. The argument lists are those of [`crate::batch`]'s functions; the
+/// widens the registers. The argument lists are those of [`crate::nn::batch`]'s functions; the
 /// shapes are already checked when a kernel is called.
 pub trait Kernels: Sync + core::fmt::Debug {
-    /// [`crate::batch::matmul_acc`] (the matrix `w` carries no kernels, so calling back into [`crate::batch`]
+    /// [`crate::nn::batch::matmul_acc`] (the matrix `w` carries no kernels, so calling back into [`crate::nn::batch`]
     /// does not recurse).
     fn matmul_acc(&self, w: &MatRef<'_>, x: &[&[f32]], n: usize, y: &mut [f32]) -> Result<()>;
-    /// [`crate::batch::matmul_t_acc`] on the column block starting at `col0` (the segments of `dx` cover
+    /// [`crate::nn::batch::matmul_t_acc`] on the column block starting at `col0` (the segments of `dx` cover
     /// columns `col0 ..` in order).
     fn matmul_t_acc(
         &self,
@@ -103,7 +103,7 @@ pub trait Kernels: Sync + core::fmt::Debug {
         dx: &mut [&mut [f32]],
         col0: usize,
     ) -> Result<()>;
-    /// [`crate::batch::outer_acc_batch`] for a gradient of `rows = dy.len() / n` rows.
+    /// [`crate::nn::batch::outer_acc_batch`] for a gradient of `rows = dy.len() / n` rows.
     fn outer_acc_batch(
         &self,
         dw: &mut [f32],
@@ -121,13 +121,13 @@ pub trait Kernels: Sync + core::fmt::Debug {
     }
 
     /// [`dots_i16`]: the same on an int16 input block (the map layer's products of two
-    /// quantised values, `crate::qkernel::cell_layer_int8`); the default is the portable
+    /// quantised values, `crate::nn::qkernel::cell_layer_int8`); the default is the portable
     /// kernel.
     fn dots_i16(&self, q: &[u8], cols: usize, col0: usize, x: &[i16], out: &mut [i32]) {
         dots_i16(q, cols, col0, x, out)
     }
 
-    /// The whole of [`crate::qkernel::matvec_acc_int8`] (`y += W x` on int8 activations, its
+    /// The whole of [`crate::nn::qkernel::matvec_acc_int8`] (`y += W x` on int8 activations, its
     /// canonical computation: the same bits) in one call, for a table that can run the
     /// quantisation, the integer products and the requantisation of a layer together. `w`
     /// is int8 and the lengths are checked by the caller. Returns `false` (having written
@@ -143,7 +143,7 @@ pub trait Kernels: Sync + core::fmt::Debug {
 /// [`MatRef::i8`], which check the lengths once so the kernels can trust them.
 ///
 /// A view may carry a table of [`Kernels`] ([`MatRef::with_kernels`]): the host's way to run
-/// the same kernels compiled for a wider instruction set (same bits, see [`crate::batch`]).
+/// the same kernels compiled for a wider instruction set (same bits, see [`crate::nn::batch`]).
 #[derive(Clone, Copy, Debug)]
 pub struct MatRef<'a> {
     rows: usize,
@@ -202,7 +202,7 @@ impl<'a> MatRef<'a> {
         MatRef { k: Some(k), ..self }
     }
 
-    /// The same view computing `W x` on int8 activations ([`crate::qkernel`]): every input
+    /// The same view computing `W x` on int8 activations ([`crate::nn::qkernel`]): every input
     /// segment is quantised to int8 with its own scale, multiplied by the int8 weights into
     /// i32 accumulators and requantised with the row scale. Only int8 views change (an f32
     /// view ignores the setting); the transposed kernels (gradients) stay f32.
@@ -214,8 +214,8 @@ impl<'a> MatRef<'a> {
         }
     }
 
-    /// True when [`MatRef::matvec_acc`] and [`crate::batch::matmul_acc`] run the integer
-    /// kernel of [`crate::qkernel`] ([`MatRef::with_int8_activations`]).
+    /// True when [`MatRef::matvec_acc`] and [`crate::nn::batch::matmul_acc`] run the integer
+    /// kernel of [`crate::nn::qkernel`] ([`MatRef::with_int8_activations`]).
     #[inline]
     pub fn int8_activations(&self) -> bool {
         // Without the feature the integer branches of the kernels are dead code and vanish.
@@ -377,7 +377,7 @@ pub fn dots_i8_body(q: &[u8], cols: usize, col0: usize, xq: &[i8], out: &mut [i3
 }
 
 /// [`dots_i8`] on int16 inputs: `out[r] = sum_j (q[r * cols + col0 + j] as i8) * x[j]`, the
-/// portable kernel of the map layer's products (`crate::qkernel::cell_layer_int8`).
+/// portable kernel of the map layer's products (`crate::nn::qkernel::cell_layer_int8`).
 pub fn dots_i16(q: &[u8], cols: usize, col0: usize, x: &[i16], out: &mut [i32]) {
     let end = col0 + x.len();
     if cols == 0 || end > cols {

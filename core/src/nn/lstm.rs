@@ -11,11 +11,11 @@
 //! The forward pass keeps the post-activation gates and `c` in caller buffers; they are all
 //! the backward pass (backpropagation through time on the host trainer) needs.
 
-use crate::activation::{sigmoid_inplace, tanh};
+use crate::nn::activation::{sigmoid_inplace, tanh};
 
-use crate::batch::{matmul_acc, matmul_t_acc, outer_acc_batch_with, seg_lens};
 use crate::error::{check_len, Result};
-use crate::matrix::{seg_len, MatRef};
+use crate::nn::batch::{matmul_acc, matmul_t_acc, outer_acc_batch_with, seg_lens};
+use crate::nn::matrix::{seg_len, MatRef};
 
 /// A read-only view of an LSTM cell's parameters.
 #[derive(Clone, Copy, Debug)]
@@ -62,7 +62,7 @@ impl<'a> Lstm<'a> {
 
     /// One step. `gates` (`4H`) receives the post-activation `[i f g o]`; `c` and `h` (`H`)
     /// receive the new cell and hidden state. `x` is the (segmented, at most
-    /// [`crate::batch::MAX_SEGS`] segments) input. [`Lstm::forward_batch`] with a batch of one.
+    /// [`crate::nn::batch::MAX_SEGS`] segments) input. [`Lstm::forward_batch`] with a batch of one.
     pub fn forward(
         &self,
         x: &[&[f32]],
@@ -122,7 +122,7 @@ impl<'a> Lstm<'a> {
 
 impl<'a> Lstm<'a> {
     /// [`Lstm::forward`] over a batch of `n` steps of independent sequences: `x` batch-major
-    /// segments with per-vector lengths `lens` (see [`crate::batch`]), `h_prev`, `c_prev`,
+    /// segments with per-vector lengths `lens` (see [`crate::nn::batch`]), `h_prev`, `c_prev`,
     /// `c`, `h` `n x H`, `gates` `n x 4H`. Every vector gets the bits of [`Lstm::forward`].
     #[allow(clippy::too_many_arguments)]
     pub fn forward_batch(
@@ -193,7 +193,7 @@ impl<'a> Lstm<'a> {
         dc: &[f32],
         dh_prev: &mut [f32],
         dc_prev: &mut [f32],
-        dx: Option<crate::dense::BatchDx<'_, '_>>,
+        dx: Option<crate::nn::dense::BatchDx<'_, '_>>,
         grads: Option<LstmGrads<'_>>,
         dgates: &mut [f32],
     ) -> Result<()> {

@@ -16,7 +16,7 @@
 //! The PS module of the dagger variants (`gman-host-sim`'s `ps`) is a host-side
 //! network: it is not part of this schema and never stored in a blob.
 
-use crate::preset::Dims;
+use crate::spec::preset::Dims;
 use crate::NUM_ACTIONS;
 
 /// The parameter group a tensor belongs to.
@@ -242,7 +242,7 @@ pub(crate) const fn checked_tensor_bytes(d: &Dims) -> bool {
     true
 }
 
-/// Which parameters adaptation updates, and where they live. See [`crate::memory`].
+/// Which parameters adaptation updates, and where they live. See [`crate::navigator::memory`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum AdaptMode {
     /// All of θ, ω and the actor head in f32 RAM.
@@ -271,7 +271,7 @@ pub enum Emd {
     CosSim,
 }
 
-/// Which form of Eq. 3 to use ([`crate::ad_loss::adapt_loss`] computes both).
+/// Which form of Eq. 3 to use ([`crate::adapt::ad_loss::adapt_loss`] computes both).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
 pub enum AdaptLossKind {
     /// `−mean_t D(x_t) ‖a_t‖₂` (the paper's Eq. 3). Default.
@@ -330,16 +330,16 @@ pub const FLAG_HEAD_ONLY: u32 = 1 << 21;
 
 /// Bit of the blob header's flags: the int8 weight matrices multiply int8 activations
 /// (quantised per input segment at run time) into i32 accumulators, the integer path of
-/// [`crate::qkernel`]; without it int8 weights are widened to f32 and multiply f32
+/// [`crate::nn::qkernel`]; without it int8 weights are widened to f32 and multiply f32
 /// activations. A loader applies it to every int8 view
-/// ([`crate::matrix::MatRef::with_int8_activations`]; [`crate::navigator::NavWeights::from_blob`]
+/// ([`crate::nn::matrix::MatRef::with_int8_activations`]; [`crate::navigator::NavWeights::from_blob`]
 /// does). It changes no other setting of the navigator.
 pub const FLAG_INT8_ACTIVATIONS: u32 = 1 << 24;
 
 /// Bit of the blob header's flags: the navigator keeps Ψ's observations s_t in a compact
 /// form, int16 with one scale per entry (`q_j = round(s_j * (32767 / max|s|))`, read back
 /// as `q_j * (max|s| / 32767)`), so that the inner update sees those values instead of the
-/// f32 ones; the firmware's [`crate::memory::Footprint::Minimal`] arena needs it. `gman
+/// f32 ones; the firmware's [`crate::navigator::memory::Footprint::Minimal`] arena needs it. `gman
 /// export` sets it with int8 activations. Like [`FLAG_INT8_ACTIVATIONS`] it says how a
 /// blob is run ([`crate::navigator::NavWeights::from_blob`] reads it); without it every
 /// path computes what it computed before the flag.

@@ -1,9 +1,9 @@
 //! Integer kernels: `y += W x` with int8 activations times int8 weights into i32
-//! accumulators (the opt-in path of a blob with [`crate::schema::FLAG_INT8_ACTIVATIONS`]).
+//! accumulators (the opt-in path of a blob with [`crate::spec::schema::FLAG_INT8_ACTIVATIONS`]).
 //!
 //! # The canonical computation
-//! For an int8 matrix (`W[i][j] ~= s_i q_ij`, see [`crate::quant`]) and an input given as
-//! segments (see [`crate::matrix`]), every segment `x` is quantised on its own:
+//! For an int8 matrix (`W[i][j] ~= s_i q_ij`, see [`crate::blob::quant`]) and an input given as
+//! segments (see [`crate::nn::matrix`]), every segment `x` is quantised on its own:
 //!
 //! * `a = max_j |x_j|` over its finite values; `a == 0` (or an empty segment) adds nothing;
 //! * `s_x = a / 127`, `inv = 127 / a`, `p_j = clamp(round_half_away(x_j * inv), -127, 127)`
@@ -26,8 +26,8 @@
 //! calibration data whose range a new scene could exceed.
 
 use crate::error::{check_len, Result};
-pub use crate::matrix::{dots_i16, dots_i8, dots_i8_body};
-use crate::matrix::{seg_len, Kernels, MatRef, Scales, Weights};
+pub use crate::nn::matrix::{dots_i16, dots_i8, dots_i8_body};
+use crate::nn::matrix::{seg_len, Kernels, MatRef, Scales, Weights};
 
 /// Columns of one quantised input block (a stack buffer of this many `i8`).
 pub const QCOLS: usize = 256;

@@ -28,12 +28,12 @@
 //! [`Policy::forward`] is what the device runs every step; [`Policy::backward`] is one step of
 //! back-propagation through time, used by the host trainer (A3C, meta-gradients).
 
-use crate::activation::{leaky_relu_backward, leaky_relu_grad, leaky_relu_inplace, softmax};
-use crate::batch_cols::matmul_t_acc_cols;
-use crate::dense::{Dense, DenseGrads};
 use crate::error::{check_len, Result};
-use crate::lstm::{Lstm, LstmGrads};
-use crate::qkernel::SegTerms;
+use crate::nn::activation::{leaky_relu_backward, leaky_relu_grad, leaky_relu_inplace, softmax};
+use crate::nn::batch_cols::matmul_t_acc_cols;
+use crate::nn::dense::{Dense, DenseGrads};
+use crate::nn::lstm::{Lstm, LstmGrads};
+use crate::nn::qkernel::SegTerms;
 use crate::NUM_ACTIONS;
 
 /// A read-only view of the policy's layers.
@@ -122,7 +122,7 @@ impl<'a> FuseTerms<'a> {
     /// The terms [`Policy::fuse_terms`] wrote into `buf` for a fusion layer of `embed` rows
     /// and a `feat`-wide x_t, with the blocks it returned.
     pub fn new(buf: &'a [f32], embed: usize, feat: usize, blocks: FuseBlocks) -> Self {
-        let split = crate::qkernel::segment_blocks(feat)
+        let split = crate::nn::qkernel::segment_blocks(feat)
             .saturating_mul(embed)
             .min(buf.len());
         let (tf, ta) = buf.split_at(split);
@@ -142,7 +142,8 @@ impl<'a> FuseTerms<'a> {
 /// Floats [`Policy::fuse_terms`] writes at most for a fusion layer of `embed` rows, a
 /// `feat`-wide x_t and an `attr`-wide SE(y) (`None`: overflow).
 pub const fn fuse_terms_len(embed: usize, feat: usize, attr: usize) -> Option<usize> {
-    let blocks = crate::qkernel::segment_blocks(feat) + crate::qkernel::segment_blocks(attr);
+    let blocks =
+        crate::nn::qkernel::segment_blocks(feat) + crate::nn::qkernel::segment_blocks(attr);
     embed.checked_mul(blocks)
 }
 
@@ -193,7 +194,7 @@ pub struct PolicyScratch<'a> {
     pub cell_tmp: &'a mut [f32],
 }
 
-/// Whether the map's cell layer runs [`crate::qkernel::cell_layer_int8`] (an int8 view on
+/// Whether the map's cell layer runs [`crate::nn::qkernel::cell_layer_int8`] (an int8 view on
 /// int8 activations without a gain: the integer path's own form of `W [m; m ⊙ x]`).
 fn int8_cells(cell: &Dense<'_>) -> bool {
     cell.w.int8_activations() && cell.gain.is_none()
@@ -209,7 +210,7 @@ fn cell_layer_int8(cell: &Dense<'_>, map: &[f32], x: &[f32], out: &mut [f32]) ->
     for o in out.chunks_exact_mut(ce) {
         o.copy_from_slice(cell.b);
     }
-    crate::qkernel::cell_layer_int8(&cell.w, map, x, out)?;
+    crate::nn::qkernel::cell_layer_int8(&cell.w, map, x, out)?;
     leaky_relu_inplace(out);
     Ok(())
 }
@@ -253,7 +254,7 @@ impl<'a> Policy<'a> {
     /// [`Policy::forward`] with the map given as the camera quantised it: `map[j] * scale`
     /// is the value of feature `j` (u8 codes, one scale for the map; `inp.map` is not read).
     /// On the integer path the cells are quantised straight from the codes
-    /// ([`crate::qkernel::cell_layer_int8_u8`]); otherwise each cell is expanded to f32
+    /// ([`crate::nn::qkernel::cell_layer_int8_u8`]); otherwise each cell is expanded to f32
     /// (`map[j] as f32 * scale`) in `cache.prod`, free before the fusion layer, and runs as
     /// in [`Policy::forward`].
     pub fn forward_map_u8(
@@ -323,7 +324,7 @@ impl<'a> Policy<'a> {
                     for o in out.chunks_exact_mut(ce) {
                         o.copy_from_slice(cell.b);
                     }
-                    crate::qkernel::cell_layer_int8_u8(&cell.w, map, scale, inp.feat, out)?;
+                    crate::nn::qkernel::cell_layer_int8_u8(&cell.w, map, scale, inp.feat, out)?;
                     leaky_relu_inplace(out);
                 }
             }
@@ -353,7 +354,7 @@ impl<'a> Policy<'a> {
 
     /// True when the fusion layer runs the integer path (int8 weights and activations, no
     /// gain), where each input segment adds its own terms
-    /// ([`crate::qkernel::segment_terms_int8`]): then [`Policy::fuse_terms`] can keep those
+    /// ([`crate::nn::qkernel::segment_terms_int8`]): then [`Policy::fuse_terms`] can keep those
     /// of x_t and SE(y) while they are constant. On the f32-activation path the fusion
     /// layer sums every row's segments before its scale, and nothing is kept.
     pub fn keeps_fuse_terms(&self) -> bool {
@@ -374,13 +375,13 @@ impl<'a> Policy<'a> {
             return Ok(None);
         }
         let (f, e) = (feat.len(), self.fuse.out_dim());
-        let split = crate::qkernel::segment_blocks(f)
+        let split = crate::nn::qkernel::segment_blocks(f)
             .saturating_mul(e)
             .min(out.len());
         let (of, oa) = out.split_at_mut(split);
         let w = &self.fuse.w;
-        let feat_blocks = crate::qkernel::segment_terms_int8(w, f, feat, of)?;
-        let attr_blocks = crate::qkernel::segment_terms_int8(w, 3 * f, attr, oa)?;
+        let feat_blocks = crate::nn::qkernel::segment_terms_int8(w, f, feat, of)?;
+        let attr_blocks = crate::nn::qkernel::segment_terms_int8(w, 3 * f, attr, oa)?;
         Ok(Some(FuseBlocks {
             feat: feat_blocks,
             attr: attr_blocks,
@@ -450,7 +451,7 @@ impl<'a> Policy<'a> {
                 t.fuse.copy_from_slice(self.fuse.b);
                 let (tf, ta) = (k.feat, k.attr);
                 let cached = [None, Some(tf), None, Some(ta), None, None, None];
-                crate::qkernel::matvec_acc_int8_terms(&self.fuse.w, &segs, &cached, t.fuse)?;
+                crate::nn::qkernel::matvec_acc_int8_terms(&self.fuse.w, &segs, &cached, t.fuse)?;
             }
             _ => self.fuse.forward_batch(&segs, &lens, n, &mut [], t.fuse)?,
         }

@@ -1,11 +1,11 @@
-//! A batched column-block kernel next to [`crate::batch`]: the input gradient of one column
+//! A batched column-block kernel next to [`crate::nn::batch`]: the input gradient of one column
 //! block of `W` for a batch of vectors, with the same contract (every vector of the batch gets
 //! exactly the bits of the batch-1 kernel, [`MatRef::matvec_t_acc_cols`]).
 //!
 //! Reference body (a loop over the batch); a faster body keeps the signature and contract.
 
 use crate::error::{check_len, Result};
-use crate::matrix::MatRef;
+use crate::nn::matrix::MatRef;
 
 /// `dX[b] += (W[:, col0 .. col0 + len])^T dY[b]` for `b in 0..n`: `dy` is `n x W.rows()`
 /// batch-major, `dx` is `n x len` batch-major.

@@ -1,13 +1,13 @@
 //! The two forms of Eq. 3's loss from the scores of the buffer's generated features, and the
 //! cosine score of the CosSim variant: the pure loss maths under [`crate::adapt`] (its
-//! batch-1 gradients) and [`crate::inner`] (the batched passes), which both use it; re-exported
+//! batch-1 gradients) and [`crate::adapt::inner`] (the batched passes), which both use it; re-exported
 //! from [`crate::adapt`].
 
 use crate::error::{check_len, Result};
-use crate::matrix::dot;
+use crate::nn::matrix::dot;
 use crate::NUM_ACTIONS;
 
-pub use crate::schema::AdaptLossKind;
+pub use crate::spec::schema::AdaptLossKind;
 
 /// L_ad from the discriminator scores `d` (`n`) and action probabilities `probs` (`n x 6`).
 /// Writes `∂L/∂d_t` into `dd` (`n`) and `∂L/∂a_t` into `dprobs` (`n x 6`).

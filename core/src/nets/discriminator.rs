@@ -26,10 +26,10 @@
 //! This is exact (it is what double back-propagation computes) at a cost of two extra
 //! matrix-vector products per penalised sample, and needs no second-order autodiff on device.
 
-use crate::activation::{leaky_relu, leaky_relu_grad};
-use crate::dense::{Dense, DenseGrads};
 use crate::error::{check_len, Result};
-use crate::matrix::{axpy, dot};
+use crate::nn::activation::{leaky_relu, leaky_relu_grad};
+use crate::nn::dense::{Dense, DenseGrads};
+use crate::nn::matrix::{axpy, dot};
 
 /// A read-only view of D.
 #[derive(Clone, Copy, Debug)]
@@ -160,7 +160,7 @@ pub fn add_penalty_grad(
     }
     if let DenseGrads::Full { w, .. } = &mut grads.l1 {
         // c · u gᵀ (the zero columns get c · u · 0)
-        crate::batch::outer_acc(w, at.u, g_cols, c)?;
+        crate::nn::batch::outer_acc(w, at.u, g_cols, c)?;
     }
     Ok((p, norm))
 }

@@ -7,13 +7,13 @@
 //! `W1` is `H x (Z + A)` with the noise columns first (as the reference concatenates
 //! `(noise, attribute)`), `W2` is `F x H`; the sigmoid keeps generated features in `(0, 1)`
 //! like the observation embeddings they imitate. Each layer may carry a per-unit gain (see
-//! [`crate::dense`]) for the parameter-efficient adaptation mode.
+//! [`crate::nn::dense`]) for the parameter-efficient adaptation mode.
 
-use crate::activation::{
+use crate::error::{check_len, Result};
+use crate::nn::activation::{
     leaky_relu_backward, leaky_relu_inplace, sigmoid_backward, sigmoid_inplace,
 };
-use crate::dense::{Dense, DenseGrads};
-use crate::error::{check_len, Result};
+use crate::nn::dense::{Dense, DenseGrads};
 
 /// A read-only view of G.
 #[derive(Clone, Copy, Debug)]

@@ -8,9 +8,9 @@
 
 use crate::blob::{encode_model, AdaptSettings, Quant};
 use crate::error::BlobError;
-use crate::preset::Dims;
 use crate::rng::{fill_gaussian, Xoshiro128};
-use crate::schema::TensorId;
+use crate::spec::preset::Dims;
+use crate::spec::schema::TensorId;
 use crate::spec::ModelSpec;
 
 /// The stream of seeded weights: call [`SeededWeights::fill`] once per tensor, in storage
@@ -54,7 +54,7 @@ pub fn encode_seeded(
     bytes: &mut [u8],
 ) -> Result<usize, BlobError> {
     settings.validate()?;
-    crate::schema::check_known_flags(flags)?;
+    crate::spec::schema::check_known_flags(flags)?;
     let mut w = SeededWeights::new(seed, scale);
     encode_model(
         dims,

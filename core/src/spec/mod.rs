@@ -21,22 +21,27 @@
 //! and a blob's run-time forms are set at export: those four fields are not part of the
 //! serde form, so checkpoints keep their bytes.
 
+pub(crate) mod action;
+pub mod preset;
+pub mod schema;
+pub(crate) mod setting_key;
+
 use core::fmt;
 use core::str::FromStr;
 
 use serde::{Deserialize, Deserializer, Serialize, Serializer};
 
 use crate::error::BlobError;
-use crate::preset::MAX_INNER_RATE;
-use crate::schema::{AdaptLossKind, AdaptMode, Emd, NoiseMode, StepRule};
-use crate::schema::{
+use crate::spec::preset::MAX_INNER_RATE;
+use crate::spec::schema::{AdaptLossKind, AdaptMode, Emd, NoiseMode, StepRule};
+use crate::spec::schema::{
     COMMIT_DELAY_MASK, COMMIT_DELAY_SHIFT, DISC_STEPS_MASK, DISC_STEPS_SHIFT, FLAG_ADAPT,
     FLAG_COMPACT_PSI, FLAG_COSSIM, FLAG_DISC_HEAD_RESET, FLAG_FULL_ADAPT, FLAG_HEAD_ONLY,
     FLAG_INT8_ACTIVATIONS, FLAG_NORMALIZED_STEP, FLAG_PER_GROUP_STEP, FLAG_REFERENCE_ADAPT_LOSS,
     FLAG_REFERENCE_CRITIC_SCALE, FLAG_ZERO_NOISE, MAX_COMMIT_DELAY,
 };
-use crate::setting_key::index_of;
-pub use crate::setting_key::{SettingKey, SETTING_KEYS};
+use crate::spec::setting_key::index_of;
+pub use crate::spec::setting_key::{SettingKey, SETTING_KEYS};
 
 /// A setting enum with one table of names: the form a command line, a checkpoint and a
 /// report use. `FromStr`, `Display` and serde (as the name) derive from [`Named::NAMES`].
@@ -649,7 +654,7 @@ impl ModelSpec {
     /// The switches a v1-v4 blob's flag word and inner-loop settings record (the inverse of
     /// [`ModelSpec::bits`] and [`ModelSpec::adapt_settings`]; α1 is a separate `disc_lr`
     /// exactly when its bits differ from α2's). Bits outside
-    /// [`KNOWN_FLAGS`](crate::schema::KNOWN_FLAGS) are ignored here.
+    /// [`KNOWN_FLAGS`](crate::spec::schema::KNOWN_FLAGS) are ignored here.
     pub fn from_bits(bits: u32, settings: AdaptSettings) -> ModelSpec {
         let on = |flag: u32| bits & flag != 0;
         let (a1, a2) = (settings.alpha_disc, settings.alpha_adapt);

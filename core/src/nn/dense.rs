@@ -5,9 +5,9 @@
 //! and `b` live in RAM and are adapted. Without a gain the layer is the ordinary `W x + b`
 //! and, in the `Full` mode, `W` itself is an f32 tensor in RAM that adaptation updates.
 
-use crate::batch::{matmul_acc, matmul_t_acc, outer_acc_batch_with, seg_lens};
 use crate::error::{check_len, Result};
-use crate::matrix::{seg_len, MatRef};
+use crate::nn::batch::{matmul_acc, matmul_t_acc, outer_acc_batch_with, seg_lens};
+use crate::nn::matrix::{seg_len, MatRef};
 
 /// A read-only view of a dense layer.
 #[derive(Clone, Copy, Debug)]
@@ -76,7 +76,7 @@ impl<'a> Dense<'a> {
         Ok(())
     }
 
-    /// Forward pass. `x` is the (segmented, at most [`crate::batch::MAX_SEGS`] segments)
+    /// Forward pass. `x` is the (segmented, at most [`crate::nn::batch::MAX_SEGS`] segments)
     /// input; `pre` receives `gain ⊙ (W x) + b`. When the layer has a gain, `u` must have
     /// `out` elements and receives `W x` (needed by the backward pass); otherwise `u` may be
     /// empty. [`Dense::forward_batch`] with a batch of one.
@@ -121,7 +121,7 @@ pub type BatchDx<'s, 'x> = (&'s mut [&'x mut [f32]], &'s [usize]);
 
 impl<'a> Dense<'a> {
     /// [`Dense::forward`] over a batch of `n` inputs (batch-major segments `x` with per-vector
-    /// lengths `lens`, see [`crate::batch`]): `pre` (`n x out`) and, with a gain, `u`
+    /// lengths `lens`, see [`crate::nn::batch`]): `pre` (`n x out`) and, with a gain, `u`
     /// (`n x out`) receive for every vector exactly the bits [`Dense::forward`] gives it.
     pub fn forward_batch(
         &self,
