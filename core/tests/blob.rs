@@ -971,28 +971,8 @@ fn name_bytes(s: &str) -> Vec<u8> {
 /// range) is a typed error naming it, with a valid checksum.
 #[test]
 fn v5_names_its_settings_and_refuses_what_it_does_not_know() {
-    use gman_core::spec::schema::AdaptLossKind;
-    use gman_core::spec::{InnerRule, ModelSpec, SETTING_KEYS};
-    let spec = ModelSpec {
-        noise: NoiseMode::Zero,
-        inner_lr: 0.02,
-        max_inner: 9,
-        adapt_mode: AdaptMode::Full,
-        inner_rule: InnerRule {
-            disc_lr: Some(0.05),
-            disc_steps: 3,
-            step_rule: StepRule::PerGroup,
-            disc_head_reset: true,
-            adapt_loss: AdaptLossKind::Reference,
-            reference_critic: true,
-            head_only: true,
-            commit_delay: 5,
-        },
-        adapt: true,
-        emd: Emd::CosSim,
-        int8_activations: true,
-        compact_psi: true,
-    };
+    use gman_core::spec::{ModelSpec, SETTING_KEYS};
+    let spec = ModelSpec::EVERY_SETTING_CHANGED;
     let t = random_tensors(&SMALL, 8);
     let specs = f32_specs(&t);
     let mut out = vec![0u8; encoded_len_bound(&specs)];

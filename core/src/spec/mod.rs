@@ -835,6 +835,31 @@ impl ModelSpec {
         ..ModelSpec::paper(AdaptMode::Efficient)
     };
 
+    /// Every setting away from its value in [`ModelSpec::BLOB_DEFAULT`] (so a blob's header
+    /// writes a record of each), each within its range ([`ModelSpec::validate`]): the one spec the round-trip tests
+    /// of every carrier (flag word, blob records, checkpoints, the C API and Python) start
+    /// from, so that a new setting is covered where it is declared.
+    pub const EVERY_SETTING_CHANGED: ModelSpec = ModelSpec {
+        noise: NoiseMode::Zero,
+        inner_lr: 0.5,
+        max_inner: 7,
+        adapt_mode: AdaptMode::Full,
+        inner_rule: InnerRule {
+            disc_lr: Some(0.05),
+            disc_steps: 5,
+            step_rule: StepRule::PerGroup,
+            disc_head_reset: true,
+            adapt_loss: AdaptLossKind::Reference,
+            reference_critic: true,
+            head_only: true,
+            commit_delay: 17,
+        },
+        adapt: true,
+        emd: Emd::CosSim,
+        int8_activations: true,
+        compact_psi: true,
+    };
+
     /// The value of the setting `key` ([`SETTING_KEYS`]); `None` for an unknown key and for
     /// `disc_lr` when α1 is α2.
     pub fn get(&self, key: &str) -> Option<SettingValue<'static>> {
@@ -929,27 +954,19 @@ mod tests {
     }
 
     #[test]
+    fn every_setting_changed_changes_every_setting_within_its_range() {
+        let changed = ModelSpec::EVERY_SETTING_CHANGED;
+        assert_eq!(changed.validate(), Ok(()));
+        for key in SETTING_KEYS {
+            assert!(changed.get(key).is_some(), "{key}");
+            let default = ModelSpec::BLOB_DEFAULT.get(key);
+            assert_ne!(changed.get(key), default, "{key} keeps its default");
+        }
+    }
+
+    #[test]
     fn spec_round_trips_through_flags_and_settings() {
-        let spec = ModelSpec {
-            noise: NoiseMode::Zero,
-            inner_lr: 0.5,
-            max_inner: 7,
-            adapt_mode: AdaptMode::Efficient,
-            inner_rule: InnerRule {
-                disc_lr: Some(0.05),
-                disc_steps: 5,
-                step_rule: StepRule::PerGroup,
-                disc_head_reset: true,
-                adapt_loss: AdaptLossKind::Reference,
-                reference_critic: true,
-                head_only: true,
-                commit_delay: 17,
-            },
-            adapt: true,
-            emd: Emd::CosSim,
-            int8_activations: true,
-            compact_psi: true,
-        };
+        let spec = ModelSpec::EVERY_SETTING_CHANGED;
         let back = ModelSpec::from_bits(spec.bits(), AdaptSettings::PAPER);
         assert!(back.adapt && back.emd == Emd::CosSim);
         assert_eq!(
