@@ -36,6 +36,7 @@ use super::generator::{gen_names, generator_view, init_generator, GenBuffers};
 use super::parallel::ChunkPool;
 use super::params::ParamSet;
 use super::{dims_json, rng_from_bytes, rng_to_bytes};
+use crate::progress::BarKind;
 use crate::sim::util::{hash2, mix64};
 use crate::sim::{CategoryId, SceneId, Split, World, WorldSource};
 
@@ -507,7 +508,7 @@ pub fn train_fg(
     }
     let mut steps = FgSteps::new(world, dims, data, cfg, state);
     let todo = cfg.iters.saturating_sub(state.iters_done);
-    let pb = crate::progress::bar(todo as u64, crate::progress::PRETRAIN, cfg.progress);
+    let pb = crate::progress::bar(BarKind::Pretrain, todo as u64, cfg.progress);
     let log_every = (cfg.iters / 100).max(1);
     for _ in 0..todo {
         let mut last = CriticSums::default();
@@ -536,7 +537,7 @@ pub fn train_fg(
         }
         pb.inc(1);
     }
-    pb.finish_and_clear();
+    pb.finish();
     Ok(())
 }
 

@@ -24,6 +24,7 @@ use super::fg::source_label;
 use super::parallel::ChunkPool;
 use super::params::ParamSet;
 use super::rng_to_bytes;
+use crate::progress::BarKind;
 use crate::sim::util::hash2;
 use crate::sim::{SceneId, Split, World};
 
@@ -329,7 +330,7 @@ pub fn train_ps(
     let mut idx = vec![0usize; b];
     let mut history = Vec::new();
     let log_every = (cfg.iters / 100).max(1);
-    let pb = crate::progress::bar(cfg.iters as u64, crate::progress::PRETRAIN, cfg.progress);
+    let pb = crate::progress::bar(BarKind::Pretrain, cfg.iters as u64, cfg.progress);
     let n = data.train.len() as u64;
     for it in 1..=cfg.iters {
         for i in idx.iter_mut() {
@@ -367,7 +368,7 @@ pub fn train_ps(
         }
         pb.inc(1);
     }
-    pb.finish_and_clear();
+    pb.finish();
     Ok((ps, adam, rng, history))
 }
 
