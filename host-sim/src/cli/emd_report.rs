@@ -27,7 +27,7 @@ pub struct EmdReportArgs {
     pub agent: PathBuf,
     /// Treat the model as this method (e.g. measure an `a3c-fg` checkpoint as
     /// `gman-nometa`: the pre-trained G, adapted at test time only).
-    #[arg(long, value_name = "METHOD")]
+    #[arg(long, value_name = "METHOD", value_parser = super::args::method())]
     pub method: Option<gman_host_sim::model::Method>,
     /// Split whose official episodes are run (val or test).
     #[arg(long, default_value = "val")]
