@@ -6,3 +6,5 @@
 #![warn(missing_docs)]
 
 pub use gman_train::*;
+
+pub mod fig3;

@@ -136,7 +136,7 @@ fn write_outputs(
 ) -> Result<()> {
     if let Some(png) = &a.png {
         let scenes = emd_report::busiest_scenes(records);
-        let n = emd_report::plot(records, &scenes, world, png)?;
+        let n = gman_host_sim::fig3::draw(&emd_report::figure(records, &scenes, world), png)?;
         let names: Vec<&str> = scenes
             .iter()
             .filter_map(|&s| world.scenes.get(s).map(|sc| sc.name.as_str()))
