@@ -1,5 +1,5 @@
-//! Pre-training of the PS module (`gman pretrain-ps`; the network itself, as the navigation
-//! model uses it, is [`crate::ps`]).
+//! Pre-training of the PS module (`gman pretrain-ps`), and the network itself as the
+//! navigation model uses it ([`PsModule`], re-exported from `ps_net.rs` beside this file).
 //!
 //! Trained supervised on `Observation::ps_target` (the mean attribute vector of the
 //! categories in view, zeros when none) for views of **training** scenes only (which contain
@@ -28,7 +28,7 @@ use crate::progress::BarKind;
 use crate::sim::util::hash2;
 use crate::sim::{SceneId, Split, World};
 
-pub use crate::ps::{PsBuffers, PsModule, PS_B1, PS_B2, PS_W1, PS_W2};
+pub use super::ps_net::{PsBuffers, PsModule, PS_B1, PS_B2, PS_W1, PS_W2};
 
 impl PsModule {
     /// Accumulates the gradient of the BCE loss, weighted `coef`, of the sample in `buf`
