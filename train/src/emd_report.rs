@@ -123,7 +123,7 @@ impl Record {
     }
     /// Distance of the mean of the kept views to the true feature: where a G that only
     /// learned the scene's average look would land (a reference point, not a bound).
-    pub fn view_mean_distance(&self) -> f64 {
+    pub(crate) fn view_mean_distance(&self) -> f64 {
         dist(&self.view_mean(), &self.real)
     }
 }

@@ -221,7 +221,7 @@ impl NavModel {
     }
 
     /// Adds the model's tensors (and the PS module's) to a checkpoint.
-    pub fn add_to_checkpoint(&self, ck: &mut Checkpoint) -> Result<()> {
+    pub(crate) fn add_to_checkpoint(&self, ck: &mut Checkpoint) -> Result<()> {
         ck.add_tensors(&self.params)?;
         if let Some(ps) = &self.ps {
             ck.add_tensors(&ps.params)?;
@@ -334,7 +334,7 @@ impl NavModel {
 
 /// Floats of a navigator arena (capacity [`K`]) that fits `dims` in either adaptation
 /// mode with the host's [`Footprint::Fast`].
-pub fn host_arena_len(dims: &Dims) -> usize {
+pub(crate) fn host_arena_len(dims: &Dims) -> usize {
     use gman_core::navigator::{Efficient, Full, Navigator};
     Navigator::<Full, { K }>::arena_len_for(dims, Footprint::Fast).max(
         Navigator::<Efficient, { K }>::arena_len_for(dims, Footprint::Fast),
@@ -345,7 +345,7 @@ pub fn host_arena_len(dims: &Dims) -> usize {
 mod tests {
     use super::*;
 
-    use crate::model::DEFAULT_MAX_INNER;
+    use crate::model::record::DEFAULT_MAX_INNER;
     use gman_core::navigator::NoiseMode;
     use gman_core::schema::Emd;
 

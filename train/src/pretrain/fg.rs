@@ -324,7 +324,11 @@ impl std::ops::AddAssign for GenSums {
 }
 
 /// Per-category mean feature of `samples` (rows indexed by category id; zeros when absent).
-pub fn class_means(samples: &[FeatureSample], n_categories: usize, f: usize) -> Vec<Vec<f32>> {
+pub(crate) fn class_means(
+    samples: &[FeatureSample],
+    n_categories: usize,
+    f: usize,
+) -> Vec<Vec<f32>> {
     let mut sums = vec![vec![0f64; f]; n_categories];
     let mut counts = vec![0usize; n_categories];
     for s in samples {
@@ -492,7 +496,7 @@ impl<'a> FgSteps<'a> {
 
 /// Runs `cfg.iters - state.iters_done` generator steps (each after `cfg.n_critic` critic
 /// steps) on `data.train`. Deterministic for a seed: batches and noise are drawn on the
-/// calling thread and gradients are summed in a fixed order ([`ChunkPool`]).
+/// calling thread and gradients are summed in a fixed order (`optim::parallel::ChunkPool`).
 pub fn train_fg(
     world: &World,
     dims: &Dims,
@@ -590,7 +594,7 @@ fn cos(a: &[f32], b: &[f32]) -> f64 {
 /// Scores prototypes (`protos[c]` for category id `c`, `None` when absent) on `samples`:
 /// `group` are the categories competing within the group, `all` the categories of the
 /// generalised nearest-prototype test.
-pub fn eval_group(
+pub(crate) fn eval_group(
     protos: &[Option<Vec<f32>>],
     group: &[CategoryId],
     all: &[CategoryId],
@@ -663,7 +667,7 @@ pub fn eval_group(
 
 /// Generated prototype of every category in `cats`: the mean of `k` samples `G(SE(c), z)`
 /// with noise from a fixed seed (indexed by category id; `None` for the others).
-pub fn generated_prototypes(
+pub(crate) fn generated_prototypes(
     world: &World,
     gen: &ParamSet,
     dims: &Dims,
@@ -704,7 +708,7 @@ pub struct FgEval {
 }
 
 /// Scores G (prototypes from `noise_samples` noise draws) on the dataset's report groups.
-pub fn evaluate_fg(
+pub(crate) fn evaluate_fg(
     world: &World,
     gen: &ParamSet,
     dims: &Dims,
@@ -779,7 +783,7 @@ pub struct ReferenceEval {
 }
 
 /// Data-source label of a world.
-pub fn source_label(world: &World) -> String {
+pub(crate) fn source_label(world: &World) -> String {
     match &world.source {
         WorldSource::Synthetic => "synthetic".into(),
         WorldSource::Data(d) | WorldSource::Offline(d) => d.display().to_string(),

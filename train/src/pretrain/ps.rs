@@ -28,7 +28,8 @@ use crate::progress::BarKind;
 use crate::sim::util::hash2;
 use crate::sim::{SceneId, Split, World};
 
-pub use super::ps_net::{PsBuffers, PsModule, PS_B1, PS_B2, PS_W1, PS_W2};
+pub use super::ps_net::{PsBuffers, PsModule};
+pub(crate) use super::ps_net::{PS_B1, PS_B2, PS_W1, PS_W2};
 
 impl PsModule {
     /// Accumulates the gradient of the BCE loss, weighted `coef`, of the sample in `buf`
@@ -238,7 +239,7 @@ pub struct PsEval {
 }
 
 /// Mean training target (the baseline predictor).
-pub fn mean_target(world: &World, views: &[PsView]) -> [f32; ATTR_DIM] {
+pub(crate) fn mean_target(world: &World, views: &[PsView]) -> [f32; ATTR_DIM] {
     let mut acc = [0f64; ATTR_DIM];
     for v in views {
         let t = &world.observation(v.scene, v.state).ps_target;
@@ -252,7 +253,7 @@ pub fn mean_target(world: &World, views: &[PsView]) -> [f32; ATTR_DIM] {
 }
 
 /// Scores `ps` and the mean-target baseline on the report groups.
-pub fn evaluate_ps(
+pub(crate) fn evaluate_ps(
     world: &World,
     ps: &PsModule,
     data: &PsData,
