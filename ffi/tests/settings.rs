@@ -6,7 +6,7 @@ use std::ffi::CStr;
 use std::ptr::{null, null_mut};
 
 use gman_core::spec::schema::{AdaptLossKind, AdaptMode, Emd, NoiseMode, StepRule};
-use gman_core::spec::{Named, SettingValue, SETTING_KEYS};
+use gman_core::spec::{SettingValue, SETTING_KEYS};
 use gman_core::Blob;
 use gman_ffi::*;
 

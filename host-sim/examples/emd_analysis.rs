@@ -61,7 +61,8 @@ fn main() -> Result<()> {
     }
     if let Some(png) = args.get(6).filter(|s| *s != "-") {
         let scenes = emd_report::busiest_scenes(&records);
-        let n = emd_report::plot(&records, &scenes, &world, Path::new(png))?;
+        let fig = emd_report::figure(&records, &scenes, &world);
+        let n = gman_host_sim::fig3::draw(&fig, Path::new(png))?;
         println!("wrote {png}: Fig. 3 for scenes {scenes:?} ({n} unseen-target episodes)");
     }
 

@@ -22,6 +22,7 @@ fn default_sigpipe() {}
 
 fn main() -> ExitCode {
     default_sigpipe();
+    gman_host_sim::progress::install(&cli::progress::TerminalBars);
     let matches =
         cli::Cli::command().get_matches_from(cli::recipes::expand(std::env::args_os().collect()));
     let parsed = cli::Cli::from_arg_matches(&matches).unwrap_or_else(|e| e.exit());

@@ -14,11 +14,11 @@ use std::sync::{Arc, Mutex, OnceLock};
 use gman_core::navigator::{Efficient, Full, Navigator};
 use gman_core::spec::{SettingValue, SETTING_KEYS};
 use gman_core::{Action, ATTR_DIM, FEATURE_DIM, NUM_ACTIONS};
+use gman_render::draw_scene_rgb;
 use gman_train::eval::agent::NavAgent;
 use gman_train::model::{load_model, model_from_blob, NavModel, K};
 use gman_train::sim::eval::AgentFactory;
 use gman_train::sim::features::DomainShift;
-use gman_train::sim::render::draw_scene_rgb;
 use gman_train::sim::spatial::{check_grid, check_grid_for_world, MapGrid, MAX_GRID_SIDE};
 use gman_train::sim::{
     evaluate, Env, EpisodeLimits, EpisodeMetrics, EpisodeResult, EpisodeSpec, EvalConfig,

@@ -2,7 +2,7 @@
 //! floor plans (or a built-in synthetic demo world), official GMAN episodes, rewards and
 //! metrics. The simulator layer of gman-rs: it knows nothing of the model, the trainer or the
 //! command line (no clap, plotters or indicatif); the evaluator that drives agents over it in
-//! parallel and the top-down renderer are gman-host-sim's `sim::eval` and `sim::render`.
+//! parallel is gman-train's `sim::eval`, the top-down renderer the gman-render crate.
 //!
 //! Module map:
 //! * [`data`]: raw JSON files of a data directory.

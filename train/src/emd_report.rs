@@ -6,13 +6,11 @@
 //! updates, and its distance to the target's true feature in that scene
 //! ([`World::object_feature`]). [`Summary`] averages over episodes with at least one inner
 //! update; the target is that adaptation closes at least 25% of the distance.
-//! [`plot`] draws the picture of Fig. 3: environment features (the views the agent saw),
+//! [`figure`] gives the points of Fig. 3: environment features (the views the agent saw),
 //! initial, adapted and true target features of two scenes, projected on their first two
-//! principal components.
+//! principal components (the `gman` binary draws them).
 
-use std::path::Path;
-
-use anyhow::{Context, Result};
+use anyhow::Result;
 use gman_core::navigator::memory::AdaptMode;
 use gman_core::navigator::{Efficient, Full, Mode, Navigator};
 use gman_core::nets::generator::GeneratorCache;
@@ -125,7 +123,7 @@ impl Record {
     }
     /// Distance of the mean of the kept views to the true feature: where a G that only
     /// learned the scene's average look would land (a reference point, not a bound).
-    pub fn view_mean_distance(&self) -> f64 {
+    pub(crate) fn view_mean_distance(&self) -> f64 {
         dist(&self.view_mean(), &self.real)
     }
 }
@@ -354,70 +352,47 @@ fn plot_range(all: &[(f64, f64)]) -> (std::ops::Range<f64>, std::ops::Range<f64>
     ((x0 - pad)..(x1 + pad), (y0 - pad)..(y1 + pad))
 }
 
-type Chart<'a, 'b> = plotters::chart::ChartContext<
-    'a,
-    plotters::prelude::BitMapBackend<'b>,
-    plotters::prelude::Cartesian2d<
-        plotters::coord::types::RangedCoordf64,
-        plotters::coord::types::RangedCoordf64,
-    >,
->;
-
-/// One scene's points: environment features, then for each episode the line from the initial
-/// to the adapted feature, the initial (triangle), adapted (circle) and true (cross) features.
-fn draw_scene_points(
-    chart: &mut Chart<'_, '_>,
-    rs: &[&&Record],
-    name: &str,
-    c: plotters::style::RGBColor,
-    labels: bool,
-    plane: &Plane,
-) -> Result<()> {
-    use plotters::prelude::*;
-    let proj = |p: &[f32]| plane.project(p);
-    let views = rs.iter().flat_map(|r| r.views.iter().map(|v| proj(v)));
-    let e = chart.draw_series(views.map(|p| Circle::new(p, 2, c.mix(0.25).filled())))?;
-    if labels {
-        e.label(format!("{name}: environment features"))
-            .legend(move |(x, y)| Circle::new((x + 10, y), 3, c.mix(0.4).filled()));
-    }
-    chart.draw_series(
-        rs.iter()
-            .map(|r| PathElement::new(vec![proj(&r.initial), proj(&r.adapted)], c)),
-    )?;
-    let s1 = chart.draw_series(
-        rs.iter()
-            .map(|r| TriangleMarker::new(proj(&r.initial), 6, c.filled())),
-    )?;
-    if labels {
-        s1.label(format!("{name}: initial G(y)"))
-            .legend(move |(x, y)| TriangleMarker::new((x + 10, y), 6, c.filled()));
-    }
-    let s2 = chart.draw_series(
-        rs.iter()
-            .map(|r| Circle::new(proj(&r.adapted), 5, c.stroke_width(2))),
-    )?;
-    if labels {
-        s2.label(format!("{name}: adapted G(y)"))
-            .legend(move |(x, y)| Circle::new((x + 10, y), 5, c.stroke_width(2)));
-    }
-    let s3 = chart.draw_series(
-        rs.iter()
-            .map(|r| Cross::new(proj(&r.real), 6, c.stroke_width(2))),
-    )?;
-    if labels {
-        s3.label(format!("{name}: true target feature"))
-            .legend(move |(x, y)| Cross::new((x + 10, y), 6, c.stroke_width(2)));
-    }
-    Ok(())
+/// One episode's target points of Fig. 3, on the plane: G's initial and adapted features and
+/// the true target feature.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TargetPoints {
+    /// G(SE(y), 0) at the start of the episode.
+    pub initial: (f64, f64),
+    /// G(SE(y), 0) after the episode's inner updates.
+    pub adapted: (f64, f64),
+    /// The target's true feature in the scene.
+    pub real: (f64, f64),
 }
 
-/// Draws Fig. 3 for the unseen-target episodes of `scenes` into a PNG at `png`: environment
-/// features (small dots), G's initial (triangles), adapted (circles, joined to the initial
-/// point) and true target features (crosses), one colour per scene, on the first two principal
-/// components of all drawn points. Returns how many target points were drawn.
-pub fn plot(records: &[Record], scenes: &[usize], world: &World, png: &Path) -> Result<usize> {
-    use plotters::prelude::*;
+/// One scene's points of Fig. 3.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ScenePoints {
+    /// The scene's name.
+    pub name: String,
+    /// The environment features (the views the agent saw), episode after episode.
+    pub views: Vec<(f64, f64)>,
+    /// The target points, one per episode in the order of the records.
+    pub targets: Vec<TargetPoints>,
+}
+
+/// What Fig. 3 shows: the points of the unseen-target episodes of some scenes on the first
+/// two principal components of all of them, and the range that holds them.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Figure {
+    /// One entry per scene asked for, in that order.
+    pub scenes: Vec<ScenePoints>,
+    /// The drawing range along the first component (5% padding).
+    pub x: std::ops::Range<f64>,
+    /// The drawing range along the second component.
+    pub y: std::ops::Range<f64>,
+    /// Episodes drawn (their target points).
+    pub episodes: usize,
+}
+
+/// The points of Fig. 3 for the unseen-target episodes of `scenes`: environment features, G's
+/// initial, adapted and true target features, per scene, projected on the first two principal
+/// components of all these points.
+pub fn figure(records: &[Record], scenes: &[usize], world: &World) -> Figure {
     let sel: Vec<&Record> = records
         .iter()
         .filter(|r| r.kind == TargetKind::Unseen && scenes.contains(&r.scene))
@@ -433,49 +408,38 @@ pub fn plot(records: &[Record], scenes: &[usize], world: &World, png: &Path) -> 
     }
     let plane = Plane::of(&pts);
     let all: Vec<(f64, f64)> = pts.iter().map(|p| plane.project(p)).collect();
-    let (xr, yr) = plot_range(&all);
-    let labels = crate::sim::render::register_plot_font();
-    let root = BitMapBackend::new(png, (1000, 800)).into_drawing_area();
-    root.fill(&WHITE)?;
-    let mut b = ChartBuilder::on(&root);
-    b.margin(15);
-    if labels {
-        b.caption(
-            "Fig. 3: environment features, initial / adapted / true target features (PCA)",
-            ("sans-serif", 18),
-        )
-        .x_label_area_size(35)
-        .y_label_area_size(55);
+    let (x, y) = plot_range(&all);
+    let proj = |p: &[f32]| plane.project(p);
+    let scenes = scenes
+        .iter()
+        .map(|&s| {
+            let rs: Vec<&&Record> = sel.iter().filter(|r| r.scene == s).collect();
+            ScenePoints {
+                name: world
+                    .scenes
+                    .get(s)
+                    .map_or_else(|| format!("scene {s}"), |sc| sc.name.clone()),
+                views: rs
+                    .iter()
+                    .flat_map(|r| r.views.iter().map(|v| proj(v)))
+                    .collect(),
+                targets: rs
+                    .iter()
+                    .map(|r| TargetPoints {
+                        initial: proj(&r.initial),
+                        adapted: proj(&r.adapted),
+                        real: proj(&r.real),
+                    })
+                    .collect(),
+            }
+        })
+        .collect();
+    Figure {
+        scenes,
+        x,
+        y,
+        episodes: sel.len(),
     }
-    let mut chart = b.build_cartesian_2d(xr, yr)?;
-    let mut mesh = chart.configure_mesh();
-    if labels {
-        mesh.x_desc("PC 1").y_desc("PC 2");
-    } else {
-        mesh.disable_x_axis().disable_y_axis();
-    }
-    mesh.draw()?;
-    let colours = [RGBColor(30, 90, 200), RGBColor(220, 60, 30)];
-    for (i, &s) in scenes.iter().enumerate() {
-        let rs: Vec<&&Record> = sel.iter().filter(|r| r.scene == s).collect();
-        let name = world
-            .scenes
-            .get(s)
-            .map_or_else(|| format!("scene {s}"), |sc| sc.name.clone());
-        draw_scene_points(&mut chart, &rs, &name, colours[i % 2], labels, &plane)?;
-    }
-    if labels {
-        chart
-            .configure_series_labels()
-            .position(SeriesLabelPosition::LowerRight)
-            .background_style(WHITE.mix(0.8))
-            .border_style(BLACK)
-            .label_font(("sans-serif", 13))
-            .draw()?;
-    }
-    root.present()
-        .with_context(|| format!("writing {}", png.display()))?;
-    Ok(sel.len())
 }
 
 #[cfg(test)]

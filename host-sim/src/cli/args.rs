@@ -9,6 +9,7 @@ use clap::builder::{PossibleValue, PossibleValuesParser, TypedValueParser};
 use clap::{Args, ValueEnum};
 use gman_core::spec::Named;
 use gman_core::Dims;
+use gman_host_sim::model::Method;
 use gman_host_sim::sim::features::DomainShift;
 use gman_host_sim::sim::{ObjectLayout, World, DEFAULT_WORLD_SEED};
 
@@ -49,6 +50,17 @@ pub fn named<T: Named + Send + Sync>() -> impl TypedValueParser<Value = T> {
             .map(|&(_, name, help)| PossibleValue::new(name).help(help)),
     )
     .map(|s| T::from_name(&s).expect("a listed value"))
+}
+
+/// The value parser of `--method`: the presets of [`Method::PRESETS`] with their meaning, in
+/// its order.
+pub fn method() -> impl TypedValueParser<Value = Method> {
+    PossibleValuesParser::new(
+        Method::PRESETS
+            .iter()
+            .map(|&(name, _, help)| PossibleValue::new(name).help(help)),
+    )
+    .map(|s| Method::parse(&s).expect("a listed method"))
 }
 
 /// `--object-layout`: where the objects of the real floor plans come from.

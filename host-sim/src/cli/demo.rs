@@ -12,7 +12,6 @@ use gman_host_sim::model::{Method, NavModel};
 use gman_host_sim::optim::adam::AdamConfig;
 use gman_host_sim::pretrain::fg::{self};
 use gman_host_sim::sim::eval::drive;
-use gman_host_sim::sim::render::draw_scene;
 use gman_host_sim::sim::{
     mean_interval, wilson_interval, Agent, EpisodeResult, EpisodeSpec, EvalReport, RewardKind,
     TargetKind, World,
@@ -20,6 +19,7 @@ use gman_host_sim::sim::{
 use gman_host_sim::train::run_dir::checkpoint_path;
 use gman_host_sim::train::state::{RunSettings, TrainState};
 use gman_host_sim::train::trainer::{train, TrainOptions};
+use gman_render::draw_scene;
 use serde::Serialize;
 
 use super::args::{PresetArg, WorldArgs};

@@ -27,7 +27,7 @@ pub struct EmdReportArgs {
     pub agent: PathBuf,
     /// Treat the model as this method (e.g. measure an `a3c-fg` checkpoint as
     /// `gman-nometa`: the pre-trained G, adapted at test time only).
-    #[arg(long, value_name = "METHOD")]
+    #[arg(long, value_name = "METHOD", value_parser = super::args::method())]
     pub method: Option<gman_host_sim::model::Method>,
     /// Split whose official episodes are run (val or test).
     #[arg(long, default_value = "val")]
@@ -136,7 +136,7 @@ fn write_outputs(
 ) -> Result<()> {
     if let Some(png) = &a.png {
         let scenes = emd_report::busiest_scenes(records);
-        let n = emd_report::plot(records, &scenes, world, png)?;
+        let n = gman_host_sim::fig3::draw(&emd_report::figure(records, &scenes, world), png)?;
         let names: Vec<&str> = scenes
             .iter()
             .filter_map(|&s| world.scenes.get(s).map(|sc| sc.name.as_str()))

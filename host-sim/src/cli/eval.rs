@@ -30,7 +30,7 @@ pub struct EvalArgs {
     pub agent: String,
     /// Treat a model file as this method (e.g. evaluate an `a3c-fg` checkpoint as
     /// `gman-nometa`: adversarial adaptation at test time only).
-    #[arg(long, value_enum)]
+    #[arg(long, value_parser = super::args::method())]
     pub method: Option<gman_host_sim::model::Method>,
     /// Overrides of the model's settings (default: the model's own).
     #[command(flatten)]

@@ -22,6 +22,7 @@ pub mod models;
 pub mod plot;
 pub mod pretrain_fg;
 pub mod pretrain_ps;
+pub mod progress;
 pub mod recipes;
 pub mod scene;
 pub mod shift_report;

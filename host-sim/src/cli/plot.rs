@@ -434,7 +434,7 @@ where
 pub fn cmd_plot(a: PlotArgs) -> Result<()> {
     use plotters::prelude::*;
     let curves = curves(&a)?;
-    let labels = gman_host_sim::sim::render::register_plot_font();
+    let labels = gman_render::register_plot_font();
     let xmax = curves
         .iter()
         .flat_map(|c| c.train.iter().map(|p| p.0).chain(c.val.iter().map(|p| p.0)))

@@ -5,8 +5,8 @@ use std::path::PathBuf;
 use anyhow::{bail, Result};
 use clap::Args;
 use gman_host_sim::sim::eval::drive;
-use gman_host_sim::sim::render::draw_scene;
 use gman_host_sim::sim::{EvalConfig, Split};
+use gman_render::draw_scene;
 
 use super::args::WorldArgs;
 use super::models::agent_factory;

@@ -247,7 +247,7 @@ fn print(study: &Study, markdown: bool) {
 /// Unseen SR against S, one line per row.
 fn draw(study: &Study, png: &Path) -> Result<()> {
     use plotters::prelude::*;
-    let labels = gman_host_sim::sim::render::register_plot_font();
+    let labels = gman_render::register_plot_font();
     let rows = row_order(study);
     let xmax = study.levels.last().map_or(1.0, |l| l.0).max(1.0) * 1.05;
     let ymax = study

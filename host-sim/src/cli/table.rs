@@ -227,7 +227,7 @@ fn short_name(r: &Row) -> &str {
 /// files' SR as dots, its mean as a vertical bar and ± one sample std as a horizontal one.
 fn draw_spread(rows: &[Row], png: &Path) -> Result<()> {
     use plotters::prelude::*;
-    let labels = gman_host_sim::sim::render::register_plot_font();
+    let labels = gman_render::register_plot_font();
     let n = rows.len();
     let xmax = rows
         .iter()

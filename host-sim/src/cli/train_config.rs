@@ -39,7 +39,7 @@ pub struct TrainArgs {
     #[command(flatten, next_help_heading = "World")]
     pub world: WorldArgs,
     /// Method (the rows of the paper's Tables 2 and 3).
-    #[arg(help_heading = "Basics", long, value_enum, default_value = "gman",
+    #[arg(help_heading = "Basics", long, value_parser = super::args::method(), default_value = "gman",
           long_help = format!("Method (the rows of the paper's Tables 2 and 3). Recipes, a preset with settings:\n{}", super::recipes::help()))]
     pub method: Method,
     /// Network sizes.
@@ -119,7 +119,7 @@ pub struct TrainArgs {
     pub cell_embed: usize,
     /// Training objective: `a3c` (the paper's actor-critic loss) or `dagger` (imitation of
     /// the shortest-path oracle on the learner's own states: the imitation ceiling).
-    #[arg(help_heading = "Optimisation", long, value_enum, default_value = "a3c")]
+    #[arg(help_heading = "Optimisation", long, value_parser = super::args::named::<Objective>(), default_value = "a3c")]
     pub objective: Objective,
     /// The privileged-feature ceiling: the policy sees the target's true feature in the
     /// current scene in place of G's output (not exportable; methods without inner loop).

@@ -28,7 +28,7 @@ pub fn model_from_blob(bytes: &[u8], method: Option<Method>) -> Result<NavModel>
 /// [`model_from_blob`] with the PS module a PS variant's blob needs (blobs do not carry it;
 /// the PS variants are evaluated with the `ps.ckpt` they were trained with, or the tensors of
 /// their training checkpoint). A PS module for a model without a PS input is refused.
-pub fn model_from_blob_with_ps(
+pub(crate) fn model_from_blob_with_ps(
     bytes: &[u8],
     method: Option<Method>,
     ps: Option<PsModule>,

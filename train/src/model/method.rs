@@ -99,17 +99,6 @@ impl Method {
     /// θ trained as in GMAN†, no inner loop (the control of GMAN†).
     pub const GmanNoemdPs: Method = Method::PRESETS[10].1;
 
-    /// Every preset, in `--help` order.
-    const ALL: [Method; Method::PRESETS.len()] = {
-        let mut out = [Method::A3c; Method::PRESETS.len()];
-        let mut i = 0;
-        while i < Method::PRESETS.len() {
-            out[i] = Method::PRESETS[i].1;
-            i += 1;
-        }
-        out
-    };
-
     fn preset(self) -> Option<&'static Preset> {
         Method::PRESETS.iter().find(|p| p.1 == self)
     }
@@ -160,17 +149,6 @@ impl Method {
     /// row).
     pub fn trains_generator(self) -> bool {
         self.train_theta
-    }
-}
-
-impl clap::ValueEnum for Method {
-    fn value_variants<'a>() -> &'a [Self] {
-        &Method::ALL
-    }
-
-    fn to_possible_value(&self) -> Option<clap::builder::PossibleValue> {
-        self.preset()
-            .map(|p| clap::builder::PossibleValue::new(p.0).help(p.2))
     }
 }
 

@@ -11,7 +11,9 @@ mod nav_model;
 mod record;
 
 pub use gman_core::spec::{InnerRule, ModelSpec, Named};
-pub use load::{load_model, load_model_with_ps, model_from_blob, model_from_blob_with_ps};
+pub use load::{load_model, load_model_with_ps, model_from_blob};
 pub use method::{InnerLoop, Method};
-pub use nav_model::{host_arena_len, NavModel, K};
-pub use record::{check_model_record, DimsMeta, ModelMeta, DEFAULT_MAX_INNER, NAVIGATOR_KIND};
+#[cfg(test)]
+pub(crate) use nav_model::host_arena_len;
+pub use nav_model::{NavModel, K};
+pub use record::{DimsMeta, ModelMeta};

@@ -221,7 +221,7 @@ impl NavModel {
     }
 
     /// Adds the model's tensors (and the PS module's) to a checkpoint.
-    pub fn add_to_checkpoint(&self, ck: &mut Checkpoint) -> Result<()> {
+    pub(crate) fn add_to_checkpoint(&self, ck: &mut Checkpoint) -> Result<()> {
         ck.add_tensors(&self.params)?;
         if let Some(ps) = &self.ps {
             ck.add_tensors(&ps.params)?;
@@ -334,7 +334,7 @@ impl NavModel {
 
 /// Floats of a navigator arena (capacity [`K`]) that fits `dims` in either adaptation
 /// mode with the host's [`Footprint::Fast`].
-pub fn host_arena_len(dims: &Dims) -> usize {
+pub(crate) fn host_arena_len(dims: &Dims) -> usize {
     use gman_core::navigator::{Efficient, Full, Navigator};
     Navigator::<Full, { K }>::arena_len_for(dims, Footprint::Fast).max(
         Navigator::<Efficient, { K }>::arena_len_for(dims, Footprint::Fast),
@@ -345,7 +345,7 @@ pub fn host_arena_len(dims: &Dims) -> usize {
 mod tests {
     use super::*;
 
-    use crate::model::DEFAULT_MAX_INNER;
+    use crate::model::record::DEFAULT_MAX_INNER;
     use gman_core::navigator::NoiseMode;
     use gman_core::spec::schema::Emd;
 
@@ -399,10 +399,7 @@ mod tests {
         let v = serde_json::to_value(custom).unwrap();
         assert!(serde_json::from_value::<Method>(v).is_err());
         assert!(Method::parse("gman-x").is_none());
-        assert_eq!(
-            <Method as clap::ValueEnum>::from_str("gman-cossim", false).unwrap(),
-            Method::GmanCossim
-        );
+        assert_eq!(Method::parse("gman-cossim"), Some(Method::GmanCossim));
     }
 
     /// The metadata the old untyped code wrote, written out: the typed settings must give
@@ -486,9 +483,6 @@ mod inner_rule_tests {
     use super::*;
     use crate::model::model_from_blob;
     use crate::optim::checkpoint::Checkpoint;
-    use gman_core::navigator::StepRule;
-    use gman_core::spec::schema::AdaptLossKind;
-    use gman_core::spec::InnerRule;
 
     #[test]
     fn inner_rule_round_trips_through_checkpoint_and_blob() {
@@ -502,16 +496,7 @@ mod inner_rule_tests {
         m.spec.inner_lr = 0.5;
         // The paper's rule writes no `inner_rule` key (old checkpoints' JSON unchanged).
         assert!(m.metadata().get("inner_rule").is_none());
-        m.spec.inner_rule = InnerRule {
-            disc_lr: Some(0.05),
-            disc_steps: 5,
-            step_rule: StepRule::PerGroup,
-            disc_head_reset: true,
-            adapt_loss: AdaptLossKind::Reference,
-            reference_critic: true,
-            head_only: true,
-            commit_delay: 17,
-        };
+        m.spec.inner_rule = ModelSpec::EVERY_SETTING_CHANGED.inner_rule;
         let mut ck = Checkpoint::new(m.metadata());
         m.add_to_checkpoint(&mut ck).unwrap();
         let back = NavModel::from_checkpoint(&ck).unwrap();

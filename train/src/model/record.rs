@@ -2,7 +2,6 @@
 //! the check of the model settings against the trainer's copy of them.
 
 use anyhow::{bail, Result};
-use gman_core::blob::AdaptSettings;
 use gman_core::spec::ModelSpec;
 use gman_core::Dims;
 use serde::{Deserialize, Serialize};
@@ -10,10 +9,11 @@ use serde::{Deserialize, Serialize};
 use super::method::Method;
 
 /// Default cap on inner updates per episode (gman-core's default).
-pub const DEFAULT_MAX_INNER: u32 = AdaptSettings::PAPER.max_inner;
+#[cfg(test)]
+pub(crate) const DEFAULT_MAX_INNER: u32 = gman_core::blob::AdaptSettings::PAPER.max_inner;
 
 /// The `kind` of a navigator checkpoint's metadata.
-pub const NAVIGATOR_KIND: &str = "gman-navigator";
+pub(crate) const NAVIGATOR_KIND: &str = "gman-navigator";
 
 /// The model settings of a navigator checkpoint (its metadata; the trainer adds its own
 /// `trainer` object beside them), typed and serde-serialised. Written by
@@ -22,7 +22,7 @@ pub const NAVIGATOR_KIND: &str = "gman-navigator";
 /// exist in the first checkpoints default to the values those runs had.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct ModelMeta {
-    /// Always [`NAVIGATOR_KIND`].
+    /// Always `"gman-navigator"`.
     pub kind: String,
     /// The method (its preset name).
     pub method: Method,
@@ -114,7 +114,7 @@ fn model_settings(metadata: &serde_json::Value) -> serde_json::Map<String, serde
 /// Refuses a checkpoint whose model settings differ from the copy the trainer stored beside
 /// them (the trainer settings' `model`), naming the first setting that differs and both values.
 /// Checkpoints without a copy (older builds, pre-training) pass.
-pub fn check_model_record(metadata: &serde_json::Value) -> Result<()> {
+pub(crate) fn check_model_record(metadata: &serde_json::Value) -> Result<()> {
     let Some(copy) = metadata
         .get("trainer")
         .and_then(|t| t.get("model"))

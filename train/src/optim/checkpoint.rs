@@ -196,7 +196,7 @@ impl Checkpoint {
     }
 
     /// Copies the named tensors into a new [`ParamSet`] (shapes checked against `like`).
-    pub fn params_like(&self, like: &ParamSet) -> Result<ParamSet, CheckpointError> {
+    pub(crate) fn params_like(&self, like: &ParamSet) -> Result<ParamSet, CheckpointError> {
         let mut out = ParamSet::new();
         for p in &like.tensors {
             let t = self.tensor(&p.name, p.rows, p.cols)?;

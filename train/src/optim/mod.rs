@@ -20,7 +20,7 @@ use gman_core::rng::Xoshiro128;
 use gman_core::Dims;
 
 /// The preset sizes as JSON (for checkpoint metadata and reports).
-pub fn dims_json(d: &Dims) -> serde_json::Value {
+pub(crate) fn dims_json(d: &Dims) -> serde_json::Value {
     let mut v = serde_json::json!({
         "attr": d.attr,
         "noise": d.noise,
@@ -41,7 +41,7 @@ pub fn dims_json(d: &Dims) -> serde_json::Value {
 }
 
 /// The 16-byte state of a [`Xoshiro128`] (little-endian words), for a checkpoint blob.
-pub fn rng_to_bytes(rng: &Xoshiro128) -> [u8; 16] {
+pub(crate) fn rng_to_bytes(rng: &Xoshiro128) -> [u8; 16] {
     let mut out = [0u8; 16];
     for (o, w) in out.chunks_exact_mut(4).zip(rng.state()) {
         o.copy_from_slice(&w.to_le_bytes());
@@ -50,7 +50,7 @@ pub fn rng_to_bytes(rng: &Xoshiro128) -> [u8; 16] {
 }
 
 /// Restores a [`Xoshiro128`] from [`rng_to_bytes`].
-pub fn rng_from_bytes(b: &[u8]) -> Result<Xoshiro128> {
+pub(crate) fn rng_from_bytes(b: &[u8]) -> Result<Xoshiro128> {
     if b.len() != 16 {
         bail!("RNG state has {} bytes, expected 16", b.len());
     }

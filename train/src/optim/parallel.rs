@@ -15,14 +15,14 @@ use super::params::ParamSet;
 
 /// Per-chunk gradient buffers and scratch space, reused across steps.
 #[derive(Debug)]
-pub struct ChunkPool<S> {
+pub(crate) struct ChunkPool<S> {
     /// One `(gradient buffer, scratch)` per chunk.
     pub chunks: Vec<(ParamSet, S)>,
 }
 
 /// The contiguous range of chunk `k` of `n_chunks` over `n` samples (sizes differ by at most
 /// one; empty when `n < n_chunks`).
-pub fn chunk_range(n: usize, n_chunks: usize, k: usize) -> Range<usize> {
+pub(crate) fn chunk_range(n: usize, n_chunks: usize, k: usize) -> Range<usize> {
     let n_chunks = n_chunks.max(1);
     let base = n / n_chunks;
     let rem = n % n_chunks;
@@ -45,7 +45,7 @@ impl<S: Send> ChunkPool<S> {
     /// Runs `work(range, grads, scratch)` for every chunk of `0..n` in parallel (grads
     /// zeroed first), then writes the chunk gradients' sum, added in chunk order, into
     /// `total` (overwritten). Returns the chunks' statistics summed in chunk order.
-    pub fn accumulate<R, F>(&mut self, n: usize, total: &mut ParamSet, work: F) -> Result<R>
+    pub(crate) fn accumulate<R, F>(&mut self, n: usize, total: &mut ParamSet, work: F) -> Result<R>
     where
         R: Send + Default + AddAssign,
         F: Fn(Range<usize>, &mut ParamSet, &mut S) -> Result<R> + Sync,

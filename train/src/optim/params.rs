@@ -2,7 +2,7 @@
 //!
 //! A [`ParamSet`] owns the trainable tensors of one or more networks (row-major `rows x cols`,
 //! biases are `rows x 1`). Forward and backward passes never run here: the store only hands
-//! out read-only [`Dense`] views and [`DenseGrads`] accumulators so that gman-core's kernels
+//! out read-only [`Dense`] views and [`DenseGrads`](gman_core::nn::dense::DenseGrads) accumulators so that gman-core's kernels
 //! compute on the same buffers the optimiser updates. A gradient buffer is simply another
 //! `ParamSet` with the same names and shapes ([`ParamSet::zeros_like`]).
 //!
@@ -10,12 +10,12 @@
 //! gman-core's seedable Gaussian noise ([`gman_core::rng`]).
 
 use anyhow::{anyhow, bail, Result};
-use gman_core::nn::dense::{Dense, DenseGrads};
+use gman_core::nn::dense::Dense;
 use gman_core::nn::matrix::MatRef;
 use gman_core::rng::{fill_gaussian, Xoshiro128};
 
 /// Standard deviation of the reference's weight initialisation.
-pub const INIT_STD: f32 = 0.02;
+pub(crate) const INIT_STD: f32 = 0.02;
 
 /// One named tensor.
 #[derive(Clone, Debug, PartialEq)]
@@ -148,7 +148,7 @@ impl ParamSet {
     }
 
     /// A tensor by name with a required shape, or an error naming it.
-    pub fn tensor_shaped(&self, name: &str, rows: usize, cols: usize) -> Result<&Param> {
+    pub(crate) fn tensor_shaped(&self, name: &str, rows: usize, cols: usize) -> Result<&Param> {
         let p = self.tensor(name)?;
         if p.rows != rows || p.cols != cols {
             bail!(
@@ -170,7 +170,10 @@ impl ParamSet {
     }
 
     /// Disjoint mutable slices of the named tensors, in the order of `names`.
-    pub fn slices_mut<const N: usize>(&mut self, names: [&str; N]) -> Result<[&mut [f32]; N]> {
+    pub(crate) fn slices_mut<const N: usize>(
+        &mut self,
+        names: [&str; N],
+    ) -> Result<[&mut [f32]; N]> {
         for (i, a) in names.iter().enumerate() {
             if names[..i].contains(a) {
                 bail!("parameter {a:?} requested twice");
@@ -213,7 +216,7 @@ impl ParamSet {
     }
 
     /// Checks that `other` has the same names and shapes in the same order.
-    pub fn check_same_layout(&self, other: &ParamSet) -> Result<()> {
+    pub(crate) fn check_same_layout(&self, other: &ParamSet) -> Result<()> {
         if self.tensors.len() != other.tensors.len() {
             bail!(
                 "parameter sets differ: [{}] vs [{}]",
@@ -254,12 +257,12 @@ impl ParamSet {
     }
 
     /// Total number of values.
-    pub fn num_values(&self) -> usize {
+    pub(crate) fn num_values(&self) -> usize {
         self.tensors.iter().map(|p| p.data.len()).sum()
     }
 
     /// Euclidean norm over all values (accumulated in f64, fixed order).
-    pub fn global_norm(&self) -> f64 {
+    pub(crate) fn global_norm(&self) -> f64 {
         // The squares are >= +0, so once the running sum is positive an all-zero tensor
         // adds nothing, and before that a sum of zeros is a zero of the same sign either
         // way: skipping the all-zero tensors (those a method does not train) gives the bits
@@ -295,12 +298,6 @@ impl ParamSet {
         })
     }
 
-    /// A matrix view of a tensor.
-    pub fn mat(&self, name: &str) -> Result<MatRef<'_>> {
-        let p = self.tensor(name)?;
-        Ok(MatRef::f32(p.rows, p.cols, &p.data)?)
-    }
-
     /// A gman-core dense layer (no gain) from a weight `w` (`out x in`) and a bias `b`
     /// (`out` values).
     pub fn dense(&self, w: &str, b: &str) -> Result<Dense<'_>> {
@@ -324,20 +321,25 @@ impl ParamSet {
 
     /// [`DenseGrads::Full`] accumulators over the gradient tensors named `w` and `b` of a
     /// gradient twin.
-    pub fn dense_grads(&mut self, w: &str, b: &str) -> Result<DenseGrads<'_>> {
+    #[cfg(test)]
+    pub(crate) fn dense_grads(
+        &mut self,
+        w: &str,
+        b: &str,
+    ) -> Result<gman_core::nn::dense::DenseGrads<'_>> {
         let [w, b] = self.slices_mut([w, b])?;
-        Ok(DenseGrads::Full { w, b })
+        Ok(gman_core::nn::dense::DenseGrads::Full { w, b })
     }
 }
 
 /// True when every value is ±0 (vectorised: chunks without an early exit inside).
-pub fn all_zero(v: &[f32]) -> bool {
+pub(crate) fn all_zero(v: &[f32]) -> bool {
     v.chunks(256)
         .all(|c| c.iter().fold(0u32, |a, x| a | (x.to_bits() << 1)) == 0)
 }
 
 /// True when every value is +0 bit for bit (as [`all_zero`]).
-pub fn all_plus_zero(v: &[f32]) -> bool {
+pub(crate) fn all_plus_zero(v: &[f32]) -> bool {
     v.chunks(256)
         .all(|c| c.iter().fold(0u32, |a, x| a | x.to_bits()) == 0)
 }
@@ -425,7 +427,9 @@ mod tests {
         assert!(g.slices_mut(["W", "W"]).is_err());
         assert!(g.slices_mut(["W", "x"]).is_err());
         match g.dense_grads("W", "b").unwrap() {
-            DenseGrads::Full { w, b } => assert_eq!((w.len(), b.len()), (6, 3)),
+            gman_core::nn::dense::DenseGrads::Full { w, b } => {
+                assert_eq!((w.len(), b.len()), (6, 3))
+            }
             _ => panic!("expected full grads"),
         }
         g.add_assign(&p).unwrap();

@@ -35,17 +35,17 @@ use gman_core::Dims;
 use super::params::{Init, ParamSet, INIT_STD};
 
 /// Name of the critic's hidden weights, `DH x (F + A)` (feature columns first).
-pub const CRITIC_W1: &str = "CriticW1";
+pub(crate) const CRITIC_W1: &str = "CriticW1";
 /// Name of the critic's hidden bias, `DH`.
-pub const CRITIC_B1: &str = "CriticB1";
+pub(crate) const CRITIC_B1: &str = "CriticB1";
 /// Name of the critic's output weights, `1 x DH`.
-pub const CRITIC_W2: &str = "CriticW2";
+pub(crate) const CRITIC_W2: &str = "CriticW2";
 /// Name of the critic's output bias, `1`.
-pub const CRITIC_B2: &str = "CriticB2";
+pub(crate) const CRITIC_B2: &str = "CriticB2";
 
 /// Fresh critic parameters for `dims` (hidden width `disc_hidden`, input `feat + attr`),
 /// weights `N(0, 0.02)`, biases 0.
-pub fn init_critic(dims: &Dims, rng: &mut Xoshiro128) -> Result<ParamSet> {
+pub(crate) fn init_critic(dims: &Dims, rng: &mut Xoshiro128) -> Result<ParamSet> {
     let mut p = ParamSet::new();
     let dh = dims.disc_hidden;
     p.add(
@@ -63,7 +63,7 @@ pub fn init_critic(dims: &Dims, rng: &mut Xoshiro128) -> Result<ParamSet> {
 
 /// A read-only view of the conditional critic.
 #[derive(Clone, Copy, Debug)]
-pub struct CondCritic<'a> {
+pub(crate) struct CondCritic<'a> {
     /// Hidden layer over `[x; a]`.
     pub l1: Dense<'a>,
     /// Output weights (`DH`).
@@ -76,10 +76,10 @@ pub struct CondCritic<'a> {
 
 /// Gradient accumulators (`+=`) of the critic's parameters: gman-core's [`DiscGrads`] (the
 /// hidden layer over `[x; a]`, the output weights and bias).
-pub type CriticGrads<'g> = DiscGrads<'g>;
+pub(crate) type CriticGrads<'g> = DiscGrads<'g>;
 
 /// Accumulators over a gradient twin of [`init_critic`]'s parameters.
-pub fn critic_grads(g: &mut ParamSet) -> Result<CriticGrads<'_>> {
+pub(crate) fn critic_grads(g: &mut ParamSet) -> Result<CriticGrads<'_>> {
     let [w1, b1, w2, b2] = g.slices_mut([CRITIC_W1, CRITIC_B1, CRITIC_W2, CRITIC_B2])?;
     let Some(b2) = b2.first_mut() else {
         bail!("{CRITIC_B2} is empty");
@@ -93,7 +93,7 @@ pub fn critic_grads(g: &mut ParamSet) -> Result<CriticGrads<'_>> {
 
 /// Scratch of one critic evaluation (sized by [`CriticScratch::new`]).
 #[derive(Clone, Debug)]
-pub struct CriticScratch {
+pub(crate) struct CriticScratch {
     /// Hidden activation after LeakyReLU (`DH`).
     pub h: Vec<f32>,
     /// `w2 ⊙ m`, or a hidden-layer gradient (`DH`).
@@ -124,7 +124,7 @@ impl CriticScratch {
 
 /// Sums over a chunk of samples of one critic step (divide by the batch size for means).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct CriticSums {
+pub(crate) struct CriticSums {
     /// Σ D(x_real, a).
     pub real: f64,
     /// Σ D(x_fake, a).
@@ -146,7 +146,7 @@ impl std::ops::AddAssign for CriticSums {
 
 impl<'a> CondCritic<'a> {
     /// A view over [`init_critic`]-shaped parameters; `feat` is the feature width F.
-    pub fn from_params(p: &'a ParamSet, feat: usize) -> Result<CondCritic<'a>> {
+    pub(crate) fn from_params(p: &'a ParamSet, feat: usize) -> Result<CondCritic<'a>> {
         let l1 = p.dense(CRITIC_W1, CRITIC_B1)?;
         let dh = l1.out_dim();
         let w2 = &p.tensor_shaped(CRITIC_W2, 1, dh)?.data;
@@ -161,6 +161,7 @@ impl<'a> CondCritic<'a> {
     }
 
     /// Hidden width DH.
+    #[cfg(test)]
     pub fn hidden(&self) -> usize {
         self.l1.out_dim()
     }
@@ -171,6 +172,7 @@ impl<'a> CondCritic<'a> {
     }
 
     /// A scratch sized for this critic.
+    #[cfg(test)]
     pub fn scratch(&self) -> CriticScratch {
         CriticScratch::new(self.hidden(), self.feat, self.attr())
     }
@@ -196,7 +198,7 @@ impl<'a> CondCritic<'a> {
     }
 
     /// Adds `coef · ∂D_c(x, a)/∂ω` for the sample just scored (activations in `s`).
-    pub fn add_score_grad(
+    pub(crate) fn add_score_grad(
         &self,
         x: &[f32],
         a: &[f32],
@@ -239,7 +241,7 @@ impl<'a> CondCritic<'a> {
     /// over a chunk of `eps.len()` samples (rows of `real`, `fake`, `attr`), each weighted
     /// `inv_n` (1 / the full batch size). Returns the chunk's sums.
     #[allow(clippy::too_many_arguments)]
-    pub fn wgan_gp_accumulate(
+    pub(crate) fn wgan_gp_accumulate(
         &self,
         real: &[f32],
         fake: &[f32],

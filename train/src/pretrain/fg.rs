@@ -36,6 +36,7 @@ use super::generator::{gen_names, generator_view, init_generator, GenBuffers};
 use super::parallel::ChunkPool;
 use super::params::ParamSet;
 use super::{dims_json, rng_from_bytes, rng_to_bytes};
+use crate::progress::BarKind;
 use crate::sim::util::{hash2, mix64};
 use crate::sim::{CategoryId, SceneId, Split, World, WorldSource};
 
@@ -323,7 +324,11 @@ impl std::ops::AddAssign for GenSums {
 }
 
 /// Per-category mean feature of `samples` (rows indexed by category id; zeros when absent).
-pub fn class_means(samples: &[FeatureSample], n_categories: usize, f: usize) -> Vec<Vec<f32>> {
+pub(crate) fn class_means(
+    samples: &[FeatureSample],
+    n_categories: usize,
+    f: usize,
+) -> Vec<Vec<f32>> {
     let mut sums = vec![vec![0f64; f]; n_categories];
     let mut counts = vec![0usize; n_categories];
     for s in samples {
@@ -491,7 +496,7 @@ impl<'a> FgSteps<'a> {
 
 /// Runs `cfg.iters - state.iters_done` generator steps (each after `cfg.n_critic` critic
 /// steps) on `data.train`. Deterministic for a seed: batches and noise are drawn on the
-/// calling thread and gradients are summed in a fixed order ([`ChunkPool`]).
+/// calling thread and gradients are summed in a fixed order (`optim::parallel::ChunkPool`).
 pub fn train_fg(
     world: &World,
     dims: &Dims,
@@ -507,7 +512,7 @@ pub fn train_fg(
     }
     let mut steps = FgSteps::new(world, dims, data, cfg, state);
     let todo = cfg.iters.saturating_sub(state.iters_done);
-    let pb = crate::progress::bar(todo as u64, crate::progress::PRETRAIN, cfg.progress);
+    let pb = crate::progress::bar(BarKind::Pretrain, todo as u64, cfg.progress);
     let log_every = (cfg.iters / 100).max(1);
     for _ in 0..todo {
         let mut last = CriticSums::default();
@@ -536,7 +541,7 @@ pub fn train_fg(
         }
         pb.inc(1);
     }
-    pb.finish_and_clear();
+    pb.finish();
     Ok(())
 }
 
@@ -589,7 +594,7 @@ fn cos(a: &[f32], b: &[f32]) -> f64 {
 /// Scores prototypes (`protos[c]` for category id `c`, `None` when absent) on `samples`:
 /// `group` are the categories competing within the group, `all` the categories of the
 /// generalised nearest-prototype test.
-pub fn eval_group(
+pub(crate) fn eval_group(
     protos: &[Option<Vec<f32>>],
     group: &[CategoryId],
     all: &[CategoryId],
@@ -662,7 +667,7 @@ pub fn eval_group(
 
 /// Generated prototype of every category in `cats`: the mean of `k` samples `G(SE(c), z)`
 /// with noise from a fixed seed (indexed by category id; `None` for the others).
-pub fn generated_prototypes(
+pub(crate) fn generated_prototypes(
     world: &World,
     gen: &ParamSet,
     dims: &Dims,
@@ -703,7 +708,7 @@ pub struct FgEval {
 }
 
 /// Scores G (prototypes from `noise_samples` noise draws) on the dataset's report groups.
-pub fn evaluate_fg(
+pub(crate) fn evaluate_fg(
     world: &World,
     gen: &ParamSet,
     dims: &Dims,
@@ -778,7 +783,7 @@ pub struct ReferenceEval {
 }
 
 /// Data-source label of a world.
-pub fn source_label(world: &World) -> String {
+pub(crate) fn source_label(world: &World) -> String {
     match &world.source {
         WorldSource::Synthetic => "synthetic".into(),
         WorldSource::Data(d) | WorldSource::Offline(d) => d.display().to_string(),

@@ -11,7 +11,7 @@ use super::params::{Init, ParamSet, INIT_STD};
 
 /// The names of G's tensors, exactly gman-core's blob tensor ids:
 /// `[GenW1, GenB1, GenW2, GenB2]`.
-pub fn gen_names() -> [&'static str; 4] {
+pub(crate) fn gen_names() -> [&'static str; 4] {
     TensorId::GENERATOR.map(TensorId::name)
 }
 
@@ -45,7 +45,7 @@ pub fn generator_view(p: &ParamSet) -> Result<Generator<'_>> {
 
 /// Owned activation and scratch buffers for one sample's forward and backward pass of G.
 #[derive(Clone, Debug)]
-pub struct GenBuffers {
+pub(crate) struct GenBuffers {
     /// Hidden activation (`H`).
     pub h1: Vec<f32>,
     /// Generated feature (`F`), valid after [`GenBuffers::forward`].

@@ -13,13 +13,14 @@
 //!   gradient is gman-core's one closed form
 //!   ([`gman_core::nets::discriminator::add_penalty_grad`]).
 //! * [`fg`]: `gman pretrain-fg` (paper Sec. 4.1).
-//! * [`ps`]: `gman pretrain-ps` (paper Sec. 5.2): the PS module's BCE gradient and training;
-//!   the network the PS variants run at inference is [`crate::ps`] (re-exported here).
+//! * [`ps`]: `gman pretrain-ps` (paper Sec. 5.2): the PS module's BCE gradient and training,
+//!   and, re-exported from the private `ps_net`, the network the PS variants run at inference.
 
 pub mod critic;
 pub mod fg;
 pub mod generator;
 pub mod ps;
+mod ps_net;
 
 // The plumbing these modules build on, under the paths they have always used (`super::adam`).
 use crate::optim::{adam, checkpoint, dims_json, parallel, params, rng_from_bytes, rng_to_bytes};

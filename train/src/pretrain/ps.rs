@@ -1,5 +1,5 @@
-//! Pre-training of the PS module (`gman pretrain-ps`; the network itself, as the navigation
-//! model uses it, is [`crate::ps`]).
+//! Pre-training of the PS module (`gman pretrain-ps`), and the network itself as the
+//! navigation model uses it ([`PsModule`], re-exported from `ps_net.rs` beside this file).
 //!
 //! Trained supervised on `Observation::ps_target` (the mean attribute vector of the
 //! categories in view, zeros when none) for views of **training** scenes only (which contain
@@ -24,10 +24,12 @@ use super::fg::source_label;
 use super::parallel::ChunkPool;
 use super::params::ParamSet;
 use super::rng_to_bytes;
+use crate::progress::BarKind;
 use crate::sim::util::hash2;
 use crate::sim::{SceneId, Split, World};
 
-pub use crate::ps::{PsBuffers, PsModule, PS_B1, PS_B2, PS_W1, PS_W2};
+pub use super::ps_net::{PsBuffers, PsModule};
+pub(crate) use super::ps_net::{PS_B1, PS_B2, PS_W1, PS_W2};
 
 impl PsModule {
     /// Accumulates the gradient of the BCE loss, weighted `coef`, of the sample in `buf`
@@ -237,7 +239,7 @@ pub struct PsEval {
 }
 
 /// Mean training target (the baseline predictor).
-pub fn mean_target(world: &World, views: &[PsView]) -> [f32; ATTR_DIM] {
+pub(crate) fn mean_target(world: &World, views: &[PsView]) -> [f32; ATTR_DIM] {
     let mut acc = [0f64; ATTR_DIM];
     for v in views {
         let t = &world.observation(v.scene, v.state).ps_target;
@@ -251,7 +253,7 @@ pub fn mean_target(world: &World, views: &[PsView]) -> [f32; ATTR_DIM] {
 }
 
 /// Scores `ps` and the mean-target baseline on the report groups.
-pub fn evaluate_ps(
+pub(crate) fn evaluate_ps(
     world: &World,
     ps: &PsModule,
     data: &PsData,
@@ -329,7 +331,7 @@ pub fn train_ps(
     let mut idx = vec![0usize; b];
     let mut history = Vec::new();
     let log_every = (cfg.iters / 100).max(1);
-    let pb = crate::progress::bar(cfg.iters as u64, crate::progress::PRETRAIN, cfg.progress);
+    let pb = crate::progress::bar(BarKind::Pretrain, cfg.iters as u64, cfg.progress);
     let n = data.train.len() as u64;
     for it in 1..=cfg.iters {
         for i in idx.iter_mut() {
@@ -367,7 +369,7 @@ pub fn train_ps(
         }
         pb.inc(1);
     }
-    pb.finish_and_clear();
+    pb.finish();
     Ok((ps, adam, rng, history))
 }
 

@@ -20,6 +20,7 @@ use super::reward::RewardKind;
 use super::types::{CategoryId, RoomType, SceneId, TargetKind};
 use super::util::hash2;
 use super::world::{EpisodeSpec, World};
+use crate::progress::BarKind;
 
 /// What an agent is told at the start of an episode.
 #[derive(Clone, Debug)]
@@ -216,11 +217,7 @@ where
     F: Fn(usize) -> Box<dyn Agent + Send> + Sync,
 {
     let next = AtomicUsize::new(0);
-    let bar = crate::progress::bar(
-        episodes.len() as u64,
-        "{spinner} eval [{elapsed_precise}] {bar:40} {pos}/{len} episodes ({eta})",
-        cfg.progress,
-    );
+    let bar = crate::progress::bar(BarKind::Eval, episodes.len() as u64, cfg.progress);
     let out: Mutex<Vec<Option<EpisodeResult>>> = Mutex::new(vec![None; episodes.len()]);
     let workers = rayon::current_num_threads().max(1);
     (0..workers).into_par_iter().for_each(|w| {
@@ -251,7 +248,7 @@ where
             o[i] = Some(r);
         }
     });
-    bar.finish_and_clear();
+    bar.finish();
     out.into_inner()
         .expect("result lock")
         .into_iter()

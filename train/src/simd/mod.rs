@@ -32,7 +32,7 @@ use gman_core::{
 /// has AVX2 (x86-64 only: elsewhere the host runs gman-core's portable build).
 #[cfg(target_arch = "x86_64")]
 #[derive(Debug)]
-pub struct Avx2 {
+pub(crate) struct Avx2 {
     _private: (),
 }
 

@@ -15,6 +15,7 @@
 //! back-propagation through the policy (fusion, LSTM, heads) and, through the generated
 //! feature x_t, into G is [`super::bptt`].
 
+use gman_core::spec::Named;
 use gman_core::NUM_ACTIONS;
 
 use super::step::StepRec;
@@ -44,17 +45,7 @@ impl Default for A3cConfig {
 }
 
 /// What the policy is trained to do.
-#[derive(
-    Clone,
-    Copy,
-    Debug,
-    Default,
-    PartialEq,
-    Eq,
-    serde::Serialize,
-    serde::Deserialize,
-    clap::ValueEnum,
-)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum Objective {
     /// The A3C loss L_nav of the module docs (the paper's). Default.
@@ -69,13 +60,32 @@ pub enum Objective {
     Dagger,
 }
 
+impl Named for Objective {
+    const NAMES: &'static [(Objective, &'static str, &'static str)] = &[
+        (
+            Objective::A3c,
+            "a3c",
+            "The A3C loss L_nav of the module docs (the paper's). Default",
+        ),
+        (
+            Objective::Dagger,
+            "dagger",
+            "Imitation of the shortest-path oracle, DAgger-style: the learner acts (sampled \
+             actions, so it visits its own states), and every step is labelled with the \
+             oracle's optimal actions (uniform over the actions on a shortest path to a \
+             goal-visible state, Done once the target is visible). The policy term becomes \
+             the cross-entropy `−Σ_a π*(a) log π(a)` (no entropy bonus); the critic keeps its \
+             A3C value loss. A ceiling diagnostic: what this network can learn from these \
+             observations",
+        ),
+    ];
+    const VALUES: &'static [Objective] = &[Objective::A3c, Objective::Dagger];
+}
+
 impl Objective {
     /// The name used on the command line and in checkpoints.
     pub fn name(self) -> &'static str {
-        match self {
-            Objective::A3c => "a3c",
-            Objective::Dagger => "dagger",
-        }
+        Named::name(self)
     }
 }
 

@@ -91,7 +91,7 @@ impl CommStats {
 
 /// A worker's share of an update as exchanged: its gradient and its episodes (their
 /// statistics and D after each).
-pub type WorkerShare = (ParamSet, Vec<Episode>);
+pub(crate) type WorkerShare = (ParamSet, Vec<Episode>);
 
 /// An episode's statistics and D after it.
 pub type Episode = (EpisodeStats, Vec<Vec<f32>>);
@@ -104,7 +104,7 @@ const SAME_AS_MODEL: u64 = u64::MAX;
 /// feature, which the outer step and `metrics.csv` do not use; D after an episode as a marker
 /// where it equals the model's `omega`, tensor by tensor, as in the methods without an inner
 /// loop).
-pub fn encode_shares(shares: &[(&ParamSet, &[Episode])], omega: &[&[f32]]) -> Vec<u8> {
+pub(crate) fn encode_shares(shares: &[(&ParamSet, &[Episode])], omega: &[&[f32]]) -> Vec<u8> {
     let mut b = Vec::new();
     put_u64(&mut b, shares.len() as u64);
     for (g, eps) in shares {
@@ -140,7 +140,7 @@ pub fn encode_shares(shares: &[(&ParamSet, &[Episode])], omega: &[&[f32]]) -> Ve
 
 /// Decodes what [`encode_shares`] wrote, the gradients into twins of `like`, D's tensors
 /// marked unchanged as copies of `omega`.
-pub fn decode_shares(
+pub(crate) fn decode_shares(
     bytes: &[u8],
     like: &ParamSet,
     omega: &[&[f32]],
@@ -223,14 +223,14 @@ pub fn decode_shares(
 }
 
 /// A 64-bit FNV-1a hash of `bytes` (the ranks' agreement check; not cryptographic).
-pub fn fnv1a(bytes: &[u8]) -> u64 {
+pub(crate) fn fnv1a(bytes: &[u8]) -> u64 {
     let mut h = crate::sim::util::Fnv::new();
     h.eat(bytes);
     h.0
 }
 
 /// The hash of a parameter store's values (bits, in tensor order).
-pub fn params_hash(p: &ParamSet) -> u64 {
+pub(crate) fn params_hash(p: &ParamSet) -> u64 {
     let mut b = Vec::with_capacity(4 * p.num_values());
     for t in &p.tensors {
         for v in &t.data {

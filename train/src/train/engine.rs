@@ -44,7 +44,7 @@
 //!   and biases of the actor head and of G, ~1.5k floats for `mcu`; a waiting segment keeps
 //!   a copy, `OwnCopy`).
 //!   All the update's waiting segments then join one batched BPTT at its end (or earlier,
-//!   whenever [`MAX_PENDING_STEPS`] steps wait), longest first, then in the order they
+//!   whenever `lockstep::MAX_PENDING_STEPS` steps wait), longest first, then in the order they
 //!   completed (tick, then slot).
 //! * Otherwise (the Full mode, whose θ_i is all of G; and `B = 1`) the segments completing
 //!   at a tick run **now**, as one batched BPTT (longest first, then by slot), each row
@@ -64,8 +64,7 @@
 //! **Episodes per update.** A worker starts episodes (`e = 0, 1, ..`, from `sample(e)`) while
 //! it has taken fewer than `min_steps` steps in the update, and the update ends when all its
 //! running episodes have ended; so an update holds at least `B` episodes per worker.
-//!
-//! [`MAX_PENDING_STEPS`]: super::lockstep::MAX_PENDING_STEPS
+
 use anyhow::{bail, Result};
 use gman_core::navigator::memory::AdaptMode;
 use gman_core::navigator::{Efficient, Full, Selection};
@@ -80,7 +79,7 @@ use crate::sim::{EpisodeSpec, World};
 /// Runs one worker's share of an update with `s.batch_envs` environments in lockstep (see
 /// the module docs): episodes `e = 0, 1, ..` from `sample(e)` (spec and step limit), the A3C
 /// gradient of every segment accumulated into `grads`. Returns the finished episodes sorted
-/// by index, each with D after it (empty when it is the model's ω, see [`Finished`]).
+/// by index, each with D after it (empty when it is the model's ω, see `lockstep::Finished`).
 pub fn run_worker(
     world: &World,
     model: &NavModel,

@@ -26,7 +26,7 @@ pub const MAX_BATCH_ENVS: usize = 256;
 
 /// With `B > 1`, the backward of the waiting segments runs once this many steps wait (and at
 /// the end of the update): the bound on the memory they hold.
-pub const MAX_PENDING_STEPS: usize = 4096;
+pub(crate) const MAX_PENDING_STEPS: usize = 4096;
 
 /// What the vectorised worker needs besides the model.
 #[derive(Clone, Copy, Debug)]
@@ -50,21 +50,21 @@ pub struct VecSettings<'a> {
 /// (checked once per update) the list is empty, which the trainer's delta sum
 /// `Σ_e (ω_e − ω)` (a zip over the tensors given) reads as no change — the same bits as the
 /// +0 that `ω_e − ω` gives for every value, without copying D for every episode.
-pub type Finished = (u32, EpisodeStats, Vec<Vec<f32>>);
+pub(crate) type Finished = (u32, EpisodeStats, Vec<Vec<f32>>);
 
 /// A segment's loss, with its episode and completion number: `(e, seq, loss)`.
 pub(super) type SegLoss = (u32, u32, SegmentLoss);
 
 /// True when `model`'s method runs without an inner loop in training (the engine's shared
 /// lanes serve it; the others run one navigator per episode).
-pub fn without_inner_loop(model: &NavModel) -> bool {
+pub(crate) fn without_inner_loop(model: &NavModel) -> bool {
     !model.method.adapts_in_training()
 }
 
 /// Refuses a `B` out of `1..=MAX_BATCH_ENVS`, and `B > 1` for a method with an inner loop
 /// in training with the second-order meta-gradient (its reverse recursion runs over one
 /// episode's inner steps, so the engine runs those episodes one at a time).
-pub fn check_batch_envs(model: &NavModel, batch_envs: usize, meta_order: u8) -> Result<()> {
+pub(crate) fn check_batch_envs(model: &NavModel, batch_envs: usize, meta_order: u8) -> Result<()> {
     if !(1..=MAX_BATCH_ENVS).contains(&batch_envs) {
         bail!("--batch-envs must be in 1..={MAX_BATCH_ENVS}, got {batch_envs}");
     }

@@ -52,7 +52,7 @@
 //! # J_φθᵀ v_φ without a Jacobian
 //! `g_φ = Σ_t (J_softmax(p_t) ∂L_ad/∂p_t) ⊗ [h_t; 1]` depends on θ only through the scores
 //! `d_t = D(x_t(θ))`. So `J_φθᵀ v_φ = ∇_θ ⟨g_φ(θ), v_φ⟩ = Σ_t c_t ∇_θ D(x_t(θ))` with
-//! `c_t = ∂⟨g_φ, v_φ⟩/∂d_t`, computed in closed form (see [`score_coefficients`]), and the
+//! `c_t = ∂⟨g_φ, v_φ⟩/∂d_t`, computed in closed form (see `score_coefficients`), and the
 //! sum is back-propagated into G by [`gman_core::adapt::generator_score_backward`] — exact,
 //! no finite differences.
 
@@ -87,12 +87,12 @@ fn len_of(ids: &[TensorId], d: &Dims) -> usize {
 }
 
 /// Length of the flat θ vector.
-pub fn theta_len(d: &Dims) -> usize {
+pub(crate) fn theta_len(d: &Dims) -> usize {
     len_of(&THETA, d)
 }
 
 /// Length of the flat φ vector.
-pub fn phi_len(d: &Dims) -> usize {
+pub(crate) fn phi_len(d: &Dims) -> usize {
     len_of(&PHI, d)
 }
 
@@ -112,7 +112,7 @@ pub fn take_adapted(g: &mut ParamSet) -> Result<(Vec<f32>, Vec<f32>)> {
 }
 
 /// Adds flat θ and φ vectors into the matching tensors of `g`.
-pub fn add_adapted(g: &mut ParamSet, theta: &[f32], phi: &[f32]) -> Result<()> {
+pub(crate) fn add_adapted(g: &mut ParamSet, theta: &[f32], phi: &[f32]) -> Result<()> {
     for (ids, v) in [(&THETA[..], theta), (&PHI[..], phi)] {
         let mut off = 0;
         for id in ids {
@@ -151,7 +151,7 @@ pub struct DiscParams {
 
 impl DiscParams {
     /// Copies a (Full-mode) discriminator view.
-    pub fn from_view(d: &Discriminator<'_>) -> Result<DiscParams> {
+    pub(crate) fn from_view(d: &Discriminator<'_>) -> Result<DiscParams> {
         if d.l1.gain.is_some() {
             bail!("the second-order meta-gradient needs the Full adaptation mode");
         }
@@ -419,7 +419,7 @@ pub fn inner_grads(
 /// * paper form, `∂L/∂p_t = −d_t p_t / (n ‖p_t‖)`: `c_t = −⟨p_t, q_t⟩ / (n ‖p_t‖)`;
 /// * reference form, `∂L/∂p_t = −d_t u`, `u = v/‖v‖`, `v = −Σ_s d_s p_s`: with
 ///   `Q = Σ_t d_t q_t`, `c_t = −⟨u, q_t⟩ + ⟨p_t, Q − u ⟨u, Q⟩⟩ / ‖v‖`.
-pub fn score_coefficients(
+pub(crate) fn score_coefficients(
     kind: AdaptLossKind,
     d: &[f32],
     probs: &[f32],
@@ -488,7 +488,7 @@ pub fn score_coefficients(
 }
 
 /// `J_φθᵀ v_φ = ∇_θ ⟨g_φ(θ), v_φ⟩` at `theta` (exact; see the module docs).
-pub fn phi_theta_vjp(
+pub(crate) fn phi_theta_vjp(
     s: &InnerSetup,
     theta: &[f32],
     step: &InnerStep,
@@ -533,7 +533,12 @@ fn norm(v: &[f32]) -> f64 {
 
 /// `H_θθ v ≈ [g_θ(θ + εv) − g_θ(θ − εv)] / (2ε)`, `ε = 1e-3 · max(‖θ‖, 1) / ‖v‖` (central
 /// finite differences of exact gradients; see the module docs for the error).
-pub fn hvp_theta(s: &InnerSetup, theta: &[f32], step: &InnerStep, v: &[f32]) -> Result<Vec<f32>> {
+pub(crate) fn hvp_theta(
+    s: &InnerSetup,
+    theta: &[f32],
+    step: &InnerStep,
+    v: &[f32],
+) -> Result<Vec<f32>> {
     ensure!(v.len() == theta.len(), "v_θ length mismatch");
     let nv = norm(v);
     if nv == 0.0 {

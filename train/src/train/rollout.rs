@@ -40,7 +40,7 @@ pub struct EpisodeStats {
 
 /// The oracle's distribution over the actions on a shortest path to a goal-visible state
 /// (Done when the target is visible or cannot be reached).
-pub fn expert_distribution(env: &Env<'_>) -> [f32; NUM_ACTIONS] {
+pub(crate) fn expert_distribution(env: &Env<'_>) -> [f32; NUM_ACTIONS] {
     let acts = env.oracle().optimal_actions();
     let mut e = [0.0f32; NUM_ACTIONS];
     if acts.is_empty() {

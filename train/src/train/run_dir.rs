@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{bail, Context, Result};
 
 /// Columns of `metrics.csv`, one row per update.
-pub const CSV_HEADER: &str = "update,episodes,env_steps,success_rate,mean_reward,mean_steps,policy_loss,value_loss,entropy,grad_norm,adaptations,rollbacks,disc_gap,adapt_loss,elapsed_s";
+pub(crate) const CSV_HEADER: &str = "update,episodes,env_steps,success_rate,mean_reward,mean_steps,policy_loss,value_loss,entropy,grad_norm,adaptations,rollbacks,disc_gap,adapt_loss,elapsed_s";
 
 /// Path of the run's checkpoint.
 pub fn checkpoint_path(out: &Path) -> PathBuf {
@@ -20,7 +20,7 @@ fn csv_columns() -> usize {
     CSV_HEADER.split(',').count()
 }
 
-/// What [`repair_csv`] kept and dropped.
+/// What `repair_csv` kept and dropped.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub struct CsvRepair {
     /// Rows kept (without the header), in order: one per update `1..=update` that had a
@@ -37,7 +37,7 @@ pub struct CsvRepair {
 /// dropping (and listing) malformed, duplicate and out-of-order rows; rows after `update`
 /// (written after the checkpoint a run resumes from) are dropped silently. The header line
 /// may be absent (its first data row is then kept, not skipped).
-pub fn repair_csv(text: &str, update: u64) -> CsvRepair {
+pub(crate) fn repair_csv(text: &str, update: u64) -> CsvRepair {
     let mut r = CsvRepair::default();
     let mut last = 0u64;
     for (i, line) in text.lines().enumerate() {
@@ -128,7 +128,7 @@ fn held_locks() -> &'static std::sync::Mutex<Vec<PathBuf>> {
 }
 
 /// Name of the lock file in a run directory.
-pub const LOCK_FILE: &str = ".lock";
+pub(crate) const LOCK_FILE: &str = ".lock";
 
 /// Takes an exclusive advisory lock (`flock`, through `fs4`) on `RUN_DIR/.lock`, so that a
 /// second trainer writing into the same run directory is refused with a clear error instead

@@ -333,7 +333,7 @@ pub struct TrainerMeta {
     /// A copy of the model's settings as the checkpoint was written (the metadata's top-level
     /// keys other than `trainer`), so that settings the tensors cannot show (a 3 x 3 map
     /// relabelled 1 x 9, the adaptation mode) are not changed unnoticed
-    /// ([`check_model_record`](crate::model::check_model_record)); absent in checkpoints of older builds.
+    /// (`model::record::check_model_record`); absent in checkpoints of older builds.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub model: Option<serde_json::Value>,
 }
@@ -439,7 +439,7 @@ impl TrainState {
     /// Counts one update that ran `episodes` episodes of `env_steps` steps in all. A counter
     /// that would pass `u64::MAX` (a corrupt or hand-edited checkpoint) is an error that names
     /// it; nothing is counted then.
-    pub fn count_update(&mut self, episodes: u64, env_steps: u64) -> Result<()> {
+    pub(crate) fn count_update(&mut self, episodes: u64, env_steps: u64) -> Result<()> {
         let add = |what: &str, now: u64, n: u64| {
             now.checked_add(n).ok_or_else(|| {
                 anyhow!("the {what} counter ({now}) cannot count {n} more: it would pass u64::MAX; the checkpoint's counters are corrupt")
@@ -453,7 +453,7 @@ impl TrainState {
     }
 
     /// The `trainer` object of this state's checkpoint, for a run with settings `run`.
-    pub fn trainer_meta(&self, run: &RunSettings) -> TrainerMeta {
+    pub(crate) fn trainer_meta(&self, run: &RunSettings) -> TrainerMeta {
         TrainerMeta {
             version: TRAINER_META_VERSION,
             update: self.update,

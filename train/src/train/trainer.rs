@@ -65,7 +65,6 @@ use std::time::Instant;
 
 use anyhow::{anyhow, bail, Context, Result};
 use gman_core::blob::TensorId;
-use indicatif::{ProgressBar, ProgressStyle};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
@@ -80,6 +79,7 @@ use super::run_dir::{checkpoint_path, lock_run_dir, open_csv};
 use super::state::{RunSettings, TrainState};
 use crate::model::NavModel;
 use crate::optim::params::ParamSet;
+use crate::progress::{BarKind, NoProgress, Progress};
 use crate::sim::{EpisodeLimits, EpisodeSpec, RewardKind, World};
 
 /// Options of one training invocation: the run's stored settings and what only this
@@ -160,7 +160,7 @@ pub fn train_in(
     let bar = if lead {
         progress_bar(opts, state)
     } else {
-        ProgressBar::hidden()
+        Box::new(NoProgress)
     };
     let mut workers: Vec<(Worker, ParamSet)> = (0..local)
         .map(|_| (Worker::new(&state.model), state.model.params.zeros_like()))
@@ -201,7 +201,7 @@ pub fn train_in(
             check_ranks_agree(dist.group, state)?;
         }
         if let Some(csv) = csv.as_mut() {
-            log.row(csv, state, &episodes, grad_norm, &bar)?;
+            log.row(csv, state, &episodes, grad_norm, bar.as_ref())?;
             if state.update.is_multiple_of(opts.checkpoint_every) || state.update == opts.updates {
                 csv.flush()?;
                 state.save(&ck_path, &opts.run)?;
@@ -209,7 +209,7 @@ pub fn train_in(
         }
         comm.update_secs += t_update.elapsed().as_secs_f64();
     }
-    bar.finish_and_clear();
+    bar.finish();
     Ok(comm)
 }
 
@@ -543,18 +543,9 @@ pub fn train_episode(
 // Progress: metrics.csv and the progress bar
 // ---------------------------------------------------------------------------------------
 
-fn progress_bar(opts: &TrainOptions, state: &TrainState) -> ProgressBar {
-    if !opts.progress {
-        return ProgressBar::hidden();
-    }
-    let b = ProgressBar::new(opts.updates);
-    b.set_style(
-        ProgressStyle::with_template(
-            "{spinner} train {prefix} [{elapsed_precise}] {bar:30} {pos}/{len} {msg}",
-        )
-        .unwrap_or_else(|_| ProgressStyle::default_bar()),
-    );
-    b.set_prefix(state.model.method.name());
+fn progress_bar(opts: &TrainOptions, state: &TrainState) -> Box<dyn Progress> {
+    let method = state.model.method.name();
+    let b = crate::progress::bar(BarKind::Train { method }, opts.updates, opts.progress);
     b.set_position(state.update);
     b
 }
@@ -582,7 +573,7 @@ impl Log {
         state: &TrainState,
         episodes: &[(EpisodeStats, Vec<Vec<f32>>)],
         grad_norm: f64,
-        bar: &ProgressBar,
+        bar: &dyn Progress,
     ) -> Result<()> {
         let mut loss = SegmentLoss::default();
         let (mut succ, mut rew, mut steps, mut adapt, mut roll) = (0u32, 0.0f64, 0u64, 0u32, 0u32);

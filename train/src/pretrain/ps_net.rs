@@ -20,13 +20,13 @@ use crate::optim::checkpoint::Checkpoint;
 use crate::optim::params::{Init, ParamSet, INIT_STD};
 
 /// Name of the PS hidden weights, `hidden x 512`.
-pub const PS_W1: &str = "PsW1";
+pub(crate) const PS_W1: &str = "PsW1";
 /// Name of the PS hidden bias, `hidden`.
-pub const PS_B1: &str = "PsB1";
+pub(crate) const PS_B1: &str = "PsB1";
 /// Name of the PS output weights, `45 x hidden`.
-pub const PS_W2: &str = "PsW2";
+pub(crate) const PS_W2: &str = "PsW2";
 /// Name of the PS output bias, `45`.
-pub const PS_B2: &str = "PsB2";
+pub(crate) const PS_B2: &str = "PsB2";
 
 /// The PS network's parameters.
 #[derive(Clone, Debug, PartialEq)]
@@ -77,7 +77,7 @@ impl PsModule {
     }
 
     /// Wraps existing tensors, checking their shapes.
-    pub fn from_params(params: ParamSet) -> Result<PsModule> {
+    pub(crate) fn from_params(params: ParamSet) -> Result<PsModule> {
         let hidden = params.tensor(PS_W1)?.rows;
         params.tensor_shaped(PS_W1, hidden, FEATURE_DIM)?;
         params.tensor_shaped(PS_B1, hidden, 1)?;

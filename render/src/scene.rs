@@ -17,11 +17,12 @@ use std::path::Path;
 use anyhow::{anyhow, Result};
 use plotters::prelude::*;
 
-use super::geometry::{heading_dir, GRID};
-use super::types::{AgentState, CategoryId};
-use super::util::hash_str;
-use super::world::World;
-use super::SceneId;
+use gman_sim::geometry::{heading_dir, Aabb, GRID};
+use gman_sim::scene::Scene;
+use gman_sim::types::{AgentState, CategoryId};
+use gman_sim::util::hash_str;
+use gman_sim::world::World;
+use gman_sim::SceneId;
 
 const CELL_PX: f32 = 28.0;
 const MARGIN_M: f32 = 0.3;
@@ -56,7 +57,7 @@ struct Frame {
 impl Frame {
     /// The frame of `sc`'s cells and objects (with their footprints, `radius` of a category)
     /// with a margin, and the picture's size.
-    fn of(sc: &super::scene::Scene, radius: impl Fn(CategoryId) -> f32) -> (Frame, u32, u32) {
+    fn of(sc: &Scene, radius: impl Fn(CategoryId) -> f32) -> (Frame, u32, u32) {
         let mut min = (f32::INFINITY, f32::INFINITY);
         let mut max = (f32::NEG_INFINITY, f32::NEG_INFINITY);
         let mut extend = |x: f32, z: f32| {
@@ -197,7 +198,7 @@ struct Legend {
 }
 
 impl Legend {
-    fn of(sc: &super::scene::Scene, goal: Option<CategoryId>, path: &[AgentState]) -> Legend {
+    fn of(sc: &Scene, goal: Option<CategoryId>, path: &[AgentState]) -> Legend {
         let mut swatches = vec![(RGBColor(215, 215, 215), "reachable")];
         if sc.filled.iter().any(|&f| f) {
             swatches.push((RGBColor(170, 205, 240), "gap-filled"));
@@ -348,7 +349,7 @@ fn draw_lattice<DB: DrawingBackend>(
 /// The reachable cells: grey from the data, light blue added by gap filling.
 fn draw_cells<DB: DrawingBackend>(
     root: &DrawingArea<DB, plotters::coord::Shift>,
-    sc: &super::scene::Scene,
+    sc: &Scene,
     frame: &Frame,
 ) -> Drawn<DB> {
     let half = GRID * 0.48;
@@ -375,7 +376,7 @@ fn draw_cells<DB: DrawingBackend>(
 fn draw_objects<DB: DrawingBackend>(
     root: &DrawingArea<DB, plotters::coord::Shift>,
     world: &World,
-    sc: &super::scene::Scene,
+    sc: &Scene,
     goal: Option<CategoryId>,
     frame: &Frame,
 ) -> Drawn<DB> {
@@ -409,7 +410,7 @@ fn draw_objects<DB: DrawingBackend>(
 /// instance outlined in black.
 fn draw_box<DB: DrawingBackend>(
     root: &DrawingArea<DB, plotters::coord::Shift>,
-    b: &super::geometry::Aabb,
+    b: &Aabb,
     color: RGBColor,
     goal: bool,
     frame: &Frame,
