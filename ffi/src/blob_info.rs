@@ -86,7 +86,7 @@ pub unsafe extern "C" fn gman_inspect(
     out: *mut gman_info,
 ) -> gman_status {
     // SAFETY: forwarded from the caller.
-    unsafe { describe(blob, len, out, Ok) }
+    unsafe { describe(blob, len, out, |_, info| Ok(info)) }
 }
 
 /// The number of arena bytes a navigator over this blob needs, in `*out` (the blob is
@@ -102,7 +102,7 @@ pub unsafe extern "C" fn gman_arena_size(
 ) -> gman_status {
     // SAFETY: forwarded from the caller.
     unsafe {
-        describe(blob, len, out, |info| {
+        describe(blob, len, out, |_, info| {
             usize::try_from(info.arena_bytes).map_err(|_| GMAN_ERR_CONFIG)
         })
     }
@@ -123,21 +123,12 @@ pub unsafe extern "C" fn gman_blob_setting(
     index: u32,
     out: *mut gman_setting,
 ) -> gman_status {
-    guard(|| {
-        let r = if blob_too_long(len) {
-            Err(GMAN_ERR_BLOB)
-        } else {
-            disjoint(Span::EMPTY, &[Span::of(blob, len)], &[Span::one(out)])
-        };
-        // SAFETY: forwarded from the caller.
-        let r = r.and_then(|()| unsafe { out_ref(out) }).and_then(|o| {
-            // SAFETY: forwarded from the caller.
-            let (b, _) = unsafe { parse_blob(blob, len, ParseOptions::default()) }?;
-            *o = setting_at(&b.header().spec(), index as usize);
-            Ok(())
-        });
-        r.err().unwrap_or(GMAN_OK)
-    })
+    // SAFETY: forwarded from the caller.
+    unsafe {
+        describe(blob, len, out, |b, _| {
+            Ok(setting_at(&b.header().spec(), index as usize))
+        })
+    }
 }
 
 /// The C form of setting number `i` of `m` (an empty key past the last).
@@ -170,8 +161,8 @@ fn c_text(text: &str, out: &mut [c_char; GMAN_SETTING_TEXT]) {
     }
 }
 
-/// `*out = f(info)` of the validated blob's description `info`, as a status: the body of
-/// [`gman_inspect`] and [`gman_arena_size`].
+/// `*out = f(blob, info)` of the validated blob and its description `info`, as a status: the
+/// body of [`gman_inspect`], [`gman_arena_size`] and [`gman_blob_setting`].
 ///
 /// # Safety
 /// `blob` readable for `len` bytes; `out` writable (both may be null: an error).
@@ -179,7 +170,7 @@ pub(crate) unsafe fn describe<T>(
     blob: *const u8,
     len: usize,
     out: *mut T,
-    f: impl FnOnce(gman_info) -> Result<T, gman_status>,
+    f: impl FnOnce(&Blob<'_>, gman_info) -> Result<T, gman_status>,
 ) -> gman_status {
     guard(|| {
         let r = if blob_too_long(len) {
@@ -190,8 +181,8 @@ pub(crate) unsafe fn describe<T>(
         // SAFETY: forwarded from the caller.
         let r = r.and_then(|()| unsafe { out_ref(out) }).and_then(|o| {
             // SAFETY: forwarded from the caller.
-            let (_, info) = unsafe { parse_blob(blob, len, ParseOptions::default()) }?;
-            *o = f(info)?;
+            let (b, info) = unsafe { parse_blob(blob, len, ParseOptions::default()) }?;
+            *o = f(&b, info)?;
             Ok(())
         });
         r.err().unwrap_or(GMAN_OK)

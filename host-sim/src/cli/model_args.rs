@@ -337,7 +337,6 @@ const OVERRIDE_HELP: &[Wording] = &[
 mod tests {
     use super::*;
     use clap::{Command, CommandFactory, FromArgMatches};
-    use gman_core::spec::InnerRule;
 
     fn parse(cmd: Command, args: &[&str]) -> ModelArgs {
         let m = cmd.try_get_matches_from(args).unwrap();
@@ -389,21 +388,15 @@ mod tests {
         assert_eq!(args.given().len(), 12);
         let mut spec = ModelSpec::paper(AdaptMode::Full);
         assert_eq!(args.apply(&mut spec), Ok(()));
+        // The flags give EVERY_SETTING_CHANGED's values (the flag-settable ones), but the
+        // mode, which starts Full here.
+        let c = ModelSpec::EVERY_SETTING_CHANGED;
         let expected = ModelSpec {
-            noise: NoiseMode::Zero,
-            inner_lr: 0.5,
-            max_inner: 7,
+            noise: c.noise,
+            inner_lr: c.inner_lr,
+            max_inner: c.max_inner,
             adapt_mode: AdaptMode::Efficient,
-            inner_rule: InnerRule {
-                disc_lr: Some(0.05),
-                disc_steps: 5,
-                step_rule: StepRule::PerGroup,
-                disc_head_reset: true,
-                adapt_loss: AdaptLossKind::Reference,
-                reference_critic: true,
-                head_only: true,
-                commit_delay: 17,
-            },
+            inner_rule: c.inner_rule,
             ..ModelSpec::paper(AdaptMode::Full)
         };
         assert_eq!(spec, expected);
