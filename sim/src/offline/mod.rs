@@ -767,7 +767,7 @@ impl OfflineScene {
                 });
                 continue;
             };
-            let features = pool_map(&self.feature_map(s)?);
+            let features = global_pool(&self.feature_map(s)?);
             let st = scene.state(s);
             let (px, pz) = (st.x as f32 * GRID, st.z as f32 * GRID);
             let mut in_view: Vec<InView> = self.visible_instances[s]
@@ -849,9 +849,10 @@ pub fn check_values(path: &Path, key: &str, v: &[f32]) -> Result<()> {
     Ok(())
 }
 
-/// Average pooling of a 512 x 49 channel-major map over its 49 cells (f32 sum in cell order,
-/// divided by 49).
-pub fn pool_map(map: &[f32]) -> [f32; FEATURE_DIM] {
+/// The pooled embedding s_t of a 512 x 49 channel-major map: each channel's average over its
+/// 49 cells (f32 sum in cell order, divided by 49; [`crate::spatial::pool_map`] pools the same
+/// map to a grid).
+pub fn global_pool(map: &[f32]) -> [f32; FEATURE_DIM] {
     let mut out = [0f32; FEATURE_DIM];
     for (o, ch) in out.iter_mut().zip(map.chunks_exact(MAP_CELLS)) {
         *o = ch.iter().sum::<f32>() / MAP_CELLS as f32;
@@ -960,7 +961,7 @@ mod tests {
     #[test]
     fn pooling_is_the_cell_mean() {
         let map: Vec<f32> = (0..MAP_LEN).map(|i| (i % 97) as f32).collect();
-        let p = pool_map(&map);
+        let p = global_pool(&map);
         for c in [0, 7, 511] {
             let want: f32 = map[c * 49..(c + 1) * 49].iter().sum::<f32>() / 49.0;
             assert_eq!(p[c], want);
