@@ -85,6 +85,9 @@ const CLASSIFIED: &[(&str, &str)] = &[
     // Run by tests.
     ("cargo run --release -p gman-host-sim --bin gman -- demo", "run: host-sim/tests/cli.rs runs `gman demo` on a short budget; the full demo takes 1-2 min in a release build"),
     ("cargo test --workspace", "run: CI's test step"),
+    ("gman train --data ../shared/data/gman --method gman --map 3x3", "run: host-sim/tests/readme_device.rs (README's device sequence, at --config tiny --updates 10)"),
+    ("gman export --ckpt runs/gman/checkpoint.ckpt --preset mcu", "run: host-sim/tests/readme_device.rs"),
+    ("(cd firmware-example && GMAN_FIRMWARE_BLOB=$PWD/../gman.gman cargo run --release)", "run: host-sim/tests/readme_device.rs"),
     ("python3 scripts/import_data.py build", "run on fixtures: scripts/test_import_data.py (the clones need the network)"),
     ("python/ci.sh", "run: CI's Python step"),
     ("pip install ./python", "run: python/ci.sh"),
