@@ -194,7 +194,7 @@ fn readme_device_sequence_runs_as_written() {
         );
         if i == 2 {
             assert_eq!(
-                stdout.lines().map(str::trim_end).last(),
+                stdout.lines().map(str::trim_end).next_back(),
                 Some("OK"),
                 "the firmware did not finish its episode:\n{stdout}\n{stderr}"
             );
