@@ -85,6 +85,10 @@ const CLASSIFIED: &[(&str, &str)] = &[
     // Run by tests.
     ("cargo run --release -p gman-host-sim --bin gman -- demo", "run: host-sim/tests/cli.rs runs `gman demo` on a short budget; the full demo takes 1-2 min in a release build"),
     ("cargo test --workspace", "run: CI's test step"),
+    ("gman export --blob host-sim/models/gman-map3-b16-mcu-int8-seed5.gman --activations int8", "run as written: blocks_run_as_written"),
+    ("(cd firmware-example && GMAN_FIRMWARE_BLOB=$PWD/../gman-map3-b16-mcu-int8act-seed5.gman", "run as written: blocks_run_as_written"),
+    ("cargo build --profile speed --features kernel-table", "run as written: blocks_run_as_written"),
+    ("qemu-system-arm -M mps2-an386 -nographic -icount shift=0 -semihosting-config enable=on,target=native -kernel /tmp/tb-int8", "run as written: blocks_run_as_written"),
     ("gman train --data ../shared/data/gman --method gman --map 3x3", "run: host-sim/tests/readme_device.rs (README's device sequence, at --config tiny --updates 10)"),
     ("gman export --ckpt runs/gman/checkpoint.ckpt --preset mcu", "run: host-sim/tests/readme_device.rs"),
     ("(cd firmware-example && GMAN_FIRMWARE_BLOB=$PWD/../gman.gman cargo run --release)", "run: host-sim/tests/readme_device.rs"),
@@ -153,6 +157,50 @@ fn every_documented_shell_command_is_run_by_a_test_or_says_why_not() {
          host-sim/tests/docs.rs:\n{}",
         unclassified.join("\n")
     );
+}
+
+/// The `sh` blocks run as written, whole, in a scratch root (`common::scratch`): the file and
+/// the start of the block's first command. They build and run the firmware, so they need QEMU
+/// (skipped without it unless `GMAN_REQUIRE_QEMU=1`, as in CI).
+const RUN_AS_WRITTEN: &[(&str, &str)] = &[
+    (
+        "docs/kernels.md",
+        "gman export --blob host-sim/models/gman-map3-b16-mcu-int8-seed5.gman --activations int8",
+    ),
+    ("docs/kernels.md", "cd firmware-example"),
+];
+
+/// The `sh` block of `text` whose first command starts with `first`, as written.
+fn sh_block<'a>(text: &'a str, first: &str) -> Option<&'a str> {
+    text.split("```sh\n").skip(1).find_map(|b| {
+        let block = b.split("```").next()?;
+        let cmds = shell_commands(&format!("```sh\n{block}```"));
+        cmds.first()
+            .is_some_and(|c| c.starts_with(first))
+            .then_some(block)
+    })
+}
+
+#[cfg(unix)]
+#[test]
+fn blocks_run_as_written() {
+    use common::scratch::{device_tools, Scratch};
+    let blocks: Vec<(&str, String)> = RUN_AS_WRITTEN
+        .iter()
+        .map(|(file, first)| {
+            let text = std::fs::read_to_string(root().join(file)).unwrap();
+            let block = sh_block(&text, first)
+                .unwrap_or_else(|| panic!("{file}: no sh block starting with {first:?}"));
+            (*file, block.to_string())
+        })
+        .collect();
+    if !device_tools("docs::blocks_run_as_written") {
+        return;
+    }
+    let s = Scratch::new("docs-blocks");
+    for (file, block) in &blocks {
+        s.run(&format!("{file}'s block"), block);
+    }
 }
 
 #[test]

@@ -1,0 +1,133 @@
+//! Documented shell commands run as written: a scratch root mirroring the checkout through
+//! links (`target/NAME/root`), `gman` on `PATH` this build's binary, `../shared` the
+//! checkout's neighbour, and the firmware's build directory of its own.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+/// The checkout, as a canonical path.
+pub fn checkout() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("..")
+        .canonicalize()
+        .expect("the checkout")
+}
+
+/// Panics with `why` under `GMAN_REQUIRE_QEMU=1` (CI), else prints that `test` is skipped
+/// and returns false.
+pub fn skip_or_fail(test: &str, why: &str) -> bool {
+    if std::env::var("GMAN_REQUIRE_QEMU").as_deref() == Ok("1") {
+        panic!("{why} (GMAN_REQUIRE_QEMU=1)");
+    }
+    eprintln!("SKIPPED {test}: {why}");
+    false
+}
+
+/// Whether QEMU and the Cortex-M4F target are here (see [`skip_or_fail`]).
+pub fn device_tools(test: &str) -> bool {
+    let qemu = Command::new("qemu-system-arm").arg("--version").output();
+    if !qemu.map(|o| o.status.success()).unwrap_or(false) {
+        return skip_or_fail(
+            test,
+            "qemu-system-arm not found (apt-get install qemu-system-arm)",
+        );
+    }
+    let targets = Command::new("rustup")
+        .args(["target", "list", "--installed"])
+        .output();
+    if !targets
+        .map(|o| String::from_utf8_lossy(&o.stdout).contains("thumbv7em-none-eabihf"))
+        .unwrap_or(false)
+    {
+        return skip_or_fail(
+            test,
+            "target thumbv7em-none-eabihf not installed (rustup target add thumbv7em-none-eabihf)",
+        );
+    }
+    true
+}
+
+#[cfg(unix)]
+fn link(from: &Path, to: &Path) {
+    let _ = std::fs::remove_file(to);
+    std::os::unix::fs::symlink(from, to)
+        .unwrap_or_else(|e| panic!("link {} -> {}: {e}", to.display(), from.display()));
+}
+
+/// Links every entry of `from` into `to` but those named in `except`.
+#[cfg(unix)]
+fn mirror(from: &Path, to: &Path, except: &[&str]) {
+    for entry in std::fs::read_dir(from).expect("read the checkout") {
+        let entry = entry.expect("a directory entry");
+        let name = entry.file_name();
+        if !except.iter().any(|e| name == *e) {
+            link(&entry.path(), &to.join(&name));
+        }
+    }
+}
+
+/// A scratch root where documented commands run as a user runs them from the checkout.
+pub struct Scratch {
+    /// `target/NAME`: the root's parent (`../shared` links from here).
+    pub dir: PathBuf,
+    /// `target/NAME/root`: the commands' working directory.
+    pub root: PathBuf,
+    /// Whether `../shared/data/gman` is there.
+    pub have_data: bool,
+}
+
+#[cfg(unix)]
+impl Scratch {
+    /// A fresh `target/NAME/root`: the checkout's entries linked into it but `target`, `runs`
+    /// and what the commands write at the root, with firmware-example a real directory of
+    /// links, so that a `$PWD/..` from inside it names the scratch root, not the checkout.
+    pub fn new(name: &str) -> Scratch {
+        let repo = checkout();
+        let dir = repo.join("target").join(name);
+        let root = dir.join("root");
+        let _ = std::fs::remove_dir_all(&root);
+        std::fs::create_dir_all(&root).expect("the scratch root");
+        mirror(&repo, &root, &["target", "runs", "firmware-example"]);
+        let fw = root.join("firmware-example");
+        std::fs::create_dir(&fw).expect("the scratch firmware directory");
+        mirror(&repo.join("firmware-example"), &fw, &["target"]);
+        let shared = repo.join("../shared");
+        let have_data = shared.join("data/gman/attributes.json").is_file();
+        if have_data {
+            link(&shared.canonicalize().unwrap(), &dir.join("shared"));
+        }
+        Scratch {
+            dir,
+            root,
+            have_data,
+        }
+    }
+
+    /// Runs `script` with `bash -eo pipefail` in the scratch root (at most 15 minutes);
+    /// panics naming `what` with the output when it fails.
+    pub fn run(&self, what: &str, script: &str) -> Output {
+        let bin = Path::new(env!("CARGO_BIN_EXE_gman")).parent().unwrap();
+        let path = format!(
+            "{}:{}",
+            bin.display(),
+            std::env::var("PATH").unwrap_or_default()
+        );
+        let out = Command::new("timeout")
+            .arg("900")
+            .args(["bash", "-eo", "pipefail", "-c", script])
+            .current_dir(&self.root)
+            .env("PATH", &path)
+            .env("CARGO_TARGET_DIR", self.dir.join("firmware-target"))
+            .env_remove("GMAN_FIRMWARE_BLOB")
+            .output()
+            .expect("run bash");
+        assert!(
+            out.status.success(),
+            "{what} failed ({:?}):\n{script}\n--- stdout\n{}\n--- stderr\n{}",
+            out.status,
+            String::from_utf8_lossy(&out.stdout),
+            String::from_utf8_lossy(&out.stderr)
+        );
+        out
+    }
+}
