@@ -857,3 +857,24 @@ fn with_flag_bit(v4: &[u8], bit: u32) -> Vec<u8> {
     head.extend_from_slice(payload);
     head
 }
+
+#[test]
+fn export_makes_the_destination_directory() {
+    // As the documented loops do: `--out /tmp/kq/NAME.gman` on a machine without /tmp/kq.
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let src = root.join("host-sim/models/gman-map3-b16-mcu-int8-seed1.gman");
+    let out = tmp("export-mkdir").join("a/b/c.gman");
+    let (ok, _, err) = gman(&[
+        "export",
+        "--blob",
+        src.to_str().unwrap(),
+        "--activations",
+        "int8",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    let (ok, stdout, err) = gman(&["inspect", out.to_str().unwrap()]);
+    assert!(ok, "{err}");
+    assert!(stdout.contains("checksum OK"), "{stdout}");
+}

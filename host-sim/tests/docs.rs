@@ -104,7 +104,7 @@ const CLASSIFIED: &[(&str, &str)] = &[
     ("./gman train", "a cluster's job script"),
     ("KEEP=results/paper DATA=", "too long for CI: the whole reference-budget sweep (hours per run on 2 cores)"),
     ("target/release/gman train", "too long for CI: training on the offline data"),
-    ("nice -n 5 gman eval", "too long for CI: 8000 episodes x 3 seeds per blob (`gman eval` is tested on fewer)"),
+    ("nice -n 5 gman eval", "run at a test budget (5 episodes per file): blocks_run_at_the_test_budget"),
     ("gman bench", "a benchmark: minutes, and its numbers are the machine's"),
     // Need what CI does not have.
     ("git clone ", "needs the network"),
@@ -121,9 +121,9 @@ const CLASSIFIED: &[(&str, &str)] = &[
     ("GMAN_FIRMWARE_BLOB=", "device: tests/tests/firmware_qemu.rs"),
     ("qemu-system-arm ", "device: tests/tests/firmware_qemu.rs"),
     ("gman export ", "export: host-sim's export tests; the blob it reads comes from training"),
-    ("for s in 1 2 3; do", "a loop of exports and evaluations of three blobs (too long for CI)"),
-    ("--out /tmp/psi", "part of the loop above"),
-    ("done", "part of the loop above"),
+    ("for s in 1 2 3; do", "run: blocks_run_at_the_test_budget"),
+    ("--out /tmp/psi", "run: blocks_run_at_the_test_budget (part of its loop)"),
+    ("done", "run: blocks_run_at_the_test_budget (part of its loop)"),
     // Shell syntax of the job scripts.
     ("RUN=", "a cluster's job script"),
     ("if ", "a cluster's job script"),
@@ -170,6 +170,17 @@ const RUN_AS_WRITTEN: &[(&str, &str)] = &[
     ("docs/kernels.md", "cd firmware-example"),
 ];
 
+/// The `sh` blocks run at the test's budget (`common::scratch::at_test_budget`: evaluations
+/// of 5 episodes per file, training of 10 tiny updates), every other word as written, in a
+/// scratch root with the data (skipped without `../shared/data/gman`).
+const RUN_AT_TEST_BUDGET: &[(&str, &str)] = &[
+    (
+        "docs/kernels.md",
+        "for s in 1 2 3; do gman export --blob host-sim/models/gman-map3-b16-mcu-int8-seed$s.gman",
+    ),
+    ("docs/kernels.md", "for s in 1 2 3; do"),
+];
+
 /// The `sh` block of `text` whose first command starts with `first`, as written.
 fn sh_block<'a>(text: &'a str, first: &str) -> Option<&'a str> {
     text.split("```sh\n").skip(1).find_map(|b| {
@@ -200,6 +211,38 @@ fn blocks_run_as_written() {
     let s = Scratch::new("docs-blocks");
     for (file, block) in &blocks {
         s.run(&format!("{file}'s block"), block);
+    }
+}
+
+#[cfg(unix)]
+#[test]
+fn blocks_run_at_the_test_budget() {
+    use common::scratch::{at_test_budget, Scratch};
+    let scripts: Vec<(&str, String)> = RUN_AT_TEST_BUDGET
+        .iter()
+        .map(|(file, first)| {
+            let text = std::fs::read_to_string(root().join(file)).unwrap();
+            let block = sh_block(&text, first)
+                .unwrap_or_else(|| panic!("{file}: no sh block starting with {first:?}"));
+            let cmds = shell_commands(&format!("```sh\n{block}```"));
+            let script: Vec<String> = cmds.iter().map(|c| at_test_budget(c, true)).collect();
+            (*file, script.join("\n"))
+        })
+        .collect();
+    let s = Scratch::new("docs-budget");
+    if !s.have_data {
+        eprintln!("SKIPPED docs::blocks_run_at_the_test_budget: no ../shared/data/gman");
+        return;
+    }
+    for (file, script) in &scripts {
+        let out = s.run(&format!("{file}'s block at the test budget"), script);
+        let stdout = String::from_utf8_lossy(&out.stdout);
+        if script.contains("gman eval ") {
+            assert!(
+                stdout.contains("mean ± std over seeds [1, 2, 3]"),
+                "{file}: no evaluation over the three seeds:\n{stdout}"
+            );
+        }
     }
 }
 

@@ -10,7 +10,7 @@
 
 mod common;
 
-use common::scratch::{checkout, device_tools, Scratch};
+use common::scratch::{at_test_budget, checkout, device_tools, Scratch};
 
 /// The shell lines of the README's device block.
 fn device_block(readme: &str) -> Vec<String> {
@@ -31,34 +31,6 @@ fn device_block(readme: &str) -> Vec<String> {
         .collect()
 }
 
-/// The README's training line at the test's budget: `--updates N` becomes `--config tiny
-/// --updates 10`; without the data directory the `--data DIR` argument goes.
-fn at_test_budget(train: &str, have_data: bool) -> String {
-    let words: Vec<&str> = train.split_whitespace().collect();
-    let mut out = Vec::new();
-    let mut i = 0;
-    let mut budget = false;
-    while i < words.len() {
-        match words[i] {
-            "--updates" => {
-                out.extend(["--config", "tiny", "--updates", "10"]);
-                budget = true;
-                i += 2;
-            }
-            "--data" if !have_data => i += 2,
-            w => {
-                out.push(w);
-                i += 1;
-            }
-        }
-    }
-    assert!(
-        budget,
-        "the README's training line sets no --updates: {train}"
-    );
-    out.join(" ")
-}
-
 #[test]
 fn training_line_takes_the_test_budget() {
     let line = "gman train --data ../shared/data/gman --method gman --updates 6000 --out runs/gman";
@@ -69,6 +41,17 @@ fn training_line_takes_the_test_budget() {
     assert_eq!(
         at_test_budget(line, false),
         "gman train --method gman --config tiny --updates 10 --out runs/gman"
+    );
+    assert_eq!(
+        at_test_budget(
+            "nice -n 5 gman eval --data D --agent 'a{seed}.gman' --json x.json",
+            true
+        ),
+        "nice -n 5 gman eval --data D --agent 'a{seed}.gman' --json x.json --episodes 5"
+    );
+    assert_eq!(
+        at_test_budget("gman export --out a.gman", false),
+        "gman export --out a.gman"
     );
 }
 
@@ -84,6 +67,11 @@ fn readme_device_sequence_runs_as_written() {
     if !device_tools("readme_device") {
         return;
     }
+    assert!(
+        lines[0].contains(" --updates "),
+        "the README's training line sets no --updates: {}",
+        lines[0]
+    );
     let s = Scratch::new("readme-device");
     s.run(
         "README device line 1",

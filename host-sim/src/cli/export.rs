@@ -134,6 +134,11 @@ pub fn cmd_export(a: ExportArgs) -> Result<()> {
         }
         (None, None) => bail!("give --ckpt or --blob"),
     };
+    // Like `gman train --out`, the destination's directory is made when it is missing.
+    if let Some(dir) = a.out.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir)
+            .with_context(|| format!("{}: cannot create the directory", dir.display()))?;
+    }
     gman_host_sim::optim::checkpoint::write_atomic(&a.out, |f| {
         std::io::Write::write_all(f, &bytes)
     })?;

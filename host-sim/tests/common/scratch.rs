@@ -1,6 +1,7 @@
 //! Documented shell commands run as written: a scratch root mirroring the checkout through
 //! links (`target/NAME/root`), `gman` on `PATH` this build's binary, `../shared` the
-//! checkout's neighbour, and the firmware's build directory of its own.
+//! checkout's neighbour, and the firmware's build directory of its own. A command too long for
+//! a test runs at a test budget ([`at_test_budget`]), its other words as written.
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
@@ -130,4 +131,38 @@ impl Scratch {
         );
         out
     }
+}
+
+/// A documented command at the test's budget: in a `gman train` command `--updates N` becomes
+/// `--config tiny --updates 10`; a `gman eval` command gets `--episodes 5` (at most 5 episodes
+/// per episode file); without the data directory (`have_data` false) a `--data DIR` goes.
+/// Other commands are returned as they are.
+pub fn at_test_budget(cmd: &str, have_data: bool) -> String {
+    let words: Vec<&str> = cmd.split(' ').collect();
+    let train = cmd.contains("gman train ");
+    let eval = cmd.contains("gman eval ");
+    let mut out = Vec::new();
+    let mut i = 0;
+    while i < words.len() {
+        match words[i] {
+            "--updates" if train && i + 1 < words.len() => {
+                out.extend(["--config", "tiny", "--updates", "10"]);
+                i += 2;
+            }
+            "--data" if !have_data && (train || eval) && i + 1 < words.len() => i += 2,
+            w => {
+                out.push(w);
+                i += 1;
+            }
+        }
+    }
+    let mut line = out.join(" ");
+    if eval {
+        // Before a loop's `; done` when the command ends one.
+        match line.strip_suffix("; done") {
+            Some(head) => line = format!("{head} --episodes 5; done"),
+            None => line.push_str(" --episodes 5"),
+        }
+    }
+    line
 }
