@@ -9,6 +9,9 @@
 
 use std::process::Command;
 
+#[path = "support/device_tools.rs"]
+mod device_tools;
+
 #[path = "../../firmware-example/src/episode.rs"]
 #[allow(dead_code)]
 mod episode;
@@ -36,31 +39,12 @@ fn rust_lines(blob: &[u8], ep: &[u8]) -> Vec<String> {
     out.0
 }
 
-fn skip_or_fail(why: &str) {
-    if std::env::var("GMAN_REQUIRE_QEMU").as_deref() == Ok("1") {
-        panic!("{why} (GMAN_REQUIRE_QEMU=1)");
-    }
-    eprintln!("SKIPPED firmware_c_qemu: {why}");
-}
-
 const TARGET: &str = "thumbv7em-none-eabihf";
 
 #[test]
 fn c_firmware_under_qemu_matches_the_rust_firmware_bit_for_bit() {
-    if !capi::have("qemu-system-arm", "--version") {
-        return skip_or_fail("qemu-system-arm not found (apt-get install qemu-system-arm)");
-    }
-    if !capi::have("arm-none-eabi-gcc", "--version") {
-        return skip_or_fail("arm-none-eabi-gcc not found (apt-get install gcc-arm-none-eabi)");
-    }
-    let targets = Command::new("rustup")
-        .args(["target", "list", "--installed"])
-        .output();
-    if !targets
-        .map(|o| String::from_utf8_lossy(&o.stdout).contains(TARGET))
-        .unwrap_or(false)
-    {
-        return skip_or_fail("target thumbv7em-none-eabihf not installed (rustup target add)");
+    if !device_tools::device_tools("firmware_c_qemu", true) {
+        return;
     }
     let lib = capi::staticlib(Some(TARGET));
     let blob = blobgen::default_blob_in(&capi::root().join("firmware-example"));

@@ -30,6 +30,9 @@ mod episode;
 #[path = "../../firmware-example/blobgen.rs"]
 mod blobgen;
 
+#[path = "support/device_tools.rs"]
+mod device_tools;
+
 #[path = "../../host-sim/examples/record_episode.rs"]
 #[allow(dead_code)]
 mod record_episode;
@@ -151,21 +154,6 @@ fn host_lines_with(
     (out.0, counters)
 }
 
-fn have(cmd: &str, arg: &str) -> bool {
-    Command::new(cmd)
-        .arg(arg)
-        .output()
-        .map(|o| o.status.success())
-        .unwrap_or(false)
-}
-
-fn skip_or_fail(why: &str) {
-    if std::env::var("GMAN_REQUIRE_QEMU").as_deref() == Ok("1") {
-        panic!("{why} (GMAN_REQUIRE_QEMU=1)");
-    }
-    eprintln!("SKIPPED firmware_qemu: {why}");
-}
-
 /// `key=value` tokens of the `# ` lines (those of `# step with inner update:` prefixed with
 /// `update_`, whose `min_insns`, `mean_insns` and `max_insns` are also the plain steps' keys).
 fn measurements(lines: &[&str]) -> HashMap<String, u64> {
@@ -185,27 +173,6 @@ fn measurements(lines: &[&str]) -> HashMap<String, u64> {
             Some((format!("{pre}{k}"), v.parse().ok()?))
         })
         .collect()
-}
-
-/// True when QEMU and the Cortex-M4F target are there (else skipped, or failed in CI).
-fn qemu_available() -> bool {
-    if !have("qemu-system-arm", "--version") {
-        skip_or_fail("qemu-system-arm not found (apt-get install qemu-system-arm)");
-        return false;
-    }
-    let targets = Command::new("rustup")
-        .args(["target", "list", "--installed"])
-        .output();
-    if !targets
-        .map(|o| String::from_utf8_lossy(&o.stdout).contains("thumbv7em-none-eabihf"))
-        .unwrap_or(false)
-    {
-        skip_or_fail(
-            "target thumbv7em-none-eabihf not installed (rustup target add thumbv7em-none-eabihf)",
-        );
-        return false;
-    }
-    true
 }
 
 /// Builds the firmware in `target_dir` with `cargo_args`, embedding `blob_file`
@@ -521,7 +488,7 @@ fn default_image_refuses(name: &str, blob: &[u8], needle: &str) {
 /// ([`check_documented_figures`]).
 #[test]
 fn firmware_images_under_qemu_match_host_bit_for_bit_and_the_docs() {
-    if !qemu_available() {
+    if !device_tools::device_tools("firmware_qemu", false) {
         return;
     }
     let runs = Runs {

@@ -14,38 +14,13 @@ pub fn checkout() -> PathBuf {
         .expect("the checkout")
 }
 
-/// Panics with `why` under `GMAN_REQUIRE_QEMU=1` (CI), else prints that `test` is skipped
-/// and returns false.
-pub fn skip_or_fail(test: &str, why: &str) -> bool {
-    if std::env::var("GMAN_REQUIRE_QEMU").as_deref() == Ok("1") {
-        panic!("{why} (GMAN_REQUIRE_QEMU=1)");
-    }
-    eprintln!("SKIPPED {test}: {why}");
-    false
-}
+#[path = "../../../tests/tests/support/device_tools.rs"]
+mod probe;
 
-/// Whether QEMU and the Cortex-M4F target are here (see [`skip_or_fail`]).
+/// Whether QEMU and the Cortex-M4F target are here; else `test` is skipped, or fails under
+/// `GMAN_REQUIRE_QEMU=1` (CI).
 pub fn device_tools(test: &str) -> bool {
-    let qemu = Command::new("qemu-system-arm").arg("--version").output();
-    if !qemu.map(|o| o.status.success()).unwrap_or(false) {
-        return skip_or_fail(
-            test,
-            "qemu-system-arm not found (apt-get install qemu-system-arm)",
-        );
-    }
-    let targets = Command::new("rustup")
-        .args(["target", "list", "--installed"])
-        .output();
-    if !targets
-        .map(|o| String::from_utf8_lossy(&o.stdout).contains("thumbv7em-none-eabihf"))
-        .unwrap_or(false)
-    {
-        return skip_or_fail(
-            test,
-            "target thumbv7em-none-eabihf not installed (rustup target add thumbv7em-none-eabihf)",
-        );
-    }
-    true
+    probe::device_tools(test, false)
 }
 
 #[cfg(unix)]
