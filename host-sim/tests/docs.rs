@@ -192,19 +192,23 @@ fn sh_block<'a>(text: &'a str, first: &str) -> Option<&'a str> {
     })
 }
 
-#[cfg(unix)]
-#[test]
-fn blocks_run_as_written() {
-    use common::scratch::{device_tools, Scratch};
-    let blocks: Vec<(&str, String)> = RUN_AS_WRITTEN
-        .iter()
+/// Each listed block (file, start of its first command) as its file has it.
+fn listed_blocks(list: &[(&'static str, &str)]) -> Vec<(&'static str, String)> {
+    list.iter()
         .map(|(file, first)| {
             let text = std::fs::read_to_string(root().join(file)).unwrap();
             let block = sh_block(&text, first)
                 .unwrap_or_else(|| panic!("{file}: no sh block starting with {first:?}"));
             (*file, block.to_string())
         })
-        .collect();
+        .collect()
+}
+
+#[cfg(unix)]
+#[test]
+fn blocks_run_as_written() {
+    use common::scratch::{device_tools, Scratch};
+    let blocks = listed_blocks(RUN_AS_WRITTEN);
     if !device_tools("docs::blocks_run_as_written") {
         return;
     }
@@ -218,15 +222,12 @@ fn blocks_run_as_written() {
 #[test]
 fn blocks_run_at_the_test_budget() {
     use common::scratch::{at_test_budget, Scratch};
-    let scripts: Vec<(&str, String)> = RUN_AT_TEST_BUDGET
-        .iter()
-        .map(|(file, first)| {
-            let text = std::fs::read_to_string(root().join(file)).unwrap();
-            let block = sh_block(&text, first)
-                .unwrap_or_else(|| panic!("{file}: no sh block starting with {first:?}"));
+    let scripts: Vec<(&str, String)> = listed_blocks(RUN_AT_TEST_BUDGET)
+        .into_iter()
+        .map(|(file, block)| {
             let cmds = shell_commands(&format!("```sh\n{block}```"));
             let script: Vec<String> = cmds.iter().map(|c| at_test_budget(c, true)).collect();
-            (*file, script.join("\n"))
+            (file, script.join("\n"))
         })
         .collect();
     let s = Scratch::new("docs-budget");
