@@ -5,6 +5,8 @@
 
 mod common;
 
+use common::scratch::{sh_block, shell_commands};
+
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -50,33 +52,6 @@ fn doc_files() -> Vec<PathBuf> {
     v.sort();
     v.dedup();
     v
-}
-
-/// The logical command lines (continuations joined, comments and blank lines dropped) of every
-/// `sh`/`bash` block of `text`.
-fn shell_commands(text: &str) -> Vec<String> {
-    let mut out = Vec::new();
-    let mut in_block = false;
-    let mut pending = String::new();
-    for line in text.lines() {
-        let t = line.trim();
-        if let Some(lang) = t.strip_prefix("```") {
-            in_block = !in_block && matches!(lang, "sh" | "bash" | "shell" | "console");
-            continue;
-        }
-        if !in_block || t.is_empty() || t.starts_with('#') {
-            continue;
-        }
-        let t = t.split(" # ").next().unwrap_or(t).trim_end();
-        if let Some(head) = t.strip_suffix('\\') {
-            pending.push_str(head.trim_end());
-            pending.push(' ');
-        } else {
-            pending.push_str(t);
-            out.push(std::mem::take(&mut pending));
-        }
-    }
-    out
 }
 
 /// Each documented command, by the start of its line: the test that runs it, or why the tests
@@ -180,17 +155,6 @@ const RUN_AT_TEST_BUDGET: &[(&str, &str)] = &[
     ),
     ("docs/kernels.md", "for s in 1 2 3; do"),
 ];
-
-/// The `sh` block of `text` whose first command starts with `first`, as written.
-fn sh_block<'a>(text: &'a str, first: &str) -> Option<&'a str> {
-    text.split("```sh\n").skip(1).find_map(|b| {
-        let block = b.split("```").next()?;
-        let cmds = shell_commands(&format!("```sh\n{block}```"));
-        cmds.first()
-            .is_some_and(|c| c.starts_with(first))
-            .then_some(block)
-    })
-}
 
 /// Each listed block (file, start of its first command) as its file has it.
 fn listed_blocks(list: &[(&'static str, &str)]) -> Vec<(&'static str, String)> {

@@ -10,25 +10,17 @@
 
 mod common;
 
-use common::scratch::{at_test_budget, checkout, device_tools, Scratch};
+use common::scratch::{at_test_budget, checkout, device_tools, sh_block, shell_commands, Scratch};
 
-/// The shell lines of the README's device block.
+/// The commands of the README's device block.
 fn device_block(readme: &str) -> Vec<String> {
     let section = readme
         .split("\n## Train, export, run on the device\n")
         .nth(1)
         .expect("README.md has a section \"Train, export, run on the device\"");
-    let block = section
-        .split("```sh\n")
-        .nth(1)
-        .and_then(|b| b.split("```").next())
-        .expect("the section opens with a ```sh block");
-    block
-        .lines()
-        .map(str::trim)
-        .filter(|l| !l.is_empty() && !l.starts_with('#'))
-        .map(String::from)
-        .collect()
+    let block = sh_block(section, "gman train ")
+        .expect("the section's ```sh block starts with `gman train`");
+    shell_commands(&format!("```sh\n{block}```"))
 }
 
 #[test]

@@ -40,7 +40,7 @@ pub struct TensorSpec<'a> {
     pub data: TensorData<'a>,
 }
 
-pub(super) struct F32Bytes<'a>(&'a [f32]);
+struct F32Bytes<'a>(&'a [f32]);
 impl Serialize for F32Bytes<'_> {
     fn serialize<S: Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
         // Same wire format as postcard's `serialize_bytes`: varint length + raw bytes.
@@ -55,16 +55,16 @@ impl Serialize for F32Bytes<'_> {
 }
 
 #[derive(Serialize)]
-pub(super) struct RecordOut<'a> {
-    pub(super) id: u16,
-    pub(super) rows: u32,
-    pub(super) cols: u32,
-    pub(super) quant: u8,
-    pub(super) data: DataOut<'a>,
-    pub(super) scales: DataOut<'a>,
+struct RecordOut<'a> {
+    id: u16,
+    rows: u32,
+    cols: u32,
+    quant: u8,
+    data: DataOut<'a>,
+    scales: DataOut<'a>,
 }
 
-pub(super) enum DataOut<'a> {
+enum DataOut<'a> {
     F32(F32Bytes<'a>),
     Raw(RawBytes<'a>),
 }
@@ -249,7 +249,7 @@ impl<'o> Encoder<'o> {
         self.write_record(raw, t.rows, t.cols, t.quant, data, scales)
     }
 
-    pub(super) fn write_record(
+    fn write_record(
         &mut self,
         raw: u16,
         rows: usize,

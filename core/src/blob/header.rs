@@ -54,7 +54,7 @@ impl DimsRecord {
         }
     }
 
-    pub(super) fn to_dims(self, map: MapRecord) -> Dims {
+    fn to_dims(self, map: MapRecord) -> Dims {
         Dims {
             attr: self.attr as usize,
             noise: self.noise as usize,
@@ -93,58 +93,58 @@ impl MapRecord {
 /// The `{magic, version}` prefix every header version starts with, decoded first to choose
 /// the header struct.
 #[derive(Deserialize)]
-pub(super) struct Prefix {
-    pub(super) magic: [u8; 4],
-    pub(super) version: u16,
+struct Prefix {
+    magic: [u8; 4],
+    version: u16,
 }
 
 /// The header of a format-v1 blob (read only; postcard has no field names, so the
 /// underscored fields are decoded like any other and only checked through [`Prefix`]).
 #[derive(Deserialize)]
 #[cfg_attr(not(feature = "legacy-blobs"), allow(dead_code))]
-pub(super) struct HeaderV1 {
-    pub(super) _magic: [u8; 4],
-    pub(super) _version: u16,
-    pub(super) dims: DimsRecord,
-    pub(super) flags: u32,
-    pub(super) n_tensors: u16,
-    pub(super) payload_len: u32,
-    pub(super) payload_crc: u32,
+struct HeaderV1 {
+    _magic: [u8; 4],
+    _version: u16,
+    dims: DimsRecord,
+    flags: u32,
+    n_tensors: u16,
+    payload_len: u32,
+    payload_crc: u32,
 }
 
 /// The header of a format-v3 blob: v2 with the spatial-map dims after `dims`.
 #[derive(Serialize, Deserialize)]
 #[cfg_attr(not(feature = "legacy-blobs"), allow(dead_code))]
-pub(super) struct HeaderV3 {
-    pub(super) magic: [u8; 4],
-    pub(super) version: u16,
-    pub(super) dims: DimsRecord,
-    pub(super) map: MapRecord,
-    pub(super) flags: u32,
-    pub(super) settings: AdaptSettings,
-    pub(super) n_tensors: u16,
-    pub(super) payload_len: u32,
-    pub(super) payload_crc: u32,
+struct HeaderV3 {
+    magic: [u8; 4],
+    version: u16,
+    dims: DimsRecord,
+    map: MapRecord,
+    flags: u32,
+    settings: AdaptSettings,
+    n_tensors: u16,
+    payload_len: u32,
+    payload_crc: u32,
 }
 
 /// The header of a format-v4 blob without its last field, the checksum (a varint after
 /// these fields): CRC-32 of these bytes followed by the payload.
 #[derive(Serialize, Deserialize)]
 #[cfg_attr(not(feature = "legacy-blobs"), allow(dead_code))]
-pub(super) struct HeaderV4Body {
-    pub(super) magic: [u8; 4],
-    pub(super) version: u16,
-    pub(super) dims: DimsRecord,
-    pub(super) map: MapRecord,
-    pub(super) flags: u32,
-    pub(super) settings: AdaptSettings,
-    pub(super) n_tensors: u16,
-    pub(super) payload_len: u32,
+struct HeaderV4Body {
+    magic: [u8; 4],
+    version: u16,
+    dims: DimsRecord,
+    map: MapRecord,
+    flags: u32,
+    settings: AdaptSettings,
+    n_tensors: u16,
+    payload_len: u32,
 }
 
 #[cfg_attr(not(feature = "legacy-blobs"), allow(dead_code))]
 impl HeaderV4Body {
-    pub(super) fn with_crc(self, payload_crc: u32) -> HeaderV3 {
+    fn with_crc(self, payload_crc: u32) -> HeaderV3 {
         HeaderV3 {
             magic: self.magic,
             version: self.version,
@@ -163,14 +163,14 @@ impl HeaderV4Body {
 /// fields with the flags and the inner-loop settings replaced by the settings section, the
 /// setting records as one byte string.
 #[derive(Deserialize)]
-pub(super) struct HeaderV5Body<'a> {
-    pub(super) _magic: [u8; 4],
-    pub(super) _version: u16,
-    pub(super) dims: DimsRecord,
-    pub(super) map: MapRecord,
-    pub(super) settings: &'a [u8],
-    pub(super) n_tensors: u16,
-    pub(super) payload_len: u32,
+struct HeaderV5Body<'a> {
+    _magic: [u8; 4],
+    _version: u16,
+    dims: DimsRecord,
+    map: MapRecord,
+    settings: &'a [u8],
+    n_tensors: u16,
+    payload_len: u32,
 }
 
 /// [`HeaderV5Body`] as the encoder writes it.
@@ -198,7 +198,7 @@ pub(super) struct SettingRecord<'a> {
 /// value's type tag, the value as a `u32` (a varint, 4 bytes little-endian, or 1 byte 0
 /// or 1; 0 for a name), the name's bytes (empty for the other types), the bytes after it.
 /// `None` for a record that is not well formed.
-pub(super) fn take_setting(bytes: &[u8]) -> Option<(RawSetting<'_>, &[u8])> {
+fn take_setting(bytes: &[u8]) -> Option<(RawSetting<'_>, &[u8])> {
     let (key, rest) = take_bytes(bytes)?;
     let (tag, rest) = take_varint(rest)?;
     let (raw, name, rest) = match (tag, rest) {
@@ -220,21 +220,21 @@ pub(super) fn take_setting(bytes: &[u8]) -> Option<(RawSetting<'_>, &[u8])> {
 }
 
 /// A setting record as [`take_setting`] decodes it.
-pub(super) struct RawSetting<'a> {
-    pub(super) key: &'a [u8],
-    pub(super) tag: u32,
-    pub(super) raw: u32,
-    pub(super) name: &'a [u8],
+struct RawSetting<'a> {
+    key: &'a [u8],
+    tag: u32,
+    raw: u32,
+    name: &'a [u8],
 }
 
 /// A postcard `u32` varint and the rest (postcard's own decoder, which the checksum's
 /// field needs anyway).
-pub(super) fn take_varint(b: &[u8]) -> Option<(u32, &[u8])> {
+fn take_varint(b: &[u8]) -> Option<(u32, &[u8])> {
     postcard::take_from_bytes::<u32>(b).ok()
 }
 
 /// A postcard byte string (varint length, then the bytes) and the rest.
-pub(super) fn take_bytes(b: &[u8]) -> Option<(&[u8], &[u8])> {
+fn take_bytes(b: &[u8]) -> Option<(&[u8], &[u8])> {
     let (n, rest) = take_varint(b)?;
     (rest.len() >= n as usize).then(|| rest.split_at(n as usize))
 }
@@ -261,7 +261,7 @@ impl ChecksumScope {
 #[cfg_attr(not(feature = "legacy-blobs"), allow(dead_code))]
 impl HeaderV3 {
     /// The checked [`Header`] (inner-loop rates first, then the sizes the dims imply).
-    pub(super) fn into_header(self, version: u16) -> Result<Header, BlobError> {
+    fn into_header(self, version: u16) -> Result<Header, BlobError> {
         let settings = self.settings;
         settings.validate()?;
         check_dims_fit(&self.dims, self.map)?;
@@ -413,7 +413,7 @@ impl ModelSpec {
 /// [`BlobError::DegenerateDims`] for a zero width or an inconsistent map
 /// ([`Dims::degenerate_field`]), [`BlobError::DimsTooLarge`] unless every size derived from
 /// the header's dims fits in `usize` ([`Dims::checked_sizes`]).
-pub(super) fn check_dims_fit(d: &DimsRecord, map: MapRecord) -> Result<(), BlobError> {
+fn check_dims_fit(d: &DimsRecord, map: MapRecord) -> Result<(), BlobError> {
     check_model_dims(&d.to_dims(map))
 }
 
@@ -528,7 +528,7 @@ pub(super) fn parse_header(bytes: &[u8], opts: ParseOptions) -> Result<(Header, 
 /// starts, checked with the payload's length before anything in the header is interpreted
 /// (a tampered header is reported as such, not as the odd setting it now holds). Returns
 /// the checksum and the payload.
-pub(super) fn check_whole_blob<'a>(
+fn check_whole_blob<'a>(
     bytes: &'a [u8],
     rest: &'a [u8],
     payload_len: u32,
@@ -563,7 +563,7 @@ pub(super) fn check_whole_blob<'a>(
 /// the inner-loop settings (from [`ModelSpec::BLOB_DEFAULT`]'s: no bit, the paper's rates;
 /// α1 is α2 unless a record names `disc_lr`): every record well formed, its key known,
 /// named once, of its setting's type, a known name, in range.
-pub(super) fn read_settings(
+fn read_settings(
     mut records: &[u8],
     flags: &mut u32,
     settings: &mut AdaptSettings,

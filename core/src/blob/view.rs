@@ -14,15 +14,15 @@ use crate::spec::preset::Dims;
 use crate::spec::schema::{TensorId, NUM_TENSORS};
 
 #[derive(Deserialize)]
-pub(super) struct RecordIn<'a> {
-    pub(super) id: u16,
-    pub(super) rows: u32,
-    pub(super) cols: u32,
-    pub(super) quant: u8,
+struct RecordIn<'a> {
+    id: u16,
+    rows: u32,
+    cols: u32,
+    quant: u8,
     #[serde(borrow)]
-    pub(super) data: &'a [u8],
+    data: &'a [u8],
     #[serde(borrow)]
-    pub(super) scales: &'a [u8],
+    scales: &'a [u8],
 }
 
 /// One tensor of a parsed blob (borrowed from the blob bytes).
@@ -215,10 +215,7 @@ impl<'a> Blob<'a> {
     }
 }
 
-pub(super) fn validate_record<'a>(
-    rec: &RecordIn<'a>,
-    dims: &Dims,
-) -> Result<TensorView<'a>, BlobError> {
+fn validate_record<'a>(rec: &RecordIn<'a>, dims: &Dims) -> Result<TensorView<'a>, BlobError> {
     let id = TensorId::from_raw(rec.id).ok_or(BlobError::UnknownTensor { id: rec.id })?;
     if !id.present(dims) {
         return Err(BlobError::UnknownTensor { id: rec.id });

@@ -6,6 +6,44 @@
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
+/// The logical command lines (continuations joined, comments and blank lines dropped) of every
+/// `sh`/`bash` block of `text`.
+pub fn shell_commands(text: &str) -> Vec<String> {
+    let mut out = Vec::new();
+    let mut in_block = false;
+    let mut pending = String::new();
+    for line in text.lines() {
+        let t = line.trim();
+        if let Some(lang) = t.strip_prefix("```") {
+            in_block = !in_block && matches!(lang, "sh" | "bash" | "shell" | "console");
+            continue;
+        }
+        if !in_block || t.is_empty() || t.starts_with('#') {
+            continue;
+        }
+        let t = t.split(" # ").next().unwrap_or(t).trim_end();
+        if let Some(head) = t.strip_suffix('\\') {
+            pending.push_str(head.trim_end());
+            pending.push(' ');
+        } else {
+            pending.push_str(t);
+            out.push(std::mem::take(&mut pending));
+        }
+    }
+    out
+}
+
+/// The `sh` block of `text` whose first command starts with `first`, as written.
+pub fn sh_block<'a>(text: &'a str, first: &str) -> Option<&'a str> {
+    text.split("```sh\n").skip(1).find_map(|b| {
+        let block = b.split("```").next()?;
+        let cmds = shell_commands(&format!("```sh\n{block}```"));
+        cmds.first()
+            .is_some_and(|c| c.starts_with(first))
+            .then_some(block)
+    })
+}
+
 /// The checkout, as a canonical path.
 pub fn checkout() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))

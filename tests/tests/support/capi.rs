@@ -68,15 +68,6 @@ pub fn include_dir() -> PathBuf {
     root().join("ffi/include")
 }
 
-/// Whether `cmd arg` runs.
-pub fn have(cmd: &str, arg: &str) -> bool {
-    Command::new(cmd)
-        .arg(arg)
-        .output()
-        .map(|o| o.status.success())
-        .unwrap_or(false)
-}
-
 /// The lines the Rust firmware prints for the episode (without its kernel self-test and
 /// measurement lines), computed on the host from the same sources the firmware runs.
 pub fn rust_episode_lines(
