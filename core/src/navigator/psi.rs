@@ -7,7 +7,7 @@ pub(super) const PSI_Q: f32 = 32767.0;
 /// One observation `s` into Ψ's compact form: `q_j = round(s_j * (32767 / a))` (halves
 /// away from zero, to the f32 rounding of `|t| + 0.5`, at most 32767 in magnitude) with
 /// `a = max |s_j|` (all `q_j` 0 when `a` is 0),
-/// read back as `q_j * (a / 32767)`. With `scale` (the [`Footprint::Minimal`] arena) `out`
+/// read back as `q_j * (a / 32767)`. With `scale` (the [`crate::navigator::memory::Footprint::Minimal`] arena) `out`
 /// gets the `q_j` as int16, two per float (entry `2i` in the low half of float `i`'s bits),
 /// and `scale` the scale; without, `out` gets the values read back ([`psi_load`] gives the
 /// same bits from the packed form). `s` is finite (the step checked it).

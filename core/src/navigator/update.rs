@@ -323,9 +323,10 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
     /// Records the step's x_t in Ψ_x (and G's pre-gain output in Ψ_u2, where Ψ keeps it) as
     /// entry `n`, and whether all of Ψ now holds its entries' features. θ changes only in the
     /// inner update and in [`Navigator::reset`], and both empty Ψ, so every entry's x_t
-    /// was made by G at the θ of the next inner update: the bits [`Self::generate_psi_x`]
-    /// would give (the batched kernels give every row the batch-1 bits). Not when the caller
-    /// fixed x_t ([`Navigator::fix_generated_feature`]): Ψ_x is then G's output, regenerated.
+    /// was made by G at the θ of the next inner update: the bits a regeneration by
+    /// [`crate::adapt::inner::x_rows`] would give (the batched kernels give every row the
+    /// batch-1 bits). Not when the caller fixed x_t ([`Navigator::fix_generated_feature`]):
+    /// Ψ_x is then G's output, regenerated.
     pub(super) fn record_psi_features(&mut self, n: usize) {
         let f = self.w.dims.feat;
         let r = self.arena.ram();

@@ -832,8 +832,8 @@ impl<'a> Policy<'a> {
         Ok(())
     }
 
-    /// [`Policy::backward_batch`] through the per-cell layer (the batched
-    /// [`Policy::cell_backward`]; `dcell` is `n x cells x ce`, `cell_tmp` `n x cells x F`).
+    /// [`Policy::backward_batch`] through the per-cell layer (the per-cell part of
+    /// [`Policy::backward`], batched; `dcell` is `n x cells x ce`, `cell_tmp` `n x cells x F`).
     #[allow(clippy::too_many_arguments)]
     fn cell_backward_batch(
         &self,
