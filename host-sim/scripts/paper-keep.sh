@@ -7,7 +7,7 @@
 #   bash host-sim/scripts/paper-keep.sh restore KEEP OUT   # KEEP -> OUT (never overwrites)
 #
 # What is kept of a finished run ROW-sS (one whose ROW/sS.json exists): every evaluation JSON
-# of the sweep (ROW/sS.json, ROW-adaptoff/sS.json, gman-nometa/sS.json, random/s1.json), the
+# of the sweep (ROW/sS.json, ROW-adaptoff/sS.json, gman-nometa/sS.json, random/sS.json), the
 # learning curve (runs/ROW-sS/curve/kN.json and kN.at) and the training curve: metrics.csv
 # reduced to the columns `gman plot` reads (update, episodes, env_steps, success_rate,
 # mean_reward), gzip-compressed, and the run's int8 blob (models/ROW-sS.gman, 345 KB); the

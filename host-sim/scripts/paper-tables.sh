@@ -58,9 +58,12 @@ if [ -n "${ONLY:-}" ]; then
   for r in $ONLY; do case $ps_rows in *" $r "*) needs_ps=1 ;; esac; done
 fi
 [ "$needs_ps" = 0 ] || [ -f "$R/ps/ps.ckpt" ] || $G pretrain-ps "${W[@]}" --seed 1 --out "$R/ps" --quiet
+# the random agent, once per seed (random/sN.json with `--seed N-1`: s1 is the default seed 0)
 mkdir -p "$R/random"
-[ -f "$R/random/s1.json" ] || $G eval "${W[@]}" --split val --agent random \
-  --json "$R/random/s1.json" --quiet
+for s in ${SEEDS:-1 2 3 4 5}; do
+  [ -f "$R/random/s$s.json" ] || $G eval "${W[@]}" --split val --agent random \
+    --seed $((s - 1)) --json "$R/random/s$s.json" --quiet
+done
 
 # The last row of a run's metrics.csv: "update env_steps".
 last() { tail -n 1 "$1/metrics.csv" | awk -F, '{print $1, $3}'; }

@@ -3,9 +3,9 @@
 # evaluated at each domain shift S (`--domain-shift`, host-sim/SIMULATOR.md): the rows a3c,
 # a3c-fg, gman, its control gman-noemd and gman-ref (the reference implementation as released,
 # host-sim/scripts/paper-tables.sh) over SEEDS, the privileged-feature bound over
-# PRIVILEGED_SEEDS and the random agent, at STEPS environment steps per run (default 2 M:
-# the reference-budget sweep's val curves are flat from 2 M on, docs/results.md), all 8000
-# val episodes, with adaptation on and off for the rows with an inner loop.
+# PRIVILEGED_SEEDS and the random agent over SEEDS, at STEPS environment steps per run
+# (default 2 M: the reference-budget sweep's val curves are flat from 2 M on,
+# docs/results.md), all 8000 val episodes, with adaptation on and off for the rows with an inner loop.
 #
 #   DATA=../shared/data/gman OUT=runs/shift KEEP=results/shift nice -n 19 bash host-sim/scripts/shift-study.sh
 #
