@@ -81,6 +81,9 @@ const CLASSIFIED: &[(&str, &str)] = &[
     ("target/release/gman train", "too long for CI: training on the offline data"),
     ("nice -n 5 gman eval", "run at a test budget (5 episodes per file): blocks_run_at_the_test_budget"),
     ("gman bench", "a benchmark: minutes, and its numbers are the machine's"),
+    ("for m in results/shift/models/", "too long for CI: `gman emd-report` of every kept GMAN model of the domain-shift study (2000 val episodes each; `gman emd-report` itself: host-sim/tests/cli.rs)"),
+    ("b=$(basename $m .gman)", "part of the loop above"),
+    ("gman emd-report --data ../shared/data/gman --object-layout thor5 --domain-shift $S", "part of the loop above"),
     // Need what CI does not have.
     ("git clone ", "needs the network"),
     ("apt-get install", "a system package"),
