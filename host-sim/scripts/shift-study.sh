@@ -5,7 +5,8 @@
 # host-sim/scripts/paper-tables.sh) over SEEDS, the privileged-feature bound over
 # PRIVILEGED_SEEDS and the random agent over SEEDS, at STEPS environment steps per run
 # (default 2 M: the reference-budget sweep's val curves are flat from 2 M on,
-# docs/results.md), all 8000 val episodes, with adaptation on and off for the rows with an inner loop.
+# docs/results.md), all 8000 val episodes, with adaptation on and off for the rows with an
+# inner loop.
 #
 #   DATA=../shared/data/gman OUT=runs/shift KEEP=results/shift nice -n 19 bash host-sim/scripts/shift-study.sh
 #

@@ -186,7 +186,8 @@ pub(super) struct HeaderV5Out<'a> {
 }
 
 /// One setting of a format-v5 header as the encoder writes it: its key
-/// ([`crate::spec::setting_key::SETTING_KEYS`]) and its typed value (read back by [`take_setting`]).
+/// ([`crate::spec::setting_key::SETTING_KEYS`]) and its typed value (read back by
+/// [`take_setting`]).
 #[derive(Serialize)]
 pub(super) struct SettingRecord<'a> {
     pub(super) key: &'a str,

@@ -7,10 +7,11 @@ pub(super) const PSI_Q: f32 = 32767.0;
 /// One observation `s` into Ψ's compact form: `q_j = round(s_j * (32767 / a))` (halves
 /// away from zero, to the f32 rounding of `|t| + 0.5`, at most 32767 in magnitude) with
 /// `a = max |s_j|` (all `q_j` 0 when `a` is 0),
-/// read back as `q_j * (a / 32767)`. With `scale` (the [`crate::navigator::memory::Footprint::Minimal`] arena) `out`
-/// gets the `q_j` as int16, two per float (entry `2i` in the low half of float `i`'s bits),
-/// and `scale` the scale; without, `out` gets the values read back ([`psi_load`] gives the
-/// same bits from the packed form). `s` is finite (the step checked it).
+/// read back as `q_j * (a / 32767)`. With `scale` (the
+/// [`crate::navigator::memory::Footprint::Minimal`] arena) `out` gets the `q_j` as int16,
+/// two per float (entry `2i` in the low half of float `i`'s bits), and `scale` the scale;
+/// without, `out` gets the values read back ([`psi_load`] gives the same bits from the
+/// packed form). `s` is finite (the step checked it).
 pub(super) fn psi_store(s: &[f32], out: &mut [f32], scale: Option<&mut f32>) {
     let mut a = 0.0f32;
     for &v in s {

@@ -41,8 +41,8 @@ pub struct Navigator<'w, M: Mode, const K: usize, S = &'w mut [f32]> {
     pub(super) g_pending: bool,
     pub(super) x_valid: bool,
     pub(super) x_fixed: bool,
-    /// The step's G activations (`u2` in [`crate::navigator::arena::Ram`]) are those of its x_t (a
-    /// [`Navigator::generator_output`] probe reuses them as scratch).
+    /// The step's G activations (`u2` in [`crate::navigator::arena::Ram`]) are those of its
+    /// x_t (a [`Navigator::generator_output`] probe reuses them as scratch).
     pub(super) u2_valid: bool,
     /// Every entry of Ψ recorded its x_t (and, where Ψ keeps it, G's pre-gain output) at its
     /// step, from G at the current θ: the inner update need not regenerate Ψ_x.

@@ -520,8 +520,9 @@ impl<'w, M: Mode, const K: usize, S: AsRef<[f32]> + AsMut<[f32]>> Navigator<'w, 
     /// Line 8, the policy on this step's inputs: the map as f32 values (`map`) or as u8
     /// codes with their scale (`map_u8`). With zero noise the fusion layer's terms of x_t
     /// and SE(y) are computed at the first step after a reset or a commit and kept
-    /// (where the policy runs the integer path, [`crate::nets::policy::Policy::keeps_fuse_terms`]). Returns the
-    /// value; the rest is in RAM.
+    /// (where the policy runs the integer path,
+    /// [`crate::nets::policy::Policy::keeps_fuse_terms`]). Returns the value; the rest is in
+    /// RAM.
     fn run_policy(
         &mut self,
         obs: &[f32],

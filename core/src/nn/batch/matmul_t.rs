@@ -6,8 +6,8 @@ use crate::nn::batch::kind::with_kind;
 use crate::nn::batch::kind::{ld8, Kind, LeK, F32K, I8K, M};
 use crate::nn::matrix::{MatRef, Weights};
 
-/// Rows per block of [`crate::nn::batch::matmul_t_acc_rows`] and of the hosts' `mt_seg`: the row coefficients
-/// of a block are computed once into a small buffer on the stack.
+/// Rows per block of [`crate::nn::batch::matmul_t_acc_rows`] and of the hosts' `mt_seg`: the
+/// row coefficients of a block are computed once into a small buffer on the stack.
 pub(super) const MT_ROWS: usize = 64;
 
 /// The shape check of the `dx += W^T dy` bodies: `dy` is `n x rows`, the segments of `dx`
