@@ -32,6 +32,8 @@ set -euo pipefail
 cd "${REPO:-$(dirname "$0")/../..}"
 D=${DATA:-../shared/data/gman}
 LAYOUT=${LAYOUT:-thor5}
+SEEDS=${SEEDS:-1 2 3 4 5}
+EXTRA_SEEDS=${EXTRA_SEEDS:-1 2 3}
 # the world of every command: the data, the object layout and the domain shift (SHIFT, default 1,
 # host-sim/SIMULATOR.md "Domain shift")
 W=(--data "$D" --object-layout "$LAYOUT" --domain-shift "${SHIFT:-1}")
@@ -60,7 +62,7 @@ fi
 [ "$needs_ps" = 0 ] || [ -f "$R/ps/ps.ckpt" ] || $G pretrain-ps "${W[@]}" --seed 1 --out "$R/ps" --quiet
 # the random agent, once per seed (random/sN.json with `--seed N-1`: s1 is the default seed 0)
 mkdir -p "$R/random"
-for s in ${SEEDS:-1 2 3 4 5}; do
+for s in $SEEDS; do
   [ -f "$R/random/s$s.json" ] || $G eval "${W[@]}" --split val --agent random \
     --seed $((s - 1)) --json "$R/random/s$s.json" --quiet
 done
@@ -163,8 +165,7 @@ extra_rows() {
   run a3c-ps a3c-ps "$1" --ps "$R/ps/ps.ckpt"
   run a3c-fg-ps a3c-fg-ps "$1" --ps "$R/ps/ps.ckpt"
 }
-EXTRA_SEEDS=${EXTRA_SEEDS:-1 2 3}
-for s in ${SEEDS:-1 2 3 4 5}; do
+for s in $SEEDS; do
   main_rows "$s"
   case " $EXTRA_SEEDS " in *" $s "*) extra_rows "$s" ;; esac
 done
