@@ -24,6 +24,11 @@ pub struct ShiftReportArgs {
     /// sample std over seeds) into this PNG.
     #[arg(long, value_name = "FILE")]
     pub png: Option<PathBuf>,
+    /// Print instead the per-model table of the `gman emd-report` results kept in `DIR/emd/`
+    /// (`S-sN.json`, the gman row's model at level S, seed N), on unseen targets, beside the
+    /// model's adaptation on − off (`DIR/S/gman/sN.json` − `DIR/S/gman-adaptoff/sN.json`).
+    #[arg(long)]
+    pub emd: bool,
 }
 
 /// One row at one level: seed -> (unseen SR, seen SR, unseen SPL).
@@ -244,6 +249,107 @@ fn print(study: &Study, markdown: bool) {
     println!();
 }
 
+/// One kept `gman emd-report` result: level, seed, and its unseen-target figures.
+struct EmdRow {
+    level: (f64, String),
+    seed: u32,
+    moved: f64,
+    closed_percent: f64,
+    adaptations: f64,
+    rollbacks_per_update: f64,
+}
+
+/// Reads `DIR/emd/S-sN.json`, ordered by level then seed.
+fn read_emd(dir: &Path) -> Result<Vec<EmdRow>> {
+    let emd = dir.join("emd");
+    let mut out = Vec::new();
+    for e in std::fs::read_dir(&emd).with_context(|| format!("reading {}", emd.display()))? {
+        let p = e?.path();
+        let name = p.file_name().and_then(|n| n.to_str()).unwrap_or_default();
+        let Some(stem) = name.strip_suffix(".json") else {
+            continue;
+        };
+        let parsed = stem.rsplit_once("-s").and_then(|(l, n)| {
+            let s = l.parse::<f64>().ok()?;
+            Some(((s, l.to_string()), n.parse::<u32>().ok()?))
+        });
+        let Some((level, seed)) = parsed else {
+            bail!(
+                "{}: not named S-sN.json (level S, seed N, e.g. 0.5-s2.json)",
+                p.display()
+            );
+        };
+        let text =
+            std::fs::read_to_string(&p).with_context(|| format!("reading {}", p.display()))?;
+        let v: serde_json::Value =
+            serde_json::from_str(&text).with_context(|| format!("parsing {}", p.display()))?;
+        out.push(EmdRow {
+            level,
+            seed,
+            moved: number(&v, &["unseen", "moved"], &p)?,
+            closed_percent: number(&v, &["unseen", "closed_percent"], &p)?,
+            adaptations: number(&v, &["unseen", "adaptations"], &p)?,
+            rollbacks_per_update: number(&v, &["unseen", "rollbacks_per_update"], &p)?,
+        });
+    }
+    if out.is_empty() {
+        bail!("{}: no emd-report results (S-sN.json)", emd.display());
+    }
+    out.sort_by(|a, b| a.level.0.total_cmp(&b.level.0).then(a.seed.cmp(&b.seed)));
+    Ok(out)
+}
+
+/// The per-model table of `--emd`.
+fn print_emd(study: &Study, rows: &[EmdRow], markdown: bool) {
+    let head = [
+        "S",
+        "seed",
+        "on − off unseen SR",
+        "G moved",
+        "distance to the true feature closed",
+        "inner updates per episode",
+        "rollbacks per update",
+    ];
+    let line = |cells: &[String]| {
+        if markdown {
+            println!("| {} |", cells.join(" | "));
+        } else {
+            println!("{}", cells.join("  "));
+        }
+    };
+    println!("Inner-loop effect on unseen targets, per gman model (gman emd-report):");
+    println!();
+    line(&head.map(String::from));
+    if markdown {
+        println!("|---|---|---:|---:|---:|---:|---:|");
+    }
+    for r in rows {
+        let seed = format!("s{}", r.seed);
+        let cell = |row: &str| {
+            study
+                .cells
+                .get(&r.level.1)
+                .and_then(|c| c.get(row))
+                .and_then(|s| s.get(&seed))
+                .map(|v| v[0])
+        };
+        let diff = match (cell("gman"), cell("gman-adaptoff")) {
+            (Some(on), Some(off)) => format!("{:+.2}", on - off),
+            _ => "".into(),
+        };
+        line(&[
+            r.level.1.clone(),
+            r.seed.to_string(),
+            diff,
+            format!("{:.3}", r.moved),
+            format!("{:+.1}%", r.closed_percent),
+            format!("{:.2}", r.adaptations),
+            format!("{:.2}", r.rollbacks_per_update),
+        ]);
+    }
+    println!();
+}
+
 /// Unseen SR against S, one line per row.
 fn draw(study: &Study, png: &Path) -> Result<()> {
     use plotters::prelude::*;
@@ -328,7 +434,11 @@ fn draw(study: &Study, png: &Path) -> Result<()> {
 /// Runs `gman shift-report`.
 pub fn cmd_shift_report(a: ShiftReportArgs) -> Result<()> {
     let study = read_study(&a.dir)?;
-    print(&study, a.markdown);
+    if a.emd {
+        print_emd(&study, &read_emd(&a.dir)?, a.markdown);
+    } else {
+        print(&study, a.markdown);
+    }
     if let Some(png) = &a.png {
         draw(&study, png).with_context(|| format!("drawing {}", png.display()))?;
         eprintln!("wrote {}", png.display());
@@ -374,5 +484,33 @@ mod tests {
         assert_eq!(compare(Some(one), Some(one), false), "+0.00 (Welch t n/a)");
         let _ = std::fs::remove_dir_all(&d);
         assert!(read_study(&d).is_err());
+    }
+
+    #[test]
+    fn emd_rows_are_ordered_and_misnamed_files_refused() {
+        let d = std::env::temp_dir().join(format!("gman-shift-emd-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&d);
+        std::fs::create_dir_all(d.join("emd")).unwrap();
+        let emd = |rel: &str, moved: f64| {
+            let j = serde_json::json!({"unseen": {"moved": moved, "closed_percent": -1.5,
+                "adaptations": 2.5, "rollbacks_per_update": 0.0}});
+            std::fs::write(d.join("emd").join(rel), j.to_string()).unwrap();
+        };
+        emd("2-s1.json", 0.5);
+        emd("0.25-s10.json", 0.25);
+        emd("0.25-s2.json", 0.125);
+        let rows = read_emd(&d).unwrap();
+        let order: Vec<(&str, u32)> = rows.iter().map(|r| (r.level.1.as_str(), r.seed)).collect();
+        assert_eq!(order, [("0.25", 2), ("0.25", 10), ("2", 1)]);
+        assert_eq!(rows[2].moved, 0.5);
+        // A file without a number where one belongs names the file.
+        std::fs::write(d.join("emd/1-s1.json"), r#"{"unseen": {"moved": "x"}}"#).unwrap();
+        let e = format!("{:#}", read_emd(&d).err().unwrap());
+        assert!(e.contains("1-s1.json") && e.contains("unseen.moved"), "{e}");
+        std::fs::remove_file(d.join("emd/1-s1.json")).unwrap();
+        std::fs::write(d.join("emd/gman.json"), "{}").unwrap();
+        let e = format!("{:#}", read_emd(&d).err().unwrap());
+        assert!(e.contains("gman.json") && e.contains("S-sN.json"), "{e}");
+        let _ = std::fs::remove_dir_all(&d);
     }
 }
