@@ -5,7 +5,7 @@
 
 mod common;
 
-use common::scratch::{sh_block, shell_commands};
+use common::scratch::{block_commands, sh_block, shell_commands};
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -192,7 +192,7 @@ fn blocks_run_at_the_test_budget() {
     let scripts: Vec<(&str, String)> = listed_blocks(RUN_AT_TEST_BUDGET)
         .into_iter()
         .map(|(file, block)| {
-            let cmds = shell_commands(&format!("```sh\n{block}```"));
+            let cmds = block_commands(&block);
             let script: Vec<String> = cmds.iter().map(|c| at_test_budget(c, true)).collect();
             (file, script.join("\n"))
         })

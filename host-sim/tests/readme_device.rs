@@ -10,7 +10,7 @@
 
 mod common;
 
-use common::scratch::{at_test_budget, checkout, device_tools, sh_block, shell_commands, Scratch};
+use common::scratch::{at_test_budget, block_commands, checkout, device_tools, sh_block, Scratch};
 
 /// The commands of the README's device block.
 fn device_block(readme: &str) -> Vec<String> {
@@ -20,7 +20,7 @@ fn device_block(readme: &str) -> Vec<String> {
         .expect("README.md has a section \"Train, export, run on the device\"");
     let block = sh_block(section, "gman train ")
         .expect("the section's ```sh block starts with `gman train`");
-    shell_commands(&format!("```sh\n{block}```"))
+    block_commands(block)
 }
 
 #[test]

@@ -10,15 +10,35 @@ use std::process::{Command, Output};
 /// `sh`/`bash` block of `text`.
 pub fn shell_commands(text: &str) -> Vec<String> {
     let mut out = Vec::new();
-    let mut in_block = false;
-    let mut pending = String::new();
+    let mut body: Option<String> = None;
     for line in text.lines() {
-        let t = line.trim();
-        if let Some(lang) = t.strip_prefix("```") {
-            in_block = !in_block && matches!(lang, "sh" | "bash" | "shell" | "console");
+        if let Some(lang) = line.trim().strip_prefix("```") {
+            match body.take() {
+                Some(b) => out.extend(block_commands(&b)),
+                None if matches!(lang, "sh" | "bash" | "shell" | "console") => {
+                    body = Some(String::new())
+                }
+                None => {}
+            }
             continue;
         }
-        if !in_block || t.is_empty() || t.starts_with('#') {
+        if let Some(b) = body.as_mut() {
+            b.push_str(line);
+            b.push('\n');
+        }
+    }
+    // A block left open at the end of the text still holds its commands.
+    out.extend(body.iter().flat_map(|b| block_commands(b)));
+    out
+}
+
+/// The logical command lines of one block's body, as [`shell_commands`] reads them.
+pub fn block_commands(body: &str) -> Vec<String> {
+    let mut out = Vec::new();
+    let mut pending = String::new();
+    for line in body.lines() {
+        let t = line.trim();
+        if t.is_empty() || t.starts_with('#') {
             continue;
         }
         let t = t.split(" # ").next().unwrap_or(t).trim_end();
@@ -37,8 +57,8 @@ pub fn shell_commands(text: &str) -> Vec<String> {
 pub fn sh_block<'a>(text: &'a str, first: &str) -> Option<&'a str> {
     text.split("```sh\n").skip(1).find_map(|b| {
         let block = b.split("```").next()?;
-        let cmds = shell_commands(&format!("```sh\n{block}```"));
-        cmds.first()
+        block_commands(block)
+            .first()
             .is_some_and(|c| c.starts_with(first))
             .then_some(block)
     })
