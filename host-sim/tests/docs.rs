@@ -84,6 +84,7 @@ const CLASSIFIED: &[(&str, &str)] = &[
     ("for m in results/shift/models/", "too long for CI: `gman emd-report` of every kept GMAN model of the domain-shift study (2000 val episodes each; `gman emd-report` itself: host-sim/tests/cli.rs)"),
     ("b=$(basename $m .gman)", "part of the loop above"),
     ("gman emd-report --data ../shared/data/gman --object-layout thor5 --domain-shift $S", "part of the loop above"),
+    ("DATA=../shared/data/gman nice -n 10 bash host-sim/scripts/shift-step0.sh", "too long for CI: two 8000-episode evaluations of every kept gman and gman-ref blob of the domain-shift study (`gman eval --inner-lr 0` itself: host-sim/tests/cli.rs)"),
     // Need what CI does not have.
     ("git clone ", "needs the network"),
     ("apt-get install", "a system package"),

@@ -1,0 +1,40 @@
+#!/usr/bin/env bash
+# The zero-step control of the domain-shift study (docs/domain-shift.md, "The zero-step
+# control"): every kept int8 blob of a row with an inner loop (results/shift/models/S-ROW-sN.gman,
+# ROW in ROWS, default gman gman-ref), evaluated on all 8000 val episodes at its own S twice:
+# with adaptation on, and with the inner loop running at a zero rate (--inner-lr 0: α1 = α2 = 0,
+# so the same updates run and draw the same random numbers, and no parameter moves). Kept as
+# results/shift/S/ROW-int8/sN.json and results/shift/S/ROW-int8-step0/sN.json; what exists is
+# skipped, so the script resumes and picks up new blobs.
+#
+#   DATA=../shared/data/gman nice -n 10 bash host-sim/scripts/shift-step0.sh
+#
+# GMAN=path/to/gman picks the binary (default: target/release/gman, built if missing).
+set -euo pipefail
+cd "${REPO:-$(dirname "$0")/../..}"
+D=${DATA:-../shared/data/gman}
+K=${KEEP:-results/shift}
+ROWS=${ROWS:-gman gman-ref}
+G=${GMAN:-target/release/gman}
+[ -x "$G" ] || cargo build --release -p gman-host-sim --bin gman
+for row in $ROWS; do
+  for m in "$K"/models/*-"$row"-s*.gman; do
+    [ -f "$m" ] || continue
+    b=$(basename "$m" .gman)
+    S=${b%%-"$row"-s*}
+    s=${b##*-"$row"-s}
+    # (a longer row name that ends like this one, e.g. S-gman-ref-sN for gman, is not this row)
+    case $S in *[!0-9.]*) continue ;; esac
+    for v in int8 int8-step0; do
+      out=$K/$S/$row-$v/s$s.json
+      [ -f "$out" ] && continue
+      mkdir -p "$(dirname "$out")"
+      extra=()
+      [ "$v" = int8-step0 ] && extra=(--inner-lr 0)
+      "$G" eval --data "$D" --object-layout thor5 --domain-shift "$S" --split val \
+        --agent "$m" "${extra[@]}" --json "$out.tmp" --quiet
+      mv "$out.tmp" "$out"
+      echo "[$(date +%H:%M:%S)] $out"
+    done
+  done
+done
