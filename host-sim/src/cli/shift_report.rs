@@ -1,6 +1,7 @@
 //! `gman shift-report`: the domain-shift study's table and picture from its kept evaluations
 //! (`host-sim/scripts/shift-study.sh` writes `DIR/S/ROW/sN.json`, adaptation off
-//! `DIR/S/ROW-adaptoff/sN.json`).
+//! `DIR/S/ROW-adaptoff/sN.json`; `host-sim/scripts/shift-step0.sh` the zero-step control's
+//! `DIR/S/ROW-int8/sN.json` and `DIR/S/ROW-int8-step0/sN.json`).
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -26,7 +27,8 @@ pub struct ShiftReportArgs {
     pub png: Option<PathBuf>,
     /// Print instead the per-model table of the `gman emd-report` results kept in `DIR/emd/`
     /// (`S-sN.json`, the gman row's model at level S, seed N), on unseen targets, beside the
-    /// model's adaptation on − off (`DIR/S/gman/sN.json` − `DIR/S/gman-adaptoff/sN.json`).
+    /// model's adaptation on − off (`DIR/S/gman/sN.json` − `DIR/S/gman-adaptoff/sN.json`) and
+    /// on − step 0 (`DIR/S/gman-int8/sN.json` − `DIR/S/gman-int8-step0/sN.json`).
     #[arg(long)]
     pub emd: bool,
 }
@@ -116,7 +118,7 @@ fn read_study(dir: &Path) -> Result<Study> {
 
 /// The rows in the study's order, then any other.
 fn row_order(study: &Study) -> Vec<String> {
-    const ORDER: [&str; 10] = [
+    const ORDER: [&str; 14] = [
         "random",
         "a3c",
         "a3c-fg",
@@ -127,6 +129,10 @@ fn row_order(study: &Study) -> Vec<String> {
         "gman-ref-adaptoff",
         "privileged",
         "gman-nometa",
+        "gman-int8",
+        "gman-int8-step0",
+        "gman-ref-int8",
+        "gman-ref-int8-step0",
     ];
     let mut all: Vec<String> = study
         .cells
@@ -225,11 +231,23 @@ fn print(study: &Study, markdown: bool) {
     println!("Unseen SR differences per level:");
     println!();
     let mut head = vec!["S".to_string()];
-    let pairs: [(&str, &str, &str, bool); 5] = [
+    let pairs: [(&str, &str, &str, bool); 7] = [
         ("gman − gman-noemd", "gman", "gman-noemd", false),
         ("gman − a3c-fg", "gman", "a3c-fg", false),
         ("gman on − off", "gman", "gman-adaptoff", true),
+        (
+            "gman on − step 0 (int8)",
+            "gman-int8",
+            "gman-int8-step0",
+            true,
+        ),
         ("gman-ref on − off", "gman-ref", "gman-ref-adaptoff", true),
+        (
+            "gman-ref on − step 0 (int8)",
+            "gman-ref-int8",
+            "gman-ref-int8-step0",
+            true,
+        ),
         ("a3c − random", "a3c", "random", false),
     ];
     head.extend(pairs.iter().map(|p| p.0.to_string()));
@@ -305,6 +323,7 @@ fn print_emd(study: &Study, rows: &[EmdRow], markdown: bool) {
         "S",
         "seed",
         "on − off unseen SR",
+        "on − step 0 (int8)",
         "G moved",
         "distance to the true feature closed",
         "inner updates per episode",
@@ -321,7 +340,7 @@ fn print_emd(study: &Study, rows: &[EmdRow], markdown: bool) {
     println!();
     line(&head.map(String::from));
     if markdown {
-        println!("|---|---|---:|---:|---:|---:|---:|");
+        println!("|---|---|---:|---:|---:|---:|---:|---:|");
     }
     for r in rows {
         let seed = format!("s{}", r.seed);
@@ -333,14 +352,15 @@ fn print_emd(study: &Study, rows: &[EmdRow], markdown: bool) {
                 .and_then(|s| s.get(&seed))
                 .map(|v| v[0])
         };
-        let diff = match (cell("gman"), cell("gman-adaptoff")) {
+        let diff = |on: &str, off: &str| match (cell(on), cell(off)) {
             (Some(on), Some(off)) => format!("{:+.2}", on - off),
             _ => "".into(),
         };
         line(&[
             r.level.1.clone(),
             r.seed.to_string(),
-            diff,
+            diff("gman", "gman-adaptoff"),
+            diff("gman-int8", "gman-int8-step0"),
             format!("{:.3}", r.moved),
             format!("{:+.1}%", r.closed_percent),
             format!("{:.2}", r.adaptations),
@@ -350,11 +370,15 @@ fn print_emd(study: &Study, rows: &[EmdRow], markdown: bool) {
     println!();
 }
 
-/// Unseen SR against S, one line per row.
+/// Unseen SR against S, one line per row (not the zero-step control's `-int8` rows, which
+/// repeat `gman` and `gman-ref` on the int8 blobs: their on − step 0 is in the table).
 fn draw(study: &Study, png: &Path) -> Result<()> {
     use plotters::prelude::*;
     let labels = gman_render::register_plot_font();
-    let rows = row_order(study);
+    let rows: Vec<String> = row_order(study)
+        .into_iter()
+        .filter(|r| !r.contains("-int8"))
+        .collect();
     let xmax = study.levels.last().map_or(1.0, |l| l.0).max(1.0) * 1.05;
     let ymax = study
         .cells
