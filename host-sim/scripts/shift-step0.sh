@@ -2,8 +2,9 @@
 # The zero-step control of the domain-shift study (docs/domain-shift.md, "The zero-step
 # control"): every kept int8 blob of a row with an inner loop (results/shift/models/S-ROW-sN.gman,
 # ROW in ROWS, default gman gman-ref), evaluated on all 8000 val episodes at its own S twice:
-# with adaptation on, and with the inner loop running at a zero rate (--inner-lr 0: α1 = α2 = 0,
-# so the same updates run and draw the same random numbers, and no parameter moves). Kept as
+# with adaptation on, and with the inner loop running at a zero rate (--inner-lr 0 sets α2 = 0;
+# α1 is then 0 too, gman's α1 being α2 and gman-ref's its own 0), so the same updates run and
+# draw the same random numbers, and no parameter moves (tests/tests/navigator.rs). Kept as
 # results/shift/S/ROW-int8/sN.json and results/shift/S/ROW-int8-step0/sN.json; what exists is
 # skipped, so the script resumes and picks up new blobs.
 #

@@ -390,6 +390,51 @@ fn bad_inputs_and_injected_nan_are_handled() {
     assert_eq!(before[4], after[4], "φ must be untouched");
 }
 
+/// The zero-step control of the domain-shift study (`gman eval --inner-lr 0`): at α1 = α2 = 0
+/// every inner update runs, is applied (not rolled back), and moves no parameter and no bit
+/// of x_t.
+#[test]
+fn zero_inner_rate_runs_every_update_and_moves_nothing() {
+    let dims = Dims::MCU;
+    let w = weights(&dims, 8, 0.05);
+    let cfg = NavConfig {
+        model: ModelSpec {
+            inner_lr: 0.0,
+            max_inner: 30,
+            noise: NoiseMode::Zero,
+            ..NavConfig::default().model
+        },
+        ..NavConfig::default()
+    };
+    let mut arena = vec![0.0f32; Navigator::<Full, 10>::arena_len(&dims)];
+    let mut nav: Navigator<'_, Full, 10> =
+        Navigator::new(nav_weights(&dims, &w), &mut arena, cfg).unwrap();
+    nav.reset(&[0.4; 45], 3).unwrap();
+    nav.step(&[0.5; 512], &[]).unwrap();
+    let before = core_snapshot(&nav, false);
+    let x0: Vec<u32> = nav
+        .generated_feature()
+        .iter()
+        .map(|v| v.to_bits())
+        .collect();
+    let mut rng = Xoshiro128::seed_from_u64(4);
+    for _ in 0..99 {
+        let obs: Vec<f32> = (0..512).map(|_| uniform(&mut rng)).collect();
+        nav.step(&obs, &[]).unwrap();
+    }
+    let c = nav.counters();
+    assert_eq!((c.adaptations, c.rollbacks), (10, 0));
+    let r = nav.last_adaptation();
+    assert!(r.disc_applied && r.adapt_applied, "{r:?}");
+    assert_eq!(before, core_snapshot(&nav, false), "no parameter may move");
+    let x1: Vec<u32> = nav
+        .generated_feature()
+        .iter()
+        .map(|v| v.to_bits())
+        .collect();
+    assert_eq!(x0, x1, "x_t must keep its bits");
+}
+
 /// Observations share an offset from what G generates: D learns to separate them and G's
 /// output follows the observations (Fig. 3 of the paper, in miniature).
 #[test]
