@@ -390,6 +390,24 @@ fn bad_inputs_and_injected_nan_are_handled() {
     assert_eq!(before[4], after[4], "φ must be untouched");
 }
 
+/// Zero noise and up to 30 inner updates per episode at rates α2 = `inner_lr` and
+/// α1 = `disc_lr` (α2 when `None`).
+fn long_episode(inner_lr: f32, disc_lr: Option<f32>) -> NavConfig {
+    NavConfig {
+        model: ModelSpec {
+            inner_lr,
+            max_inner: 30,
+            noise: NoiseMode::Zero,
+            inner_rule: InnerRule {
+                disc_lr,
+                ..InnerRule::PAPER
+            },
+            ..NavConfig::default().model
+        },
+        ..NavConfig::default()
+    }
+}
+
 /// The zero-step control of the domain-shift study (`gman eval --inner-lr 0`): at α1 = α2 = 0
 /// every inner update runs, is applied (not rolled back), and moves no parameter and no bit
 /// of x_t.
@@ -397,26 +415,14 @@ fn bad_inputs_and_injected_nan_are_handled() {
 fn zero_inner_rate_runs_every_update_and_moves_nothing() {
     let dims = Dims::MCU;
     let w = weights(&dims, 8, 0.05);
-    let cfg = NavConfig {
-        model: ModelSpec {
-            inner_lr: 0.0,
-            max_inner: 30,
-            noise: NoiseMode::Zero,
-            ..NavConfig::default().model
-        },
-        ..NavConfig::default()
-    };
     let mut arena = vec![0.0f32; Navigator::<Full, 10>::arena_len(&dims)];
     let mut nav: Navigator<'_, Full, 10> =
-        Navigator::new(nav_weights(&dims, &w), &mut arena, cfg).unwrap();
+        Navigator::new(nav_weights(&dims, &w), &mut arena, long_episode(0.0, None)).unwrap();
     nav.reset(&[0.4; 45], 3).unwrap();
     nav.step(&[0.5; 512], &[]).unwrap();
     let before = core_snapshot(&nav, false);
-    let x0: Vec<u32> = nav
-        .generated_feature()
-        .iter()
-        .map(|v| v.to_bits())
-        .collect();
+    let bits = |x: &[f32]| x.iter().map(|v| v.to_bits()).collect::<Vec<u32>>();
+    let x0 = bits(nav.generated_feature());
     let mut rng = Xoshiro128::seed_from_u64(4);
     for _ in 0..99 {
         let obs: Vec<f32> = (0..512).map(|_| uniform(&mut rng)).collect();
@@ -427,12 +433,7 @@ fn zero_inner_rate_runs_every_update_and_moves_nothing() {
     let r = nav.last_adaptation();
     assert!(r.disc_applied && r.adapt_applied, "{r:?}");
     assert_eq!(before, core_snapshot(&nav, false), "no parameter may move");
-    let x1: Vec<u32> = nav
-        .generated_feature()
-        .iter()
-        .map(|v| v.to_bits())
-        .collect();
-    assert_eq!(x0, x1, "x_t must keep its bits");
+    assert_eq!(x0, bits(nav.generated_feature()), "x_t must keep its bits");
 }
 
 /// Observations share an offset from what G generates: D learns to separate them and G's
@@ -441,22 +442,13 @@ fn zero_inner_rate_runs_every_update_and_moves_nothing() {
 fn adaptation_moves_generated_feature_towards_observations() {
     let dims = Dims::MCU;
     let w = weights(&dims, 8, 0.05);
-    let cfg = NavConfig {
-        model: ModelSpec {
-            inner_lr: 0.2,
-            max_inner: 30,
-            noise: NoiseMode::Zero,
-            inner_rule: InnerRule {
-                disc_lr: Some(0.05),
-                ..InnerRule::PAPER
-            },
-            ..NavConfig::default().model
-        },
-        ..NavConfig::default()
-    };
     let mut arena = vec![0.0f32; Navigator::<Full, 10>::arena_len(&dims)];
-    let mut nav: Navigator<'_, Full, 10> =
-        Navigator::new(nav_weights(&dims, &w), &mut arena, cfg).unwrap();
+    let mut nav: Navigator<'_, Full, 10> = Navigator::new(
+        nav_weights(&dims, &w),
+        &mut arena,
+        long_episode(0.2, Some(0.05)),
+    )
+    .unwrap();
     nav.reset(&[0.4; 45], 3).unwrap();
     nav.step(&[0.5; 512], &[]).unwrap();
     let x0: Vec<f32> = nav.generated_feature().to_vec();
