@@ -6,7 +6,9 @@
 # α1 is then 0 too, gman's α1 being α2 and gman-ref's its own 0), so the same updates run and
 # draw the same random numbers, and no parameter moves (tests/tests/navigator.rs). Kept as
 # results/shift/S/ROW-int8/sN.json and results/shift/S/ROW-int8-step0/sN.json; what exists is
-# skipped, so the script resumes and picks up new blobs.
+# skipped, so the script resumes and picks up new blobs. KEEP=results/paper runs the same
+# control on the reference-budget sweep's blobs (models/ROW-sN.gman, at S = 1), kept as
+# results/paper/ROW-int8/sN.json and results/paper/ROW-int8-step0/sN.json.
 #
 #   DATA=../shared/data/gman nice -n 10 bash host-sim/scripts/shift-step0.sh
 #
@@ -19,15 +21,19 @@ ROWS=${ROWS:-gman gman-ref}
 G=${GMAN:-target/release/gman}
 [ -x "$G" ] || cargo build --release -p gman-host-sim --bin gman
 for row in $ROWS; do
-  for m in "$K"/models/*-"$row"-s*.gman; do
+  for m in "$K"/models/*"$row"-s*.gman; do
     [ -f "$m" ] || continue
     b=$(basename "$m" .gman)
-    S=${b%%-"$row"-s*}
-    s=${b##*-"$row"-s}
+    s=${b##*"$row"-s}
+    case $b in
+      "$row"-s*) S=1 dir=$K/$row ;;  # a sweep at the default simulator: models/ROW-sN.gman
+      *-"$row"-s*) S=${b%%-"$row"-s*} dir=$K/$S/$row ;;
+      *) continue ;;
+    esac
     # (a longer row name that ends like this one, e.g. S-gman-ref-sN for gman, is not this row)
-    case $S in *[!0-9.]*) continue ;; esac
+    case $S$s in *[!0-9.]*) continue ;; esac
     for v in int8 int8-step0; do
-      out=$K/$S/$row-$v/s$s.json
+      out=$dir-$v/s$s.json
       [ -f "$out" ] && continue
       mkdir -p "$(dirname "$out")"
       extra=()
