@@ -39,8 +39,8 @@ for row in $ROWS; do
       extra=()
       [ "$v" = int8-step0 ] && extra=(--inner-lr 0)
       "$G" eval --data "$D" --object-layout thor5 --domain-shift "$S" --split val \
-        --agent "$m" "${extra[@]}" --json "$out.tmp" --quiet
-      mv "$out.tmp" "$out"
+        --agent "$m" "${extra[@]}" --json "$out.$$.tmp" --quiet
+      mv "$out.$$.tmp" "$out"  # (per-process name: two workers may meet on one file)
       echo "[$(date +%H:%M:%S)] $out"
     done
   done
