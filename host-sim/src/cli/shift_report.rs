@@ -53,6 +53,12 @@ fn number(v: &serde_json::Value, path: &[&str], file: &Path) -> Result<f64> {
         .with_context(|| format!("{}: {} is not a number", file.display(), path.join(".")))
 }
 
+/// A kept JSON file, its errors naming it.
+fn read_json(p: &Path) -> Result<serde_json::Value> {
+    let text = std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?;
+    serde_json::from_str(&text).with_context(|| format!("parsing {}", p.display()))
+}
+
 fn read_seeds(dir: &Path) -> Result<Seeds> {
     let mut out = Seeds::new();
     for e in std::fs::read_dir(dir).with_context(|| format!("reading {}", dir.display()))? {
@@ -61,10 +67,7 @@ fn read_seeds(dir: &Path) -> Result<Seeds> {
         if !(name.starts_with('s') && name.ends_with(".json")) {
             continue;
         }
-        let text =
-            std::fs::read_to_string(&p).with_context(|| format!("reading {}", p.display()))?;
-        let v: serde_json::Value =
-            serde_json::from_str(&text).with_context(|| format!("parsing {}", p.display()))?;
+        let v = read_json(&p)?;
         let seed = name.trim_end_matches(".json").to_string();
         out.insert(
             seed,
@@ -201,16 +204,18 @@ fn fmt_t(t: f64) -> String {
     }
 }
 
+/// One table line: a Markdown row, or the cells two spaces apart.
+fn print_line(cells: &[String], markdown: bool) {
+    if markdown {
+        println!("| {} |", cells.join(" | "));
+    } else {
+        println!("{}", cells.join("  "));
+    }
+}
+
 fn print(study: &Study, markdown: bool) {
     let rows = row_order(study);
-    let sep = if markdown { " | " } else { "  " };
-    let line = |cells: Vec<String>| {
-        if markdown {
-            println!("| {} |", cells.join(sep));
-        } else {
-            println!("{}", cells.join(sep));
-        }
-    };
+    let line = |cells: Vec<String>| print_line(&cells, markdown);
     println!("Val SR unseen ± std / seen ± std / unseen SPL (seeds), per domain shift S:");
     println!();
     let mut head = vec!["row".to_string()];
@@ -297,10 +302,7 @@ fn read_emd(dir: &Path) -> Result<Vec<EmdRow>> {
                 p.display()
             );
         };
-        let text =
-            std::fs::read_to_string(&p).with_context(|| format!("reading {}", p.display()))?;
-        let v: serde_json::Value =
-            serde_json::from_str(&text).with_context(|| format!("parsing {}", p.display()))?;
+        let v = read_json(&p)?;
         out.push(EmdRow {
             level,
             seed,
@@ -329,13 +331,7 @@ fn print_emd(study: &Study, rows: &[EmdRow], markdown: bool) {
         "inner updates per episode",
         "rollbacks per update",
     ];
-    let line = |cells: &[String]| {
-        if markdown {
-            println!("| {} |", cells.join(" | "));
-        } else {
-            println!("{}", cells.join("  "));
-        }
-    };
+    let line = |cells: &[String]| print_line(cells, markdown);
     println!("Inner-loop effect on unseen targets, per gman model (gman emd-report):");
     println!();
     line(&head.map(String::from));
