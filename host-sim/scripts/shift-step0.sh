@@ -30,7 +30,7 @@ for row in $ROWS; do
       *-"$row"-s*) S=${b%%-"$row"-s*} dir=$K/$S/$row ;;
       *) continue ;;
     esac
-    # (a longer row name that ends like this one, e.g. S-gman-ref-sN for gman, is not this row)
+    # (S and N must be numbers: a name like models/x-gman-s1.gman belongs to another row)
     case $S$s in *[!0-9.]*) continue ;; esac
     for v in int8 int8-step0; do
       out=$dir-$v/s$s.json
